@@ -1,0 +1,79 @@
+"""Timing benchmarks: median and p95 in µs of the pieces of one 1 kHz control step.
+
+Each entry builds its objects once and returns a zero-argument callable that is timed
+repeatedly. Figures are also given as a share of the 1000 µs real-time budget.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+import robots
+from app.sim.world import World
+from control.model import RobotModel
+
+BUDGET_US = 1000.0
+
+
+def time_call(fn: Callable[[], object], repeats: int = 300, warmup: int = 20) -> dict:
+    """Median / p95 wall time of fn() in µs."""
+    for _ in range(warmup):
+        fn()
+    samples = np.empty(repeats)
+    for i in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        samples[i] = time.perf_counter() - t0
+    us = samples * 1e6
+    med = float(np.median(us))
+    return {"median_us": med, "p95_us": float(np.percentile(us, 95)), "share_of_1ms": med / BUDGET_US}
+
+
+def _snapshot(robot):
+    model = RobotModel(robot.model)
+    q, dq = robot.home, np.full(7, 0.1)
+    return lambda: model.compute(q, dq)
+
+
+def _dlambda_analytic(robot):
+    model = RobotModel(robot.model)
+    dyn = model.compute(robot.home, np.zeros(7))
+    return lambda: model.dLambda_dq(dyn)
+
+
+def _dlambda_fd(robot):
+    model = RobotModel(robot.model)
+    return lambda: model.dLambda_dq_fd(robot.home)
+
+
+def _mj_step(robot):
+    world = World(robot)
+    return lambda: mujoco.mj_step(world.model, world.data)
+
+
+# name -> factory(robot) returning the callable to time; other modules append their entries.
+BENCHES: dict[str, Callable] = {
+    "dynamics_snapshot": _snapshot,
+    "dLambda_dq_analytic": _dlambda_analytic,
+    "dLambda_dq_finite_diff": _dlambda_fd,
+    "mj_step": _mj_step,
+}
+
+
+def run_bench(robot_name: str = robots.DEFAULT_ROBOT, repeats: int = 300, only: list[str] | None = None) -> dict:
+    """Run every registered benchmark (or those in `only`) on one robot."""
+    robot = robots.load(robot_name)
+    results = {}
+    for name, factory in BENCHES.items():
+        if only and name not in only:
+            continue
+        results[name] = time_call(factory(robot), repeats=repeats)
+    a, f = results.get("dLambda_dq_analytic"), results.get("dLambda_dq_finite_diff")
+    summary = {}
+    if a and f:
+        summary["dLambda_analytic_speedup_vs_fd"] = f["median_us"] / a["median_us"]
+    return {"robot": robot.name, "repeats": repeats, "results": results, "summary": summary}

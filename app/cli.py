@@ -1,0 +1,122 @@
+"""The `torquelab` command line: serve (default), experiment, check, bench."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import robots
+
+
+def _robot_arg(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--robot", default=None, help=f"shipped robot: {', '.join(robots.available())}")
+    group.add_argument("--urdf", default=None, help="path to any 7-DOF serial URDF (sidecar .toml optional)")
+
+
+def _robot_name(args: argparse.Namespace, default: str = robots.DEFAULT_ROBOT) -> str:
+    return args.urdf or args.robot or default
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from app.check import cross_check
+
+    names = [_robot_name(args)] if (args.robot or args.urdf) else list(robots.available())
+    reports = [cross_check(robots.load(n), samples=args.samples) for n in names]
+    if args.json:
+        print(json.dumps(reports, indent=2))
+    else:
+        for rep in reports:
+            status = "ok" if rep["ok"] else "FAIL"
+            errs = "  ".join(f"{k} {v:.1e}" for k, v in rep["worst_relative_error"].items())
+            print(
+                f"{rep['robot']:10s} {status:4s}  worst relative error over {rep['samples']} states: {errs}"
+                f"  (tolerance {rep['tolerance']:.0e})"
+            )
+    return 0 if all(r["ok"] for r in reports) else 1
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from app.bench import run_bench
+
+    report = run_bench(_robot_name(args), repeats=args.repeats, only=args.only)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(f"robot {report['robot']}  (median / p95 µs, share of the 1 ms step)")
+        for name, r in report["results"].items():
+            print(f"  {name:34s} {r['median_us']:9.1f} {r['p95_us']:9.1f}   {100 * r['share_of_1ms']:5.1f} %")
+        for key, value in report["summary"].items():
+            print(f"  {key}: {value:.2f}")
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    try:
+        from app.server import serve
+    except ImportError:
+        print("torquelab: the web app is not built yet; available now: check, bench, experiment")
+        return 0
+    return serve(args)
+
+
+def cmd_experiment(args: argparse.Namespace) -> int:
+    from app.experiments import run_experiment
+
+    return run_experiment(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="torquelab", description="Torque control lab for redundant arms")
+    sub = parser.add_subparsers(dest="command")
+
+    p = sub.add_parser("serve", help="start the web app (default)")
+    _robot_arg(p)
+    p.add_argument("--scenario", default="polish", help="polish, free, limit-drop, mass-drop, compliance")
+    p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1, local only)")
+    p.add_argument("--port", type=int, default=8080)
+    p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser("check", help="cross-check Pinocchio against MuJoCo")
+    _robot_arg(p)
+    p.add_argument("--samples", type=int, default=100)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_check)
+
+    p = sub.add_parser("bench", help="time the pieces of one control step")
+    _robot_arg(p)
+    p.add_argument("--repeats", type=int, default=300)
+    p.add_argument("--only", nargs="*", default=None, help="benchmark names to run")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_bench)
+
+    from app.experiments import add_parsers
+
+    add_parsers(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or (argv[0].startswith("-") and argv[0] not in ("-h", "--help")):
+        argv = ["serve", *argv]
+    args = parser.parse_args(argv)
+    if getattr(args, "func", None) is None:
+        parser.print_help()
+        return 0
+    try:
+        return int(args.func(args) or 0)
+    except robots.RobotLoadError as exc:
+        print(f"torquelab: error: {exc}", file=sys.stderr)
+        return 2
+    except (ValueError, FileNotFoundError, OSError) as exc:
+        print(f"torquelab: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

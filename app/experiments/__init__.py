@@ -1,0 +1,38 @@
+"""Headless experiments that reproduce the papers' studies and write a report.
+
+Each experiment module registers itself in `EXPERIMENTS` with a function that adds its options
+to an argparse sub-parser and a `run(args) -> int`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+# experiment name -> module under app.experiments providing `add_arguments(parser)` and `run(args)`
+EXPERIMENTS: dict[str, str] = {}
+
+
+def add_parsers(sub) -> None:
+    """Add `torquelab experiment NAME` with one sub-command per registered experiment."""
+    p = sub.add_parser("experiment", help="run a paper experiment headless and write a report")
+    exp_sub = p.add_subparsers(dest="experiment")
+    for name, module_name in EXPERIMENTS.items():
+        module = importlib.import_module(f"app.experiments.{module_name}")
+        ep = exp_sub.add_parser(name, help=(module.__doc__ or "").strip().splitlines()[0])
+        ep.add_argument("--out", default=f"out/{name}", help="output directory")
+        ep.add_argument("--json", action="store_true", help="print the results as JSON")
+        ep.add_argument("--jobs", type=int, default=1, help="parallel runs over processes")
+        module.add_arguments(ep)
+        ep.set_defaults(func=module.run)
+    p.set_defaults(func=lambda args: _no_experiment(p))
+
+
+def _no_experiment(parser: argparse.ArgumentParser) -> int:
+    names = ", ".join(EXPERIMENTS) or "none yet"
+    print(f"choose an experiment: {names}")
+    return 2
+
+
+def run_experiment(args: argparse.Namespace) -> int:
+    return int(args.func(args) or 0)

@@ -1,0 +1,224 @@
+"""The MuJoCo world: the arm from the same URDF as the controller model, torque motors, a floor,
+an optional table, and sites for the TCP and the F/T sensor.
+
+MuJoCo's own contacts are disabled: the table contact of [T] Fig. 4 is a point spring applied
+by `app.sim.contact` with `mj_applyFT`, and drag forces, sanders and payload forces are applied
+the same way. Every external force applied during a step is recorded so the F/T sensor model can
+compute the true wrench at the flange.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+
+from robots import SENSOR_FRAME, TCP_FRAME, RobotDescription
+
+TIMESTEP_S = 1e-3
+
+
+@dataclass
+class AppliedForce:
+    """An external force applied at a world point on a body during the current step."""
+
+    body_id: int
+    point_world: np.ndarray
+    force_world: np.ndarray
+    torque_world: np.ndarray
+
+
+def build_spec(robot: RobotDescription, table_height: float | None = None) -> mujoco.MjSpec:
+    """MjSpec of the arm: torque motors at the URDF limits, armature, floor, table, TCP/sensor sites."""
+    spec = mujoco.MjSpec.from_file(str(robot.urdf_path))
+    spec.compiler.fusestatic = False
+    spec.compiler.discardvisual = False
+    spec.option.timestep = TIMESTEP_S
+    spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    spec.option.gravity = [0.0, 0.0, -9.81]
+    for name, eff, arm in zip(robot.joint_names, robot.tau_max, robot.armature, strict=True):
+        joint = spec.joint(name)
+        if joint is None:
+            raise ValueError(f"MuJoCo import lost joint {name!r} of {robot.urdf_path.name}")
+        joint.armature = float(arm)
+        act = spec.add_actuator(name=f"motor_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        act.set_to_motor()
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.ctrlrange = [-float(eff), float(eff)]
+    world = spec.worldbody
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.05], rgba=[0.9, 0.9, 0.92, 1])
+    if table_height is not None:
+        world.add_geom(
+            name="table",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[0.4, 0.5, max(table_height, 0.01) / 2],
+            pos=[0.55, 0.0, table_height / 2],
+            rgba=[0.6, 0.45, 0.3, 1],
+        )
+    for geom in spec.geoms:
+        geom.contype = 0
+        geom.conaffinity = 0
+    # Sites on the body of the last joint, at the Pinocchio frame placements (works when the
+    # importer fused the flange into that body).
+    last_body = _body_of_joint(spec, robot.joint_names[-1])
+    for frame in (TCP_FRAME, SENSOR_FRAME):
+        placement = robot.model.frames[robot.model.getFrameId(frame)].placement
+        quat = pin.Quaternion(placement.rotation)
+        last_body.add_site(
+            name=frame,
+            pos=placement.translation.tolist(),
+            quat=[quat.w, quat.x, quat.y, quat.z],
+            size=[0.01, 0.01, 0.01],
+        )
+    return spec
+
+
+def _body_of_joint(spec: mujoco.MjSpec, joint_name: str) -> mujoco.MjsBody:
+    for body in spec.bodies:
+        if any(j.name == joint_name for j in body.joints):
+            return body
+    raise ValueError(f"no body carries joint {joint_name!r}")
+
+
+class World:
+    """A running MuJoCo simulation of one arm, stepped with joint torques at 1 kHz."""
+
+    def __init__(
+        self,
+        robot: RobotDescription,
+        table_height: float | None = None,
+        customize: Callable[[mujoco.MjSpec], None] | None = None,
+    ):
+        spec = build_spec(robot, table_height)
+        if customize is not None:
+            customize(spec)
+        self.spec = spec
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.robot = robot
+        self.table_height = table_height
+        self.qpos_adr = np.array([self.model.joint(n).qposadr[0] for n in robot.joint_names])
+        self.dof_adr = np.array([self.model.joint(n).dofadr[0] for n in robot.joint_names])
+        self.actuator_ids = np.array([self.model.actuator(f"motor_{n}").id for n in robot.joint_names])
+        self.tcp_site = self.model.site(TCP_FRAME).id
+        self.sensor_site = self.model.site(SENSOR_FRAME).id
+        self.wrist_body = int(self.model.site_bodyid[self.tcp_site])
+        self.applied: list[AppliedForce] = []
+        self.tau_applied = np.zeros(len(robot.joint_names))
+        self.reset(robot.home)
+
+    # ---- state -----------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.data.qpos[self.qpos_adr].copy()
+
+    @property
+    def dq(self) -> np.ndarray:
+        return self.data.qvel[self.dof_adr].copy()
+
+    def reset(self, q: np.ndarray, dq: np.ndarray | None = None) -> None:
+        """Put the arm at (q, q̇), time 0, no forces."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[self.qpos_adr] = q
+        self.data.qvel[self.dof_adr] = 0.0 if dq is None else dq
+        mujoco.mj_forward(self.model, self.data)
+        self.applied.clear()
+        self.data.qfrc_applied[:] = 0.0
+
+    def site_pose(self, site_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """(position, rotation matrix) of a site in the world."""
+        return self.data.site_xpos[site_id].copy(), self.data.site_xmat[site_id].reshape(3, 3).copy()
+
+    def site_velocity(self, site_id: int) -> np.ndarray:
+        """Twist [v; ω] of a site in world-aligned axes at the site origin."""
+        jacp = np.zeros((3, self.model.nv))
+        jacr = np.zeros((3, self.model.nv))
+        mujoco.mj_jacSite(self.model, self.data, jacp, jacr, site_id)
+        return np.concatenate([jacp @ self.data.qvel, jacr @ self.data.qvel])
+
+    def body_point_velocity(self, body_id: int, point_world: np.ndarray) -> np.ndarray:
+        """Linear velocity of a world point rigidly attached to a body."""
+        jacp = np.zeros((3, self.model.nv))
+        mujoco.mj_jac(self.model, self.data, jacp, None, np.asarray(point_world, dtype=float), body_id)
+        return jacp @ self.data.qvel
+
+    # ---- forces -----------------------------------------------------------------------------
+    def apply_force(
+        self, body_id: int, point_world: np.ndarray, force_world: np.ndarray, torque_world: np.ndarray | None = None
+    ) -> None:
+        """Apply an external force (and torque) at a world point on a body for the next step."""
+        f = np.asarray(force_world, dtype=float)
+        t = np.zeros(3) if torque_world is None else np.asarray(torque_world, dtype=float)
+        p = np.asarray(point_world, dtype=float)
+        mujoco.mj_applyFT(self.model, self.data, f, t, p, body_id, self.data.qfrc_applied)
+        self.applied.append(AppliedForce(body_id, p.copy(), f.copy(), t.copy()))
+
+    def external_wrench_at_sensor(self) -> np.ndarray:
+        """True wrench [f; m] (world axes, about the sensor origin) of the forces applied this step
+        on the bodies distal to the sensor (the sensor's body and its subtree)."""
+        p_sensor = self.data.site_xpos[self.sensor_site]
+        sensor_body = int(self.model.site_bodyid[self.sensor_site])
+        wrench = np.zeros(6)
+        for a in self.applied:
+            if self._is_in_subtree(a.body_id, sensor_body):
+                wrench[:3] += a.force_world
+                wrench[3:] += a.torque_world + np.cross(a.point_world - p_sensor, a.force_world)
+        return wrench
+
+    def external_joint_torque(self) -> np.ndarray:
+        """True external joint torque τ^e of the forces applied this step (sim truth)."""
+        return self.data.qfrc_applied[self.dof_adr].copy()
+
+    def _is_in_subtree(self, body_id: int, root_id: int) -> bool:
+        b = body_id
+        while b > 0:
+            if b == root_id:
+                return True
+            b = int(self.model.body_parentid[b])
+        return root_id == 0
+
+    # ---- stepping ---------------------------------------------------------------------------
+    def step(self, tau: np.ndarray) -> None:
+        """Advance one timestep with joint torques τ (clipped to the motor limits), then clear forces."""
+        ctrl = np.clip(tau, -self.robot.tau_max, self.robot.tau_max)
+        self.tau_applied = ctrl
+        self.data.ctrl[self.actuator_ids] = ctrl
+        mujoco.mj_step(self.model, self.data)
+        self.data.qfrc_applied[:] = 0.0
+        self.applied.clear()
+
+    def diverged(self) -> bool:
+        """True when the state holds NaN/inf or absurd velocities."""
+        qv = self.data.qvel
+        return bool(not np.all(np.isfinite(self.data.qpos)) or not np.all(np.isfinite(qv)) or np.max(np.abs(qv)) > 1e3)
+
+    # ---- model quantities for cross-checks --------------------------------------------------
+    def mass_matrix(self) -> np.ndarray:
+        """Dense joint-space inertia of the arm joints (after mj_forward)."""
+        full = np.zeros((self.model.nv, self.model.nv))
+        mujoco.mj_fullM(self.model, self.data, full)
+        return full[np.ix_(self.dof_adr, self.dof_adr)]
+
+    def bias_forces(self) -> np.ndarray:
+        """C q̇ + g of the arm joints (after mj_forward)."""
+        return self.data.qfrc_bias[self.dof_adr].copy()
+
+    def tcp_jacobian(self) -> np.ndarray:
+        """(6, 7) TCP Jacobian [jacp; jacr] in world axes (after mj_forward)."""
+        jacp = np.zeros((3, self.model.nv))
+        jacr = np.zeros((3, self.model.nv))
+        mujoco.mj_jacSite(self.model, self.data, jacp, jacr, self.tcp_site)
+        return np.vstack([jacp, jacr])[:, self.dof_adr]
+
+    def set_state(self, q: np.ndarray, dq: np.ndarray) -> None:
+        """Set (q, q̇) and recompute derived quantities without stepping."""
+        self.data.qpos[self.qpos_adr] = q
+        self.data.qvel[self.dof_adr] = dq
+        mujoco.mj_forward(self.model, self.data)

@@ -1,0 +1,197 @@
+"""Rigid-body model of the arm and the per-step `Dynamics` snapshot every consumer shares.
+
+Task frame: the TCP in LOCAL_WORLD_ALIGNED (origin at the TCP, axes of the world), ordered
+[px py pz rx ry rz]. Notation follows [T 1-5]: M q̈ + μ = τ + τ^e, Λx = (J M⁻¹ Jᵀ)⁻¹,
+J̄ = M⁻¹ Jᵀ Λx, N = I − J̄ J, Λn = (N M⁻¹ Nᵀ)#.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+# Λx⁻¹ eigenvalues below this (in 1/kg or 1/(kg m²)) count as singular: the inverse is damped.
+SINGULAR_EIGENVALUE = 1e-6
+
+
+@dataclass
+class Dynamics:
+    """One snapshot of the arm's dynamics at (q, q̇), computed once per control step."""
+
+    q: np.ndarray  # (n,) rad
+    dq: np.ndarray  # (n,) rad/s
+    M: np.ndarray  # (n, n) joint inertia incl. armature
+    M_inv: np.ndarray  # (n, n)
+    h: np.ndarray  # (n,) μ = C q̇ + g, Coriolis + gravity torques [T1]
+    tcp_rotation_world: np.ndarray  # (3, 3)
+    tcp_position_world: np.ndarray  # (3,) m
+    J: np.ndarray  # (6, n) TCP Jacobian, LOCAL_WORLD_ALIGNED, [linear; angular]
+    dJ_dq: np.ndarray  # (6,) J̇ q̇, classical acceleration of the TCP at q̈ = 0
+    Lambda_inv: np.ndarray  # (6, 6) J M⁻¹ Jᵀ
+    Lambda: np.ndarray  # (6, 6) Λx task inertia [T3], damped near singularities
+    J_bar: np.ndarray  # (n, 6) dynamically consistent inverse M⁻¹ Jᵀ Λx [T2-3]
+    N: np.ndarray  # (n, n) nullspace projector I − J̄ J [T4]
+    Lambda_n: np.ndarray  # (n, n) nullspace inertia (N M⁻¹ Nᵀ)# [T5]
+    near_singular: bool  # Λx was damped
+    min_eig_Lambda_inv: float  # smallest eigenvalue of J M⁻¹ Jᵀ
+
+    @property
+    def tcp_velocity(self) -> np.ndarray:
+        """TCP twist [v; ω] in LOCAL_WORLD_ALIGNED."""
+        return self.J @ self.dq
+
+
+def sym_pinv(S: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
+    """Moore-Penrose pseudo-inverse of a symmetric matrix via eigh (cheaper than pinv's SVD)."""
+    w, V = np.linalg.eigh(S)
+    cutoff = rtol * max(float(np.max(np.abs(w))), 1e-300)
+    w_inv = np.where(np.abs(w) > cutoff, 1.0 / np.where(w == 0, 1.0, w), 0.0)
+    return (V * w_inv) @ V.T
+
+
+class RobotModel:
+    """Pinocchio model of the arm with a TCP frame; computes `Dynamics` snapshots and ∂Λx/∂q."""
+
+    def __init__(self, model: pin.Model, tcp_frame: str = "tcp"):
+        if not model.existFrame(tcp_frame):
+            raise ValueError(f"model has no frame {tcp_frame!r}")
+        self.model = model
+        self.data = model.createData()
+        self.nv = model.nv
+        self.tcp_frame_id = model.getFrameId(tcp_frame)
+        # Gravity-free copy for ∂M/∂q from RNEA derivatives (at q̇ = 0 they give ∂(M a)/∂q).
+        self._model_no_gravity = model.copy()
+        self._model_no_gravity.gravity = pin.Motion.Zero()
+        self._data_no_gravity = self._model_no_gravity.createData()
+        self._data_hessian = model.createData()
+        self._zeros = np.zeros(self.nv)
+        self._eye = np.eye(self.nv)
+        self._lower = np.tril_indices(self.nv, -1)
+
+    # ---- snapshot -------------------------------------------------------------------------
+    def compute(self, q: np.ndarray, dq: np.ndarray) -> Dynamics:
+        """Fill one `Dynamics` snapshot at (q, q̇)."""
+        model, data, fid = self.model, self.data, self.tcp_frame_id
+        q = np.asarray(q, dtype=float)
+        dq = np.asarray(dq, dtype=float)
+        pin.forwardKinematics(model, data, q, dq, self._zeros)  # data.a = bias accelerations (q̈ = 0)
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        M = pin.crba(model, data, q).copy()
+        M[self._lower] = M.T[self._lower]  # crba fills the upper triangle only
+        h = pin.nonLinearEffects(model, data, q, dq).copy()
+        M_inv = pin.computeMinverse(model, data, q).copy()
+        M_inv[self._lower] = M_inv.T[self._lower]
+        J = pin.getFrameJacobian(model, data, fid, LWA).copy()
+        dJ_dq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector.copy()
+        oMf = data.oMf[fid]
+        X = M_inv @ J.T  # (n, 6)
+        Lambda_inv = J @ X
+        Lambda_inv = 0.5 * (Lambda_inv + Lambda_inv.T)
+        w, V = np.linalg.eigh(Lambda_inv)
+        min_eig = float(w[0])
+        near_singular = min_eig < SINGULAR_EIGENVALUE
+        if near_singular:  # damped inverse w / (w² + ρ²): bounded as w → 0
+            rho2 = SINGULAR_EIGENVALUE**2
+            Lambda = (V * (w / (w * w + rho2))) @ V.T
+        else:
+            Lambda = (V * (1.0 / w)) @ V.T  # [T3]
+        J_bar = X @ Lambda  # [T2]
+        N = self._eye - J_bar @ J  # [T4]
+        Lambda_n = sym_pinv(N @ M_inv @ N.T, rtol=1e-8)  # [T5]
+        return Dynamics(
+            q=q.copy(),
+            dq=dq.copy(),
+            M=M,
+            M_inv=M_inv,
+            h=h,
+            tcp_rotation_world=oMf.rotation.copy(),
+            tcp_position_world=oMf.translation.copy(),
+            J=J,
+            dJ_dq=dJ_dq,
+            Lambda_inv=Lambda_inv,
+            Lambda=Lambda,
+            J_bar=J_bar,
+            N=N,
+            Lambda_n=Lambda_n,
+            near_singular=near_singular,
+            min_eig_Lambda_inv=min_eig,
+        )
+
+    # ---- kinematics helpers ---------------------------------------------------------------
+    def frame_pose(self, q: np.ndarray, frame: str) -> pin.SE3:
+        """World pose of a named frame at q."""
+        data = self.model.createData()
+        pin.framesForwardKinematics(self.model, data, q)
+        return data.oMf[self.model.getFrameId(frame)].copy()
+
+    def frame_jacobian(self, q: np.ndarray, frame: str) -> np.ndarray:
+        """(6, n) LOCAL_WORLD_ALIGNED Jacobian of a named frame at q."""
+        data = self.model.createData()
+        return pin.computeFrameJacobian(self.model, data, q, self.model.getFrameId(frame), LWA)
+
+    def tcp_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """(6, n) TCP Jacobian at q (LOCAL_WORLD_ALIGNED)."""
+        return pin.computeFrameJacobian(self.model, self._data_hessian, q, self.tcp_frame_id, LWA)
+
+    def tcp_jacobian_derivative(self, q: np.ndarray) -> np.ndarray:
+        """(n, 6, n) ∂J/∂q_k stacked on k, from Pinocchio's kinematic Hessian.
+
+        Pinocchio 4.1 returns the LOCAL_WORLD_ALIGNED frame Hessian with a wrong memory layout;
+        reading it back in Fortran order gives H[a, i, k] = ∂J[a, i]/∂q_k (checked against finite
+        differences in tests/test_model.py so that an upstream fix is noticed).
+        """
+        data = self._data_hessian
+        pin.computeJointJacobians(self.model, data, q)
+        pin.computeJointKinematicHessians(self.model, data, q)
+        pin.updateFramePlacements(self.model, data)
+        H = pin.getFrameKinematicHessian(self.model, data, self.tcp_frame_id, LWA)
+        H = np.asarray(H).ravel().reshape((6, self.nv, self.nv), order="F")
+        return H.transpose(2, 0, 1)
+
+    def gravity(self, q: np.ndarray) -> np.ndarray:
+        """Gravity torques g(q)."""
+        return pin.computeGeneralizedGravity(self.model, self._data_hessian, q).copy()
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """Joint inertia M(q) including armature."""
+        M = pin.crba(self.model, self._data_hessian, q).copy()
+        M[self._lower] = M.T[self._lower]
+        return M
+
+    # ---- ∂Λx/∂q ---------------------------------------------------------------------------
+    def dLambda_dq(self, dyn: Dynamics) -> np.ndarray:
+        """(n, 6, 6) analytic ∂Λx/∂q_k.
+
+        ∂Λx = −Λx ∂(J M⁻¹ Jᵀ) Λx with ∂(J M⁻¹ Jᵀ) = ∂J X + Xᵀ∂Jᵀ − Xᵀ ∂M X, X = M⁻¹Jᵀ.
+        Xᵀ ∂M_k X comes from RNEA derivatives at q̇ = 0 without gravity: ∂(M a)/∂q with a = X[:, c].
+        """
+        q = dyn.q
+        n = self.nv
+        X = dyn.M_inv @ dyn.J.T  # (n, 6)
+        dJ = self.tcp_jacobian_derivative(q)  # (n, 6, n)
+        S = dJ @ X  # (n, 6, 6): ∂J_k X
+        XdMX = np.empty((n, 6, 6))
+        for c in range(6):
+            dtau_dq = pin.computeRNEADerivatives(
+                self._model_no_gravity, self._data_no_gravity, q, self._zeros, X[:, c]
+            )[0]
+            XdMX[:, :, c] = np.asarray(dtau_dq).T @ X  # [k, r] = X[:, r]·∂M_k X[:, c]
+        dA = S + S.transpose(0, 2, 1) - XdMX
+        return -dyn.Lambda @ dA @ dyn.Lambda
+
+    def dLambda_dq_fd(self, q: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+        """(n, 6, 6) ∂Λx/∂q_k by central differences (reference for the analytic version)."""
+        out = np.empty((self.nv, 6, 6))
+        dq0 = self._zeros
+        for k in range(self.nv):
+            qp = np.array(q, dtype=float)
+            qm = np.array(q, dtype=float)
+            qp[k] += eps
+            qm[k] -= eps
+            out[k] = (self.compute(qp, dq0).Lambda - self.compute(qm, dq0).Lambda) / (2 * eps)
+        return out

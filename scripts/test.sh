@@ -1,0 +1,44 @@
+#!/usr/bin/env bash
+# The test command: bash scripts/test.sh [pytest args]
+# Creates or reuses .venv, installs torquelab with its test extras, makes sure a Chromium is
+# available for the browser tests, then runs ruff, mypy and pytest. Exits non-zero on any failure.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYTHON=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+    echo "== creating .venv"
+    "$PYTHON" -m venv .venv
+fi
+echo "== installing torquelab[test] into .venv"
+.venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test]'
+
+find_chromium() {
+    for c in "${TORQUELAB_CHROMIUM:-}" /usr/bin/chromium /usr/bin/chromium-browser /usr/bin/google-chrome; do
+        if [ -n "$c" ] && [ -x "$c" ]; then echo "$c"; return 0; fi
+    done
+    return 1
+}
+if ! CHROMIUM=$(find_chromium); then
+    if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+        echo "== installing Debian's chromium for the browser tests"
+        apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+        CHROMIUM=$(find_chromium) || { echo "error: chromium install failed" >&2; exit 1; }
+    else
+        echo "error: no Chromium found for the browser tests. Install one (Debian: sudo apt-get install chromium)" >&2
+        echo "       or point TORQUELAB_CHROMIUM at a Chromium/Chrome binary." >&2
+        exit 1
+    fi
+fi
+export TORQUELAB_CHROMIUM="$CHROMIUM"
+echo "== chromium: $CHROMIUM"
+
+echo "== ruff"
+.venv/bin/ruff check .
+.venv/bin/ruff format --check .
+echo "== mypy"
+.venv/bin/mypy
+echo "== pytest"
+mkdir -p test-artifacts
+.venv/bin/python -m pytest "$@"

@@ -1,0 +1,39 @@
+"""Shared fixtures: robots and models are loaded once per session."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import robots
+from control.model import RobotModel
+
+
+@pytest.fixture(scope="session", params=list(robots.available()))
+def robot(request):
+    return robots.load(request.param)
+
+
+@pytest.fixture(scope="session")
+def rizon():
+    return robots.load("rizon4s")
+
+
+@pytest.fixture(scope="session")
+def gen3():
+    return robots.load("gen3")
+
+
+def random_configurations(robot, count: int, seed: int = 0, margin: float = 0.9):
+    """Random joint positions inside the limits (endless joints in ±π)."""
+    rng = np.random.default_rng(seed)
+    lo = np.where(robot.endless, -np.pi, robot.q_lower)
+    hi = np.where(robot.endless, np.pi, robot.q_upper)
+    mid, half = (lo + hi) / 2, (hi - lo) / 2 * margin
+    out = []
+    while len(out) < count:
+        q = rng.uniform(mid - half, mid + half)
+        # keep away from singular postures so relative errors are meaningful
+        if RobotModel(robot.model).compute(q, np.zeros(7)).min_eig_Lambda_inv > 1e-3:
+            out.append(q)
+    return out
