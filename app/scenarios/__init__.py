@@ -1,0 +1,101 @@
+"""Scenarios: the presets of DESIGN §5 (polish, free, limit-drop, mass-drop, compliance).
+
+A scenario says which robot and executor it wants by default, how the world is built (table,
+payloads), where the arm starts, what the task target is over time, which environment forces
+act (contact, sander, payload release) and which sensor model reads them. The `Session` runs it;
+the web app and the headless experiments both use the same Session, so they agree step for step.
+
+Each scenario module adds itself to `SCENARIOS` (name -> module under app.scenarios that defines
+`SCENARIO`, an instance of a `Scenario` subclass).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+from app.sim.world import World
+from control.executor import TaskTarget
+from control.model import Dynamics, RobotModel
+from robots import RobotDescription
+
+# name -> module under app.scenarios with a module-level SCENARIO
+SCENARIOS: dict[str, str] = {
+    "free": "free",
+}
+
+
+class Environment:
+    """Forces the surroundings apply each step (contact, sander, released masses...).
+
+    `apply` is called once per step before the controller runs, with the world at the current
+    state; it applies forces via `world.apply_force` and returns scalar signals for the logs.
+    """
+
+    def apply(self, world: World, t: float) -> dict[str, float]:
+        return {}
+
+    def configure(self, **changes: object) -> None:
+        """Change environment settings (friction, sander amplitude...); ValueError on bad input."""
+        if changes:
+            raise ValueError(f"this scenario has no environment settings {', '.join(changes)}")
+
+    def overlay(self) -> dict[str, np.ndarray]:
+        """Vectors the UI may draw (e.g. 'contact_force' at 'contact_point'), world frame."""
+        return {}
+
+
+class Sensor:
+    """F/T sensor model: maps the true wrench at the sensor to what the controller reads."""
+
+    def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
+        return np.array(true_wrench, dtype=float)
+
+    def configure(self, **changes: object) -> None:
+        if changes:
+            raise ValueError(f"the ideal sensor has no settings {', '.join(changes)}")
+
+    def reset(self) -> None:
+        """Clear filter states."""
+
+
+class Scenario:
+    """Base scenario: hold the home posture, no environment, ideal sensor."""
+
+    name = "base"
+    title = "Base"
+    description = ""
+    default_robot = "rizon4s"
+    default_executor = "joint-hold"
+    table_height: float | None = None
+
+    def initial_q(self, robot: RobotDescription) -> np.ndarray:
+        """Joint positions at t = 0."""
+        return robot.home
+
+    def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
+        """Edit the MuJoCo spec before compile (payloads...)."""
+
+    def make_environment(self, world: World, rng: np.random.Generator) -> Environment:
+        return Environment()
+
+    def make_sensor(self, rng: np.random.Generator) -> Sensor:
+        return Sensor()
+
+    def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
+        """The task target as a function of time; default: hold the initial TCP pose and posture."""
+        hold = TaskTarget(
+            position=dyn0.tcp_position_world.copy(), rotation=dyn0.tcp_rotation_world.copy(), q_posture=dyn0.q.copy()
+        )
+        return lambda t: hold
+
+
+def get_scenario(name: str) -> Scenario:
+    """The registered scenario `name`; ValueError listing the known ones otherwise."""
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}")
+    module = importlib.import_module(f"app.scenarios.{SCENARIOS[name]}")
+    return module.SCENARIO

@@ -1,0 +1,157 @@
+"""One simulated experiment in progress: world + controller model + executor + environment.
+
+`Session.step()` advances everything by one 1 kHz step in a fixed order:
+1. the controller model computes one `Dynamics` snapshot at the measured (q, q̇) — shared by the
+   executor, the coupling metrics and the overlays;
+2. the environment (contact, sander, payloads) and the drag spring apply their forces for this
+   step at the current state;
+3. the F/T sensor model turns the true wrench at the sensor into a reading, mapped to the TCP;
+4. the executor computes τ; 5. MuJoCo steps.
+The web app's loop and the headless experiments both call this, so they agree step for step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import robots
+from app.executors import make_executor
+from app.scenarios import Environment, Scenario, Sensor, get_scenario
+from app.sim.drag import DragSpring
+from app.sim.world import World
+from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
+from control.model import Dynamics, RobotModel
+
+
+@dataclass
+class StepRecord:
+    """What one step produced; the UI and the logs read this."""
+
+    t: float
+    q: np.ndarray
+    dq: np.ndarray
+    tau: np.ndarray
+    wrench_tcp: np.ndarray  # sensor reading mapped to the TCP (what the controller saw)
+    target: TaskTarget
+    fallback: bool
+    signals: dict[str, float] = field(default_factory=dict)  # executor + environment scalars
+
+
+class Session:
+    """A scenario running on one robot with one executor."""
+
+    def __init__(
+        self,
+        scenario: str | Scenario = "free",
+        robot: str | None = None,
+        executor: str | None = None,
+        seed: int = 0,
+        q0: np.ndarray | None = None,
+    ):
+        self.scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
+        self.robot = robots.load(robot or self.scenario.default_robot)
+        self.model = RobotModel(self.robot.model)
+        self.executor_name = executor or self.scenario.default_executor
+        self.seed = seed
+        self.world = World(
+            self.robot,
+            table_height=self.scenario.table_height,
+            customize=lambda spec: self.scenario.customize_world(spec, self.robot),
+        )
+        self.drag = DragSpring()
+        self.executor: Executor = make_executor(self.executor_name, self.robot, self.model)
+        self._q0_override = q0
+        self.reset()
+
+    # ---- lifecycle ----------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to t = 0: initial posture, fresh environment/sensor noise (same seed), no drag."""
+        q0 = self._q0_override if self._q0_override is not None else self.scenario.initial_q(self.robot)
+        self.world.reset(np.asarray(q0, dtype=float))
+        self.drag.release()
+        rng = np.random.default_rng(self.seed)
+        self.environment: Environment = self.scenario.make_environment(self.world, rng)
+        self.sensor: Sensor = self.scenario.make_sensor(rng)
+        self.dyn: Dynamics = self.model.compute(self.world.q, self.world.dq)
+        self.target_fn: Callable[[float], TaskTarget] = self.scenario.make_target(self.robot, self.model, self.dyn)
+        self.executor.reset(self.dyn, self.target_fn(0.0))
+        self.steps = 0
+        self.last: StepRecord | None = None
+
+    def set_executor(self, name: str) -> None:
+        """Switch the controller (takes effect at the next step, integrators cleared)."""
+        self.executor = make_executor(name, self.robot, self.model)
+        self.executor_name = name
+        self.executor.reset(self.dyn, self.target_fn(self.world.time))
+
+    # ---- stepping -----------------------------------------------------------------------------
+    def step(self) -> StepRecord:
+        """Advance one control period (one MuJoCo timestep)."""
+        world = self.world
+        t = world.time
+        dyn = self.model.compute(world.q, world.dq)  # [1] one snapshot per step, shared
+        self.dyn = dyn
+        env_signals = self.environment.apply(world, t)  # [2] environment forces
+        drag_force = self.drag.apply(world)
+        true_wrench_sensor = world.external_wrench_at_sensor()
+        reading_sensor = self.sensor.measure(true_wrench_sensor, t)  # [3] F/T reading
+        wrench_tcp = self._sensor_to_tcp(reading_sensor, dyn)
+        target = self.target_fn(t)
+        inputs = ControlInputs(t=t, target=target, wrench_tcp=wrench_tcp, tau_ext_oracle=world.external_joint_torque())
+        out = self._safe_step(dyn, inputs)  # [4]
+        world.step(out.tau)  # [5]
+        self.steps += 1
+        signals = dict(out.info)
+        signals.update(env_signals)
+        signals["drag_force_n"] = float(np.linalg.norm(drag_force))
+        self.last = StepRecord(
+            t=t,
+            q=dyn.q,
+            dq=dyn.dq,
+            tau=world.tau_applied.copy(),
+            wrench_tcp=wrench_tcp,
+            target=target,
+            fallback=out.fallback,
+            signals=signals,
+        )
+        return self.last
+
+    def run(self, seconds: float, callback: Callable[[StepRecord], None] | None = None) -> None:
+        """Step for `seconds` of simulated time."""
+        for _ in range(round(seconds / self.world.model.opt.timestep)):
+            rec = self.step()
+            if callback is not None:
+                callback(rec)
+
+    def diverged(self) -> bool:
+        """NaN or runaway state in the simulation."""
+        return self.world.diverged()
+
+    # ---- helpers ------------------------------------------------------------------------------
+    def _safe_step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
+        try:
+            out = self.executor.step(dyn, inputs)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            out = ControlOutput(tau=dyn.h.copy(), fallback=True, info={"executor_error": 1.0})
+        if not np.all(np.isfinite(out.tau)):
+            out = ControlOutput(tau=dyn.h.copy(), fallback=True, info={**out.info, "executor_error": 1.0})
+        return out
+
+    def _sensor_to_tcp(self, wrench_sensor: np.ndarray, dyn: Dynamics) -> np.ndarray:
+        """Move a wrench [f; m] (world axes) from the sensor origin to the TCP with the controller's
+        own kinematics: f is unchanged, m_tcp = m_sensor + (p_sensor − p_tcp) × f."""
+        p_sensor = self._sensor_position(dyn)
+        out = np.array(wrench_sensor, dtype=float)
+        out[3:] += np.cross(p_sensor - dyn.tcp_position_world, out[:3])
+        return out
+
+    def _sensor_position(self, dyn: Dynamics) -> np.ndarray:
+        data = self.model.data  # frames were updated by this step's compute()
+        return data.oMf[self._sensor_frame_id].translation
+
+    @property
+    def _sensor_frame_id(self) -> int:
+        return self.model.model.getFrameId(robots.SENSOR_FRAME)
