@@ -102,7 +102,11 @@ class RobotModel:
             Lambda = (V * (1.0 / w)) @ V.T  # [T3]
         J_bar = X @ Lambda  # [T2]
         N = self._eye - J_bar @ J  # [T4]
-        Lambda_n = sym_pinv(N @ M_inv @ N.T, rtol=1e-8)  # [T5]
+        S = N @ M_inv @ N.T
+        if self.nv == 7:  # rank(S) = n − 6 = 1: S = σ u uᵀ, so S# = S / σ² = S / ‖S‖_F²  [T5]
+            Lambda_n = S / max(float(np.sum(S * S)), 1e-300)
+        else:
+            Lambda_n = sym_pinv(S, rtol=1e-8)  # [T5]
         return Dynamics(
             q=q.copy(),
             dq=dq.copy(),
