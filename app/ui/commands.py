@@ -30,3 +30,57 @@ class DragCommand:
 
 
 DragSink = Callable[[DragCommand], None]
+
+
+@dataclass(frozen=True)
+class Play:
+    """Run the simulation paced to wall time."""
+
+
+@dataclass(frozen=True)
+class Pause:
+    """Stop stepping; the state is kept."""
+
+
+@dataclass(frozen=True)
+class StepOnce:
+    """While paused: advance `steps` control periods (1 ms each) at once."""
+
+    steps: int = 1
+
+
+@dataclass(frozen=True)
+class Reset:
+    """Back to t = 0 of the current scenario (drag released, settings kept)."""
+
+
+@dataclass(frozen=True)
+class SetSpeed:
+    """Simulated seconds per wall second requested, 0.1 … 1."""
+
+    factor: float
+
+
+@dataclass(frozen=True)
+class SwitchSession:
+    """Rebuild the session: `None` keeps the current choice; robot "" means the scenario's default."""
+
+    scenario: str | None = None
+    robot: str | None = None
+    executor: str | None = None
+
+
+@dataclass(frozen=True)
+class Configure:
+    """Change settings of one part of the session between two steps.
+
+    target: "executor", "environment", "sensor" or "drag" (`max_force_n`, `stiffness_per_s2`).
+    A refused change (ValueError) is reported to `client_id` and leaves everything unchanged.
+    """
+
+    target: str
+    changes: dict[str, object]
+    client_id: int | None = None
+
+
+Command = DragCommand | Play | Pause | StepOnce | Reset | SetSpeed | SwitchSession | Configure

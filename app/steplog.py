@@ -1,0 +1,93 @@
+"""A ring buffer of the last seconds of logged signals, one row per 1 kHz step.
+
+The loop thread appends every `StepRecord`; plots read a decimated window and Record/Export reads
+the last N seconds. Only the loop thread touches a `StepLog`; readers get copies.
+Columns: t, q_1..n, dq_1..n, tau_1..n, F_x..M_z (sensor reading at the TCP), Fd_x..Md_z (desired
+F^e), fallback, then every scalar signal the executor and environment report, added as they appear
+(NaN before a signal first appears).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.session import StepRecord
+
+WRENCH = ("x", "y", "z", "rx", "ry", "rz")
+
+
+def base_columns(n_joints: int) -> list[str]:
+    """Names of the fixed columns for an arm with `n_joints` joints."""
+    cols = ["t"]
+    cols += [f"q_{i + 1}" for i in range(n_joints)]
+    cols += [f"dq_{i + 1}" for i in range(n_joints)]
+    cols += [f"tau_{i + 1}" for i in range(n_joints)]
+    cols += [f"F_{a}" for a in WRENCH]
+    cols += [f"Fd_{a}" for a in WRENCH]
+    cols += ["fallback"]
+    return cols
+
+
+class StepLog:
+    """Fixed-capacity ring buffer of step rows with growable signal columns."""
+
+    def __init__(self, n_joints: int, capacity: int = 60_000, max_signals: int = 64):
+        self.n = n_joints
+        self.capacity = int(capacity)
+        self.columns = base_columns(n_joints)
+        self._n_base = len(self.columns)
+        self._max_cols = self._n_base + max_signals
+        self._data = np.full((self.capacity, self._max_cols), np.nan)
+        self._signal_col: dict[str, int] = {}
+        self.count = 0  # rows ever appended (the newest row is count - 1)
+        n = n_joints
+        self._sl_q = slice(1, 1 + n)
+        self._sl_dq = slice(1 + n, 1 + 2 * n)
+        self._sl_tau = slice(1 + 2 * n, 1 + 3 * n)
+        self._sl_f = slice(1 + 3 * n, 7 + 3 * n)
+        self._sl_fd = slice(7 + 3 * n, 13 + 3 * n)
+        self._i_fallback = 13 + 3 * n
+
+    def clear(self) -> None:
+        """Forget every row (columns are kept)."""
+        self._data.fill(np.nan)
+        self.count = 0
+
+    def append(self, rec: StepRecord) -> None:
+        """Store one step (called by the loop thread after every step)."""
+        row = self._data[self.count % self.capacity]
+        row.fill(np.nan)
+        row[0] = rec.t
+        row[self._sl_q] = rec.q
+        row[self._sl_dq] = rec.dq
+        row[self._sl_tau] = rec.tau
+        row[self._sl_f] = rec.wrench_tcp
+        row[self._sl_fd] = rec.target.wrench
+        row[self._i_fallback] = 1.0 if rec.fallback else 0.0
+        cols = self._signal_col
+        for key, value in rec.signals.items():
+            idx = cols.get(key)
+            if idx is None:
+                idx = self._add_signal(key)
+                if idx is None:
+                    continue
+            row[idx] = value
+        self.count += 1
+
+    def _add_signal(self, key: str) -> int | None:
+        idx = self._n_base + len(self._signal_col)
+        if idx >= self._max_cols:
+            return None  # too many distinct signals: the extra ones are not logged
+        self._signal_col[key] = idx
+        self.columns.append(key)
+        return idx
+
+    def window(self, seconds: float, dt: float, every: int = 1) -> dict[str, np.ndarray]:
+        """The last `seconds` of rows (every `every`-th row, ending at the newest), by column."""
+        rows = min(self.count, self.capacity, max(1, round(seconds / dt)))
+        if rows <= 0 or self.count == 0:
+            return {c: np.zeros(0) for c in self.columns}
+        newest = self.count - 1
+        idx = np.arange(newest - rows + 1, newest + 1)[::-1][:: max(1, every)][::-1] % self.capacity
+        block = self._data[idx, : len(self.columns)]
+        return {c: block[:, i].copy() for i, c in enumerate(self.columns)}

@@ -1,0 +1,238 @@
+"""The real-time loop: same numbers as the headless Session, commands between steps, pacing."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from app.loop import SimLoop
+from app.pacing import Pacer, RateMeter
+from app.scenarios import SCENARIOS
+from app.session import Session
+from app.steplog import StepLog
+from app.ui.commands import Configure, DragCommand, Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
+
+DT = 1e-3
+
+
+@pytest.fixture
+def loop():
+    lp = SimLoop("free", capture=lambda s: None)
+    lp.start(running=False)
+    yield lp
+    lp.stop()
+
+
+def _drag_script(session: Session) -> tuple[np.ndarray, np.ndarray]:
+    p0 = session.world.site_pose(session.world.tcp_site)[0]
+    return p0, p0 + np.array([0.0, 0.08, -0.05])
+
+
+@pytest.mark.parametrize("scenario", [s for s in ("free", "polish") if s in SCENARIOS])
+def test_two_seconds_in_the_loop_match_the_headless_session_step_for_step(scenario):
+    headless = Session(scenario)
+    lp = SimLoop(scenario, capture=lambda s: None)
+    lp.start(running=False)
+    try:
+        p0, target = _drag_script(headless)
+        body = headless.world.model.body(headless.world.wrist_body).name
+        headless.drag.grab(headless.world, headless.world.wrist_body, p0)
+        headless.drag.move(target)
+        q_ref = np.array([headless.step().q.copy() for _ in range(2000)])
+
+        lp.submit(DragCommand("grab", client_id=1, body_name=body, point_world=tuple(p0)))
+        lp.submit(DragCommand("move", client_id=1, target_world=tuple(target)))
+        lp.submit(StepOnce(2000))
+        status = lp.sync()
+        cols = lp.call(lambda s: lp.log.window(2.0, DT))
+    finally:
+        lp.stop()
+    assert status.steps == 2000
+    q_loop = np.stack([cols[f"q_{i + 1}"] for i in range(7)], axis=1)
+    assert q_loop.shape == (2000, 7)
+    np.testing.assert_array_equal(q_loop, q_ref)
+    assert np.max(np.abs(q_ref[-1] - q_ref[0])) > 1e-3  # the drag really moved the arm
+
+
+def test_configure_applies_between_steps_and_invalid_values_are_refused(loop):
+    v0 = loop.settings.version
+    loop.submit(Configure("executor", {"stiffness": 250.0}, client_id=7))
+    loop.sync()
+    assert loop.session.executor.gains.stiffness == 250.0
+    assert loop.settings.values["executor"]["stiffness"] == 250.0
+    assert loop.settings.version > v0
+    bad = [
+        Configure("executor", {"stiffness": -1.0}, client_id=7),
+        Configure("executor", {"stiffness": float("nan")}, client_id=7),
+        Configure("executor", {"stiffness": "abc"}, client_id=7),
+        Configure("executor", {"no_such_gain": 1.0}, client_id=7),
+        Configure("nowhere", {"x": 1}, client_id=7),
+        Configure("drag", {"max_force_n": -5}, client_id=7),
+        SetSpeed(5.0),
+        SetSpeed(float("nan")),
+        StepOnce(-3),
+        SwitchSession(scenario="no-such-scenario"),
+        SwitchSession(executor="no-such-executor"),
+        DragCommand("grab", client_id=7, body_name="no_such_link", point_world=(0.0, 0.0, 0.5)),
+        DragCommand("grab", client_id=7, body_name="link1", point_world=None),
+    ]
+    n0 = len(loop.notice_log)
+    for cmd in bad:
+        loop.submit(cmd)
+    status = loop.sync()
+    assert loop.alive and status.halted == ""
+    assert len(loop.notice_log) - n0 == len(bad)  # one refusal notice per bad command
+    assert all(n.level == "error" for n in list(loop.notice_log)[n0:])
+    assert loop.session.executor.gains.stiffness == 250.0
+    assert loop.settings.values["drag"]["max_force_n"] == loop.session.drag.max_force_n > 0
+    assert not loop.session.drag.active
+    assert status.steps == 0  # nothing stepped while paused
+
+
+def test_pause_single_step_and_reset(loop):
+    loop.submit(StepOnce(5))
+    assert loop.sync().steps == 5
+    loop.submit(Play())
+    loop.sync()
+    deadline = time.monotonic() + 10.0
+    while loop.sync().steps < 60 and time.monotonic() < deadline:  # runs in real time
+        time.sleep(0.01)
+    loop.submit(Pause())
+    paused = loop.sync().steps
+    assert paused >= 60
+    for _ in range(5):
+        assert loop.sync().steps == paused  # paused: time stands still
+    loop.submit(StepOnce(3))
+    assert loop.sync().steps == paused + 3
+    loop.submit(Reset())
+    status = loop.sync()
+    assert status.steps == 0 and status.t == 0.0 and not status.running
+    np.testing.assert_allclose(loop.session.world.q, loop.session.scenario.initial_q(loop.session.robot))
+
+
+def test_divergence_pauses_with_a_message_and_reset_recovers(loop):
+    loop.submit(Play())
+    loop.call(lambda s: s.world.data.qvel.__setitem__(0, np.nan))
+    for _ in range(100):
+        status = loop.sync()
+        if status.halted:
+            break
+    assert status.halted and not status.running
+    assert any(n.level == "error" and "diverged" in n.body for n in loop.notice_log)
+    loop.submit(Play())  # refused while diverged
+    assert not loop.sync().running
+    loop.submit(Reset())
+    status = loop.sync()
+    assert status.halted == "" and status.running  # one click: back to running from t = 0
+    assert np.all(np.isfinite(loop.session.world.data.qvel))
+
+
+def test_drag_belongs_to_the_client_that_grabbed_it_and_reset_releases_it(loop):
+    s = loop.session
+    body = s.world.model.body(s.world.wrist_body).name
+    p0 = tuple(s.world.site_pose(s.world.tcp_site)[0])
+    loop.submit(DragCommand("grab", client_id=1, body_name=body, point_world=p0))
+    loop.submit(DragCommand("move", client_id=2, target_world=(0.0, 0.0, 0.0)))  # not the holder: ignored
+    loop.submit(DragCommand("release", client_id=2))
+    status = loop.sync()
+    assert s.drag.active and status.drag_client == 1
+    np.testing.assert_allclose(s.drag.target_world, p0)
+    loop.submit(DragCommand("move", client_id=1, target_world=(0.3, 0.1, 0.4)))
+    loop.submit(StepOnce(20))
+    loop.sync()
+    assert s.drag.state is not None and np.linalg.norm(s.drag.state.force_world) > 1.0
+    loop.submit(DragCommand("release", client_id=1))
+    assert not loop.sync().drag_client and not s.drag.active
+    loop.submit(DragCommand("grab", client_id=3, body_name=body, point_world=p0))
+    loop.submit(Reset())
+    status = loop.sync()
+    assert not loop.session.drag.active and status.drag_client is None
+
+
+def test_environment_and_drag_settings_survive_a_reset(loop):
+    loop.submit(Configure("drag", {"max_force_n": 42.0}))
+    loop.submit(Reset())
+    loop.sync()
+    assert loop.session.drag.max_force_n == 42.0
+    assert loop.settings.values["drag"]["max_force_n"] == 42.0
+
+
+def test_executor_switch_keeps_the_simulation_state(loop):
+    loop.submit(StepOnce(10))
+    loop.sync()
+    t = loop.session.world.time
+    loop.submit(SwitchSession(executor="joint-hold"))
+    status = loop.sync()
+    assert status.executor == "joint-hold" and loop.session.world.time == t
+
+
+def test_speed_is_limited_to_a_tenth_to_one(loop):
+    loop.submit(SetSpeed(0.25))
+    assert loop.sync().speed == 0.25
+    loop.submit(SetSpeed(0.05))
+    assert loop.sync().speed == 0.25
+
+
+# ---- pacing (fake clock: exact numbers) ----------------------------------------------------------
+def test_pacer_catches_up_in_bursts_and_never_drifts():
+    pacer = Pacer(dt=DT, speed=1.0, max_lag_s=0.05)
+    pacer.restart(0.0, 0)
+    rng = np.random.default_rng(0)
+    now, done, bursts = 0.0, 0, []
+    for _ in range(20_000):
+        now += rng.uniform(0.0, 3e-3)  # irregular wake-ups of up to 3 ms
+        n = pacer.due(now, done)
+        bursts.append(n)
+        done += n
+    assert abs(done * DT - now) <= DT  # after ~30 s of wall time: within one step
+    assert max(bursts) >= 2  # late wake-ups are caught up in a burst
+    assert pacer.dropped_steps == 0
+
+
+def test_pacer_slows_down_when_steps_are_too_slow_and_reports_it():
+    pacer = Pacer(dt=DT, speed=1.0, max_lag_s=0.05)
+    meter = RateMeter(window_s=0.5)
+    pacer.restart(0.0, 0)
+    now, done = 0.0, 0
+    meter.sample(now, 0.0)
+    for _ in range(2000):
+        n = pacer.due(now, done)
+        now += n * 2e-3 + 1e-4  # each step costs 2 ms: at most half real time
+        done += n
+        meter.sample(now, done * DT)
+    assert meter.rtf == pytest.approx(0.5, abs=0.03)
+    assert pacer.dropped_steps > 0
+    assert pacer.due(now, done) <= pacer.max_lag_steps  # never an unbounded burst
+
+
+def test_pacer_speed_scales_simulated_time():
+    pacer = Pacer(dt=DT)
+    pacer.set_speed(0.1, 0.0, 0)
+    assert pacer.due(1.0, 0) == 50  # 100 ms of sim time are due, capped at the 50-step burst
+    pacer.set_speed(0.1, 0.0, 0)
+    done = 0
+    for k in range(1, 1001):
+        done += pacer.due(k * 1e-3, done)
+    assert done == 100  # 1 s of wall time at 0.1×
+    assert pacer.next_due(done) == pytest.approx(1.01)
+    with pytest.raises(ValueError):
+        pacer.set_speed(math.nan, 0.0, 0)
+
+
+# ---- step log ------------------------------------------------------------------------------------
+def test_step_log_keeps_the_newest_rows_and_decimates_from_the_newest():
+    s = Session("free")
+    log = StepLog(7, capacity=100)
+    for k in range(250):
+        rec = s.step()
+        rec.signals["k"] = float(k)
+        log.append(rec)
+    full = log.window(1.0, DT)
+    assert len(full["t"]) == 100
+    np.testing.assert_array_equal(full["k"], np.arange(150, 250))
+    every = log.window(0.05, DT, every=10)
+    np.testing.assert_array_equal(every["k"], np.arange(209, 250, 10))
+    assert np.all(np.diff(full["t"]) > 0)
