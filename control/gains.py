@@ -47,3 +47,168 @@ def is_finite_number(x) -> bool:
         return math.isfinite(float(x))
     except (TypeError, ValueError):
         return False
+
+
+# ---- [C] explicit-compliance QP executor ---------------------------------------------------------
+
+from dataclasses import dataclass  # noqa: E402
+
+DAMPER_FORMS = ("proposed", "classic")
+ESTIMATE_SOURCES = ("none", "residual", "fusion", "oracle")
+POSTURE_METRICS = ("identity", "inertia")
+
+
+def compliance_matrix(value, m: int, name: str = "compliance") -> np.ndarray:
+    """Γ [C9] as an (m, m) matrix from a scalar, m diagonal values or an m×m matrix.
+
+    Γ must be symmetric positive semi-definite (eigenvalues ≥ 0); ValueError otherwise.
+    """
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        G = float(arr) * np.eye(m)
+    elif arr.shape == (m,):
+        G = np.diag(arr)
+    elif arr.shape == (m, m):
+        G = arr.copy()
+    else:
+        raise ValueError(f"{name} must be a scalar, {m} diagonal values or a {m}x{m} matrix, got shape {arr.shape}")
+    if not np.all(np.isfinite(G)):
+        raise ValueError(f"{name} must be finite")
+    if not np.allclose(G, G.T, atol=1e-12):
+        raise ValueError(f"{name} must be symmetric")
+    if np.linalg.eigvalsh(G)[0] < -1e-12:
+        raise ValueError(f"{name} must be positive semi-definite")
+    return G
+
+
+def _frozen(value):
+    """Hashable copy of a scalar / vector / matrix gain for a frozen dataclass."""
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        return float(arr)
+    if arr.ndim == 1:
+        return tuple(float(x) for x in arr)
+    return tuple(tuple(float(x) for x in row) for row in arr)
+
+
+@dataclass(frozen=True)
+class PoseTaskGains:
+    """TCP pose task [C3, C6]: ë* = −K_d ė − K_p e, weight w_k, compliance Γ_k [C9].
+
+    stiffness K_p in 1/s², damping K_d in 1/s (scalars or 6 values [px py pz rx ry rz]);
+    compliance: scalar, 6 diagonal values or a 6×6 symmetric PSD matrix (0 stiff, 1 compliant).
+    """
+
+    stiffness: float | tuple = 100.0
+    damping: float | tuple = 20.0
+    weight: float = 1e4
+    compliance: float | tuple = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("stiffness", "damping", "compliance"):
+            object.__setattr__(self, name, _frozen(getattr(self, name)))
+        as_tuple(self.stiffness, 6, "stiffness")
+        as_tuple(self.damping, 6, "damping")
+        for name in ("stiffness", "damping", "weight"):
+            arr = np.asarray(getattr(self, name), dtype=float)
+            if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+                raise ValueError(f"PoseTaskGains.{name} must be finite and non-negative, got {getattr(self, name)!r}")
+        validate_positive(self, "weight")
+        compliance_matrix(self.compliance, 6, "PoseTaskGains.compliance")
+
+
+@dataclass(frozen=True)
+class PostureTaskGains:
+    """Posture (null-space) task, task 0 of [C7, C9]: q̈*₀ = −K_d (q̇ − q̇_ref) − K_p (q − q_ref) − K_i ∫(q − q_ref).
+
+    stiffness 1/s², damping 1/s, integral 1/s³ (scalars or 7 values); weight w₀; compliance Γ₀
+    (scalar, 7 values or 7×7); metric "identity" (‖·‖², [C9]) or "inertia" (‖·‖²_M, which puts the
+    posture in the dynamically consistent nullspace, DESIGN §8).
+    """
+
+    stiffness: float | tuple = 1.0
+    damping: float | tuple = 2.0
+    integral: float | tuple = 0.0
+    weight: float = 1.0
+    compliance: float | tuple = 0.0
+    metric: str = "identity"
+
+    def __post_init__(self) -> None:
+        for name in ("stiffness", "damping", "integral", "compliance"):
+            object.__setattr__(self, name, _frozen(getattr(self, name)))
+        for name in ("stiffness", "damping", "integral", "weight"):
+            arr = np.asarray(getattr(self, name), dtype=float)
+            if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+                raise ValueError(
+                    f"PostureTaskGains.{name} must be finite and non-negative, got {getattr(self, name)!r}"
+                )
+        validate_positive(self, "weight")
+        compliance_matrix(self.compliance, 7, "PostureTaskGains.compliance")
+        if self.metric not in POSTURE_METRICS:
+            raise ValueError(f"PostureTaskGains.metric must be one of {POSTURE_METRICS}, got {self.metric!r}")
+
+
+@dataclass(frozen=True)
+class DamperGains:
+    """Joint position/velocity limit dampers [C13–24].
+
+    form "proposed" [C24] uses lambda_ (1/s) and overdamping M; "classic" [C17–19] uses the
+    control period δt and the intermediary velocity limit [C15] with influence distance
+    d_i = influence_fraction·range and ξ = λ(d_i − d_s)/(4M²) [C23] (the same velocity envelope
+    as the proposed form, so the two differ only in the gain 1/δt versus λ).
+    safety_fraction: d_s as a fraction of the joint range ([C] §IV-B: 1 %);
+    velocity_scale: multiplies the robot's velocity limits (< 1 lowers them).
+    """
+
+    form: str = "proposed"
+    lambda_: float = 100.0
+    M: float = 2.0
+    safety_fraction: float = 0.01
+    influence_fraction: float = 0.1
+    velocity_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.form not in DAMPER_FORMS:
+            raise ValueError(f"DamperGains.form must be one of {DAMPER_FORMS}, got {self.form!r}")
+        validate_positive(self, "lambda_", "M", "velocity_scale", "influence_fraction")
+        if not 0.0 <= self.safety_fraction < 0.5:
+            raise ValueError(f"DamperGains.safety_fraction must be in [0, 0.5), got {self.safety_fraction!r}")
+        if self.influence_fraction <= self.safety_fraction:
+            raise ValueError("DamperGains.influence_fraction must exceed safety_fraction")
+
+
+@dataclass(frozen=True)
+class EstimatorGains:
+    """External-torque estimation [C25–26].
+
+    source: "none", "residual" (momentum observer), "fusion" (observer + F/T through the
+    complementary filter [C26]) or "oracle" (simulation truth, labelled as such in outputs);
+    observer_gain K_I in 1/s (also the fusion crossover).
+    """
+
+    source: str = "fusion"
+    observer_gain: float = 50.0
+
+    def __post_init__(self) -> None:
+        if self.source not in ESTIMATE_SOURCES:
+            raise ValueError(f"EstimatorGains.source must be one of {ESTIMATE_SOURCES}, got {self.source!r}")
+        validate_positive(self, "observer_gain")
+
+
+@dataclass(frozen=True)
+class ComplianceQPSettings:
+    """Switches of the [C] QP executor.
+
+    feedback: keep τ̂_e in the inverse dynamics [C8] and the torque limits [C10];
+    torque_limits: add [C10] as constraints; eps: OSQP absolute/relative tolerance;
+    polish: OSQP solution polishing (slower, exact active set).
+    """
+
+    feedback: bool = True
+    torque_limits: bool = True
+    eps: float = 1e-6
+    polish: bool = False
+    max_iter: int = 4000
+
+    def __post_init__(self) -> None:
+        validate_positive(self, "eps", "max_iter")

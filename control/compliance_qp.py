@@ -1,0 +1,404 @@
+"""The [C] QP executor: acceleration QP with explicit compliance, safety constraints and
+inverse dynamics with external-torque compensation (Celerier et al.).
+
+Decision variable q̈ (n). Objective [C9]:
+    Σ_k w_k ‖J_k q̈ + J̇_k q̇ − ẍ°_k − ë*_k − Γ_k J_k q̈_e‖²  +  w₀ ‖q̈ − q̈*₀ − Γ₀ q̈_e‖²_W₀,
+q̈_e = M⁻¹ τ̂_e, ë*_k = −K_d ė − K_p e [C3, C6], W₀ = I ([C9]) or M (dynamically consistent,
+DESIGN §8). Each task is a small object that turns a `Dynamics` snapshot into rows (J, b, weight)
+meaning "J q̈ ≈ b"; a task marked strict becomes equality rows instead.
+Constraints: joint position/velocity dampers [C17–24] as bounds on q̈; torque limits [C10]
+τ⁻ ≤ M q̈ + h − τ̂_e ≤ τ⁺. Torque [C8]: τ_d = M q̈ + C q̇ + g − τ̂_e. The feedback switch removes
+τ̂_e from [C8] and [C10] (the paper's Fig. 4 case) while the compliance terms keep it.
+
+OSQP is set up once with a dense, explicit sparsity pattern and updated in place every step
+(warm-started). If the QP fails (torque limits and dampers cannot hold together) the torque
+limits — which the motors enforce anyway by saturation — are relaxed and the problem solved
+again; if that fails too, the tasks' unconstrained optimum clipped to the damper bounds is used.
+Both cases are flagged; nothing raises inside `step`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import NamedTuple, Protocol
+
+import numpy as np
+import osqp
+import pinocchio as pin
+import scipy.sparse as sp
+
+from control.dampers import JointLimitDamper
+from control.estimation import ExternalTorqueEstimator
+from control.executor import ControlInputs, ControlOutput, TaskTarget
+from control.gains import (
+    ComplianceQPSettings,
+    DamperGains,
+    EstimatorGains,
+    PoseTaskGains,
+    PostureTaskGains,
+    compliance_matrix,
+)
+from control.model import Dynamics
+
+OSQP_INF = 1e30
+SOLVED = (int(osqp.SolverStatus.OSQP_SOLVED.value), int(osqp.SolverStatus.OSQP_SOLVED_INACCURATE.value))
+
+
+class TaskRows(NamedTuple):
+    """A task's contribution: weight · ‖J q̈ − b‖²_metric (or J q̈ = b when strict)."""
+
+    J: np.ndarray  # (m, n)
+    b: np.ndarray  # (m,) desired J q̈, compliance term included
+    weight: float
+    metric: np.ndarray | None  # (m, m) weighting, None = identity
+
+
+class Task(Protocol):
+    """Anything that yields rows for the QP objective."""
+
+    dim: int
+    strict: bool
+
+    def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
+        """Clear internal state (integrators) at (re)start."""
+
+    def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
+        """Rows at this step; ddq_e = M⁻¹ τ̂_e is the acceleration the external forces cause."""
+        ...
+
+
+def pose_error(dyn: Dynamics, target: TaskTarget) -> np.ndarray:
+    """e = x − x° of the TCP pose [C3]: [p − p°; log(R R°ᵀ)] in world axes (6,)."""
+    e = np.empty(6)
+    e[:3] = dyn.tcp_position_world - target.position
+    e[3:] = pin.log3(dyn.tcp_rotation_world @ target.rotation.T)
+    return e
+
+
+class PoseTask:
+    """6-D TCP pose task with explicit compliance Γ_k [C3–6, C9]."""
+
+    dim = 6
+
+    def __init__(self, gains: PoseTaskGains | None = None, strict: bool = False):
+        self.strict = strict
+        self.configure(gains or PoseTaskGains())
+
+    def configure(self, gains: PoseTaskGains) -> None:
+        """New gains / Γ (validated by the dataclass)."""
+        self.gains = gains
+        self.kp = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (6,)).copy()
+        self.kd = np.broadcast_to(np.asarray(gains.damping, dtype=float), (6,)).copy()
+        self.gamma = compliance_matrix(gains.compliance, 6)
+
+    def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
+        """No internal state."""
+
+    def reference(self, dyn: Dynamics, target: TaskTarget) -> np.ndarray:
+        """ë* = −K_d ė − K_p e [C3] (the feed-forward ẍ° is added in `rows`)."""
+        e = pose_error(dyn, target)
+        de = dyn.J @ dyn.dq - target.velocity
+        return -self.kd * de - self.kp * e
+
+    def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
+        """J q̈ = ẍ° + ë* + Γ J q̈_e − J̇ q̇ [C4, C9]."""
+        b = target.acceleration + self.reference(dyn, target) - dyn.dJ_dq
+        if self.gamma.any():
+            b = b + self.gamma @ (dyn.J @ ddq_e)
+        return TaskRows(dyn.J, b, self.gains.weight, None)
+
+
+class PostureTask:
+    """Joint posture task, task 0 of [C7, C9]: q̈ ≈ q̈*₀ + Γ₀ q̈_e, identity or M metric.
+
+    q_ref is the target's `q_posture` (or the posture at reset); `dq_ref` may be set each step to
+    track a nullspace velocity, e.g. [T]'s q̂̇n from the nullspace QP (DESIGN §3 bridge).
+    """
+
+    def __init__(self, n: int, gains: PostureTaskGains | None = None, dt: float = 1e-3):
+        self.dim = n
+        self.strict = False
+        self.dt = float(dt)
+        self.dq_ref: np.ndarray | None = None
+        self.q_hold = np.zeros(n)
+        self.integral = np.zeros(n)
+        self._eye = np.eye(n)
+        self.configure(gains or PostureTaskGains())
+
+    def configure(self, gains: PostureTaskGains) -> None:
+        """New gains / Γ₀ / metric (validated by the dataclass)."""
+        n = self.dim
+        self.gains = gains
+        self.kp = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (n,)).copy()
+        self.kd = np.broadcast_to(np.asarray(gains.damping, dtype=float), (n,)).copy()
+        self.ki = np.broadcast_to(np.asarray(gains.integral, dtype=float), (n,)).copy()
+        self.gamma = compliance_matrix(gains.compliance, n)
+
+    def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
+        """Hold the current posture unless the target gives one; clear the integral."""
+        self.q_hold = dyn.q.copy() if target.q_posture is None else np.array(target.q_posture, dtype=float)
+        self.integral = np.zeros(self.dim)
+
+    def reference(self, dyn: Dynamics, target: TaskTarget) -> np.ndarray:
+        """q̈*₀ = −K_d (q̇ − q̇_ref) − K_p (q − q_ref) − K_i ∫(q − q_ref)."""
+        q_ref = self.q_hold if target.q_posture is None else target.q_posture
+        e = dyn.q - q_ref
+        dq_ref = 0.0 if self.dq_ref is None else self.dq_ref
+        if self.ki.any():
+            self.integral += e * self.dt
+        return -self.kd * (dyn.dq - dq_ref) - self.kp * e - self.ki * self.integral
+
+    def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
+        """q̈ = q̈*₀ + Γ₀ q̈_e [C9]."""
+        b = self.reference(dyn, target)
+        if self.gamma.any():
+            b = b + self.gamma @ ddq_e
+        metric = dyn.M if self.gains.metric == "inertia" else None
+        return TaskRows(self._eye, b, self.gains.weight, metric)
+
+
+class QPResult(NamedTuple):
+    """Solution of one acceleration QP."""
+
+    ddq: np.ndarray
+    status: int  # OSQP status value of the last solve (0 when the analytic fallback was used)
+    relaxed: bool  # torque limits relaxed or analytic fallback used
+    iterations: int
+
+
+class AccelerationQP:
+    """OSQP problem over q̈ with a fixed pattern: rows [I (dampers); M (torque limits); J_strict]."""
+
+    def __init__(self, n: int, n_strict: int, settings: ComplianceQPSettings):
+        self.n = n
+        self.m = 2 * n + n_strict
+        self.settings = settings
+        self._rows_P, self._cols_P = _upper_triangle_column_major(n)
+        self.A = np.zeros((self.m, n))
+        self.A[:n, :n] = np.eye(n)
+        self.l = np.full(self.m, -OSQP_INF)
+        self.u = np.full(self.m, OSQP_INF)
+        P0 = np.eye(n)
+        self.solver = self._setup(P0)
+        self._last = np.zeros(n)
+
+    def _setup(self, P0: np.ndarray) -> osqp.OSQP:
+        n, s = self.n, self.settings
+        P_csc = sp.csc_matrix(
+            (P0[self._rows_P, self._cols_P], (self._rows_P, self._cols_P)), shape=(n, n)
+        )  # all upper-triangle entries kept, even zeros
+        grid_r, grid_c = np.meshgrid(np.arange(self.m), np.arange(n), indexing="ij")
+        rows_A, cols_A = grid_r.ravel(order="F"), grid_c.ravel(order="F")
+        A_csc = sp.csc_matrix((np.ones(rows_A.size), (rows_A, cols_A)), shape=(self.m, n))
+        A_csc.data[:] = self.A.ravel(order="F")
+        solver = osqp.OSQP()
+        solver.setup(
+            P=P_csc,
+            q=np.zeros(n),
+            A=A_csc,
+            l=self.l,
+            u=self.u,
+            verbose=False,
+            warm_starting=True,
+            polishing=s.polish,
+            eps_abs=s.eps,
+            eps_rel=s.eps,
+            max_iter=s.max_iter,
+            check_termination=10,
+        )
+        return solver
+
+    def solve(self, P: np.ndarray, q: np.ndarray, n_torque_rows_relaxable: bool = True) -> QPResult:
+        """Solve with the current A, l, u; relax the torque rows, then fall back analytically."""
+        n = self.n
+        try:
+            Px = P[self._rows_P, self._cols_P]
+            self.solver.update(Px=Px, Ax=self.A.ravel(order="F"), q=q, l=self.l, u=self.u)
+            res = self.solver.solve(raise_error=False)
+            status = res.info.status_val
+            if status in SOLVED and np.all(np.isfinite(res.x)):
+                self._last = res.x.copy()
+                return QPResult(res.x.copy(), status, False, res.info.iter)
+            # relax the torque limits [C10] (motors saturate anyway), keep the dampers
+            l2, u2 = self.l.copy(), self.u.copy()
+            l2[n : 2 * n] = -OSQP_INF
+            u2[n : 2 * n] = OSQP_INF
+            self.solver.update(l=l2, u=u2)
+            res = self.solver.solve(raise_error=False)
+            status = res.info.status_val
+            if status in SOLVED and np.all(np.isfinite(res.x)):
+                self._last = res.x.copy()
+                return QPResult(res.x.copy(), status, True, res.info.iter)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            status = -1
+        # analytic fallback: unconstrained optimum clipped to the damper bounds
+        try:
+            x = np.linalg.solve(P + 1e-9 * np.eye(n), -q)
+        except np.linalg.LinAlgError:
+            x = self._last.copy()
+        x = np.clip(x, self.l[:n], self.u[:n])
+        if not np.all(np.isfinite(x)):
+            x = np.zeros(n)
+        return QPResult(x, int(status), True, 0)
+
+
+def _upper_triangle_column_major(n: int) -> tuple[np.ndarray, np.ndarray]:
+    rows, cols = [], []
+    for j in range(n):
+        for i in range(j + 1):
+            rows.append(i)
+            cols.append(j)
+    return np.array(rows), np.array(cols)
+
+
+class ComplianceQPExecutor:
+    """[C] executor: estimation [C25–26] → QP [C9, C10, C17–24] → inverse dynamics [C8]."""
+
+    name = "compliance-qp"
+
+    def __init__(
+        self,
+        q_lower: np.ndarray,
+        q_upper: np.ndarray,
+        dq_max: np.ndarray,
+        tau_max: np.ndarray,
+        endless: np.ndarray,
+        tasks: list | None = None,
+        posture: PostureTaskGains | None = None,
+        dampers: DamperGains | None = None,
+        estimator: EstimatorGains | None = None,
+        settings: ComplianceQPSettings | None = None,
+        dt: float = 1e-3,
+    ):
+        self.n = n = len(q_lower)
+        self.dt = float(dt)
+        self.tau_max = np.asarray(tau_max, dtype=float).copy()
+        self.tasks: list = [PoseTask()] if tasks is None else list(tasks)
+        self.posture = PostureTask(n, posture, dt=dt)
+        self.damper = JointLimitDamper(q_lower, q_upper, dq_max, endless, dampers, dt=dt)
+        self.estimator = ExternalTorqueEstimator(n, estimator, dt=dt)
+        self.settings = settings or ComplianceQPSettings()
+        self._build_qp()
+        self.tau_prev = np.zeros(n)
+        self.tau_hat = np.zeros(n)
+        self.ddq = np.zeros(n)
+        self.last_info: dict[str, float] = {}
+
+    @classmethod
+    def for_robot(cls, robot, **kwargs) -> ComplianceQPExecutor:
+        """Executor with the robot's joint, velocity and torque limits."""
+        return cls(robot.q_lower, robot.q_upper, robot.dq_max, robot.tau_max, robot.endless, **kwargs)
+
+    def set_tasks(self, tasks: list) -> None:
+        """Replace the operational tasks (rebuilds the QP; not for use inside the loop)."""
+        self.tasks = list(tasks)
+        self._build_qp()
+
+    def _build_qp(self) -> None:
+        self.strict_tasks = [t for t in self.tasks if getattr(t, "strict", False)]
+        self.soft_tasks = [t for t in self.tasks if not getattr(t, "strict", False)]
+        self.qp = AccelerationQP(self.n, sum(t.dim for t in self.strict_tasks), self.settings)
+
+    # ---- Executor protocol --------------------------------------------------------------------
+    def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
+        """Clear estimator, integrators and warm start; gravity compensation as the last torque."""
+        for task in self.tasks:
+            task.reset(dyn, target)
+        self.posture.reset(dyn, target)
+        self.estimator.reset(dyn)
+        self.tau_prev = np.clip(dyn.h, -self.tau_max, self.tau_max)
+        self.tau_hat = np.zeros(self.n)
+        self._build_qp()
+
+    def configure(self, **changes: object) -> None:
+        """Change tunables by name: feedback, torque_limits, source, observer_gain, lambda_, M,
+        form, velocity_scale, task_compliance, posture_compliance, posture_metric (ValueError on bad input)."""
+        c = dict(changes)
+        s_fields = {k: c.pop(k) for k in ("feedback", "torque_limits") if k in c}
+        if s_fields:
+            self.settings = replace(self.settings, **s_fields)  # type: ignore[arg-type]
+        e_fields = {k: c.pop(k) for k in ("source", "observer_gain") if k in c}
+        if e_fields:
+            self.estimator.configure(replace(self.estimator.gains, **e_fields))  # type: ignore[arg-type]
+        d_fields = {
+            k: c.pop(k)
+            for k in ("lambda_", "M", "form", "velocity_scale", "safety_fraction", "influence_fraction")
+            if k in c
+        }
+        if d_fields:
+            self.damper.configure(replace(self.damper.gains, **d_fields))  # type: ignore[arg-type]
+        if "task_compliance" in c:
+            value = c.pop("task_compliance")
+            for task in self.tasks:
+                if isinstance(task, PoseTask):
+                    task.configure(replace(task.gains, compliance=value))  # type: ignore[arg-type]
+        p_fields = {}
+        if "posture_compliance" in c:
+            p_fields["compliance"] = c.pop("posture_compliance")
+        if "posture_metric" in c:
+            p_fields["metric"] = c.pop("posture_metric")
+        if p_fields:
+            self.posture.configure(replace(self.posture.gains, **p_fields))  # type: ignore[arg-type]
+        if c:
+            raise ValueError(f"compliance-qp has no setting {', '.join(c)}")
+
+    def step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
+        """One control step; never raises on numerical trouble (flags a fallback instead)."""
+        n = self.n
+        target = inputs.target
+        tau_hat = self.estimator.update(dyn, self.tau_prev, inputs.wrench_tcp, inputs.tau_ext_oracle)
+        self.tau_hat = tau_hat
+        ddq_e = dyn.M_inv @ tau_hat  # q̈_e = M⁻¹ τ̂_e
+        # objective [C9]: ½ q̈ᵀ P q̈ + qᵀ q̈
+        P = np.zeros((n, n))
+        q = np.zeros(n)
+        for task in (*self.soft_tasks, self.posture):
+            J, b, w, W = task.rows(dyn, target, ddq_e)
+            JtW = J.T * w if W is None else (J.T @ W) * w
+            P += JtW @ J
+            q -= JtW @ b
+        qp = self.qp
+        # strict tasks as equality rows
+        row = 2 * n
+        for task in self.strict_tasks:
+            J, b, _, _ = task.rows(dyn, target, ddq_e)
+            qp.A[row : row + task.dim] = J
+            qp.l[row : row + task.dim] = b
+            qp.u[row : row + task.dim] = b
+            row += task.dim
+        # dampers [C17–24]
+        bounds = self.damper.bounds(dyn.q, dyn.dq)
+        qp.l[:n] = bounds.lower
+        qp.u[:n] = bounds.upper
+        # torque limits [C10] on τ_d of [C8]
+        tau_fb = tau_hat if self.settings.feedback else 0.0
+        qp.A[n : 2 * n] = dyn.M
+        if self.settings.torque_limits:
+            qp.l[n : 2 * n] = -self.tau_max - dyn.h + tau_fb
+            qp.u[n : 2 * n] = self.tau_max - dyn.h + tau_fb
+        else:
+            qp.l[n : 2 * n] = -OSQP_INF
+            qp.u[n : 2 * n] = OSQP_INF
+        res = qp.solve(P, q)
+        self.ddq = res.ddq
+        tau = dyn.M @ res.ddq + dyn.h - tau_fb  # [C8]
+        tau_cmd = np.clip(tau, -self.tau_max, self.tau_max)
+        saturated = bool(np.any(np.abs(tau) > self.tau_max + 1e-9))
+        self.tau_prev = tau_cmd
+        info = {
+            "qp_status": float(res.status),
+            "qp_iterations": float(res.iterations),
+            "qp_relaxed": float(res.relaxed),
+            "damper_crossed": float(bounds.crossed),
+            "tau_saturated": float(saturated),
+            "tau_ext_estimate_norm": float(np.linalg.norm(tau_hat)),
+            "tau_ext_is_oracle": float(self.estimator.is_oracle),
+            "feedback": float(self.settings.feedback),
+        }
+        self.last_info = info
+        return ControlOutput(tau=tau_cmd, fallback=res.relaxed or bounds.crossed, info=info)
+
+
+def make_compliance_qp(robot, model=None, **kwargs) -> ComplianceQPExecutor:
+    """The [C] executor for a robot description (TCP pose task + posture task by default)."""
+    return ComplianceQPExecutor.for_robot(robot, **kwargs)

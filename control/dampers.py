@@ -1,0 +1,134 @@
+"""Joint position and velocity limits as acceleration bounds: velocity dampers [C13–24].
+
+Per joint and per side, with e the distance to the limit (upper: e = q⁺ − q, ė = −q̇; lower:
+e = q − q⁻, ė = q̇), both limits become a lower bound on ë:
+- position, proposed [C24]: ë_p = −λ ė − λ²/(4M²)(e − d_s), active everywhere (no d_i needed);
+- position, classic [C15, C17]: ë_p = −(ė − ė_d)/δt, ė_d = −ξ(e − d_s)/(d_i − d_s), only when e < d_i;
+- velocity [C14, C18]: ë_v = −g(ė − ė_min) with g = λ (proposed) or 1/δt (classic), ė_min = −q̇⁺;
+merged [C19]: ë ≥ max(ë_p, ë_v). Upper side: q̈ ≤ −max(ë_p, ë_v); lower side: q̈ ≥ max(ë_p, ë_v).
+Endless joints get no position bound. Saturated at the limit the proposed bound gives
+ë + λė + λ²/(4M²)(e − d_s) = 0 [C21–22]: natural frequency λ/(2M), damping ratio M.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from control.gains import DamperGains
+
+NO_BOUND = 1e9  # rad/s², stands for "unbounded" in the QP rows (OSQP treats ≥ 1e30 as inf)
+
+
+class AccelerationBounds(NamedTuple):
+    """Box rows lower ≤ q̈ ≤ upper produced by a damper at one state."""
+
+    lower: np.ndarray  # (n,) rad/s²
+    upper: np.ndarray  # (n,) rad/s²
+    crossed: bool  # lower > upper somewhere (state far outside the limits): both set to the midpoint
+
+
+class JointLimitDamper:
+    """Velocity dampers for every joint of an arm, proposed [C24] or classic [C17–19] form."""
+
+    def __init__(
+        self,
+        q_lower: np.ndarray,
+        q_upper: np.ndarray,
+        dq_max: np.ndarray,
+        endless: np.ndarray,
+        gains: DamperGains | None = None,
+        dt: float = 1e-3,
+    ):
+        self.q_lower = np.asarray(q_lower, dtype=float).copy()
+        self.q_upper = np.asarray(q_upper, dtype=float).copy()
+        self.dq_max_nominal = np.asarray(dq_max, dtype=float).copy()
+        self.endless = np.asarray(endless, dtype=bool).copy()
+        n = self.q_lower.shape[0]
+        for name, arr in (("q_upper", self.q_upper), ("dq_max", self.dq_max_nominal), ("endless", self.endless)):
+            if arr.shape != (n,):
+                raise ValueError(f"{name} needs {n} values, got shape {arr.shape}")
+        if np.any(self.q_upper <= self.q_lower):
+            raise ValueError("every joint needs q_lower < q_upper")
+        if np.any(self.dq_max_nominal <= 0):
+            raise ValueError("dq_max must be positive")
+        if not dt > 0:
+            raise ValueError(f"dt must be positive, got {dt!r}")
+        self.dt = float(dt)
+        self.n = n
+        self.gains = gains or DamperGains()
+        self.configure(self.gains)
+
+    def configure(self, gains: DamperGains, dq_max: np.ndarray | None = None) -> None:
+        """Set the damper parameters (and optionally new per-joint velocity limits, rad/s)."""
+        self.gains = gains
+        if dq_max is not None:
+            arr = np.asarray(dq_max, dtype=float)
+            if arr.shape != (self.n,) or np.any(arr <= 0):
+                raise ValueError(f"dq_max needs {self.n} positive values")
+            self.dq_max_nominal = arr.copy()
+        rng = self.q_upper - self.q_lower
+        self.d_s = gains.safety_fraction * rng  # [C] §IV-B: 1 % of the range
+        self.d_i = gains.influence_fraction * rng
+        self.dq_limit = gains.velocity_scale * self.dq_max_nominal
+        lam, M = gains.lambda_, gains.M
+        self.kp = lam * lam / (4.0 * M * M)  # [C24] λ²/(4M²)
+        self.xi = lam * (self.d_i - self.d_s) / (4.0 * M * M)  # [C23] solved for ξ (classic form)
+        self.velocity_gain = lam if gains.form == "proposed" else 1.0 / self.dt
+        self.has_position = ~self.endless
+
+    def _side(self, e: np.ndarray, de: np.ndarray) -> np.ndarray:
+        """max(ë_p, ë_v) for one side [C19]: the lowest admissible ë."""
+        g = self.gains
+        if g.form == "proposed":
+            e_p = -g.lambda_ * de - self.kp * (e - self.d_s)  # [C24]
+        else:
+            de_d = -self.xi * (e - self.d_s) / (self.d_i - self.d_s)  # [C15]
+            e_p = np.where(e < self.d_i, -(de - de_d) / self.dt, -NO_BOUND)  # [C17], inserted below d_i
+        e_p = np.where(self.has_position, e_p, -NO_BOUND)
+        e_v = -self.velocity_gain * (de + self.dq_limit)  # [C18]/[C20] with ė_min = −q̇⁺
+        return np.maximum(e_p, e_v)
+
+    def bounds(self, q: np.ndarray, dq: np.ndarray) -> AccelerationBounds:
+        """Acceleration bounds lower ≤ q̈ ≤ upper at (q, q̇)."""
+        upper = -self._side(self.q_upper - q, -dq)  # ë = −q̈ on the upper side
+        lower = self._side(q - self.q_lower, dq)
+        upper = np.minimum(upper, NO_BOUND)
+        lower = np.maximum(lower, -NO_BOUND)
+        crossed = bool(np.any(lower > upper))
+        if crossed:
+            mid = 0.5 * (lower + upper)
+            bad = lower > upper
+            lower = np.where(bad, mid, lower)
+            upper = np.where(bad, mid, upper)
+        return AccelerationBounds(lower, upper, crossed)
+
+    def position_violation(self, q: np.ndarray) -> np.ndarray:
+        """Per joint, how far q is beyond its position limit (rad, > 0 = violated, endless → 0)."""
+        v = np.maximum(q - self.q_upper, self.q_lower - q)
+        return np.where(self.has_position, v, -np.inf)
+
+    def saturated_response(self, e0: float, de0: float, t: np.ndarray) -> np.ndarray:
+        """e(t) − d_s of [C21–22] for the proposed form, from (e0 − d_s, ė0) at t = 0.
+
+        ẍ + λẋ + λ²/(4M²) x = 0, x = e − d_s: ω_n = λ/(2M), ζ = M (closed form per damping case).
+        """
+        lam, M = self.gains.lambda_, self.gains.M
+        return second_order_response(lam / (2.0 * M), M, e0, de0, t)
+
+
+def second_order_response(omega_n: float, zeta: float, x0: float, v0: float, t: np.ndarray) -> np.ndarray:
+    """Free response x(t) of ẍ + 2ζω ẋ + ω² x = 0 from x(0) = x0, ẋ(0) = v0 [C22]."""
+    t = np.asarray(t, dtype=float)
+    if abs(zeta - 1.0) < 1e-9:
+        return (x0 + (v0 + omega_n * x0) * t) * np.exp(-omega_n * t)
+    if zeta > 1.0:
+        r = omega_n * np.sqrt(zeta * zeta - 1.0)
+        s1, s2 = -zeta * omega_n + r, -zeta * omega_n - r
+        c1 = (v0 - s2 * x0) / (s1 - s2)
+        c2 = x0 - c1
+        return c1 * np.exp(s1 * t) + c2 * np.exp(s2 * t)
+    wd = omega_n * np.sqrt(1.0 - zeta * zeta)
+    a = zeta * omega_n
+    return np.exp(-a * t) * (x0 * np.cos(wd * t) + (v0 + a * x0) / wd * np.sin(wd * t))
