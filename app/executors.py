@@ -17,6 +17,7 @@ ExecutorFactory = Callable[[RobotDescription, RobotModel], Executor]
 
 EXECUTORS: dict[str, ExecutorFactory] = {
     "joint-hold": lambda robot, model: JointHold(),
+    "projection": lambda robot, model: _projection(robot, model),
 }
 
 
@@ -30,3 +31,9 @@ def make_executor(name: str, robot: RobotDescription, model: RobotModel) -> Exec
     if name not in EXECUTORS:
         raise ValueError(f"unknown executor {name!r}; choose one of {', '.join(EXECUTORS)}")
     return EXECUTORS[name](robot, model)
+
+
+def _projection(robot: RobotDescription, model: RobotModel) -> Executor:
+    from control.motion_force import make_projection_executor
+
+    return make_projection_executor(robot, model)

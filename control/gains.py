@@ -7,7 +7,7 @@ Use `dataclasses.replace(gains, field=value)` to change one value (validated aga
 from __future__ import annotations
 
 import math
-from dataclasses import fields
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -47,6 +47,82 @@ def is_finite_number(x) -> bool:
         return math.isfinite(float(x))
     except (TypeError, ValueError):
         return False
+
+
+# ---- [T] projection executor: motion/force law and nullspace QP -------------------------------
+TANG_OBJECTIVES = ("j", "f", "a", "d")
+
+
+@dataclass(frozen=True)
+class MotionForceGains:
+    """Gains of the [T] motion/force law (Table II, "Simulation" column).
+
+    force_kp: K_f^p (dimensionless, N per N of force error) [T12]
+    force_kd: K_f^d, velocity damping along the force axes, N s/m [T12]
+    force_ki: K_f^i, integral gain on the force error, 1/s [T12]
+    force_integral_limit_n: anti-windup clamp of K_f^i ∫e_f, N
+    motion_kp: K_m^p per task axis [px py pz rx ry rz], N/m and N m/rad [T11]
+    motion_zeta: damping ratio ζ per task axis; K_m^d = 2ζ√(K_m^p A_ii) [T11]
+    nullspace_kd: K_n^d per joint, 1/s (Table II "K_q^p") [T13]
+    shaping: use Λ̂x [T9] (True) or the natural inertia Λx (False, no decoupling) in [T7]
+    """
+
+    force_kp: float = 0.5
+    force_kd: float = 200.0
+    force_ki: float = 0.0
+    force_integral_limit_n: float = 20.0
+    motion_kp: tuple[float, ...] = (4000.0, 4000.0, 4000.0, 400.0, 400.0, 400.0)
+    motion_zeta: tuple[float, ...] = (0.7, 0.7, 0.7, 0.7, 0.7, 0.7)
+    nullspace_kd: tuple[float, ...] = (50.0,) * 7
+    shaping: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "motion_kp", as_tuple(self.motion_kp, 6, "motion_kp"))
+        object.__setattr__(self, "motion_zeta", as_tuple(self.motion_zeta, 6, "motion_zeta"))
+        object.__setattr__(self, "nullspace_kd", as_tuple(self.nullspace_kd, 7, "nullspace_kd"))
+        validate_non_negative(self)
+
+
+@dataclass(frozen=True)
+class NullspaceGains:
+    """Nullspace velocity QP [T15-17] and its joint-limit dampers.
+
+    objective: W to minimise: "j" joint posture [T18], "f", "a", "d" coupling [T22]
+    k0_j, k0_f, k0_a, k0_d: gradient scale k0 [T15] per objective. The objectives have
+        different units (W_j rad², W_f 1/kg², W_a kg², W_d 1), so each has its own k0, chosen
+        once by one rule: k0 times the RMS of the nullspace-projected gradient ‖(I − J⁺J)∇W‖
+        over the feasible self-motion loop at the polish start pose is 0.3 rad/s
+        (`control.coupling.k0_for_speed`); k0_j = 1/s is a 1 s posture time constant.
+    velocity_scale: fraction of the joint velocity limits used as q̇min/q̇max [T17]
+    damper_speed: ξ, rad/s: first-order damper q̂̇ ≥ −ξ (d − d_s)/(d_i − d_s) near a limit
+    damper_influence: d_i, rad: distance to a position limit where the damper starts acting
+    damper_safety: d_s, rad: distance where the allowed approach velocity reaches zero
+    """
+
+    objective: str = "a"
+    k0_j: float = 1.0
+    k0_f: float = 25.0
+    k0_a: float = 0.05
+    k0_d: float = 0.25
+    velocity_scale: float = 0.5
+    damper_speed: float = 0.5
+    damper_influence: float = 0.25
+    damper_safety: float = 0.03
+
+    def __post_init__(self) -> None:
+        if self.objective not in TANG_OBJECTIVES:
+            raise ValueError(
+                f"NullspaceGains.objective must be one of {', '.join(TANG_OBJECTIVES)}, got {self.objective!r}"
+            )
+        validate_non_negative(self)
+        validate_positive(self, "velocity_scale", "damper_influence")
+        if not self.damper_safety < self.damper_influence:
+            raise ValueError("NullspaceGains.damper_safety must be smaller than damper_influence")
+
+    @property
+    def k0(self) -> float:
+        """k0 of the selected objective [T15]."""
+        return float(getattr(self, f"k0_{self.objective}"))
 
 
 # ---- [C] explicit-compliance QP executor ---------------------------------------------------------

@@ -1,0 +1,217 @@
+"""The [T] projection executor: partially decoupled impedance motion/force control [T7-14]
+with the nullspace velocity QP [T15-17] steering the posture towards low coupling [T22].
+
+Per step, from one `Dynamics` snapshot and the F/T reading mapped to the TCP (F^e, the wrench
+the environment exerts on the robot, world axes):
+
+- u_m = A ẍ̂_m + K_m^d ė_m + K_m^p e_m [T11] (C_m = 0: Coriolis terms are compensated by μx),
+  e_m from the position error and the SO(3) log of R̂ Rᵀ, K_m^d = 2ζ√(K_m^p A_ii);
+- u_f = −F̂_f + K_f^p e_f − K_f^d ẋ_f + K_f^i ∫e_f [T12], e_f = F_f^e − F̂_f (C_f = 0),
+  with the integral clamped (anti-windup);
+- F_x = Λx Λ̂x⁻¹ u + (Λx Λ̂x⁻¹ − I) F^e + μx [T7] with Λ̂x of [T9]; since
+  Λx Λ̂x⁻¹ = [[I, 0], [BᵀA⁻¹, I]] this is F_m = u_m, F_f = u_f + BᵀA⁻¹ (u_m + F_m^e);
+- F_n = Λn K_n^d (q̂̇n − N q̇) + μn [T13] with q̂̇n from the QP;
+- τ = Jᵀ F_x + Nᵀ F_n [T14], where μx = J̄ᵀh − Λx J̇q̇ and μn = h together give Jᵀμx + Nᵀμn
+  = h − JᵀΛx J̇q̇ (full gravity/Coriolis compensation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pinocchio as pin
+
+from control.coupling import (
+    POLISH_SUBSPACES,
+    CouplingTerms,
+    Subspaces,
+    coupling_gradient,
+    terms_of,
+)
+from control.executor import ControlInputs, ControlOutput, TaskTarget
+from control.gains import MotionForceGains, NullspaceGains
+from control.model import Dynamics, RobotModel
+from control.nullspace import NullspaceQP, NullspaceResult, damper_bounds
+
+
+class ProjectionExecutor:
+    """Motion/force control with Λ̂x shaping [T7-14] and the coupling-objective nullspace QP."""
+
+    name = "projection"
+
+    def __init__(
+        self,
+        model: RobotModel,
+        q_lower: np.ndarray,
+        q_upper: np.ndarray,
+        dq_max: np.ndarray,
+        endless: np.ndarray | None = None,
+        subspaces: Subspaces = POLISH_SUBSPACES,
+        gains: MotionForceGains | None = None,
+        nullspace: NullspaceGains | None = None,
+    ):
+        self.model = model
+        self.n = model.nv
+        self.q_lower = np.asarray(q_lower, dtype=float)
+        self.q_upper = np.asarray(q_upper, dtype=float)
+        self.dq_max = np.asarray(dq_max, dtype=float)
+        self.endless = np.zeros(self.n, dtype=bool) if endless is None else np.asarray(endless, dtype=bool)
+        self.sub = subspaces
+        self.gains = gains or MotionForceGains()
+        self.nullspace = nullspace or NullspaceGains()
+        self.qp = NullspaceQP(self.n)
+        self._cache_gains()
+        self.force_integral = np.zeros(self.sub.n_f)
+        self.q_posture: np.ndarray | None = None
+        self.last_terms: CouplingTerms | None = None
+        self.last_qp: NullspaceResult | None = None
+        self.last_wrench = np.zeros(6)
+        self._last_valid_wrench = np.zeros(6)
+
+    # ---- Executor interface ---------------------------------------------------------------------
+    def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
+        """Clear the force integral; the W_j posture is the target's q_posture or the current q."""
+        self.force_integral = np.zeros(self.sub.n_f)
+        self._last_valid_wrench = np.zeros(6)
+        self.q_posture = dyn.q.copy() if target.q_posture is None else np.array(target.q_posture, dtype=float)
+
+    def configure(self, **changes: object) -> None:
+        """Change gains between steps: any MotionForceGains or NullspaceGains field, or
+        `force_axes` (names or indices). Raises ValueError naming a bad field; keeps the QP."""
+        mf = {k: v for k, v in changes.items() if k in MotionForceGains.__dataclass_fields__}
+        ns = {k: v for k, v in changes.items() if k in NullspaceGains.__dataclass_fields__}
+        rest = set(changes) - set(mf) - set(ns) - {"force_axes"}
+        if rest:
+            raise ValueError(f"projection executor has no setting {', '.join(sorted(rest))}")
+        gains = replace(self.gains, **mf) if mf else self.gains  # type: ignore[arg-type]
+        nullspace = replace(self.nullspace, **ns) if ns else self.nullspace  # type: ignore[arg-type]
+        sub = self.sub
+        if "force_axes" in changes:
+            sub = Subspaces.from_force_axes(changes["force_axes"])  # type: ignore[arg-type]
+        self.gains, self.nullspace = gains, nullspace
+        if sub is not self.sub:
+            self.sub = sub
+            self.force_integral = np.zeros(sub.n_f)
+        self._cache_gains()
+
+    def step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
+        """τ for this step [T14]; never raises.
+
+        A non-finite F/T reading is replaced by the last valid one (flagged); on numerical trouble
+        the step returns gravity/Coriolis compensation only, flagged as a fallback.
+        """
+        sensor_invalid = not np.all(np.isfinite(inputs.wrench_tcp))
+        if sensor_invalid:
+            inputs = replace(inputs, wrench_tcp=self._last_valid_wrench.copy())
+        else:
+            self._last_valid_wrench = np.array(inputs.wrench_tcp, dtype=float)
+        try:
+            out = self._step(dyn, inputs)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            return ControlOutput(tau=dyn.h.copy(), fallback=True, info={"executor_error": 1.0})
+        if not np.all(np.isfinite(out.tau)):
+            return ControlOutput(tau=dyn.h.copy(), fallback=True, info={**out.info, "executor_error": 1.0})
+        if sensor_invalid:
+            out.fallback = True
+            out.info["sensor_invalid"] = 1.0
+        return out
+
+    # ---- the law --------------------------------------------------------------------------------
+    def _cache_gains(self) -> None:
+        g = self.gains
+        self._kp = np.asarray(g.motion_kp)
+        self._two_zeta_sqrt_kp = 2.0 * np.asarray(g.motion_zeta) * np.sqrt(self._kp)
+        self._kn = np.asarray(g.nullspace_kd)
+        self._dq_limit = self.nullspace.velocity_scale * self.dq_max
+        m = list(self.sub.motion_axes)
+        self._kp_m = self._kp[m]
+        self._kd_scale_m = self._two_zeta_sqrt_kp[m]
+
+    def _step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
+        sub, g = self.sub, self.gains
+        m_ax, f_ax = sub.motion_axes, sub.force_axes
+        target = inputs.target
+        F_e = inputs.wrench_tcp
+        terms = terms_of(dyn, sub)
+        self.last_terms = terms
+
+        # task errors, world-aligned [px py pz rx ry rz]
+        v = dyn.J @ dyn.dq
+        e = np.empty(6)
+        e[:3] = target.position - dyn.tcp_position_world
+        e[3:] = pin.log3(target.rotation @ dyn.tcp_rotation_world.T)
+        de = target.velocity - v
+
+        # [T11] motion subspace impedance, K_m^d from ζ and the motion inertia diagonal
+        A = terms.A
+        kd_m = self._kd_scale_m * np.sqrt(np.diag(A))
+        u_m = A @ target.acceleration[list(m_ax)] + kd_m * de[list(m_ax)] + self._kp_m * e[list(m_ax)]
+
+        # [T12] explicit force control with velocity damping and clamped integral
+        F_f = F_e[list(f_ax)]
+        F_hat = target.wrench[list(f_ax)]
+        e_f = F_f - F_hat
+        if g.force_ki > 0:
+            self.force_integral += e_f * 1e-3
+            lim = g.force_integral_limit_n / g.force_ki
+            np.clip(self.force_integral, -lim, lim, out=self.force_integral)
+        else:
+            self.force_integral[:] = 0.0
+        u_f = -F_hat + g.force_kp * e_f - g.force_kd * v[list(f_ax)] + g.force_ki * self.force_integral
+
+        # [T7] with Λ̂x [T9]: F_m = u_m, F_f = u_f + BᵀA⁻¹(u_m + F_m^e)
+        F = np.empty(6)
+        F[list(m_ax)] = u_m
+        if g.shaping:
+            F[list(f_ax)] = u_f + terms.P_d @ (u_m + F_e[list(m_ax)])
+        else:
+            F[list(f_ax)] = u_f
+        self.last_wrench = F.copy()
+        F -= dyn.Lambda @ dyn.dJ_dq  # μx without its gravity part (h is added below)
+
+        # [T15-17] goal nullspace velocity
+        ns = self.nullspace
+        W_values = _w_values(terms)
+        if ns.objective == "j":
+            q_d = target.q_posture if target.q_posture is not None else self.q_posture
+            grad = dyn.q - (dyn.q if q_d is None else q_d)  # [T18]
+            W_obj = 0.5 * float(grad @ grad)
+        else:
+            dLambda = self.model.dLambda_dq(dyn)
+            W_obj, grad = coupling_gradient(terms, dyn.Lambda_inv, dLambda, sub, ns.objective)  # [T24-27]
+        lower, upper = damper_bounds(dyn.q, self.q_lower, self.q_upper, self._dq_limit, self.endless, ns)
+        res = self.qp.solve(dyn.J, ns.k0 * grad, lower, upper)
+        self.last_qp = res
+
+        # [T13] nullspace velocity tracking, [T14] torque
+        dq_n = dyn.N @ dyn.dq
+        F_n = dyn.Lambda_n @ (self._kn * (res.dq_goal - dq_n))
+        tau = dyn.J.T @ F + dyn.N.T @ F_n + dyn.h
+
+        info = {
+            "W": W_obj,
+            "W_f": W_values[0],
+            "W_a": W_values[1],
+            "W_d": W_values[2],
+            "force_error_n": float(F_hat[0] - F_f[0]),
+            "qp_iterations": float(res.iterations),
+            "qp_fallback": float(res.fallback),
+            "nullspace_speed": float(np.linalg.norm(res.dq_goal)),
+            "coupled_accel": float((terms.P_f @ F_e[list(m_ax)])[0]),
+        }
+        return ControlOutput(tau=tau, fallback=res.fallback, info=info)
+
+
+def _w_values(terms: CouplingTerms) -> tuple[float, float, float]:
+    """(W_f, W_a, W_d) [T22]."""
+    return (
+        float(np.sum(terms.P_f * terms.P_f)),
+        float(np.sum(terms.P_a * terms.P_a)),
+        float(np.sum(terms.P_d * terms.P_d)),
+    )
+
+
+def make_projection_executor(robot, model: RobotModel, **kwargs) -> ProjectionExecutor:
+    """Executor factory over a `RobotDescription` (limits from the robot)."""
+    return ProjectionExecutor(model, robot.q_lower, robot.q_upper, robot.dq_max, robot.endless, **kwargs)

@@ -1,0 +1,112 @@
+"""Table contact (Coulomb friction, regularised), F/T sensor model and sander."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.sim.contact import TableContact
+from app.sim.disturbances import Sander
+from app.sim.sensor import FTSensor
+from app.sim.world import World
+
+
+def test_friction_never_exceeds_mu_times_normal_force_and_opposes_sliding():
+    rng = np.random.default_rng(1)
+    for mu in (0.25, 1.0):
+        contact = TableContact(0.2, stiffness_n_per_m=30000.0, mu=mu, v_eps_m_per_s=0.01)
+        for _ in range(2000):
+            point = np.array([0.5, 0.0, 0.2 - rng.uniform(-0.001, 0.003)])
+            v = rng.normal(size=3) * 10.0 ** rng.uniform(-6, 0)
+            f_n, friction = contact.forces(point, v)
+            assert f_n == pytest.approx(max(0.0, 30000.0 * (0.2 - point[2])), rel=1e-12, abs=1e-12)
+            assert np.linalg.norm(friction) <= mu * f_n * (1 + 1e-12)
+            assert friction[2] == 0.0
+            if f_n > 0 and np.hypot(v[0], v[1]) > 0:
+                assert friction[:2] @ v[:2] < 0
+            if f_n > 0 and np.hypot(v[0], v[1]) > 0.1:  # 10 v_ε: Coulomb within 0.5 %
+                assert np.linalg.norm(friction) == pytest.approx(mu * f_n, rel=5e-3)
+
+
+def test_contact_in_the_world_respects_the_friction_cone(rizon):
+    """Slide the arm's TCP over the table in MuJoCo; each applied force stays in the cone."""
+    world = World(rizon, table_height=None)
+    q = rizon.home.copy()
+    world.reset(q, dq=np.array([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))  # base yaw: the TCP slides sideways
+    tcp, _ = world.site_pose(world.tcp_site)
+    contact = TableContact(float(tcp[2]) + 0.002, mu=0.8)
+    in_contact = 0
+    for _ in range(200):
+        state = contact.apply(world)
+        applied = world.external_wrench_at_sensor()[:3]
+        if state.normal_force_n > 0:
+            in_contact += 1
+            assert applied[2] == pytest.approx(state.normal_force_n, rel=1e-12)
+            assert np.hypot(applied[0], applied[1]) <= 0.8 * applied[2] * (1 + 1e-12)
+        press = world.tcp_jacobian().T @ np.array([0, 0, -40.0, 0, 0, 0])  # keep pressing down
+        world.step(world.bias_forces() + press)
+    assert in_contact > 150
+
+
+def test_sensor_noise_statistics_match_the_settings():
+    n = 40000
+    sensor = FTSensor(
+        np.random.default_rng(7), force_noise_var=5.0, torque_noise_var=0.05, sine_amplitude_n=0.0, cutoff_hz=0.0
+    )
+    x = np.array([sensor.measure(np.zeros(6), 1e-3 * i) for i in range(n)])
+    # sample variance has relative std √(2/n) = 0.7 %: 4 % is > 5 σ
+    np.testing.assert_allclose(x[:, :3].var(axis=0), 5.0, rtol=0.04)
+    np.testing.assert_allclose(x[:, 3:].var(axis=0), 0.05, rtol=0.04)
+    assert np.all(np.abs(x[:, :3].mean(axis=0)) < 5 * np.sqrt(5.0 / n))
+    # filtered white noise: variance σ² α / (2 − α) of the first-order recursion
+    sensor = FTSensor(np.random.default_rng(8), force_noise_var=5.0, sine_amplitude_n=0.0, cutoff_hz=25.0)
+    y = np.array([sensor.measure(np.zeros(6), 1e-3 * i) for i in range(n)])[100:]
+    a = 1 - np.exp(-2 * np.pi * 25.0 * 1e-3)
+    np.testing.assert_allclose(y[:, :3].var(axis=0), 5.0 * a / (2 - a), rtol=0.1)
+
+
+def test_sensor_sinusoid_and_low_pass_response():
+    sensor = FTSensor(
+        np.random.default_rng(0), force_noise_var=0.0, torque_noise_var=0.0, sine_amplitude_n=2.0, cutoff_hz=0.0
+    )
+    t = np.arange(2000) * 1e-3
+    z = np.array([sensor.measure(np.zeros(6), ti)[2] for ti in t])
+    np.testing.assert_allclose(z, 2.0 * np.sin(2 * np.pi * t), atol=1e-12)
+    # step response of the 25 Hz filter reaches 1 − 1/e after one time constant 1/(2π·25) s
+    sensor = FTSensor(np.random.default_rng(0), force_noise_var=0.0, torque_noise_var=0.0, sine_amplitude_n=0.0)
+    sensor.measure(np.zeros(6), 0.0)
+    out = [sensor.measure(np.array([0, 0, 1.0, 0, 0, 0]), 1e-3 * (i + 1))[2] for i in range(50)]
+    tau_steps = 1.0 / (2 * np.pi * 25.0) / 1e-3  # ≈ 6.4 steps
+    assert np.interp(tau_steps, np.arange(1, 51), out) == pytest.approx(1 - np.exp(-1), abs=0.02)
+
+
+def test_sensor_is_reproducible_with_the_same_seed():
+    a = FTSensor(np.random.default_rng(3))
+    b = FTSensor(np.random.default_rng(3))
+    for i in range(100):
+        np.testing.assert_array_equal(a.measure(np.ones(6), i * 1e-3), b.measure(np.ones(6), i * 1e-3))
+
+
+def test_sander_force_rotates_in_the_tool_plane_at_7000_rpm():
+    sander = Sander(amplitude_n=12.0)
+    R = np.diag([-1.0, 1.0, -1.0])
+    t = np.arange(0, 0.05, 1e-4)
+    f = np.array([sander.force(ti, R) for ti in t])
+    np.testing.assert_allclose(np.linalg.norm(f, axis=1), 12.0, rtol=1e-12)
+    np.testing.assert_allclose(f @ R[:, 2], 0.0, atol=1e-12)
+    crossings = np.sum(np.diff(np.sign(f[:, 1])) != 0)  # two per revolution
+    assert crossings / 2 / t[-1] == pytest.approx(7000 / 60, rel=0.05)
+    sander.configure(enabled=False)
+    assert not np.any(sander.force(0.01, R))
+
+
+@pytest.mark.parametrize("bad", [{"mu": -0.1}, {"mu": float("nan")}, {"v_eps_m_per_s": 0.0}, {"grip": 1.0}])
+def test_bad_contact_settings_raise(bad):
+    with pytest.raises(ValueError):
+        TableContact(0.2).configure(**bad)
+
+
+@pytest.mark.parametrize("bad", [{"force_noise_var": -1.0}, {"cutoff_hz": float("inf")}, {"gain": 2.0}])
+def test_bad_sensor_settings_raise(bad):
+    with pytest.raises(ValueError):
+        FTSensor(np.random.default_rng(0)).configure(**bad)
