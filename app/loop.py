@@ -49,7 +49,8 @@ except ImportError:  # pragma: no cover - only while the scene module is missing
 T = TypeVar("T")
 SPEED_RANGE = (0.1, 1.0)
 PLOT_WINDOW_S = 10.0
-SETTINGS_TARGETS = ("executor", "environment", "sensor", "drag")
+SETTINGS_TARGETS = ("executor", "environment", "sensor", "drag", "target")
+FORCE_SETPOINT_RANGE_N = (-100.0, 100.0)
 DRAG_FIELDS = ("max_force_n", "stiffness_per_s2", "damping_ratio")
 
 
@@ -136,7 +137,9 @@ class SimLoop:
         log_seconds: float = 60.0,
         clock: Callable[[], float] = time.perf_counter,
         capture: Callable[[Session], Any] | None = None,
+        settings_reader: Callable[[Session], dict[str, dict[str, Any]]] | None = None,
     ):
+        self._settings_reader = settings_reader
         self._clock = clock
         self._seed = seed
         self._robot_choice = robot or ""  # "" = the scenario's default robot
@@ -229,6 +232,27 @@ class SimLoop:
                 out.append(self._notices.popleft())
             except IndexError:
                 return out
+
+    @property
+    def robot_choice(self) -> str:
+        """The robot picked explicitly ("" = the scenario's default)."""
+        return self._robot_choice
+
+    def export(self, seconds: float, timeout: float = 10.0) -> dict[str, Any]:
+        """The last `seconds` of the step log (every step) plus what produced it, copied in the loop thread."""
+
+        def grab(session: Session) -> dict[str, Any]:
+            return {
+                "columns": self.log.window(seconds, self.dt),
+                "scenario": session.scenario.name,
+                "robot": session.robot.name,
+                "executor": session.executor_name,
+                "dt": self.dt,
+                "seed": self._seed,
+                "settings": self._settings.values,
+            }
+
+        return self.call(grab, timeout)
 
     @property
     def settings(self) -> Settings:
@@ -368,7 +392,7 @@ class SimLoop:
 
     def _reset(self) -> None:
         self.session.reset()
-        self._after_rebuild(reapply=("environment", "sensor"))
+        self._after_rebuild(reapply=("environment", "sensor", "target"))
         if self._halted:
             self._halted = ""
             self._running = self._resume_after_reset
@@ -401,7 +425,7 @@ class SimLoop:
         if cmd.scenario is not None:
             self._overrides = {t: {} for t in SETTINGS_TARGETS if t != "drag"} | {"drag": self._overrides["drag"]}
         self.log = StepLog(new.robot.nq, capacity=round(self._log_seconds / self.dt))
-        self._after_rebuild(reapply=("executor", "environment", "sensor", "drag"))
+        self._after_rebuild(reapply=SETTINGS_TARGETS)
         self._halted = ""
 
     def _after_rebuild(self, reapply: tuple[str, ...]) -> None:
@@ -454,7 +478,7 @@ class SimLoop:
             elif isinstance(now, str):
                 ok = isinstance(value, str)
             elif isinstance(now, list):
-                ok = _finite_array(value) is not None or _number(value) is not None
+                ok = isinstance(value, (list, tuple)) or _number(value) is not None
             else:
                 ok = True
             if not ok:
@@ -477,6 +501,25 @@ class SimLoop:
                     raise ValueError(f"drag {key} must be a positive number, got {value!r}")
             for key, value in changes.items():
                 setattr(s.drag, key, float(value))
+        elif target == "target":
+            self._configure_task_target(changes)
+
+    def _configure_task_target(self, changes: dict[str, Any]) -> None:
+        """The task target's settings: `force_setpoint_n`, the desired F^e along +z (N) [T12]."""
+        target_fn = self.session.target_fn
+        method = getattr(target_fn, "configure", None)
+        if callable(method):
+            method(**changes)
+            return
+        for key, value in changes.items():
+            wrench = getattr(target_fn, "wrench", None)
+            if key != "force_setpoint_n" or not isinstance(wrench, np.ndarray):
+                raise ValueError(f"this scenario's target has no setting {key!r}")
+            number = _number(value)
+            lo, hi = FORCE_SETPOINT_RANGE_N
+            if number is None or not lo <= number <= hi:
+                raise ValueError(f"force setpoint must be between {lo:g} and {hi:g} N, got {value!r}")
+            wrench[2] = number
 
     # ---- publishing ----------------------------------------------------------------------------
     def _restart_pacing(self) -> None:
@@ -489,11 +532,21 @@ class SimLoop:
 
     def _read_settings(self) -> dict[str, dict[str, Any]]:
         s = self.session
+        values: dict[str, dict[str, Any]] = {t: {} for t in SETTINGS_TARGETS}
+        if self._settings_reader is not None:
+            try:
+                values.update(self._settings_reader(s))
+            except Exception:  # a reader bug must not stop the simulation
+                traceback.print_exc()
+        values["drag"] = {k: float(getattr(s.drag, k)) for k in DRAG_FIELDS}
+        if self._settings_reader is not None:
+            return values
         return {
             "executor": settings_of(s.executor),
             "environment": settings_of(s.environment),
             "sensor": settings_of(s.sensor),
             "drag": {k: float(getattr(s.drag, k)) for k in DRAG_FIELDS},
+            "target": {},
         }
 
     def _notify(self, level: str, title: str, body: str, client_id: int | None = None) -> None:
@@ -522,7 +575,7 @@ class SimLoop:
             fallback=bool(last.fallback) if last is not None else False,
             fallback_steps=self._fallback_steps,
             drag_client=self._drag_client,
-            signals=dict(last.signals) if last is not None else {},
+            signals=_with_posture_objective(s, dict(last.signals) if last is not None else {}),
         )
 
     def _publish(self, now: float) -> None:
@@ -563,6 +616,18 @@ class SimLoop:
         monitor = {k: mon[:, i].copy() for i, k in enumerate(("t", "rtf", "W_f", "W_a", "W_d"))}
         r = self.session.robot
         return PlotData(columns, monitor, r.q_lower.copy(), r.q_upper.copy(), r.dq_max.copy(), r.tau_max.copy())
+
+
+def _with_posture_objective(session: Session, signals: dict[str, float]) -> dict[str, float]:
+    """Add W_j = ½‖q − q_posture‖² [T18] when the executor did not report it."""
+    if "W_j" not in signals:
+        q_posture = getattr(session.executor, "q_posture", None)
+        if q_posture is None and session.last is not None:
+            q_posture = session.last.target.q_posture
+        if q_posture is not None:
+            e = session.world.q - np.asarray(q_posture, dtype=float)
+            signals["W_j"] = 0.5 * float(e @ e)
+    return signals
 
 
 def _monitor_row(status: LoopStatus, scene: Any) -> tuple[float, float, float, float, float]:

@@ -145,7 +145,7 @@ def test_drag_belongs_to_the_client_that_grabbed_it_and_reset_releases_it(loop):
     loop.sync()
     assert s.drag.state is not None and np.linalg.norm(s.drag.state.force_world) > 1.0
     loop.submit(DragCommand("release", client_id=1))
-    assert not loop.sync().drag_client and not s.drag.active
+    assert loop.sync().drag_client is None and not s.drag.active
     loop.submit(DragCommand("grab", client_id=3, body_name=body, point_world=p0))
     loop.submit(Reset())
     status = loop.sync()

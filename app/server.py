@@ -1,0 +1,144 @@
+"""The web app: a viser server, the real-time loop, the panels, the plots and the 3D scene.
+
+`start_app(...)` starts everything without blocking and returns an `App` (tests use it
+in-process); `serve(args)` is the `torquelab serve` command: it starts the app, prints the URL
+and runs until Ctrl-C. The server binds 127.0.0.1 unless `--host` says otherwise; if the port is
+taken, the next free one is used and the URL printed says which.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import socket
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import viser
+
+from app.loop import SimLoop
+from app.scenarios import SCENARIOS
+from app.ui.commands import DragCommand
+from app.ui.panels import ALL_KNOBS
+from app.ui.panels.base import make_settings_reader
+from app.ui.panels.compliance import CompliancePanel
+from app.ui.panels.motion_force import MotionForcePanel
+from app.ui.panels.nullspace import NullspacePanel
+from app.ui.panels.record import RecordPanel
+from app.ui.panels.safety import SafetyPanel
+from app.ui.panels.scenario import ScenarioPanel
+from app.ui.plots import Plots
+from app.ui.publisher import Publisher
+
+try:  # the 3D scene is optional: the app runs (panels, plots) without it
+    from app.ui.scene import SceneView
+    from app.ui.visuals import VisualSettings, VisualsPanel
+except ImportError:  # pragma: no cover - only while the scene modules are missing
+    SceneView = None  # type: ignore[assignment,misc]
+    VisualSettings = None  # type: ignore[assignment,misc]
+    VisualsPanel = None  # type: ignore[assignment,misc]
+
+
+@dataclass
+class App:
+    """A running web app."""
+
+    server: viser.ViserServer
+    loop: SimLoop
+    publisher: Publisher
+    url: str
+    port: int
+    requested_port: int
+    panels: list[Any] = field(default_factory=list)
+
+    def stop(self) -> None:
+        """Stop the publisher, the loop and the web server."""
+        self.publisher.stop()
+        self.loop.stop()
+        with contextlib.redirect_stdout(io.StringIO()):
+            self.server.stop()
+
+
+def port_is_free(host: str, port: int) -> bool:
+    """True if a TCP server could bind (host, port) now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        try:
+            sock.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def start_app(
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    scenario: str = "polish",
+    robot: str | None = None,
+    executor: str | None = None,
+    running: bool = True,
+    verbose: bool = False,
+) -> App:
+    """Start loop, server, panels and scene; returns at once. `port=0` picks any free port."""
+    loop = SimLoop(scenario, robot=robot, executor=executor, settings_reader=make_settings_reader(ALL_KNOBS))
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
+        server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
+    server.gui.configure_theme(control_width="large")
+    actual = server.get_port()
+
+    extra = (robot,) if robot and robot not in ("rizon4s", "gen3") else ()
+    panels: list[Any] = [
+        ScenarioPanel(server, loop, extra_robots=extra, order=0),
+        MotionForcePanel(server, loop, order=1),
+        NullspacePanel(server, loop, order=2),
+        CompliancePanel(server, loop, order=3),
+        SafetyPanel(server, loop, order=4),
+    ]
+    make_scene = None
+    if SceneView is not None and VisualSettings is not None:
+        visual_settings = VisualSettings()
+        VisualsPanel(server.gui, visual_settings, order=5)
+
+        def make_scene(robot_desc: Any) -> Any:
+            return SceneView(server, robot_desc, loop.submit, settings=visual_settings)
+
+    plots = Plots(server, n_joints=loop.session.robot.nq, order=6)
+    RecordPanel(server, loop, order=7)
+
+    @server.on_client_disconnect
+    def _release_drag(client: viser.ClientHandle) -> None:
+        loop.submit(DragCommand("release", client_id=client.client_id))
+
+    publisher = Publisher(server, loop, panels, plots, make_scene)
+    loop.start(running=running)
+    publisher.start()
+    shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
+    return App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels)
+
+
+def serve(args: argparse.Namespace) -> int:
+    """`torquelab serve`: start the app, print the URL, run until Ctrl-C."""
+    scenario = args.scenario
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    robot = getattr(args, "urdf", None) or getattr(args, "robot", None)
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f"port must be 0…65535, got {args.port}")
+    busy = args.port != 0 and not port_is_free(args.host, args.port)
+    print(f"torquelab: starting scenario {scenario!r} …", flush=True)
+    app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)
+    if busy or app.port != args.port:
+        print(f"torquelab: port {args.port} is busy; using port {app.port} instead", flush=True)
+    print(f"torquelab: open {app.url} in a browser (Ctrl-C to stop)", flush=True)
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"torquelab: listening on {args.host}: reachable from other machines", flush=True)
+    try:
+        while app.loop.alive:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        app.stop()
+    return 0

@@ -1,0 +1,109 @@
+"""Nullspace panel: the objective W the nullspace QP minimises, its gain k0, live W values."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import viser
+
+from app.loop import Frame, SimLoop
+from app.ui.commands import Configure
+from app.ui.panels.base import TOUCH_HOLD_S, Knob, KnobPanel, coerce, notify
+
+INTRO = (
+    "The nullspace QP moves the elbow at q̂̇ = argmin ½‖q̂̇‖² + k0 ∇Wᵀq̂̇ with J q̂̇ = 0 [T15–17]. "
+    "W_j keeps the start posture [T18]; W_f, W_a, W_d = ‖P‖²_F reduce the motion/force coupling [T22]."
+)
+
+OBJECTIVES = ("W_j", "W_f", "W_a", "W_d")
+K0_RANGE_FACTOR = 20.0  # the k0 slider spans 0 … 20 × the objective's default k0
+
+
+def _k0_defaults() -> dict[str, float]:
+    """Default k0 per objective from the gains dataclass (empty if the [T] gains are absent)."""
+    try:
+        from control.gains import NullspaceGains
+    except ImportError:
+        return {}
+    g = NullspaceGains()
+    return {o: float(getattr(g, f"k0_{o}")) for o in "jfad" if hasattr(g, f"k0_{o}")}
+
+
+def _objective_label(stored: Any) -> str:
+    return f"W_{stored}"
+
+
+KNOBS: tuple[Knob, ...] = (
+    Knob(
+        "objective",
+        "Objective",
+        kind="dropdown",
+        options=OBJECTIVES,
+        show=_objective_label,
+        changes=lambda v, s: {"objective": str(v)[2:]},
+        read=("nullspace.objective",),
+        hint="Which W the nullspace QP minimises",
+    ),
+)
+
+
+class NullspacePanel(KnobPanel):
+    """The Nullspace folder; the k0 slider edits k0 of the selected objective."""
+
+    def __init__(self, server: viser.ViserServer, loop: SimLoop, order: float | None = None):
+        super().__init__(server, loop, "Nullspace", INTRO, KNOBS, order=order)
+
+    def build_extra_bottom(self) -> None:
+        gui = self.server.gui
+        self.k0: Any = gui.add_slider("k0", 0.0, 1.0, 0.001, 0.0, hint="Gradient gain of the selected objective [T15]")
+        self.k0.visible = False
+        self._k0_key = ""
+        self.k0.on_update(self._on_k0)
+        self.values = gui.add_markdown("")
+
+    def _on_k0(self, event: viser.GuiEvent) -> None:
+        if event.client_id is None or not self._k0_key:
+            return
+        knob = Knob(self._k0_key, "k0", lo=0.0, hi=float(self.k0.max))
+        try:
+            value = coerce(knob, event.target.value)
+        except ValueError as exc:
+            notify(self.server, event.client_id, "Value refused", str(exc))
+            return
+        self.loop.submit(Configure("executor", {self._k0_key: value}, event.client_id))
+
+    def refresh(self, settings) -> None:
+        super().refresh(settings)
+        values = settings.values.get("executor", {})
+        objective = values.get("objective")
+        key = f"k0_{objective}"
+        present = isinstance(objective, str) and key in values
+        if self.k0.visible != present:
+            self.k0.visible = present
+        if not present:
+            return
+        if key != self._k0_key:
+            self._k0_key = key
+            default = _k0_defaults().get(objective) or abs(float(values[key])) or 1.0
+            hi = K0_RANGE_FACTOR * default
+            self.k0.max = hi
+            self.k0.step = hi / 1000.0
+            self.k0.label = f"k0 (W_{objective})"
+        if self.k0.value != float(values[key]) and not self._recently_touched(self.k0):
+            self.k0.value = min(float(values[key]), float(self.k0.max))
+
+    @staticmethod
+    def _recently_touched(handle: Any) -> bool:
+        return time.time() - handle.update_timestamp < TOUCH_HOLD_S
+
+    def live(self, frame: Frame) -> None:
+        sig = frame.status.signals
+        scene_W = getattr(frame.scene, "W", None) or {}
+        parts = []
+        for name in ("W_j", "W_f", "W_a", "W_d"):
+            value = sig.get(name, scene_W.get(name))
+            parts.append(f"{name} = {value:.4g}" if value is not None else f"{name} = –")
+        text = "**Live:** " + " · ".join(parts)
+        if self.values.content != text:
+            self.values.content = text

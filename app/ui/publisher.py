@@ -1,0 +1,100 @@
+"""The publisher thread: shows the loop's frames in the browser.
+
+It waits for the newest `Frame` (30 Hz), updates the 3D scene inside `server.atomic()`, refreshes
+the panels' values and live numbers (~6 Hz), the plots (10 Hz), and turns the loop's notices into
+notifications. It rebuilds the scene view when the session's robot changes. It never touches the
+session: everything it shows is a copy the loop made between two steps.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import viser
+
+from app.loop import Frame, SimLoop
+from app.ui.panels.base import notify
+from app.ui.plots import Plots
+
+LIVE_PERIOD_S = 0.15
+
+
+class Publisher:
+    """Consumes frames from a SimLoop (see the module docstring)."""
+
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        loop: SimLoop,
+        panels: Sequence[Any],
+        plots: Plots | None,
+        make_scene: Callable[[Any], Any] | None,
+    ):
+        self.server = server
+        self.loop = loop
+        self.panels = list(panels)
+        self.plots = plots
+        self.make_scene = make_scene
+        self.scene: Any = None
+        self.scene_session_id = -1
+        self.frames_shown = 0
+        self.scene_updates = 0
+        self.last_frame: Frame | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="torquelab-publisher", daemon=True)
+        self._settings_version = -1
+        self._next_live = 0.0
+
+    def start(self) -> None:
+        """Start the thread."""
+        self._thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop the thread and remove the scene view."""
+        self._stop.set()
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        seq = 0
+        while not self._stop.is_set():
+            for notice in self.loop.take_notices():
+                notify(self.server, notice.client_id, notice.title, notice.body, error=notice.level == "error")
+            frame = self.loop.wait_frame(seq, timeout=0.2)
+            if frame is None:
+                continue
+            seq = frame.seq
+            try:
+                self.show(frame)
+            except Exception:  # keep publishing whatever one widget does
+                traceback.print_exc()
+
+    def show(self, frame: Frame) -> None:
+        """Show one frame."""
+        self.last_frame = frame
+        if self.make_scene is not None and frame.session_id != self.scene_session_id:
+            if self.scene is not None:
+                self.scene.remove()
+                self.scene = None
+            self.scene = self.make_scene(frame.robot)
+            self.scene_session_id = frame.session_id
+        if self.scene is not None and frame.scene is not None:
+            with self.server.atomic():
+                self.scene.update(frame.scene)
+            self.scene_updates += 1
+        now = time.monotonic()
+        settings_changed = frame.settings.version != self._settings_version
+        if settings_changed or now >= self._next_live:
+            for panel in self.panels:
+                panel.refresh(frame.settings)
+            self._settings_version = frame.settings.version
+        if now >= self._next_live:
+            self._next_live = now + LIVE_PERIOD_S
+            for panel in self.panels:
+                panel.live(frame)
+        if frame.plot is not None and self.plots is not None:
+            self.plots.update(frame.plot)
+        self.frames_shown += 1

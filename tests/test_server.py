@@ -1,0 +1,125 @@
+"""The web app without a browser: start/stop, panels refuse nonsense, a closed client drops its drag."""
+
+from __future__ import annotations
+
+import socket
+import time
+import urllib.request
+
+import msgspec
+import numpy as np
+import pytest
+import viser
+from websockets.sync.client import connect
+
+from app.server import port_is_free, start_app
+from app.ui.commands import DragCommand
+from app.ui.panels.base import KnobPanel
+
+
+@pytest.fixture(scope="module")
+def app():
+    a = start_app(port=0, scenario="free", running=False)
+    yield a
+    a.stop()
+
+
+def _wait(predicate, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def _browser_update(handle, value, client_id: int) -> None:
+    """What viser does when a browser changes an input: set the value, run the callbacks."""
+    handle._impl.value = value
+    for cb in handle._impl.update_cb:
+        cb(viser.GuiEvent(client=None, client_id=client_id, target=handle))
+
+
+def _camera_message() -> bytes:
+    """The first message a browser sends; viser counts a client as connected after it."""
+    return msgspec.msgpack.encode(
+        {
+            "type": "ViewerCameraMessage",
+            "wxyz": [1.0, 0.0, 0.0, 0.0],
+            "position": [1.5, 1.5, 1.0],
+            "fov": 0.9,
+            "near": 0.01,
+            "far": 100.0,
+            "image_height": 600,
+            "image_width": 800,
+            "look_at": [0.0, 0.0, 0.3],
+            "up_direction": [0.0, 0.0, 1.0],
+        }
+    )
+
+
+def _knob_handle(app, key: str):
+    for panel in app.panels:
+        if isinstance(panel, KnobPanel):
+            for i, knob in enumerate(panel.knobs):
+                if knob.key == key:
+                    return panel, knob, panel.handles[i]
+    raise KeyError(key)
+
+
+def test_page_is_served_on_localhost_and_frames_are_published(app):
+    assert app.url.startswith("http://127.0.0.1:")
+    with urllib.request.urlopen(app.url, timeout=10) as resp:
+        assert resp.status == 200
+        assert b"<html" in resp.read().lower()
+    shown = app.publisher.frames_shown
+    assert _wait(lambda: app.publisher.frames_shown > shown)
+
+
+def test_panel_refuses_nonsense_values_and_applies_valid_ones(app):
+    _panel, _knob, handle = _knob_handle(app, "max_force_n")
+    before = app.loop.settings.values["drag"]["max_force_n"]
+    for nonsense in ("abc", float("nan"), float("inf"), -10.0, 1e9, None, [1, 2]):
+        _browser_update(handle, nonsense, client_id=12345)
+    app.loop.sync()
+    assert app.loop.alive
+    assert app.loop.settings.values["drag"]["max_force_n"] == before
+    _browser_update(handle, 55.0, client_id=12345)
+    app.loop.sync()
+    assert app.loop.session.drag.max_force_n == 55.0
+    assert _wait(lambda: app.loop.settings.values["drag"]["max_force_n"] == 55.0)
+
+
+def test_closing_a_tab_releases_its_drag(app):
+    port = app.port
+    before = set(app.server.get_clients())
+    ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10)
+    try:
+        ws.send(_camera_message())
+        assert _wait(lambda: len(set(app.server.get_clients()) - before) == 1)
+        (client_id,) = set(app.server.get_clients()) - before
+        s = app.loop.session
+        body = s.world.model.body(s.world.wrist_body).name
+        p0 = tuple(s.world.site_pose(s.world.tcp_site)[0])
+        app.loop.submit(DragCommand("grab", client_id=client_id, body_name=body, point_world=p0))
+        app.loop.submit(DragCommand("move", client_id=client_id, target_world=tuple(np.add(p0, (0, 0.1, 0)))))
+        status = app.loop.sync()
+        assert status.drag_client == client_id and s.drag.active
+    finally:
+        ws.close()
+    assert _wait(lambda: app.loop.sync().drag_client is None)
+    assert not app.loop.session.drag.active
+
+
+def test_a_busy_port_moves_to_the_next_free_one():
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        busy = sock.getsockname()[1]
+        assert not port_is_free("127.0.0.1", busy)
+        other = start_app(port=busy, scenario="free", running=False)
+        try:
+            assert other.port != busy and other.requested_port == busy
+            assert other.url.endswith(f":{other.port}")
+        finally:
+            other.stop()
