@@ -38,6 +38,10 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if getattr(args, "serve", False):
+        from app.bench_serve import cmd_bench_serve
+
+        return cmd_bench_serve(args)
     from app.bench import run_bench
 
     report = run_bench(_robot_name(args), repeats=args.repeats, only=args.only)
@@ -88,6 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
     _robot_arg(p)
     p.add_argument("--repeats", type=int, default=300)
     p.add_argument("--only", nargs="*", default=None, help="benchmark names to run")
+    p.add_argument("--serve", action="store_true", help="real-time factor of the web app with one headless browser")
+    p.add_argument("--scenario", default="polish", help="scenario for --serve (default polish)")
+    p.add_argument("--seconds", type=float, default=20.0, help="measuring time for --serve (wall seconds)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_bench)
 

@@ -52,6 +52,7 @@ class App:
     port: int
     requested_port: int
     panels: list[Any] = field(default_factory=list)
+    visual_settings: Any = None  # the Visuals panel's settings (None without the scene modules)
 
     def stop(self) -> None:
         """Stop the publisher, the loop and the web server."""
@@ -97,6 +98,7 @@ def start_app(
         SafetyPanel(server, loop, order=4),
     ]
     make_scene = None
+    visual_settings: Any = None
     if SceneView is not None and VisualSettings is not None:
         visual_settings = VisualSettings()
         VisualsPanel(server.gui, visual_settings, order=5)
@@ -115,7 +117,7 @@ def start_app(
     loop.start(running=running)
     publisher.start()
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
-    return App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels)
+    return App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)
 
 
 def serve(args: argparse.Namespace) -> int:

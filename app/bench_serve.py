@@ -1,0 +1,123 @@
+"""`torquelab bench --serve`: the app's real-time factor with one headless Chromium client connected.
+
+Starts the app in-process on a free port (polish scenario, projection executor, W_a, every overlay
+on), opens the page in headless Chromium, waits until the page is connected and rendering, then
+measures for `--seconds` of wall time: the achieved real-time factor (simulated / wall seconds),
+its worst 1 s window, the loop's compute share, and how often the scene and plots were published.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from dataclasses import fields
+from typing import Any
+
+from app.server import start_app
+from app.ui.commands import Configure, Play, Reset
+
+CHROMIUM = os.environ.get("TORQUELAB_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+]
+
+
+def overlays_on(visual_settings: Any) -> list[str]:
+    """Switch every boolean overlay toggle on; returns their names."""
+    names = [f.name for f in fields(visual_settings) if isinstance(getattr(visual_settings, f.name), bool)]
+    visual_settings.update(**dict.fromkeys(names, True))
+    return names
+
+
+def run_serve_bench(
+    scenario: str = "polish", seconds: float = 20.0, warmup: float = 3.0, objective: str = "a", robot: str | None = None
+) -> dict[str, Any]:
+    """Measure the real-time factor of the running app with one browser; returns a report dict."""
+    from playwright.sync_api import sync_playwright
+
+    app = start_app(port=0, scenario=scenario, robot=robot, running=False)
+    try:
+        toggles = overlays_on(app.visual_settings) if app.visual_settings is not None else []
+        if "objective" in app.loop.settings.values.get("executor", {}):
+            app.loop.submit(Configure("executor", {"objective": objective}))
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(app.url)
+            page.wait_for_selector("canvas", timeout=60_000)
+            deadline = time.monotonic() + 60.0
+            while not app.server.get_clients() and time.monotonic() < deadline:
+                time.sleep(0.1)
+            if not app.server.get_clients():
+                raise RuntimeError("the browser did not connect within 60 s")
+            app.loop.submit(Reset())
+            app.loop.submit(Play())
+            app.loop.sync()
+            time.sleep(warmup)
+            windows = []
+            s0 = app.loop.sync()
+            w0, frames0, scene0 = time.perf_counter(), app.publisher.frames_shown, app.publisher.scene_updates
+            loads = []
+            prev_t, prev_w = s0.t, w0
+            while time.perf_counter() - w0 < seconds:
+                time.sleep(1.0)
+                st = app.loop.sync()
+                now = time.perf_counter()
+                windows.append((st.t - prev_t) / (now - prev_w))
+                loads.append(st.load)
+                prev_t, prev_w = st.t, now
+            s1 = app.loop.sync()
+            wall = time.perf_counter() - w0
+            frames = app.publisher.frames_shown - frames0
+            scenes = app.publisher.scene_updates - scene0
+            clients = len(app.server.get_clients())
+            browser.close()
+        return {
+            "scenario": scenario,
+            "robot": s1.robot,
+            "executor": s1.executor,
+            "objective": app.loop.settings.values.get("executor", {}).get("objective"),
+            "overlays_on": toggles,
+            "browser_clients": clients,
+            "wall_s": wall,
+            "sim_s": s1.t - s0.t,
+            "real_time_factor": (s1.t - s0.t) / wall,
+            "worst_1s_real_time_factor": min(windows) if windows else float("nan"),
+            "loop_compute_share": sum(loads) / len(loads) if loads else float("nan"),
+            "frames_per_s": frames / wall,
+            "scene_updates_per_s": scenes / wall,
+            "halted": s1.halted,
+            "cpu_count": os.cpu_count(),
+            "load_average_1min": os.getloadavg()[0],
+        }
+    finally:
+        app.stop()
+
+
+def cmd_bench_serve(args: argparse.Namespace) -> int:
+    """Print the serve benchmark; exit 1 if the real-time factor stays below 1.0."""
+    report = run_serve_bench(
+        scenario=args.scenario, seconds=args.seconds, robot=getattr(args, "urdf", None) or getattr(args, "robot", None)
+    )
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(
+            f"{report['scenario']} on {report['robot']} with {report['executor']} (W_{report['objective']}), "
+            f"{report['browser_clients']} browser, overlays on: {len(report['overlays_on'])}"
+        )
+        print(f"  real-time factor        {report['real_time_factor']:.3f}  over {report['wall_s']:.1f} s of wall time")
+        print(f"  worst 1 s window        {report['worst_1s_real_time_factor']:.3f}")
+        print(f"  loop compute share      {100 * report['loop_compute_share']:.0f} % of wall time")
+        print(
+            f"  frames published        {report['frames_per_s']:.1f} /s (scene {report['scene_updates_per_s']:.1f} /s)"
+        )
+        print(f"  machine                 {report['cpu_count']} cores, load average {report['load_average_1min']:.2f}")
+    return 0 if report["real_time_factor"] >= 0.99 and not report["halted"] else 1
