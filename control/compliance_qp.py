@@ -166,69 +166,119 @@ class QPResult(NamedTuple):
     iterations: int
 
 
+class DenseOSQP:
+    """An OSQP problem with a fixed pattern: the given upper-triangle entries of P and a dense A.
+
+    Set up once; every `solve` updates Px, Ax, q, l, u in place (zeros stay in the pattern) and
+    warm-starts from the previous solution.
+    """
+
+    def __init__(self, P_mask: np.ndarray, m: int, settings: ComplianceQPSettings):
+        n = P_mask.shape[0]
+        self.n, self.m = n, m
+        cols, rows = np.nonzero(np.triu(P_mask).T)  # column-major order of the upper triangle
+        self._rows_P, self._cols_P = rows, cols
+        P_csc = sp.csc_matrix((np.where(rows == cols, 1.0, 0.0), (rows, cols)), shape=(n, n))
+        if P_csc.nnz != rows.size:  # scipy dropped explicit zeros: rebuild from the index arrays
+            P_csc = sp.csc_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+            P_csc.data[:] = np.where(rows == cols, 1.0, 0.0)
+        grid_r, grid_c = np.meshgrid(np.arange(m), np.arange(n), indexing="ij")
+        rows_A, cols_A = grid_r.ravel(order="F"), grid_c.ravel(order="F")
+        A_csc = sp.csc_matrix((np.ones(rows_A.size), (rows_A, cols_A)), shape=(m, n))
+        A_csc.data[:] = 0.0
+        self.solver = osqp.OSQP()
+        self.solver.setup(
+            P=P_csc,
+            q=np.zeros(n),
+            A=A_csc,
+            l=np.full(m, -OSQP_INF),
+            u=np.full(m, OSQP_INF),
+            verbose=False,
+            warm_starting=True,
+            polishing=settings.polish,
+            eps_abs=settings.eps,
+            eps_rel=settings.eps,
+            max_iter=settings.max_iter,
+            check_termination=10,
+        )
+
+    def solve(self, P: np.ndarray, q: np.ndarray, A: np.ndarray, l: np.ndarray, u: np.ndarray):
+        """(x or None, status value, iterations)."""
+        self.solver.update(Px=P[self._rows_P, self._cols_P], Ax=A.ravel(order="F"), q=q, l=l, u=u)
+        res = self.solver.solve(raise_error=False)
+        status = int(res.info.status_val)
+        if status in SOLVED and res.x is not None and np.all(np.isfinite(res.x)):
+            return res.x, status, int(res.info.iter)
+        return None, status, int(res.info.iter)
+
+
 class AccelerationQP:
-    """OSQP problem over q̈ with a fixed pattern: rows [I (dampers); M (torque limits); J_strict]."""
+    """The acceleration QP over q̈: rows [I (dampers); M (torque limits); J_strict (equalities)].
+
+    If it has no solution (the dampers ask for more than the torque limits allow), a fallback
+    problem keeps the torque limits [C10] hard — the motors cannot exceed them anyway — and
+    softens the damper rows with slack variables s ≥ 0 penalised by `SLACK_WEIGHT` (relative to
+    the task Hessian, so the problem stays well conditioned for OSQP):
+    l_d − s ≤ q̈ ≤ u_d + s. If that fails too, the tasks' unconstrained optimum clipped to the
+    damper bounds is used. Both cases are flagged `relaxed`.
+    """
+
+    SLACK_WEIGHT = 1e3  # times the largest diagonal entry of the task Hessian
 
     def __init__(self, n: int, n_strict: int, settings: ComplianceQPSettings):
         self.n = n
+        self.n_strict = n_strict
         self.m = 2 * n + n_strict
         self.settings = settings
-        self._rows_P, self._cols_P = _upper_triangle_column_major(n)
         self.A = np.zeros((self.m, n))
         self.A[:n, :n] = np.eye(n)
         self.l = np.full(self.m, -OSQP_INF)
         self.u = np.full(self.m, OSQP_INF)
-        P0 = np.eye(n)
-        self.solver = self._setup(P0)
+        self.primary = DenseOSQP(np.ones((n, n), dtype=bool), self.m, settings)
+        # fallback over [q̈; s]: rows [I −I] ≤ u_d, [I I] ≥ l_d, [M 0] torque, [0 I] ≥ 0, [J 0] strict
+        mask = np.zeros((2 * n, 2 * n), dtype=bool)
+        mask[:n, :n] = True
+        mask[n:, n:] = np.eye(n, dtype=bool)
+        self.m2 = 4 * n + n_strict
+        self.fallback = DenseOSQP(mask, self.m2, settings)
+        self.A2 = np.zeros((self.m2, 2 * n))
+        eye = np.eye(n)
+        self.A2[:n, :n], self.A2[:n, n:] = eye, -eye
+        self.A2[n : 2 * n, :n], self.A2[n : 2 * n, n:] = eye, eye
+        self.A2[3 * n : 4 * n, n:] = eye
+        self.P2 = np.zeros((2 * n, 2 * n))
+        self.P2[n:, n:] = self.SLACK_WEIGHT * eye
+        self.q2 = np.zeros(2 * n)
+        self.l2 = np.full(self.m2, -OSQP_INF)
+        self.u2 = np.full(self.m2, OSQP_INF)
+        self.l2[3 * n : 4 * n] = 0.0
         self._last = np.zeros(n)
 
-    def _setup(self, P0: np.ndarray) -> osqp.OSQP:
-        n, s = self.n, self.settings
-        P_csc = sp.csc_matrix(
-            (P0[self._rows_P, self._cols_P], (self._rows_P, self._cols_P)), shape=(n, n)
-        )  # all upper-triangle entries kept, even zeros
-        grid_r, grid_c = np.meshgrid(np.arange(self.m), np.arange(n), indexing="ij")
-        rows_A, cols_A = grid_r.ravel(order="F"), grid_c.ravel(order="F")
-        A_csc = sp.csc_matrix((np.ones(rows_A.size), (rows_A, cols_A)), shape=(self.m, n))
-        A_csc.data[:] = self.A.ravel(order="F")
-        solver = osqp.OSQP()
-        solver.setup(
-            P=P_csc,
-            q=np.zeros(n),
-            A=A_csc,
-            l=self.l,
-            u=self.u,
-            verbose=False,
-            warm_starting=True,
-            polishing=s.polish,
-            eps_abs=s.eps,
-            eps_rel=s.eps,
-            max_iter=s.max_iter,
-            check_termination=10,
-        )
-        return solver
-
-    def solve(self, P: np.ndarray, q: np.ndarray, n_torque_rows_relaxable: bool = True) -> QPResult:
-        """Solve with the current A, l, u; relax the torque rows, then fall back analytically."""
+    def solve(self, P: np.ndarray, q: np.ndarray) -> QPResult:
+        """Solve with the current A, l, u; fall back as described in the class docstring."""
         n = self.n
+        status = -1
         try:
-            Px = P[self._rows_P, self._cols_P]
-            self.solver.update(Px=Px, Ax=self.A.ravel(order="F"), q=q, l=self.l, u=self.u)
-            res = self.solver.solve(raise_error=False)
-            status = res.info.status_val
-            if status in SOLVED and np.all(np.isfinite(res.x)):
-                self._last = res.x.copy()
-                return QPResult(res.x.copy(), status, False, res.info.iter)
-            # relax the torque limits [C10] (motors saturate anyway), keep the dampers
-            l2, u2 = self.l.copy(), self.u.copy()
-            l2[n : 2 * n] = -OSQP_INF
-            u2[n : 2 * n] = OSQP_INF
-            self.solver.update(l=l2, u=u2)
-            res = self.solver.solve(raise_error=False)
-            status = res.info.status_val
-            if status in SOLVED and np.all(np.isfinite(res.x)):
-                self._last = res.x.copy()
-                return QPResult(res.x.copy(), status, True, res.info.iter)
+            x, status, it = self.primary.solve(P, q, self.A, self.l, self.u)
+            if x is not None:
+                self._last = x.copy()
+                return QPResult(x.copy(), status, False, it)
+            self.P2[:n, :n] = P
+            self.P2[n:, n:] = self.SLACK_WEIGHT * max(float(np.max(np.diag(P))), 1.0) * np.eye(n)
+            self.q2[:n] = q
+            self.u2[:n] = self.u[:n]  # q̈ − s ≤ u_d
+            self.l2[n : 2 * n] = self.l[:n]  # q̈ + s ≥ l_d
+            self.A2[2 * n : 3 * n, :n] = self.A[n : 2 * n]
+            self.l2[2 * n : 3 * n] = self.l[n : 2 * n]
+            self.u2[2 * n : 3 * n] = self.u[n : 2 * n]
+            if self.n_strict:
+                self.A2[4 * n :, :n] = self.A[2 * n :]
+                self.l2[4 * n :] = self.l[2 * n :]
+                self.u2[4 * n :] = self.u[2 * n :]
+            x2, status, it = self.fallback.solve(self.P2, self.q2, self.A2, self.l2, self.u2)
+            if x2 is not None:
+                self._last = x2[:n].copy()
+                return QPResult(x2[:n].copy(), status, True, it)
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
             status = -1
         # analytic fallback: unconstrained optimum clipped to the damper bounds
@@ -240,15 +290,6 @@ class AccelerationQP:
         if not np.all(np.isfinite(x)):
             x = np.zeros(n)
         return QPResult(x, int(status), True, 0)
-
-
-def _upper_triangle_column_major(n: int) -> tuple[np.ndarray, np.ndarray]:
-    rows, cols = [], []
-    for j in range(n):
-        for i in range(j + 1):
-            rows.append(i)
-            cols.append(j)
-    return np.array(rows), np.array(cols)
 
 
 class ComplianceQPExecutor:
@@ -281,6 +322,7 @@ class ComplianceQPExecutor:
         self._build_qp()
         self.tau_prev = np.zeros(n)
         self.tau_hat = np.zeros(n)
+        self.tau_desired = np.zeros(n)  # τ_d of [C8] before the motors' saturation
         self.ddq = np.zeros(n)
         self.last_info: dict[str, float] = {}
 
@@ -382,6 +424,9 @@ class ComplianceQPExecutor:
         res = qp.solve(P, q)
         self.ddq = res.ddq
         tau = dyn.M @ res.ddq + dyn.h - tau_fb  # [C8]
+        if res.relaxed and self.settings.torque_limits:
+            tau = np.clip(tau, -self.tau_max, self.tau_max)  # [C10] stays hard even in the last resort
+        self.tau_desired = tau
         tau_cmd = np.clip(tau, -self.tau_max, self.tau_max)
         saturated = bool(np.any(np.abs(tau) > self.tau_max + 1e-9))
         self.tau_prev = tau_cmd

@@ -1,0 +1,100 @@
+"""Joint-limit drop [C] §IV-B–C (Figs. 2–4): Gen3 in an L-shape with a 1.25 kg mass at the TCP
+(in the simulation, not in the controller model); joint 4 alone is compliant (Γ₀ = e₄) and falls
+into its position limit or a lowered velocity limit; the dampers must stop it.
+
+Constants, chosen once from the paper and not tuned afterwards:
+- posture `l_shape` (robots/gen3.toml): the paper's L-shape, only joint 4 loaded by the mass;
+- payload 1.25 kg at the TCP: the paper's weight "fixed to the end-effector";
+- posture task only (no Cartesian task): the drop is a joint-level test, the other joints are
+  kept by Γ = 0 and feedback ("kept the other joints non-compliant");
+- posture gains K_p = 1 s⁻², K_d = 2 s⁻¹: a soft, critically damped posture task (the default
+  stiffness of mc_rtc's posture task, the paper's framework), so that gravity wins and joint 4 falls;
+- estimator: fusion [C26] with K_I = 50 s⁻¹ (the paper's external-force source; K_I is not given);
+- lowered velocity limit for case (b): 0.5 rad/s on joint 4, about a third of its 1.40 rad/s
+  limit, so the velocity damper acts well before the position damper;
+- run length 3 s: the fall takes about 1 s, the rest shows settling or oscillation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+from app.scenarios import Environment, Scenario
+from app.scenarios.payload import PayloadEnvironment, add_payload_body
+from app.sim.world import World
+from control.compliance_qp import ComplianceQPExecutor
+from control.executor import TaskTarget
+from control.gains import DamperGains, EstimatorGains, PostureTaskGains
+from control.model import Dynamics, RobotModel
+from robots import RobotDescription
+
+PAYLOAD_KG = 1.25  # [C] §IV-B
+FALLING_JOINT = 3  # joint 4 (0-based index 3)
+POSTURE_STIFFNESS = 1.0  # 1/s², mc_rtc posture-task default
+POSTURE_DAMPING = 2.0  # 1/s, critical damping for K_p = 1
+OBSERVER_GAIN = 50.0  # 1/s
+LOWERED_VELOCITY_LIMIT = 0.5  # rad/s, case (b)
+DURATION_S = 3.0
+
+
+class LimitDropScenario(Scenario):
+    name = "limit-drop"
+    title = "Joint-limit drop [C]"
+    description = (
+        "Gen3 in an L-shape carries 1.25 kg the controller does not know about. Only joint 4 is "
+        "compliant (Γ₀ = e₄), so the weight drops it into its position limit (or a lowered velocity "
+        "limit). Change λ, M, the damper form and the external-force feedback and watch the phase plot."
+    )
+    default_robot = "gen3"
+    default_executor = "compliance-qp"
+
+    def __init__(self, limit: str = "position"):
+        if limit not in ("position", "velocity"):
+            raise ValueError(f"limit must be 'position' or 'velocity', got {limit!r}")
+        self.limit = limit
+
+    def initial_q(self, robot: RobotDescription) -> np.ndarray:
+        return robot.postures["l_shape"].copy()
+
+    def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
+        add_payload_body(spec, robot, PAYLOAD_KG)
+
+    def make_environment(self, world: World, rng: np.random.Generator) -> Environment:
+        return PayloadEnvironment(world, PAYLOAD_KG, release_time_s=None)
+
+    def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
+        hold = TaskTarget(
+            position=dyn0.tcp_position_world.copy(), rotation=dyn0.tcp_rotation_world.copy(), q_posture=dyn0.q.copy()
+        )
+        return lambda t: hold
+
+    def velocity_limits(self, robot: RobotDescription) -> np.ndarray:
+        """Per-joint velocity limits for this case (joint 4 lowered in case (b))."""
+        dq_max = robot.dq_max.copy()
+        if self.limit == "velocity":
+            dq_max[FALLING_JOINT] = LOWERED_VELOCITY_LIMIT
+        return dq_max
+
+    def configure_executor(
+        self,
+        executor: ComplianceQPExecutor,
+        robot: RobotDescription,
+        dampers: DamperGains | None = None,
+        feedback: bool = True,
+    ) -> None:
+        """Posture-only QP, Γ₀ = e₄, fusion estimate, the damper variant and the feedback switch."""
+        gamma0 = np.zeros(robot.nq)
+        gamma0[FALLING_JOINT] = 1.0
+        executor.set_tasks([])
+        executor.posture.configure(
+            PostureTaskGains(stiffness=POSTURE_STIFFNESS, damping=POSTURE_DAMPING, compliance=tuple(gamma0))
+        )
+        executor.estimator.configure(EstimatorGains(source="fusion", observer_gain=OBSERVER_GAIN))
+        executor.damper.configure(dampers or DamperGains(), dq_max=self.velocity_limits(robot))
+        executor.configure(feedback=feedback)
+
+
+SCENARIO = LimitDropScenario()

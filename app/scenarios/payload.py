@@ -1,0 +1,79 @@
+"""A payload carried at the TCP, present in the simulation and absent from the controller model.
+
+Physics: the payload is a rigid body fixed to the last link (so its mass and inertia act on the
+arm in MuJoCo), with MuJoCo's gravity compensation on that body switched on and its weight
+applied instead as an explicit external force at its centre of mass every step. The arm feels
+exactly the same as with MuJoCo gravity, but the weight now goes through `World.apply_force`, so
+the F/T sensor (the payload hangs distal to it) and the oracle see it. The inertial reaction of
+the payload (m·a) acts in the simulation but only the momentum observer sees it; the sensor model
+reads the applied forces only.
+
+Release: at the release time the payload's mass and inertia are set to zero in the compiled
+model and its weight is no longer applied — for the arm this is the same as a gripper letting
+go (the mass leaves with no force on the arm). Each new environment restores the payload.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from app.scenarios import Environment
+from app.sim.world import World, _body_of_joint
+from robots import TCP_FRAME, RobotDescription
+
+PAYLOAD_BODY = "payload"
+GRAVITY = 9.81
+
+
+def add_payload_body(spec: mujoco.MjSpec, robot: RobotDescription, mass_kg: float, radius_m: float = 0.04) -> None:
+    """Add the payload body at the TCP site of the last link (solid sphere inertia)."""
+    if not mass_kg > 0:
+        raise ValueError(f"payload mass must be positive, got {mass_kg!r}")
+    last = _body_of_joint(spec, robot.joint_names[-1])
+    tcp = next(s for s in spec.sites if s.name == TCP_FRAME)
+    inertia = 0.4 * mass_kg * radius_m**2
+    last.add_body(name=PAYLOAD_BODY, pos=list(tcp.pos), mass=mass_kg, inertia=[inertia] * 3, gravcomp=1.0)
+
+
+class PayloadEnvironment(Environment):
+    """Applies the payload weight each step until `release_time_s` (None: never released)."""
+
+    def __init__(self, world: World, mass_kg: float, release_time_s: float | None = None):
+        self.world = world
+        self.body_id = int(world.model.body(PAYLOAD_BODY).id)
+        self.mass_kg = float(mass_kg)
+        self.inertia = np.full(3, 0.4 * mass_kg * 0.04**2)
+        self.release_time_s = release_time_s
+        self.attach()
+
+    def attach(self) -> None:
+        """Put the payload (back) on the arm."""
+        self.world.model.body_mass[self.body_id] = self.mass_kg
+        self.world.model.body_inertia[self.body_id] = self.inertia
+        self.attached = True
+
+    def release(self) -> None:
+        """Let go of the payload."""
+        self.world.model.body_mass[self.body_id] = 0.0
+        self.world.model.body_inertia[self.body_id] = 0.0
+        self.attached = False
+
+    def configure(self, **changes: object) -> None:
+        """`attached=True/False` attaches or releases now; `release_time_s` schedules a release."""
+        for key, value in changes.items():
+            if key == "attached":
+                self.attach() if value else self.release()
+            elif key == "release_time_s":
+                self.release_time_s = None if value is None else float(value)  # type: ignore[arg-type]
+            else:
+                raise ValueError(f"payload has no setting {key!r}")
+
+    def apply(self, world: World, t: float) -> dict[str, float]:
+        """Apply the weight at the payload's centre of mass (world frame) while attached."""
+        if self.attached and self.release_time_s is not None and t >= self.release_time_s - 1e-12:
+            self.release()
+        if self.attached:
+            com = world.data.xipos[self.body_id].copy()
+            world.apply_force(self.body_id, com, np.array([0.0, 0.0, -self.mass_kg * GRAVITY]))
+        return {"payload_attached": float(self.attached)}

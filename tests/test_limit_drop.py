@@ -1,0 +1,71 @@
+"""Joint-limit drop [C] §IV-B–C in closed loop: dampers with and without external-force feedback,
+and torque limits [C10]."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.experiments.c_common import qp_session
+from app.experiments.limit_drop import count_oscillations, run_drop
+from app.scenarios.limit_drop import FALLING_JOINT, LimitDropScenario
+from control.compliance_qp import ComplianceQPExecutor
+from control.gains import DamperGains
+
+DURATION = 1.8  # s: the fall and the braking (λ = 100, M = 2) are over after about 1.3 s
+
+
+@pytest.fixture(scope="module")
+def drops():
+    return {fb: run_drop("proposed", 100.0, 2.0, fb, "position", DURATION) for fb in (True, False)}
+
+
+def test_with_feedback_joint_4_never_crosses_its_position_limit(drops):
+    on = drops[True]
+    assert np.max(on["trace_q"]) > on["q_upper"] - 0.1  # it did fall all the way to the limit
+    assert on["max_violation"] < 0.0
+    assert on["overshoot_beyond_ds"] < 1e-4  # stays out of the safety distance d_s (0.1 mrad slack)
+
+
+def test_without_feedback_it_overshoots_more(drops):
+    on, off = drops[True], drops[False]
+    assert off["overshoot_beyond_ds"] > on["overshoot_beyond_ds"] + 5e-3  # at least 5 mrad further
+    assert off["overshoot_beyond_ds"] > 0.0  # it enters d_s
+
+
+def _braking_torques(torque_limits: bool) -> tuple[np.ndarray, float]:
+    """Joint-4 τ_d over a hard drop (M = 1.5) with joint 4's torque limit lowered to 16 N m."""
+    scenario = LimitDropScenario("position")
+    session = qp_session(scenario)
+    ex = session.executor
+    assert isinstance(ex, ComplianceQPExecutor)
+    scenario.configure_executor(ex, session.robot, DamperGains(lambda_=100.0, M=1.5), feedback=True)
+    ex.configure(torque_limits=torque_limits)
+    ex.tau_max[FALLING_JOINT] = 16.0  # holding the arm and the mass needs about 13 N m
+    session.reset()
+    taus = []
+    for _ in range(round(DURATION / 1e-3)):
+        session.step()
+        taus.append(ex.tau_desired.copy())
+    return np.array(taus), 16.0
+
+
+def test_with_torque_limits_tau_d_never_exceeds_them():
+    taus, limit = _braking_torques(True)
+    assert np.max(np.abs(taus[:, FALLING_JOINT])) <= limit * (1 + 1e-4)
+    assert np.all(np.abs(taus) <= ComplianceQPExecutor.for_robot(_gen3()).tau_max * (1 + 1e-4))
+    free, _ = _braking_torques(False)
+    assert np.max(np.abs(free[:, FALLING_JOINT])) > limit + 1.0  # the limit was needed
+
+
+def _gen3():
+    import robots
+
+    return robots.load("gen3")
+
+
+def test_oscillation_count_counts_velocity_reversals():
+    t = np.linspace(0, 1, 1000)
+    assert count_oscillations(np.exp(-5 * t)) == 0
+    assert count_oscillations(np.sin(2 * np.pi * 3 * t)) == 5
+    assert count_oscillations(0.01 * np.sin(2 * np.pi * 3 * t)) == 0  # inside the hysteresis band
