@@ -473,8 +473,8 @@ class SimLoop:
             now = current[key]
             if isinstance(now, bool):
                 ok = isinstance(value, bool)
-            elif isinstance(now, (int, float)):
-                ok = _number(value) is not None
+            elif isinstance(now, (int, float)):  # a scalar gain may become per-axis values
+                ok = _number(value) is not None or (not isinstance(value, bool) and _finite_array(value) is not None)
             elif isinstance(now, str):
                 ok = isinstance(value, str)
             elif isinstance(now, list):
