@@ -61,7 +61,31 @@ BENCHES: dict[str, Callable] = {
     "dLambda_dq_analytic": _dlambda_analytic,
     "dLambda_dq_finite_diff": _dlambda_fd,
     "mj_step": _mj_step,
+    "qp_executor_step": lambda robot: _qp_executor_step(robot),
 }
+
+
+def _qp_executor_step(robot):
+    """[C] executor: snapshot + estimation (fusion) + QP + inverse dynamics, moving state."""
+    from control.compliance_qp import make_compliance_qp
+    from control.executor import ControlInputs, TaskTarget
+
+    model = RobotModel(robot.model)
+    ex = make_compliance_qp(robot, model)
+    dyn0 = model.compute(robot.home, np.zeros(7))
+    target = TaskTarget(position=dyn0.tcp_position_world, rotation=dyn0.tcp_rotation_world, q_posture=robot.home)
+    ex.reset(dyn0, target)
+    phase = np.arange(7.0)
+    wrench = np.array([1.0, -2.0, 3.0, 0.1, 0.0, -0.1])
+    k = [0]
+
+    def step():
+        k[0] += 1
+        s = 0.01 * k[0] + phase
+        dyn = model.compute(robot.home + 0.05 * np.sin(s), 0.2 * np.cos(s))
+        return ex.step(dyn, ControlInputs(t=1e-3 * k[0], target=target, wrench_tcp=wrench))
+
+    return step
 
 
 def run_bench(robot_name: str = robots.DEFAULT_ROBOT, repeats: int = 300, only: list[str] | None = None) -> dict:

@@ -18,6 +18,7 @@ ExecutorFactory = Callable[[RobotDescription, RobotModel], Executor]
 EXECUTORS: dict[str, ExecutorFactory] = {
     "joint-hold": lambda robot, model: JointHold(),
     "projection": lambda robot, model: _projection(robot, model),
+    "compliance-qp": lambda robot, model: _compliance_qp(robot, model),
 }
 
 
@@ -37,3 +38,9 @@ def _projection(robot: RobotDescription, model: RobotModel) -> Executor:
     from control.motion_force import make_projection_executor
 
     return make_projection_executor(robot, model)
+
+
+def _compliance_qp(robot: RobotDescription, model: RobotModel) -> Executor:
+    from control.compliance_qp import make_compliance_qp
+
+    return make_compliance_qp(robot, model)

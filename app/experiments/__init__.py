@@ -10,7 +10,9 @@ import argparse
 import importlib
 
 # experiment name -> module under app.experiments providing `add_arguments(parser)` and `run(args)`
-EXPERIMENTS: dict[str, str] = {}
+EXPERIMENTS: dict[str, str] = {
+    "limit-drop": "limit_drop",
+}
 
 
 def add_parsers(sub) -> None:

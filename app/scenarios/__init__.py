@@ -25,6 +25,7 @@ from robots import RobotDescription
 # name -> module under app.scenarios with a module-level SCENARIO
 SCENARIOS: dict[str, str] = {
     "free": "free",
+    "limit-drop": "limit_drop",
     "polish": "polish",
 }
 
