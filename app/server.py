@@ -24,6 +24,7 @@ from app.ui.commands import DragCommand
 from app.ui.panels import ALL_KNOBS
 from app.ui.panels.base import make_settings_reader
 from app.ui.panels.compliance import CompliancePanel
+from app.ui.panels.more_gains import MoreGainsPanel
 from app.ui.panels.motion_force import MotionForcePanel
 from app.ui.panels.nullspace import NullspacePanel
 from app.ui.panels.record import RecordPanel
@@ -96,6 +97,7 @@ def start_app(
         NullspacePanel(server, loop, order=2),
         CompliancePanel(server, loop, order=3),
         SafetyPanel(server, loop, order=4),
+        MoreGainsPanel(server, loop, claimed={k.key for k in ALL_KNOBS if k.target == "executor"}, order=4.5),
     ]
     make_scene = None
     visual_settings: Any = None

@@ -123,3 +123,13 @@ def test_export_writes_every_column_and_marks_missing_values():
     assert lines[0] == "t,W_a" and len(lines) == 4 and lines[1] == "0,"
     doc = json.loads(to_json({"columns": cols, "scenario": "free", "settings": {"drag": {"max_force_n": 150.0}}}))
     assert doc["columns"]["W_a"] == [None, 1.5, 2.0] and doc["scenario"] == "free"
+
+
+def test_more_gains_lists_exactly_the_scalars_the_executor_accepts():
+    s = Session("free")
+    values = READER(s)
+    assert set(values["meta"]["executor_scalars"]) == {"stiffness", "damping"}  # joint-hold
+    qp_values = READER(_qp_session())
+    scalars = set(qp_values["meta"]["executor_scalars"])
+    assert {"feedback", "torque_limits"} <= scalars
+    assert "eps" not in scalars and "dt" not in scalars  # present on the object, refused by configure()

@@ -75,14 +75,38 @@ def target_object(session: Session, target: str) -> Any:
     }.get(target)
 
 
+_PROBED: dict[int, tuple[Any, tuple[str, ...]]] = {}
+
+
+def configurable_scalars(executor: Any, values: dict[str, Any]) -> tuple[str, ...]:
+    """Scalar settings (numbers, switches) the executor's `configure()` accepts, found once per
+    executor by re-applying each current value (which changes nothing)."""
+    cached = _PROBED.get(id(executor))
+    if cached is not None and cached[0] is executor:
+        return cached[1]
+    keys = []
+    for key, value in values.items():
+        if isinstance(value, bool) or (isinstance(value, float) and math.isfinite(value)):
+            try:
+                executor.configure(**{key: value})
+            except Exception:
+                continue
+            keys.append(key)
+    _PROBED.clear()  # one executor at a time: keep the cache small
+    _PROBED[id(executor)] = (executor, tuple(keys))
+    return tuple(keys)
+
+
 def make_settings_reader(knobs: Sequence[Knob]) -> Callable[[Session], dict[str, dict[str, Any]]]:
-    """A reader for `SimLoop(settings_reader=...)`: generic settings plus every knob's `read` path."""
+    """A reader for `SimLoop(settings_reader=...)`: generic settings plus every knob's `read` path,
+    and under "meta" the executor's configurable scalar settings (for the "More gains" fold)."""
 
     def read(session: Session) -> dict[str, dict[str, Any]]:
         out: dict[str, dict[str, Any]] = {}
         for target in ("executor", "environment", "sensor", "target"):
             obj = target_object(session, target)
             out[target] = settings_of(obj) if obj is not None else {}
+        out["meta"] = {"executor_scalars": configurable_scalars(session.executor, out["executor"])}
         for knob in knobs:
             obj = target_object(session, knob.target)
             for path in knob.read:
