@@ -203,13 +203,28 @@ class DenseOSQP:
         )
 
     def solve(self, P: np.ndarray, q: np.ndarray, A: np.ndarray, l: np.ndarray, u: np.ndarray):
-        """(x or None, status value, iterations)."""
-        self.solver.update(Px=P[self._rows_P, self._cols_P], Ax=A.ravel(order="F"), q=q, l=l, u=u)
-        res = self.solver.solve(raise_error=False)
-        status = int(res.info.status_val)
-        if status in SOLVED and res.x is not None and np.all(np.isfinite(res.x)):
-            return res.x, status, int(res.info.iter)
-        return None, status, int(res.info.iter)
+        """(x or None, status value, iterations).
+
+        Uses the extension object behind `osqp.OSQP` directly when present (the same calls its
+        `update`/`solve` make, without their per-call bookkeeping: ~40 µs less per step); l and u
+        must already lie within ±OSQP_INF.
+        """
+        Px = P[self._rows_P, self._cols_P]
+        Ax = A.ravel(order="F")
+        ext = getattr(self.solver, "_solver", None)
+        if ext is not None:
+            ext.update_data_vec(q=q, l=l, u=u)
+            ext.update_data_mat(P_x=Px, P_i=None, A_x=Ax, A_i=None)
+            ext.solve()
+            info = ext.info
+            status, iters, x = int(info.status_val), int(info.iter), ext.solution.x
+        else:  # pragma: no cover - other OSQP builds
+            self.solver.update(Px=Px, Ax=Ax, q=q, l=l, u=u)
+            res = self.solver.solve(raise_error=False)
+            status, iters, x = int(res.info.status_val), int(res.info.iter), res.x
+        if status in SOLVED and x is not None and np.all(np.isfinite(x)):
+            return np.array(x), status, iters
+        return None, status, iters
 
 
 class AccelerationQP:
@@ -323,6 +338,7 @@ class ComplianceQPExecutor:
         self.tau_prev = np.zeros(n)
         self.tau_hat = np.zeros(n)
         self.tau_desired = np.zeros(n)  # τ_d of [C8] before the motors' saturation
+        self._diag = np.diag_indices(n)
         self.ddq = np.zeros(n)
         self.last_info: dict[str, float] = {}
 
@@ -396,6 +412,10 @@ class ComplianceQPExecutor:
         q = np.zeros(n)
         for task in (*self.soft_tasks, self.posture):
             J, b, w, W = task.rows(dyn, target, ddq_e)
+            if J is self.posture._eye and W is None:  # identity rows: no matrix products
+                P[self._diag] += w
+                q -= w * b
+                continue
             JtW = J.T * w if W is None else (J.T @ W) * w
             P += JtW @ J
             q -= JtW @ b

@@ -77,32 +77,45 @@ class JointLimitDamper:
         self.xi = lam * (self.d_i - self.d_s) / (4.0 * M * M)  # [C23] solved for ξ (classic form)
         self.velocity_gain = lam if gains.form == "proposed" else 1.0 / self.dt
         self.has_position = ~self.endless
+        self._d_s2 = np.concatenate([self.d_s, self.d_s])
+        self._d_i2 = np.concatenate([self.d_i, self.d_i])
+        self._span2 = self._d_i2 - self._d_s2
+        self.xi2 = np.concatenate([self.xi, self.xi])
+        self._dq_limit2 = np.concatenate([self.dq_limit, self.dq_limit])
+        self._no_position2 = np.concatenate([self.endless, self.endless])
 
-    def _side(self, e: np.ndarray, de: np.ndarray) -> np.ndarray:
-        """max(ë_p, ë_v) for one side [C19]: the lowest admissible ë."""
+    def _both_sides(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """max(ë_p, ë_v) [C19] for the upper sides (first n) and lower sides (last n), stacked."""
+        n = self.n
+        e = np.empty(2 * n)
+        de = np.empty(2 * n)
+        e[:n] = self.q_upper - q  # upper: e = q⁺ − q, ė = −q̇
+        e[n:] = q - self.q_lower  # lower: e = q − q⁻, ė = q̇
+        de[:n] = -dq
+        de[n:] = dq
         g = self.gains
         if g.form == "proposed":
-            e_p = -g.lambda_ * de - self.kp * (e - self.d_s)  # [C24]
+            e_p = -g.lambda_ * de - self.kp * (e - self._d_s2)  # [C24]
         else:
-            de_d = -self.xi * (e - self.d_s) / (self.d_i - self.d_s)  # [C15]
-            e_p = np.where(e < self.d_i, -(de - de_d) / self.dt, -NO_BOUND)  # [C17], inserted below d_i
-        e_p = np.where(self.has_position, e_p, -NO_BOUND)
-        e_v = -self.velocity_gain * (de + self.dq_limit)  # [C18]/[C20] with ė_min = −q̇⁺
+            de_d = -self.xi2 * (e - self._d_s2) / self._span2  # [C15]
+            e_p = np.where(e < self._d_i2, -(de - de_d) / self.dt, -NO_BOUND)  # [C17], inserted below d_i
+        e_p[self._no_position2] = -NO_BOUND
+        e_v = -self.velocity_gain * (de + self._dq_limit2)  # [C18]/[C20] with ė_min = −q̇⁺
         return np.maximum(e_p, e_v)
 
     def bounds(self, q: np.ndarray, dq: np.ndarray) -> AccelerationBounds:
         """Acceleration bounds lower ≤ q̈ ≤ upper at (q, q̇)."""
-        upper = -self._side(self.q_upper - q, -dq)  # ë = −q̈ on the upper side
-        lower = self._side(q - self.q_lower, dq)
-        upper = np.minimum(upper, NO_BOUND)
-        lower = np.maximum(lower, -NO_BOUND)
-        crossed = bool(np.any(lower > upper))
-        if crossed:
+        n = self.n
+        side = np.minimum(self._both_sides(q, dq), NO_BOUND)
+        upper = -side[:n]  # ë = −q̈ on the upper side
+        lower = side[n:]
+        if (lower > upper).any():
             mid = 0.5 * (lower + upper)
             bad = lower > upper
             lower = np.where(bad, mid, lower)
             upper = np.where(bad, mid, upper)
-        return AccelerationBounds(lower, upper, crossed)
+            return AccelerationBounds(lower, upper, True)
+        return AccelerationBounds(lower, upper, False)
 
     def position_violation(self, q: np.ndarray) -> np.ndarray:
         """Per joint, how far q is beyond its position limit (rad, > 0 = violated, endless → 0)."""
