@@ -1,0 +1,148 @@
+"""The [C] QP executor: explicit compliance Γ [C9], inverse dynamics [C8], QP plumbing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.sim.world import World
+from control.compliance_qp import ComplianceQPExecutor, DenseOSQP, pose_error
+from control.executor import ControlInputs, TaskTarget
+from control.gains import ComplianceQPSettings, EstimatorGains, PoseTaskGains, PostureTaskGains, compliance_matrix
+from control.model import RobotModel
+
+KP = 100.0  # 1/s²
+FORCE = np.array([0.0, 10.0, -5.0])  # N at the TCP
+
+
+_CACHE: dict = {}
+
+
+def _push(gen3, gamma_task, gamma_posture=0.0, seconds: float = 1.0):
+    key = (gamma_task, gamma_posture, seconds)
+    if key not in _CACHE:
+        _CACHE[key] = _push_run(gen3, gamma_task, gamma_posture, seconds)
+    return _CACHE[key]
+
+
+def _push_run(gen3, gamma_task, gamma_posture, seconds):
+    """Constant force at the TCP from t = 0.1 s; τ̂_e from the oracle (sim truth) so that only the
+    controller is tested. Returns the final pose error and the snapshot at the end."""
+    world = World(gen3)
+    model = RobotModel(gen3.model)
+    ex = ComplianceQPExecutor.for_robot(
+        gen3,
+        tasks=None,
+        estimator=EstimatorGains(source="oracle"),
+        posture=PostureTaskGains(stiffness=1.0, damping=2.0, compliance=gamma_posture),
+    )
+    ex.tasks[0].configure(PoseTaskGains(stiffness=KP, damping=2 * np.sqrt(KP), compliance=gamma_task))
+    dyn = model.compute(world.q, world.dq)
+    target = TaskTarget(position=dyn.tcp_position_world, rotation=dyn.tcp_rotation_world, q_posture=dyn.q)
+    ex.reset(dyn, target)
+    for _ in range(round(seconds / 1e-3)):
+        dyn = model.compute(world.q, world.dq)
+        if world.time >= 0.1:
+            world.apply_force(world.wrist_body, world.site_pose(world.tcp_site)[0], FORCE)
+        out = ex.step(dyn, ControlInputs(world.time, target, np.zeros(6), world.external_joint_torque()))
+        assert out.info["tau_ext_is_oracle"] == 1.0
+        world.step(out.tau)
+    return pose_error(dyn, target), dyn
+
+
+def test_gamma_zero_is_stiff_and_gamma_identity_is_the_predicted_impedance(gen3):
+    e_stiff, _ = _push(gen3, 0.0)
+    e_soft, dyn = _push(gen3, 1.0)
+    wrench = np.concatenate([FORCE, np.zeros(3)])
+    predicted = dyn.Lambda_inv @ wrench / KP  # [C9] with Γ = I: K_p e = J q̈_e = Λx⁻¹ F at rest
+    assert np.linalg.norm(e_soft[:3]) > 5e-3  # it gives way by millimetres
+    np.testing.assert_allclose(e_soft, predicted, atol=0.05 * np.linalg.norm(predicted))
+    assert np.linalg.norm(e_stiff[:3]) < 0.01 * np.linalg.norm(predicted[:3])  # Γ = 0: stays put
+
+
+def test_half_compliance_gives_half_the_deflection(gen3):
+    e_half, _ = _push(gen3, 0.5)
+    e_full, _ = _push(gen3, 1.0)
+    assert np.linalg.norm(e_half[:3]) / np.linalg.norm(e_full[:3]) == pytest.approx(0.5, rel=0.05)
+
+
+def test_compliance_accepts_scalar_diagonal_and_matrix_and_rejects_bad_values():
+    np.testing.assert_array_equal(compliance_matrix(0.5, 3), 0.5 * np.eye(3))
+    np.testing.assert_array_equal(compliance_matrix([1, 0, 2], 3), np.diag([1.0, 0.0, 2.0]))
+    R = np.array([[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]])
+    G = R @ np.diag([1.0, 0.2]) @ R.T
+    np.testing.assert_allclose(compliance_matrix(G, 2), G)
+    with pytest.raises(ValueError, match="positive semi-definite"):
+        compliance_matrix(np.diag([1.0, -0.1]), 2)
+    with pytest.raises(ValueError, match="symmetric"):
+        compliance_matrix(np.array([[1.0, 0.5], [0.0, 1.0]]), 2)
+    with pytest.raises(ValueError, match="shape"):
+        compliance_matrix(np.ones(4), 3)
+    with pytest.raises(ValueError, match="stiffness"):
+        PoseTaskGains(stiffness=-1.0)
+    with pytest.raises(ValueError, match="metric"):
+        PostureTaskGains(metric="euclid")
+
+
+def test_configure_rejects_unknown_settings_and_bad_values(gen3):
+    ex = ComplianceQPExecutor.for_robot(gen3)
+    with pytest.raises(ValueError, match="no setting"):
+        ex.configure(wobble=1.0)
+    with pytest.raises(ValueError, match="lambda_"):
+        ex.configure(lambda_=-3.0)
+    ex.configure(feedback=False, source="residual", lambda_=70.0, M=3.0, task_compliance=[1, 1, 1, 0, 0, 0])
+    assert not ex.settings.feedback and ex.estimator.gains.source == "residual"
+    assert ex.damper.gains.lambda_ == 70.0 and ex.tasks[0].gamma[0, 0] == 1.0
+
+
+def test_inverse_dynamics_is_c8_with_and_without_feedback(gen3):
+    model = RobotModel(gen3.model)
+    q = gen3.home + 0.1
+    dyn = model.compute(q, np.full(7, 0.2))
+    target = TaskTarget(position=dyn.tcp_position_world + 0.01, rotation=dyn.tcp_rotation_world, q_posture=q)
+    tau_e = np.array([1.0, -2.0, 0.5, 0.3, 0.0, 0.1, -0.2])
+    for feedback in (True, False):
+        ex = ComplianceQPExecutor.for_robot(
+            gen3, estimator=EstimatorGains(source="oracle"), settings=ComplianceQPSettings(feedback=feedback)
+        )
+        ex.reset(dyn, target)
+        out = ex.step(dyn, ControlInputs(0.0, target, np.zeros(6), tau_e))
+        expected = dyn.M @ ex.ddq + dyn.h - (tau_e if feedback else 0.0)  # [C8]
+        np.testing.assert_allclose(out.tau, expected, atol=1e-9)
+
+
+def test_infeasible_constraints_never_raise_and_keep_torque_limits(gen3):
+    """A joint at speed right at its limit: the damper asks for more than the torque allows."""
+    model = RobotModel(gen3.model)
+    q = gen3.home.copy()
+    q[3] = gen3.q_upper[3] - 0.03
+    dq = np.zeros(7)
+    dq[3] = 1.3
+    dyn = model.compute(q, dq)
+    target = TaskTarget(position=dyn.tcp_position_world, rotation=dyn.tcp_rotation_world, q_posture=q)
+    ex = ComplianceQPExecutor.for_robot(gen3)
+    ex.reset(dyn, target)
+    out = ex.step(dyn, ControlInputs(0.0, target, np.zeros(6)))
+    assert out.fallback and out.info["qp_relaxed"] == 1.0
+    assert np.all(np.isfinite(out.tau))
+    assert np.all(np.abs(ex.tau_desired) <= gen3.tau_max * (1 + 1e-4))
+    nan_dyn = model.compute(q, dq)
+    nan_dyn.M = np.full((7, 7), np.nan)
+    out = ex.step(nan_dyn, ControlInputs(0.0, target, np.zeros(6)))  # garbage in: flagged, no raise
+    assert out.fallback
+
+
+def test_osqp_pattern_keeps_zeros_so_updates_can_fill_them():
+    settings = ComplianceQPSettings(eps=1e-10, polish=True)
+    qp = DenseOSQP(np.ones((3, 3), dtype=bool), 2, settings)
+    A = np.zeros((2, 3))  # set up all-zero, then filled in
+    A[0, 0] = 1.0
+    A[1] = [1.0, 1.0, 1.0]
+    P = np.diag([2.0, 1.0, 1.0])
+    P[0, 1] = P[1, 0] = 0.5
+    x, status, _ = qp.solve(P, np.array([-1.0, 0.0, 0.0]), A, np.array([-1e30, 1.0]), np.array([1e30, 1.0]))
+    assert x is not None and status == 1  # OSQP_SOLVED
+    # KKT reference: min ½xᵀPx + qᵀx s.t. 1ᵀx = 1
+    K = np.block([[P, np.ones((3, 1))], [np.ones((1, 3)), np.zeros((1, 1))]])
+    ref = np.linalg.solve(K, np.array([1.0, 0.0, 0.0, 1.0]))[:3]
+    np.testing.assert_allclose(x, ref, atol=1e-7)
