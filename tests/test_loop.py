@@ -236,3 +236,20 @@ def test_step_log_keeps_the_newest_rows_and_decimates_from_the_newest():
     every = log.window(0.05, DT, every=10)
     np.testing.assert_array_equal(every["k"], np.arange(209, 250, 10))
     assert np.all(np.diff(full["t"]) > 0)
+
+
+def test_robot_and_scenario_switch_without_restarting(loop):
+    loop.submit(StepOnce(50))
+    loop.submit(SwitchSession(robot="gen3"))
+    status = loop.sync()
+    assert status.robot == "gen3" and status.scenario == "free" and status.steps == 0
+    assert loop.session.robot.name == "gen3" and loop.robot_choice == "gen3"
+    assert loop.call(lambda s: loop.log.count) == 0  # the log starts over with the new arm
+    loop.submit(StepOnce(20))
+    assert loop.sync().steps == 20
+    loop.submit(SwitchSession(robot=""))  # back to the scenario's default arm
+    assert loop.sync().robot == "rizon4s"
+    if "polish" in SCENARIOS:
+        loop.submit(SwitchSession(scenario="polish"))
+        status = loop.sync()
+        assert status.scenario == "polish" and status.executor == loop.session.scenario.default_executor

@@ -54,9 +54,14 @@ class Plots:
                     _series("W_a", COLORS[1]),
                     _series("W_d", COLORS[2], scale="wd"),
                 ),
-                title="Coupling W_f, W_a, W_d [T22] (separate scales)",
+                title="Coupling W_f, W_a, W_d [T22]",
                 scales=TIME_X,
-                axes=({}, {"scale": "y"}, {"scale": "wf", "side": 1, "show": False}, {"scale": "wd", "show": False}),
+                axes=(
+                    {},
+                    {"scale": "y", "stroke": COLORS[1], "label": "W_a (kg²)"},
+                    {"scale": "wf", "side": 1, "stroke": COLORS[0], "grid": {"show": False}, "label": "W_f (1/kg²)"},
+                    {"scale": "wd", "side": 1, "stroke": COLORS[2], "grid": {"show": False}, "label": "W_d"},
+                ),
                 aspect=2.0,
             )
             self.joint = gui.add_dropdown(
