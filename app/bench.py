@@ -62,6 +62,9 @@ BENCHES: dict[str, Callable] = {
     "dLambda_dq_finite_diff": _dlambda_fd,
     "mj_step": _mj_step,
     "qp_executor_step": lambda robot: _qp_executor_step(robot),
+    "tang_step_W_a": lambda robot: _tang_step(robot, "a"),
+    "tang_step_W_j": lambda robot: _tang_step(robot, "j"),
+    "tang_session_step_W_a": lambda robot: _tang_session_step(robot),
 }
 
 
@@ -101,3 +104,40 @@ def run_bench(robot_name: str = robots.DEFAULT_ROBOT, repeats: int = 300, only: 
     if a and f:
         summary["dLambda_analytic_speedup_vs_fd"] = f["median_us"] / a["median_us"]
     return {"robot": robot.name, "repeats": repeats, "results": results, "summary": summary}
+
+
+def _tang_step(robot, objective: str):
+    """[T] executor: snapshot + W gradient (analytic ∂Λx/∂q) + nullspace QP + law, moving state."""
+    from control.executor import ControlInputs, TaskTarget
+    from control.gains import NullspaceGains
+    from control.motion_force import make_projection_executor
+
+    model = RobotModel(robot.model)
+    ex = make_projection_executor(robot, model, nullspace=NullspaceGains(objective=objective))
+    q0 = robot.home.copy()
+    dyn0 = model.compute(q0, np.zeros(7))
+    target = TaskTarget(
+        dyn0.tcp_position_world.copy(), dyn0.tcp_rotation_world.copy(), wrench=np.r_[0, 0, 20.0, 0, 0, 0]
+    )
+    ex.reset(dyn0, target)
+    wrench = np.array([1.0, -2.0, 19.0, 0.1, 0.0, 0.0])
+    state = {"k": 0}
+
+    def step():
+        k = state["k"] = state["k"] + 1
+        q = q0 + 0.01 * np.sin(0.01 * k + np.arange(7))
+        dyn = model.compute(q, np.full(7, 0.05))
+        return ex.step(dyn, ControlInputs(t=1e-3 * k, target=target, wrench_tcp=wrench))
+
+    return step
+
+
+def _tang_session_step(robot):
+    """One whole polish Session step (sim, contact, sensor, [T] executor with W_a); always the Rizon 4s."""
+    from app.scenarios.polish import PolishScenario
+    from app.session import Session
+
+    session = Session(PolishScenario(mu=0.25))
+    session.executor.configure(objective="a")
+    session.run(0.3)
+    return session.step

@@ -17,6 +17,7 @@ the environment exerts on the robot, world axes):
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -120,20 +121,21 @@ class ProjectionExecutor:
     # ---- the law --------------------------------------------------------------------------------
     def _cache_gains(self) -> None:
         g = self.gains
-        self._kp = np.asarray(g.motion_kp)
-        self._two_zeta_sqrt_kp = 2.0 * np.asarray(g.motion_zeta) * np.sqrt(self._kp)
+        kp = np.asarray(g.motion_kp)
+        two_zeta_sqrt_kp = 2.0 * np.asarray(g.motion_zeta) * np.sqrt(kp)
         self._kn = np.asarray(g.nullspace_kd)
         self._dq_limit = self.nullspace.velocity_scale * self.dq_max
-        m = list(self.sub.motion_axes)
-        self._kp_m = self._kp[m]
-        self._kd_scale_m = self._two_zeta_sqrt_kp[m]
+        self._m = np.array(self.sub.motion_axes)
+        self._f = np.array(self.sub.force_axes)
+        self._kp_m = kp[self._m]
+        self._kd_scale_m = two_zeta_sqrt_kp[self._m]
 
     def _step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
-        sub, g = self.sub, self.gains
-        m_ax, f_ax = sub.motion_axes, sub.force_axes
+        g, ns = self.gains, self.nullspace
+        m_idx, f_idx = self._m, self._f
         target = inputs.target
         F_e = inputs.wrench_tcp
-        terms = terms_of(dyn, sub)
+        terms = terms_of(dyn, self.sub)
         self.last_terms = terms
 
         # task errors, world-aligned [px py pz rx ry rz]
@@ -145,71 +147,62 @@ class ProjectionExecutor:
 
         # [T11] motion subspace impedance, K_m^d from ζ and the motion inertia diagonal
         A = terms.A
-        kd_m = self._kd_scale_m * np.sqrt(np.diag(A))
-        u_m = A @ target.acceleration[list(m_ax)] + kd_m * de[list(m_ax)] + self._kp_m * e[list(m_ax)]
+        kd_m = self._kd_scale_m * np.sqrt(A.diagonal())
+        u_m = A @ target.acceleration[m_idx] + kd_m * de[m_idx] + self._kp_m * e[m_idx]
 
         # [T12] explicit force control with velocity damping and clamped integral
-        F_f = F_e[list(f_ax)]
-        F_hat = target.wrench[list(f_ax)]
+        F_f = F_e[f_idx]
+        F_hat = target.wrench[f_idx]
         e_f = F_f - F_hat
+        u_f = -F_hat + g.force_kp * e_f - g.force_kd * v[f_idx]
         if g.force_ki > 0:
             self.force_integral += e_f * 1e-3
             lim = g.force_integral_limit_n / g.force_ki
             np.clip(self.force_integral, -lim, lim, out=self.force_integral)
-        else:
-            self.force_integral[:] = 0.0
-        u_f = -F_hat + g.force_kp * e_f - g.force_kd * v[list(f_ax)] + g.force_ki * self.force_integral
+            u_f += g.force_ki * self.force_integral
 
         # [T7] with Λ̂x [T9]: F_m = u_m, F_f = u_f + BᵀA⁻¹(u_m + F_m^e)
         F = np.empty(6)
-        F[list(m_ax)] = u_m
-        if g.shaping:
-            F[list(f_ax)] = u_f + terms.P_d @ (u_m + F_e[list(m_ax)])
-        else:
-            F[list(f_ax)] = u_f
+        F[m_idx] = u_m
+        F[f_idx] = u_f + terms.P_d @ (u_m + F_e[m_idx]) if g.shaping else u_f
         self.last_wrench = F.copy()
         F -= dyn.Lambda @ dyn.dJ_dq  # μx without its gravity part (h is added below)
 
         # [T15-17] goal nullspace velocity
-        ns = self.nullspace
-        W_values = _w_values(terms)
         if ns.objective == "j":
             q_d = target.q_posture if target.q_posture is not None else self.q_posture
             grad = dyn.q - (dyn.q if q_d is None else q_d)  # [T18]
             W_obj = 0.5 * float(grad @ grad)
         else:
             dLambda = self.model.dLambda_dq(dyn)
-            W_obj, grad = coupling_gradient(terms, dyn.Lambda_inv, dLambda, sub, ns.objective)  # [T24-27]
+            W_obj, grad = coupling_gradient(terms, dyn.Lambda_inv, dLambda, self.sub, ns.objective)  # [T24-27]
         lower, upper = damper_bounds(dyn.q, self.q_lower, self.q_upper, self._dq_limit, self.endless, ns)
         res = self.qp.solve(dyn.J, ns.k0 * grad, lower, upper)
         self.last_qp = res
 
         # [T13] nullspace velocity tracking, [T14] torque
-        dq_n = dyn.N @ dyn.dq
-        F_n = dyn.Lambda_n @ (self._kn * (res.dq_goal - dq_n))
+        F_n = dyn.Lambda_n @ (self._kn * (res.dq_goal - dyn.N @ dyn.dq))
         tau = dyn.J.T @ F + dyn.N.T @ F_n + dyn.h
 
+        W_f, W_a, W_d = _w_values(terms)
         info = {
             "W": W_obj,
-            "W_f": W_values[0],
-            "W_a": W_values[1],
-            "W_d": W_values[2],
+            "W_f": W_f,
+            "W_a": W_a,
+            "W_d": W_d,
             "force_error_n": float(F_hat[0] - F_f[0]),
             "qp_iterations": float(res.iterations),
             "qp_fallback": float(res.fallback),
-            "nullspace_speed": float(np.linalg.norm(res.dq_goal)),
-            "coupled_accel": float((terms.P_f @ F_e[list(m_ax)])[0]),
+            "nullspace_speed": math.sqrt(float(res.dq_goal @ res.dq_goal)),
+            "coupled_accel": float(terms.P_f[0] @ F_e[m_idx]),
         }
         return ControlOutput(tau=tau, fallback=res.fallback, info=info)
 
 
 def _w_values(terms: CouplingTerms) -> tuple[float, float, float]:
-    """(W_f, W_a, W_d) [T22]."""
-    return (
-        float(np.sum(terms.P_f * terms.P_f)),
-        float(np.sum(terms.P_a * terms.P_a)),
-        float(np.sum(terms.P_d * terms.P_d)),
-    )
+    """(W_f, W_a, W_d) = ‖P‖²_F [T22]."""
+    pf, pa, pd = terms.P_f.ravel(), terms.P_a.ravel(), terms.P_d.ravel()
+    return float(pf @ pf), float(pa @ pa), float(pd @ pd)
 
 
 def make_projection_executor(robot, model: RobotModel, **kwargs) -> ProjectionExecutor:

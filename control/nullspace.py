@@ -15,6 +15,7 @@ gradient step projected on the kernel of J, scaled into the bounds. It never rai
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -24,6 +25,7 @@ import scipy.sparse as sp
 from control.gains import NullspaceGains
 
 N_TASK = 6
+_SOLVED = (1, 2)  # OSQP_SOLVED, OSQP_SOLVED_INACCURATE
 
 
 class NullspaceResult(NamedTuple):
@@ -49,13 +51,13 @@ def damper_bounds(
     because the two limits are far further apart than 2 d_i on every real joint.
     """
     span = gains.damper_influence - gains.damper_safety
+    slope = gains.damper_speed / span
     d_low = q - q_lower
     d_up = q_upper - q
-    lo_damper = -gains.damper_speed * (d_low - gains.damper_safety) / span
-    up_damper = gains.damper_speed * (d_up - gains.damper_safety) / span
-    lower = np.where(endless | (d_low >= gains.damper_influence), -dq_limit, np.maximum(-dq_limit, lo_damper))
-    upper = np.where(endless | (d_up >= gains.damper_influence), dq_limit, np.minimum(dq_limit, up_damper))
-    return lower, upper
+    # the damper bound only inside the influence distance (and never on endless joints)
+    lo_damper = np.where((d_low < gains.damper_influence) & ~endless, -slope * (d_low - gains.damper_safety), -np.inf)
+    up_damper = np.where((d_up < gains.damper_influence) & ~endless, slope * (d_up - gains.damper_safety), np.inf)
+    return np.maximum(-dq_limit, lo_damper), np.minimum(dq_limit, up_damper)
 
 
 def min_norm_fallback(J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -110,27 +112,42 @@ class NullspaceQP:
             max_iter=max_iter,
         )
         self.last: NullspaceResult | None = None
+        ext = getattr(self._solver, "_solver", None)
+        needed = ("update_data_vec", "update_data_mat", "solve", "info", "solution")
+        self._ext = ext if ext is not None and all(hasattr(ext, a) for a in needed) else None
 
     def solve(self, J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> NullspaceResult:
         """Goal nullspace velocity for q = k0 ∇W (`gradient_step`), J x = 0 and l ≤ x ≤ u."""
         n = self.n
-        if not (np.all(np.isfinite(J)) and np.all(np.isfinite(gradient_step))):
+        # one dot product per array: NaN/inf anywhere makes it non-finite (cheaper than isfinite)
+        Jr = J.ravel()
+        if not (math.isfinite(float(Jr @ Jr)) and math.isfinite(float(gradient_step @ gradient_step))):
             return self._fallback(np.zeros((N_TASK, n)), np.zeros(n), lower, upper, "non-finite input")
-        if np.any(lower > upper) or not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper))):
+        if not (math.isfinite(float(lower @ lower)) and math.isfinite(float(upper @ upper))) or np.any(lower > upper):
             return self._fallback(J, gradient_step, lower, upper, "inconsistent bounds")
         self._A_data[:N_TASK] = J
         self._l[N_TASK:] = lower
         self._u[N_TASK:] = upper
+        Ax = self._A_data.ravel(order="F")
         try:
-            self._solver.update(q=gradient_step, l=self._l, u=self._u, Ax=self._A_data.ravel(order="F"))
-            res = self._solver.solve(raise_error=False)
-        except (ValueError, RuntimeError) as exc:  # pragma: no cover - defensive
+            if self._ext is not None:  # the extension object directly: skips ~20 µs of wrapper
+                ext = self._ext
+                ext.update_data_vec(q=gradient_step, l=self._l, u=self._u)
+                ext.update_data_mat(P_x=None, P_i=None, A_x=Ax, A_i=None)
+                ext.solve()
+                info = ext.info
+                status, status_val, iters = str(info.status), int(info.status_val), int(info.iter)
+                x = np.array(ext.solution.x, dtype=float)
+            else:  # pragma: no cover - public API path for other OSQP builds
+                self._solver.update(q=gradient_step, l=self._l, u=self._u, Ax=Ax)
+                res = self._solver.solve(raise_error=False)
+                status, status_val, iters = str(res.info.status), int(res.info.status_val), int(res.info.iter)
+                x = np.array(res.x, dtype=float) if res.x is not None else np.full(n, np.nan)
+        except (ValueError, RuntimeError, TypeError) as exc:  # pragma: no cover - defensive
             return self._fallback(J, gradient_step, lower, upper, f"osqp error: {exc}")
-        status = str(res.info.status)
-        x = res.x
-        if x is None or not np.all(np.isfinite(x)) or status not in ("solved", "solved inaccurate"):
+        if status_val not in _SOLVED or not math.isfinite(float(x @ x)):
             return self._fallback(J, gradient_step, lower, upper, status)
-        self.last = NullspaceResult(np.array(x, dtype=float), False, status, int(res.info.iter))
+        self.last = NullspaceResult(x, False, status, iters)
         return self.last
 
     def _fallback(

@@ -11,6 +11,7 @@ import importlib
 
 # experiment name -> module under app.experiments providing `add_arguments(parser)` and `run(args)`
 EXPERIMENTS: dict[str, str] = {
+    "polish": "polish",
     "limit-drop": "limit_drop",
 }
 

@@ -81,12 +81,13 @@ class PhaseClock:
 
     trajectory_start: float | None = None
     quiet_since: float | None = None
+    timeout_s: float = CONVERGE_TIMEOUT_S
 
     def observe(self, t: float, joint_speed: float) -> None:
         """Update with the measured joint speed (the TCP is held, so this is the self-motion)."""
         if self.trajectory_start is not None:
             return
-        if t >= CONTACT_TIME_S + CONVERGE_TIMEOUT_S:
+        if t >= CONTACT_TIME_S + self.timeout_s:
             self.trajectory_start = t
             return
         if t < CONTACT_TIME_S + CONVERGE_MIN_S or joint_speed > CONVERGED_SPEED_RAD_S:
@@ -205,6 +206,7 @@ class PolishScenario(Scenario):
         sander: bool = False,
         start_swivel_deg: float = START_SWIVEL_DEG,
         sensor_noise: bool = True,
+        converge_timeout_s: float = CONVERGE_TIMEOUT_S,
     ):
         if not np.isfinite(mu) or mu < 0:
             raise ValueError(f"friction coefficient mu must be finite and non-negative, got {mu!r}")
@@ -212,6 +214,9 @@ class PolishScenario(Scenario):
         self.sander = bool(sander)
         self.start_swivel_deg = float(start_swivel_deg)
         self.sensor_noise = bool(sensor_noise)
+        if not np.isfinite(converge_timeout_s) or converge_timeout_s < CONVERGE_MIN_S:
+            raise ValueError(f"converge_timeout_s must be at least {CONVERGE_MIN_S} s, got {converge_timeout_s!r}")
+        self.converge_timeout_s = float(converge_timeout_s)
         self._q0_cache: dict[tuple[str, float], np.ndarray] = {}
         self._clock: PhaseClock | None = None
 
@@ -240,7 +245,7 @@ class PolishScenario(Scenario):
         )
         sander = Sander(amplitude_n=SANDER_AMPLITUDE_N, enabled=self.sander)
         # reset() builds the environment and then the target: the target reads this clock.
-        self._clock = PhaseClock()
+        self._clock = PhaseClock(timeout_s=self.converge_timeout_s)
         return PolishEnvironment(contact, sander, self._clock)
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
