@@ -123,3 +123,38 @@ def test_a_busy_port_moves_to_the_next_free_one():
             assert other.url.endswith(f":{other.port}")
         finally:
             other.stop()
+
+
+def test_serve_prints_the_url_says_when_the_port_is_busy_and_stops_on_ctrl_c():
+    import signal
+    import subprocess
+    import sys
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.listen()
+        busy = sock.getsockname()[1]
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "app.cli", "--scenario", "free", "--port", str(busy)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        try:
+            lines = []
+            assert proc.stdout is not None
+            for line in proc.stdout:
+                lines.append(line)
+                if "open http://" in line:
+                    break
+            text = "".join(lines)
+            assert f"port {busy} is busy" in text
+            url = text.split("open ")[1].split()[0]
+            assert url.startswith("http://127.0.0.1:") and not url.endswith(f":{busy}")
+            with urllib.request.urlopen(url, timeout=10) as resp:
+                assert resp.status == 200
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(timeout=20) == 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
