@@ -1,0 +1,192 @@
+"""What the 3D scene shows, copied out of a running Session between two simulation steps.
+
+The loop thread calls `capture(session)` at 30–60 Hz; the publisher hands the result to
+`SceneView.update`. A `SceneSnapshot` holds plain copies only (no view into MjData or the
+Dynamics arrays), so the scene can read it on another thread while the simulation steps on.
+Cost: about 0.1 ms (link poses, one coupling-terms evaluation, a few target samples).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from control.coupling import POLISH_SUBSPACES, Subspaces, coupling_terms, coupling_values
+
+PATH_HORIZON_S = 5.0  # how far ahead the commanded path is sampled
+PATH_SAMPLES = 40
+
+
+@dataclass(frozen=True)
+class SceneSnapshot:
+    """Everything the scene and its overlays draw for one visual frame (world frame, SI units)."""
+
+    t: float  # s, simulation time
+    link_names: tuple[str, ...]
+    link_positions: np.ndarray  # (L, 3) m, body origins
+    link_wxyz: np.ndarray  # (L, 4) body orientations as quaternions (w, x, y, z)
+    tcp_position: np.ndarray  # (3,)
+    tcp_rotation: np.ndarray  # (3, 3) world ← tcp
+    joint_margins: np.ndarray  # (7,) rad to the nearer position limit; inf for endless joints
+    force_axes: tuple[int, ...]  # task indices of the force subspace [T19]
+    motion_axes: tuple[int, ...]
+    P: dict[str, np.ndarray]  # "P_f", "P_a", "P_d": (n_f, n_m) coupling projections (Table I)
+    W: dict[str, float]  # "W_f", "W_a", "W_d" = ‖P‖²_F [T22]
+    Lambda_translational: np.ndarray  # (3, 3) kg, translational block of Λx
+    wrench_measured: np.ndarray  # (6,) F/T reading mapped to the TCP [f; m] (what the controller saw)
+    drag_point: np.ndarray | None = None  # (3,) grabbed point
+    drag_target: np.ndarray | None = None  # (3,) where the spring pulls it
+    drag_force: np.ndarray | None = None  # (3,) N, applied spring force
+    contact_point: np.ndarray | None = None  # (3,)
+    contact_force: np.ndarray | None = None  # (3,) N, true contact force on the robot
+    target_position: np.ndarray | None = None  # (3,) current task target
+    path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (k, 3) target over the next seconds
+    table: tuple[np.ndarray, np.ndarray] | None = None  # (center, half sizes) of the table box
+    objective: str | None = None  # nullspace objective of the controller: "j", "f", "a", "d" or None
+
+    @property
+    def subspaces(self) -> Subspaces:
+        """The force/motion split of this frame."""
+        return Subspaces.from_force_axes(self.force_axes)
+
+    def link_index(self, name: str) -> int:
+        """Row of a link in `link_positions`."""
+        return self.link_names.index(name)
+
+
+def subspaces_of(session: object) -> Subspaces:
+    """The force/motion split the running controller uses, else the scenario's, else pz only."""
+    for owner in (getattr(session, "executor", None), getattr(session, "scenario", None)):
+        for attr in ("subspaces", "sub"):
+            value = getattr(owner, attr, None)
+            if isinstance(value, Subspaces):
+                return value
+        axes = getattr(owner, "force_axes", None)
+        if axes:
+            try:
+                return Subspaces.from_force_axes(tuple(axes))
+            except (TypeError, ValueError):
+                pass
+    return POLISH_SUBSPACES
+
+
+def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
+    """Copy the scene state out of a `Session` (call between steps, on the loop thread)."""
+    world = session.world
+    robot = session.robot
+    model, data = world.model, world.data
+    names = tuple(robot.link_names)
+    ids = _body_ids(model, names)
+    positions = np.array([data.xpos[i] for i in ids], dtype=float).reshape(-1, 3)
+    wxyz = np.array([data.xquat[i] for i in ids], dtype=float).reshape(-1, 4)
+
+    q = world.q
+    margins = np.minimum(q - robot.q_lower, robot.q_upper - q)
+    margins = np.where(robot.endless, np.inf, margins)
+
+    sub = subspaces or subspaces_of(session)
+    dyn = session.dyn
+    terms = coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub)
+    P = {"P_f": terms.P_f.copy(), "P_a": terms.P_a.copy(), "P_d": terms.P_d.copy()}
+
+    last = session.last
+    wrench = np.array(last.wrench_tcp, dtype=float) if last is not None else np.zeros(6)
+    target_position = np.array(last.target.position, dtype=float) if last is not None else None
+
+    drag = session.drag.state if session.drag.active else None
+    overlay = _environment_overlay(session)
+    return SceneSnapshot(
+        t=float(world.time),
+        link_names=names,
+        link_positions=positions,
+        link_wxyz=wxyz,
+        tcp_position=np.array(dyn.tcp_position_world, dtype=float),
+        tcp_rotation=np.array(dyn.tcp_rotation_world, dtype=float),
+        joint_margins=margins,
+        force_axes=sub.force_axes,
+        motion_axes=sub.motion_axes,
+        P=P,
+        W=coupling_values(terms),
+        Lambda_translational=np.array(dyn.Lambda[:3, :3], dtype=float),
+        wrench_measured=wrench,
+        drag_point=None if drag is None else np.array(drag.point_world, dtype=float),
+        drag_target=None if drag is None else np.array(drag.target_world, dtype=float),
+        drag_force=None if drag is None else np.array(drag.force_world, dtype=float),
+        contact_point=overlay.get("contact_point"),
+        contact_force=overlay.get("contact_force"),
+        target_position=target_position,
+        path=_sample_path(session, float(world.time)),
+        table=_table_box(model),
+        objective=_objective(session),
+    )
+
+
+def _objective(session) -> str | None:
+    """The running controller's nullspace objective ("j", "f", "a", "d"), if it has one."""
+    executor = getattr(session, "executor", None)
+    for owner in (executor, getattr(executor, "nullspace", None)):
+        value = getattr(owner, "objective", None)
+        if isinstance(value, str):
+            return value
+    return None
+
+
+def _body_ids(model: mujoco.MjModel, names: tuple[str, ...]) -> list[int]:
+    ids = []
+    for name in names:
+        i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+        if i < 0:
+            raise ValueError(f"the simulation has no body named {name!r}")
+        ids.append(i)
+    return ids
+
+
+def _environment_overlay(session) -> dict[str, np.ndarray]:
+    env = getattr(session, "environment", None)
+    if env is None:
+        return {}
+    try:
+        raw = env.overlay()
+    except Exception:  # the overlay is decoration; never let it stop the scene
+        return {}
+    out = {}
+    for key, value in raw.items():
+        arr = np.array(value, dtype=float)
+        if arr.shape == (3,) and np.all(np.isfinite(arr)):
+            out[key] = arr
+    return out
+
+
+def _sample_path(session, t: float) -> np.ndarray:
+    """The commanded TCP path: the target's own `path()` (k, 3) when it has one, else the target
+    sampled over the next PATH_HORIZON_S seconds (empty if it does not move)."""
+    target_fn = getattr(session, "target_fn", None)
+    if target_fn is None:
+        return np.zeros((0, 3))
+    planned = getattr(target_fn, "path", None)
+    if callable(planned):
+        try:
+            pts = np.array(planned(), dtype=float)
+        except Exception:  # fall back to sampling
+            pts = np.zeros((0, 3))
+        if pts.ndim == 2 and pts.shape[1] == 3 and len(pts) >= 2 and np.all(np.isfinite(pts)):
+            return pts
+    try:
+        times = t + np.linspace(0.0, PATH_HORIZON_S, PATH_SAMPLES)
+        pts = np.array([np.asarray(target_fn(float(ti)).position, dtype=float) for ti in times])
+    except Exception:  # a target that cannot be sampled ahead simply has no path drawn
+        return np.zeros((0, 3))
+    if pts.shape != (PATH_SAMPLES, 3) or not np.all(np.isfinite(pts)):
+        return np.zeros((0, 3))
+    if float(np.max(np.linalg.norm(pts - pts[0], axis=1))) < 1e-4:
+        return np.zeros((0, 3))
+    return pts
+
+
+def _table_box(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray] | None:
+    gid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "table")
+    if gid < 0:
+        return None
+    return np.array(model.geom_pos[gid], dtype=float), np.array(model.geom_size[gid], dtype=float)

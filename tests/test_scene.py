@@ -1,0 +1,255 @@
+"""Scene snapshot and overlay geometry: numbers, not pictures (the browser test checks pictures)."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import itertools
+import socket
+import types
+
+import numpy as np
+import pytest
+import viser
+
+from app.session import Session
+from app.ui.commands import DragCommand
+from app.ui.overlays import (
+    Trail,
+    coupling_map,
+    ellipsoid_of_map,
+    inertia_ellipsoid,
+    magnitude_color,
+    margin_color,
+    measured_coupled_response,
+    tilt_rad,
+    translational_force_ellipsoid,
+)
+from app.ui.scene import SceneView, link_joint_indices, link_meshes
+from app.ui.snapshot import capture
+from app.ui.visuals import VisualSettings
+from control.coupling import POLISH_SUBSPACES, Subspaces, coupling_ellipse
+
+PZ = POLISH_SUBSPACES  # motion px py rx ry rz, force pz
+
+
+def _P_pz(px: float, py: float) -> np.ndarray:
+    """P (1×5) for the pz force axis with entries on the px, py motion columns only."""
+    P = np.zeros((1, 5))
+    P[0, 0], P[0, 1] = px, py
+    return P
+
+
+# ---- coupling ellipse ------------------------------------------------------------------------
+def test_coupling_ellipse_is_a_flat_unit_disc_in_the_motion_plane_when_decoupled():
+    L = coupling_map(np.zeros((1, 5)), PZ, scale=3.0)
+    axes, R = ellipsoid_of_map(L)
+    assert np.allclose(sorted(axes), [0.02, 1.0, 1.0])
+    normal = R[:, int(np.argmin(axes))]
+    assert abs(abs(normal[2]) - 1.0) < 1e-12  # disc normal is the force axis z
+    assert tilt_rad(np.zeros((1, 5)), PZ, 3.0) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_coupling_ellipse_tilt_matches_s_times_p():
+    P = _P_pz(0.3, -0.4)  # |P_t| = 0.5
+    s = 2.0
+    assert tilt_rad(P, PZ, s) == pytest.approx(np.arctan(1.0), abs=1e-12)
+    axes, R = ellipsoid_of_map(coupling_map(P, PZ, s))
+    order = np.argsort(axes)[::-1]
+    assert axes[order[0]] == pytest.approx(np.hypot(1.0, 1.0), rel=1e-12)  # stretched along the tilt
+    assert axes[order[1]] == pytest.approx(1.0, rel=1e-12)  # the perpendicular motion direction keeps length 1
+    normal = R[:, order[2]]
+    expected = np.array([-s * 0.3, -s * (-0.4), 1.0])
+    expected /= np.linalg.norm(expected)
+    assert abs(normal @ expected) == pytest.approx(1.0, abs=1e-12)
+    # the steepest direction of the disc is along P_t (0.6, -0.8)
+    major = R[:, order[0]]
+    assert abs(major[:2] @ np.array([0.6, -0.8])) / np.linalg.norm(major[:2]) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_rotational_motion_columns_do_not_tilt_the_translational_ellipse():
+    P = np.zeros((1, 5))
+    P[0, 2:] = [5.0, -3.0, 2.0]  # rx, ry, rz columns
+    assert tilt_rad(P, PZ, 1.0) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_outline_points_of_control_coupling_lie_on_the_drawn_ellipse():
+    P = _P_pz(1.75, -0.23)
+    s = 0.2
+    axes, R = ellipsoid_of_map(coupling_map(P, PZ, s))
+    pts = coupling_ellipse(P, PZ, scale=s, points=32)
+    local = pts @ R  # coordinates along the principal axes
+    big = np.argsort(axes)[::-1][:2]
+    thin = int(np.argmin(axes))
+    radius = np.sqrt(np.sum((local[:, big] / axes[big]) ** 2, axis=1))
+    assert np.allclose(radius, 1.0, atol=1e-12)
+    assert np.max(np.abs(local[:, thin])) < 1e-12
+
+
+def test_ppt_ellipsoid_needs_two_translational_force_axes_and_has_sqrt_sigma_axes():
+    assert translational_force_ellipsoid(np.ones((1, 5)), PZ) is None
+    sub = Subspaces.from_force_axes(("px", "pz"))  # motion py rx ry rz
+    P = np.array([[2.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+    P[1, 1] = 1.0  # pz couples with rx
+    shape = translational_force_ellipsoid(P, sub)
+    assert shape is not None
+    axes, R = shape
+    assert sorted(axes)[-2:] == pytest.approx([1.0, 2.0])  # √σ of P Pᵀ = diag(4, 1)
+    assert np.sum(np.sort(axes)[-2:] ** 2) == pytest.approx(np.sum(P * P))  # Σσ = W [T22]
+    big = R[:, int(np.argmax(axes))]
+    assert abs(big[0]) == pytest.approx(1.0)  # the 2-wide axis lies along world x (force axis px)
+
+
+def test_inertia_ellipsoid_axes_are_principal_masses():
+    rot = np.linalg.qr(np.array([[1.0, 2.0, 0.0], [0.5, -1.0, 1.0], [0.2, 0.3, 1.0]]))[0]
+    Lambda_t = rot @ np.diag([2.0, 9.0, 5.0]) @ rot.T
+    masses, R = inertia_ellipsoid(Lambda_t)
+    assert masses == pytest.approx([9.0, 5.0, 2.0])
+    assert np.allclose(R @ np.diag(masses) @ R.T, Lambda_t, atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+
+
+# ---- colours and trail -----------------------------------------------------------------------
+def test_margin_colour_is_green_outside_the_zone_and_red_at_the_limit():
+    assert margin_color(0.5, 0.2) == (60, 200, 90)
+    assert margin_color(0.2, 0.2) == (60, 200, 90)
+    assert margin_color(0.0, 0.2) == (230, 50, 40)
+    redness = [margin_color(m, 0.2)[0] - margin_color(m, 0.2)[1] for m in (0.2, 0.15, 0.1, 0.05, 0.0)]
+    assert all(b > a for a, b in itertools.pairwise(redness))  # strictly redder as the margin shrinks
+    assert margin_color(float("inf"), 0.2) == magnitude_color(0.0)  # endless joints stay green
+
+
+def test_trail_thins_samples_forgets_old_ones_and_clears_on_reset():
+    trail = Trail()
+    for k in range(1000):  # 1 s at 1 kHz moving 1 mm per ms
+        trail.add(k * 1e-3, np.array([k * 1e-3, 0.0, 0.0]), seconds=0.5)
+    pts = trail.array()
+    assert 200 <= len(pts) <= 260  # one point per ≥ 2 mm over the last 0.5 s
+    assert pts[0, 0] >= 0.499 and pts[-1, 0] == pytest.approx(0.999, abs=2e-3)
+    trail.add(0.0, np.zeros(3), seconds=0.5)
+    assert len(trail.array()) == 1
+
+
+# ---- snapshot from a running session -----------------------------------------------------------
+@pytest.fixture(scope="module")
+def session():
+    s = Session("free")
+    s.run(0.05)
+    return s
+
+
+def test_snapshot_link_poses_are_copies_of_the_simulated_bodies(session):
+    snap = capture(session)
+    data, model = session.world.data, session.world.model
+    for i, name in enumerate(snap.link_names):
+        bid = model.body(name).id
+        assert np.allclose(snap.link_positions[i], data.xpos[bid], atol=0)
+        assert np.allclose(snap.link_wxyz[i], data.xquat[bid], atol=0)
+    before = snap.link_positions.copy()
+    session.drag.grab(session.world, model.body("link7").id, data.xpos[model.body("link7").id] + [0, 0, 0.05])
+    session.drag.move(data.xpos[model.body("link7").id] + np.array([0.0, 0.3, 0.05]))
+    session.run(0.1)
+    assert np.array_equal(snap.link_positions, before)  # not a view into MjData
+    moved = capture(session)
+    assert np.linalg.norm(moved.link_positions[snap.link_index("link7")] - before[snap.link_index("link7")]) > 1e-3
+    assert moved.drag_force is not None and np.linalg.norm(moved.drag_force) > 1.0
+    assert np.allclose(moved.drag_point, session.drag.state.point_world)
+    session.drag.release()
+    assert capture(session).drag_force is None
+
+
+def test_snapshot_coupling_terms_match_task_inertia_blocks(session):
+    snap = capture(session)
+    L = session.dyn.Lambda
+    assert snap.force_axes == (2,) and snap.motion_axes == (0, 1, 3, 4, 5)
+    assert np.allclose(snap.P["P_a"], L[np.ix_([2], [0, 1, 3, 4, 5])])  # Bᵀ [T20]
+    A = L[np.ix_([0, 1, 3, 4, 5], [0, 1, 3, 4, 5])]
+    assert np.allclose(snap.P["P_d"], snap.P["P_a"] @ np.linalg.inv(A))
+    assert np.allclose(snap.P["P_f"], session.dyn.Lambda_inv[np.ix_([2], [0, 1, 3, 4, 5])])
+    for k in ("f", "a", "d"):
+        assert snap.W[f"W_{k}"] == pytest.approx(float(np.sum(snap.P[f"P_{k}"] ** 2)))
+    assert np.allclose(snap.Lambda_translational, L[:3, :3])
+    q = session.world.q
+    r = session.robot
+    assert np.allclose(snap.joint_margins, np.minimum(q - r.q_lower, r.q_upper - q))
+
+
+def test_coupled_response_arrow_is_P_f_times_the_measured_motion_wrench(session):
+    snap = dataclasses.replace(capture(session), wrench_measured=np.array([10.0, 0, 0, 0, 0, 0]))
+    response = measured_coupled_response(snap)
+    assert response[:2] == pytest.approx([0.0, 0.0])
+    assert response[2] == pytest.approx(10.0 * snap.P["P_f"][0, 0])
+
+
+# ---- SceneView without a browser ----------------------------------------------------------------
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def server():
+    srv = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    yield srv
+    srv.stop()
+
+
+def test_link_meshes_cover_every_visual_link_in_its_own_frame(rizon):
+    meshes = link_meshes(str(rizon.urdf_path))
+    assert set(meshes) == set(rizon.link_names)
+    base = meshes["base_link"]
+    assert base.bounds[0][2] == pytest.approx(-0.07, abs=2e-3)  # sphere r = 0.07 at the origin
+    assert base.bounds[1][2] == pytest.approx(0.155 + 0.077, abs=2e-3)  # top of the second cylinder
+    assert link_joint_indices(rizon) == {n: i - 1 for i, n in enumerate(rizon.link_names[:8])} | {"flange": 6}
+
+
+def test_scene_view_moves_links_recolours_near_limits_and_sends_drag_commands(server, session):
+    sent: list[DragCommand] = []
+    settings = VisualSettings(limit_zone_rad=0.2)
+    view = SceneView(server, session.robot, sent.append, settings)
+    try:
+        snap = capture(session)
+        margins = snap.joint_margins.copy()
+        margins[3] = 0.0  # joint 4 at its limit
+        with server.atomic():
+            view.update(dataclasses.replace(snap, joint_margins=margins))
+        i = snap.link_index("link3")
+        assert np.allclose(view.frames["link3"].position, snap.link_positions[i])
+        assert np.allclose(view.frames["link3"].wxyz, snap.link_wxyz[i])
+        assert tuple(view.meshes["link4"].color) == (230, 50, 40)
+        assert tuple(view.meshes["link2"].color) == (60, 200, 90)
+        assert view.overlays.coupling_disc.visible
+        assert view.overlays.coupling_label.text.startswith("W_a = ")
+
+        cb = view._drag_callback("link5")
+        for phase, start, end in (("start", (0.1, 0.2, 0.3), (0.1, 0.2, 0.3)), ("update", (0, 0, 0), (0.4, 0.5, 0.6))):
+            asyncio.run(cb(types.SimpleNamespace(phase=phase, client_id=7, start_position=start, end_position=end)))
+        asyncio.run(
+            cb(types.SimpleNamespace(phase="end", client_id=7, start_position=(0, 0, 0), end_position=(0, 0, 0)))
+        )
+        assert [c.kind for c in sent] == ["grab", "move", "release"]
+        assert sent[0] == DragCommand("grab", 7, body_name="link5", point_world=(0.1, 0.2, 0.3))
+        assert sent[1].target_world == (0.4, 0.5, 0.6)
+
+        settings.update(coupling=False, limit_colors=False)
+        with server.atomic():
+            view.update(snap)
+        assert not view.overlays.coupling_disc.visible
+        assert tuple(view.meshes["link4"].color) == (175, 178, 186)
+    finally:
+        view.remove()
+
+
+def test_visual_settings_refuse_unknown_fields_and_bad_values():
+    s = VisualSettings()
+    with pytest.raises(ValueError):
+        s.update(nonsense=1.0)
+    with pytest.raises(ValueError):
+        s.update(coupling_kind="P_x")
+    with pytest.raises(ValueError):
+        s.update(force_m_per_n=float("nan"))
+    assert [s.projection_name(o) for o in ("j", "f", "a", "d", None)] == ["P_a", "P_f", "P_a", "P_d", "P_a"]
+    s.update(coupling_kind="P_f", coupling_gain=2.0)
+    assert s.projection_name("d") == "P_f"  # an explicit choice wins over the objective
+    assert s.coupling_scale() == pytest.approx(2.0 / 0.5)
