@@ -13,6 +13,7 @@ import importlib
 EXPERIMENTS: dict[str, str] = {
     "polish": "polish",
     "limit-drop": "limit_drop",
+    "mass-drop": "mass_drop",
 }
 
 

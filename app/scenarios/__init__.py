@@ -26,6 +26,7 @@ from robots import RobotDescription
 SCENARIOS: dict[str, str] = {
     "free": "free",
     "limit-drop": "limit_drop",
+    "mass-drop": "mass_drop",
     "polish": "polish",
 }
 
