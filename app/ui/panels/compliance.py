@@ -111,6 +111,7 @@ class CompliancePanel(KnobPanel):
         super().__init__(server, loop, "Compliance", INTRO, KNOBS, order=order)
 
     def build_extra_bottom(self) -> None:
+        """The per-joint Γ₀ fold."""
         base = len(self.knobs)
         with self.server.gui.add_folder("Per-joint Γ₀", expand_by_default=False):
             for j, knob in enumerate(JOINT_KNOBS):

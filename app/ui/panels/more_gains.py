@@ -36,6 +36,7 @@ class MoreGainsPanel(KnobPanel):
         self._by_key[key] = len(self.knobs) - 1
 
     def refresh(self, settings: Settings) -> None:
+        """Add inputs for new scalars, hide those the executor lacks, show the values in force."""
         values = settings.values.get("executor", {})
         keys = [k for k in settings.values.get("meta", {}).get("executor_scalars", ()) if k not in self.claimed]
         for key in keys:

@@ -55,6 +55,7 @@ class NullspacePanel(KnobPanel):
         super().__init__(server, loop, "Nullspace", INTRO, KNOBS, order=order)
 
     def build_extra_bottom(self) -> None:
+        """The k0 slider and the live W line."""
         gui = self.server.gui
         self.k0: Any = gui.add_slider("k0", 0.0, 1.0, 0.001, 0.0, hint="Gradient gain of the selected objective [T15]")
         self.k0.visible = False
@@ -74,6 +75,7 @@ class NullspacePanel(KnobPanel):
         self.loop.submit(Configure("executor", {self._k0_key: value}, event.client_id))
 
     def refresh(self, settings) -> None:
+        """Objective and k0 of the selected objective (range 0 … 20× its default)."""
         super().refresh(settings)
         values = settings.values.get("executor", {})
         objective = values.get("objective")
@@ -98,6 +100,7 @@ class NullspacePanel(KnobPanel):
         return time.time() - handle.update_timestamp < TOUCH_HOLD_S
 
     def live(self, frame: Frame) -> None:
+        """W_j, W_f, W_a, W_d now."""
         sig = frame.status.signals
         scene_W = getattr(frame.scene, "W", None) or {}
         parts = []

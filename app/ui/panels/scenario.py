@@ -46,6 +46,7 @@ class ScenarioPanel(KnobPanel):
         super().__init__(server, loop, "Scenario", INTRO, KNOBS, order=order)
 
     def build_extra_top(self) -> None:
+        """Preset, robot, executor, run buttons, speed and status lines."""
         gui = self.server.gui
         status = self.loop.status
         scenarios = tuple(SCENARIOS) or (status.scenario,)
@@ -126,6 +127,7 @@ class ScenarioPanel(KnobPanel):
 
     # ---- live view ------------------------------------------------------------------------------
     def live(self, frame: Frame) -> None:
+        """Status line, fallback badge, divergence message and the dropdowns in force."""
         st = frame.status
         _set(self.preset, st.scenario)
         _set(self.executor, st.executor)
