@@ -75,6 +75,8 @@ class LoopStatus:
     rtf: float = 0.0  # achieved real-time factor over the last window
     load: float = 0.0  # fraction of wall time spent computing steps
     scenario: str = ""
+    scenario_title: str = ""
+    scenario_text: str = ""  # what the preset shows, one paragraph
     robot: str = ""
     executor: str = ""
     halted: str = ""  # why the loop auto-paused (divergence), "" otherwise
@@ -569,6 +571,8 @@ class SimLoop:
             rtf=self._meter.rtf if self._running else 0.0,
             load=self._meter.load if self._running else 0.0,
             scenario=s.scenario.name,
+            scenario_title=str(getattr(s.scenario, "title", s.scenario.name)),
+            scenario_text=str(getattr(s.scenario, "description", "")),
             robot=s.robot.name,
             executor=s.executor_name,
             halted=self._halted,

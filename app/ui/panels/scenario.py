@@ -9,7 +9,7 @@ import viser
 
 import robots
 from app.executors import EXECUTORS
-from app.loop import SPEED_RANGE, Frame, SimLoop
+from app.loop import SPEED_RANGE, Frame, LoopStatus, SimLoop
 from app.scenarios import SCENARIOS
 from app.ui.commands import Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
 from app.ui.panels.base import Knob, KnobPanel, coerce, notify
@@ -51,16 +51,15 @@ class ScenarioPanel(KnobPanel):
         status = self.loop.status
         scenarios = tuple(SCENARIOS) or (status.scenario,)
         self.preset = gui.add_dropdown(
-            "Preset",
-            scenarios,
-            initial_value=self.loop.session.scenario.name
-            if self.loop.session.scenario.name in scenarios
-            else scenarios[0],
+            "Preset", scenarios, initial_value=status.scenario if status.scenario in scenarios else scenarios[0]
         )
-        self.description = gui.add_markdown(_describe(self.loop.session.scenario))
+        self.description = gui.add_markdown(_describe(status))
         robot_options = (DEFAULT_ROBOT, *robots.available(), *self._extra_robots)
         self.robot = gui.add_dropdown("Robot", robot_options, initial_value=DEFAULT_ROBOT)
-        self.executor = gui.add_dropdown("Executor", tuple(EXECUTORS), initial_value=self.loop.session.executor_name)
+        executors = tuple(EXECUTORS)
+        self.executor = gui.add_dropdown(
+            "Executor", executors, initial_value=status.executor if status.executor in executors else executors[0]
+        )
         self.play = gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY)
         self.pause = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
         self.step = gui.add_button_group("Single step", tuple(STEPS))
@@ -130,13 +129,14 @@ class ScenarioPanel(KnobPanel):
         """Status line, fallback badge, divergence message and the dropdowns in force."""
         st = frame.status
         _set(self.preset, st.scenario)
-        _set(self.executor, st.executor)
+        if st.executor in self.executor.options:
+            _set(self.executor, st.executor)
         choice = self.loop.robot_choice or DEFAULT_ROBOT
         if choice in self.robot.options:
             _set(self.robot, choice)
         if time.time() - self.speed.update_timestamp > 0.6:
             _set(self.speed, round(st.speed, 2))
-        text = _describe(self.loop.session.scenario)
+        text = _describe(st)
         if self.description.content != text:
             self.description.content = text
         state = "running" if st.running else "paused"
@@ -163,8 +163,8 @@ class ScenarioPanel(KnobPanel):
             self.halted_md.visible = bool(halted)
 
 
-def _describe(scenario: Any) -> str:
-    return f"**{getattr(scenario, 'title', scenario.name)}** — {getattr(scenario, 'description', '')}"
+def _describe(status: LoopStatus) -> str:
+    return f"**{status.scenario_title}** — {status.scenario_text}"
 
 
 def _set(handle: Any, value: Any) -> None:
