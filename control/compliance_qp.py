@@ -406,6 +406,10 @@ class ComplianceQPExecutor:
         target = inputs.target
         tau_hat = self.estimator.update(dyn, self.tau_prev, inputs.wrench_tcp, inputs.tau_ext_oracle)
         self.tau_hat = tau_hat
+        for task in self.tasks:  # tasks that need this step's inputs (e.g. the [T] bridge)
+            prepare = getattr(task, "prepare", None)
+            if prepare is not None:
+                prepare(dyn, inputs)
         ddq_e = dyn.M_inv @ tau_hat  # q̈_e = M⁻¹ τ̂_e
         # objective [C9]: ½ q̈ᵀ P q̈ + qᵀ q̈
         P = np.zeros((n, n))

@@ -1,0 +1,99 @@
+"""The bridge between the two papers (DESIGN §3): [T]'s motion/force law as a task of [C]'s QP.
+
+[T]'s shaped task dynamics Λ̂x ẍ = u + F^e [T7–9] is [C]'s explicit compliance [C9] with the task
+reference ë* = Λ̂x⁻¹u and Γ_x = Λ̂x⁻¹Λx, because J q̈_e = J M⁻¹ Jᵀ F^e = Λx⁻¹F^e:
+    J q̈ + J̇ q̇ = Λ̂x⁻¹u + Γ_x J q̈_e = Λ̂x⁻¹(u + F^e).
+[T]'s nullspace QP [T15–17] drives [C]'s posture task: q̈*₀ = K_n^d (q̂̇n − q̇) [T13].
+
+What must agree (DESIGN §8): the task-space acceleration, always; the whole torque only when the
+posture term is M-weighted (its minimiser under J q̈ = b is q̈*₀ + J̄(b − J q̈*₀), the dynamically
+consistent split of [T14]) and both executors use the same q̂̇n (then N q̈*₀ = K_n (q̂̇n − N q̇),
+which is [T13]'s M⁻¹NᵀF_n for a scalar K_n, since q̂̇n ∈ null(J) = range(N)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from control.compliance_qp import ComplianceQPExecutor, PostureTask, TaskRows
+from control.coupling import partially_decoupled_inertia
+from control.executor import ControlInputs, TaskTarget
+from control.gains import ComplianceQPSettings, EstimatorGains, PostureTaskGains
+from control.model import Dynamics
+from control.motion_force import ProjectionExecutor
+
+
+class ShapedMotionForceTask:
+    """[T]'s motion/force law as one 6-D [C] task: ë* = Λ̂x⁻¹u, Γ_x = Λ̂x⁻¹Λx.
+
+    The [T] law (a `ProjectionExecutor`) is run on the same snapshot and F/T reading to get u,
+    its force integral and its nullspace QP; the task then reads
+    Λ̂x⁻¹u = Λx⁻¹(F_x + F^e) − Λ̂x⁻¹F^e from its wrench F_x = Λx Λ̂x⁻¹(u + F^e) − F^e [T7].
+    With a posture task attached, it hands [T]'s q̂̇n to it as the velocity reference.
+    """
+
+    dim = 6
+
+    def __init__(self, law: ProjectionExecutor, weight: float = 1e4, strict: bool = False):
+        if not weight > 0:
+            raise ValueError(f"weight must be positive, got {weight!r}")
+        self.law = law
+        self.weight = float(weight)
+        self.strict = strict
+        self.posture: PostureTask | None = None
+        self._inputs: ControlInputs | None = None
+        self.reference_acc = np.zeros(6)
+        self.Lambda_hat = np.eye(6)
+
+    def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
+        """Reset the [T] law's integrator and posture."""
+        self.law.reset(dyn, target)
+
+    def prepare(self, dyn: Dynamics, inputs: ControlInputs) -> None:
+        """Run the [T] law on this step's snapshot and reading (called before `rows`)."""
+        self._inputs = inputs
+        self.law.step(dyn, inputs)
+        F_e = np.asarray(inputs.wrench_tcp, dtype=float)
+        self.Lambda_hat = partially_decoupled_inertia(dyn.Lambda, self.law.sub)  # [T9]
+        self.Lambda_hat_inv = np.linalg.inv(self.Lambda_hat)
+        # Λ̂x⁻¹u from [T7]: F_x = Λx Λ̂x⁻¹ u + (Λx Λ̂x⁻¹ − I) F^e
+        self.reference_acc = dyn.Lambda_inv @ (self.law.last_wrench + F_e) - self.Lambda_hat_inv @ F_e
+        if self.posture is not None and self.law.last_qp is not None:
+            self.posture.dq_ref = self.law.last_qp.dq_goal.copy()
+
+    def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
+        """J q̈ = Λ̂x⁻¹u + Γ_x J q̈_e − J̇ q̇ with Γ_x = Λ̂x⁻¹Λx [C9]."""
+        gamma_x = self.Lambda_hat_inv @ dyn.Lambda
+        b = self.reference_acc + gamma_x @ (dyn.J @ ddq_e) - dyn.dJ_dq
+        return TaskRows(dyn.J, b, self.weight, None)
+
+
+def make_bridge_executor(
+    robot,
+    law: ProjectionExecutor,
+    metric: str = "inertia",
+    strict: bool = False,
+    estimator: EstimatorGains | None = None,
+    settings: ComplianceQPSettings | None = None,
+    dt: float = 1e-3,
+) -> ComplianceQPExecutor:
+    """The [C] QP executor running [T]'s motion/force law and nullspace reference.
+
+    Posture task: q̈*₀ = K_n^d (q̂̇n − q̇), K_n^d from the law's gains (must be one value for all
+    joints), weight 1, `metric` "inertia" (dynamically consistent) or "identity" ([C9]).
+    The task weight is 1e4 (1e4 : 1 as in [C]'s setup), or equality rows when `strict`.
+    """
+    kn = np.asarray(law.gains.nullspace_kd, dtype=float)
+    if not np.allclose(kn, kn[0]):
+        raise ValueError("the bridge needs one K_n^d for all joints (a scalar commutes with N)")
+    task = ShapedMotionForceTask(law, strict=strict)
+    ex = ComplianceQPExecutor.for_robot(
+        robot,
+        tasks=[task],
+        posture=PostureTaskGains(stiffness=0.0, damping=float(kn[0]), weight=1.0, metric=metric),
+        estimator=estimator or EstimatorGains(source="fusion"),
+        settings=settings,
+        dt=dt,
+    )
+    task.posture = ex.posture
+    return ex
