@@ -98,7 +98,7 @@ class Plots:
                 scales={"x": {"time": False}, "y": {"auto": False, "range": (0.0, 1.2)}},
                 aspect=3.0,
             )
-        self._phase_range: tuple[float, float] | None = None
+        self._phase_range: tuple[float, float, float] | None = None
 
     def update(self, plot: PlotData) -> None:
         """Push new data to the charts (one message per chart)."""
@@ -124,9 +124,18 @@ class Plots:
         lo, hi = float(plot.q_lower[j]), float(plot.q_upper[j])
         if not (np.isfinite(lo) and np.isfinite(hi)) or hi - lo > 4 * np.pi:  # endless joint: follow the data
             lo, hi = float(np.min(q)) - 0.1, float(np.max(q)) + 0.1
-        if self._phase_range != (lo, hi):
-            self._phase_range = (lo, hi)
-            self.phase.scales = {"x": {"time": False, "auto": False, "range": (lo, hi)}}
+        vlim = float(plot.dq_max[j])
+        key = (lo, hi, vlim)
+        if self._phase_range != key:
+            self._phase_range = key
+            self.phase.scales = {
+                "x": {"time": False, "auto": False, "range": (lo, hi)},
+                "y": {"auto": False, "range": (-1.15 * vlim, 1.15 * vlim)},
+            }
             self.phase.title = f"Joint {j + 1} phase (q, q̇); x range = limits [{lo:.2f}, {hi:.2f}] rad"
-        vmax = np.full_like(q, float(plot.dq_max[j]))
-        self.phase.data = (q, dq, vmax, -vmax)
+        # two extra points at the position limits carry the velocity-limit lines across the whole
+        # width; the trajectory has no value there (NaN is not drawn)
+        x = np.concatenate([q, [lo, hi]])
+        traj = np.concatenate([dq, [np.nan, np.nan]])
+        vmax = np.full_like(x, vlim)
+        self.phase.data = (x, traj, vmax, -vmax)
