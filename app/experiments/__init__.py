@@ -14,6 +14,7 @@ EXPERIMENTS: dict[str, str] = {
     "polish": "polish",
     "limit-drop": "limit_drop",
     "mass-drop": "mass_drop",
+    "compliance": "compliance",
 }
 
 

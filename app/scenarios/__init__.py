@@ -27,6 +27,7 @@ SCENARIOS: dict[str, str] = {
     "free": "free",
     "limit-drop": "limit_drop",
     "mass-drop": "mass_drop",
+    "compliance": "compliance",
     "polish": "polish",
 }
 
