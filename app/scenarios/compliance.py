@@ -101,8 +101,13 @@ class ComplianceScenario(Scenario):
         )
         return lambda t: hold
 
-    def configure_executor(self, executor: ComplianceQPExecutor, robot: RobotDescription) -> None:
-        """Pose + posture tasks with this mode's Γ, fusion estimate, feedback on."""
+    def configure_executor(self, executor: object, robot: RobotDescription) -> None:
+        """Pose + posture tasks with this mode's Γ, fusion estimate, feedback on.
+
+        Other executors are left as they are (the Session may call this for any executor).
+        """
+        if not isinstance(executor, ComplianceQPExecutor):
+            return
         g_task, g_posture = GAMMAS[self.mode]
         executor.set_tasks([PoseTask(PoseTaskGains(stiffness=100.0, damping=20.0, weight=1e4, compliance=g_task))])
         executor.posture.configure(PostureTaskGains(stiffness=1.0, damping=2.0, weight=1.0, compliance=g_posture))

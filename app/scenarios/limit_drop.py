@@ -80,12 +80,17 @@ class LimitDropScenario(Scenario):
 
     def configure_executor(
         self,
-        executor: ComplianceQPExecutor,
+        executor: object,
         robot: RobotDescription,
         dampers: DamperGains | None = None,
         feedback: bool = True,
     ) -> None:
-        """Posture-only QP, Γ₀ = e₄, fusion estimate, the damper variant and the feedback switch."""
+        """Posture-only QP, Γ₀ = e₄, fusion estimate, the damper variant and the feedback switch.
+
+        Other executors are left as they are (the Session may call this for any executor).
+        """
+        if not isinstance(executor, ComplianceQPExecutor):
+            return
         gamma0 = np.zeros(robot.nq)
         gamma0[FALLING_JOINT] = 1.0
         executor.set_tasks([])

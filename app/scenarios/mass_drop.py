@@ -121,8 +121,13 @@ class MassDropScenario(Scenario):
         )
         return lambda t: hold
 
-    def configure_executor(self, executor: ComplianceQPExecutor, robot: RobotDescription) -> None:
-        """Position: joint PID, no estimate. Torque modes: stiff pose task, compliant nullspace."""
+    def configure_executor(self, executor: object, robot: RobotDescription) -> None:
+        """Position: joint PID, no estimate. Torque modes: stiff pose task, compliant nullspace.
+
+        Other executors are left as they are (the Session may call this for any executor).
+        """
+        if not isinstance(executor, ComplianceQPExecutor):
+            return
         if self.mode == "position":
             w = PID_OMEGA
             executor.set_tasks([])
