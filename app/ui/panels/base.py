@@ -5,8 +5,8 @@ A `Knob` names the `configure()` key it writes, the target it belongs to ("execu
 (`read`: dotted attribute paths tried in order, e.g. "damper.gains.lambda_"), and the input kind.
 `KnobPanel` builds a folder of knobs, writes each change as a `Configure` command (never touching
 the session), checks the value first (kind, finite, range) and refuses nonsense with a
-notification, and on every frame shows the values in force — hiding knobs the current controller
-does not have, so one panel serves every executor.
+notification, and on every frame shows the values in force — greying out knobs the current
+controller does not have, so one panel serves every executor.
 """
 
 from __future__ import annotations
@@ -154,7 +154,11 @@ def notify(server: viser.ViserServer, client_id: int | None, title: str, body: s
 
 
 class KnobPanel:
-    """A folder of knobs bound to the loop's settings (see the module docstring)."""
+    """A folder of knobs bound to the loop's settings (see the module docstring). Knobs the running
+    session lacks are greyed out (or hidden when `hide_missing`), so every knob of both papers
+    stays in view."""
+
+    hide_missing = False
 
     def __init__(
         self,
@@ -187,15 +191,15 @@ class KnobPanel:
     def _add(self, knob: Knob) -> Any:
         gui = self.server.gui
         if knob.kind == "checkbox":
-            handle: Any = gui.add_checkbox(knob.label, False, hint=knob.hint, visible=False)
+            handle: Any = gui.add_checkbox(knob.label, False, hint=knob.hint)
         elif knob.kind == "dropdown":
             handle = gui.add_dropdown(knob.label, knob.options, initial_value=knob.options[0], hint=knob.hint)
-            handle.visible = False
         elif knob.kind == "number":
             handle = gui.add_number(knob.label, knob.lo, min=knob.lo, max=knob.hi, step=knob.step, hint=knob.hint)
-            handle.visible = False
         else:
-            handle = gui.add_slider(knob.label, knob.lo, knob.hi, knob.step, knob.lo, hint=knob.hint, visible=False)
+            handle = gui.add_slider(knob.label, knob.lo, knob.hi, knob.step, knob.lo, hint=knob.hint)
+        handle.disabled = True  # until the loop says the running controller has this setting
+        handle.visible = not self.hide_missing
 
         def on_update(event: viser.GuiEvent, knob: Knob = knob) -> None:
             if event.client_id is None:  # our own refresh, not a person
@@ -223,8 +227,10 @@ class KnobPanel:
             handle = self.handles[i]
             values = settings.values.get(knob.target, {})
             present = knob.key in values
-            if handle.visible != present:
+            if self.hide_missing and handle.visible != present:
                 handle.visible = present
+            if handle.disabled == present:
+                handle.disabled = not present
             if not present or now - handle.update_timestamp < TOUCH_HOLD_S:
                 continue
             try:

@@ -17,6 +17,8 @@ LIMIT = 1e9
 class MoreGainsPanel(KnobPanel):
     """A fold of inputs built on demand from the executor's configurable scalars."""
 
+    hide_missing = True
+
     def __init__(self, server: viser.ViserServer, loop: SimLoop, claimed: set[str], order: float | None = None):
         self.claimed = set(claimed)
         self._by_key: dict[str, int] = {}

@@ -58,7 +58,7 @@ class NullspacePanel(KnobPanel):
         """The k0 slider and the live W line."""
         gui = self.server.gui
         self.k0: Any = gui.add_slider("k0", 0.0, 1.0, 0.001, 0.0, hint="Gradient gain of the selected objective [T15]")
-        self.k0.visible = False
+        self.k0.disabled = True
         self._k0_key = ""
         self.k0.on_update(self._on_k0)
         self.values = gui.add_markdown("")
@@ -81,8 +81,8 @@ class NullspacePanel(KnobPanel):
         objective = values.get("objective")
         key = f"k0_{objective}"
         present = isinstance(objective, str) and key in values
-        if self.k0.visible != present:
-            self.k0.visible = present
+        if self.k0.disabled == present:
+            self.k0.disabled = not present
         if not present:
             return
         if key != self._k0_key:
