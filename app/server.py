@@ -65,10 +65,11 @@ class App:
 
 def port_is_free(host: str, port: int) -> bool:
     """True if a TCP server could bind (host, port) now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
         try:
             sock.bind((host, port))
-        except OSError:
+        except (OSError, OverflowError):
             return False
     return True
 
@@ -130,6 +131,8 @@ def serve(args: argparse.Namespace) -> int:
     robot = getattr(args, "urdf", None) or getattr(args, "robot", None)
     if not 0 <= args.port <= 65535:
         raise ValueError(f"port must be 0…65535, got {args.port}")
+    if not port_is_free(args.host, 0):
+        raise ValueError(f"cannot listen on host {args.host!r} (not an address of this machine)")
     busy = args.port != 0 and not port_is_free(args.host, args.port)
     print(f"torquelab: starting scenario {scenario!r} …", flush=True)
     app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)
