@@ -63,6 +63,7 @@ class Session:
         )
         self.drag = DragSpring()
         self.executor: Executor = make_executor(self.executor_name, self.robot, self.model)
+        self._configure_executor_for_scenario()
         self._q0_override = q0
         self.reset()
 
@@ -85,7 +86,14 @@ class Session:
         """Switch the controller (takes effect at the next step, integrators cleared)."""
         self.executor = make_executor(name, self.robot, self.model)
         self.executor_name = name
+        self._configure_executor_for_scenario()
         self.executor.reset(self.dyn, self.target_fn(self.world.time))
+
+    def _configure_executor_for_scenario(self) -> None:
+        """Let the scenario set up the executor it runs with (tasks, Γ, estimator), if it has a hook."""
+        hook = getattr(self.scenario, "configure_executor", None)
+        if callable(hook):
+            hook(self.executor, self.robot)
 
     # ---- stepping -----------------------------------------------------------------------------
     def step(self) -> StepRecord:
