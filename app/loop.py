@@ -26,6 +26,7 @@ import numpy as np
 
 from app.executors import EXECUTORS
 from app.pacing import Pacer, RateMeter
+from app.scenarios import Scenario
 from app.session import Session
 from app.settings import settings_of
 from app.steplog import StepLog
@@ -40,6 +41,7 @@ from app.ui.commands import (
     StepOnce,
     SwitchSession,
 )
+from app.variants import make_variant, variant_of
 
 try:  # the scene snapshot is optional: the loop runs without it (tests, headless)
     from app.ui.snapshot import capture as _capture_scene
@@ -77,6 +79,8 @@ class LoopStatus:
     scenario: str = ""
     scenario_title: str = ""
     scenario_text: str = ""  # what the preset shows, one paragraph
+    variant: str = ""  # the scenario's case, "" if it has none
+    variants: tuple[str, ...] = ()  # the cases it can run in
     robot: str = ""
     executor: str = ""
     halted: str = ""  # why the loop auto-paused (divergence), "" otherwise
@@ -408,7 +412,7 @@ class SimLoop:
 
     def _switch(self, cmd: SwitchSession) -> None:
         s = self.session
-        if cmd.scenario is None and cmd.robot is None:
+        if cmd.scenario is None and cmd.robot is None and cmd.variant is None:
             if cmd.executor is not None and cmd.executor != s.executor_name:
                 if cmd.executor not in EXECUTORS:
                     raise ValueError(f"unknown executor {cmd.executor!r}; choose one of {', '.join(EXECUTORS)}")
@@ -420,11 +424,17 @@ class SimLoop:
         robot_choice = self._robot_choice if cmd.robot is None else cmd.robot
         # a new scenario brings its default executor unless one is asked for explicitly
         executor = cmd.executor if cmd.executor is not None else (None if cmd.scenario is not None else s.executor_name)
-        new = Session(scenario, robot=robot_choice or None, executor=executor, seed=self._seed)
+        if cmd.variant is not None:
+            spec: str | Scenario = make_variant(scenario, cmd.variant)
+        elif cmd.scenario is None:
+            spec = s.scenario  # same scenario object, same case (robot switch)
+        else:
+            spec = scenario
+        new = Session(spec, robot=robot_choice or None, executor=executor, seed=self._seed)
         self.session = new
         self._robot_choice = robot_choice
         self._session_id += 1
-        if cmd.scenario is not None:
+        if cmd.scenario is not None or cmd.variant is not None:
             self._overrides = {t: {} for t in SETTINGS_TARGETS if t != "drag"} | {"drag": self._overrides["drag"]}
         self.log = StepLog(new.robot.nq, capacity=round(self._log_seconds / self.dt))
         self._after_rebuild(reapply=SETTINGS_TARGETS)
@@ -563,6 +573,7 @@ class SimLoop:
     def _make_status(self) -> LoopStatus:
         s = self.session
         last = s.last
+        variant = variant_of(s.scenario)
         return LoopStatus(
             running=self._running,
             t=s.world.time,
@@ -573,6 +584,8 @@ class SimLoop:
             scenario=s.scenario.name,
             scenario_title=str(getattr(s.scenario, "title", s.scenario.name)),
             scenario_text=str(getattr(s.scenario, "description", "")),
+            variant=variant.current if variant else "",
+            variants=variant.options if variant else (),
             robot=s.robot.name,
             executor=s.executor_name,
             halted=self._halted,

@@ -253,3 +253,18 @@ def test_robot_and_scenario_switch_without_restarting(loop):
         loop.submit(SwitchSession(scenario="polish"))
         status = loop.sync()
         assert status.scenario == "polish" and status.executor == loop.session.scenario.default_executor
+
+
+@pytest.mark.skipif("mass-drop" not in SCENARIOS, reason="mass-drop scenario not registered")
+def test_scenario_cases_switch_and_survive_a_robot_switch(loop):
+    loop.submit(SwitchSession(scenario="mass-drop", variant="position"))
+    status = loop.sync()
+    assert status.scenario == "mass-drop" and status.variant == "position"
+    assert status.variants == ("position", "torque-residual", "torque-fusion")
+    loop.submit(SwitchSession(robot="gen3"))
+    assert loop.sync().variant == "position"
+    n0 = len(loop.notice_log)
+    loop.submit(SwitchSession(scenario="mass-drop", variant="no-such-case"))
+    assert loop.sync().variant == "position" and len(loop.notice_log) == n0 + 1
+    loop.submit(SwitchSession(scenario="free"))
+    assert loop.sync().variants == ()

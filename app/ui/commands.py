@@ -63,11 +63,13 @@ class SetSpeed:
 
 @dataclass(frozen=True)
 class SwitchSession:
-    """Rebuild the session: `None` keeps the current choice; robot "" means the scenario's default."""
+    """Rebuild the session: `None` keeps the current choice; robot "" means the scenario's default;
+    `variant` picks the scenario's case (mass drop: position / torque-residual / torque-fusion...)."""
 
     scenario: str | None = None
     robot: str | None = None
     executor: str | None = None
+    variant: str | None = None
 
 
 @dataclass(frozen=True)

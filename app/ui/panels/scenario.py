@@ -15,6 +15,7 @@ from app.ui.commands import Pause, Play, Reset, SetSpeed, StepOnce, SwitchSessio
 from app.ui.panels.base import Knob, KnobPanel, coerce, notify
 
 DEFAULT_ROBOT = "scenario default"
+NO_CASE = "–"
 STEPS = {"1 ms": 1, "10 ms": 10, "100 ms": 100}
 FALLBACK_SHOW_S = 2.0  # keep the fallback badge up this long after the last fallback step
 
@@ -53,6 +54,9 @@ class ScenarioPanel(KnobPanel):
         self.preset = gui.add_dropdown(
             "Preset", scenarios, initial_value=status.scenario if status.scenario in scenarios else scenarios[0]
         )
+        self.case = gui.add_dropdown(
+            "Case", status.variants or (NO_CASE,), initial_value=status.variant or NO_CASE, disabled=not status.variants
+        )
         self.description = gui.add_markdown(_describe(status))
         robot_options = (DEFAULT_ROBOT, *robots.available(), *self._extra_robots)
         self.robot = gui.add_dropdown("Robot", robot_options, initial_value=DEFAULT_ROBOT)
@@ -73,6 +77,7 @@ class ScenarioPanel(KnobPanel):
         self.halted_md = gui.add_markdown("", visible=False)
 
         self.preset.on_update(self._on_preset)
+        self.case.on_update(self._on_case)
         self.robot.on_update(self._on_robot)
         self.executor.on_update(self._on_executor)
         self.play.on_click(lambda e: self.loop.submit(Play()))
@@ -90,6 +95,15 @@ class ScenarioPanel(KnobPanel):
             notify(self.server, event.client_id, "Refused", f"unknown preset {name!r}")
             return
         self.loop.submit(SwitchSession(scenario=name))
+
+    def _on_case(self, event: viser.GuiEvent) -> None:
+        if event.client_id is None:
+            return
+        status = self.loop.status
+        if event.target.value not in status.variants:
+            notify(self.server, event.client_id, "Refused", f"{status.scenario} has no case {event.target.value!r}")
+            return
+        self.loop.submit(SwitchSession(scenario=status.scenario, variant=event.target.value))
 
     def _on_robot(self, event: viser.GuiEvent) -> None:
         if event.client_id is None:
@@ -129,6 +143,12 @@ class ScenarioPanel(KnobPanel):
         """Status line, fallback badge, divergence message and the dropdowns in force."""
         st = frame.status
         _set(self.preset, st.scenario)
+        options = st.variants or (NO_CASE,)
+        if tuple(self.case.options) != options:
+            self.case.options = options
+        _set(self.case, st.variant or NO_CASE)
+        if self.case.disabled == bool(st.variants):
+            self.case.disabled = not st.variants
         if st.executor in self.executor.options:
             _set(self.executor, st.executor)
         choice = self.loop.robot_choice or DEFAULT_ROBOT

@@ -1,0 +1,45 @@
+"""Scenario variants: the cases a preset can run in (mass drop: position / residual / fusion;
+compliance: stiff / nullspace / full; limit drop: position / velocity limit).
+
+A scenario class takes its case as one constructor argument (`mode` with the module's `MODES`,
+or `limit`); `variant_of` names the argument, the choices and the current one, and `make_variant`
+builds the scenario for a choice. Scenarios without cases have no variants.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import NamedTuple
+
+from app.scenarios import Scenario, get_scenario
+
+LIMIT_CASES = ("position", "velocity")
+
+
+class Variant(NamedTuple):
+    """The constructor argument that picks a case, its choices and the current choice."""
+
+    param: str
+    options: tuple[str, ...]
+    current: str
+
+
+def variant_of(scenario: Scenario) -> Variant | None:
+    """The cases of a scenario instance, or None."""
+    module = sys.modules.get(type(scenario).__module__)
+    modes = getattr(module, "MODES", None)
+    if modes and isinstance(getattr(scenario, "mode", None), str):
+        return Variant("mode", tuple(str(m) for m in modes), scenario.mode)  # type: ignore[attr-defined]
+    if getattr(scenario, "limit", None) in LIMIT_CASES:
+        return Variant("limit", LIMIT_CASES, scenario.limit)  # type: ignore[attr-defined]
+    return None
+
+
+def make_variant(name: str, choice: str) -> Scenario:
+    """A fresh scenario `name` in case `choice`; ValueError if it has no such case."""
+    base = get_scenario(name)
+    variant = variant_of(base)
+    if variant is None or choice not in variant.options:
+        options = ", ".join(variant.options) if variant else "none"
+        raise ValueError(f"scenario {name!r} has no case {choice!r} (cases: {options})")
+    return type(base)(**{variant.param: choice})  # type: ignore[call-arg]
