@@ -80,7 +80,18 @@ class ConstantPush:
         return TaskRows(self.J, self.b, 1e4, None)
 
 
+_DRIVES: dict = {}
+
+
 def _drive_into_limit(gen3, dt: float, form: str, lam: float = 100.0, M: float = 2.0):
+    """Cached: each (dt, form, λ, M) closed loop is simulated once per test session."""
+    key = (dt, form, lam, M)
+    if key not in _DRIVES:
+        _DRIVES[key] = _simulate_drive(gen3, dt, form, lam, M)
+    return _DRIVES[key]
+
+
+def _simulate_drive(gen3, dt: float, form: str, lam: float, M: float):
     """Joint 4 is pushed toward its upper limit at +2 rad/s², the other joints are held; returns
     (t, x = e − d_s, ẋ, damper-active mask) of the closed loop in MuJoCo at control period dt."""
 
