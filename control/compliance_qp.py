@@ -19,6 +19,7 @@ Both cases are flagged; nothing raises inside `step`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import NamedTuple, Protocol
 
@@ -460,7 +461,7 @@ class ComplianceQPExecutor:
             "qp_relaxed": float(res.relaxed),
             "damper_crossed": float(bounds.crossed),
             "tau_saturated": float(saturated),
-            "tau_ext_estimate_norm": float(np.linalg.norm(tau_hat)),
+            "tau_ext_estimate_norm": math.sqrt(float(tau_hat @ tau_hat)),
             "tau_ext_is_oracle": float(self.estimator.is_oracle),
             "feedback": float(self.settings.feedback),
         }

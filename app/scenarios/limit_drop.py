@@ -9,7 +9,8 @@ Constants, chosen once from the paper and not tuned afterwards:
   kept by Γ = 0 and feedback ("kept the other joints non-compliant");
 - posture gains K_p = 1 s⁻², K_d = 2 s⁻¹: a soft, critically damped posture task (the default
   stiffness of mc_rtc's posture task, the paper's framework), so that gravity wins and joint 4 falls;
-- estimator: fusion [C26] with K_I = 50 s⁻¹ (the paper's external-force source; K_I is not given);
+- estimator: fusion [C26] with K_I = 50 s⁻¹ (the paper's external-force source; K_I is not given),
+  ideal F/T sensor (the drop is about the dampers, not about sensor noise);
 - lowered velocity limit for case (b): 0.5 rad/s on joint 4, about a third of its 1.40 rad/s
   limit, so the velocity damper acts well before the position damper;
 - run length 3 s: the fall takes about 1 s, the rest shows settling or oscillation.
