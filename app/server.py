@@ -9,6 +9,7 @@ taken, the next free one is used and the URL printed says which.
 from __future__ import annotations
 
 import argparse
+import atexit
 import contextlib
 import io
 import socket
@@ -54,9 +55,13 @@ class App:
     requested_port: int
     panels: list[Any] = field(default_factory=list)
     visual_settings: Any = None  # the Visuals panel's settings (None without the scene modules)
+    stopped: bool = False
 
     def stop(self) -> None:
-        """Stop the publisher, the loop and the web server."""
+        """Stop the publisher, the loop and the web server (again: nothing happens)."""
+        if self.stopped:
+            return
+        self.stopped = True
         self.publisher.stop()
         self.loop.stop()
         with contextlib.redirect_stdout(io.StringIO()):
@@ -120,7 +125,9 @@ def start_app(
     loop.start(running=running)
     publisher.start()
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
-    return App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)
+    app = App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)
+    atexit.register(app.stop)  # threads that step MuJoCo must end before the interpreter does
+    return app
 
 
 def serve(args: argparse.Namespace) -> int:
