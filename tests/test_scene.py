@@ -158,6 +158,16 @@ def test_snapshot_link_poses_are_copies_of_the_simulated_bodies(session):
     assert capture(session).drag_force is None
 
 
+def test_snapshot_reads_the_controllers_damper_distance():
+    projection = capture(Session("polish", executor="projection"))
+    assert projection.objective in ("j", "f", "a", "d")
+    assert projection.limit_zone is not None and np.all(projection.limit_zone > 0)
+    qp = Session("polish", executor="compliance-qp")
+    zone = capture(qp).limit_zone
+    assert zone is not None
+    assert np.allclose(zone, qp.executor.damper.gains.influence_fraction * (qp.robot.q_upper - qp.robot.q_lower))
+
+
 def test_snapshot_coupling_terms_match_task_inertia_blocks(session):
     snap = capture(session)
     L = session.dyn.Lambda
@@ -231,6 +241,14 @@ def test_scene_view_moves_links_recolours_near_limits_and_sends_drag_commands(se
         assert [c.kind for c in sent] == ["grab", "move", "release"]
         assert sent[0] == DragCommand("grab", 7, body_name="link5", point_world=(0.1, 0.2, 0.3))
         assert sent[1].target_world == (0.4, 0.5, 0.6)
+
+        margins[1] = 0.3  # joint 2: outside the Visuals fallback zone (0.2), inside a controller's d_i = 0.5
+        with server.atomic():
+            view.update(dataclasses.replace(snap, joint_margins=margins, limit_zone=None))
+        assert tuple(view.meshes["link2"].color) == (60, 200, 90)
+        with server.atomic():
+            view.update(dataclasses.replace(snap, joint_margins=margins, limit_zone=np.full(7, 0.5)))
+        assert tuple(view.meshes["link2"].color) == margin_color(0.3, 0.5) != (60, 200, 90)
 
         settings.update(coupling=False, limit_colors=False)
         with server.atomic():

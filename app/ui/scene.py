@@ -156,7 +156,8 @@ class SceneView:
             if not s.limit_colors or j < 0:
                 color = NEUTRAL
             else:
-                color = margin_color(float(snap.joint_margins[j]), s.limit_zone_rad)
+                zone = s.limit_zone_rad if snap.limit_zone is None else float(snap.limit_zone[j])
+                color = margin_color(float(snap.joint_margins[j]), zone)
             if self._colors.get(name) != color:
                 mesh.color = color
                 self._colors[name] = color

@@ -45,6 +45,7 @@ class SceneSnapshot:
     path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (k, 3) target over the next seconds
     table: tuple[np.ndarray, np.ndarray] | None = None  # (center, half sizes) of the table box
     objective: str | None = None  # nullspace objective of the controller: "j", "f", "a", "d" or None
+    limit_zone: np.ndarray | None = None  # (7,) rad: the controller's damper distance d_i, if it has one
 
     @property
     def subspaces(self) -> Subspaces:
@@ -120,6 +121,7 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         path=_sample_path(session, float(world.time)),
         table=_table_box(model),
         objective=_objective(session),
+        limit_zone=_limit_zone(session),
     )
 
 
@@ -131,6 +133,23 @@ def _objective(session) -> str | None:
         if isinstance(value, str):
             return value
     return None
+
+
+def _limit_zone(session) -> np.ndarray | None:
+    """d_i per joint (rad) of the running controller's joint-limit damper: the [C] damper's
+    `d_i` array, or the nullspace QP's `damper_influence`; None for controllers without one."""
+    executor = getattr(session, "executor", None)
+    n = len(session.robot.joint_names)
+    d_i = getattr(getattr(executor, "damper", None), "d_i", None)
+    if d_i is None:
+        d_i = getattr(getattr(executor, "nullspace", None), "damper_influence", None)
+    if d_i is None:
+        return None
+    try:
+        out = np.broadcast_to(np.asarray(d_i, dtype=float), (n,)).copy()
+    except ValueError:
+        return None
+    return out if np.all(np.isfinite(out)) else None
 
 
 def _body_ids(model: mujoco.MjModel, names: tuple[str, ...]) -> list[int]:

@@ -40,7 +40,7 @@ class VisualSettings:
     trail_seconds: float = 4.0
     path: bool = True
     limit_colors: bool = True
-    limit_zone_rad: float = 0.2  # d_i: links turn red when their joint is closer than this to a limit
+    limit_zone_rad: float = 0.2  # d_i for controllers without a joint-limit damper of their own
     labels: bool = True
 
     def projection_name(self, objective: str | None) -> str:
@@ -93,8 +93,10 @@ class VisualsPanel:
             self._check(gui, "trail", "Tool trail", "Where the tool has been in the last seconds.")
             self._slider(gui, "trail_seconds", "Trail length (s)", 0.5, 20.0, 0.5, "Seconds of trail kept.")
             self._check(gui, "path", "Commanded path", "The task target over the next seconds.")
-            self._check(gui, "limit_colors", "Joint-limit colours", "Link turns red inside d_i of a limit.")
-            self._slider(gui, "limit_zone_rad", "d_i (rad)", 0.02, 0.6, 0.01, "Margin where the colour starts.")
+            self._check(gui, "limit_colors", "Joint-limit colours", "Link turns red inside the damper's d_i.")
+            self._slider(
+                gui, "limit_zone_rad", "Colour zone (rad)", 0.02, 0.6, 0.01, "d_i when the controller has no damper."
+            )
             self._check(gui, "labels", "Labels", "W value beside the coupling ellipse.")
 
     def _check(self, gui: viser.GuiApi, key: str, label: str, hint: str) -> None:

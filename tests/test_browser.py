@@ -1,0 +1,352 @@
+"""The real page in headless Chromium against a server this module starts in-process.
+
+Chromium: $TORQUELAB_CHROMIUM, else /usr/bin/chromium (scripts/test.sh installs it); a missing
+browser fails the tests with the reason instead of skipping them. Software WebGL on two cores is
+slow (a mouse move waits ~0.3 s for a frame), so every check polls for its condition with a
+generous timeout instead of sleeping a fixed time.
+
+Projection for clicks (DESIGN §6): the test sets the page's camera from the server, reads back
+position, orientation (OpenCV-style: +z forward, +y down), vertical fov and image size, and
+maps a world point to CSS pixels of the canvas.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import shutil
+import socket
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import viser.transforms as vtf
+
+pytestmark = pytest.mark.browser
+
+ROOT = Path(__file__).resolve().parents[1]
+ARTIFACTS = ROOT / "test-artifacts"
+README_SCREENSHOT = ROOT / "static" / "screenshot.png"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+]
+VIEWPORT = {"width": 1100, "height": 720}
+SCREENSHOT_VIEWPORT = {"width": 1400, "height": 820}
+PANEL_WIDTH_PX = 420  # the GUI panel covers the right of the page; the WebGL notice the top-left
+CAMERA_POSITION = np.array([0.55, -1.45, 0.75])  # side view of the polishing arm, elbow left of centre
+CAMERA_LOOK_AT = np.array([0.35, 0.0, 0.45])
+DRAG_LINK = "link4"  # the elbow link: free in the nullspace while the tool presses the table
+
+
+def chromium_path() -> str:
+    """The Chromium binary for Playwright; fails (not skips) with the fix when there is none."""
+    for candidate in (os.environ.get("TORQUELAB_CHROMIUM"), "/usr/bin/chromium", "/usr/bin/chromium-browser"):
+        if candidate and os.path.isfile(candidate) and os.access(candidate, os.X_OK):
+            return candidate
+    pytest.fail(
+        "no Chromium for the browser tests: run scripts/test.sh (installs Debian's chromium) or set "
+        "TORQUELAB_CHROMIUM to a Chromium binary",
+        pytrace=False,
+    )
+
+
+def wait_for(condition: Callable[[], Any], timeout: float, what: str, period: float = 0.1) -> Any:
+    """Poll `condition` until it returns something truthy; fail naming `what` after `timeout` s."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout:.0f} s waiting for {what}", pytrace=False)
+        time.sleep(period)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+# ---- fixtures -----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def app() -> Iterator[Any]:
+    from app.server import start_app
+
+    running = start_app("127.0.0.1", _free_port(), "polish", "rizon4s", "projection")
+    try:
+        yield running
+    finally:
+        running.stop()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    from playwright.sync_api import sync_playwright
+
+    path = chromium_path()
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=path, headless=True, args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+def open_page(app: Any, browser: Any) -> tuple[Any, Any]:
+    """A new page on the app and the server's handle of its client."""
+    before = set(app.server.get_clients())
+    page = browser.new_page(viewport=VIEWPORT)
+    page.goto(app.url)
+    page.wait_for_selector("canvas", timeout=60_000)
+    new = wait_for(lambda: set(app.server.get_clients()) - before, 60, "the page to connect")
+    client = app.server.get_clients()[min(new)]
+    wait_for(lambda: client.camera.image_width > 0, 30, "the page to report its camera")
+    return page, client
+
+
+@pytest.fixture(scope="module")
+def page(app: Any, browser: Any) -> Iterator[tuple[Any, Any]]:
+    """One page for the module (the disconnect test, last, closes it)."""
+    page, client = open_page(app, browser)
+    # The page's first few pointer moves stall for seconds once (software WebGL sets up picking):
+    # take that hit here, over empty floor, instead of inside a drag.
+    for k in range(6):
+        page.mouse.move(120 + 10 * k, VIEWPORT["height"] - 80)
+    try:
+        yield page, client
+    finally:
+        if not page.is_closed():
+            page.close()
+
+
+# ---- camera and projection ------------------------------------------------------------------------
+def set_camera(client: Any, position: np.ndarray, look_at: np.ndarray) -> None:
+    """Put the page's camera at a known pose (position first, then look_at) and wait until it is in force."""
+    client.camera.position = position
+    client.camera.look_at = look_at
+    client.camera.up_direction = (0.0, 0.0, 1.0)
+    wait_for(
+        lambda: (
+            np.allclose(client.camera.position, position, atol=1e-3)
+            and np.allclose(client.camera.look_at, look_at, atol=1e-3)
+        ),
+        20,
+        "the camera to move",
+    )
+
+
+def project(client: Any, canvas_box: dict[str, float], point_world: np.ndarray) -> tuple[float, float]:
+    """CSS pixel (page coordinates) of a world point for the page's camera (DESIGN §6)."""
+    cam = client.camera
+    R_world_cam = vtf.SO3(np.asarray(cam.wxyz)).as_matrix()
+    p_cam = R_world_cam.T @ (np.asarray(point_world, dtype=float) - np.asarray(cam.position))
+    assert p_cam[2] > 0, "the point is behind the camera"
+    H, W = float(cam.image_height), float(cam.image_width)
+    f = 0.5 * H / np.tan(0.5 * float(cam.fov))
+    u = f * p_cam[0] / p_cam[2] + 0.5 * W
+    v = f * p_cam[1] / p_cam[2] + 0.5 * H
+    return canvas_box["x"] + u * canvas_box["width"] / W, canvas_box["y"] + v * canvas_box["height"] / H
+
+
+def link_point_world(app: Any, link: str) -> np.ndarray:
+    """World position of the centroid of a link's drawn mesh (a point on the link, inside its shape)."""
+
+    def read(session: Any) -> tuple[np.ndarray, np.ndarray]:
+        body = session.world.model.body(link).id
+        return session.world.data.xpos[body].copy(), session.world.data.xmat[body].reshape(3, 3).copy()
+
+    position, rotation = app.loop.call(read)
+    centroid = _link_centroids(str(app.loop.call(lambda s: s.robot.urdf_path)))[link]
+    return position + rotation @ centroid
+
+
+@functools.cache
+def _link_centroids(urdf_path: str) -> dict[str, np.ndarray]:
+    from app.ui.scene import link_meshes
+
+    return {name: np.array(mesh.centroid) for name, mesh in link_meshes(urdf_path).items()}
+
+
+def drag_state(app: Any) -> tuple[str | None, float, np.ndarray | None]:
+    """(grabbed body name or None, |spring force| in N, grabbed point in world) from the loop thread."""
+
+    def read(session: Any) -> tuple[str | None, float, np.ndarray | None]:
+        drag = session.drag
+        if not drag.active:
+            return None, 0.0, None
+        name = session.world.model.body(drag.body_id).name
+        force = 0.0 if drag.state is None else float(np.linalg.norm(drag.state.force_world))
+        return name, force, drag.point_world(session.world).copy()
+
+    return app.loop.call(read)
+
+
+def start_drag(page: Any, client: Any, app: Any, link: str) -> tuple[float, float]:
+    """Press on the link and move until the server holds a drag of that link; returns the pointer."""
+    set_camera(client, CAMERA_POSITION, CAMERA_LOOK_AT)
+    box = page.locator("canvas").first.bounding_box()
+    x, y = project(client, box, link_point_world(app, link))
+    free_x = box["width"] - PANEL_WIDTH_PX
+    assert 40 < x < free_x and 160 < y < box["height"] - 40, f"{link} projects off the free area: {x, y}"
+    page.mouse.move(x, y)
+    page.mouse.down()
+    for k in range(1, 4):  # past the ~3 px drag threshold
+        page.mouse.move(x, y - 4 * k)
+    wait_for(lambda: drag_state(app)[0] == link, 20, f"the server to hold a drag of {link}")
+    return x, y - 12
+
+
+# ---- GUI controls -----------------------------------------------------------------------------------
+_CONTROL_JS = """([pattern, role]) => {
+    const re = new RegExp(pattern);
+    for (const label of document.querySelectorAll('label')) {
+        if (!re.test(label.textContent.trim())) continue;
+        const el = document.getElementById(label.htmlFor);
+        if (el && (el.getAttribute('role') === role || el.querySelector(`[role=${role}]`))) return true;
+    }
+    return false;
+}"""
+
+
+def has_control(pg: Any, label_pattern: str, role: str) -> bool:
+    """True if the page shows a control of `role` ("slider", "combobox") whose label matches."""
+    return bool(pg.evaluate(_CONTROL_JS, [label_pattern, role]))
+
+
+def choose(pg: Any, label: str, option: str) -> list[str]:
+    """Open the dropdown labelled `label`, pick `option`; returns all the options it offered."""
+    box = pg.get_by_label(label, exact=True)
+    box.scroll_into_view_if_needed()
+    box.click()
+    options = pg.get_by_role("option")
+    options.first.wait_for(timeout=20_000)
+    offered = [t.strip() for t in options.all_inner_texts()]
+    pg.get_by_role("option", name=option, exact=True).click()
+    return offered
+
+
+# ---- tests ------------------------------------------------------------------------------------------
+def test_page_loads_and_draws_the_robot_where_the_camera_projects_it(app, page):
+    pg, client = page
+    set_camera(client, CAMERA_POSITION, CAMERA_LOOK_AT)
+    box = pg.locator("canvas").first.bounding_box()
+    links = [project(client, box, link_point_world(app, name)) for name in ("link2", "link4", "link6")]
+    floor = project(client, box, np.array([0.3, 0.9, 0.0]))  # bare floor beside the table
+    pts = np.array([*links, floor])
+    lo = np.maximum(pts.min(axis=0) - 20, 0)
+    hi = np.minimum(pts.max(axis=0) + 20, [box["width"], box["height"]])
+    clip = {"x": float(lo[0]), "y": float(lo[1]), "width": float(hi[0] - lo[0]), "height": float(hi[1] - lo[1])}
+
+    def is_green(image: np.ndarray, xy: tuple[float, float]) -> bool:
+        x, y = int(xy[0] - lo[0]), int(xy[1] - lo[1])
+        r, g, b = image[y - 3 : y + 4, x - 3 : x + 4].reshape(-1, 3).mean(axis=0)
+        return bool(g > r + 25 and g > b + 25)  # link colour while far from joint limits
+
+    def robot_drawn() -> bool:
+        from io import BytesIO
+
+        from PIL import Image
+
+        image = np.asarray(Image.open(BytesIO(pg.screenshot(clip=clip))).convert("RGB")).astype(int)
+        return all(is_green(image, xy) for xy in links) and not is_green(image, floor) and image.std() > 10
+
+    wait_for(robot_drawn, 60, "the green links at their projected pixels (and no green on the floor)", period=0.5)
+    ARTIFACTS.mkdir(exist_ok=True)
+    pg.screenshot(path=str(ARTIFACTS / "browser-robot.png"))
+
+
+def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page):
+    pg, _ = page
+    wait_for(lambda: has_control(pg, r"^Objective$", "combobox"), 30, "the Objective dropdown")
+    wait_for(lambda: has_control(pg, r"^k0\b", "slider"), 30, "the k0 slider")
+    offered = choose(pg, "Objective", "W_d")
+    assert {"W_j", "W_f", "W_a", "W_d"} <= set(offered)
+    objective = lambda: app.loop.call(lambda s: s.executor.nullspace.objective)  # noqa: E731
+    wait_for(lambda: objective() == "d", 20, "the server's objective to become d")
+    choose(pg, "Objective", "W_a")
+    wait_for(lambda: objective() == "a", 20, "the server's objective to become a")
+
+
+def test_mouse_drag_on_a_link_pulls_it_with_the_spring_and_mouse_up_releases(app, page):
+    pg, client = page
+    assert drag_state(app)[0] is None
+    x, y = start_drag(pg, client, app, DRAG_LINK)
+    _, _, grabbed_at_start = drag_state(app)
+    assert grabbed_at_start is not None
+    peak = 0.0
+    for k in range(1, 6):  # 5 moves up and to the left, ~25 px each
+        pg.mouse.move(x - 15 * k, y - 20 * k)
+        peak = max(peak, drag_state(app)[1])
+    moved = wait_for(
+        lambda: (
+            (s := drag_state(app))[2] is not None
+            and np.linalg.norm(s[2] - grabbed_at_start) > 0.01
+            and np.linalg.norm(s[2] - grabbed_at_start)
+        ),
+        20,
+        "the grabbed point to follow the mouse by 1 cm",
+    )
+    peak = max(peak, drag_state(app)[1])
+    assert peak > 5.0, f"spring force only {peak:.1f} N"
+    ARTIFACTS.mkdir(exist_ok=True)
+    pg.screenshot(path=str(ARTIFACTS / "browser-drag.png"))
+    pg.mouse.up()
+    wait_for(lambda: drag_state(app)[0] is None, 20, "mouse-up to release the drag")
+    assert moved > 0.01
+
+
+def test_screenshot_of_the_running_app_is_saved(app, page):
+    """test-artifacts/app.png; copied to static/screenshot.png (the README's) when that is missing
+    or TORQUELAB_UPDATE_SCREENSHOT=1."""
+    pg, client = page
+    pg.set_viewport_size(SCREENSHOT_VIEWPORT)
+    try:
+        close = pg.locator(".mantine-Notification-closeButton")  # the software-WebGL notice
+        for _ in range(close.count()):
+            close.first.click()
+        set_camera(client, np.array([1.25, -1.0, 0.8]), np.array([0.42, 0.0, 0.3]))
+        wait_for(lambda: client.camera.image_width == SCREENSHOT_VIEWPORT["width"], 20, "the page to resize")
+        time.sleep(2.0)  # a few software-rendered frames at the new pose
+        ARTIFACTS.mkdir(exist_ok=True)
+        shot = ARTIFACTS / "app.png"
+        pg.screenshot(path=str(shot))
+    finally:
+        pg.set_viewport_size(VIEWPORT)
+    from PIL import Image
+
+    image = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    assert image.shape[:2] == (SCREENSHOT_VIEWPORT["height"], SCREENSHOT_VIEWPORT["width"])
+    assert image[:, : SCREENSHOT_VIEWPORT["width"] - PANEL_WIDTH_PX].std() > 10  # a drawn scene beside the panel
+    if not README_SCREENSHOT.exists() or os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") == "1":
+        shutil.copyfile(shot, README_SCREENSHOT)
+
+
+def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page):
+    """Γ (task compliance), λ and M belong to the [C] QP executor: switch to it in the page."""
+    pg, _ = page
+    choose(pg, "Executor", "compliance-qp")
+    wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "compliance-qp", 30, "the executor switch")
+    for pattern in (r"^Γ task", r"^λ", r"^M\b"):
+        wait_for(lambda p=pattern: has_control(pg, p, "slider"), 30, f"a slider labelled {pattern}")
+    choose(pg, "Executor", "projection")
+    wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "projection", 30, "the switch back")
+
+
+def test_disconnect_during_a_drag_releases_the_force(app, page):
+    """Closing the tab mid-drag (no mouse-up) releases the spring; runs last: it closes the page."""
+    pg, client = page
+    start_drag(pg, client, app, DRAG_LINK)
+    name, force, _ = drag_state(app)
+    assert name == DRAG_LINK and force > 0.0
+    pg.close()
+    wait_for(lambda: drag_state(app)[0] is None, 20, "the disconnect to release the drag")
+    wait_for(lambda: client.client_id not in app.server.get_clients(), 20, "the server to drop the client")
