@@ -302,7 +302,7 @@ class SwivelScan(NamedTuple):
     W_f: np.ndarray  # (k,)
     W_a: np.ndarray  # (k,)
     W_d: np.ndarray  # (k,)
-    within_limits: np.ndarray  # (k,) bool: every joint inside its position limits
+    within_limits: np.ndarray  # (k,) bool: every joint inside its position limits (angles modulo 2π)
     closed: bool  # the trace came back to its start (a full loop)
 
 
@@ -403,8 +403,22 @@ def swivel_scan(
     for i, qi in enumerate(Q):
         vals = coupling_values(terms_of(model.compute(qi, np.zeros(len(qi))), sub))
         W[i] = vals["W_f"], vals["W_a"], vals["W_d"]
-    inside = np.all((Q >= q_lower) & (Q <= q_upper), axis=1)
+    inside = np.all(within_limits_mod_2pi(Q, q_lower, q_upper), axis=1)
     return SwivelScan(np.array(psis), Q, W[:, 0], W[:, 1], W[:, 2], inside, closed)
+
+
+def within_limits_mod_2pi(q: np.ndarray, q_lower: np.ndarray, q_upper: np.ndarray) -> np.ndarray:
+    """Per joint: True if q, q − 2π or q + 2π lies inside [q_lower, q_upper].
+
+    A revolute joint's angle is only defined modulo 2π: the continuation of the swivel scan may
+    leave the interval of the limits while an equivalent angle lies inside it.
+    """
+    two_pi = 2.0 * np.pi
+    return (
+        ((q >= q_lower) & (q <= q_upper))
+        | ((q - two_pi >= q_lower) & (q - two_pi <= q_upper))
+        | ((q + two_pi >= q_lower) & (q + two_pi <= q_upper))
+    )
 
 
 def _wrap(a: float) -> float:

@@ -137,3 +137,11 @@ def test_bad_axes_and_objectives_raise_clear_errors():
         c.Subspaces.from_force_axes(())
     with pytest.raises(ValueError, match="unknown coupling objective"):
         c.projection(c.coupling_terms(np.eye(6), np.eye(6), c.POLISH_SUBSPACES), "x")
+
+
+def test_joint_limits_are_checked_modulo_two_pi():
+    lo, up = np.full(2, -3.0), np.full(2, 3.0)
+    q = np.array([2.0 * np.pi - 0.5, 3.5])  # ≡ −0.5 rad (inside); 3.5 ≡ −2.78 rad (inside)
+    np.testing.assert_array_equal(c.within_limits_mod_2pi(q, lo, up), [True, True])
+    q = np.array([3.2, -3.2])  # ≡ −3.08 / +3.08: outside ±3 either way
+    np.testing.assert_array_equal(c.within_limits_mod_2pi(q, lo, up), [False, False])
