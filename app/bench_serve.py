@@ -64,6 +64,7 @@ def run_serve_bench(
             windows = []
             s0 = app.loop.sync()
             w0, frames0, scene0 = time.perf_counter(), app.publisher.frames_shown, app.publisher.scene_updates
+            times0 = os.times()
             loads = []
             prev_t, prev_w = s0.t, w0
             while time.perf_counter() - w0 < seconds:
@@ -75,6 +76,8 @@ def run_serve_bench(
                 prev_t, prev_w = st.t, now
             s1 = app.loop.sync()
             wall = time.perf_counter() - w0
+            times1 = os.times()
+            process_cpu = (times1.user + times1.system) - (times0.user + times0.system)
             frames = app.publisher.frames_shown - frames0
             scenes = app.publisher.scene_updates - scene0
             clients = len(app.server.get_clients())
@@ -91,6 +94,8 @@ def run_serve_bench(
             "real_time_factor": (s1.t - s0.t) / wall,
             "worst_1s_real_time_factor": min(windows) if windows else float("nan"),
             "loop_compute_share": sum(loads) / len(loads) if loads else float("nan"),
+            "step_cpu_per_sim_s": (s1.step_cpu_s - s0.step_cpu_s) / max(s1.t - s0.t, 1e-9),
+            "server_process_cores": process_cpu / wall,
             "frames_per_s": frames / wall,
             "scene_updates_per_s": scenes / wall,
             "halted": s1.halted,
@@ -116,6 +121,10 @@ def cmd_bench_serve(args: argparse.Namespace) -> int:
         print(f"  real-time factor        {report['real_time_factor']:.3f}  over {report['wall_s']:.1f} s of wall time")
         print(f"  worst 1 s window        {report['worst_1s_real_time_factor']:.3f}")
         print(f"  loop compute share      {100 * report['loop_compute_share']:.0f} % of wall time")
+        print(
+            f"  CPU per simulated s     {report['step_cpu_per_sim_s']:.2f} s in steps; server process "
+            f"{report['server_process_cores']:.2f} cores (real time needs the steps' share below 1)"
+        )
         print(
             f"  frames published        {report['frames_per_s']:.1f} /s (scene {report['scene_updates_per_s']:.1f} /s)"
         )

@@ -87,6 +87,7 @@ class LoopStatus:
     fallback: bool = False  # the last step used a fallback solution (QP failed)
     fallback_steps: int = 0  # fallback steps since the last reset
     drag_client: int | None = None  # client holding the drag spring
+    step_cpu_s: float = 0.0  # CPU time the loop thread spent in steps since it started
     signals: dict[str, float] = field(default_factory=dict)  # last step's scalar signals
 
 
@@ -170,6 +171,7 @@ class SimLoop:
         self._halted = ""
         self._total_steps = 0
         self._fallback_steps = 0
+        self._step_cpu_s = 0.0
         self._drag_client: int | None = None
         self._overrides: dict[str, dict[str, Any]] = {t: {} for t in SETTINGS_TARGETS}
         self._session_id = 0
@@ -295,7 +297,7 @@ class SimLoop:
 
     def _advance(self, n: int) -> None:
         """Run n steps, logging each; stop at the first sign of divergence."""
-        t0 = self._clock()
+        t0, cpu0 = self._clock(), time.thread_time()
         session, log = self.session, self.log
         try:
             for _ in range(n):
@@ -311,6 +313,7 @@ class SimLoop:
             if _diverged(session):
                 self._halt(f"the simulation diverged at t = {session.world.time:.3f} s (NaN or runaway velocity)")
         self._meter.add_busy(self._clock() - t0)
+        self._step_cpu_s += time.thread_time() - cpu0
         self._dirty = True
 
     def _halt(self, reason: str) -> None:
@@ -592,6 +595,7 @@ class SimLoop:
             fallback=bool(last.fallback) if last is not None else False,
             fallback_steps=self._fallback_steps,
             drag_client=self._drag_client,
+            step_cpu_s=self._step_cpu_s,
             signals=_with_posture_objective(s, dict(last.signals) if last is not None else {}),
         )
 
