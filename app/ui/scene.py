@@ -121,6 +121,7 @@ class SceneView:
         server.initial_camera.look_at = CAMERA_LOOK_AT
         server.initial_camera.up = (0.0, 0.0, 1.0)
         self._colors: dict[str, tuple[int, int, int]] = {}
+        self._poses: dict[str, tuple[float, ...]] = {}
 
     # ---- interaction --------------------------------------------------------------------------
     def _drag_callback(self, link: str):
@@ -143,8 +144,12 @@ class SceneView:
             frame = self.frames.get(name)
             if frame is None:
                 continue
-            frame.position = snap.link_positions[i]
-            frame.wxyz = snap.link_wxyz[i]
+            pose = (*snap.link_positions[i].tolist(), *snap.link_wxyz[i].tolist())
+            if self._poses.get(name) == pose:  # cheaper than viser's own allclose check (base, pauses)
+                continue
+            self._poses[name] = pose
+            frame.position = pose[:3]
+            frame.wxyz = pose[3:]
         self._update_colors(snap)
         self._update_table(snap)
         self.overlays.update(snap)

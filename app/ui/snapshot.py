@@ -9,6 +9,7 @@ Cost: about 0.1 ms (link poses, one coupling-terms evaluation, a few target samp
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import mujoco
 import numpy as np
@@ -47,9 +48,9 @@ class SceneSnapshot:
     objective: str | None = None  # nullspace objective of the controller: "j", "f", "a", "d" or None
     limit_zone: np.ndarray | None = None  # (7,) rad: the controller's damper distance d_i, if it has one
 
-    @property
+    @cached_property
     def subspaces(self) -> Subspaces:
-        """The force/motion split of this frame."""
+        """The force/motion split of this frame (built once per snapshot)."""
         return Subspaces.from_force_axes(self.force_axes)
 
     def link_index(self, name: str) -> int:
