@@ -40,6 +40,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sander", action="store_true", help="add the 7000 RPM electric-sander disturbance")
     parser.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
     parser.add_argument(
+        "--no-diagnostics",
+        action="store_true",
+        help="skip the diagnostic runs (W_j at the largest μ without inertia shaping / without sensor low-pass)",
+    )
+    parser.add_argument(
         "--no-sensitivity",
         action="store_true",
         help="skip the start-posture sensitivity runs (W_a at the largest μ from other start swivels)",
@@ -78,12 +83,17 @@ def simulate(spec: dict) -> dict:
         converge_timeout_s=spec.get("converge_timeout_s", scenario_module.CONVERGE_TIMEOUT_S),
     )
     session = Session(scenario, seed=spec["seed"])
-    session.executor.configure(objective=spec["objective"])
+    session.executor.configure(objective=spec["objective"], shaping=bool(spec.get("shaping", True)))
+    if spec.get("sensor_cutoff_hz") is not None:
+        session.sensor.configure(cutoff_hz=spec["sensor_cutoff_hz"])
     clock = session.environment.clock  # type: ignore[attr-defined]
     ex = session.executor
     q_start = session.world.q.copy()
+    cutoff = spec.get("sensor_cutoff_hz", scenario_module.SENSOR_CUTOFF_HZ)
+    lag_s = 1.0 / (2.0 * np.pi * cutoff) if cutoff and spec.get("shaping", True) else 0.0
+    lag_stiffness = scenario_module.CONTACT_STIFFNESS_N_PER_M * lag_s
     n_max = int(MAX_SIM_S * 1000)
-    cols = ("t", "force_error", "force_error_true", "W_f", "W_a", "W_d", "segment", "x", "y", "coupled", "loop_gain")
+    cols = ("t", "force_error", "force_error_true", "W_f", "W_a", "W_d", "segment", "x", "y", "coupled", "lag_damping")
     rec = {k: np.full(n_max, np.nan) for k in cols}
     q_converged = None
     diverged = False
@@ -100,11 +110,13 @@ def simulate(spec: dict) -> dict:
         # friction direction from the commanded TCP velocity (friction opposes the motion)
         v = r.target.velocity[:2]
         speed = float(np.hypot(v[0], v[1]))
-        coupled = loop_gain = 0.0
+        coupled = lag_damping = 0.0
         if terms is not None and speed > 1e-6:
             fdir = -v / speed
             coupled = float(terms.P_f[0, :2] @ fdir)  # m/s² per N of friction: <0 pushes into the table
-            loop_gain = float(-spec["mu"] * (terms.P_d[0, :2] @ fdir))
+            # lagged shaping term BᵀA⁻¹F_m^e of [T7]: with the reading τ late, it adds a force
+            # μ (P_d·dir) k τ ż along z, i.e. negative damping (N s/m) when positive
+            lag_damping = float(spec["mu"] * (terms.P_d[0, :2] @ fdir)) * lag_stiffness
         rec["t"][i] = r.t
         rec["force_error"][i] = scenario_module.DESIRED_FORCE_N - r.wrench_tcp[2]  # filtered F/T reading
         rec["force_error_true"][i] = scenario_module.DESIRED_FORCE_N - sig["contact_force_n"]
@@ -112,7 +124,7 @@ def simulate(spec: dict) -> dict:
         rec["segment"][i] = seg
         rec["x"][i], rec["y"][i] = session.dyn.tcp_position_world[:2]
         rec["coupled"][i] = coupled
-        rec["loop_gain"][i] = loop_gain
+        rec["lag_damping"][i] = lag_damping
         n = i + 1
         if session.diverged():
             diverged = True
@@ -126,6 +138,10 @@ def simulate(spec: dict) -> dict:
     model = session.model
     traj = (rec["segment"] >= 1) & (rec["segment"] <= N_SEGMENTS)
     result: dict[str, Any] = {
+        "group": spec.get("group", "main"),
+        "label": _label(spec, clock.timeout_s),
+        "shaping": bool(spec.get("shaping", True)),
+        "sensor_cutoff_hz": spec.get("sensor_cutoff_hz", scenario_module.SENSOR_CUTOFF_HZ),
         "objective": spec["objective"],
         "mu": spec["mu"],
         "sander": spec["sander"],
@@ -160,7 +176,7 @@ def simulate(spec: dict) -> dict:
             "W_a_mean": _mean(rec["W_a"][sel]),
             "W_d_mean": _mean(rec["W_d"][sel]),
             "coupled_response_mps2_per_n": _mean(rec["coupled"][sel]),
-            "shaping_loop_gain": _mean(rec["loop_gain"][sel]),
+            "lag_negative_damping_ns_per_m": _mean(rec["lag_damping"][sel]),
         }
         result["per_segment"].append(segment)
     result["q_start"] = [float(x) for x in q_start]
@@ -168,6 +184,16 @@ def simulate(spec: dict) -> dict:
     result["wall_s"] = time.perf_counter() - t_wall
     series = {k: v[::RECORD_EVERY].astype(np.float32) for k, v in rec.items()}
     return {"result": result, "series": series}
+
+
+def _label(spec: dict, timeout_s: float) -> str:
+    """Short unique name of a run, e.g. "a_mu1_sw+30_to15" or "j_mu1_noshaping"."""
+    label = f"{spec['objective']}_mu{spec['mu']:g}_sw{spec['start_swivel_deg']:+.0f}_to{timeout_s:.0f}"
+    if not spec.get("shaping", True):
+        label += "_noshaping"
+    if spec.get("sensor_cutoff_hz") is not None:
+        label += f"_lpf{spec['sensor_cutoff_hz']:g}"
+    return label
 
 
 def _stats(e: np.ndarray) -> dict:
@@ -194,27 +220,21 @@ def run(args: argparse.Namespace) -> int:
     jobs = max(1, int(args.jobs))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    specs = [
-        {"objective": o, "mu": m, "sander": bool(args.sander), "seed": int(args.seed), "start_swivel_deg": 0.0}
-        for m in mus
-        for o in objectives
-    ]
+    base = {"sander": bool(args.sander), "seed": int(args.seed), "start_swivel_deg": 0.0}
+    specs = [{**base, "group": "main", "objective": o, "mu": m} for m in mus for o in objectives]
+    mu_hi = max(mus)
     if not args.no_sensitivity and "a" in objectives:
-        mu_hi = max(mus)
         specs += [
-            {"objective": "a", "mu": mu_hi, "sander": bool(args.sander), "seed": int(args.seed), "start_swivel_deg": s}
-            for s in SENSITIVITY_SWIVELS_DEG
+            {**base, "group": "sensitivity", "objective": "a", "mu": mu_hi, "start_swivel_deg": sw}
+            for sw in SENSITIVITY_SWIVELS_DEG
         ]
         specs.append(
-            {
-                "objective": "a",
-                "mu": mu_hi,
-                "sander": bool(args.sander),
-                "seed": int(args.seed),
-                "start_swivel_deg": 0.0,
-                "converge_timeout_s": LONG_CONVERGE_S,
-            }
+            {**base, "group": "sensitivity", "objective": "a", "mu": mu_hi, "converge_timeout_s": LONG_CONVERGE_S}
         )
+    if not args.no_diagnostics and "j" in objectives:
+        # why W_j fails at high friction: the same run without inertia shaping, and without sensor lag
+        specs.append({**base, "group": "diagnostic", "objective": "j", "mu": mu_hi, "shaping": False})
+        specs.append({**base, "group": "diagnostic", "objective": "j", "mu": mu_hi, "sensor_cutoff_hz": 0.0})
     t0 = time.perf_counter()
     outputs: list[dict | None] = [None] * len(specs)
     print(f"polish: {len(specs)} runs on {jobs} process(es)", file=sys.stderr, flush=True)
@@ -233,10 +253,12 @@ def run(args: argparse.Namespace) -> int:
                 done += 1
     results = [o["result"] for o in outputs if o is not None]
     series = [o["series"] for o in outputs if o is not None]
-    default_timeout = scenario_module.CONVERGE_TIMEOUT_S
-    main = [r for r in results if r["start_swivel_deg"] == 0.0 and r["converge_timeout_s"] == default_timeout]
-    sensitivity = [r for r in results if r["objective"] == "a" and r["mu"] == max(mus)]
+    main = [r for r in results if r["group"] == "main"]
+    sensitivity = [r for r in results if r["group"] == "sensitivity"]
+    if ("a", mu_hi) in {(r["objective"], r["mu"]) for r in main}:
+        sensitivity += [r for r in main if r["objective"] == "a" and r["mu"] == mu_hi]
     sensitivity.sort(key=lambda r: (r["start_swivel_deg"], r["converge_timeout_s"]))
+    diagnostics = [r for r in results if r["group"] == "diagnostic"]
 
     from app.experiments.polish_report import scan_at_start, write_figures, write_report
 
@@ -249,19 +271,16 @@ def run(args: argparse.Namespace) -> int:
         },
         "runs": main,
         "sensitivity": sensitivity,
+        "diagnostics": diagnostics,
         "swivel_scan": scan["summary"],
         "wall_s": time.perf_counter() - t0,
     }
     (out / "polish.json").write_text(json.dumps(doc, indent=2))
     np.savez_compressed(
         out / "polish_series.npz",
-        **{
-            f"{r['objective']}_mu{r['mu']}_sw{r['start_swivel_deg']:+.0f}_{k}": v
-            for r, s in zip(results, series, strict=True)
-            for k, v in s.items()
-        },
+        **{f"{r['label']}__{k}": v for r, s in zip(results, series, strict=True) for k, v in s.items()},
     )
-    write_figures(out, results, series, scan, default_timeout)
+    write_figures(out, results, series, scan)
     write_report(out, doc)
     if args.json:
         print(json.dumps(doc, indent=2))
@@ -278,7 +297,7 @@ def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
     fe = r["force_error"]
     ma = "-" if fe["ma"] is None else f"{fe['ma']:.1f}/{fe['ptp']:.1f}/{fe['std']:.1f}"
     print(
-        f"[{i + 1}/{total}] {OBJECTIVE_NAMES[r['objective']]} mu={r['mu']:g} start {r['start_swivel_deg']:+.0f}°: "
+        f"[{i + 1}/{total}] {r['label']}: "
         f"force error MA/PTP/STD {ma} N, {'stable' if r['stable'] else 'UNSTABLE'} "
         f"({r['wall_s']:.0f} s, total {time.perf_counter() - t0:.0f} s)",
         file=sys.stderr,

@@ -53,6 +53,7 @@ CONVERGED_HOLD_S = 0.3
 DESIRED_FORCE_N = 20.0  # Table II
 CONTACT_STIFFNESS_N_PER_M = 30000.0  # [T] §IV-A
 FRICTION_V_EPS_M_PER_S = 0.01  # μF_n/v_ε·Δt ≤ 2 kg ≪ TCP mass: stable explicit step; 16× below cruise speed
+SENSOR_CUTOFF_HZ = 25.0  # [T] §IV-A first-order low-pass of the F/T reading
 SANDER_AMPLITUDE_N = 10.0  # 7000 RPM, ≈ 4 g imbalance at a 5 mm orbit (m e ω²)
 
 
@@ -251,8 +252,10 @@ class PolishScenario(Scenario):
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         """F/T sensor of [T] §IV-A (noise off when sensor_noise is False; the filter stays)."""
         if self.sensor_noise:
-            return SensorAdapter(FTSensor(rng))
-        return SensorAdapter(FTSensor(rng, force_noise_var=0.0, torque_noise_var=0.0, sine_amplitude_n=0.0))
+            return SensorAdapter(FTSensor(rng, cutoff_hz=SENSOR_CUTOFF_HZ))
+        return SensorAdapter(
+            FTSensor(rng, force_noise_var=0.0, torque_noise_var=0.0, sine_amplitude_n=0.0, cutoff_hz=SENSOR_CUTOFF_HZ)
+        )
 
     def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
         """Hold the start XY with 20 N, then the zig-zag once the clock starts it."""

@@ -44,6 +44,8 @@ class Sander:
 
     def apply(self, world: World, t: float) -> np.ndarray:
         """Apply the sander force at the TCP for this step; returns it."""
+        if not self.enabled or self.amplitude_n == 0.0:
+            return np.zeros(3)
         point, rot = world.site_pose(world.tcp_site)
         f = self.force(t, rot)
         if np.any(f):
