@@ -259,6 +259,28 @@ def test_scene_view_moves_links_recolours_near_limits_and_sends_drag_commands(se
         view.remove()
 
 
+def test_scene_view_survives_a_diverged_snapshot(server, session):
+    view = SceneView(server, session.robot, lambda c: None)
+    try:
+        snap = capture(session)
+        with server.atomic():
+            view.update(snap)
+        before = view.frames["link5"].position.copy()
+        positions = snap.link_positions.copy()
+        positions[snap.link_index("link5")] = np.nan
+        P = {k: np.full_like(v, np.nan) for k, v in snap.P.items()}
+        bad = dataclasses.replace(snap, link_positions=positions, P=P, tcp_position=np.full(3, np.nan))
+        with server.atomic():
+            view.update(bad)  # must not raise
+        assert np.array_equal(view.frames["link5"].position, before)  # the last finite pose stays
+        assert not view.overlays.coupling_disc.visible and not view.overlays.trail_line.visible
+        with server.atomic():
+            view.update(snap)
+        assert view.overlays.coupling_disc.visible
+    finally:
+        view.remove()
+
+
 def test_visual_settings_refuse_unknown_fields_and_bad_values():
     s = VisualSettings()
     with pytest.raises(ValueError):

@@ -211,13 +211,38 @@ class Overlays:
         self.target = sc.add_icosphere(f"{root}/target", radius=0.008, color=(120, 120, 120), visible=False)
 
     def update(self, snap: SceneSnapshot) -> None:
-        """Move/rescale/recolour every overlay for one frame."""
+        """Move/rescale/recolour every overlay for one frame; hides them all on a non-finite state."""
         s = self.settings
-        self._update_coupling(snap, s)
-        self._update_ppt(snap, s)
-        self._update_inertia(snap, s)
+        if not _finite(snap):  # a diverged simulation: show nothing rather than fail every frame
+            for node in self._nodes():
+                node.visible = False
+            return
+        try:
+            self._update_coupling(snap, s)
+            self._update_ppt(snap, s)
+            self._update_inertia(snap, s)
+        except (np.linalg.LinAlgError, ValueError):
+            self.coupling_disc.visible = self.coupling_outline.visible = self.coupling_label.visible = False
+            self.ppt.visible = self.inertia.visible = False
         self._update_arrows(snap, s)
         self._update_lines(snap, s)
+
+    def _nodes(self) -> tuple[viser.SceneNodeHandle, ...]:
+        return (
+            self.coupling_disc,
+            self.coupling_outline,
+            self.coupling_label,
+            self.ppt,
+            self.inertia,
+            self.drag_arrow,
+            self.measured_arrow,
+            self.response_arrow,
+            self.spring,
+            self.grab_point,
+            self.trail_line,
+            self.path_line,
+            self.target,
+        )
 
     def _update_coupling(self, snap: SceneSnapshot, s: VisualSettings) -> None:
         sub = snap.subspaces
@@ -294,22 +319,14 @@ class Overlays:
 
     def remove(self) -> None:
         """Remove every overlay node."""
-        for node in (
-            self.coupling_disc,
-            self.coupling_outline,
-            self.coupling_label,
-            self.ppt,
-            self.inertia,
-            self.drag_arrow,
-            self.measured_arrow,
-            self.response_arrow,
-            self.spring,
-            self.grab_point,
-            self.trail_line,
-            self.path_line,
-            self.target,
-        ):
+        for node in self._nodes():
             node.remove()
+
+
+def _finite(snap: SceneSnapshot) -> bool:
+    """True when everything the overlays compute with is finite."""
+    arrays = [snap.tcp_position, snap.Lambda_translational, snap.wrench_measured, *snap.P.values()]
+    return all(bool(np.all(np.isfinite(a))) for a in arrays)
 
 
 def _set_arrow(

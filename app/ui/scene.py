@@ -145,7 +145,9 @@ class SceneView:
             if frame is None:
                 continue
             pose = (*snap.link_positions[i].tolist(), *snap.link_wxyz[i].tolist())
-            if self._poses.get(name) == pose:  # cheaper than viser's own allclose check (base, pauses)
+            if self._poses.get(name) == pose or not np.all(
+                np.isfinite(pose)
+            ):  # cheaper than viser's own allclose check (base, pauses)
                 continue
             self._poses[name] = pose
             frame.position = pose[:3]

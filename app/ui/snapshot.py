@@ -90,8 +90,14 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
 
     sub = subspaces or subspaces_of(session)
     dyn = session.dyn
-    terms = coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub)
-    P = {"P_f": terms.P_f.copy(), "P_a": terms.P_a.copy(), "P_d": terms.P_d.copy()}
+    try:
+        terms = coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub)
+        P = {"P_f": terms.P_f.copy(), "P_a": terms.P_a.copy(), "P_d": terms.P_d.copy()}
+        W = coupling_values(terms)
+    except np.linalg.LinAlgError:  # a singular motion block (diverged state): nothing to draw
+        nan = np.full((sub.n_f, sub.n_m), np.nan)
+        P = {"P_f": nan, "P_a": nan.copy(), "P_d": nan.copy()}
+        W = {"W_f": float("nan"), "W_a": float("nan"), "W_d": float("nan")}
 
     last = session.last
     wrench = np.array(last.wrench_tcp, dtype=float) if last is not None else np.zeros(6)
@@ -110,7 +116,7 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         force_axes=sub.force_axes,
         motion_axes=sub.motion_axes,
         P=P,
-        W=coupling_values(terms),
+        W=W,
         Lambda_translational=np.array(dyn.Lambda[:3, :3], dtype=float),
         wrench_measured=wrench,
         drag_point=None if drag is None else np.array(drag.point_world, dtype=float),
