@@ -78,3 +78,13 @@ def test_metrics_and_table_helpers():
     }
     text = format_table([run])
     assert "W_a" in text and "1.6/10.8/2.0" in text
+
+
+def test_cli_registers_the_polish_experiment_with_its_options():
+    from app.cli import build_parser
+
+    args = build_parser().parse_args(
+        ["experiment", "polish", "--objectives", "j,a", "--mu", "1.0", "--sander", "--seed", "4", "--jobs", "2"]
+    )
+    assert args.objectives == "j,a" and args.mu == "1.0" and args.sander and args.seed == 4 and args.jobs == 2
+    assert callable(args.func)
