@@ -6,6 +6,7 @@ import asyncio
 import dataclasses
 import itertools
 import socket
+import time
 import types
 
 import numpy as np
@@ -27,7 +28,7 @@ from app.ui.overlays import (
 )
 from app.ui.scene import SceneView, link_joint_indices, link_meshes
 from app.ui.snapshot import capture
-from app.ui.visuals import VisualSettings
+from app.ui.visuals import VisualSettings, VisualsPanel, field_names
 from control.coupling import POLISH_SUBSPACES, Subspaces, coupling_ellipse
 
 PZ = POLISH_SUBSPACES  # motion px py rx ry rz, force pz
@@ -293,3 +294,24 @@ def test_visual_settings_refuse_unknown_fields_and_bad_values():
     s.update(coupling_kind="P_f", coupling_gain=2.0)
     assert s.projection_name("d") == "P_f"  # an explicit choice wins over the objective
     assert s.coupling_scale() == pytest.approx(2.0 / 0.5)
+
+
+def test_visuals_panel_has_a_control_for_every_setting_and_writes_it(server):
+    settings = VisualSettings()
+    panel = VisualsPanel(server.gui, settings)
+    try:
+        assert set(panel.handles) == set(field_names())
+        panel.handles["coupling"].value = False
+        panel.handles["coupling_kind"].value = "P_d"
+        panel.handles["coupling_gain"].value = 3.0
+        deadline = time.monotonic() + 5.0  # callbacks run on viser's thread pool
+        wanted = (False, "P_d", 3.0)
+        while (
+            time.monotonic() < deadline
+            and (settings.coupling, settings.coupling_kind, settings.coupling_gain) != wanted
+        ):
+            time.sleep(0.02)
+        assert (settings.coupling, settings.coupling_kind, settings.coupling_gain) == wanted
+        assert settings.projection_name("a") == "P_d"
+    finally:
+        panel.remove()
