@@ -268,3 +268,27 @@ def test_scenario_cases_switch_and_survive_a_robot_switch(loop):
     assert loop.sync().variant == "position" and len(loop.notice_log) == n0 + 1
     loop.submit(SwitchSession(scenario="free"))
     assert loop.sync().variants == ()
+
+
+def test_frames_carry_the_scene_status_and_a_decimated_ten_second_plot_window():
+    lp = SimLoop("free", publish_hz=60.0, plot_hz=60.0)
+    lp.start(running=False)
+    try:
+        lp.submit(StepOnce(10_000))  # 10 s of simulated time at once
+        lp.sync(30.0)
+        lp.submit(StepOnce(2_000))
+        status = lp.sync(30.0)
+        frame = None
+        for _ in range(50):
+            frame = lp.wait_frame(frame.seq if frame else 0, timeout=1.0)
+            if frame is not None and frame.plot is not None and frame.status.steps == status.steps:
+                break
+        assert frame is not None and frame.plot is not None
+        t = frame.plot.columns["t"]
+        assert 400 <= len(t) <= 501  # about 500 points per series
+        assert t[-1] == pytest.approx(status.t - DT) and t[-1] - t[0] <= 10.0
+        assert frame.status.steps == 12_000 and frame.settings.version == lp.settings.version
+        if frame.scene is not None:  # the scene snapshot module is optional
+            assert frame.scene.t == pytest.approx(status.t, abs=DT)
+    finally:
+        lp.stop()
