@@ -40,7 +40,12 @@ def run_serve_bench(
     scenario: str = "polish", seconds: float = 20.0, warmup: float = 3.0, objective: str = "a", robot: str | None = None
 ) -> dict[str, Any]:
     """Measure the real-time factor of the running app with one browser; returns a report dict."""
-    from playwright.sync_api import sync_playwright
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        raise ValueError("bench --serve needs Playwright: pip install -e '.[test]'") from None
+    if not os.path.exists(CHROMIUM):
+        raise ValueError(f"no Chromium at {CHROMIUM}; set TORQUELAB_CHROMIUM to a Chromium binary")
 
     app = start_app(port=0, scenario=scenario, robot=robot, running=False)
     try:
