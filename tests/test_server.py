@@ -13,7 +13,7 @@ import viser
 from websockets.sync.client import connect
 
 from app.server import port_is_free, start_app
-from app.ui.commands import DragCommand
+from app.ui.commands import DragCommand, StepOnce
 from app.ui.panels.base import KnobPanel
 
 
@@ -158,3 +158,29 @@ def test_serve_prints_the_url_says_when_the_port_is_busy_and_stops_on_ctrl_c():
         finally:
             if proc.poll() is None:
                 proc.kill()
+
+
+def test_nonsense_sent_over_the_websocket_is_refused_and_the_server_keeps_running(app):
+    _panel, _knob, handle = _knob_handle(app, "max_force_n")
+    before = app.loop.settings.values["drag"]["max_force_n"]
+    shown = app.publisher.frames_shown
+    ws = connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10)
+    try:
+        ws.send(_camera_message())
+        for value in ("abc", float("nan"), -1e300, None, [1, 2], {"x": 1}, 1e308):
+            ws.send(
+                msgspec.msgpack.encode(
+                    {"type": "GuiUpdateMessage", "uuid": handle._impl.uuid, "updates": {"value": value}}
+                )
+            )
+        ws.send(b"\x00not msgpack at all")
+        time.sleep(0.5)
+    finally:
+        ws.close()
+    status = app.loop.sync()
+    assert app.loop.alive and status.halted == ""
+    assert app.loop.settings.values["drag"]["max_force_n"] == before
+    app.loop.submit(StepOnce(1))
+    assert _wait(lambda: app.publisher.frames_shown > shown)  # the publisher still shows frames
+    with urllib.request.urlopen(app.url, timeout=10) as resp:
+        assert resp.status == 200
