@@ -272,8 +272,11 @@ def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page
     assert {"W_j", "W_f", "W_a", "W_d"} <= set(offered)
     objective = lambda: app.loop.call(lambda s: s.executor.nullspace.objective)  # noqa: E731
     wait_for(lambda: objective() == "d", 20, "the server's objective to become d")
-    choose(pg, "Objective", "W_a")
-    wait_for(lambda: objective() == "a", 20, "the server's objective to become a")
+    from app.ui.commands import Configure
+
+    app.loop.submit(Configure("executor", {"objective": "a"}))  # back to the polish default for the screenshot
+    wait_for(lambda: objective() == "a", 20, "the objective to return to a")
+    wait_for(lambda: pg.get_by_label("Objective", exact=True).input_value() == "W_a", 20, "the page to show W_a")
 
 
 def test_mouse_drag_on_a_link_pulls_it_with_the_spring_and_mouse_up_releases(app, page):
@@ -331,14 +334,18 @@ def test_screenshot_of_the_running_app_is_saved(app, page):
 
 
 def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page):
-    """Γ (task compliance), λ and M belong to the [C] QP executor: switch to it in the page."""
+    """Γ (task compliance), λ and M belong to the [C] QP executor: with it running they are in the page."""
+    from app.ui.commands import SwitchSession
+
     pg, _ = page
-    choose(pg, "Executor", "compliance-qp")
-    wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "compliance-qp", 30, "the executor switch")
-    for pattern in (r"^Γ task", r"^λ", r"^M\b"):
-        wait_for(lambda p=pattern: has_control(pg, p, "slider"), 30, f"a slider labelled {pattern}")
-    choose(pg, "Executor", "projection")
-    wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "projection", 30, "the switch back")
+    app.loop.submit(SwitchSession(executor="compliance-qp"))
+    try:
+        wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "compliance-qp", 30, "the executor switch")
+        for pattern in (r"^Γ task", r"^λ", r"^M\b"):
+            wait_for(lambda p=pattern: has_control(pg, p, "slider"), 30, f"a slider labelled {pattern}")
+    finally:
+        app.loop.submit(SwitchSession(executor="projection"))
+        wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "projection", 30, "the switch back")
 
 
 def test_disconnect_during_a_drag_releases_the_force(app, page):
