@@ -43,6 +43,7 @@ from control.model import Dynamics
 
 OSQP_INF = 1e30
 SOLVED = (int(osqp.SolverStatus.OSQP_SOLVED.value), int(osqp.SolverStatus.OSQP_SOLVED_INACCURATE.value))
+MAX_ITER = int(osqp.SolverStatus.OSQP_MAX_ITER_REACHED.value)
 
 
 class TaskRows(NamedTuple):
@@ -174,9 +175,11 @@ class DenseOSQP:
     warm-starts from the previous solution.
     """
 
-    def __init__(self, P_mask: np.ndarray, m: int, settings: ComplianceQPSettings):
+    def __init__(self, P_mask: np.ndarray, m: int, settings: ComplianceQPSettings, accept_max_iter: bool = False):
         n = P_mask.shape[0]
         self.n, self.m = n, m
+        # at the iteration cap the ADMM iterate is an approximate optimum; the caller clips τ_d
+        self.accept_max_iter = accept_max_iter
         cols, rows = np.nonzero(np.triu(P_mask).T)  # column-major order of the upper triangle
         self._rows_P, self._cols_P = rows, cols
         P_csc = sp.csc_matrix((np.where(rows == cols, 1.0, 0.0), (rows, cols)), shape=(n, n))
@@ -223,7 +226,8 @@ class DenseOSQP:
             self.solver.update(Px=Px, Ax=Ax, q=q, l=l, u=u)
             res = self.solver.solve(raise_error=False)
             status, iters, x = int(res.info.status_val), int(res.info.iter), res.x
-        if status in SOLVED and x is not None and np.all(np.isfinite(x)):
+        usable = status in SOLVED or (status == MAX_ITER and self.accept_max_iter)
+        if usable and x is not None and np.all(np.isfinite(x)):
             return np.array(x), status, iters
         return None, status, iters
 
@@ -231,7 +235,10 @@ class DenseOSQP:
 class AccelerationQP:
     """The acceleration QP over q̈: rows [I (dampers); M (torque limits); J_strict (equalities)].
 
-    If it has no solution (the dampers ask for more than the torque limits allow), a fallback
+    OSQP stops at `max_iter` (default 400, ≈ 0.3 ms); its iterate is then used as an approximate
+    optimum (status "max iter" in the logs, τ_d clipped to the torque limits) so one slow solve — an
+    active torque limit with the 1e4 : 1 task/posture weighting converges slowly — cannot blow the
+    1 ms budget. If it has no solution (the dampers ask for more than the torque limits allow), a fallback
     problem keeps the torque limits [C10] hard — the motors cannot exceed them anyway — and
     softens the damper rows with slack variables s ≥ 0 penalised by `SLACK_WEIGHT` (relative to
     the task Hessian, so the problem stays well conditioned for OSQP):
@@ -250,7 +257,7 @@ class AccelerationQP:
         self.A[:n, :n] = np.eye(n)
         self.l = np.full(self.m, -OSQP_INF)
         self.u = np.full(self.m, OSQP_INF)
-        self.primary = DenseOSQP(np.ones((n, n), dtype=bool), self.m, settings)
+        self.primary = DenseOSQP(np.ones((n, n), dtype=bool), self.m, settings, accept_max_iter=True)
         # fallback over [q̈; s]: rows [I −I] ≤ u_d, [I I] ≥ l_d, [M 0] torque, [0 I] ≥ 0, [J 0] strict
         mask = np.zeros((2 * n, 2 * n), dtype=bool)
         mask[:n, :n] = True
@@ -449,8 +456,8 @@ class ComplianceQPExecutor:
         res = qp.solve(P, q)
         self.ddq = res.ddq
         tau = dyn.M @ res.ddq + dyn.h - tau_fb  # [C8]
-        if res.relaxed and self.settings.torque_limits:
-            tau = np.clip(tau, -self.tau_max, self.tau_max)  # [C10] stays hard even in the last resort
+        if (res.relaxed or res.status not in SOLVED) and self.settings.torque_limits:
+            tau = np.clip(tau, -self.tau_max, self.tau_max)  # [C10] stays hard for approximate solutions too
         self.tau_desired = tau
         tau_cmd = np.clip(tau, -self.tau_max, self.tau_max)
         saturated = bool(np.any(np.abs(tau) > self.tau_max + 1e-9))

@@ -277,14 +277,15 @@ class ComplianceQPSettings:
 
     feedback: keep τ̂_e in the inverse dynamics [C8] and the torque limits [C10];
     torque_limits: add [C10] as constraints; eps: OSQP absolute/relative tolerance;
-    polish: OSQP solution polishing (slower, exact active set).
+    polish: OSQP solution polishing (slower, exact active set); max_iter: OSQP iteration cap per
+    step (the iterate at the cap is used, flagged by its status).
     """
 
     feedback: bool = True
     torque_limits: bool = True
     eps: float = 1e-6
     polish: bool = False
-    max_iter: int = 4000
+    max_iter: int = 400
 
     def __post_init__(self) -> None:
         validate_positive(self, "eps", "max_iter")
