@@ -282,6 +282,27 @@ def test_scene_view_survives_a_diverged_snapshot(server, session):
         view.remove()
 
 
+def test_an_attached_payload_is_drawn_until_it_is_released(server):
+    session = Session("mass-drop")
+    view = SceneView(server, session.robot, lambda c: None)
+    try:
+        snap = capture(session)
+        assert snap.payload_mass_kg == pytest.approx(session.environment.mass_kg)
+        body = session.world.model.body("payload").id
+        assert np.allclose(snap.payload_position, session.world.data.xipos[body])
+        with server.atomic():
+            view.update(snap)
+        assert view.overlays.payload.visible and view.overlays.payload_label.text.endswith(" kg")
+        session.environment.release()
+        released = capture(session)
+        assert released.payload_position is None
+        with server.atomic():
+            view.update(released)
+        assert not view.overlays.payload.visible
+    finally:
+        view.remove()
+
+
 def test_visual_settings_refuse_unknown_fields_and_bad_values():
     s = VisualSettings()
     with pytest.raises(ValueError):

@@ -22,6 +22,7 @@ from control.coupling import Subspaces, coupled_response, coupling_ellipse, prin
 
 FLAT_THICKNESS = 0.02  # relative thickness of a flat ellipsoid (so it stays visible edge-on)
 MIN_AXIS_M = 1e-3
+PAYLOAD_RADIUS_M = 0.04  # drawn size of an attached payload mass (the sphere its inertia assumes)
 LIFT_M = np.array(
     [0.0, 0.0, 0.05]
 )  # coupling shapes sit 5 cm above the TCP so a surface under the tool cannot hide them
@@ -209,6 +210,8 @@ class Overlays:
             f"{root}/path", np.zeros((1, 2, 3)), colors=(120, 120, 120), thickness=0.002
         )
         self.target = sc.add_icosphere(f"{root}/target", radius=0.008, color=(120, 120, 120), visible=False)
+        self.payload = sc.add_icosphere(f"{root}/payload", radius=PAYLOAD_RADIUS_M, color=(70, 70, 75), visible=False)
+        self.payload_label = sc.add_label(f"{root}/payload_label", "", font_screen_scale=0.8, visible=False)
 
     def update(self, snap: SceneSnapshot) -> None:
         """Move/rescale/recolour every overlay for one frame; hides them all on a non-finite state."""
@@ -226,6 +229,17 @@ class Overlays:
             self.ppt.visible = self.inertia.visible = False
         self._update_arrows(snap, s)
         self._update_lines(snap, s)
+        self._update_payload(snap, s)
+
+    def _update_payload(self, snap: SceneSnapshot, s: VisualSettings) -> None:
+        p = snap.payload_position
+        shown = p is not None and bool(np.all(np.isfinite(p)))
+        self.payload.visible = shown
+        self.payload_label.visible = shown and s.labels
+        if p is not None and shown:
+            self.payload.position = p
+            self.payload_label.position = p + np.array([0.0, 0.0, 1.5 * PAYLOAD_RADIUS_M])
+            self.payload_label.text = f"{snap.payload_mass_kg:.2f} kg"
 
     def _nodes(self) -> tuple[viser.SceneNodeHandle, ...]:
         return (
@@ -242,6 +256,8 @@ class Overlays:
             self.trail_line,
             self.path_line,
             self.target,
+            self.payload,
+            self.payload_label,
         )
 
     def _update_coupling(self, snap: SceneSnapshot, s: VisualSettings) -> None:

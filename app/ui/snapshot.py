@@ -47,6 +47,8 @@ class SceneSnapshot:
     table: tuple[np.ndarray, np.ndarray] | None = None  # (center, half sizes) of the table box
     objective: str | None = None  # nullspace objective of the controller: "j", "f", "a", "d" or None
     limit_zone: np.ndarray | None = None  # (7,) rad: the controller's damper distance d_i, if it has one
+    payload_position: np.ndarray | None = None  # (3,) attached payload mass (mass-drop, limit-drop), if any
+    payload_mass_kg: float = 0.0
 
     @cached_property
     def subspaces(self) -> Subspaces:
@@ -129,6 +131,7 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         table=_table_box(model),
         objective=_objective(session),
         limit_zone=_limit_zone(session),
+        **_payload(session),
     )
 
 
@@ -140,6 +143,18 @@ def _objective(session) -> str | None:
         if isinstance(value, str):
             return value
     return None
+
+
+def _payload(session) -> dict:
+    """Position and mass of an attached payload body of the environment (empty when none/released)."""
+    env = getattr(session, "environment", None)
+    body_id = getattr(env, "body_id", None)
+    if not getattr(env, "attached", False) or not isinstance(body_id, int):
+        return {}
+    return {
+        "payload_position": np.array(session.world.data.xipos[body_id], dtype=float),
+        "payload_mass_kg": float(getattr(env, "mass_kg", 0.0)),
+    }
 
 
 def _limit_zone(session) -> np.ndarray | None:
