@@ -221,7 +221,7 @@ class KnobPanel:
         self.loop.submit(Configure(knob.target, changes, client_id))
 
     def refresh(self, settings: Settings) -> None:
-        """Show the values in force; hide knobs the session does not have. Called every frame."""
+        """Show the values in force; grey out (or hide) knobs the session lacks. Called every frame."""
         now = time.time()
         for i, knob in enumerate(self.knobs):
             handle = self.handles[i]
