@@ -81,10 +81,14 @@ def test_metrics_and_table_helpers():
 
 
 def test_cli_registers_the_polish_experiment_with_its_options():
-    from app.cli import build_parser
+    import argparse
 
-    args = build_parser().parse_args(
-        ["experiment", "polish", "--objectives", "j,a", "--mu", "1.0", "--sander", "--seed", "4", "--jobs", "2"]
-    )
-    assert args.objectives == "j,a" and args.mu == "1.0" and args.sander and args.seed == 4 and args.jobs == 2
-    assert callable(args.func)
+    from app.experiments import EXPERIMENTS
+    from app.experiments.polish import add_arguments
+
+    assert EXPERIMENTS["polish"] == "polish"
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--objectives", "j,a", "--mu", "1.0", "--sander", "--seed", "4", "--no-diagnostics"])
+    assert args.objectives == "j,a" and args.mu == "1.0" and args.sander and args.seed == 4
+    assert args.no_diagnostics and not args.no_sensitivity

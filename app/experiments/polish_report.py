@@ -90,6 +90,8 @@ def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict
             ax = axes[row][col]
             _shade_segments(ax)
             ax.set_ylabel(w)
+            if w == "W_a":
+                ax.set_yscale("log")  # W_a spans two decades between postures
             if row == 0:
                 ax.set_title(f"coupling objectives, μ = {mu:g}")
         axes[-1][col].set_xlabel("time since trajectory start (s)")
@@ -111,7 +113,7 @@ def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict
             )
         _shade_segments(ax, labels=True)
         ax.set_ylabel("20 N − filtered force (N)")
-        ax.set_title(f"force error, μ = {mu:g} (grey: stretching segments S2, S4, S6)")
+        ax.set_title(f"force error, μ = {mu:g} (grey: stretching segments S2, S4, S6)", pad=14)
         ax.legend(fontsize=8, ncol=4, loc="lower left")
     axes[-1][0].set_xlabel("time since trajectory start (s)")
     fig.tight_layout()
