@@ -303,6 +303,30 @@ def test_an_attached_payload_is_drawn_until_it_is_released(server):
         view.remove()
 
 
+def test_gen3_l_shape_of_the_limit_drop_counts_as_near_singular_and_the_polish_start_does_not():
+    assert capture(Session("limit-drop")).near_singular
+    assert not capture(Session("polish")).near_singular
+
+
+def test_coupling_shapes_hide_near_a_singularity_and_never_exceed_a_metre(server, session):
+    view = SceneView(server, session.robot, lambda c: None, VisualSettings(inertia_ellipsoid=True))
+    try:
+        snap = capture(session)
+        huge = {k: 1e9 * v for k, v in snap.P.items()}
+        with server.atomic():
+            view.update(dataclasses.replace(snap, P=huge, Lambda_translational=1e9 * snap.Lambda_translational))
+        o = view.overlays
+        assert o.coupling_disc.visible and max(o.coupling_disc.scale) <= 1.0 and max(o.inertia.scale) <= 1.0
+        center = snap.tcp_position + np.array([0.0, 0.0, 0.05])
+        assert np.max(np.linalg.norm(o.coupling_outline.points - center, axis=2)) <= 1.0 + 1e-6
+        with server.atomic():
+            view.update(dataclasses.replace(snap, near_singular=True))
+        assert not o.coupling_disc.visible and not o.inertia.visible
+        assert o.coupling_label.visible and "singular" in o.coupling_label.text
+    finally:
+        view.remove()
+
+
 def test_visual_settings_refuse_unknown_fields_and_bad_values():
     s = VisualSettings()
     with pytest.raises(ValueError):

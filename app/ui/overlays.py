@@ -22,6 +22,7 @@ from control.coupling import Subspaces, coupled_response, coupling_ellipse, prin
 
 FLAT_THICKNESS = 0.02  # relative thickness of a flat ellipsoid (so it stays visible edge-on)
 MIN_AXIS_M = 1e-3
+MAX_AXIS_M = 1.0  # no overlay axis longer than this (a huge P near a singularity would engulf the camera)
 PAYLOAD_RADIUS_M = 0.04  # drawn size of an attached payload mass (the sphere its inertia assumes)
 LIFT_M = np.array(
     [0.0, 0.0, 0.05]
@@ -266,10 +267,13 @@ class Overlays:
         P = snap.P[kind]
         scale = s.coupling_scale(snap.objective)
         L = coupling_map(P, sub, scale)
-        show = s.coupling and L.shape[1] > 0
+        show = s.coupling and L.shape[1] > 0 and not snap.near_singular
         self.coupling_disc.visible = show
         self.coupling_outline.visible = show
-        self.coupling_label.visible = show and s.labels
+        self.coupling_label.visible = s.coupling and s.labels and L.shape[1] > 0
+        if snap.near_singular:
+            self.coupling_label.position = snap.tcp_position + LIFT_M
+            self.coupling_label.text = "near a singularity: Λx ill-conditioned"
         if not show:
             return
         radius = s.coupling_radius_m
@@ -277,17 +281,21 @@ class Overlays:
         axes, R = ellipsoid_of_map(L)
         self.coupling_disc.position = center
         self.coupling_disc.wxyz = wxyz_of(R)
-        self.coupling_disc.scale = _triple(np.maximum(radius * axes, MIN_AXIS_M))
+        self.coupling_disc.scale = _triple(np.clip(radius * axes, MIN_AXIS_M, MAX_AXIS_M))
         self.coupling_disc.color = magnitude_color(np.tan(tilt_rad(P, sub, scale)))
         outline = coupling_ellipse(P, sub, scale=scale, points=48)
-        self.coupling_outline.points = polyline_segments(center + radius * outline).astype(np.float32)
+        outline = radius * outline
+        reach = np.linalg.norm(outline, axis=1, keepdims=True)
+        outline *= np.minimum(1.0, MAX_AXIS_M / np.maximum(reach, 1e-12))  # same cap as the disc, roughly
+        self.coupling_outline.points = polyline_segments(center + outline).astype(np.float32)
         W = snap.W.get("W" + kind[1:], float("nan"))
         self.coupling_label.position = center + np.array([0.0, 0.0, radius * 1.2])
         self.coupling_label.text = f"W{kind[1:]} = {W:.3g}"
 
     def _update_ppt(self, snap: SceneSnapshot, s: VisualSettings) -> None:
         kind = s.projection_name(snap.objective)
-        shape = translational_force_ellipsoid(snap.P[kind], snap.subspaces) if s.ppt_ellipsoid else None
+        wanted = s.ppt_ellipsoid and not snap.near_singular
+        shape = translational_force_ellipsoid(snap.P[kind], snap.subspaces) if wanted else None
         self.ppt.visible = shape is not None
         if shape is None:
             return
@@ -295,16 +303,16 @@ class Overlays:
         size = s.coupling_radius_m * s.coupling_scale(snap.objective)
         self.ppt.position = snap.tcp_position + LIFT_M
         self.ppt.wxyz = wxyz_of(R)
-        self.ppt.scale = _triple(np.maximum(size * axes, MIN_AXIS_M))
+        self.ppt.scale = _triple(np.clip(size * axes, MIN_AXIS_M, MAX_AXIS_M))
 
     def _update_inertia(self, snap: SceneSnapshot, s: VisualSettings) -> None:
-        self.inertia.visible = s.inertia_ellipsoid
-        if not s.inertia_ellipsoid:
+        self.inertia.visible = s.inertia_ellipsoid and not snap.near_singular
+        if not self.inertia.visible:
             return
         masses, R = inertia_ellipsoid(snap.Lambda_translational)
         self.inertia.position = snap.tcp_position
         self.inertia.wxyz = wxyz_of(R)
-        self.inertia.scale = _triple(np.maximum(s.inertia_m_per_kg * masses, MIN_AXIS_M))
+        self.inertia.scale = _triple(np.clip(s.inertia_m_per_kg * masses, MIN_AXIS_M, MAX_AXIS_M))
 
     def _update_arrows(self, snap: SceneSnapshot, s: VisualSettings) -> None:
         _set_arrow(self.drag_arrow, s.drag_force, snap.drag_point, snap.drag_force, s.force_m_per_n)

@@ -18,6 +18,9 @@ from control.coupling import POLISH_SUBSPACES, Subspaces, coupling_terms, coupli
 
 PATH_HORIZON_S = 5.0  # how far ahead the commanded path is sampled
 PATH_SAMPLES = 40
+# Below this smallest eigenvalue of J M⁻¹ Jᵀ (an effective mass or inertia above 1000 kg or kg m²)
+# the coupling projections blow up; the scene says "near a singularity" instead of drawing them.
+NEAR_SINGULAR_EIG = 1e-3
 
 
 @dataclass(frozen=True)
@@ -47,6 +50,7 @@ class SceneSnapshot:
     table: tuple[np.ndarray, np.ndarray] | None = None  # (center, half sizes) of the table box
     objective: str | None = None  # nullspace objective of the controller: "j", "f", "a", "d" or None
     limit_zone: np.ndarray | None = None  # (7,) rad: the controller's damper distance d_i, if it has one
+    near_singular: bool = False  # Λx damped or ill-conditioned (NEAR_SINGULAR_EIG): no coupling shapes
     payload_position: np.ndarray | None = None  # (3,) attached payload mass (mass-drop, limit-drop), if any
     payload_mass_kg: float = 0.0
 
@@ -131,6 +135,7 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         table=_table_box(model),
         objective=_objective(session),
         limit_zone=_limit_zone(session),
+        near_singular=bool(dyn.near_singular or dyn.min_eig_Lambda_inv < NEAR_SINGULAR_EIG),
         **_payload(session),
     )
 
