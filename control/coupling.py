@@ -42,6 +42,7 @@ class Subspaces:
     S_f: np.ndarray
     S_m: np.ndarray
     perm: np.ndarray
+    perm_flat: np.ndarray  # flat indices that permute a 6×6 matrix to (motion, force) order
 
     @classmethod
     def from_force_axes(cls, axes: Sequence[int | str] = ("pz",)) -> Subspaces:
@@ -63,7 +64,9 @@ class Subspaces:
             raise ValueError("the force subspace needs between 1 and 5 axes")
         motion = tuple(i for i in range(6) if i not in force)
         eye = np.eye(6)
-        return cls(force, motion, eye[list(force)], eye[list(motion)], np.array(motion + force))
+        perm = np.array(motion + force)
+        perm_flat = (perm[:, None] * 6 + perm[None, :]).ravel()
+        return cls(force, motion, eye[list(force)], eye[list(motion)], perm, perm_flat)
 
     @property
     def n_f(self) -> int:
@@ -106,18 +109,18 @@ def coupling_terms(
     block-inverse identities give the rest without a matrix inversion: with L = Λx⁻¹,
     D̂ = L_ff⁻¹, BᵀA⁻¹ = −D̂ L_fm and A⁻¹ = L_mm − L_mf D̂ L_fm.
     """
-    p, k = sub.perm, sub.n_m
-    Lp = Lambda[p][:, p]  # [[A, B], [Bᵀ, D]] [T6]
+    k = sub.n_m
+    Lp = Lambda.take(sub.perm_flat).reshape(6, 6)  # [[A, B], [Bᵀ, D]] [T6]
     A = Lp[:k, :k]
     B = Lp[:k, k:]
     D = Lp[k:, k:]
     P_a = B.T  # [T20]
     if exact_inverse:
-        Li = Lambda_inv[p][:, p]
+        Li = Lambda_inv.take(sub.perm_flat).reshape(6, 6)
         P_f = Li[k:, :k]  # S_f Λx⁻¹ S_mᵀ
         L_ff = Li[k:, k:]
-        D_hat = 1.0 / L_ff if sub.n_f == 1 else np.linalg.inv(L_ff)  # [T9]
-        P_d = -D_hat @ P_f  # BᵀA⁻¹ [T10]
+        D_hat = (1.0 / L_ff) if sub.n_f == 1 else np.linalg.inv(L_ff)  # [T9]
+        P_d = -(D_hat @ P_f)  # BᵀA⁻¹ [T10]
         A_inv = Li[:k, :k] + Li[:k, k:] @ P_d
     else:
         A_inv = np.linalg.inv(A)
