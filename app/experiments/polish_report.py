@@ -462,8 +462,9 @@ def discussion(doc: dict) -> list[str]:
         out.append(
             f"{OBJECTIVE_NAMES[r['objective']]} at μ = {hi:g} stays on the table: its posture (swivel "
             f"{r['converged_swivel_deg']:+.0f}°) has a smaller P_d, so the lag term peaks at {damp:.0f} N s/m; the "
-            f"natural coupling P_f hardly differs from the start posture, and W_f along the whole self-motion loop "
-            f"varies by only ±8 % - which is why minimising W_f does not help (as the paper found)."
+            "natural coupling P_f·friction direction hardly differs from the start posture (see the per-segment "
+            "table), so it is not W_f that decides stability here - which is why minimising W_f does not help "
+            "(as the paper found)."
         )
     if ("a", hi) in by and not by[("a", hi)]["stable"]:
         out.append(
