@@ -24,9 +24,8 @@ FLAT_THICKNESS = 0.02  # relative thickness of a flat ellipsoid (so it stays vis
 MIN_AXIS_M = 1e-3
 MAX_AXIS_M = 1.0  # no overlay axis longer than this (a huge P near a singularity would engulf the camera)
 PAYLOAD_RADIUS_M = 0.04  # drawn size of an attached payload mass (the sphere its inertia assumes)
-LIFT_M = np.array(
-    [0.0, 0.0, 0.05]
-)  # coupling shapes sit 5 cm above the TCP so a surface under the tool cannot hide them
+# Coupling shapes sit 5 cm above the TCP so that a surface under the tool cannot hide them.
+LIFT_M = np.array([0.0, 0.0, 0.05])
 
 GREEN = np.array([60, 200, 90], dtype=float)
 YELLOW = np.array([240, 200, 40], dtype=float)
