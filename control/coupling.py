@@ -478,3 +478,50 @@ def k0_for_speed(
     if not norms:
         raise ValueError("the swivel scan has no posture inside the joint limits")
     return speed_rad_s / float(np.sqrt(np.mean(np.square(norms))))
+
+
+def coupling_gradient_direct(
+    model: RobotModel, dyn: Dynamics, terms: CouplingTerms, sub: Subspaces, objective: str
+) -> tuple[float, np.ndarray]:
+    """W and ∂W/∂q [T24-27] without forming ∂Λx/∂q: same result as `coupling_gradient`, cheaper.
+
+    With ∂W/∂q_k = 2⟨∂Λx_k, G⟩ and ∂Λx_k = −Λx ∂(Λx⁻¹)_k Λx, ∂(Λx⁻¹)_k = ∂J_k X + Xᵀ∂J_kᵀ − Xᵀ∂M_k X
+    (X = M⁻¹Jᵀ), the gradient is −2(⟨∂J_k, (H + Hᵀ)Xᵀ⟩ − ⟨∂M_k, X H Xᵀ⟩) with H = Λx G Λx. G has
+    rank ≤ n_f, so X H Xᵀ = Σ_c a_c b_cᵀ and each ⟨∂M_k, a bᵀ⟩ = aᵀ ∂(M b)/∂q_k comes from one
+    RNEA-derivative call: n_f calls instead of six.
+    """
+    import pinocchio as pin
+
+    m, f = sub.motion_axes, sub.force_axes
+    if objective == "f":  # [T25]
+        P = terms.P_f
+        left = -dyn.Lambda_inv[list(f), :]
+        right = dyn.Lambda_inv[:, list(m)]
+    elif objective == "a":  # [T26]
+        P = terms.P_a
+        left = sub.S_f
+        right = sub.S_m.T
+    elif objective == "d":  # [T27]
+        P = terms.P_d
+        left = sub.S_f - P @ sub.S_m
+        right = sub.S_m.T @ terms.A_inv
+    else:
+        raise ValueError(f"unknown coupling objective {objective!r}; use f, a or d")
+    L = dyn.Lambda
+    U = L @ left.T  # (6, n_f)
+    V = L @ (P @ right.T).T  # (6, n_f): H = U Vᵀ = Λ G Λ with G = leftᵀ P rightᵀ
+    X = dyn.M_inv @ dyn.J.T  # (n, 6)
+    H = U @ V.T
+    n = X.shape[0]
+    dJ = model.tcp_jacobian_derivative(dyn.q)  # (n, 6, n)
+    term_J = dJ.reshape(n, 6 * n) @ ((H + H.T) @ X.T).reshape(6 * n)
+    A_ = X @ U  # (n, n_f)
+    B_ = X @ V
+    term_M = np.zeros(n)
+    for c in range(A_.shape[1]):
+        dtau_dq = pin.computeRNEADerivatives(
+            model._model_no_gravity, model._data_no_gravity, dyn.q, model._zeros, B_[:, c]
+        )[0]
+        term_M += np.asarray(dtau_dq).T @ A_[:, c]  # [k] = aᵀ ∂(M b)/∂q_k
+    pr = P.ravel()
+    return float(pr @ pr), -2.0 * (term_J - term_M)

@@ -27,7 +27,7 @@ from control.coupling import (
     POLISH_SUBSPACES,
     CouplingTerms,
     Subspaces,
-    coupling_gradient,
+    coupling_gradient_direct,
     terms_of,
 )
 from control.executor import ControlInputs, ControlOutput, TaskTarget
@@ -174,8 +174,7 @@ class ProjectionExecutor:
             grad = dyn.q - (dyn.q if q_d is None else q_d)  # [T18]
             W_obj = 0.5 * float(grad @ grad)
         else:
-            dLambda = self.model.dLambda_dq(dyn)
-            W_obj, grad = coupling_gradient(terms, dyn.Lambda_inv, dLambda, self.sub, ns.objective)  # [T24-27]
+            W_obj, grad = coupling_gradient_direct(self.model, dyn, terms, self.sub, ns.objective)  # [T24-27]
         lower, upper = damper_bounds(dyn.q, self.q_lower, self.q_upper, self._dq_limit, self.endless, ns)
         res = self.qp.solve(dyn.J, ns.k0 * grad, lower, upper)
         self.last_qp = res

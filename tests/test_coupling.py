@@ -145,3 +145,19 @@ def test_joint_limits_are_checked_modulo_two_pi():
     np.testing.assert_array_equal(c.within_limits_mod_2pi(q, lo, up), [True, True])
     q = np.array([3.2, -3.2])  # ≡ −3.08 / +3.08: outside ±3 either way
     np.testing.assert_array_equal(c.within_limits_mod_2pi(q, lo, up), [False, False])
+
+
+@pytest.mark.parametrize("axes", [("pz",), ("pz", "rx"), ("px", "py", "rz")])
+def test_direct_gradient_equals_the_dLambda_form(robot, axes):
+    """The executor's gradient (one RNEA derivative per force axis) equals [T24-27] with ∂Λx/∂q."""
+    model = RobotModel(robot.model)
+    sub = c.Subspaces.from_force_axes(axes)
+    for q in random_configurations(robot, 2, seed=17):
+        dyn = model.compute(q, np.zeros(7))
+        terms = c.terms_of(dyn, sub)
+        dLambda = model.dLambda_dq(dyn)
+        for objective in "fad":
+            W1, g1 = c.coupling_gradient(terms, dyn.Lambda_inv, dLambda, sub, objective)
+            W2, g2 = c.coupling_gradient_direct(model, dyn, terms, sub, objective)
+            assert W2 == pytest.approx(W1, rel=1e-12)
+            np.testing.assert_allclose(g2, g1, atol=1e-9 * np.abs(g1).max())
