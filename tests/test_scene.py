@@ -87,6 +87,21 @@ def test_outline_points_of_control_coupling_lie_on_the_drawn_ellipse():
     assert np.max(np.abs(local[:, thin])) < 1e-12
 
 
+def test_coupling_shape_follows_the_number_of_translational_motion_axes():
+    rz_only = Subspaces.from_force_axes(("rz",))  # motion px py pz rx ry: nothing to tilt into
+    P = np.full((1, 5), 3.0)
+    axes, _ = ellipsoid_of_map(coupling_map(P, rz_only, 1.0))
+    assert np.allclose(axes, 1.0) and tilt_rad(P, rz_only, 1.0) == pytest.approx(0.0, abs=1e-12)
+    pxy = Subspaces.from_force_axes(("px", "py"))  # motion pz rx ry rz: a segment along z, tilted into x, y
+    P = np.zeros((2, 4))
+    P[:, 0] = [0.6, 0.8]
+    L = coupling_map(P, pxy, 1.0)
+    assert L.shape == (3, 1) and np.allclose(L[:, 0], [0.6, 0.8, 1.0])
+    assert tilt_rad(P, pxy, 1.0) == pytest.approx(np.pi / 4)
+    no_translation = Subspaces.from_force_axes(("px", "py", "pz"))
+    assert coupling_map(np.zeros((3, 3)), no_translation, 1.0).shape == (3, 0)
+
+
 def test_ppt_ellipsoid_needs_two_translational_force_axes_and_has_sqrt_sigma_axes():
     assert translational_force_ellipsoid(np.ones((1, 5)), PZ) is None
     sub = Subspaces.from_force_axes(("px", "pz"))  # motion py rx ry rz
