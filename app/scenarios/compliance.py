@@ -15,18 +15,13 @@ Constants, chosen once, not tuned afterwards:
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor
-from app.scenarios.mass_drop import FORCE_NOISE_STD, TORQUE_NOISE_STD, SensorAdapter
-from app.sim.sensor import FTSensor
+from app.scenarios.mass_drop import wrist_ft_sensor
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor, PoseTask
-from control.executor import TaskTarget
 from control.gains import EstimatorGains, PoseTaskGains, PostureTaskGains
-from control.model import Dynamics, RobotModel
 from robots import RobotDescription
 
 MODES = ("stiff", "nullspace", "full")
@@ -85,21 +80,7 @@ class ComplianceScenario(Scenario):
         return ScriptedPushes(world)
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
-        return SensorAdapter(
-            FTSensor(
-                rng,
-                force_noise_var=FORCE_NOISE_STD**2,
-                torque_noise_var=TORQUE_NOISE_STD**2,
-                sine_amplitude_n=0.0,
-                cutoff_hz=0.0,
-            )
-        )
-
-    def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
-        hold = TaskTarget(
-            position=dyn0.tcp_position_world.copy(), rotation=dyn0.tcp_rotation_world.copy(), q_posture=dyn0.q.copy()
-        )
-        return lambda t: hold
+        return wrist_ft_sensor(rng)
 
     def configure_executor(self, executor: object, robot: RobotDescription) -> None:
         """Pose + posture tasks with this mode's Γ, fusion estimate, feedback on.

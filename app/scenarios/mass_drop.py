@@ -21,8 +21,6 @@ Constants, chosen once from the paper and physical sense, not tuned afterwards:
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import mujoco
 import numpy as np
 
@@ -31,9 +29,7 @@ from app.scenarios.payload import PayloadEnvironment, add_payload_body
 from app.sim.sensor import FTSensor
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor, PoseTask
-from control.executor import TaskTarget
 from control.gains import EstimatorGains, PoseTaskGains, PostureTaskGains
-from control.model import Dynamics, RobotModel
 from robots import RobotDescription
 
 MODES = ("position", "torque-residual", "torque-fusion")
@@ -45,6 +41,21 @@ TASK_OMEGA = 20.0  # rad/s
 OBSERVER_GAIN = 50.0  # 1/s
 FORCE_NOISE_STD = 0.1  # N
 TORQUE_NOISE_STD = 0.005  # N m (sensor moment channels)
+
+
+def wrist_ft_sensor(rng: np.random.Generator) -> Sensor:
+    """The [C] scenarios' wrist F/T sensor: white noise of the stds above, no sine, no filter."""
+    return SensorAdapter(
+        FTSensor(
+            rng,
+            force_noise_var=FORCE_NOISE_STD**2,
+            torque_noise_var=TORQUE_NOISE_STD**2,
+            sine_amplitude_n=0.0,
+            cutoff_hz=0.0,
+        )
+    )
+
+
 ACTUATOR_RIPPLE_STD = 0.05  # N m
 STABLE_BAND_M = 1e-3
 
@@ -105,21 +116,7 @@ class MassDropScenario(Scenario):
         return RippleAndPayload(world, rng)
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
-        return SensorAdapter(
-            FTSensor(
-                rng,
-                force_noise_var=FORCE_NOISE_STD**2,
-                torque_noise_var=TORQUE_NOISE_STD**2,
-                sine_amplitude_n=0.0,
-                cutoff_hz=0.0,
-            )
-        )
-
-    def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
-        hold = TaskTarget(
-            position=dyn0.tcp_position_world.copy(), rotation=dyn0.tcp_rotation_world.copy(), q_posture=dyn0.q.copy()
-        )
-        return lambda t: hold
+        return wrist_ft_sensor(rng)
 
     def configure_executor(self, executor: object, robot: RobotDescription) -> None:
         """Position: joint PID, no estimate. Torque modes: stiff pose task, compliant nullspace.
