@@ -153,7 +153,10 @@ class Session:
         own kinematics: f is unchanged, m_tcp = m_sensor + (p_sensor − p_tcp) × f."""
         p_sensor = self._sensor_position(dyn)
         out = np.array(wrench_sensor, dtype=float)
-        out[3:] += np.cross(p_sensor - dyn.tcp_position_world, out[:3])
+        r = p_sensor - dyn.tcp_position_world
+        f = out[:3]
+        # r × f written out: np.cross costs ~15 µs per call, a noticeable share of the 1 ms step
+        out[3:] += (r[1] * f[2] - r[2] * f[1], r[2] * f[0] - r[0] * f[2], r[0] * f[1] - r[1] * f[0])
         return out
 
     def _sensor_position(self, dyn: Dynamics) -> np.ndarray:
