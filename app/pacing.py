@@ -1,9 +1,10 @@
 """Pacing simulated time to wall time, and measuring how well that works.
 
 `Pacer` says how many 1 ms steps are due at a wall-clock instant: the step count is anchored to a
-wall instant, so sleeping too long is caught up in a burst and nothing drifts. If the loop falls
-further behind than `max_lag_s`, the debt is dropped (the anchor moves) and the simulation runs
-slower than requested; `RateMeter` reports the real-time factor that was actually achieved.
+wall instant, so sleeping too long (or a hiccup: garbage collection, another process) is caught up
+in bursts and nothing drifts. If the loop falls further behind than `max_lag_s`, the extra debt is
+dropped (the anchor moves) and the simulation runs slower than requested; `RateMeter` reports the
+real-time factor that was actually achieved.
 """
 
 from __future__ import annotations
@@ -12,14 +13,20 @@ import math
 
 
 class Pacer:
-    """Steps due at wall time `now` for a simulation with period `dt` run at `speed`× real time."""
+    """Steps due at wall time `now` for a simulation with period `dt` run at `speed`× real time.
 
-    def __init__(self, dt: float = 1e-3, speed: float = 1.0, max_lag_s: float = 0.05):
-        if not (dt > 0 and speed > 0 and max_lag_s > 0):
-            raise ValueError("dt, speed and max_lag_s must be positive")
+    A debt of up to `max_lag_s` is caught up (in bursts of at most `max_burst` steps per call, so
+    the caller can apply commands and publish between bursts); beyond it, the extra steps are
+    dropped and the simulation runs slower than requested.
+    """
+
+    def __init__(self, dt: float = 1e-3, speed: float = 1.0, max_lag_s: float = 0.25, max_burst: int = 50):
+        if not (dt > 0 and speed > 0 and max_lag_s > 0 and max_burst >= 1):
+            raise ValueError("dt, speed, max_lag_s and max_burst must be positive")
         self.dt = dt
         self.speed = speed
         self.max_lag_steps = max(1, round(max_lag_s / dt))
+        self.max_burst = int(max_burst)
         self._anchor_wall = 0.0
         self._anchor_steps = 0
         self.dropped_steps = 0  # steps given up because the loop could not keep up
@@ -37,7 +44,7 @@ class Pacer:
         self.restart(now, steps_done)
 
     def due(self, now: float, steps_done: int) -> int:
-        """How many steps to run now (≤ max_lag_steps); drops the rest of a larger debt."""
+        """How many steps to run now (≤ max_burst); a debt beyond max_lag_steps is dropped."""
         target = self._anchor_steps + math.floor((now - self._anchor_wall) * self.speed / self.dt + 1e-9)
         behind = target - steps_done
         if behind > self.max_lag_steps:
@@ -45,7 +52,7 @@ class Pacer:
             self.dropped_steps += dropped
             self._anchor_steps -= dropped
             behind = self.max_lag_steps
-        return max(0, behind)
+        return max(0, min(behind, self.max_burst))
 
     def next_due(self, steps_done: int) -> float:
         """Wall time at which step `steps_done + 1` is due."""

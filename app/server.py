@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import atexit
 import contextlib
+import gc
 import io
 import socket
 import time
@@ -122,6 +123,10 @@ def start_app(
         loop.submit(DragCommand("release", client_id=client.client_id))
 
     publisher = Publisher(server, loop, panels, plots, make_scene)
+    # Everything built so far lives as long as the app: keep it out of the garbage collector's
+    # full passes, which otherwise stop every thread for ~50 ms now and then.
+    gc.collect()
+    gc.freeze()
     loop.start(running=running)
     publisher.start()
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host

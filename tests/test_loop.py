@@ -179,7 +179,7 @@ def test_speed_is_limited_to_a_tenth_to_one(loop):
 
 # ---- pacing (fake clock: exact numbers) ----------------------------------------------------------
 def test_pacer_catches_up_in_bursts_and_never_drifts():
-    pacer = Pacer(dt=DT, speed=1.0, max_lag_s=0.05)
+    pacer = Pacer(dt=DT, speed=1.0, max_lag_s=0.25, max_burst=50)
     pacer.restart(0.0, 0)
     rng = np.random.default_rng(0)
     now, done, bursts = 0.0, 0, []
@@ -194,7 +194,7 @@ def test_pacer_catches_up_in_bursts_and_never_drifts():
 
 
 def test_pacer_slows_down_when_steps_are_too_slow_and_reports_it():
-    pacer = Pacer(dt=DT, speed=1.0, max_lag_s=0.05)
+    pacer = Pacer(dt=DT, speed=1.0, max_lag_s=0.25, max_burst=50)
     meter = RateMeter(window_s=0.5)
     pacer.restart(0.0, 0)
     now, done = 0.0, 0
@@ -206,11 +206,26 @@ def test_pacer_slows_down_when_steps_are_too_slow_and_reports_it():
         meter.sample(now, done * DT)
     assert meter.rtf == pytest.approx(0.5, abs=0.03)
     assert pacer.dropped_steps > 0
-    assert pacer.due(now, done) <= pacer.max_lag_steps  # never an unbounded burst
+    assert pacer.due(now, done) <= pacer.max_burst  # never an unbounded burst
+
+
+def test_pacer_recovers_a_short_hiccup_completely():
+    pacer = Pacer(dt=DT, max_lag_s=0.25, max_burst=50)
+    pacer.restart(0.0, 0)
+    now, done = 0.0, 0
+    for _ in range(1000):  # 1 s in real time, then a 200 ms stall, then 1 s with spare time
+        now += 1e-3
+        done += pacer.due(now, done)
+    now += 0.2
+    for _ in range(1000):
+        now += 1e-3
+        for _ in range(4):  # the loop runs several bursts per millisecond while catching up
+            done += pacer.due(now, done)
+    assert pacer.dropped_steps == 0 and done == pytest.approx(now / DT, abs=1)
 
 
 def test_pacer_speed_scales_simulated_time():
-    pacer = Pacer(dt=DT)
+    pacer = Pacer(dt=DT, max_burst=50)
     pacer.set_speed(0.1, 0.0, 0)
     assert pacer.due(1.0, 0) == 50  # 100 ms of sim time are due, capped at the 50-step burst
     pacer.set_speed(0.1, 0.0, 0)
