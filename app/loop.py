@@ -122,7 +122,8 @@ class Frame:
     status: LoopStatus
     settings: Settings
     scene: Any = None  # SceneSnapshot, if the scene module is present
-    plot: PlotData | None = None
+    plot: PlotData | None = None  # the newest plot data (kept in later frames until replaced)
+    plot_seq: int = 0  # grows when `plot` is new data
 
 
 @dataclass(frozen=True)
@@ -184,6 +185,8 @@ class SimLoop:
         self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice ever sent (for tests/logs)
         self.status = self._make_status()
         self._next_plot = 0.0
+        self._plot: PlotData | None = None
+        self._plot_seq = 0
         self._dirty = True
 
     # ---- API for other threads ----------------------------------------------------------------
@@ -614,10 +617,10 @@ class SimLoop:
                 self._capture = None
                 self._notify("warning", "Scene disabled", "capturing the scene failed; see the server log")
         self._monitor.append(_monitor_row(status, scene))
-        plot = None
         if now >= self._next_plot:
             self._next_plot = now + self.plot_period
-            plot = self._plot_data()
+            self._plot = self._plot_data()
+            self._plot_seq += 1
         self._seq += 1
         frame = Frame(
             seq=self._seq,
@@ -626,7 +629,8 @@ class SimLoop:
             status=status,
             settings=self._settings,
             scene=scene,
-            plot=plot,
+            plot=self._plot,
+            plot_seq=self._plot_seq,
         )
         with self._frame_cond:
             self._frame = frame

@@ -297,7 +297,8 @@ def test_frames_carry_the_scene_status_and_a_decimated_ten_second_plot_window():
         frame = None
         for _ in range(50):
             frame = lp.wait_frame(frame.seq if frame else 0, timeout=1.0)
-            if frame is not None and frame.plot is not None and frame.status.steps == status.steps:
+            fresh = frame is not None and frame.plot is not None and len(frame.plot.columns["t"]) > 0
+            if fresh and frame.plot.columns["t"][-1] == pytest.approx(status.t - DT):
                 break
         assert frame is not None and frame.plot is not None
         t = frame.plot.columns["t"]

@@ -47,6 +47,7 @@ class Publisher:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="torquelab-publisher", daemon=True)
         self._settings_version = -1
+        self._plot_seq = -1
         self._next_live = 0.0
 
     def start(self) -> None:
@@ -95,6 +96,7 @@ class Publisher:
             self._next_live = now + LIVE_PERIOD_S
             for panel in self.panels:
                 panel.live(frame)
-        if frame.plot is not None and self.plots is not None:
+        if frame.plot is not None and self.plots is not None and frame.plot_seq != self._plot_seq:
+            self._plot_seq = frame.plot_seq  # a frame skipped while busy does not lose a plot update
             self.plots.update(frame.plot)
         self.frames_shown += 1
