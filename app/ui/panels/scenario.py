@@ -20,7 +20,7 @@ STEPS = {"1 ms": 1, "10 ms": 10, "100 ms": 100}
 FALLBACK_SHOW_S = 2.0  # keep the fallback badge up this long after the last fallback step
 
 INTRO = (
-    "Pick a preset (DESIGN §5), the arm and the controller. The simulation runs at 1 kHz paced to wall "
+    "Pick a preset and its case, the arm and the controller. The simulation runs at 1 kHz paced to wall "
     "time; drag any link with the mouse to push it (spring force, clamped to the limit below)."
 )
 
