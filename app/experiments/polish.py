@@ -137,6 +137,7 @@ def simulate(spec: dict) -> dict:
         q_converged = session.world.q.copy()
     model = session.model
     traj = (rec["segment"] >= 1) & (rec["segment"] <= N_SEGMENTS)
+    hold = (rec["segment"] == 0) & (rec["t"] >= scenario_module.CONTACT_TIME_S)  # TCP held, posture converging
     result: dict[str, Any] = {
         "group": spec.get("group", "main"),
         "label": _label(spec, clock.timeout_s),
@@ -150,6 +151,7 @@ def simulate(spec: dict) -> dict:
         "converge_timeout_s": clock.timeout_s,
         "force_error": _stats(rec["force_error"][traj]),
         "force_error_true_contact": _stats(rec["force_error_true"][traj]),
+        "hold_force_error": _stats(rec["force_error"][hold]),
         "coupling": {w: _mean_max(rec[w][traj]) for w in ("W_f", "W_a", "W_d")},
         "posture_change_deg": [float(x) for x in np.rad2deg(q_converged - q_start)],
         "converged_swivel_deg": float(np.rad2deg(swivel_angle(model, q_converged))),

@@ -253,7 +253,9 @@ def write_report(out: Path, doc: dict) -> None:
         sens_rows.append(
             f"<tr><td>{r['start_swivel_deg']:+.0f}°</td><td>{r['converge_timeout_s']:.0f} s</td>"
             f"<td>{_fmt(r['convergence_time_s'], 1)} s</td><td>{r['converged_swivel_deg']:+.0f}°</td>"
-            f"<td>{_fmt(r['coupling']['W_a']['mean'])}</td><td>{ftxt}</td>"
+            f"<td>{_fmt(r['coupling']['W_a']['mean'])}</td>"
+            f"<td>{_fmt(max(sg['lag_negative_damping_ns_per_m'] or 0.0 for sg in r['per_segment']), 0)}</td>"
+            f"<td>{ftxt}</td>"
             f"<td>{'yes' if r['stable'] else 'no'}</td></tr>"
         )
     findings = "".join(f"<li>{html.escape(s)}</li>" for s in findings_in_words(doc))
@@ -324,7 +326,7 @@ the TCP's vertical velocity. Positive values are negative damping, to compare wi
 <th>coupled response (m/s² per N)</th><th>lag damping (N s/m)</th></tr>{"".join(seg_rows)}</table>
 <h2>Start sensitivity (W_a, μ = {max(s["mu"]):g})</h2>
 <table><tr><th>start swivel</th><th>converge timeout</th><th>trajectory start</th>
-<th>converged swivel</th><th>W_a mean</th><th>MA / PTP / STD (N)</th>
+<th>converged swivel</th><th>W_a mean</th><th>lag damping, max (N s/m)</th><th>MA / PTP / STD (N)</th>
 <th>stable</th></tr>
 {"".join(sens_rows)}</table>
 <p>Wall time {doc["wall_s"]:.0f} s.</p>
@@ -443,6 +445,24 @@ def discussion(doc: dict) -> list[str]:
             f"{-damp_retract:.0f} N s/m of extra damping when retracting), against K_f^d = 200 N s/m. This is the "
             "mechanism the paper names in §IV-B (time delay in the force sensing for inertia shaping) and [T8] "
             "predicts (P_d amplifies sensing disturbances)."
+        )
+    hold_txt = ", ".join(
+        f"{OBJECTIVE_NAMES[o]} {by[(o, hi)]['hold_force_error']['std']:.1f} N"
+        for o in "jfad"
+        if (o, hi) in by and by[(o, hi)].get("hold_force_error", {}).get("std") is not None
+    )
+    if hold_txt and len(mus) > 1:
+        hold_lo = ", ".join(
+            f"{OBJECTIVE_NAMES[o]} {by[(o, lo)]['hold_force_error']['std']:.1f} N"
+            for o in "jfad"
+            if (o, lo) in by and by[(o, lo)].get("hold_force_error", {}).get("std") is not None
+        )
+        out.append(
+            "The same loop acts before the trajectory, while the TCP is held on the table and the posture "
+            f"converges: force-error STD during that phase at μ = {hi:g}: {hold_txt} (μ = {lo:g}: {hold_lo}). "
+            "Micro-vibrations of the TCP slide in both directions, so half of the time the lagged shaping term "
+            "injects energy; this also keeps the joints moving, so at high friction the protocol's 'self-motion "
+            "has stopped' criterion is rarely met and the convergence phase ends at its timeout."
         )
     diags = doc.get("diagnostics", [])
     for d in diags:
