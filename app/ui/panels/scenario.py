@@ -17,6 +17,7 @@ from app.ui.panels.base import Knob, KnobPanel, coerce, notify
 DEFAULT_ROBOT = "scenario default"
 NO_CASE = "–"
 STEPS = {"1 ms": 1, "10 ms": 10, "100 ms": 100}
+SLOW_WARNING = 0.95  # say so when the real-time factor stays below this share of the requested speed
 FALLBACK_SHOW_S = 2.0  # keep the fallback badge up this long after the last fallback step
 
 INTRO = (
@@ -167,6 +168,8 @@ class ScenarioPanel(KnobPanel):
         )
         if st.drag_client is not None:
             status += f" · dragging ({st.signals.get('drag_force_n', 0.0):.0f} N)"
+        if st.running and 0.0 < st.rtf < SLOW_WARNING * st.speed:
+            status += "  \n⏱ slower than requested: this machine cannot keep up right now"
         if self.status_md.content != status:
             self.status_md.content = status
         now = time.time()
