@@ -184,3 +184,24 @@ def test_nonsense_sent_over_the_websocket_is_refused_and_the_server_keeps_runnin
     assert _wait(lambda: app.publisher.frames_shown > shown)  # the publisher still shows frames
     with urllib.request.urlopen(app.url, timeout=10) as resp:
         assert resp.status == 200
+
+
+def test_status_shows_the_fallback_badge_the_halt_message_and_a_slow_machine(app):
+    import dataclasses
+
+    from app.ui.panels.scenario import ScenarioPanel
+
+    panel = next(p for p in app.panels if isinstance(p, ScenarioPanel))
+    frame = app.loop.wait_frame(0, timeout=5.0)
+    assert frame is not None
+    base = frame.status
+    ok = dataclasses.replace(base, running=True, rtf=1.0, speed=1.0, fallback=False, halted="")
+    panel.live(dataclasses.replace(frame, status=ok))
+    assert not panel.fallback_md.visible and not panel.halted_md.visible
+    assert "slower than requested" not in panel.status_md.content
+    bad = dataclasses.replace(
+        base, running=True, rtf=0.5, speed=1.0, fallback=True, fallback_steps=base.fallback_steps + 3, halted="x"
+    )
+    panel.live(dataclasses.replace(frame, status=bad))
+    assert panel.fallback_md.visible and panel.halted_md.visible and "Reset" in panel.halted_md.content
+    assert "slower than requested" in panel.status_md.content
