@@ -192,6 +192,8 @@ def test_status_shows_the_fallback_badge_the_halt_message_and_a_slow_machine(app
     from app.ui.panels.scenario import ScenarioPanel
 
     panel = next(p for p in app.panels if isinstance(p, ScenarioPanel))
+    app.loop.sync()
+    time.sleep(0.3)  # the paused app publishes nothing new: the publisher leaves the panel alone
     frame = app.loop.wait_frame(0, timeout=5.0)
     assert frame is not None
     base = frame.status
