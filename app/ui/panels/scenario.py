@@ -73,7 +73,7 @@ class ScenarioPanel(KnobPanel):
         self.speed = gui.add_slider("Speed (× real time)", lo, hi, 0.05, 1.0)
         self.status_md = gui.add_markdown("")
         self.fallback_md = gui.add_markdown(
-            "⚠️ **QP fallback** — a QP failed; a fallback torque was used.", visible=False
+            "**QP fallback!** A QP failed in the last seconds; a fallback torque was used.", visible=False
         )
         self.halted_md = gui.add_markdown("", visible=False)
 
@@ -169,7 +169,7 @@ class ScenarioPanel(KnobPanel):
         if st.drag_client is not None:
             status += f" · dragging ({st.signals.get('drag_force_n', 0.0):.0f} N)"
         if st.running and 0.0 < st.rtf < SLOW_WARNING * st.speed:
-            status += "  \n⏱ slower than requested: this machine cannot keep up right now"
+            status += "  \n**Slower than requested:** this machine cannot keep up right now."
         if self.status_md.content != status:
             self.status_md.content = status
         now = time.time()
@@ -179,7 +179,7 @@ class ScenarioPanel(KnobPanel):
         show = now - self._last_fallback_wall < FALLBACK_SHOW_S
         if self.fallback_md.visible != show:
             self.fallback_md.visible = show
-        halted = f"⛔ **Paused:** {st.halted}. Press **Reset**." if st.halted else ""
+        halted = f"**Paused:** {st.halted}. Press **Reset**." if st.halted else ""
         if self.halted_md.content != halted:
             self.halted_md.content = halted
         if self.halted_md.visible != bool(halted):
