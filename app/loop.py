@@ -52,7 +52,7 @@ T = TypeVar("T")
 SPEED_RANGE = (0.1, 1.0)
 PLOT_WINDOW_S = 10.0
 WAKE_STEPS = 2  # the loop sleeps until this many steps are due, then runs them in one burst
-SETTINGS_TARGETS = ("executor", "environment", "sensor", "drag", "target")
+SETTINGS_TARGETS = ("executor", "environment", "sensor", "drag", "target", "world")
 FORCE_SETPOINT_RANGE_N = (-100.0, 100.0)
 DRAG_FIELDS = ("max_force_n", "stiffness_per_s2", "damping_ratio")
 
@@ -523,6 +523,8 @@ class SimLoop:
                 setattr(s.drag, key, float(value))
         elif target == "target":
             self._configure_task_target(changes)
+        elif target == "world":
+            s.world.configure(**changes)
 
     def _configure_task_target(self, changes: dict[str, Any]) -> None:
         """The task target's settings: `force_setpoint_n`, the desired F^e along +z (N) [T12]."""
@@ -567,6 +569,7 @@ class SimLoop:
             "sensor": settings_of(s.sensor),
             "drag": {k: float(getattr(s.drag, k)) for k in DRAG_FIELDS},
             "target": {},
+            "world": s.world.settings(),
         }
 
     def _notify(self, level: str, title: str, body: str, client_id: int | None = None) -> None:

@@ -73,3 +73,13 @@ def test_oscillation_count_counts_velocity_reversals():
     assert count_oscillations(np.exp(-5 * t)) == 0
     assert count_oscillations(np.sin(2 * np.pi * 3 * t)) == 5
     assert count_oscillations(0.01 * np.sin(2 * np.pi * 3 * t)) == 0  # inside the hysteresis band
+
+
+def test_a_few_ms_of_torque_delay_make_a_high_lambda_ring_but_not_a_low_one():
+    """With 5 ms of actuator latency the damper at λ = 500 chatters against the limit while
+    λ = 100 still stops cleanly (the report's latency check; the app's Safety → Torque delay)."""
+    low = run_drop("proposed", 100.0, 3.0, True, "position", DURATION, delay_steps=5)
+    high = run_drop("proposed", 500.0, 3.0, True, "position", DURATION, delay_steps=5)
+    assert low["torque_delay_ms"] == high["torque_delay_ms"] == pytest.approx(5.0)
+    assert low["oscillations"] == 0 and low["max_violation"] < 0.0
+    assert high["oscillations"] >= 10

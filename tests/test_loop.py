@@ -161,6 +161,18 @@ def test_environment_and_drag_settings_survive_a_reset(loop):
     assert loop.settings.values["drag"]["max_force_n"] == 42.0
 
 
+def test_simulated_torque_delay_is_a_world_setting_that_survives_a_reset(loop):
+    loop.submit(Configure("world", {"torque_delay_ms": 5.0}, client_id=7))
+    loop.submit(Reset())
+    loop.sync()
+    assert loop.session.world.torque_delay_steps == 5
+    assert loop.settings.values["world"]["torque_delay_ms"] == pytest.approx(5.0)
+    n0 = len(loop.notice_log)
+    loop.submit(Configure("world", {"torque_delay_ms": 1e9}, client_id=7))
+    loop.sync()
+    assert len(loop.notice_log) == n0 + 1 and loop.session.world.torque_delay_steps == 5
+
+
 def test_executor_switch_keeps_the_simulation_state(loop):
     loop.submit(StepOnce(10))
     loop.sync()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from app.check import TOLERANCE, cross_check
 from app.sim.world import World
@@ -36,3 +37,33 @@ def test_applied_tcp_force_shows_in_sensor_wrench_and_joint_torque(rizon):
     np.testing.assert_allclose(wrench[3:], np.cross(p_tcp - p_sensor, force), atol=1e-12)
     J = model.compute(world.q, world.dq).J
     np.testing.assert_allclose(world.external_joint_torque(), J[:3].T @ force, atol=1e-10)
+
+
+def test_torque_delay_applies_each_command_that_many_steps_later(rizon):
+    world = World(rizon)
+    world.configure(torque_delay_ms=3.0)
+    assert world.settings() == {"torque_delay_ms": 3.0}
+    commands = [np.full(7, float(k)) for k in range(10)]
+    applied = []
+    for tau in commands:
+        world.step(tau)
+        applied.append(world.tau_applied[0])
+    # the first command is held until the 3-step pipeline has filled, then each arrives 3 steps late
+    assert applied == [0.0, 0.0, 0.0, 0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+    world.reset(rizon.home)  # a reset empties the pipeline but keeps the setting
+    world.step(np.full(7, 9.0))
+    assert world.tau_applied[0] == 9.0 and world.torque_delay_steps == 3
+
+
+def test_torque_delay_refuses_nonsense(rizon):
+    world = World(rizon)
+    for bad in (
+        {"torque_delay_ms": -1.0},
+        {"torque_delay_ms": float("nan")},
+        {"torque_delay_ms": 1e9},
+        {"torque_delay_ms": "5"},
+        {"latency": 1.0},
+    ):
+        with pytest.raises(ValueError):
+            world.configure(**bad)
+    assert world.torque_delay_steps == 0

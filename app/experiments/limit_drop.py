@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +16,6 @@ import numpy as np
 from app.experiments.c_common import html_table, qp_session, run_parallel, verdict, write_json, write_report
 from app.scenarios.limit_drop import DURATION_S, FALLING_JOINT, LimitDropScenario
 from control.compliance_qp import ComplianceQPExecutor
-from control.executor import ControlOutput
 from control.gains import DamperGains
 
 LAMBDAS_AT_M3 = (70.0, 100.0, 300.0, 500.0)
@@ -30,30 +28,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of this experiment."""
     parser.add_argument("--duration", type=float, default=DURATION_S, help="seconds per drop (default 3)")
     parser.add_argument("--quick", action="store_true", help="only λ=100, M=2 and the classic form")
-
-
-class DelayedExecutor:
-    """Applies the torque its inner executor computed `steps` control periods earlier (gravity
-    compensation until the first one arrives): a stand-in for torque-loop and link latency."""
-
-    def __init__(self, inner, steps: int):
-        self.inner = inner
-        self.name = inner.name
-        self.steps = int(steps)
-        self.queue: deque = deque()
-
-    def reset(self, dyn, target) -> None:
-        self.inner.reset(dyn, target)
-        self.queue.clear()
-
-    def configure(self, **changes: object) -> None:
-        self.inner.configure(**changes)
-
-    def step(self, dyn, inputs) -> ControlOutput:
-        out = self.inner.step(dyn, inputs)
-        self.queue.append(out.tau.copy())
-        tau = self.queue.popleft() if len(self.queue) > self.steps else dyn.h.copy()
-        return ControlOutput(tau=tau, fallback=out.fallback, info=out.info)
 
 
 def variants(quick: bool = False) -> list[tuple[str, float, float]]:
@@ -100,8 +74,8 @@ def run_drop(
     scenario.configure_executor(executor, robot, gains, feedback=feedback)
     if observer_gain is not None:
         executor.configure(observer_gain=observer_gain)
-    if delay_steps > 0:
-        session.executor = DelayedExecutor(executor, delay_steps)  # type: ignore[assignment]
+    if delay_steps > 0:  # actuator latency in the simulation (the app's Safety → Torque delay)
+        session.world.configure(torque_delay_ms=delay_steps * 1e3 * session.world.model.opt.timestep)
     session.reset()
     j = FALLING_JOINT
     steps = round(duration / session.world.model.opt.timestep)

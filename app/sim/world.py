@@ -9,6 +9,7 @@ compute the true wrench at the flange.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -19,6 +20,7 @@ import pinocchio as pin
 from robots import SENSOR_FRAME, TCP_FRAME, RobotDescription
 
 TIMESTEP_S = 1e-3
+MAX_TORQUE_DELAY_MS = 50.0  # actuator latency the simulation accepts (torque loop, bus, filters)
 
 
 @dataclass
@@ -108,6 +110,8 @@ class World:
         self.wrist_body = int(self.model.site_bodyid[self.tcp_site])
         self.applied: list[AppliedForce] = []
         self.tau_applied = np.zeros(len(robot.joint_names))
+        self.torque_delay_steps = 0
+        self._tau_pipeline: deque[np.ndarray] = deque()
         self.reset(robot.home)
 
     # ---- state -----------------------------------------------------------------------------
@@ -131,6 +135,28 @@ class World:
         mujoco.mj_forward(self.model, self.data)
         self.applied.clear()
         self.data.qfrc_applied[:] = 0.0
+        self._tau_pipeline.clear()
+
+    # ---- settings ---------------------------------------------------------------------------
+    def settings(self) -> dict[str, float]:
+        """The simulation's own tunables (the app's "world" settings target)."""
+        return {"torque_delay_ms": self.torque_delay_steps * self.model.opt.timestep * 1e3}
+
+    def configure(self, **changes: object) -> None:
+        """`torque_delay_ms`: actuator latency, 0 … 50 ms, rounded to whole timesteps. Torques
+        reach the joints that much later (an ideal torque source is 0). ValueError otherwise."""
+        for key, value in changes.items():
+            if key != "torque_delay_ms":
+                raise ValueError(f"the simulation has no setting {key!r}")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+                raise ValueError(f"torque delay must be a number of ms, got {value!r}")
+            if not 0.0 <= float(value) <= MAX_TORQUE_DELAY_MS:
+                raise ValueError(f"torque delay must be between 0 and {MAX_TORQUE_DELAY_MS:g} ms, got {value!r}")
+        if "torque_delay_ms" in changes:
+            steps = round(float(changes["torque_delay_ms"]) * 1e-3 / self.model.opt.timestep)  # type: ignore[arg-type]
+            self.torque_delay_steps = int(steps)
+            while len(self._tau_pipeline) > self.torque_delay_steps:
+                self._tau_pipeline.popleft()
 
     def site_pose(self, site_id: int) -> tuple[np.ndarray, np.ndarray]:
         """(position, rotation matrix) of a site in the world."""
@@ -186,8 +212,15 @@ class World:
 
     # ---- stepping ---------------------------------------------------------------------------
     def step(self, tau: np.ndarray) -> None:
-        """Advance one timestep with joint torques τ (clipped to the motor limits), then clear forces."""
+        """Advance one timestep with joint torques τ (clipped to the motor limits), then clear forces.
+        With a torque delay of d steps the motors apply the command of d steps ago (the first
+        command is held until the pipeline has filled)."""
         ctrl = np.clip(tau, -self.robot.tau_max, self.robot.tau_max)
+        if self.torque_delay_steps > 0:
+            self._tau_pipeline.append(ctrl)
+            ctrl = self._tau_pipeline[0]
+            if len(self._tau_pipeline) > self.torque_delay_steps:
+                self._tau_pipeline.popleft()
         self.tau_applied = ctrl
         self.data.ctrl[self.actuator_ids] = ctrl
         mujoco.mj_step(self.model, self.data)

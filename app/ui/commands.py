@@ -76,7 +76,8 @@ class SwitchSession:
 class Configure:
     """Change settings of one part of the session between two steps.
 
-    target: "executor", "environment", "sensor" or "drag" (`max_force_n`, `stiffness_per_s2`).
+    target: "executor", "environment", "sensor", "target", "drag" (`max_force_n`, `stiffness_per_s2`)
+    or "world" (the simulation itself: `torque_delay_ms`).
     A refused change (ValueError) is reported to `client_id` and leaves everything unchanged.
     """
 

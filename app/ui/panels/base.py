@@ -1,7 +1,7 @@
 """Knobs: one GUI input bound to one setting of the running session.
 
 A `Knob` names the `configure()` key it writes, the target it belongs to ("executor",
-"environment", "sensor", "drag", "target"), how to read its current value from the session
+"environment", "sensor", "drag", "target", "world"), how to read its current value from the session
 (`read`: dotted attribute paths tried in order, e.g. "damper.gains.lambda_"), and the input kind.
 `KnobPanel` builds a folder of knobs, writes each change as a `Configure` command (never touching
 the session), checks the value first (kind, finite, range) and refuses nonsense with a
@@ -72,6 +72,7 @@ def target_object(session: Session, target: str) -> Any:
         "sensor": session.sensor,
         "drag": session.drag,
         "target": session.target_fn,
+        "world": session.world,
     }.get(target)
 
 
@@ -103,7 +104,7 @@ def make_settings_reader(knobs: Sequence[Knob]) -> Callable[[Session], dict[str,
 
     def read(session: Session) -> dict[str, dict[str, Any]]:
         out: dict[str, dict[str, Any]] = {}
-        for target in ("executor", "environment", "sensor", "target"):
+        for target in ("executor", "environment", "sensor", "target", "world"):
             obj = target_object(session, target)
             out[target] = settings_of(obj) if obj is not None else {}
         out["meta"] = {"executor_scalars": configurable_scalars(session.executor, out["executor"])}

@@ -10,7 +10,8 @@ from app.ui.panels.base import Knob, KnobPanel
 INTRO = (
     "Near a joint limit the damper bounds the acceleration: proposed ë_p = −λė − λ²/(4M²)(e − d_s) "
     "[C24] or classic δt form [C17–19]; it acts inside d_i and stops at d_s. Torque limits add [C10]. "
-    "For the projection executor the nullspace QP uses first-order dampers with d_i, d_s in rad."
+    "For the projection executor the nullspace QP uses first-order dampers with d_i, d_s in rad. "
+    "Torque delay is the simulated actuator latency (0 = ideal torque source)."
 )
 
 FORMS = ("proposed", "classic")
@@ -95,6 +96,15 @@ KNOBS: tuple[Knob, ...] = (
         kind="checkbox",
         read=("settings.torque_limits",),
         hint="Torque limits on τ_d including τ̂_e as QP constraints [C10]",
+    ),
+    Knob(
+        "torque_delay_ms",
+        "Torque delay (ms)",
+        target="world",
+        lo=0.0,
+        hi=20.0,
+        step=1.0,
+        hint="Simulated actuator latency: the joints get each torque this late. A few ms make a high λ ring.",
     ),
 )
 
