@@ -64,6 +64,10 @@ class App:
             return
         self.stopped = True
         self.publisher.stop()
+        for panel in self.panels:
+            stop = getattr(panel, "stop", None)
+            if callable(stop):
+                stop()
         self.loop.stop()
         with contextlib.redirect_stdout(io.StringIO()):
             self.server.stop()

@@ -410,6 +410,40 @@ def swivel_scan(
     return SwivelScan(np.array(psis), Q, W[:, 0], W[:, 1], W[:, 2], inside, closed)
 
 
+def flow_minimum(values: np.ndarray, feasible: np.ndarray, start: int = 0, closed: bool = True) -> int:
+    """Index where a gradient flow from `start` settles along a sampled self-motion loop.
+
+    In one dimension the flow of [T15] walks downhill: towards the neighbour with the smaller W,
+    then on while W keeps falling. It stops at a local minimum, or before a sample outside the
+    joint limits (the dampers stop it there). `closed`: the last sample neighbours the first.
+    """
+    W = np.asarray(values, dtype=float)
+    ok = np.asarray(feasible, dtype=bool)
+    k = len(W)
+    assert ok.shape == (k,) and 0 <= start < k
+
+    def neighbour(i: int, d: int) -> int | None:
+        j = i + d
+        if closed:
+            return j % k
+        return j if 0 <= j < k else None
+
+    best_dir, best_value = 0, W[start]
+    for d in (-1, 1):
+        j = neighbour(start, d)
+        if j is not None and ok[j] and W[j] < best_value:
+            best_dir, best_value = d, W[j]
+    i = start
+    for _ in range(k):
+        if best_dir == 0:
+            break
+        j = neighbour(i, best_dir)
+        if j is None or not ok[j] or W[j] >= W[i] or j == start:
+            break
+        i = j
+    return i
+
+
 def within_limits_mod_2pi(q: np.ndarray, q_lower: np.ndarray, q_upper: np.ndarray) -> np.ndarray:
     """Per joint: True if q, q − 2π or q + 2π lies inside [q_lower, q_upper].
 

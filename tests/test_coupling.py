@@ -161,3 +161,18 @@ def test_direct_gradient_equals_the_dLambda_form(robot, axes):
             W2, g2 = c.coupling_gradient_direct(model, dyn, terms, sub, objective)
             assert W2 == pytest.approx(W1, rel=1e-12)
             np.testing.assert_allclose(g2, g1, atol=1e-9 * np.abs(g1).max())
+
+
+def test_flow_minimum_walks_downhill_and_stops_at_minima_and_limits():
+    W = np.array([5.0, 4.0, 3.0, 3.5, 6.0, 7.0, 2.0, 1.0, 6.0])
+    ok = np.ones(len(W), dtype=bool)
+    assert c.flow_minimum(W, ok, start=0) == 2  # downhill to the right, stops at the local minimum
+    assert c.flow_minimum(W, ok, start=5) == 7  # takes the steeper of its two downhill sides
+    assert c.flow_minimum(W, ok, start=8) == 7
+    # closed loop: from 0 the left neighbour (index 8, W = 6) is higher, so it still goes right
+    ok_blocked = ok.copy()
+    ok_blocked[2] = False
+    assert c.flow_minimum(W, ok_blocked, start=0) == 1  # a joint limit stops the flow before it
+    assert c.flow_minimum(np.array([2.0, 1.0, 3.0]), np.ones(3, bool), start=1) == 1  # already at a minimum
+    assert c.flow_minimum(np.array([1.0, 2.0, 3.0]), np.ones(3, bool), start=2, closed=True) == 0
+    assert c.flow_minimum(np.array([1.0, 2.0, 3.0]), np.ones(3, bool), start=2, closed=False) == 0

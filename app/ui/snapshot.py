@@ -53,6 +53,7 @@ class SceneSnapshot:
     near_singular: bool = False  # Λx damped or ill-conditioned (NEAR_SINGULAR_EIG): no coupling shapes
     payload_position: np.ndarray | None = None  # (3,) attached payload mass (mass-drop, limit-drop), if any
     payload_mass_kg: float = 0.0
+    q: np.ndarray | None = None  # (7,) rad, joint positions (the self-motion preview starts from them)
 
     @cached_property
     def subspaces(self) -> Subspaces:
@@ -136,6 +137,7 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         objective=_objective(session),
         limit_zone=_limit_zone(session),
         near_singular=bool(dyn.near_singular or dyn.min_eig_Lambda_inv < NEAR_SINGULAR_EIG),
+        q=q,
         **_payload(session),
     )
 

@@ -10,6 +10,7 @@ import viser
 from app.loop import Frame, SimLoop
 from app.ui.commands import Configure
 from app.ui.panels.base import TOUCH_HOLD_S, Knob, KnobPanel, coerce, notify
+from app.ui.selfmotion import SelfMotionPreview
 
 INTRO = (
     "The nullspace QP moves the elbow at q̂̇ = argmin ½‖q̂̇‖² + k0 ∇Wᵀq̂̇ with J q̂̇ = 0 [T15–17]. "
@@ -55,13 +56,18 @@ class NullspacePanel(KnobPanel):
         super().__init__(server, loop, "Nullspace", INTRO, KNOBS, order=order)
 
     def build_extra_bottom(self) -> None:
-        """The k0 slider and the live W line."""
+        """The k0 slider, the live W line and the self-motion preview."""
         gui = self.server.gui
         self.k0: Any = gui.add_slider("k0", 0.0, 1.0, 0.001, 0.0, hint="Gradient gain of the selected objective [T15]")
         self.k0.disabled = True
         self._k0_key = ""
         self.k0.on_update(self._on_k0)
         self.values = gui.add_markdown("")
+        self.preview = SelfMotionPreview(self.server)
+
+    def stop(self) -> None:
+        """End the preview's worker thread."""
+        self.preview.stop()
 
     def _on_k0(self, event: viser.GuiEvent) -> None:
         if event.client_id is None or not self._k0_key:
@@ -100,7 +106,8 @@ class NullspacePanel(KnobPanel):
         return time.time() - handle.update_timestamp < TOUCH_HOLD_S
 
     def live(self, frame: Frame) -> None:
-        """W_j, W_f, W_a, W_d now."""
+        """W_j, W_f, W_a, W_d now; the newest posture for the self-motion preview."""
+        self.preview.feed(frame)
         sig = frame.status.signals
         scene_W = getattr(frame.scene, "W", None) or {}
         parts = []

@@ -1,0 +1,271 @@
+"""Self-motion preview: where the nullspace objective would take the elbow (DESIGN §8).
+
+At a fixed TCP pose the self-motion of a 7-DOF arm is a one-dimensional loop (the elbow swivel).
+W_f, W_a and W_d have several local minima along it, and the gradient flow of [T15] only finds the
+nearest one downhill. When switched on, the preview traces that loop through the current posture
+about once a second (`control.coupling.swivel_scan`, on its own `RobotModel` in a worker thread, so
+the simulation's model is never shared), plots the chosen W along it with the current posture, the
+flow's end and the best posture inside the joint limits marked, and draws a translucent ghost arm
+at one of them. Nothing here touches the session: it reads the joint positions of the last frame.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+import viser
+
+from control.coupling import Subspaces, flow_minimum, swivel_scan
+from control.model import RobotModel
+from robots import RobotDescription
+
+PREVIEW_PERIOD_S = 1.0  # s between two scans while the preview is on (a scan takes ~0.1 s)
+GHOST_COLOR = (110, 130, 255)
+GHOST_OPACITY = 0.35
+AS_CONTROLLER = "as the controller"
+OBJECTIVE_CHOICES = (AS_CONTROLLER, "W_f", "W_a", "W_d")
+GHOST_CHOICES = ("where the flow settles", "best inside the limits", "hidden")
+INTRO = (
+    "The elbow's self-motion at the current TCP pose is a loop (swivel angle, 0° = elbow up). "
+    "The scan shows W along it: the flow of [T15] only reaches the nearest minimum downhill; "
+    "the ghost arm shows where it settles or the best posture inside the joint limits."
+)
+
+
+@dataclass(frozen=True)
+class Preview:
+    """One scan of the self-motion loop for one objective (angles in degrees)."""
+
+    objective: str  # "f", "a" or "d"
+    swivel_deg: np.ndarray  # (k,) unwrapped from the current posture's swivel, increasing
+    W: np.ndarray  # (k,) the objective along the loop
+    feasible: np.ndarray  # (k,) bool: every joint inside its position limits
+    q: np.ndarray  # (k, 7) postures along the loop
+    flow: int  # index where the gradient flow from index 0 (the current posture) settles
+    best: int | None  # index of the smallest W inside the limits, None if no sample is inside
+
+    @property
+    def name(self) -> str:
+        return f"W_{self.objective}"
+
+    def summary(self) -> str:
+        """One line in words: now, where the flow settles, the best feasible posture."""
+        name, deg = self.name, self.swivel_deg
+        text = f"Now {name} = {self.W[0]:.3g} at {_deg(deg[0])}; the flow settles at {_deg(deg[self.flow])} "
+        text += f"({name} = {self.W[self.flow]:.3g})"
+        if self.best is None:
+            return text + "; no posture on the loop is inside all joint limits."
+        if self.best == self.flow:
+            return text + ", which is also the best posture inside the joint limits."
+        best = f"{_deg(deg[self.best])} ({name} = {self.W[self.best]:.3g})"
+        return text + f"; the best inside the joint limits is {best}."
+
+
+def _deg(value: float) -> str:
+    wrapped = (float(value) + 180.0) % 360.0 - 180.0
+    return f"{wrapped:+.0f}°"
+
+
+def preview_objective(choice: str, controller_objective: str | None) -> str:
+    """The objective letter a dropdown choice stands for (W_a when the controller's is W_j or none)."""
+    if choice == AS_CONTROLLER:
+        return controller_objective if controller_objective in ("f", "a", "d") else "a"
+    if choice not in OBJECTIVE_CHOICES:
+        raise ValueError(f"unknown objective {choice!r}")
+    return choice[2:]
+
+
+def scan_preview(model: RobotModel, robot: RobotDescription, q: np.ndarray, sub: Subspaces, objective: str) -> Preview:
+    """Trace the self-motion loop through q and find the flow's end and the best feasible posture."""
+    scan = swivel_scan(model, np.asarray(q, dtype=float), sub, robot.q_lower, robot.q_upper)
+    values = {"f": scan.W_f, "a": scan.W_a, "d": scan.W_d}[objective]
+    feasible = np.asarray(scan.within_limits, dtype=bool)
+    flow = flow_minimum(values, feasible, start=0, closed=scan.closed)
+    inside = np.flatnonzero(feasible)
+    best = int(inside[np.argmin(values[inside])]) if inside.size else None
+    return Preview(objective, np.rad2deg(scan.swivel_rad), values, feasible, scan.q, flow, best)
+
+
+def link_poses(model: RobotModel, robot: RobotDescription, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World positions (L, 3) and quaternions (L, 4, wxyz) of `robot.link_names` at q."""
+    data = model.model.createData()
+    pin.framesForwardKinematics(model.model, data, np.asarray(q, dtype=float))
+    positions, wxyz = [], []
+    for name in robot.link_names:
+        pose = data.oMf[model.model.getFrameId(name)]
+        x, y, z, w = pin.Quaternion(pose.rotation).coeffs()
+        positions.append(pose.translation.copy())
+        wxyz.append((w, x, y, z))
+    return np.array(positions), np.array(wxyz)
+
+
+class SelfMotionPreview:
+    """The preview's inputs (inside the Nullspace folder), its plot and its ghost arm."""
+
+    def __init__(self, server: viser.ViserServer):
+        self.server = server
+        gui = server.gui
+        with gui.add_folder("Self-motion preview", expand_by_default=False):
+            gui.add_markdown(INTRO)
+            self.enabled = gui.add_checkbox("Scan once a second", False, hint="Trace the self-motion loop [T15–22]")
+            self.objective = gui.add_dropdown("Scan W", OBJECTIVE_CHOICES, initial_value=AS_CONTROLLER)
+            self.ghost_at = gui.add_dropdown("Ghost arm", GHOST_CHOICES, initial_value=GHOST_CHOICES[0])
+            self.text = gui.add_markdown("")
+            self.plot = gui.add_uplot(
+                tuple(np.zeros(2) for _ in range(6)),
+                (
+                    {"label": "swivel (°)"},
+                    _line("W inside the limits", "#1f77b4", 2.0),
+                    _line("beyond a limit", "#aaaaaa", 1.0, dash=(4.0, 4.0)),
+                    _marker("now", "#222222"),
+                    _marker("flow settles", "#6e82ff"),
+                    _marker("best", "#2ca02c"),
+                ),
+                title="W along the self-motion loop",
+                scales={"x": {"time": False}, "y": {"distr": 3}},
+                aspect=1.6,
+            )
+        self.latest: Preview | None = None
+        self.scans = 0
+        self._input: tuple[Any, np.ndarray, Subspaces, str | None] | None = None
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._models: dict[str, RobotModel] = {}
+        self._ghost: dict[str, viser.MeshHandle] = {}
+        self._ghost_robot: str | None = None
+        for handle in (self.enabled, self.objective, self.ghost_at):
+            handle.on_update(lambda _: self._wake.set())
+        self._thread = threading.Thread(target=self._run, name="torquelab-selfmotion", daemon=True)
+        self._thread.start()
+
+    # ---- input from the publisher ---------------------------------------------------------------
+    def feed(self, frame: Any) -> None:
+        """Remember the newest posture (called a few times a second with the loop's frame)."""
+        scene: Any = getattr(frame, "scene", None)
+        q = getattr(scene, "q", None)
+        if scene is None or q is None or not np.all(np.isfinite(q)) or getattr(scene, "near_singular", False):
+            return
+        with self._lock:
+            self._input = (frame.robot, np.array(q, dtype=float), scene.subspaces, scene.objective)
+
+    def stop(self) -> None:
+        """End the worker thread."""
+        self._stop.set()
+        self._wake.set()
+        self._thread.join(timeout=2.0)
+
+    # ---- worker ---------------------------------------------------------------------------------
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self._wake.wait(PREVIEW_PERIOD_S)
+            self._wake.clear()
+            if self._stop.is_set():
+                return
+            try:
+                self._tick()
+            except Exception:  # a failed scan must not end the preview
+                traceback.print_exc()
+
+    def _tick(self) -> None:
+        if not self.enabled.value:
+            self._show_ghost(None, None)
+            return
+        with self._lock:
+            job = self._input
+        if job is None:
+            return
+        robot, q, sub, controller_objective = job
+        model = self._model_for(robot)
+        result = scan_preview(model, robot, q, sub, preview_objective(str(self.objective.value), controller_objective))
+        self.latest = result
+        self.scans += 1
+        self._show_plot(result)
+        index = {GHOST_CHOICES[0]: result.flow, GHOST_CHOICES[1]: result.best}.get(str(self.ghost_at.value))
+        self._show_ghost(robot, None if index is None else result.q[index])
+
+    def _model_for(self, robot: RobotDescription) -> RobotModel:
+        key = str(robot.urdf_path)
+        if key not in self._models:
+            self._models.clear()
+            self._models[key] = RobotModel(robot.model)
+        return self._models[key]
+
+    def _show_plot(self, p: Preview) -> None:
+        x = p.swivel_deg
+        inside = np.where(p.feasible, p.W, np.nan)
+        outside = np.where(p.feasible, np.nan, p.W)
+        marks = []
+        for index in (0, p.flow, p.best):
+            m = np.full(len(x), np.nan)
+            if index is not None:
+                m[index] = p.W[index]
+            marks.append(m)
+        self.plot.data = (x, inside, outside, *marks)
+        self.plot.title = f"{p.name} along the self-motion loop"
+        text = p.summary()
+        if self.text.content != text:
+            self.text.content = text
+
+    def _show_ghost(self, robot: RobotDescription | None, q: np.ndarray | None) -> None:
+        if robot is None or q is None:
+            for handle in self._ghost.values():
+                if handle.visible:
+                    handle.visible = False
+            return
+        if self._ghost_robot != str(robot.urdf_path):
+            self._build_ghost(robot)
+        positions, wxyz = link_poses(self._model_for(robot), robot, q)
+        with self.server.atomic():
+            for i, name in enumerate(robot.link_names):
+                if name not in self._ghost:
+                    continue
+                handle = self._ghost[name]
+                handle.position = tuple(positions[i])
+                handle.wxyz = tuple(wxyz[i])
+                handle.visible = True
+
+    def _build_ghost(self, robot: RobotDescription) -> None:
+        from app.ui.scene import link_meshes  # the scene module builds the same link shapes
+
+        for handle in self._ghost.values():
+            handle.remove()
+        self._ghost.clear()
+        for name, mesh in link_meshes(str(robot.urdf_path)).items():
+            self._ghost[name] = self.server.scene.add_mesh_simple(
+                f"/ghost/{name}",
+                mesh.vertices,
+                mesh.faces,
+                color=GHOST_COLOR,
+                opacity=GHOST_OPACITY,
+                cast_shadow=False,
+                receive_shadow=False,
+                visible=False,
+            )
+        self._ghost_robot = str(robot.urdf_path)
+
+    @property
+    def ghost_visible(self) -> bool:
+        """True while the ghost arm is drawn."""
+        return any(h.visible for h in self._ghost.values())
+
+    def wait_scans(self, count: int, timeout: float = 10.0) -> bool:
+        """Wait until `count` scans have been made (for tests)."""
+        deadline = time.monotonic() + timeout
+        while self.scans < count and time.monotonic() < deadline:
+            time.sleep(0.02)
+        return self.scans >= count
+
+
+def _line(label: str, color: str, width: float, **extra: Any) -> Any:
+    return {"label": label, "stroke": color, "width": width, **extra}
+
+
+def _marker(label: str, color: str) -> Any:
+    return {"label": label, "stroke": color, "width": 0, "points": {"show": True, "size": 9, "fill": color}}

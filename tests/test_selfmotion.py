@@ -1,0 +1,110 @@
+"""Self-motion preview: the scan predicts where the gradient flow settles; the app shows it."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import viser
+
+from app.scenarios import get_scenario
+from app.server import start_app
+from app.sim.world import World
+from app.ui.panels.nullspace import NullspacePanel
+from app.ui.selfmotion import AS_CONTROLLER, link_poses, preview_objective, scan_preview
+from control import coupling as c
+from control.model import RobotModel
+
+
+def _nullspace_descent(model: RobotModel, q: np.ndarray, objective: str, step_rad: float = 0.01) -> np.ndarray:
+    """Steepest descent of W in the nullspace of J with fixed-length joint steps, pulled back onto
+    the TCP pose, until W stops falling (an independent stand-in for the flow of [T15])."""
+    pose = model.frame_pose(q, "tcp")
+    sub = c.POLISH_SUBSPACES
+    W_prev = np.inf
+    for _ in range(2000):
+        dyn = model.compute(q, np.zeros(7))
+        W, grad = c.objective_gradient(objective, dyn, sub, model)
+        if W >= W_prev:
+            break
+        W_prev = W
+        J = dyn.J
+        direction = -(grad - J.T @ np.linalg.solve(J @ J.T, J @ grad))  # −(I − J⁺J)∇W
+        q = c.project_to_pose(model, q + step_rad * direction / np.linalg.norm(direction), *_pose(pose))
+    return q
+
+
+def _pose(pose) -> tuple[np.ndarray, np.ndarray]:
+    return pose.translation, pose.rotation
+
+
+@pytest.mark.parametrize("objective", ["f", "a", "d"])
+def test_scan_predicts_where_the_gradient_flow_settles(rizon, objective):
+    model = RobotModel(rizon.model)
+    q0 = get_scenario("polish").initial_q(rizon)
+    preview = scan_preview(model, rizon, q0, c.POLISH_SUBSPACES, objective)
+    assert preview.feasible[0] and preview.feasible[preview.flow]
+    assert preview.W[preview.flow] < preview.W[0]
+    q_end = _nullspace_descent(model, q0, objective)
+    settled = np.rad2deg(c.swivel_angle(model, q_end) - c.swivel_angle(model, q0))
+    predicted = preview.swivel_deg[preview.flow] - preview.swivel_deg[0]
+    wrapped = (settled - predicted + 180.0) % 360.0 - 180.0
+    assert abs(wrapped) < 4.0, (settled, predicted)  # the scan samples the loop every ≤ 3°
+
+
+def test_best_posture_is_the_smallest_W_inside_the_limits(rizon):
+    model = RobotModel(rizon.model)
+    q0 = get_scenario("polish").initial_q(rizon)
+    p = scan_preview(model, rizon, q0, c.POLISH_SUBSPACES, "a")
+    assert p.best is not None and p.feasible[p.best]
+    assert p.W[p.best] == pytest.approx(np.min(p.W[p.feasible]))
+    assert p.W[p.best] <= p.W[p.flow]
+    tcp0 = model.frame_pose(q0, "tcp")
+    tcp_best = model.frame_pose(p.q[p.best], "tcp")
+    assert np.linalg.norm(tcp_best.translation - tcp0.translation) < 1e-6  # same TCP pose, other elbow
+    assert preview_objective(AS_CONTROLLER, "j") == "a" and preview_objective(AS_CONTROLLER, "d") == "d"
+
+
+def test_ghost_link_poses_match_the_simulated_bodies(rizon):
+    model = RobotModel(rizon.model)
+    q = get_scenario("polish").initial_q(rizon)
+    world = World(rizon)
+    world.reset(q)
+    ids = [world.model.body(name).id for name in rizon.link_names]
+    positions, wxyz = link_poses(model, rizon, q)
+    np.testing.assert_allclose(positions, world.data.xpos[ids], atol=1e-12)
+    np.testing.assert_allclose(np.abs(np.sum(wxyz * world.data.xquat[ids], axis=1)), 1.0, atol=1e-12)
+
+
+def _browser_update(handle, value, client_id: int = 1) -> None:
+    handle._impl.value = value
+    for cb in handle._impl.update_cb:
+        cb(viser.GuiEvent(client=None, client_id=client_id, target=handle))
+
+
+def test_the_app_draws_the_ghost_at_the_flow_target_and_hides_it_when_off():
+    app = start_app(port=0, scenario="polish", running=False)
+    try:
+        panel = next(p for p in app.panels if isinstance(p, NullspacePanel))
+        preview = panel.preview
+        assert not preview.ghost_visible
+        _browser_update(preview.enabled, True)
+        assert preview.wait_scans(1, timeout=10.0)
+        deadline = time.monotonic() + 5.0
+        while not preview.ghost_visible and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert preview.ghost_visible
+        latest = preview.latest
+        assert latest is not None and latest.objective == "a"  # the polish controller runs W_a
+        assert "flow settles" in preview.text.content
+        x = np.asarray(preview.plot.data[0])
+        assert len(x) == len(latest.W) > 50
+        _browser_update(preview.enabled, False)
+        deadline = time.monotonic() + 5.0
+        while preview.ghost_visible and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not preview.ghost_visible
+    finally:
+        app.stop()
+    assert not preview._thread.is_alive()
