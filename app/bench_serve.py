@@ -1,9 +1,10 @@
 """`torquelab bench --serve`: the app's real-time factor with one headless Chromium client connected.
 
 Starts the app in-process on a free port (polish scenario, projection executor, W_a, every overlay
-on), opens the page in headless Chromium, waits until the page is connected and rendering, then
-measures for `--seconds` of wall time: the achieved real-time factor (simulated / wall seconds),
-its worst 1 s window, the loop's compute share, and how often the scene and plots were published.
+on, the self-motion preview scanning), opens the page in headless Chromium, waits until the page
+is connected and rendering, then measures for `--seconds` of wall time: the achieved real-time
+factor (simulated / wall seconds), its worst 1 s window, the loop's compute share, and how often
+the scene and plots were published.
 """
 
 from __future__ import annotations
@@ -36,6 +37,17 @@ def overlays_on(visual_settings: Any) -> list[str]:
     return names
 
 
+def _preview_on(app: Any) -> Any:
+    """Switch the Nullspace panel's self-motion preview on (a scan a second, ghost arm); returns it."""
+    from app.ui.panels.nullspace import NullspacePanel
+
+    for panel in app.panels:
+        if isinstance(panel, NullspacePanel):
+            panel.preview.set_enabled(True)
+            return panel.preview
+    return None
+
+
 def run_serve_bench(
     scenario: str = "polish", seconds: float = 20.0, warmup: float = 3.0, objective: str = "a", robot: str | None = None
 ) -> dict[str, Any]:
@@ -50,6 +62,7 @@ def run_serve_bench(
     app = start_app(port=0, scenario=scenario, robot=robot, running=False)
     try:
         toggles = overlays_on(app.visual_settings) if app.visual_settings is not None else []
+        preview = _preview_on(app)
         if "objective" in app.loop.settings.values.get("executor", {}):
             app.loop.submit(Configure("executor", {"objective": objective}))
         with sync_playwright() as pw:
@@ -70,6 +83,7 @@ def run_serve_bench(
             s0 = app.loop.sync()
             w0, frames0, scene0 = time.perf_counter(), app.publisher.frames_shown, app.publisher.scene_updates
             times0 = os.times()
+            scans0 = preview.scans if preview is not None else 0
             loads = []
             prev_t, prev_w = s0.t, w0
             while time.perf_counter() - w0 < seconds:
@@ -103,6 +117,7 @@ def run_serve_bench(
             "server_process_cores": process_cpu / wall,
             "frames_per_s": frames / wall,
             "scene_updates_per_s": scenes / wall,
+            "self_motion_scans_per_s": (preview.scans - scans0) / wall if preview is not None else 0.0,
             "halted": s1.halted,
             "cpu_count": os.cpu_count(),
             "load_average_1min": os.getloadavg()[0],
@@ -121,7 +136,8 @@ def cmd_bench_serve(args: argparse.Namespace) -> int:
     else:
         print(
             f"{report['scenario']} on {report['robot']} with {report['executor']} (W_{report['objective']}), "
-            f"{report['browser_clients']} browser, overlays on: {len(report['overlays_on'])}"
+            f"{report['browser_clients']} browser, overlays on: {len(report['overlays_on'])}, "
+            f"self-motion preview {report['self_motion_scans_per_s']:.1f} scans/s"
         )
         print(f"  real-time factor        {report['real_time_factor']:.3f}  over {report['wall_s']:.1f} s of wall time")
         print(f"  worst 1 s window        {report['worst_1s_real_time_factor']:.3f}")

@@ -113,7 +113,7 @@ class SelfMotionPreview:
         gui = server.gui
         with gui.add_folder("Self-motion preview", expand_by_default=False):
             gui.add_markdown(INTRO)
-            self.enabled = gui.add_checkbox("Scan once a second", False, hint="Trace the self-motion loop [T15–22]")
+            self.enabled: Any = gui.add_checkbox("Scan once a second", False, hint="Trace the self-motion loop")
             self.objective = gui.add_dropdown("Scan W", OBJECTIVE_CHOICES, initial_value=AS_CONTROLLER)
             self.ghost_at = gui.add_dropdown("Ghost arm", GHOST_CHOICES, initial_value=GHOST_CHOICES[0])
             self.text = gui.add_markdown("")
@@ -154,6 +154,11 @@ class SelfMotionPreview:
             return
         with self._lock:
             self._input = (frame.robot, np.array(q, dtype=float), scene.subspaces, scene.objective)
+
+    def set_enabled(self, on: bool) -> None:
+        """Switch the preview on or off from the server side (benchmarks, tests)."""
+        self.enabled.value = bool(on)
+        self._wake.set()
 
     def stop(self) -> None:
         """End the worker thread."""
