@@ -25,19 +25,13 @@ import numpy as np
 import pytest
 import viser.transforms as vtf
 
+from app.bench_serve import CHROMIUM_ARGS
+
 pytestmark = pytest.mark.browser
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = ROOT / "test-artifacts"
 README_SCREENSHOT = ROOT / "static" / "screenshot.png"
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-    "--disable-sync",
-]
 VIEWPORT = {"width": 1100, "height": 720}
 SCREENSHOT_VIEWPORT = {"width": 1400, "height": 820}
 PANEL_WIDTH_PX = 420  # the GUI panel covers the right of the page; the WebGL notice the top-left
