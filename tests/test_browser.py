@@ -282,6 +282,22 @@ def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page
     wait_for(lambda: pg.get_by_label("Objective", exact=True).input_value() == "W_a", 20, "the page to show W_a")
 
 
+def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page):
+    from app.ui.panels.nullspace import NullspacePanel
+
+    pg, _ = page
+    preview = next(p for p in app.panels if isinstance(p, NullspacePanel)).preview
+    scans = preview.scans
+    pg.get_by_text("Self-motion preview", exact=True).first.click()  # open the fold
+    box = pg.get_by_label("Scan once a second", exact=True)
+    box.wait_for(timeout=20_000)
+    box.check()
+    wait_for(lambda: preview.scans > scans and preview.ghost_visible, 30, "a scan and the ghost arm")
+    assert "flow settles" in preview.text.content
+    box.uncheck()
+    wait_for(lambda: not preview.ghost_visible, 30, "the ghost arm to hide")
+
+
 def test_mouse_drag_on_a_link_pulls_it_with_the_spring_and_mouse_up_releases(app, page):
     pg, client = page
     assert drag_state(app).body is None
