@@ -92,7 +92,10 @@ def _qp_executor_step(robot):
 
 
 def run_bench(robot_name: str = robots.DEFAULT_ROBOT, repeats: int = 300, only: list[str] | None = None) -> dict:
-    """Run every registered benchmark (or those in `only`) on one robot."""
+    """Run every registered benchmark (or those in `only`) on one robot; ValueError for an unknown name."""
+    unknown = sorted(set(only or ()) - set(BENCHES))
+    if unknown:
+        raise ValueError(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(BENCHES)}")
     robot = robots.load(robot_name)
     results = {}
     for name, factory in BENCHES.items():

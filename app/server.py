@@ -20,6 +20,7 @@ from typing import Any
 
 import viser
 
+import robots
 from app.loop import SimLoop
 from app.scenarios import SCENARIOS
 from app.ui.commands import DragCommand
@@ -149,6 +150,8 @@ def serve(args: argparse.Namespace) -> int:
         raise ValueError(f"port must be 0…65535, got {args.port}")
     if not port_is_free(args.host, 0):
         raise ValueError(f"cannot listen on host {args.host!r} (not an address of this machine)")
+    if robot:
+        robots.load(robot)  # a wrong name or URDF path is a one-line error before anything starts
     busy = args.port != 0 and not port_is_free(args.host, args.port)
     print(f"torquelab: starting scenario {scenario!r} …", flush=True)
     app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)

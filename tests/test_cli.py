@@ -29,6 +29,8 @@ def six_dof_urdf(tmp_path):
     [
         (["check", "--robot", "ur5"], "unknown robot"),
         (["check", "--urdf", "/no/such/arm.urdf"], "not found"),
+        (["serve", "--robot", "ur5", "--port", "0"], "unknown robot"),
+        (["bench", "--only", "no_such_bench"], "unknown benchmark"),
     ],
 )
 def test_bad_robot_gives_one_line_error(args, needle):
