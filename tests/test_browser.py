@@ -331,12 +331,23 @@ def test_mouse_drag_on_a_link_pulls_it_with_the_spring_and_mouse_up_releases(app
 def test_screenshot_of_the_running_app_is_saved(app, page):
     """test-artifacts/app.png; copied to static/screenshot.png (the README's) when that is missing
     or TORQUELAB_UPDATE_SCREENSHOT=1."""
+    from app.ui.panels.nullspace import NullspacePanel
+    from app.ui.selfmotion import GHOST_CHOICES
+
     pg, client = page
+    preview = next(p for p in app.panels if isinstance(p, NullspacePanel)).preview
     pg.set_viewport_size(SCREENSHOT_VIEWPORT)
     try:
         close = pg.locator(".mantine-Notification-closeButton")  # the software-WebGL notice
         for _ in range(close.count()):
             close.first.click()
+        preview.set_enabled(True, ghost_at=GHOST_CHOICES[1])  # ghost at the best W_a inside the limits
+        wait_for(lambda: preview.ghost_visible and "flow settles" in preview.text.content, 30, "the ghost arm")
+        if not pg.get_by_label("Scan once a second", exact=True).is_visible():
+            pg.get_by_text("Self-motion preview", exact=True).first.click()  # open the fold
+        scan_text = pg.get_by_text("the flow settles", exact=False).first
+        scan_text.wait_for(timeout=20_000)
+        scan_text.scroll_into_view_if_needed()
         set_camera(client, np.array([1.25, -1.0, 0.8]), np.array([0.42, 0.0, 0.3]))
         wait_for(lambda: client.camera.image_width == SCREENSHOT_VIEWPORT["width"], 20, "the page to resize")
         time.sleep(2.0)  # a few software-rendered frames at the new pose
@@ -344,6 +355,7 @@ def test_screenshot_of_the_running_app_is_saved(app, page):
         shot = ARTIFACTS / "app.png"
         pg.screenshot(path=str(shot))
     finally:
+        preview.set_enabled(False, ghost_at=GHOST_CHOICES[0])
         pg.set_viewport_size(VIEWPORT)
     from PIL import Image
 

@@ -115,7 +115,7 @@ class SelfMotionPreview:
             gui.add_markdown(INTRO)
             self.enabled: Any = gui.add_checkbox("Scan once a second", False, hint="Trace the self-motion loop")
             self.objective = gui.add_dropdown("Scan W", OBJECTIVE_CHOICES, initial_value=AS_CONTROLLER)
-            self.ghost_at = gui.add_dropdown("Ghost arm", GHOST_CHOICES, initial_value=GHOST_CHOICES[0])
+            self.ghost_at: Any = gui.add_dropdown("Ghost arm", GHOST_CHOICES, initial_value=GHOST_CHOICES[0])
             self.text = gui.add_markdown("")
             self.plot = gui.add_uplot(
                 tuple(np.zeros(2) for _ in range(6)),
@@ -155,8 +155,13 @@ class SelfMotionPreview:
         with self._lock:
             self._input = (frame.robot, np.array(q, dtype=float), scene.subspaces, scene.objective)
 
-    def set_enabled(self, on: bool) -> None:
-        """Switch the preview on or off from the server side (benchmarks, tests)."""
+    def set_enabled(self, on: bool, ghost_at: str | None = None) -> None:
+        """Switch the preview on or off from the server side (benchmarks, tests); `ghost_at` is one
+        of GHOST_CHOICES."""
+        if ghost_at is not None:
+            if ghost_at not in GHOST_CHOICES:
+                raise ValueError(f"ghost_at must be one of {', '.join(GHOST_CHOICES)}")
+            self.ghost_at.value = ghost_at
         self.enabled.value = bool(on)
         self._wake.set()
 
