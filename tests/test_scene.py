@@ -331,9 +331,10 @@ def test_coupling_shapes_hide_near_a_singularity_and_never_exceed_a_metre(server
         with server.atomic():
             view.update(dataclasses.replace(snap, P=huge, Lambda_translational=1e9 * snap.Lambda_translational))
         o = view.overlays
-        assert o.coupling_disc.visible and max(o.coupling_disc.scale) <= 1.0 and max(o.inertia.scale) <= 1.0
+        # unit spheres scaled by their semi-axes: at most 0.5 m each way, 1 m across
+        assert o.coupling_disc.visible and max(o.coupling_disc.scale) <= 0.5 and max(o.inertia.scale) <= 0.5
         center = snap.tcp_position + np.array([0.0, 0.0, 0.05])
-        assert np.max(np.linalg.norm(o.coupling_outline.points - center, axis=2)) <= 1.0 + 1e-6
+        assert np.max(np.linalg.norm(o.coupling_outline.points - center, axis=2)) <= 0.5 + 1e-6
         with server.atomic():
             view.update(dataclasses.replace(snap, near_singular=True))
         assert not o.coupling_disc.visible and not o.inertia.visible
