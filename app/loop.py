@@ -661,12 +661,15 @@ def _with_posture_objective(session: Session, signals: dict[str, float]) -> dict
 
 
 def _monitor_row(status: LoopStatus, scene: Any) -> tuple[float, float, float, float, float]:
+    """(t, real-time factor, W_f, W_a, W_d); the W are NaN near a singularity, where Λx is ill-conditioned
+    and W_a runs into the 1e8s (the overlays hide there too)."""
     W = getattr(scene, "W", None) or {}
     sig = status.signals
+    singular = bool(getattr(scene, "near_singular", False))
 
     def pick(key: str) -> float:
         value = W.get(key, sig.get(key, math.nan))
-        return float(value)
+        return math.nan if singular else float(value)
 
     return (status.t, status.rtf, pick("W_f"), pick("W_a"), pick("W_d"))
 

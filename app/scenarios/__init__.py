@@ -80,6 +80,15 @@ class Scenario:
         """Joint positions at t = 0."""
         return robot.home
 
+    def named_posture(self, robot: RobotDescription, name: str) -> np.ndarray:
+        """A copy of the robot's posture `name` (from its sidecar); ValueError saying which robot has it."""
+        if name not in robot.postures:
+            raise ValueError(
+                f"the {self.name} scenario starts from the posture {name!r}, which {robot.name} does not define; "
+                f"run it on {self.default_robot}"
+            )
+        return np.array(robot.postures[name], dtype=float)
+
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         """Edit the MuJoCo spec before compile (payloads...)."""
 

@@ -1,4 +1,4 @@
-"""Free drag: the TCP holds its pose, the nullspace is free; drag any link and watch the coupling."""
+"""Free drag: drag any link and watch the coupling; the executor decides what holds."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ class FreeScenario(Scenario):
     name = "free"
     title = "Free drag"
     description = (
-        "The TCP holds its pose while the elbow is free to move in the nullspace. Drag any link: "
-        "the coupling overlay shows how the posture changes the motion/force coupling."
+        "Drag any link: the coupling overlay shows how the posture changes the motion/force coupling. "
+        "It starts with a stiff joint hold, so every joint springs back; pick Executor → projection to "
+        "hold only the TCP pose and let the elbow move in the nullspace."
     )
     default_robot = "rizon4s"
     default_executor = "joint-hold"

@@ -58,7 +58,7 @@ class LimitDropScenario(Scenario):
         self.limit = limit
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
-        return robot.postures["l_shape"].copy()
+        return self.named_posture(robot, "l_shape")
 
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         add_payload_body(spec, robot, PAYLOAD_KG)

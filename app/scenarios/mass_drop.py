@@ -107,7 +107,7 @@ class MassDropScenario(Scenario):
         self.mode = mode
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
-        return robot.postures["mass_drop_nominal"].copy()
+        return self.named_posture(robot, "mass_drop_nominal")
 
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         add_payload_body(spec, robot, PAYLOAD_KG)

@@ -22,7 +22,8 @@ from control.coupling import Subspaces, coupled_response, coupling_ellipse, prin
 
 FLAT_THICKNESS = 0.02  # relative thickness of a flat ellipsoid (so it stays visible edge-on)
 MIN_AXIS_M = 1e-3
-MAX_AXIS_M = 0.5  # semi-axis cap: no overlay is more than 1 m across (a huge P near a singularity would engulf the camera)
+# semi-axis cap: no overlay is more than 1 m across (a huge P near a singularity would engulf the camera)
+MAX_AXIS_M = 0.5
 PAYLOAD_RADIUS_M = 0.04  # drawn size of an attached payload mass (the sphere its inertia assumes)
 # Coupling shapes sit 5 cm above the TCP so that a surface under the tool cannot hide them.
 LIFT_M = np.array([0.0, 0.0, 0.05])

@@ -19,6 +19,7 @@ from app.loop import PlotData
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2")
 LIMIT = {"stroke": "#888888", "width": 1, "dash": (4.0, 4.0)}
 TIME_X: dict[str, uplot.Scale] = {"x": {"time": False}}
+COUPLING_TITLE = "Coupling W_f, W_a, W_d [T22]"
 
 
 def _series(label: str, color: str, **extra: Any) -> uplot.Series:
@@ -54,7 +55,7 @@ class Plots:
                     _series("W_a", COLORS[1]),
                     _series("W_d", COLORS[2], scale="wd"),
                 ),
-                title="Coupling W_f, W_a, W_d [T22]",
+                title=COUPLING_TITLE,
                 scales=TIME_X,
                 axes=(
                     {},
@@ -117,6 +118,9 @@ class Plots:
         if len(m.get("t", ())) >= 2:
             self.coupling.data = (m["t"], m["W_f"], m["W_a"], m["W_d"])
             self.rtf.data = (m["t"], m["rtf"])
+            title = COUPLING_TITLE if np.isfinite(m["W_a"][-1]) else COUPLING_TITLE + ": not shown near a singularity"
+            if self.coupling.title != title:
+                self.coupling.title = title
 
     def _update_phase(self, plot: PlotData) -> None:
         j = int(self.joint.value) - 1
