@@ -85,6 +85,12 @@ def port_is_free(host: str, port: int) -> bool:
     return True
 
 
+def _claimed_executor_keys() -> set[str]:
+    """Executor settings some panel already shows (the knobs, and the Nullspace panel's k0 of each W):
+    the More gains fold leaves them out."""
+    return {k.key for k in ALL_KNOBS if k.target == "executor"} | {f"k0_{o}" for o in "jfad"}
+
+
 def start_app(
     host: str = "127.0.0.1",
     port: int = 8080,
@@ -109,7 +115,7 @@ def start_app(
         NullspacePanel(server, loop, order=2),
         CompliancePanel(server, loop, order=3),
         SafetyPanel(server, loop, order=4),
-        MoreGainsPanel(server, loop, claimed={k.key for k in ALL_KNOBS if k.target == "executor"}, order=4.5),
+        MoreGainsPanel(server, loop, claimed=_claimed_executor_keys(), order=4.5),
     ]
     make_scene = None
     visual_settings: Any = None

@@ -161,6 +161,19 @@ def test_environment_and_drag_settings_survive_a_reset(loop):
     assert loop.settings.values["drag"]["max_force_n"] == 42.0
 
 
+def test_a_robot_without_the_scenarios_posture_is_refused_in_words():
+    lp = SimLoop("mass-drop", capture=lambda s: None)
+    lp.start(running=False)
+    try:
+        lp.submit(SwitchSession(robot="rizon4s"))
+        lp.sync()
+        body = lp.notice_log[-1].body
+        assert "mass_drop_nominal" in body and "gen3" in body and "rizon4s does not define" in body
+        assert lp.session.robot.name == "gen3" and lp.session.scenario.name == "mass-drop"
+    finally:
+        lp.stop()
+
+
 def test_simulated_torque_delay_is_a_world_setting_that_survives_a_reset(loop):
     loop.submit(Configure("world", {"torque_delay_ms": 5.0}, client_id=7))
     loop.submit(Reset())
