@@ -20,6 +20,8 @@ COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e3
 LIMIT = {"stroke": "#888888", "width": 1, "dash": (4.0, 4.0)}
 TIME_X: dict[str, uplot.Scale] = {"x": {"time": False}}
 COUPLING_TITLE = "Coupling W_f, W_a, W_d [T22]"
+FORCE_TITLE = "Force error F̂_z − F_z"
+NO_SETPOINT_TITLE = "F̂_z − F_z: no force setpoint here, so this is minus the F/T reading"
 
 
 def _series(label: str, color: str, **extra: Any) -> uplot.Series:
@@ -43,7 +45,7 @@ class Plots:
             self.force = gui.add_uplot(
                 _empty(2),
                 ({"label": "t (s)"}, _series("F̂ − F (N)", COLORS[3])),
-                title="Force error",
+                title=FORCE_TITLE,
                 scales=TIME_X,
                 aspect=2.0,
             )
@@ -110,6 +112,9 @@ class Plots:
             if err is None or np.all(np.isnan(err)):
                 err = c["Fd_z"] - c["F_z"]
             self.force.data = (t, err)
+            title = FORCE_TITLE if np.any(c["Fd_z"] != 0.0) else NO_SETPOINT_TITLE
+            if self.force.title != title:
+                self.force.title = title
             ratio = [100.0 * c[f"tau_{i + 1}"] / plot.tau_max[i] for i in range(self.n)]
             ones = np.full_like(t, 100.0)
             self.torque.data = (t, *ratio, ones, -ones)
