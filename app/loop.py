@@ -82,6 +82,7 @@ class LoopStatus:
     scenario_text: str = ""  # what the preset shows, one paragraph
     variant: str = ""  # the scenario's case, "" if it has none
     variants: tuple[str, ...] = ()  # the cases it can run in
+    focus_joint: int | None = None  # 0-based joint the scenario is about (phase plot), if any
     robot: str = ""
     executor: str = ""
     halted: str = ""  # why the loop auto-paused (divergence), "" otherwise
@@ -597,6 +598,7 @@ class SimLoop:
             scenario_text=str(getattr(s.scenario, "description", "")),
             variant=variant.current if variant else "",
             variants=variant.options if variant else (),
+            focus_joint=getattr(s.scenario, "focus_joint", None),
             robot=s.robot.name,
             executor=s.executor_name,
             halted=self._halted,

@@ -73,6 +73,7 @@ def test_page_is_served_on_localhost_and_frames_are_published(app):
         assert resp.status == 200
         assert b"<html" in resp.read().lower()
     shown = app.publisher.frames_shown
+    app.loop.submit(StepOnce(1))  # the paused loop publishes when something changed
     assert _wait(lambda: app.publisher.frames_shown > shown)
 
 
@@ -207,3 +208,23 @@ def test_status_shows_the_fallback_badge_the_halt_message_and_a_slow_machine(app
     panel.live(dataclasses.replace(frame, status=bad))
     assert panel.fallback_md.visible and panel.halted_md.visible and "Reset" in panel.halted_md.content
     assert "slower than requested" in panel.status_md.content.lower()
+
+
+def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):
+    from app.ui.commands import SwitchSession
+
+    plots = app.publisher.plots
+    plots.joint.value = "2"
+    app.loop.submit(SwitchSession(scenario="limit-drop"))
+    app.loop.sync()
+    assert _wait(lambda: plots.joint.value == "4")  # joint 4 falls into its limit
+    plots.joint.value = "6"
+    app.loop.submit(SwitchSession(scenario="free"))
+    app.loop.sync()
+
+    def shown_free() -> bool:
+        last = app.publisher.last_frame
+        return last is not None and last.status.scenario == "free" and app.publisher.scene_session_id == last.session_id
+
+    assert _wait(shown_free)
+    assert plots.joint.value == "6"  # a preset without a focus joint leaves the choice alone

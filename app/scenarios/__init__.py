@@ -75,6 +75,7 @@ class Scenario:
     default_robot = "rizon4s"
     default_executor = "joint-hold"
     table_height: float | None = None
+    focus_joint: int | None = None  # 0-based joint the phase plot should show when the preset starts
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         """Joint positions at t = 0."""

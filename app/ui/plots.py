@@ -67,7 +67,7 @@ class Plots:
                 ),
                 aspect=2.0,
             )
-            self.joint = gui.add_dropdown(
+            self.joint: Any = gui.add_dropdown(
                 "Phase plot joint", tuple(str(i + 1) for i in range(n_joints)), initial_value="4"
             )
             self.phase = gui.add_uplot(
@@ -102,6 +102,11 @@ class Plots:
                 aspect=3.0,
             )
         self._phase_range: tuple[float, float, float] | None = None
+
+    def focus(self, joint: int | None) -> None:
+        """Show joint `joint` (0-based) in the phase plot, e.g. the one a preset is about; None keeps it."""
+        if joint is not None and 0 <= joint < self.n and self.joint.value != str(joint + 1):
+            self.joint.value = str(joint + 1)
 
     def update(self, plot: PlotData) -> None:
         """Push new data to the charts (one message per chart)."""

@@ -82,6 +82,8 @@ class Publisher:
                 self.scene = None
             self.scene = self.make_scene(frame.robot)
             self.scene_session_id = frame.session_id
+            if self.plots is not None:
+                self.plots.focus(frame.status.focus_joint)
         if self.scene is not None and frame.scene is not None:
             with self.server.atomic():
                 self.scene.update(frame.scene)
