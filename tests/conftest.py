@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import socket
+
 import numpy as np
 import pytest
+import viser
 
 import robots
 from control.model import RobotModel
@@ -37,3 +40,18 @@ def random_configurations(robot, count: int, seed: int = 0, margin: float = 0.9)
         if RobotModel(robot.model).compute(q, np.zeros(7)).min_eig_Lambda_inv > 1e-3:
             out.append(q)
     return out
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that is free right now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def server():
+    """A bare viser server (no app) for scene and plot tests."""
+    srv = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    yield srv
+    srv.stop()

@@ -15,7 +15,6 @@ from __future__ import annotations
 import functools
 import os
 import shutil
-import socket
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -26,6 +25,7 @@ import pytest
 import viser.transforms as vtf
 
 from app.bench_serve import CHROMIUM_ARGS
+from tests.conftest import free_port
 
 pytestmark = pytest.mark.browser
 
@@ -64,18 +64,12 @@ def wait_for(condition: Callable[[], Any], timeout: float, what: str, period: fl
         time.sleep(period)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 # ---- fixtures -----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def app() -> Iterator[Any]:
     from app.server import start_app
 
-    running = start_app("127.0.0.1", _free_port(), "polish", "rizon4s", "projection")
+    running = start_app("127.0.0.1", free_port(), "polish", "rizon4s", "projection")
     try:
         yield running
     finally:

@@ -2,28 +2,11 @@
 
 from __future__ import annotations
 
-import socket
-
 import numpy as np
-import pytest
-import viser
 
 from app.loop import SimLoop
 from app.ui.commands import StepOnce
 from app.ui.plots import COUPLING_TITLE, FORCE_TITLE, NO_SETPOINT_TITLE, Plots
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-@pytest.fixture(scope="module")
-def server():
-    srv = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
-    yield srv
-    srv.stop()
 
 
 def _plot_data(scenario: str):

@@ -5,13 +5,11 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import itertools
-import socket
 import time
 import types
 
 import numpy as np
 import pytest
-import viser
 
 from app.session import Session
 from app.ui.commands import DragCommand
@@ -208,17 +206,6 @@ def test_coupled_response_arrow_is_P_f_times_the_measured_motion_wrench(session)
 
 
 # ---- SceneView without a browser ----------------------------------------------------------------
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-@pytest.fixture(scope="module")
-def server():
-    srv = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
-    yield srv
-    srv.stop()
 
 
 def test_link_meshes_cover_every_visual_link_in_its_own_frame(rizon):
