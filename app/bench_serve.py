@@ -17,7 +17,7 @@ from dataclasses import fields
 from typing import Any
 
 from app.server import start_app
-from app.ui.commands import Configure, Play, Reset
+from app.ui.commands import Configure, Play, Reset, SetTwin
 
 CHROMIUM = os.environ.get("TORQUELAB_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -49,7 +49,12 @@ def _preview_on(app: Any) -> Any:
 
 
 def run_serve_bench(
-    scenario: str = "polish", seconds: float = 20.0, warmup: float = 3.0, objective: str = "a", robot: str | None = None
+    scenario: str = "polish",
+    seconds: float = 20.0,
+    warmup: float = 3.0,
+    objective: str = "a",
+    robot: str | None = None,
+    twin: str | None = None,
 ) -> dict[str, Any]:
     """Measure the real-time factor of the running app with one browser; returns a report dict."""
     try:
@@ -75,6 +80,8 @@ def run_serve_bench(
                 time.sleep(0.1)
             if not app.server.get_clients():
                 raise RuntimeError("the browser did not connect within 60 s")
+            if twin is not None:
+                app.loop.submit(SetTwin(twin))
             app.loop.submit(Reset())
             app.loop.submit(Play())
             app.loop.sync()
@@ -117,6 +124,7 @@ def run_serve_bench(
             "server_process_cores": process_cpu / wall,
             "frames_per_s": frames / wall,
             "scene_updates_per_s": scenes / wall,
+            "twin": s1.twin,
             "self_motion_scans_per_s": (preview.scans - scans0) / wall if preview is not None else 0.0,
             "halted": s1.halted,
             "cpu_count": os.cpu_count(),
@@ -129,7 +137,10 @@ def run_serve_bench(
 def cmd_bench_serve(args: argparse.Namespace) -> int:
     """Print the serve benchmark; exit 1 if the real-time factor stays below 1.0."""
     report = run_serve_bench(
-        scenario=args.scenario, seconds=args.seconds, robot=getattr(args, "urdf", None) or getattr(args, "robot", None)
+        scenario=args.scenario,
+        seconds=args.seconds,
+        robot=getattr(args, "urdf", None) or getattr(args, "robot", None),
+        twin=getattr(args, "twin", None),
     )
     if args.json:
         print(json.dumps(report, indent=2))
@@ -138,6 +149,7 @@ def cmd_bench_serve(args: argparse.Namespace) -> int:
             f"{report['scenario']} on {report['robot']} with {report['executor']} (W_{report['objective']}), "
             f"{report['browser_clients']} browser, overlays on: {len(report['overlays_on'])}, "
             f"self-motion preview {report['self_motion_scans_per_s']:.1f} scans/s"
+            + (f", twin arm W_{report['twin']}" if report["twin"] else "")
         )
         print(f"  real-time factor        {report['real_time_factor']:.3f}  over {report['wall_s']:.1f} s of wall time")
         print(f"  worst 1 s window        {report['worst_1s_real_time_factor']:.3f}")

@@ -95,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--serve", action="store_true", help="real-time factor of the web app with one headless browser")
     p.add_argument("--scenario", default="polish", help="scenario for --serve (default polish)")
     p.add_argument("--seconds", type=float, default=20.0, help="measuring time for --serve (wall seconds)")
+    p.add_argument(
+        "--twin", choices=("j", "f", "a", "d"), default=None, help="with --serve: also run a twin arm with this W"
+    )
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_bench)
 

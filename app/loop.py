@@ -10,6 +10,7 @@ through `call()`, which runs a function here between two steps.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import queue
 import threading
@@ -27,9 +28,10 @@ import numpy as np
 from app.executors import EXECUTORS
 from app.pacing import Pacer, RateMeter
 from app.scenarios import Scenario
-from app.session import Session
+from app.session import DRAG_FIELDS, Session
 from app.settings import settings_of
 from app.steplog import StepLog
+from app.twin import Twin
 from app.ui.commands import (
     Command,
     Configure,
@@ -38,6 +40,7 @@ from app.ui.commands import (
     Play,
     Reset,
     SetSpeed,
+    SetTwin,
     StepOnce,
     SwitchSession,
 )
@@ -53,8 +56,6 @@ SPEED_RANGE = (0.1, 1.0)
 PLOT_WINDOW_S = 10.0
 WAKE_STEPS = 2  # the loop sleeps until this many steps are due, then runs them in one burst
 SETTINGS_TARGETS = ("executor", "environment", "sensor", "drag", "target", "world")
-FORCE_SETPOINT_RANGE_N = (-100.0, 100.0)
-DRAG_FIELDS = ("max_force_n", "stiffness_per_s2", "damping_ratio")
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,7 @@ class LoopStatus:
     variant: str = ""  # the scenario's case, "" if it has none
     variants: tuple[str, ...] = ()  # the cases it can run in
     focus_joint: int | None = None  # 0-based joint the scenario is about (phase plot), if any
+    twin: str = ""  # nullspace objective of the twin arm ("j", "f", "a", "d"), "" when there is none
     robot: str = ""
     executor: str = ""
     halted: str = ""  # why the loop auto-paused (divergence), "" otherwise
@@ -176,6 +178,7 @@ class SimLoop:
         self._fallback_steps = 0
         self._step_cpu_s = 0.0
         self._drag_client: int | None = None
+        self.twin: Twin | None = None  # a second session in lockstep with another objective (app.twin)
         self._overrides: dict[str, dict[str, Any]] = {t: {} for t in SETTINGS_TARGETS}
         self._session_id = 0
         self._settings = Settings(0, self._read_settings())
@@ -305,6 +308,7 @@ class SimLoop:
         """Run n steps, logging each; stop at the first sign of divergence."""
         t0, cpu0 = self._clock(), time.thread_time()
         session, log = self.session, self.log
+        twin = self.twin
         try:
             for _ in range(n):
                 rec = session.step()
@@ -312,12 +316,16 @@ class SimLoop:
                 self._total_steps += 1
                 if rec.fallback:
                     self._fallback_steps += 1
+                if twin is not None:
+                    twin.step()
         except Exception as exc:  # a bug or numerical failure must not kill the server
             traceback.print_exc()
             self._halt(f"the simulation step raised {type(exc).__name__}: {exc}")
         else:
             if _diverged(session):
                 self._halt(f"the simulation diverged at t = {session.world.time:.3f} s (NaN or runaway velocity)")
+            elif twin is not None and twin.diverged():
+                self._drop_twin(f"the twin arm (W_{twin.objective}) diverged; it is switched off")
         self._meter.add_busy(self._clock() - t0)
         self._step_cpu_s += time.thread_time() - cpu0
         self._dirty = True
@@ -380,8 +388,47 @@ class SimLoop:
             self._switch(cmd)
         elif isinstance(cmd, Configure):
             self._configure(cmd)
+        elif isinstance(cmd, SetTwin):
+            self._set_twin(cmd.objective)
         else:
             raise ValueError(f"unknown command {cmd!r}")
+
+    # ---- the twin arm ---------------------------------------------------------------------------
+    def _set_twin(self, objective: str | None) -> None:
+        """Switch the twin off (None) or on with an objective; on restarts the scenario."""
+        if objective is None or objective == "":
+            self.twin = None
+            self._dirty = True
+            return
+        s = self.session
+        self.twin = Twin(
+            s.scenario,
+            self._robot_choice or None,
+            s.executor_name,
+            self._seed,
+            str(objective),
+            self.dt,
+            self._overrides,
+        )  # ValueError for a wrong objective or an executor without one
+        self._reset()
+
+    def _rebuild_twin(self) -> None:
+        """After a new session: the same twin objective on it, or no twin if it cannot have one."""
+        if self.twin is None:
+            return
+        objective = self.twin.objective
+        s = self.session
+        try:
+            self.twin = Twin(
+                s.scenario, self._robot_choice or None, s.executor_name, self._seed, objective, self.dt, self._overrides
+            )
+        except ValueError as exc:
+            self._drop_twin(f"the twin arm is switched off: {exc}")
+
+    def _drop_twin(self, reason: str) -> None:
+        self.twin = None
+        self._notify("warning", "Twin arm off", reason)
+        self._dirty = True
 
     def _apply_drag(self, cmd: DragCommand) -> None:
         drag = self.session.drag
@@ -408,6 +455,8 @@ class SimLoop:
     def _reset(self) -> None:
         self.session.reset()
         self._after_rebuild(reapply=("environment", "sensor", "target"))
+        if self.twin is not None:
+            self.twin.reset(self._overrides)
         if self._halted:
             self._halted = ""
             self._running = self._resume_after_reset
@@ -425,8 +474,15 @@ class SimLoop:
             if cmd.executor is not None and cmd.executor != s.executor_name:
                 if cmd.executor not in EXECUTORS:
                     raise ValueError(f"unknown executor {cmd.executor!r}; choose one of {', '.join(EXECUTORS)}")
+                twin, self.twin = self.twin, None
                 s.set_executor(cmd.executor)
                 self._overrides["executor"] = self._reapply("executor", self._overrides["executor"])
+                self.twin = twin
+                if twin is not None:
+                    try:
+                        twin.set_executor(cmd.executor, self._overrides["executor"])
+                    except ValueError as exc:
+                        self._drop_twin(f"the twin arm is switched off: {exc}")
                 self._settings_changed()
             return
         scenario = cmd.scenario if cmd.scenario is not None else s.scenario.name
@@ -446,7 +502,10 @@ class SimLoop:
         if cmd.scenario is not None or cmd.variant is not None:
             self._overrides = {t: {} for t in SETTINGS_TARGETS if t != "drag"} | {"drag": self._overrides["drag"]}
         self.log = StepLog(new.robot.nq, capacity=round(self._log_seconds / self.dt))
+        twin, self.twin = self.twin, None  # the old twin belongs to the old session
         self._after_rebuild(reapply=SETTINGS_TARGETS)
+        self.twin = twin
+        self._rebuild_twin()
         self._halted = ""
 
     def _after_rebuild(self, reapply: tuple[str, ...]) -> None:
@@ -506,43 +565,9 @@ class SimLoop:
                 raise ValueError(f"{key} must be like {now!r}, got {value!r}")
 
     def _configure_target(self, target: str, changes: dict[str, Any]) -> None:
-        s = self.session
-        if target == "executor":
-            s.executor.configure(**changes)
-        elif target == "environment":
-            s.environment.configure(**changes)
-        elif target == "sensor":
-            s.sensor.configure(**changes)
-        elif target == "drag":
-            for key, value in changes.items():
-                if key not in DRAG_FIELDS:
-                    raise ValueError(f"the drag spring has no setting {key!r}")
-                number = _number(value)
-                if number is None or number <= 0:
-                    raise ValueError(f"drag {key} must be a positive number, got {value!r}")
-            for key, value in changes.items():
-                setattr(s.drag, key, float(value))
-        elif target == "target":
-            self._configure_task_target(changes)
-        elif target == "world":
-            s.world.configure(**changes)
-
-    def _configure_task_target(self, changes: dict[str, Any]) -> None:
-        """The task target's settings: `force_setpoint_n`, the desired F^e along +z (N) [T12]."""
-        target_fn = self.session.target_fn
-        method = getattr(target_fn, "configure", None)
-        if callable(method):
-            method(**changes)
-            return
-        for key, value in changes.items():
-            wrench = getattr(target_fn, "wrench", None)
-            if key != "force_setpoint_n" or not isinstance(wrench, np.ndarray):
-                raise ValueError(f"this scenario's target has no setting {key!r}")
-            number = _number(value)
-            lo, hi = FORCE_SETPOINT_RANGE_N
-            if number is None or not lo <= number <= hi:
-                raise ValueError(f"force setpoint must be between {lo:g} and {hi:g} N, got {value!r}")
-            wrench[2] = number
+        self.session.configure(target, changes)
+        if self.twin is not None:
+            self.twin.configure(target, changes)
 
     # ---- publishing ----------------------------------------------------------------------------
     def _restart_pacing(self) -> None:
@@ -599,6 +624,7 @@ class SimLoop:
             variant=variant.current if variant else "",
             variants=variant.options if variant else (),
             focus_joint=getattr(s.scenario, "focus_joint", None),
+            twin=self.twin.objective if self.twin is not None else "",
             robot=s.robot.name,
             executor=s.executor_name,
             halted=self._halted,
@@ -621,6 +647,15 @@ class SimLoop:
                 traceback.print_exc()
                 self._capture = None
                 self._notify("warning", "Scene disabled", "capturing the scene failed; see the server log")
+        if scene is not None and self.twin is not None:
+            positions, wxyz = self.twin.link_poses(scene.link_names)
+            scene = dataclasses.replace(
+                scene,
+                twin_link_positions=positions,
+                twin_link_wxyz=wxyz,
+                twin_objective=self.twin.objective,
+                twin_W=self.twin.W,
+            )
         self._monitor.append(_monitor_row(status, scene))
         if now >= self._next_plot:
             self._next_plot = now + self.plot_period
@@ -644,6 +679,8 @@ class SimLoop:
     def _plot_data(self) -> PlotData:
         every = max(1, round(PLOT_WINDOW_S / self.dt / 500))  # ≈ 500 points per series
         columns = self.log.window(PLOT_WINDOW_S, self.dt, every)
+        if self.twin is not None and "t" in columns:
+            columns["twin_force_error_n"] = self.twin.force_error_at(columns["t"])
         mon = np.array(self._monitor) if self._monitor else np.zeros((0, 5))
         monitor = {k: mon[:, i].copy() for i, k in enumerate(("t", "rtf", "W_f", "W_a", "W_d"))}
         r = self.session.robot

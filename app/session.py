@@ -12,8 +12,10 @@ The web app's loop and the headless experiments both call this, so they agree st
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +26,9 @@ from app.sim.drag import DragSpring
 from app.sim.world import World
 from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
 from control.model import Dynamics, RobotModel
+
+FORCE_SETPOINT_RANGE_N = (-100.0, 100.0)
+DRAG_FIELDS = ("max_force_n", "stiffness_per_s2", "damping_ratio")
 
 
 @dataclass
@@ -94,6 +99,48 @@ class Session:
         hook = getattr(self.scenario, "configure_executor", None)
         if callable(hook):
             hook(self.executor, self.robot)
+
+    def configure(self, target: str, changes: Mapping[str, Any]) -> None:
+        """Change settings of one part: "executor", "environment", "sensor", "world", "drag"
+        (`DRAG_FIELDS`) or "target" (`force_setpoint_n`, the desired F^e along +z in N [T12]).
+        ValueError (or TypeError from a configure()) for a setting the part refuses."""
+        changes = dict(changes)
+        if target == "executor":
+            self.executor.configure(**changes)
+        elif target == "environment":
+            self.environment.configure(**changes)
+        elif target == "sensor":
+            self.sensor.configure(**changes)
+        elif target == "world":
+            self.world.configure(**changes)
+        elif target == "drag":
+            for key, value in changes.items():
+                if key not in DRAG_FIELDS:
+                    raise ValueError(f"the drag spring has no setting {key!r}")
+                number = _number(value)
+                if number is None or number <= 0:
+                    raise ValueError(f"drag {key} must be a positive number, got {value!r}")
+            for key, value in changes.items():
+                setattr(self.drag, key, float(value))
+        elif target == "target":
+            self._configure_task_target(changes)
+        else:
+            raise ValueError(f"unknown settings target {target!r}")
+
+    def _configure_task_target(self, changes: dict[str, Any]) -> None:
+        method = getattr(self.target_fn, "configure", None)
+        if callable(method):
+            method(**changes)
+            return
+        for key, value in changes.items():
+            wrench = getattr(self.target_fn, "wrench", None)
+            if key != "force_setpoint_n" or not isinstance(wrench, np.ndarray):
+                raise ValueError(f"this scenario's target has no setting {key!r}")
+            number = _number(value)
+            lo, hi = FORCE_SETPOINT_RANGE_N
+            if number is None or not lo <= number <= hi:
+                raise ValueError(f"force setpoint must be between {lo:g} and {hi:g} N, got {value!r}")
+            wrench[2] = number
 
     # ---- stepping -----------------------------------------------------------------------------
     def step(self) -> StepRecord:
@@ -166,3 +213,14 @@ class Session:
     @property
     def _sensor_frame_id(self) -> int:
         return self.model.model.getFrameId(robots.SENSOR_FRAME)
+
+
+def _number(value: object) -> float | None:
+    """A finite float, or None for anything else (strings, NaN, None, booleans)."""
+    if isinstance(value, bool):
+        return None
+    try:
+        out = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    return out if math.isfinite(out) else None

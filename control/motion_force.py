@@ -72,8 +72,10 @@ class ProjectionExecutor:
 
     # ---- Executor interface ---------------------------------------------------------------------
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
-        """Clear the force integral; the W_j posture is the target's q_posture or the current q."""
+        """Clear the force integral and the QP's warm start (a fresh solver, so a reset run repeats
+        the first one exactly); the W_j posture is the target's q_posture or the current q."""
         self.force_integral = np.zeros(self.sub.n_f)
+        self.qp = NullspaceQP(self.n)
         self._last_valid_wrench = np.zeros(6)
         self.q_posture = dyn.q.copy() if target.q_posture is None else np.array(target.q_posture, dtype=float)
 

@@ -292,6 +292,21 @@ def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page)
     wait_for(lambda: not preview.ghost_visible, 30, "the ghost arm to hide")
 
 
+def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page):
+    from app.ui.commands import SetTwin
+
+    pg, _ = page
+    offered = choose(pg, "Twin arm", "W_j")
+    assert {"off", "W_j", "W_f", "W_a", "W_d"} <= set(offered)
+    try:
+        wait_for(lambda: app.loop.status.twin == "j", 20, "the server's twin to run W_j")
+        scene = app.publisher.scene
+        wait_for(lambda: scene.twin_meshes and all(h.visible for h in scene.twin_meshes.values()), 20, "the twin")
+    finally:
+        app.loop.submit(SetTwin(None))
+        wait_for(lambda: app.loop.status.twin == "", 20, "the twin to stop")
+
+
 def test_mouse_drag_on_a_link_pulls_it_with_the_spring_and_mouse_up_releases(app, page):
     pg, client = page
     assert drag_state(app).body is None

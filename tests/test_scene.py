@@ -363,3 +363,30 @@ def test_visuals_panel_has_a_control_for_every_setting_and_writes_it(server):
         assert settings.projection_name("a") == "P_d"
     finally:
         panel.remove()
+
+
+def test_the_twin_arm_is_drawn_where_its_bodies_are_and_hidden_without_a_twin(server, session):
+    view = SceneView(server, session.robot, lambda c: None)
+    try:
+        snap = capture(session)
+        offset = np.array([0.0, 0.3, 0.0])
+        twin = dataclasses.replace(
+            snap,
+            twin_link_positions=snap.link_positions + offset,
+            twin_link_wxyz=snap.link_wxyz.copy(),
+            twin_objective="j",
+            twin_W={"W": 0.25},
+        )
+        with server.atomic():
+            view.update(twin)
+        assert set(view.twin_meshes) == set(view.meshes)
+        for name, handle in view.twin_meshes.items():
+            i = snap.link_index(name)
+            assert handle.visible
+            np.testing.assert_allclose(handle.position, snap.link_positions[i] + offset)
+        assert view.twin_label is not None and view.twin_label.text == "twin: W_j = 0.25"
+        with server.atomic():
+            view.update(snap)
+        assert not any(h.visible for h in view.twin_meshes.values()) and not view.twin_label.visible
+    finally:
+        view.remove()

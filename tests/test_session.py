@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from app.session import Session
 from control.executor import ControlOutput
@@ -59,3 +60,16 @@ def test_executor_nan_output_falls_back_to_gravity_compensation():
     rec = s.step()
     assert rec.fallback and np.all(np.isfinite(rec.tau))
     assert not s.diverged()
+
+
+@pytest.mark.parametrize("scenario", ["polish", "limit-drop"])
+def test_reset_repeats_a_qp_run_exactly(scenario):
+    """The QPs' warm starts are cleared on reset: the run after a Reset is the first run again."""
+    fresh = Session(scenario)
+    reset = Session(scenario)
+    reset.run(0.05)
+    reset.reset()
+    for _ in range(300):
+        fresh.step()
+        reset.step()
+    np.testing.assert_array_equal(reset.world.q, fresh.world.q)

@@ -86,4 +86,13 @@ class Configure:
     client_id: int | None = None
 
 
-Command = DragCommand | Play | Pause | StepOnce | Reset | SetSpeed | SwitchSession | Configure
+@dataclass(frozen=True)
+class SetTwin:
+    """Run a twin arm with nullspace objective `objective` ("j", "f", "a", "d") beside the main one,
+    or none (None). Switching a twin on restarts the scenario so both arms start together."""
+
+    objective: str | None
+    client_id: int | None = None
+
+
+Command = DragCommand | Play | Pause | StepOnce | Reset | SetSpeed | SwitchSession | Configure | SetTwin

@@ -20,6 +20,7 @@ COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e3
 LIMIT = {"stroke": "#888888", "width": 1, "dash": (4.0, 4.0)}
 TIME_X: dict[str, uplot.Scale] = {"x": {"time": False}}
 COUPLING_TITLE = "Coupling W_f, W_a, W_d [T22]"
+TWIN_COLOR = "#ff9f1c"  # the twin arm, here and in the 3D scene
 FORCE_TITLE = "Force error F̂_z − F_z"
 NO_SETPOINT_TITLE = "F̂_z − F_z: no force setpoint here, so this is minus the F/T reading"
 
@@ -43,8 +44,12 @@ class Plots:
         with gui.add_folder("Plots", order=order, expand_by_default=True):
             gui.add_markdown("Last 10 s of simulated time, refreshed 10 times a second.")
             self.force = gui.add_uplot(
-                _empty(2),
-                ({"label": "t (s)"}, _series("F̂ − F (N)", COLORS[3])),
+                _empty(3),
+                (
+                    {"label": "t (s)"},
+                    _series("F̂ − F (N)", COLORS[3]),
+                    _series("twin arm (N)", TWIN_COLOR, dash=(5.0, 3.0)),
+                ),
                 title=FORCE_TITLE,
                 scales=TIME_X,
                 aspect=2.0,
@@ -116,7 +121,8 @@ class Plots:
             err = c.get("force_error_n")
             if err is None or np.all(np.isnan(err)):
                 err = c["Fd_z"] - c["F_z"]
-            self.force.data = (t, err)
+            twin = c.get("twin_force_error_n")
+            self.force.data = (t, err, twin if twin is not None else np.full(len(t), np.nan))
             title = FORCE_TITLE if np.any(c["Fd_z"] != 0.0) else NO_SETPOINT_TITLE
             if self.force.title != title:
                 self.force.title = title

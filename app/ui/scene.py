@@ -22,6 +22,8 @@ from app.ui.snapshot import SceneSnapshot
 from app.ui.visuals import VisualSettings
 from robots import RobotDescription
 
+TWIN_COLOR = (255, 159, 28)  # the twin arm (app.twin), translucent
+TWIN_OPACITY = 0.35
 NEUTRAL = (175, 178, 186)  # links without a joint of their own (base) or with limit colours off
 FLOOR_COLOR = (200, 200, 205)
 TABLE_COLOR = (160, 125, 90)
@@ -122,6 +124,9 @@ class SceneView:
         server.initial_camera.up = (0.0, 0.0, 1.0)
         self._colors: dict[str, tuple[int, int, int]] = {}
         self._poses: dict[str, tuple[float, ...]] = {}
+        self._link_shapes = meshes
+        self.twin_meshes: dict[str, viser.MeshHandle] = {}
+        self.twin_label: viser.LabelHandle | None = None
 
     # ---- interaction --------------------------------------------------------------------------
     def _drag_callback(self, link: str):
@@ -154,7 +159,50 @@ class SceneView:
             frame.wxyz = pose[3:]
         self._update_colors(snap)
         self._update_table(snap)
+        self._update_twin(snap)
         self.overlays.update(snap)
+
+    def _update_twin(self, snap: SceneSnapshot) -> None:
+        """The twin arm: translucent, not draggable, labelled with its objective; hidden without one."""
+        positions, wxyz = snap.twin_link_positions, snap.twin_link_wxyz
+        show = positions is not None and wxyz is not None and bool(np.all(np.isfinite(positions)))
+        if not show:
+            for handle in self.twin_meshes.values():
+                if handle.visible:
+                    handle.visible = False
+            if self.twin_label is not None and self.twin_label.visible:
+                self.twin_label.visible = False
+            return
+        assert positions is not None and wxyz is not None
+        if not self.twin_meshes:
+            for name, mesh in self._link_shapes.items():
+                self.twin_meshes[name] = self.server.scene.add_mesh_simple(
+                    f"/twin/{name}",
+                    mesh.vertices,
+                    mesh.faces,
+                    color=TWIN_COLOR,
+                    opacity=TWIN_OPACITY,
+                    cast_shadow=False,
+                    receive_shadow=False,
+                )
+            self.twin_label = self.server.scene.add_label("/twin_label", "twin")
+        for i, name in enumerate(snap.link_names):
+            if name not in self.twin_meshes:
+                continue
+            handle = self.twin_meshes[name]
+            handle.position = tuple(positions[i])
+            handle.wxyz = tuple(wxyz[i])
+            if not handle.visible:
+                handle.visible = True
+        if self.twin_label is not None:
+            middle = len(snap.link_names) // 2
+            self.twin_label.position = tuple(positions[middle] + np.array([0.0, 0.0, 0.08]))
+            W = snap.twin_W.get("W")
+            text = f"twin: W_{snap.twin_objective}" + (f" = {W:.3g}" if W is not None else "")
+            if self.twin_label.text != text:
+                self.twin_label.text = text
+            if not self.twin_label.visible:
+                self.twin_label.visible = True
 
     def _update_colors(self, snap: SceneSnapshot) -> None:
         s = self.settings
@@ -193,8 +241,13 @@ class SceneView:
         self.floor.remove()
         if self.table is not None:
             self.table.remove()
+        for handle in self.twin_meshes.values():
+            handle.remove()
+        if self.twin_label is not None:
+            self.twin_label.remove()
         self.meshes.clear()
         self.frames.clear()
+        self.twin_meshes.clear()
 
 
 def _vec(p) -> tuple[float, float, float]:

@@ -54,6 +54,10 @@ class SceneSnapshot:
     payload_position: np.ndarray | None = None  # (3,) attached payload mass (mass-drop, limit-drop), if any
     payload_mass_kg: float = 0.0
     q: np.ndarray | None = None  # (7,) rad, joint positions (the self-motion preview starts from them)
+    twin_link_positions: np.ndarray | None = None  # (L, 3) m: the twin arm's bodies (app.twin), if one runs
+    twin_link_wxyz: np.ndarray | None = None  # (L, 4)
+    twin_objective: str | None = None  # "j", "f", "a" or "d"
+    twin_W: dict[str, float] = field(default_factory=dict)  # the twin's W_j, W_f, W_a, W_d
 
     @cached_property
     def subspaces(self) -> Subspaces:

@@ -8,7 +8,7 @@ from typing import Any
 import viser
 
 from app.loop import Frame, SimLoop
-from app.ui.commands import Configure
+from app.ui.commands import Configure, SetTwin
 from app.ui.panels.base import TOUCH_HOLD_S, Knob, KnobPanel, coerce, notify
 from app.ui.selfmotion import SelfMotionPreview
 
@@ -18,6 +18,8 @@ INTRO = (
 )
 
 OBJECTIVES = ("W_j", "W_f", "W_a", "W_d")
+TWIN_OFF = "off"
+TWIN_CHOICES = (TWIN_OFF, *OBJECTIVES)
 K0_RANGE_FACTOR = 20.0  # the k0 slider spans 0 … 20 × the objective's default k0
 
 
@@ -63,7 +65,24 @@ class NullspacePanel(KnobPanel):
         self._k0_key = ""
         self.k0.on_update(self._on_k0)
         self.values = gui.add_markdown("")
+        self.twin: Any = gui.add_dropdown(
+            "Twin arm",
+            TWIN_CHOICES,
+            initial_value=TWIN_OFF,
+            hint="Run the scenario a second time, in lockstep, with this objective (orange, translucent). "
+            "Switching it on restarts the scenario; it doubles the work per step.",
+        )
+        self.twin.on_update(self._on_twin)
         self.preview = SelfMotionPreview(self.server)
+
+    def _on_twin(self, event: viser.GuiEvent) -> None:
+        if event.client_id is None:  # our own refresh, not a person
+            return
+        value = str(event.target.value)
+        if value not in TWIN_CHOICES:
+            notify(self.server, event.client_id, "Value refused", f"Twin arm must be one of {', '.join(TWIN_CHOICES)}")
+            return
+        self.loop.submit(SetTwin(None if value == TWIN_OFF else value[2:], event.client_id))
 
     def stop(self) -> None:
         """End the preview's worker thread."""
@@ -106,8 +125,14 @@ class NullspacePanel(KnobPanel):
         return time.time() - handle.update_timestamp < TOUCH_HOLD_S
 
     def live(self, frame: Frame) -> None:
-        """W_j, W_f, W_a, W_d now; the newest posture for the self-motion preview."""
+        """W_j, W_f, W_a, W_d now; the twin's objective; the newest posture for the self-motion preview."""
         self.preview.feed(frame)
+        twin = f"W_{frame.status.twin}" if frame.status.twin else TWIN_OFF
+        if self.twin.value != twin and not self._recently_touched(self.twin):
+            self.twin.value = twin
+        has_objective = "objective" in frame.settings.values.get("executor", {})
+        if self.twin.disabled == has_objective:
+            self.twin.disabled = not has_objective
         sig = frame.status.signals
         scene_W = getattr(frame.scene, "W", None) or {}
         parts = []

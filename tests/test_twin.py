@@ -1,0 +1,96 @@
+"""The twin arm: a second session in lockstep with another nullspace objective."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.loop import SimLoop
+from app.ui.commands import Configure, DragCommand, Reset, SetTwin, StepOnce, SwitchSession
+
+
+@pytest.fixture
+def polish():
+    lp = SimLoop("polish")  # with the scene snapshot, so frames carry the twin's poses
+    lp.start(running=False)
+    yield lp
+    lp.stop()
+
+
+def _frame_with_twin(loop: SimLoop):
+    """The first published frame that shows the twin (frames follow commands within ~1/30 s)."""
+    seq = 0
+    for _ in range(100):
+        frame = loop.wait_frame(seq, timeout=1.0)
+        if frame is not None:
+            if frame.status.twin:
+                return frame
+            seq = frame.seq
+    raise AssertionError("no frame showed the twin")
+
+
+def test_a_twin_with_the_same_objective_repeats_the_main_arm_step_for_step(polish):
+    polish.submit(StepOnce(50))
+    polish.submit(SetTwin("a"))  # the polish controller runs W_a: the twin must be the same run
+    polish.submit(StepOnce(400))
+    status = polish.sync()
+    assert status.twin == "a" and status.steps == 400  # switching the twin on restarted the scenario
+    main, twin = polish.session, polish.twin
+    assert twin is not None
+    assert twin.session.world.time == main.world.time
+    np.testing.assert_array_equal(twin.session.world.q, main.world.q)
+    np.testing.assert_array_equal(twin.session.world.dq, main.world.dq)
+    cols = polish.log.window(0.4, polish.dt)
+    np.testing.assert_array_equal(twin.force_error_at(cols["t"]), cols["Fd_z"] - cols["F_z"])
+
+
+def test_a_twin_with_another_objective_takes_another_posture_and_shares_the_settings(polish):
+    polish.submit(Configure("environment", {"mu": 1.0}))
+    polish.submit(SetTwin("j"))
+    polish.submit(StepOnce(2000))
+    polish.sync()
+    main, twin = polish.session, polish.twin
+    assert twin is not None and twin.session.executor.nullspace.objective == "j"
+    assert main.executor.nullspace.objective == "a"
+    assert twin.session.environment.contact.mu == main.environment.contact.mu == 1.0
+    # same TCP task, different elbow: W_a lets the elbow move, W_j holds the start posture
+    assert np.linalg.norm(twin.session.dyn.tcp_position_world - main.dyn.tcp_position_world) < 2e-3
+    assert np.max(np.abs(twin.session.world.q - main.world.q)) > 0.02
+    frame = _frame_with_twin(polish)
+    assert frame.status.twin == "j" and frame.scene.twin_objective == "j"
+    assert frame.scene.twin_link_positions.shape == frame.scene.link_positions.shape
+
+
+def test_the_drag_pulls_only_the_main_arm_and_reset_restarts_both(polish):
+    polish.submit(SetTwin("d"))
+    polish.submit(StepOnce(100))
+    polish.sync()
+    p = polish.session.world.data.xpos[polish.session.world.model.body("link4").id].copy()
+    polish.submit(DragCommand("grab", client_id=1, body_name="link4", point_world=tuple(p)))
+    polish.submit(DragCommand("move", client_id=1, target_world=tuple(p + np.array([0.0, 0.15, 0.0]))))
+    polish.submit(StepOnce(300))
+    polish.sync()
+    twin = polish.twin
+    assert twin is not None and polish.session.drag.active and not twin.session.drag.active
+    polish.submit(Reset())
+    status = polish.sync()
+    assert status.t == 0.0 and twin.session.world.time == 0.0 and polish.twin is twin
+
+
+def test_a_twin_needs_an_executor_with_an_objective(polish):
+    polish.submit(SetTwin("z"))
+    polish.sync()
+    assert polish.twin is None and "objective" in polish.notice_log[-1].body
+    polish.submit(SetTwin("f"))
+    polish.sync()
+    assert polish.twin is not None
+    polish.submit(SwitchSession(executor="compliance-qp"))
+    polish.sync()
+    assert polish.twin is None and polish.notice_log[-1].title == "Twin arm off"
+    polish.submit(SwitchSession(executor="projection"))
+    polish.submit(SetTwin("f"))
+    polish.submit(SwitchSession(robot="gen3"))  # a new session brings a new twin with the same objective
+    status = polish.sync()
+    assert status.robot == "gen3" and polish.twin is not None and polish.twin.session.robot.name == "gen3"
+    polish.submit(SetTwin(None))
+    assert polish.sync().twin == ""
