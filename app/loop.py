@@ -29,7 +29,7 @@ from app.executors import EXECUTORS
 from app.pacing import Pacer, RateMeter
 from app.scenarios import Scenario
 from app.session import DRAG_FIELDS, Session
-from app.settings import settings_of
+from app.settings import finite_number, settings_of
 from app.steplog import StepLog
 from app.twin import Twin
 from app.ui.commands import (
@@ -462,7 +462,7 @@ class SimLoop:
             self._running = self._resume_after_reset
 
     def _set_speed(self, factor: object) -> None:
-        value = _number(factor)
+        value = finite_number(factor)
         if value is None or not SPEED_RANGE[0] <= value <= SPEED_RANGE[1]:
             raise ValueError(f"speed must be between {SPEED_RANGE[0]} and {SPEED_RANGE[1]}, got {factor!r}")
         self._pacer.set_speed(value, self._clock(), self._total_steps)
@@ -554,11 +554,13 @@ class SimLoop:
             if isinstance(now, bool):
                 ok = isinstance(value, bool)
             elif isinstance(now, (int, float)):  # a scalar gain may become per-axis values
-                ok = _number(value) is not None or (not isinstance(value, bool) and _finite_array(value) is not None)
+                ok = finite_number(value) is not None or (
+                    not isinstance(value, bool) and _finite_array(value) is not None
+                )
             elif isinstance(now, str):
                 ok = isinstance(value, str)
             elif isinstance(now, list):
-                ok = isinstance(value, (list, tuple)) or _number(value) is not None
+                ok = isinstance(value, (list, tuple)) or finite_number(value) is not None
             else:
                 ok = True
             if not ok:
@@ -737,17 +739,6 @@ def _finite_array(value: object) -> np.ndarray | None:
     except (TypeError, ValueError):
         return None
     return arr if np.all(np.isfinite(arr)) else None
-
-
-def _number(value: object) -> float | None:
-    """A finite float, or None for anything else (strings, NaN, None, booleans)."""
-    if isinstance(value, bool):
-        return None
-    try:
-        out = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return None
-    return out if math.isfinite(out) else None
 
 
 def _vec3(value: object) -> np.ndarray | None:

@@ -12,7 +12,6 @@ The web app's loop and the headless experiments both call this, so they agree st
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,6 +21,7 @@ import numpy as np
 import robots
 from app.executors import make_executor
 from app.scenarios import Environment, Scenario, Sensor, get_scenario
+from app.settings import finite_number
 from app.sim.drag import DragSpring
 from app.sim.world import World
 from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
@@ -117,7 +117,7 @@ class Session:
             for key, value in changes.items():
                 if key not in DRAG_FIELDS:
                     raise ValueError(f"the drag spring has no setting {key!r}")
-                number = _number(value)
+                number = finite_number(value)
                 if number is None or number <= 0:
                     raise ValueError(f"drag {key} must be a positive number, got {value!r}")
             for key, value in changes.items():
@@ -136,7 +136,7 @@ class Session:
             wrench = getattr(self.target_fn, "wrench", None)
             if key != "force_setpoint_n" or not isinstance(wrench, np.ndarray):
                 raise ValueError(f"this scenario's target has no setting {key!r}")
-            number = _number(value)
+            number = finite_number(value)
             lo, hi = FORCE_SETPOINT_RANGE_N
             if number is None or not lo <= number <= hi:
                 raise ValueError(f"force setpoint must be between {lo:g} and {hi:g} N, got {value!r}")
@@ -213,14 +213,3 @@ class Session:
     @property
     def _sensor_frame_id(self) -> int:
         return self.model.model.getFrameId(robots.SENSOR_FRAME)
-
-
-def _number(value: object) -> float | None:
-    """A finite float, or None for anything else (strings, NaN, None, booleans)."""
-    if isinstance(value, bool):
-        return None
-    try:
-        out = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return None
-    return out if math.isfinite(out) else None

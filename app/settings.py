@@ -9,6 +9,7 @@ this, so a new field in a gains dataclass appears without hand-written code.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -49,3 +50,14 @@ def settings_of(obj: object) -> dict[str, Any]:
         elif isinstance(value, (bool, int, float, str)):
             out.setdefault(key, value)
     return out
+
+
+def finite_number(value: object) -> float | None:
+    """A finite float, or None for anything else (strings, NaN, None, booleans)."""
+    if isinstance(value, bool):
+        return None
+    try:
+        out = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    return out if math.isfinite(out) else None

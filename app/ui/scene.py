@@ -73,6 +73,30 @@ def _visual_mesh(geometry, urdf_path: str) -> trimesh.Trimesh | None:
     return None
 
 
+def add_ghost_arm(
+    server: viser.ViserServer,
+    root: str,
+    shapes: dict[str, trimesh.Trimesh],
+    color: tuple[int, int, int],
+    opacity: float,
+    visible: bool = True,
+) -> dict[str, viser.MeshHandle]:
+    """Translucent, non-draggable copies of the link shapes under `root` (twin arm, self-motion ghost)."""
+    return {
+        name: server.scene.add_mesh_simple(
+            f"{root}/{name}",
+            mesh.vertices,
+            mesh.faces,
+            color=color,
+            opacity=opacity,
+            cast_shadow=False,
+            receive_shadow=False,
+            visible=visible,
+        )
+        for name, mesh in shapes.items()
+    }
+
+
 def link_joint_indices(robot: RobotDescription) -> dict[str, int]:
     """Link name → index (0..6) of the joint that moves it; -1 for links fixed to the base."""
     out = {}
@@ -175,16 +199,7 @@ class SceneView:
             return
         assert positions is not None and wxyz is not None
         if not self.twin_meshes:
-            for name, mesh in self._link_shapes.items():
-                self.twin_meshes[name] = self.server.scene.add_mesh_simple(
-                    f"/twin/{name}",
-                    mesh.vertices,
-                    mesh.faces,
-                    color=TWIN_COLOR,
-                    opacity=TWIN_OPACITY,
-                    cast_shadow=False,
-                    receive_shadow=False,
-                )
+            self.twin_meshes = add_ghost_arm(self.server, "/twin", self._link_shapes, TWIN_COLOR, TWIN_OPACITY)
             self.twin_label = self.server.scene.add_label("/twin_label", "twin")
         for i, name in enumerate(snap.link_names):
             if name not in self.twin_meshes:

@@ -242,22 +242,12 @@ class SelfMotionPreview:
                 handle.visible = True
 
     def _build_ghost(self, robot: RobotDescription) -> None:
-        from app.ui.scene import link_meshes  # the scene module builds the same link shapes
+        from app.ui.scene import add_ghost_arm, link_meshes  # the scene's own link shapes
 
         for handle in self._ghost.values():
             handle.remove()
-        self._ghost.clear()
-        for name, mesh in link_meshes(str(robot.urdf_path)).items():
-            self._ghost[name] = self.server.scene.add_mesh_simple(
-                f"/ghost/{name}",
-                mesh.vertices,
-                mesh.faces,
-                color=GHOST_COLOR,
-                opacity=GHOST_OPACITY,
-                cast_shadow=False,
-                receive_shadow=False,
-                visible=False,
-            )
+        shapes = link_meshes(str(robot.urdf_path))
+        self._ghost = add_ghost_arm(self.server, "/ghost", shapes, GHOST_COLOR, GHOST_OPACITY, visible=False)
         self._ghost_robot = str(robot.urdf_path)
 
     @property
