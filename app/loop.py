@@ -258,8 +258,13 @@ class SimLoop:
         """The last `seconds` of the step log (every step) plus what produced it, copied in the loop thread."""
 
         def grab(session: Session) -> dict[str, Any]:
+            columns = self.log.window(seconds, self.dt)
+            twin = self.twin
+            if twin is not None and "t" in columns:  # the twin's columns beside the main ones, same rows
+                columns |= {f"twin_{k}": v for k, v in twin.columns_at(columns["t"]).items() if k != "t"}
             return {
-                "columns": self.log.window(seconds, self.dt),
+                "columns": columns,
+                "twin_objective": twin.objective if twin is not None else None,
                 "scenario": session.scenario.name,
                 "robot": session.robot.name,
                 "executor": session.executor_name,
@@ -400,16 +405,7 @@ class SimLoop:
             self.twin = None
             self._dirty = True
             return
-        s = self.session
-        self.twin = Twin(
-            s.scenario,
-            self._robot_choice or None,
-            s.executor_name,
-            self._seed,
-            str(objective),
-            self.dt,
-            self._overrides,
-        )  # ValueError for a wrong objective or an executor without one
+        self.twin = self._new_twin(str(objective))  # ValueError for a wrong objective or executor
         self._reset()
 
     def _rebuild_twin(self) -> None:
@@ -417,13 +413,23 @@ class SimLoop:
         if self.twin is None:
             return
         objective = self.twin.objective
-        s = self.session
         try:
-            self.twin = Twin(
-                s.scenario, self._robot_choice or None, s.executor_name, self._seed, objective, self.dt, self._overrides
-            )
+            self.twin = self._new_twin(objective)
         except ValueError as exc:
             self._drop_twin(f"the twin arm is switched off: {exc}")
+
+    def _new_twin(self, objective: str) -> Twin:
+        s = self.session
+        return Twin(
+            s.scenario,
+            self._robot_choice or None,
+            s.executor_name,
+            self._seed,
+            objective,
+            self.dt,
+            self._overrides,
+            self._log_seconds,
+        )
 
     def _drop_twin(self, reason: str) -> None:
         self.twin = None

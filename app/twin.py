@@ -16,9 +16,9 @@ import numpy as np
 
 from app.scenarios import Scenario
 from app.session import Session
+from app.steplog import StepLog
 
 TWIN_OBJECTIVES = ("j", "f", "a", "d")
-FORCE_LOG_S = 12.0  # s of the twin's force error kept for the plot (the plot shows 10 s)
 
 
 class Twin:
@@ -33,6 +33,7 @@ class Twin:
         objective: str,
         dt: float,
         overrides: Mapping[str, Mapping[str, Any]],
+        log_seconds: float = 60.0,
     ):
         if objective not in TWIN_OBJECTIVES:
             raise ValueError(f"the twin's objective must be one of {', '.join(TWIN_OBJECTIVES)}, got {objective!r}")
@@ -43,10 +44,8 @@ class Twin:
         for target, changes in overrides.items():
             self.configure(target, changes)
         self.session.executor.configure(objective=objective)
-        capacity = round(FORCE_LOG_S / dt)
-        self._t = np.full(capacity, np.nan)
-        self._err = np.full(capacity, np.nan)
-        self._count = 0
+        self.dt = dt
+        self.log = StepLog(self.session.robot.nq, capacity=round(log_seconds / dt))  # as the main log
 
     def configure(self, target: str, changes: Mapping[str, Any]) -> None:
         """Apply a person's change to the twin too, one setting at a time; its own objective and
@@ -75,34 +74,39 @@ class Twin:
         self.session.reset()
         for target in ("environment", "sensor", "target"):
             self.configure(target, overrides.get(target, {}))
-        self._t[:] = np.nan
-        self._err[:] = np.nan
-        self._count = 0
+        self.log.clear()
 
     def step(self) -> None:
         """One control period, in lockstep with the main session."""
-        rec = self.session.step()
-        i = self._count % len(self._t)
-        self._t[i] = rec.t
-        self._err[i] = float(rec.target.wrench[2] - rec.wrench_tcp[2])  # F̂_z − F_z, as the main plot
-        self._count += 1
+        self.log.append(self.session.step())
 
     def diverged(self) -> bool:
         """NaN or runaway state in the twin's simulation."""
         return self.session.diverged()
 
-    def force_error_at(self, t: np.ndarray) -> np.ndarray:
-        """The twin's F̂_z − F_z at the main log's times (NaN where the twin has no sample)."""
-        out = np.full(len(t), np.nan)
-        n = min(self._count, len(self._t))
-        if n == 0 or len(t) == 0:
+    def columns_at(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        """The twin's logged columns at the main log's times `t` (NaN where it has no sample)."""
+        out: dict[str, np.ndarray] = {}
+        if len(t) == 0:
             return out
-        order = np.argsort(self._t[:n])
-        ts, errs = self._t[:n][order], self._err[:n][order]
-        idx = np.clip(np.searchsorted(ts, t), 0, n - 1)
-        hit = np.abs(ts[idx] - t) < 1e-9
-        out[hit] = errs[idx[hit]]
+        span = float(np.max(t) - np.min(t)) + 2 * self.dt
+        cols = self.log.window(span, self.dt)
+        ts = cols.get("t", np.zeros(0))
+        idx = np.clip(np.searchsorted(ts, t), 0, max(len(ts) - 1, 0))
+        hit = (np.abs(ts[idx] - t) < 1e-9) if len(ts) else np.zeros(len(t), dtype=bool)
+        for name, values in cols.items():
+            column = np.full(len(t), np.nan)
+            if len(ts):
+                column[hit] = values[idx[hit]]
+            out[name] = column
         return out
+
+    def force_error_at(self, t: np.ndarray) -> np.ndarray:
+        """The twin's F̂_z − F_z at the main log's times (NaN where it has no sample)."""
+        cols = self.columns_at(t)
+        if "Fd_z" not in cols:
+            return np.full(len(t), np.nan)
+        return cols["Fd_z"] - cols["F_z"]
 
     def link_poses(self, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
         """World positions (L, 3) and quaternions (L, 4, wxyz) of the twin's bodies."""

@@ -94,3 +94,19 @@ def test_a_twin_needs_an_executor_with_an_objective(polish):
     assert status.robot == "gen3" and polish.twin is not None and polish.twin.session.robot.name == "gen3"
     polish.submit(SetTwin(None))
     assert polish.sync().twin == ""
+
+
+def test_the_export_carries_the_twins_columns_beside_the_main_ones(polish):
+    polish.submit(SetTwin("j"))
+    polish.submit(StepOnce(500))
+    polish.sync()
+    export = polish.export(0.3)
+    cols = export["columns"]
+    assert export["twin_objective"] == "j"
+    assert len(cols["t"]) == 300 and len(cols["twin_q_1"]) == 300
+    assert not np.any(np.isnan(cols["twin_q_1"]))  # lockstep: every main row has a twin row
+    twin = polish.twin
+    assert twin is not None
+    assert twin.session.last is not None and cols["twin_q_4"][-1] == twin.session.last.q[3]
+    assert np.max(np.abs(cols["twin_q_4"] - cols["q_4"])) > 0.0  # W_j's elbow is not W_a's
+    np.testing.assert_allclose(cols["twin_Fd_z"] - cols["twin_F_z"], twin.force_error_at(cols["t"]))
