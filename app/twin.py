@@ -16,6 +16,7 @@ import numpy as np
 
 from app.scenarios import Scenario
 from app.session import Session
+from app.settings import settings_of
 from app.steplog import StepLog
 
 TWIN_OBJECTIVES = ("j", "f", "a", "d")
@@ -124,6 +125,4 @@ class Twin:
 
 
 def _settings(session: Session) -> dict[str, Any]:
-    from app.settings import settings_of
-
     return settings_of(session.executor)
