@@ -501,7 +501,15 @@ class SimLoop:
             spec = s.scenario  # same scenario object, same case (robot switch)
         else:
             spec = scenario
-        new = Session(spec, robot=robot_choice or None, executor=executor, seed=self._seed)
+        try:
+            new = Session(spec, robot=robot_choice or None, executor=executor, seed=self._seed)
+        except ValueError as exc:
+            if cmd.scenario is None or not robot_choice:
+                raise
+            # a preset that needs its own arm (a posture the picked one lacks): run it on its default robot
+            new = Session(spec, robot=None, executor=executor, seed=self._seed)
+            self._notify("info", "Robot changed", f"{exc}. Using {new.robot.name}.")
+            robot_choice = ""
         self.session = new
         self._robot_choice = robot_choice
         self._session_id += 1

@@ -170,6 +170,13 @@ def test_a_robot_without_the_scenarios_posture_is_refused_in_words():
         body = lp.notice_log[-1].body
         assert "mass_drop_nominal" in body and "gen3" in body and "rizon4s does not define" in body
         assert lp.session.robot.name == "gen3" and lp.session.scenario.name == "mass-drop"
+        # a preset switch with that arm picked runs the preset on its own arm and says so
+        lp.submit(SwitchSession(scenario="free", robot="rizon4s"))
+        lp.submit(SwitchSession(scenario="limit-drop"))
+        lp.sync()
+        assert lp.session.scenario.name == "limit-drop" and lp.session.robot.name == "gen3"
+        assert lp.notice_log[-1].title == "Robot changed" and "l_shape" in lp.notice_log[-1].body
+        assert lp.robot_choice == ""
     finally:
         lp.stop()
 

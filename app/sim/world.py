@@ -20,7 +20,7 @@ import pinocchio as pin
 from robots import SENSOR_FRAME, TCP_FRAME, RobotDescription
 
 TIMESTEP_S = 1e-3
-MAX_TORQUE_DELAY_MS = 50.0  # actuator latency the simulation accepts (torque loop, bus, filters)
+MAX_TORQUE_DELAY_MS = 20.0  # actuator latency the simulation accepts (torque loop, bus, filters)
 
 
 @dataclass
@@ -143,7 +143,7 @@ class World:
         return {"torque_delay_ms": self.torque_delay_steps * self.model.opt.timestep * 1e3}
 
     def configure(self, **changes: object) -> None:
-        """`torque_delay_ms`: actuator latency, 0 … 50 ms, rounded to whole timesteps. Torques
+        """`torque_delay_ms`: actuator latency, 0 … 20 ms, rounded to whole timesteps. Torques
         reach the joints that much later (an ideal torque source is 0). ValueError otherwise."""
         for key, value in changes.items():
             if key != "torque_delay_ms":
