@@ -39,7 +39,7 @@ class Twin:
         if objective not in TWIN_OBJECTIVES:
             raise ValueError(f"the twin's objective must be one of {', '.join(TWIN_OBJECTIVES)}, got {objective!r}")
         self.session = Session(scenario, robot=robot, executor=executor, seed=seed)
-        if "objective" not in _settings(self.session):
+        if "objective" not in settings_of(self.session.executor):
             raise ValueError(f"the {executor} executor has no nullspace objective: the twin needs the projection one")
         self.objective = objective
         for target, changes in overrides.items():
@@ -65,7 +65,7 @@ class Twin:
     def set_executor(self, name: str, executor_overrides: Mapping[str, Any]) -> None:
         """Follow the main session's executor switch (state kept); ValueError if it has no objective."""
         self.session.set_executor(name)
-        if "objective" not in _settings(self.session):
+        if "objective" not in settings_of(self.session.executor):
             raise ValueError(f"the {name} executor has no nullspace objective")
         self.configure("executor", executor_overrides)
         self.session.executor.configure(objective=self.objective)
@@ -122,7 +122,3 @@ class Twin:
         last = self.session.last
         sig = last.signals if last is not None else {}
         return {k: float(sig[k]) for k in ("W", "W_j", "W_f", "W_a", "W_d") if k in sig}
-
-
-def _settings(session: Session) -> dict[str, Any]:
-    return settings_of(session.executor)

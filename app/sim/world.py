@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
+from app.settings import finite_number
 from robots import SENSOR_FRAME, TCP_FRAME, RobotDescription
 
 TIMESTEP_S = 1e-3
@@ -145,16 +146,15 @@ class World:
     def configure(self, **changes: object) -> None:
         """`torque_delay_ms`: actuator latency, 0 … 20 ms, rounded to whole timesteps. Torques
         reach the joints that much later (an ideal torque source is 0). ValueError otherwise."""
-        for key, value in changes.items():
+        for key in changes:
             if key != "torque_delay_ms":
                 raise ValueError(f"the simulation has no setting {key!r}")
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-                raise ValueError(f"torque delay must be a number of ms, got {value!r}")
-            if not 0.0 <= float(value) <= MAX_TORQUE_DELAY_MS:
-                raise ValueError(f"torque delay must be between 0 and {MAX_TORQUE_DELAY_MS:g} ms, got {value!r}")
         if "torque_delay_ms" in changes:
-            steps = round(float(changes["torque_delay_ms"]) * 1e-3 / self.model.opt.timestep)  # type: ignore[arg-type]
-            self.torque_delay_steps = int(steps)
+            value = changes["torque_delay_ms"]
+            ms = finite_number(value) if not isinstance(value, str) else None
+            if ms is None or not 0.0 <= ms <= MAX_TORQUE_DELAY_MS:
+                raise ValueError(f"torque delay must be 0 to {MAX_TORQUE_DELAY_MS:g} ms, got {value!r}")
+            self.torque_delay_steps = round(ms * 1e-3 / self.model.opt.timestep)
             while len(self._tau_pipeline) > self.torque_delay_steps:
                 self._tau_pipeline.popleft()
 

@@ -97,6 +97,27 @@ def add_ghost_arm(
     }
 
 
+def pose_ghost_arm(
+    meshes: dict[str, viser.MeshHandle], names: tuple[str, ...] | list[str], positions: np.ndarray, wxyz: np.ndarray
+) -> None:
+    """Put each ghost link at its pose (rows of `positions`, `wxyz` in the order of `names`) and show it."""
+    for i, name in enumerate(names):
+        handle = meshes.get(name)
+        if handle is None:
+            continue
+        handle.position = tuple(positions[i])
+        handle.wxyz = tuple(wxyz[i])
+        if not handle.visible:
+            handle.visible = True
+
+
+def hide_ghost_arm(meshes: dict[str, viser.MeshHandle]) -> None:
+    """Hide every link of a ghost arm."""
+    for handle in meshes.values():
+        if handle.visible:
+            handle.visible = False
+
+
 def link_joint_indices(robot: RobotDescription) -> dict[str, int]:
     """Link name → index (0..6) of the joint that moves it; -1 for links fixed to the base."""
     out = {}
@@ -191,9 +212,7 @@ class SceneView:
         positions, wxyz = snap.twin_link_positions, snap.twin_link_wxyz
         show = positions is not None and wxyz is not None and bool(np.all(np.isfinite(positions)))
         if not show:
-            for handle in self.twin_meshes.values():
-                if handle.visible:
-                    handle.visible = False
+            hide_ghost_arm(self.twin_meshes)
             if self.twin_label is not None and self.twin_label.visible:
                 self.twin_label.visible = False
             return
@@ -201,14 +220,7 @@ class SceneView:
         if not self.twin_meshes:
             self.twin_meshes = add_ghost_arm(self.server, "/twin", self._link_shapes, TWIN_COLOR, TWIN_OPACITY)
             self.twin_label = self.server.scene.add_label("/twin_label", "twin")
-        for i, name in enumerate(snap.link_names):
-            if name not in self.twin_meshes:
-                continue
-            handle = self.twin_meshes[name]
-            handle.position = tuple(positions[i])
-            handle.wxyz = tuple(wxyz[i])
-            if not handle.visible:
-                handle.visible = True
+        pose_ghost_arm(self.twin_meshes, snap.link_names, positions, wxyz)
         if self.twin_label is not None:
             middle = len(snap.link_names) // 2
             self.twin_label.position = tuple(positions[middle] + np.array([0.0, 0.0, 0.08]))

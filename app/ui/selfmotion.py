@@ -21,6 +21,7 @@ import numpy as np
 import pinocchio as pin
 import viser
 
+from app.ui.scene import add_ghost_arm, hide_ghost_arm, link_meshes, pose_ghost_arm
 from control.coupling import Subspaces, flow_minimum, swivel_scan
 from control.model import RobotModel
 from robots import RobotDescription
@@ -225,25 +226,15 @@ class SelfMotionPreview:
 
     def _show_ghost(self, robot: RobotDescription | None, q: np.ndarray | None) -> None:
         if robot is None or q is None:
-            for handle in self._ghost.values():
-                if handle.visible:
-                    handle.visible = False
+            hide_ghost_arm(self._ghost)
             return
         if self._ghost_robot != str(robot.urdf_path):
             self._build_ghost(robot)
         positions, wxyz = link_poses(self._model_for(robot), robot, q)
         with self.server.atomic():
-            for i, name in enumerate(robot.link_names):
-                if name not in self._ghost:
-                    continue
-                handle = self._ghost[name]
-                handle.position = tuple(positions[i])
-                handle.wxyz = tuple(wxyz[i])
-                handle.visible = True
+            pose_ghost_arm(self._ghost, robot.link_names, positions, wxyz)
 
     def _build_ghost(self, robot: RobotDescription) -> None:
-        from app.ui.scene import add_ghost_arm, link_meshes  # the scene's own link shapes
-
         for handle in self._ghost.values():
             handle.remove()
         shapes = link_meshes(str(robot.urdf_path))

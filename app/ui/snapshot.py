@@ -57,7 +57,7 @@ class SceneSnapshot:
     twin_link_positions: np.ndarray | None = None  # (L, 3) m: the twin arm's bodies (app.twin), if one runs
     twin_link_wxyz: np.ndarray | None = None  # (L, 4)
     twin_objective: str | None = None  # "j", "f", "a" or "d"
-    twin_W: dict[str, float] = field(default_factory=dict)  # the twin's W_j, W_f, W_a, W_d
+    twin_W: dict[str, float] = field(default_factory=dict)  # the twin's "W" (its own objective), W_f, W_a, W_d
 
     @cached_property
     def subspaces(self) -> Subspaces:
