@@ -16,8 +16,8 @@ import time
 from dataclasses import fields
 from typing import Any
 
+from app.commands import Configure, Play, Reset, SetTwin
 from app.server import start_app
-from app.ui.commands import Configure, Play, Reset, SetTwin
 
 CHROMIUM = os.environ.get("TORQUELAB_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [

@@ -1,7 +1,7 @@
 """The real-time loop: the one thread that owns the Session (MuJoCo, controller, solvers).
 
 It steps the simulation at 1 kHz simulated time paced to wall time (`app.pacing`), applies the
-commands other threads queued (`app.ui.commands`) between two steps, logs every step
+commands other threads queued (`app.commands`) between two steps, logs every step
 (`app.steplog`), auto-pauses on NaN/divergence, and at 30 Hz publishes a `Frame` — the scene
 snapshot, the status, plot data, the current settings and any notices — that the server's
 publisher thread shows in the browser. Nothing outside this thread touches the Session, except
@@ -22,17 +22,9 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-import mujoco
 import numpy as np
 
-from app.executors import EXECUTORS
-from app.pacing import Pacer, RateMeter
-from app.scenarios import Scenario
-from app.session import DRAG_FIELDS, Session
-from app.settings import finite_number, settings_of
-from app.steplog import StepLog
-from app.twin import Twin
-from app.ui.commands import (
+from app.commands import (
     Command,
     Configure,
     DragCommand,
@@ -44,6 +36,13 @@ from app.ui.commands import (
     StepOnce,
     SwitchSession,
 )
+from app.executors import EXECUTORS
+from app.pacing import Pacer, RateMeter
+from app.scenarios import Scenario
+from app.session import DRAG_FIELDS, Session, StepRecord
+from app.settings import finite_number, settings_of
+from app.steplog import StepLog
+from app.twin import Twin
 from app.variants import make_variant, variant_of
 
 try:  # the scene snapshot is optional: the loop runs without it (tests, headless)
@@ -310,27 +309,25 @@ class SimLoop:
                 self._wake.clear()
 
     def _advance(self, n: int) -> None:
-        """Run n steps, logging each; stop at the first sign of divergence."""
+        """Run n steps (`Session.run`), logging each; halt at the first sign of divergence."""
         t0, cpu0 = self._clock(), time.thread_time()
-        session, log = self.session, self.log
-        twin = self.twin
-        try:
-            for _ in range(n):
-                rec = session.step()
-                log.append(rec)
-                self._total_steps += 1
-                if rec.fallback:
-                    self._fallback_steps += 1
-                if twin is not None:
-                    twin.step()
-        except Exception as exc:  # a bug or numerical failure must not kill the server
-            traceback.print_exc()
-            self._halt(f"the simulation step raised {type(exc).__name__}: {exc}")
-        else:
-            if _diverged(session):
-                self._halt(f"the simulation diverged at t = {session.world.time:.3f} s (NaN or runaway velocity)")
-            elif twin is not None and twin.diverged():
-                self._drop_twin(f"the twin arm (W_{twin.objective}) diverged; it is switched off")
+        log, twin = self.log, self.twin
+
+        def record(rec: StepRecord) -> None:
+            log.append(rec)
+            self._total_steps += 1
+            if rec.fallback:
+                self._fallback_steps += 1
+            if twin is not None:
+                twin.step()
+
+        result = self.session.run(steps=n, record=record)
+        if result.error is not None:  # a bug or numerical failure must not kill the server
+            traceback.print_exception(result.error)
+        if result.halted:
+            self._halt(result.reason)
+        elif twin is not None and twin.diverged():
+            self._drop_twin(f"the twin arm (W_{twin.objective}) diverged; it is switched off")
         self._meter.add_busy(self._clock() - t0)
         self._step_cpu_s += time.thread_time() - cpu0
         self._dirty = True
@@ -727,21 +724,6 @@ def _monitor_row(status: LoopStatus, scene: Any) -> tuple[float, float, float, f
         return math.nan if singular else float(value)
 
     return (status.t, status.rtf, pick("W_f"), pick("W_a"), pick("W_d"))
-
-
-_BAD_STATE_WARNINGS = (
-    mujoco.mjtWarning.mjWARN_BADQPOS,
-    mujoco.mjtWarning.mjWARN_BADQVEL,
-    mujoco.mjtWarning.mjWARN_BADQACC,
-)
-
-
-def _diverged(session: Session) -> bool:
-    """NaN/runaway state, or MuJoCo had to reset an unstable state (it does so silently)."""
-    if session.diverged():
-        return True
-    warnings = session.world.data.warning
-    return any(warnings[int(w)].number > 0 for w in _BAD_STATE_WARNINGS)
 
 
 def _finite_array(value: object) -> np.ndarray | None:

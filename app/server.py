@@ -21,9 +21,9 @@ from typing import Any
 import viser
 
 import robots
+from app.commands import DragCommand
 from app.loop import SimLoop
 from app.scenarios import SCENARIOS
-from app.ui.commands import DragCommand
 from app.ui.panels import ALL_KNOBS
 from app.ui.panels.base import make_settings_reader
 from app.ui.panels.compliance import CompliancePanel

@@ -31,6 +31,26 @@ FORCE_SETPOINT_RANGE_N = (-100.0, 100.0)
 DRAG_FIELDS = ("max_force_n", "stiffness_per_s2", "damping_ratio")
 
 
+@dataclass(frozen=True)
+class RunResult:
+    """How far `Session.run` got and why it stopped.
+
+    `stop` is "done" (all steps ran), "until" (the `until` predicate ended it), "diverged" (NaN,
+    runaway velocity or a state MuJoCo had to reset) or "error" (a step raised `error`); `reason`
+    says it in words for the two halts."""
+
+    steps: int  # steps run in this call
+    t: float  # s, simulated time at the end
+    stop: str
+    reason: str = ""
+    error: BaseException | None = None
+
+    @property
+    def halted(self) -> bool:
+        """True when the run ended on divergence or an error."""
+        return self.stop in ("diverged", "error")
+
+
 @dataclass
 class StepRecord:
     """What one step produced; the UI and the logs read this."""
@@ -174,16 +194,45 @@ class Session:
         )
         return self.last
 
-    def run(self, seconds: float, callback: Callable[[StepRecord], None] | None = None) -> None:
-        """Step for `seconds` of simulated time."""
-        for _ in range(round(seconds / self.world.model.opt.timestep)):
-            rec = self.step()
-            if callback is not None:
-                callback(rec)
+    def run(
+        self,
+        seconds: float | None = None,
+        *,
+        steps: int | None = None,
+        until: Callable[[StepRecord], bool] | None = None,
+        record: Callable[[StepRecord], None] | None = None,
+    ) -> RunResult:
+        """Step for `seconds` of simulated time (or `steps` steps): the one run loop of the app and
+        the experiments. After each step `record(rec)` is called, then the state is checked for
+        divergence, then `until(rec)` may end the run early. An exception from a step (or from
+        `record`) ends the run too; it is returned in the result, not raised."""
+        if steps is None:
+            if seconds is None:
+                raise ValueError("run needs seconds or steps")
+            steps = round(seconds / self.world.model.opt.timestep)
+        done = 0
+        try:
+            for _ in range(int(steps)):
+                rec = self.step()
+                done += 1
+                if record is not None:
+                    record(rec)
+                if self.world.diverged():
+                    return RunResult(done, self.world.time, "diverged", self._divergence_reason())
+                if until is not None and until(rec):
+                    return RunResult(done, self.world.time, "until")
+        except Exception as exc:  # a bug or numerical failure ends the run; the caller decides
+            return RunResult(
+                done, self.world.time, "error", f"the simulation step raised {type(exc).__name__}: {exc}", exc
+            )
+        return RunResult(done, self.world.time, "done")
 
     def diverged(self) -> bool:
-        """NaN or runaway state in the simulation."""
+        """NaN or runaway state in the simulation, or MuJoCo had to reset an unstable state."""
         return self.world.diverged()
+
+    def _divergence_reason(self) -> str:
+        return f"the simulation diverged at t = {self.world.time:.3f} s (NaN or runaway velocity)"
 
     # ---- helpers ------------------------------------------------------------------------------
     def _safe_step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:

@@ -269,7 +269,7 @@ def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page
     assert {"W_j", "W_f", "W_a", "W_d"} <= set(offered)
     objective = lambda: app.loop.call(lambda s: s.executor.nullspace.objective)  # noqa: E731
     wait_for(lambda: objective() == "d", 20, "the server's objective to become d")
-    from app.ui.commands import Configure
+    from app.commands import Configure
 
     app.loop.submit(Configure("executor", {"objective": "a"}))  # back to the polish default for the screenshot
     wait_for(lambda: objective() == "a", 20, "the objective to return to a")
@@ -293,7 +293,7 @@ def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page)
 
 
 def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page):
-    from app.ui.commands import SetTwin
+    from app.commands import SetTwin
 
     pg, _ = page
     offered = choose(pg, "Twin arm", "W_j")
@@ -377,7 +377,7 @@ def test_screenshot_of_the_running_app_is_saved(app, page):
 
 def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page):
     """Γ (task compliance), λ and M belong to the [C] QP executor: with it running they are in the page."""
-    from app.ui.commands import SwitchSession
+    from app.commands import SwitchSession
 
     pg, _ = page
     app.loop.submit(SwitchSession(executor="compliance-qp"))

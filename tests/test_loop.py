@@ -8,12 +8,12 @@ import time
 import numpy as np
 import pytest
 
+from app.commands import Configure, DragCommand, Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
 from app.loop import SimLoop
 from app.pacing import Pacer, RateMeter
 from app.scenarios import SCENARIOS
 from app.session import Session
 from app.steplog import StepLog
-from app.ui.commands import Configure, DragCommand, Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
 
 DT = 1e-3
 

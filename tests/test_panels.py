@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
+from app.commands import Configure
 from app.export import to_csv, to_json
 from app.loop import SimLoop
 from app.scenarios import SCENARIOS
 from app.session import Session
-from app.ui.commands import Configure
 from app.ui.panels import ALL_KNOBS
 from app.ui.panels.base import Knob, coerce, make_settings_reader
 from app.ui.panels.compliance import JOINT_KNOBS

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from app.commands import StepOnce
 from app.loop import SimLoop
-from app.ui.commands import StepOnce
 from app.ui.plots import COUPLING_TITLE, FORCE_TITLE, NO_SETPOINT_TITLE, Plots
 
 

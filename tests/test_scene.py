@@ -11,8 +11,8 @@ import types
 import numpy as np
 import pytest
 
+from app.commands import DragCommand
 from app.session import Session
-from app.ui.commands import DragCommand
 from app.ui.overlays import (
     Trail,
     coupling_map,

@@ -12,8 +12,8 @@ import pytest
 import viser
 from websockets.sync.client import connect
 
+from app.commands import DragCommand, StepOnce
 from app.server import port_is_free, start_app
-from app.ui.commands import DragCommand, StepOnce
 from app.ui.panels.base import KnobPanel
 
 
@@ -211,7 +211,7 @@ def test_status_shows_the_fallback_badge_the_halt_message_and_a_slow_machine(app
 
 
 def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):
-    from app.ui.commands import SwitchSession
+    from app.commands import SwitchSession
 
     plots = app.publisher.plots
     plots.joint.value = "2"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -73,3 +74,39 @@ def test_reset_repeats_a_qp_run_exactly(scenario):
         fresh.step()
         reset.step()
     np.testing.assert_array_equal(reset.world.q, fresh.world.q)
+
+
+def test_run_records_every_step_and_stops_on_until_divergence_or_an_error():
+    s = Session("free")
+    seen: list[float] = []
+    result = s.run(0.05, record=lambda rec: seen.append(rec.t))
+    assert (result.steps, result.stop, result.halted) == (50, "done", False)
+    assert len(seen) == 50 and seen[-1] == pytest.approx(0.049)
+    result = s.run(steps=100, until=lambda rec: rec.t >= 0.0595)
+    assert result.stop == "until" and result.steps == 11 and result.t == pytest.approx(0.061)  # rec.t: step start
+
+    s.world.data.qvel[2] = np.nan  # the first step after this is the last
+    result = s.run(1.0)
+    assert result.stop == "diverged" and result.halted and result.steps == 1 and "diverged" in result.reason
+
+    s = Session("free")
+
+    calls = []
+
+    def boom(rec):
+        calls.append(rec)
+        if len(calls) == 10:
+            raise TypeError("bad gain")
+
+    result = s.run(steps=100, record=boom)
+    assert result.stop == "error" and result.steps == 10 and isinstance(result.error, TypeError)
+    assert "TypeError: bad gain" in result.reason
+
+
+def test_a_state_mujoco_had_to_reset_counts_as_divergence():
+    s = Session("free")
+    assert not s.diverged()
+    s.world.data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number = 1
+    assert s.diverged()
+    s.reset()
+    assert not s.diverged()

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from app.commands import Configure, DragCommand, Reset, SetTwin, StepOnce, SwitchSession
 from app.loop import SimLoop
-from app.ui.commands import Configure, DragCommand, Reset, SetTwin, StepOnce, SwitchSession
 
 
 @pytest.fixture

@@ -9,6 +9,7 @@ compute the true wrench at the flange.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -22,6 +23,10 @@ from robots import SENSOR_FRAME, TCP_FRAME, RobotDescription
 
 TIMESTEP_S = 1e-3
 MAX_TORQUE_DELAY_MS = 20.0  # actuator latency the simulation accepts (torque loop, bus, filters)
+_BAD_STATE_WARNINGS = tuple(  # MuJoCo resets such a state and counts the warning; we halt instead
+    int(w)
+    for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
+)
 
 
 @dataclass
@@ -228,9 +233,15 @@ class World:
         self.applied.clear()
 
     def diverged(self) -> bool:
-        """True when the state holds NaN/inf or absurd velocities."""
-        qv = self.data.qvel
-        return bool(not np.all(np.isfinite(self.data.qpos)) or not np.all(np.isfinite(qv)) or np.max(np.abs(qv)) > 1e3)
+        """True when the state holds NaN/inf or a runaway velocity (‖q̇‖ > 1e3), or MuJoCo had to reset
+        an unstable state since the last `reset` (it does so silently, counting a warning)."""
+        data = self.data
+        qvel, qpos = data.qvel, data.qpos
+        # a dot product is NaN/inf when any element is, and `not <=` is True for NaN: one cheap test
+        if not float(qvel @ qvel) <= 1e6 or not math.isfinite(float(qpos @ qpos)):
+            return True
+        warnings = data.warning
+        return any(warnings[w].number > 0 for w in _BAD_STATE_WARNINGS)
 
     # ---- model quantities for cross-checks --------------------------------------------------
     def mass_matrix(self) -> np.ndarray:

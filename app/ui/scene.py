@@ -16,7 +16,7 @@ import trimesh
 import viser
 import yourdfpy
 
-from app.ui.commands import DragCommand
+from app.commands import DragCommand
 from app.ui.overlays import Overlays, margin_color
 from app.ui.snapshot import SceneSnapshot
 from app.ui.visuals import VisualSettings

@@ -19,10 +19,10 @@ from typing import Any, Literal
 
 import viser
 
+from app.commands import Configure
 from app.loop import Settings, SimLoop
 from app.session import Session
 from app.settings import plain, settings_of
-from app.ui.commands import Configure
 
 TOUCH_HOLD_S = 0.6  # after a person moves a knob, the panel does not overwrite it for this long
 

@@ -7,8 +7,8 @@ from typing import Any
 
 import viser
 
+from app.commands import Configure, SetTwin
 from app.loop import Frame, SimLoop
-from app.ui.commands import Configure, SetTwin
 from app.ui.panels.base import TOUCH_HOLD_S, Knob, KnobPanel, coerce, notify
 from app.ui.selfmotion import SelfMotionPreview
 

@@ -8,10 +8,10 @@ from typing import Any
 import viser
 
 import robots
+from app.commands import Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
 from app.executors import EXECUTORS
 from app.loop import SPEED_RANGE, Frame, LoopStatus, SimLoop
 from app.scenarios import SCENARIOS
-from app.ui.commands import Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
 from app.ui.panels.base import Knob, KnobPanel, coerce, notify
 
 DEFAULT_ROBOT = "scenario default"
