@@ -1,4 +1,4 @@
-"""The `torquelab` command line: serve (default), experiment, check, bench."""
+"""The `torquelab` command line: serve (default), experiment, sweep, check, bench."""
 
 from __future__ import annotations
 
@@ -104,7 +104,14 @@ def build_parser() -> argparse.ArgumentParser:
     from app.experiments import add_parsers
 
     add_parsers(sub)
+    _add_sweep(sub)
     return parser
+
+
+def _add_sweep(sub) -> None:
+    from app.sweep.cli import add_parser
+
+    add_parser(sub)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,182 @@
+"""What each experiment offers a sweep: its knobs, one cell (one single run), its headline metrics.
+
+A cell calls the experiment's own single-run function (`run_drop`, `run_mass_drop`,
+`polish.simulate`) with the cell's values over the experiment's defaults, and returns its
+scalar metrics and whether the run was stable (the meaning is stated per experiment).
+Cell functions live at module level so that any `concurrent.futures.Executor` can ship them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from app.sweep.grid import SweepError
+from app.sweep.knobs import Knob
+
+
+@dataclass(frozen=True)
+class SweepExperiment:
+    """An experiment as a sweep sees it."""
+
+    name: str
+    knobs: tuple[Knob, ...]
+    cell: Callable[[dict, int], dict]
+    map_metrics: tuple[str, ...]  # metrics drawn as maps / lines in the report
+    stable_means: str  # what "stable" means for this experiment (shown in the report)
+    seeded: bool = True  # False: the run does not depend on the seed (seeds repeat it)
+
+    def check_combination(self, names: list[str]) -> None:
+        """SweepError for knobs that cannot be swept together."""
+        if self.name == "polish" and "hold_swivel" in names:
+            clash = [n for n in ("swivel", "objective") if n in names]
+            if clash:
+                raise SweepError(f"hold_swivel sets the start swivel and the objective; drop {', '.join(clash)}")
+
+
+def _scalars(d: dict, prefix: str = "") -> dict:
+    """Flat {name: number|bool|str|None} of the scalar entries of a (nested) result dict."""
+    out: dict = {}
+    for key, value in d.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_scalars(value, f"{name}_"))
+        elif isinstance(value, bool | int | str) or value is None:
+            out[name] = value
+        elif isinstance(value, float):
+            out[name] = value if math.isfinite(value) else None
+    return out
+
+
+# ---- limit-drop [C] §IV-B–C -------------------------------------------------------------------
+LIMIT_DROP_KNOBS = (
+    Knob("lambda", "damper", "lambda_", "float", "damper gain λ (1/s) [C24]", ("lam", "λ", "lambda_")),
+    Knob("M", "damper", "M", "float", "damper overdamping M [C24]"),
+    Knob("form", "damper", "form", ("proposed", "classic"), "damper form: proposed [C24] or classic δt [C17–19]"),
+    Knob("feedback", "compliance_qp", "feedback", "bool", "τ̂_e kept in the inverse dynamics [C8]"),
+    Knob("torque_delay_ms", "world", "torque_delay_ms", "float", "actuator latency, ms", ("delay", "torque_delay")),
+    Knob("limit", "scenario.limit-drop", "limit", ("position", "velocity"), "which limit joint 4 falls into"),
+    Knob("K_I", "estimator", "observer_gain", "float", "momentum-observer gain K_I (1/s) [C25]", ("observer_gain",)),
+    Knob("duration", "run", "duration_s", "float", "simulated seconds per drop", ("duration_s",)),
+)
+
+
+def limit_drop_cell(values: dict, seed: int) -> dict:
+    """One drop of limit-drop (`run_drop`); stable = joint 4 stays inside its limit."""
+    from app.experiments.limit_drop import run_drop
+    from app.scenarios.limit_drop import DURATION_S
+
+    delay_ms = float(values.get("torque_delay_ms", 0.0))
+    r = run_drop(
+        str(values.get("form", "proposed")),
+        float(values.get("lambda", 100.0)),
+        float(values.get("M", 2.0)),
+        bool(values.get("feedback", True)),
+        str(values.get("limit", "position")),
+        duration=float(values.get("duration", DURATION_S)),
+        observer_gain=values.get("K_I"),
+        delay_steps=round(delay_ms),  # the Gen3 world steps at 1 ms
+    )
+    metrics = _scalars({k: v for k, v in r.items() if not k.startswith("trace")})
+    return {"metrics": metrics, "stable": bool(r["max_violation"] <= 0.0)}
+
+
+# ---- mass-drop [C] §IV-D ----------------------------------------------------------------------
+MASS_DROP_KNOBS = (
+    Knob(
+        "controller",
+        "scenario.mass-drop",
+        "mode",
+        ("position", "torque-residual", "torque-fusion"),
+        "Position PID, Torque + Residual or Torque + Fusion",
+        ("mode",),
+    ),
+)
+
+
+def mass_drop_cell(values: dict, seed: int) -> dict:
+    """One release of mass-drop (`run_mass_drop`); stable = the TCP settles inside the 1 mm band."""
+    from app.experiments.mass_drop import run_mass_drop
+    from app.scenarios.mass_drop import WINDOW_S
+
+    r = run_mass_drop(str(values.get("controller", "torque-fusion")), seed)
+    metrics = _scalars({k: v for k, v in r.items() if not k.startswith("trace")})
+    return {"metrics": metrics, "stable": bool(r["stabilization_time_s"] < WINDOW_S)}
+
+
+# ---- polish [T] §IV-B ---------------------------------------------------------------------------
+POLISH_KNOBS = (
+    Knob("mu", "scenario.polish", "mu", "float", "Coulomb friction coefficient μ", ("μ",)),
+    Knob("swivel", "scenario.polish", "start_swivel_deg", "float", "start swivel, degrees", ("start_swivel",)),
+    Knob(
+        "hold_swivel",
+        "scenario.polish",
+        "hold_swivel_deg",
+        "float",
+        "start at this swivel and hold it (W_j on the start posture: no flow), degrees",
+    ),
+    Knob("objective", "nullspace", "objective", ("j", "f", "a", "d"), "nullspace objective W_j/W_f/W_a/W_d [T15]"),
+    Knob("shaping", "motion_force", "shaping", "bool", "inertia shaping Λ̂x [T9] on/off"),
+    Knob("sensor_cutoff", "sensor", "cutoff_hz", "float", "F/T low-pass cutoff, Hz (0 = none)", ("cutoff_hz",)),
+    Knob("converge_timeout", "scenario.polish", "converge_timeout_s", "float", "posture settle cap, s"),
+    Knob("sander", "scenario.polish", "sander", "bool", "7000 RPM sander disturbance"),
+)
+
+
+def polish_cell(values: dict, seed: int) -> dict:
+    """One polish run (`polish.simulate`); stable = never diverged and never lost contact."""
+    from app.experiments.polish import simulate
+
+    spec: dict = {
+        "mu": float(values.get("mu", 0.25)),
+        "sander": bool(values.get("sander", False)),
+        "seed": int(seed),
+        "objective": str(values.get("objective", "a")),
+        "start_swivel_deg": float(values.get("swivel", 0.0)),
+        "shaping": bool(values.get("shaping", True)),
+        "group": "sweep",
+    }
+    if "hold_swivel" in values:  # the nullspace holds the start posture (W_j with q_d = q(0)): no flow
+        spec["start_swivel_deg"] = float(values["hold_swivel"])
+        spec["objective"] = "j"
+    if "sensor_cutoff" in values:
+        spec["sensor_cutoff_hz"] = float(values["sensor_cutoff"])
+    if "converge_timeout" in values:
+        spec["converge_timeout_s"] = float(values["converge_timeout"])
+    r = simulate(spec)["result"]
+    keep = {k: v for k, v in r.items() if k not in ("per_segment", "q_start", "q_converged", "posture_change_deg")}
+    return {"metrics": _scalars(keep), "stable": bool(r["stable"])}
+
+
+EXPERIMENTS: dict[str, SweepExperiment] = {
+    "limit-drop": SweepExperiment(
+        "limit-drop",
+        LIMIT_DROP_KNOBS,
+        limit_drop_cell,
+        ("max_violation", "oscillations", "overshoot_beyond_ds", "peak_torque"),
+        "joint 4 stays inside its limit (max violation ≤ 0)",
+        seeded=False,
+    ),
+    "mass-drop": SweepExperiment(
+        "mass-drop",
+        MASS_DROP_KNOBS,
+        mass_drop_cell,
+        ("peak_deflection_mm", "stabilization_time_s", "residual_error_mm"),
+        "the TCP settles inside the 1 mm band within the window",
+    ),
+    "polish": SweepExperiment(
+        "polish",
+        POLISH_KNOBS,
+        polish_cell,
+        ("stable", "force_error_ptp", "force_error_ma", "contact_lost_ms", "converged_swivel_deg"),
+        "no divergence and no contact loss during the six segments",
+    ),
+}
+
+
+def get(name: str) -> SweepExperiment:
+    """The sweepable experiment `name`; SweepError naming the choices otherwise."""
+    if name not in EXPERIMENTS:
+        raise SweepError(f"unknown experiment {name!r}; sweepable: {', '.join(EXPERIMENTS)}")
+    return EXPERIMENTS[name]

@@ -1,0 +1,98 @@
+"""Run a grid of cells on any `concurrent.futures.Executor`, appending each result as it lands.
+
+`run_sweep` submits every cell not yet in `DIR/cells.jsonl` to the executor it is given and
+does not know or care what runs them (a local process pool, a Dask cluster's executor, ...).
+A cell that raises an `Exception` is recorded with its error and the sweep goes on; anything
+else raised (SystemExit, KeyboardInterrupt, a dead pool) stops the sweep with the finished cells
+kept, and the same command resumes it.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+import traceback
+from collections.abc import Callable
+from concurrent.futures import Executor, Future, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tqdm import tqdm
+
+from app.sweep.store import CellStore, cell_key, code_version, write_csv
+
+
+def worker_id() -> str:
+    """Host and process id of whoever runs this: "host:pid"."""
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def run_cell(cell: Callable[[dict, int], dict], params: dict, seed: int) -> dict:
+    """Run one cell where the executor puts it; an Exception becomes an "error" record."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    rec: dict = {"worker": worker_id()}
+    try:
+        out = cell(params, seed)
+        rec.update(status="ok", metrics=out["metrics"], stable=bool(out["stable"]), error=None)
+    except Exception as exc:  # the sweep goes on; the error is kept with the cell
+        tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        rec.update(status="error", metrics=None, stable=None, error=tb)
+    rec["wall_s"] = time.perf_counter() - t0
+    rec["cpu_s"] = time.process_time() - c0
+    return rec
+
+
+@dataclass
+class SweepResult:
+    """What one invocation did."""
+
+    total: int  # cells in the grid × seeds
+    skipped: int  # finished earlier (resume)
+    ran: int = 0
+    failed: int = 0
+    wall_s: float = 0.0
+    records: list[dict] = field(default_factory=list)  # the grid's cells, in grid order (those finished)
+
+
+def run_sweep(
+    experiment: str,
+    cell: Callable[[dict, int], dict],
+    cells: list[tuple[dict, int]],
+    out: Path,
+    executor: Executor,
+    retry_failed: bool = False,
+    progress: bool = True,
+) -> SweepResult:
+    """Run the cells not finished yet in `out/cells.jsonl` on `executor`; write cells.csv."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    store = CellStore(out / "cells.jsonl")
+    code = code_version()
+    keyed = [(cell_key(experiment, params, seed), params, seed) for params, seed in cells]
+    todo = [(k, p, s) for k, p, s in keyed if not store.finished(k, retry_failed)]
+    result = SweepResult(total=len(keyed), skipped=len(keyed) - len(todo))
+    t0 = time.perf_counter()
+    futures: dict[Future, tuple[str, dict, int]] = {}
+    bar = tqdm(total=len(todo), desc=f"sweep {experiment}", unit="cell", disable=not progress)
+    try:
+        for k, p, s in todo:
+            futures[executor.submit(run_cell, cell, p, s)] = (k, p, s)
+        for fut in as_completed(futures):
+            k, p, s = futures[fut]
+            rec = fut.result()  # BaseException from a cell, or a dead pool, stops the sweep here
+            rec.update(key=k, experiment=experiment, params=p, seed=s, code=code, finished_at=time.time())
+            store.append(rec)
+            result.ran += 1
+            result.failed += rec["status"] != "ok"
+            bar.update()
+            if result.failed:
+                bar.set_postfix(failed=result.failed)
+    finally:
+        bar.close()
+        for fut in futures:
+            fut.cancel()
+        result.wall_s = time.perf_counter() - t0
+    result.records = [store.records[k] for k, _, _ in keyed if k in store.records]
+    write_csv(out / "cells.csv", result.records)
+    return result

@@ -1,0 +1,84 @@
+"""Cell results that survive a kill: one JSON line per finished cell in `DIR/cells.jsonl`.
+
+A line is appended (and flushed to disk) as soon as a cell finishes, so a killed sweep keeps
+everything it finished; a re-run reads the file and skips those cells. A half-written last line
+(the process died while writing) is ignored. `write_csv` flattens the records for pandas.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import app
+
+
+def cell_key(experiment: str, params: dict, seed: int) -> str:
+    """Hash of the experiment, the cell's parameters and its seed: the identity used for resume."""
+    text = json.dumps({"experiment": experiment, "params": params, "seed": int(seed)}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def code_version() -> str:
+    """Hash of the installed torquelab sources (app/, control/, robots/): which code made a cell."""
+    root = Path(app.__file__).resolve().parent.parent
+    h = hashlib.sha256()
+    for package in ("app", "control", "robots"):
+        for path in sorted((root / package).rglob("*")):
+            if path.suffix in (".py", ".toml", ".urdf") and path.is_file():
+                h.update(str(path.relative_to(root)).encode())
+                h.update(path.read_bytes())
+    return h.hexdigest()[:12]
+
+
+class CellStore:
+    """The append-only cell log of one sweep directory."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.records: dict[str, dict] = {}
+        if self.path.exists():
+            for line in self.path.read_text().splitlines():
+                try:
+                    rec = json.loads(line)
+                except json.JSONDecodeError:
+                    continue  # a line cut short by a kill
+                if isinstance(rec, dict) and "key" in rec:
+                    self.records[rec["key"]] = rec  # the latest record of a key wins
+
+    def finished(self, key: str, retry_failed: bool) -> bool:
+        """True when the cell need not run again (done, or failed and failures are not retried)."""
+        rec = self.records.get(key)
+        if rec is None:
+            return False
+        return rec.get("status") == "ok" or not retry_failed
+
+    def append(self, record: dict) -> None:
+        """Write one finished cell at once (flushed and synced) and remember it."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        line = json.dumps(record, sort_keys=True, allow_nan=False)
+        with self.path.open("a") as f:
+            f.write(line + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        self.records[record["key"]] = record
+
+
+def write_csv(path: Path, records: list[dict]) -> None:
+    """One row per cell: params as `p_NAME`, metrics as `m_NAME`, plus seed, status, timing, worker."""
+    base = ["key", "experiment", "seed", "status", "stable", "wall_s", "cpu_s", "worker", "code", "error"]
+    params = sorted({k for r in records for k in r.get("params", {})})
+    metrics = sorted({k for r in records for k in (r.get("metrics") or {})})
+    header = base + [f"p_{k}" for k in params] + [f"m_{k}" for k in metrics]
+    with Path(path).open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        for r in records:
+            m = r.get("metrics") or {}
+            row = [r.get(k) for k in base]
+            row += [r.get("params", {}).get(k) for k in params]
+            row += [m.get(k) for k in metrics]
+            writer.writerow(["" if v is None else v for v in row])

@@ -1,0 +1,209 @@
+"""Sweeps: grid parsing and validation, resume after a kill, failed cells, and the same limit-drop
+metrics from the local process pool and from a real Dask LocalCluster's workers."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from app.sweep.grid import cells, parse_grid, parse_item
+from app.sweep.knobs import build_axes
+from app.sweep.report import _cell_summary
+from app.sweep.runner import run_sweep
+from app.sweep.store import CellStore
+
+KILL_FLAG = "TORQUELAB_TEST_SWEEP_KILL"  # file: the cell x = 3 raises SystemExit while it exists
+FAIL_FLAG = "TORQUELAB_TEST_SWEEP_FAIL"  # file: the cell x = 4 raises ValueError while it exists
+RUN_LOG = "TORQUELAB_TEST_SWEEP_LOG"  # file: every cell that runs appends its x
+
+
+def toy_cell(values: dict, seed: int) -> dict:
+    """A cell that logs that it ran, and dies or fails on a flag."""
+    x = values["x"]
+    with open(os.environ[RUN_LOG], "a") as f:
+        f.write(f"{x}\n")
+    if x == 3 and os.path.exists(os.environ[KILL_FLAG]):
+        raise SystemExit("killed")
+    if x == 4 and os.path.exists(os.environ[FAIL_FLAG]):
+        raise ValueError("cell four refuses")
+    return {"metrics": {"square": float(x * x), "seed": seed}, "stable": x < 5}
+
+
+def _one_line_error(capsys, argv: list[str]) -> str:
+    rc = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2, err
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+def test_grid_values_as_linspace_list_or_single():
+    name, values = parse_item("swivel=-180:180:24")
+    xs = [float(v) for v in values]
+    assert name == "swivel" and len(xs) == 24
+    assert xs[0] == pytest.approx(-180.0) and xs[-1] == pytest.approx(180.0)
+    assert np.allclose(np.diff(xs), 360.0 / 23)
+    assert parse_item("mu=0.25,0.5,1.0") == ("mu", ["0.25", "0.5", "1.0"])
+    assert parse_item("form=classic") == ("form", ["classic"])
+    grid = parse_grid(["lambda=100,300", "M=1.5:3:2"])
+    from app.sweep.experiments import get
+
+    axes = build_axes(get("limit-drop").knobs, grid)
+    assert [a.values for a in axes] == [(100.0, 300.0), (1.5, 3.0)]
+    assert len(cells(axes, seeds=3)) == 2 * 2 * 3
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["limit-drop", "--grid", "bogus=1"], "unknown parameter 'bogus'"),
+        (["limit-drop", "--grid", "lambda=-5"], "lambda_ must be positive"),
+        (["limit-drop", "--grid", "form=wobbly"], "choose from proposed, classic"),
+        (["limit-drop", "--grid", "torque_delay_ms=50"], "0 to 20 ms"),
+        (["limit-drop", "--grid", "M=1:2"], "a:b:n"),
+        (["limit-drop", "--grid", "M=1:2:zero"], "whole number"),
+        (["limit-drop", "--grid", "M=abc"], "must be a number"),
+        (["limit-drop", "--grid", "M=nan"], "finite"),
+        (["limit-drop", "--grid", "lambda"], "NAME=VALUES"),
+        (["limit-drop", "--grid", "M=1", "M=2"], "given twice"),
+        (["limit-drop", "--grid", "feedback=maybe"], "on/off"),
+        (["polish", "--grid", "mu=-0.5"], "non-negative"),
+        (["polish", "--grid", "objective=z"], "objective"),
+        (["polish", "--grid", "hold_swivel=0,30", "swivel=10"], "drop swivel"),
+        (["juggle", "--grid", "x=1"], "unknown experiment 'juggle'"),
+        (["limit-drop", "--grid", "M=2", "--seeds", "0"], "--seeds"),
+        (["limit-drop", "--grid", "M=2", "--jobs", "0"], "--jobs"),
+        (["limit-drop", "--grid", "M=2", "--cluster", "not an address"], "scheduler address"),
+    ],
+)
+def test_bad_grid_is_a_one_line_error_and_nothing_runs(capsys, tmp_path, argv, words):
+    out = tmp_path / "out"
+    err = _one_line_error(capsys, ["sweep", *argv, "--out", str(out)])
+    assert words in err
+    assert not out.exists()
+
+
+@pytest.fixture
+def toy_env(tmp_path, monkeypatch):
+    flags = {k: tmp_path / k.lower() for k in (KILL_FLAG, FAIL_FLAG, RUN_LOG)}
+    for k, p in flags.items():
+        monkeypatch.setenv(k, str(p))
+    return flags
+
+
+def _ran(log: Path) -> list[int]:
+    return [int(x) for x in log.read_text().split()] if log.exists() else []
+
+
+def test_a_killed_sweep_resumes_with_only_the_missing_cells(tmp_path, toy_env):
+    grid = [({"x": x}, 0) for x in range(6)]
+    out = tmp_path / "sweep"
+    toy_env[KILL_FLAG].touch()
+    with ProcessPoolExecutor(max_workers=1) as pool, pytest.raises(SystemExit):
+        run_sweep("toy", toy_cell, grid, out, pool, progress=False)
+    kept = CellStore(out / "cells.jsonl").records
+    done_first = sorted(r["params"]["x"] for r in kept.values())
+    assert done_first == [0, 1, 2]  # one worker runs the cells in order; x = 3 "killed" the sweep
+    toy_env[KILL_FLAG].unlink()
+    toy_env[RUN_LOG].unlink()
+    with ProcessPoolExecutor(max_workers=1) as pool:
+        result = run_sweep("toy", toy_cell, grid, out, pool, progress=False)
+    assert sorted(_ran(toy_env[RUN_LOG])) == [3, 4, 5]
+    assert (result.ran, result.skipped, result.failed) == (3, 3, 0)
+    lines = (out / "cells.jsonl").read_text().splitlines()
+    assert len(lines) == 6 and len({json.loads(line)["key"] for line in lines}) == 6
+    assert [r["metrics"]["square"] for r in result.records] == [float(x * x) for x in range(6)]
+
+
+def test_a_failing_cell_is_recorded_and_rerun_only_with_retry_failed(tmp_path, toy_env):
+    grid = [({"x": x}, s) for x in (3, 4, 5) for s in (0, 1)]
+    out = tmp_path / "sweep"
+    toy_env[FAIL_FLAG].touch()
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        first = run_sweep("toy", toy_cell, grid, out, pool, progress=False)
+    assert (first.ran, first.failed) == (6, 2)
+    errors = [r for r in first.records if r["status"] == "error"]
+    assert {r["params"]["x"] for r in errors} == {4}
+    assert all("ValueError: cell four refuses" in r["error"] for r in errors)
+    toy_env[FAIL_FLAG].unlink()
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        again = run_sweep("toy", toy_cell, grid, out, pool, progress=False)
+        assert (again.ran, again.skipped) == (0, 6)
+        retried = run_sweep("toy", toy_cell, grid, out, pool, retry_failed=True, progress=False)
+    assert (retried.ran, retried.failed, retried.skipped) == (2, 0, 4)
+    assert all(r["status"] == "ok" for r in retried.records)
+    rows = list(csv.DictReader((out / "cells.csv").open()))
+    assert len(rows) == 6 and {r["status"] for r in rows} == {"ok"}
+    assert sorted(float(r["m_square"]) for r in rows) == [9.0, 9.0, 16.0, 16.0, 25.0, 25.0]
+
+
+def test_a_half_written_last_line_is_ignored(tmp_path):
+    path = tmp_path / "cells.jsonl"
+    path.write_text(json.dumps({"key": "a", "status": "ok"}) + "\n" + '{"key": "b", "sta')
+    store = CellStore(path)
+    assert set(store.records) == {"a"}
+    assert store.finished("a", retry_failed=True) and not store.finished("b", retry_failed=False)
+
+
+def test_cells_whose_seeds_disagree_on_stability_are_marked():
+    ok = {"status": "ok", "metrics": {"m": 1.0}}
+    mean, sd, disagree, failed = _cell_summary([{**ok, "stable": True}, {**ok, "stable": False}], "m")
+    assert (mean, sd, disagree, failed) == (1.0, 0.0, True, False)
+    assert _cell_summary([{**ok, "stable": True}] * 2, "stable")[:3] == (1.0, 0.0, False)
+    assert _cell_summary([{**ok, "stable": True}, {"status": "error"}], "m")[3]
+
+
+LIMIT_DROP_GRID = ["lambda=100,300", "M=1.5,3", "duration=1.2"]
+
+
+def _records(out: Path) -> dict[str, dict]:
+    return CellStore(out / "cells.jsonl").records
+
+
+def test_limit_drop_on_a_dask_localcluster_matches_the_local_pool(tmp_path, capsys):
+    distributed = pytest.importorskip("distributed")
+    local_out, dask_out = tmp_path / "local", tmp_path / "dask"
+    base = ["sweep", "limit-drop", "--grid", *LIMIT_DROP_GRID, "--no-progress"]
+    assert main([*base, "--out", str(local_out), "--jobs", "2"]) == 0
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, host="127.0.0.1"
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        worker_pids = set(client.run(os.getpid).values())
+        assert main([*base, "--out", str(dask_out), "--cluster", cluster.scheduler_address]) == 0
+    local, dask = _records(local_out), _records(dask_out)
+    assert len(local) == 4 and set(local) == set(dask)
+    for key, rec in dask.items():
+        assert rec["status"] == "ok" and local[key]["status"] == "ok"
+        assert int(rec["worker"].rsplit(":", 1)[1]) in worker_pids  # ran on a Dask worker
+        a, b = local[key]["metrics"], rec["metrics"]
+        assert a.keys() == b.keys()
+        for name, value in a.items():
+            if isinstance(value, float):
+                assert b[name] == pytest.approx(value, rel=1e-9, abs=1e-12), name
+            else:
+                assert b[name] == value, name
+    assert int(next(iter(local.values()))["worker"].rsplit(":", 1)[1]) not in worker_pids
+    assert os.getpid() not in worker_pids
+    violations = {r["params"]["lambda"]: r["metrics"]["max_violation"] for r in local.values()}
+    assert all(np.isfinite(v) for v in violations.values())
+    report = (local_out / "report.html").read_text()
+    assert "Map: max_violation" in report and "Map: oscillations" in report and "data:image/png;base64" in report
+    rows = list(csv.DictReader((local_out / "cells.csv").open()))
+    assert len(rows) == 4 and {"p_lambda", "p_M", "m_max_violation", "worker"} <= set(rows[0])
+    capsys.readouterr()
+
+
+def test_the_grid_itself_must_be_given(capsys, tmp_path):
+    with pytest.raises(SystemExit):
+        main(["sweep", "limit-drop", "--out", str(tmp_path)])
+    assert "--grid" in capsys.readouterr().err
