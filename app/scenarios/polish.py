@@ -52,7 +52,7 @@ CONVERGED_HOLD_S = 0.3
 # ---- contact, sensor, disturbance -------------------------------------------------------------
 DESIRED_FORCE_N = 20.0  # Table II
 CONTACT_STIFFNESS_N_PER_M = 30000.0  # [T] §IV-A
-FRICTION_V_EPS_M_PER_S = 0.01  # μF_n/v_ε·Δt ≤ 2 kg ≪ TCP mass: stable explicit step; 16× below cruise speed
+FRICTION_V_EPS_M_PER_S = 0.01  # 16× below cruise speed: Coulomb from 0.1 m/s on (implicit step: stable at any v_ε)
 SENSOR_CUTOFF_HZ = 25.0  # [T] §IV-A first-order low-pass of the F/T reading
 SANDER_AMPLITUDE_N = 10.0  # 7000 RPM, ≈ 4 g imbalance at a 5 mm orbit (m e ω²)
 

@@ -4,13 +4,25 @@ Normal force: a spring of stiffness k on the penetration depth, no damping,
 F_n = k · max(0, z_table − z_tcp). Tangential force: Coulomb friction μ F_n against the TCP's
 tangential velocity v_t, regularised near zero velocity as
 
-    F_t = −μ F_n · v_t / √(‖v_t‖² + v_ε²),
+    F_t = −μ F_n · v_t / √(‖v_t‖² + v_ε²) = −c(v_t) v_t,   c = μ F_n / √(‖v_t‖² + v_ε²),
 
 which is smooth, odd in v_t, never exceeds μ F_n in magnitude, and equals Coulomb friction
-(within 0.5 %) once ‖v_t‖ > 10 v_ε. Below v_ε it acts like a viscous damper of slope μF_n/v_ε;
-v_ε is chosen so that this slope times the 1 ms step stays well below the TCP's effective mass
-(explicit integration of a stiffer damper would chatter). Forces are applied at the TCP point
-with `mj_applyFT` (through `World.apply_force`).
+(within 0.5 %) once ‖v_t‖ > 10 v_ε. Below v_ε it acts like a viscous damper of slope μF_n/v_ε.
+
+Integration. Stepped explicitly, that damper is stable only while c·Δt/m < 2 (m the TCP's
+tangential mass): with m = 1.4–2.9 kg at the polish postures, μF_n = 20 N and Δt = 1 ms this
+fails below v_ε ≈ 7 mm/s. So the friction is integrated implicitly: with the damping
+coefficient c frozen at the step's start (the secant of the law) and G = J_t M⁻¹ J_tᵀ the
+tangential inverse mass of the TCP point, the applied force is the backward-Euler one,
+
+    F_t = −c (I + Δt c G)⁻¹ v_t,
+
+so that friction alone maps v_t to (I + Δt c G)⁻¹ v_t: eigenvalues in (0, 1] for every c ≥ 0,
+i.e. stable and never reversing the sliding direction for any v_ε, and ‖F_t‖ ≤ c‖v_t‖ ≤ μF_n.
+The other forces of the step (controller, gravity) are not in the implicit solve, so a steady
+tangential push P creeps at P/c + Δt·G·P instead of P/c (at most Δt·G·μF_n ≈ 14 mm/s
+at the lightest tangential mass and μF_n = 20 N, reached only when the push nears μF_n).
+Forces are applied at the TCP point with `mj_applyFT` (through `World.apply_force`).
 """
 
 from __future__ import annotations
@@ -41,8 +53,10 @@ class TableContact:
         stiffness_n_per_m: float = 30000.0,
         mu: float = 0.25,
         v_eps_m_per_s: float = 0.01,
+        implicit: bool = True,
     ):
         self.height = float(height)
+        self.implicit = bool(implicit)  # False: the explicit law (kept to show why it is not used)
         self.stiffness_n_per_m = 0.0
         self.mu = 0.0
         self.v_eps_m_per_s = 1.0
@@ -70,14 +84,47 @@ class TableContact:
         friction = -self.mu * f_n * v_t / np.sqrt(speed2 + self.v_eps_m_per_s**2)
         return f_n, friction
 
+    def implicit_forces(
+        self, point: np.ndarray, velocity: np.ndarray, inverse_mass: np.ndarray, dt: float
+    ) -> tuple[float, np.ndarray]:
+        """(F_n, friction (3,)) of one backward-Euler step of the friction (module docstring):
+        F_t = −c (I + Δt c G)⁻¹ v_t with G the (3, 3) inverse mass of the TCP point (its
+        tangential 2×2 block is used) and Δt the step."""
+        depth = self.height - float(point[2])
+        if depth <= 0.0:
+            return 0.0, np.zeros(3)
+        f_n = self.stiffness_n_per_m * depth
+        friction = np.zeros(3)
+        friction[:2] = implicit_friction(self.mu * f_n, velocity[:2], self.v_eps_m_per_s, inverse_mass[:2, :2], dt)
+        return f_n, friction
+
     def apply(self, world: World) -> ContactState:
-        """Apply this step's contact force on the body carrying the TCP."""
+        """Apply this step's contact force on the body carrying the TCP (implicit friction)."""
         point, _ = world.site_pose(world.tcp_site)
         velocity = world.site_velocity(world.tcp_site)[:3]
-        f_n, friction = self.forces(point, velocity)
+        f_n, friction = 0.0, np.zeros(3)
+        if self.height - float(point[2]) > 0.0:
+            G = world.site_inverse_mass(world.tcp_site) if self.implicit else np.zeros((3, 3))
+            f_n, friction = self.implicit_forces(point, velocity, G, world.model.opt.timestep)
         if f_n > 0.0:
             force = friction + np.array([0.0, 0.0, f_n])
             world.apply_force(world.wrist_body, point, force)
         speed = float(np.hypot(velocity[0], velocity[1]))
         self.state = ContactState(f_n, friction, point, speed)
         return self.state
+
+
+def implicit_friction(
+    coulomb_n: float, v_t: np.ndarray, v_eps: float, inverse_mass: np.ndarray, dt: float
+) -> np.ndarray:
+    """Backward-Euler friction force (2,) = −c (I + Δt c G)⁻¹ v_t, c = μF_n / √(‖v_t‖² + v_ε²).
+
+    `coulomb_n` is μF_n, `inverse_mass` the (2, 2) tangential inverse mass G of the contact
+    point (symmetric positive definite), `dt` the step. With G = 0 this is the explicit law.
+    """
+    v = np.asarray(v_t, dtype=float)
+    c = coulomb_n / np.sqrt(float(v @ v) + v_eps * v_eps)
+    g = np.asarray(inverse_mass, dtype=float) * (dt * c)
+    a, b, cc, d = 1.0 + g[0, 0], g[0, 1], g[1, 0], 1.0 + g[1, 1]  # I + Δt c G, solved in closed form
+    det = a * d - b * cc
+    return (-c / det) * np.array([d * v[0] - b * v[1], a * v[1] - cc * v[0]])

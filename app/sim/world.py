@@ -174,6 +174,15 @@ class World:
         mujoco.mj_jacSite(self.model, self.data, jacp, jacr, site_id)
         return np.concatenate([jacp @ self.data.qvel, jacr @ self.data.qvel])
 
+    def site_inverse_mass(self, site_id: int) -> np.ndarray:
+        """(3, 3) translational inverse mass J_p M⁻¹ J_pᵀ of a site point (world axes): the
+        acceleration of that point per newton applied there, from MuJoCo's own factorised M."""
+        jacp = np.zeros((3, self.model.nv))
+        mujoco.mj_jacSite(self.model, self.data, jacp, None, site_id)
+        x = np.zeros_like(jacp)
+        mujoco.mj_solveM(self.model, self.data, x, jacp)
+        return jacp @ x.T
+
     def body_point_velocity(self, body_id: int, point_world: np.ndarray) -> np.ndarray:
         """Linear velocity of a world point rigidly attached to a body."""
         jacp = np.zeros((3, self.model.nv))
@@ -228,7 +237,12 @@ class World:
                 self._tau_pipeline.popleft()
         self.tau_applied = ctrl
         self.data.ctrl[self.actuator_ids] = ctrl
-        mujoco.mj_step(self.model, self.data)
+        # mj_step2 integrates with the forces and controls set on the kinematics of this state;
+        # mj_step1 then computes the kinematics (site poses, Jacobians, M) of the new state, so
+        # the next step's contact and drag forces see the current position, not the previous
+        # one (a one-step-late contact spring acts like a negative damper of k·Δt).
+        mujoco.mj_step2(self.model, self.data)
+        mujoco.mj_step1(self.model, self.data)
         self.data.qfrc_applied[:] = 0.0
         self.applied.clear()
 
