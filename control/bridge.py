@@ -59,7 +59,7 @@ class ShapedMotionForceTask:
         # Λ̂x⁻¹u from [T7]: F_x = Λx Λ̂x⁻¹ u + (Λx Λ̂x⁻¹ − I) F^e
         self.reference_acc = dyn.Lambda_inv @ (self.law.last_wrench + F_e) - self.Lambda_hat_inv @ F_e
         if self.posture is not None and self.law.last_qp is not None:
-            self.posture.dq_ref = self.law.last_qp.dq_goal.copy()
+            self.posture.dq_ref = self.law.last_qp.x.copy()
 
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
         """J q̈ = Λ̂x⁻¹u + Γ_x J q̈_e − J̇ q̇ with Γ_x = Λ̂x⁻¹Λx [C9]."""

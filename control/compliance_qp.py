@@ -10,11 +10,12 @@ Constraints: joint position/velocity dampers [C17–24] as bounds on q̈; torque
 τ⁻ ≤ M q̈ + h − τ̂_e ≤ τ⁺. Torque [C8]: τ_d = M q̈ + C q̇ + g − τ̂_e. The feedback switch removes
 τ̂_e from [C8] and [C10] (the paper's Fig. 4 case) while the compliance terms keep it.
 
-OSQP is set up once with a dense, explicit sparsity pattern and updated in place every step
-(warm-started). If the QP fails (torque limits and dampers cannot hold together) the torque
-limits — which the motors enforce anyway by saturation — are relaxed and the problem solved
-again; if that fails too, the tasks' unconstrained optimum clipped to the damper bounds is used.
-Both cases are flagged; nothing raises inside `step`.
+The QP is set up once through `control.qp` (dense active-set backend by default, OSQP as the
+reference) and updated in place every step (warm-started). If it has no solution (torque limits
+and dampers cannot hold together) the damper bounds are softened with penalised slacks while the
+torque limits — which the motors enforce anyway by saturation — stay hard (`AccelerationQP`); if
+that fails too, the tasks' unconstrained optimum clipped to the damper bounds is used. Both cases
+are flagged; nothing raises inside `step`.
 """
 
 from __future__ import annotations
@@ -24,10 +25,9 @@ from dataclasses import replace
 from typing import NamedTuple, Protocol
 
 import numpy as np
-import osqp
 import pinocchio as pin
-import scipy.sparse as sp
 
+from control import qp
 from control.dampers import JointLimitDamper
 from control.estimation import ExternalTorqueEstimator
 from control.executor import ControlInputs, ControlOutput, TaskTarget
@@ -41,9 +41,7 @@ from control.gains import (
 )
 from control.model import Dynamics
 
-OSQP_INF = 1e30
-SOLVED = (int(osqp.SolverStatus.OSQP_SOLVED.value), int(osqp.SolverStatus.OSQP_SOLVED_INACCURATE.value))
-MAX_ITER = int(osqp.SolverStatus.OSQP_MAX_ITER_REACHED.value)
+OSQP_INF = qp.INF  # "no bound"
 
 
 class TaskRows(NamedTuple):
@@ -159,160 +157,92 @@ class PostureTask:
         return TaskRows(self._eye, b, self.gains.weight, metric)
 
 
-class QPResult(NamedTuple):
-    """Solution of one acceleration QP."""
-
-    ddq: np.ndarray
-    status: int  # OSQP status value of the last solve (0 when the analytic fallback was used)
-    relaxed: bool  # torque limits relaxed or analytic fallback used
-    iterations: int
-
-
-class DenseOSQP:
-    """An OSQP problem with a fixed pattern: the given upper-triangle entries of P and a dense A.
-
-    Set up once; every `solve` updates Px, Ax, q, l, u in place (zeros stay in the pattern) and
-    warm-starts from the previous solution.
-    """
-
-    def __init__(self, P_mask: np.ndarray, m: int, settings: ComplianceQPSettings, accept_max_iter: bool = False):
-        n = P_mask.shape[0]
-        self.n, self.m = n, m
-        # at the iteration cap the ADMM iterate is an approximate optimum; the caller clips τ_d
-        self.accept_max_iter = accept_max_iter
-        cols, rows = np.nonzero(np.triu(P_mask).T)  # column-major order of the upper triangle
-        self._rows_P, self._cols_P = rows, cols
-        P_csc = sp.csc_matrix((np.where(rows == cols, 1.0, 0.0), (rows, cols)), shape=(n, n))
-        if P_csc.nnz != rows.size:  # scipy dropped explicit zeros: rebuild from the index arrays
-            P_csc = sp.csc_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
-            P_csc.data[:] = np.where(rows == cols, 1.0, 0.0)
-        grid_r, grid_c = np.meshgrid(np.arange(m), np.arange(n), indexing="ij")
-        rows_A, cols_A = grid_r.ravel(order="F"), grid_c.ravel(order="F")
-        A_csc = sp.csc_matrix((np.ones(rows_A.size), (rows_A, cols_A)), shape=(m, n))
-        A_csc.data[:] = 0.0
-        self.solver = osqp.OSQP()
-        self.solver.setup(
-            P=P_csc,
-            q=np.zeros(n),
-            A=A_csc,
-            l=np.full(m, -OSQP_INF),
-            u=np.full(m, OSQP_INF),
-            verbose=False,
-            warm_starting=True,
-            polishing=settings.polish,
-            eps_abs=settings.eps,
-            eps_rel=settings.eps,
-            max_iter=settings.max_iter,
-            check_termination=10,
-        )
-
-    def solve(self, P: np.ndarray, q: np.ndarray, A: np.ndarray, l: np.ndarray, u: np.ndarray):
-        """(x or None, status value, iterations).
-
-        Uses the extension object behind `osqp.OSQP` directly when present (the same calls its
-        `update`/`solve` make, without their per-call bookkeeping: ~40 µs less per step); l and u
-        must already lie within ±OSQP_INF.
-        """
-        Px = P[self._rows_P, self._cols_P]
-        Ax = A.ravel(order="F")
-        ext = getattr(self.solver, "_solver", None)
-        if ext is not None:
-            ext.update_data_vec(q=q, l=l, u=u)
-            ext.update_data_mat(P_x=Px, P_i=None, A_x=Ax, A_i=None)
-            ext.solve()
-            info = ext.info
-            status, iters, x = int(info.status_val), int(info.iter), ext.solution.x
-        else:  # pragma: no cover - other OSQP builds
-            self.solver.update(Px=Px, Ax=Ax, q=q, l=l, u=u)
-            res = self.solver.solve(raise_error=False)
-            status, iters, x = int(res.info.status_val), int(res.info.iter), res.x
-        usable = status in SOLVED or (status == MAX_ITER and self.accept_max_iter)
-        if usable and x is not None and np.all(np.isfinite(x)):
-            return np.array(x), status, iters
-        return None, status, iters
-
-
 class AccelerationQP:
-    """The acceleration QP over q̈: rows [I (dampers); M (torque limits); J_strict (equalities)].
+    """The acceleration QP over q̈ (`control.qp`): box = the dampers [C17–24], rows [M (torque
+    limits [C10]); J_strict (equalities)].
 
-    OSQP stops at `max_iter` (default 400, ≈ 0.3 ms); its iterate is then used as an approximate
-    optimum (status "max iter" in the logs, τ_d clipped to the torque limits) so one slow solve — an
-    active torque limit with the 1e4 : 1 task/posture weighting converges slowly — cannot blow the
-    1 ms budget. If it has no solution (the dampers ask for more than the torque limits allow), a fallback
-    problem keeps the torque limits [C10] hard — the motors cannot exceed them anyway — and
-    softens the damper rows with slack variables s ≥ 0 penalised by `SLACK_WEIGHT` (relative to
-    the task Hessian, so the problem stays well conditioned for OSQP):
+    With OSQP, the iteration cap (default 400, ≈ 0.3 ms) may stop a slow solve — an active torque
+    limit with the 1e4 : 1 task/posture weighting converges slowly — and its iterate is then used
+    as an approximate optimum (status "max iter", τ_d clipped to the torque limits), so one slow
+    solve cannot blow the 1 ms budget. If the QP has no solution (the dampers ask for more than
+    the torque limits allow), a fallback problem keeps the torque limits [C10] hard — the motors
+    cannot exceed them anyway — and softens the damper rows with slack variables s ≥ 0 penalised
+    by `SLACK_WEIGHT` (relative to the task Hessian, so the problem stays well conditioned):
     l_d − s ≤ q̈ ≤ u_d + s. If that fails too, the tasks' unconstrained optimum clipped to the
-    damper bounds is used. Both cases are flagged `relaxed`.
+    damper bounds is used. Both cases are flagged `fallback`.
     """
 
     SLACK_WEIGHT = 1e3  # times the largest diagonal entry of the task Hessian
 
-    def __init__(self, n: int, n_strict: int, settings: ComplianceQPSettings):
+    def __init__(self, n: int, n_strict: int, settings: ComplianceQPSettings, backend: str = qp.DEFAULT_BACKEND):
         self.n = n
         self.n_strict = n_strict
-        self.m = 2 * n + n_strict
-        self.settings = settings
+        self.backend = qp.check_backend(backend)
+        qp_settings = qp.QPSettings(
+            eps=settings.eps, max_iter=settings.max_iter, polish=settings.polish, check_termination=10
+        )
+        # primary: x = q̈, rows A = [M; J_strict]
+        self.m = n + n_strict
         self.A = np.zeros((self.m, n))
-        self.A[:n, :n] = np.eye(n)
         self.l = np.full(self.m, -OSQP_INF)
         self.u = np.full(self.m, OSQP_INF)
-        self.primary = DenseOSQP(np.ones((n, n), dtype=bool), self.m, settings, accept_max_iter=True)
-        # fallback over [q̈; s]: rows [I −I] ≤ u_d, [I I] ≥ l_d, [M 0] torque, [0 I] ≥ 0, [J 0] strict
-        mask = np.zeros((2 * n, 2 * n), dtype=bool)
-        mask[:n, :n] = True
-        mask[n:, n:] = np.eye(n, dtype=bool)
-        self.m2 = 4 * n + n_strict
-        self.fallback = DenseOSQP(mask, self.m2, settings)
-        self.A2 = np.zeros((self.m2, 2 * n))
+        self.lb = np.full(n, -OSQP_INF)  # damper bounds on q̈
+        self.ub = np.full(n, OSQP_INF)
+        self.primary = qp.make_qp(backend, n, self.m, n_eq=n_strict, settings=qp_settings)
+        # fallback over [q̈; s]: rows [I −I] ≤ u_d, [I I] ≥ l_d, [M 0] torque, [J 0] strict; box s ≥ 0
+        self.m2 = 3 * n + n_strict
         eye = np.eye(n)
+        self.A2 = np.zeros((self.m2, 2 * n))
         self.A2[:n, :n], self.A2[:n, n:] = eye, -eye
         self.A2[n : 2 * n, :n], self.A2[n : 2 * n, n:] = eye, eye
-        self.A2[3 * n : 4 * n, n:] = eye
+        A2_pattern = self.A2 != 0
+        A2_pattern[2 * n :, :n] = True
+        P2_pattern = np.zeros((2 * n, 2 * n), dtype=bool)
+        P2_pattern[:n, :n] = True
+        P2_pattern[n:, n:] = np.eye(n, dtype=bool)
+        self.fallback = qp.make_qp(
+            backend, 2 * n, self.m2, n_eq=n_strict, P_pattern=P2_pattern, A_pattern=A2_pattern, settings=qp_settings
+        )
         self.P2 = np.zeros((2 * n, 2 * n))
-        self.P2[n:, n:] = self.SLACK_WEIGHT * eye
         self.q2 = np.zeros(2 * n)
         self.l2 = np.full(self.m2, -OSQP_INF)
         self.u2 = np.full(self.m2, OSQP_INF)
-        self.l2[3 * n : 4 * n] = 0.0
+        self.lb2 = np.r_[np.full(n, -OSQP_INF), np.zeros(n)]
+        self.ub2 = np.full(2 * n, OSQP_INF)
         self._last = np.zeros(n)
 
-    def solve(self, P: np.ndarray, q: np.ndarray) -> QPResult:
-        """Solve with the current A, l, u; fall back as described in the class docstring."""
+    def solve(self, P: np.ndarray, q: np.ndarray) -> qp.QPResult:
+        """Solve with the current A, l, u, lb, ub; fall back as described in the class docstring."""
         n = self.n
-        status = -1
+        res = self.primary.solve(P, q, self.A, self.l, self.u, self.lb, self.ub)
+        if res.solved or (res.status == qp.MAX_ITER and np.isfinite(res.x @ res.x)):
+            self._last = res.x
+            return res
         try:
-            x, status, it = self.primary.solve(P, q, self.A, self.l, self.u)
-            if x is not None:
-                self._last = x.copy()
-                return QPResult(x.copy(), status, False, it)
             self.P2[:n, :n] = P
             self.P2[n:, n:] = self.SLACK_WEIGHT * max(float(np.max(np.diag(P))), 1.0) * np.eye(n)
             self.q2[:n] = q
-            self.u2[:n] = self.u[:n]  # q̈ − s ≤ u_d
-            self.l2[n : 2 * n] = self.l[:n]  # q̈ + s ≥ l_d
-            self.A2[2 * n : 3 * n, :n] = self.A[n : 2 * n]
-            self.l2[2 * n : 3 * n] = self.l[n : 2 * n]
-            self.u2[2 * n : 3 * n] = self.u[n : 2 * n]
-            if self.n_strict:
-                self.A2[4 * n :, :n] = self.A[2 * n :]
-                self.l2[4 * n :] = self.l[2 * n :]
-                self.u2[4 * n :] = self.u[2 * n :]
-            x2, status, it = self.fallback.solve(self.P2, self.q2, self.A2, self.l2, self.u2)
-            if x2 is not None:
-                self._last = x2[:n].copy()
-                return QPResult(x2[:n].copy(), status, True, it)
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
-            status = -1
+            self.u2[:n] = self.ub  # q̈ − s ≤ u_d
+            self.l2[n : 2 * n] = self.lb  # q̈ + s ≥ l_d
+            self.A2[2 * n :, :n] = self.A
+            self.l2[2 * n :] = self.l
+            self.u2[2 * n :] = self.u
+            res2 = self.fallback.solve(self.P2, self.q2, self.A2, self.l2, self.u2, self.lb2, self.ub2)
+            if res2.solved:
+                self._last = res2.x[:n].copy()
+                return res2._replace(x=self._last, fallback=True)
+            status, it = res2.status, res2.iterations
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            status, it = f"{qp.FAILED}: {exc}", 0
         # analytic fallback: unconstrained optimum clipped to the damper bounds
         try:
             x = np.linalg.solve(P + 1e-9 * np.eye(n), -q)
         except np.linalg.LinAlgError:
             x = self._last.copy()
-        x = np.clip(x, self.l[:n], self.u[:n])
+        x = np.clip(x, self.lb, self.ub)
         if not np.all(np.isfinite(x)):
             x = np.zeros(n)
-        return QPResult(x, int(status), True, 0)
+        return qp.QPResult(x, status, it, res.solve_us, self.backend, fallback=True)
 
 
 class ComplianceQPExecutor:
@@ -333,8 +263,10 @@ class ComplianceQPExecutor:
         estimator: EstimatorGains | None = None,
         settings: ComplianceQPSettings | None = None,
         dt: float = 1e-3,
+        qp_backend: str = qp.DEFAULT_BACKEND,
     ):
         self.n = n = len(q_lower)
+        self.qp_backend = qp.check_backend(qp_backend)
         self.dt = float(dt)
         self.tau_max = np.asarray(tau_max, dtype=float).copy()
         self.tasks: list = [PoseTask()] if tasks is None else list(tasks)
@@ -348,6 +280,7 @@ class ComplianceQPExecutor:
         self.tau_desired = np.zeros(n)  # τ_d of [C8] before the motors' saturation
         self._diag = np.diag_indices(n)
         self.ddq = np.zeros(n)
+        self.last_qp: qp.QPResult | None = None
         self.last_info: dict[str, float] = {}
 
     @classmethod
@@ -363,7 +296,7 @@ class ComplianceQPExecutor:
     def _build_qp(self) -> None:
         self.strict_tasks = [t for t in self.tasks if getattr(t, "strict", False)]
         self.soft_tasks = [t for t in self.tasks if not getattr(t, "strict", False)]
-        self.qp = AccelerationQP(self.n, sum(t.dim for t in self.strict_tasks), self.settings)
+        self.qp = AccelerationQP(self.n, sum(t.dim for t in self.strict_tasks), self.settings, self.qp_backend)
 
     # ---- Executor protocol --------------------------------------------------------------------
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
@@ -378,8 +311,14 @@ class ComplianceQPExecutor:
 
     def configure(self, **changes: object) -> None:
         """Change tunables by name: feedback, torque_limits, source, observer_gain, lambda_, M,
-        form, velocity_scale, task_compliance, posture_compliance, posture_metric (ValueError on bad input)."""
+        form, velocity_scale, task_compliance, posture_compliance, posture_metric, qp_backend
+        (`control.qp.BACKENDS`: a new QP) (ValueError on bad input)."""
         c = dict(changes)
+        if "qp_backend" in c:
+            backend = qp.check_backend(c.pop("qp_backend"))
+            if backend != self.qp_backend:
+                self.qp_backend = backend
+                self._build_qp()
         s_fields = {k: c.pop(k) for k in ("feedback", "torque_limits") if k in c}
         if s_fields:
             self.settings = replace(self.settings, **s_fields)  # type: ignore[arg-type]
@@ -431,41 +370,43 @@ class ComplianceQPExecutor:
             JtW = J.T * w if W is None else (J.T @ W) * w
             P += JtW @ J
             q -= JtW @ b
-        qp = self.qp
-        # strict tasks as equality rows
-        row = 2 * n
+        aqp = self.qp
+        # strict tasks as equality rows below the torque rows
+        row = n
         for task in self.strict_tasks:
             J, b, _, _ = task.rows(dyn, target, ddq_e)
-            qp.A[row : row + task.dim] = J
-            qp.l[row : row + task.dim] = b
-            qp.u[row : row + task.dim] = b
+            aqp.A[row : row + task.dim] = J
+            aqp.l[row : row + task.dim] = b
+            aqp.u[row : row + task.dim] = b
             row += task.dim
-        # dampers [C17–24]
+        # dampers [C17–24] as the box on q̈
         bounds = self.damper.bounds(dyn.q, dyn.dq)
-        qp.l[:n] = bounds.lower
-        qp.u[:n] = bounds.upper
+        aqp.lb[:] = bounds.lower
+        aqp.ub[:] = bounds.upper
         # torque limits [C10] on τ_d of [C8]
         tau_fb = tau_hat if self.settings.feedback else 0.0
-        qp.A[n : 2 * n] = dyn.M
+        aqp.A[:n] = dyn.M
         if self.settings.torque_limits:
-            qp.l[n : 2 * n] = -self.tau_max - dyn.h + tau_fb
-            qp.u[n : 2 * n] = self.tau_max - dyn.h + tau_fb
+            aqp.l[:n] = -self.tau_max - dyn.h + tau_fb
+            aqp.u[:n] = self.tau_max - dyn.h + tau_fb
         else:
-            qp.l[n : 2 * n] = -OSQP_INF
-            qp.u[n : 2 * n] = OSQP_INF
-        res = qp.solve(P, q)
-        self.ddq = res.ddq
-        tau = dyn.M @ res.ddq + dyn.h - tau_fb  # [C8]
-        if (res.relaxed or res.status not in SOLVED) and self.settings.torque_limits:
+            aqp.l[:n] = -OSQP_INF
+            aqp.u[:n] = OSQP_INF
+        res = aqp.solve(P, q)
+        self.ddq = res.x
+        self.last_qp = res
+        tau = dyn.M @ res.x + dyn.h - tau_fb  # [C8]
+        if (res.fallback or not res.solved) and self.settings.torque_limits:
             tau = np.clip(tau, -self.tau_max, self.tau_max)  # [C10] stays hard for approximate solutions too
         self.tau_desired = tau
         tau_cmd = np.clip(tau, -self.tau_max, self.tau_max)
         saturated = bool(np.any(np.abs(tau) > self.tau_max + 1e-9))
         self.tau_prev = tau_cmd
         info = {
-            "qp_status": float(res.status),
+            "qp_status": res.status_code,
             "qp_iterations": float(res.iterations),
-            "qp_relaxed": float(res.relaxed),
+            "qp_relaxed": float(res.fallback),
+            "qp_solve_us": res.solve_us,
             "damper_crossed": float(bounds.crossed),
             "tau_saturated": float(saturated),
             "tau_ext_estimate_norm": math.sqrt(float(tau_hat @ tau_hat)),
@@ -473,7 +414,7 @@ class ComplianceQPExecutor:
             "feedback": float(self.settings.feedback),
         }
         self.last_info = info
-        return ControlOutput(tau=tau_cmd, fallback=res.relaxed or bounds.crossed, info=info)
+        return ControlOutput(tau=tau_cmd, fallback=res.fallback or bounds.crossed, info=info)
 
 
 def make_compliance_qp(robot, model=None, **kwargs) -> ComplianceQPExecutor:

@@ -23,6 +23,7 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 
+from control import qp
 from control.coupling import (
     POLISH_SUBSPACES,
     CouplingTerms,
@@ -51,6 +52,7 @@ class ProjectionExecutor:
         subspaces: Subspaces = POLISH_SUBSPACES,
         gains: MotionForceGains | None = None,
         nullspace: NullspaceGains | None = None,
+        qp_backend: str = qp.DEFAULT_BACKEND,
     ):
         self.model = model
         self.n = model.nv
@@ -61,7 +63,8 @@ class ProjectionExecutor:
         self.sub = subspaces
         self.gains = gains or MotionForceGains()
         self.nullspace = nullspace or NullspaceGains()
-        self.qp = NullspaceQP(self.n)
+        self.qp_backend = qp.check_backend(qp_backend)
+        self.qp = NullspaceQP(self.n, backend=self.qp_backend)
         self._cache_gains()
         self.force_integral = np.zeros(self.sub.n_f)
         self.q_posture: np.ndarray | None = None
@@ -75,16 +78,17 @@ class ProjectionExecutor:
         """Clear the force integral and the QP's warm start (a fresh solver, so a reset run repeats
         the first one exactly); the W_j posture is the target's q_posture or the current q."""
         self.force_integral = np.zeros(self.sub.n_f)
-        self.qp = NullspaceQP(self.n)
+        self.qp = NullspaceQP(self.n, backend=self.qp_backend)
         self._last_valid_wrench = np.zeros(6)
         self.q_posture = dyn.q.copy() if target.q_posture is None else np.array(target.q_posture, dtype=float)
 
     def configure(self, **changes: object) -> None:
         """Change gains between steps: any MotionForceGains or NullspaceGains field, or
-        `force_axes` (names or indices). Raises ValueError naming a bad field; keeps the QP."""
+        `force_axes` (names or indices), or `qp_backend` (`control.qp.BACKENDS`; a new QP then).
+        Raises ValueError naming a bad field; otherwise keeps the QP and its warm start."""
         mf = {k: v for k, v in changes.items() if k in MotionForceGains.__dataclass_fields__}
         ns = {k: v for k, v in changes.items() if k in NullspaceGains.__dataclass_fields__}
-        rest = set(changes) - set(mf) - set(ns) - {"force_axes"}
+        rest = set(changes) - set(mf) - set(ns) - {"force_axes", "qp_backend"}
         if rest:
             raise ValueError(f"projection executor has no setting {', '.join(sorted(rest))}")
         gains = replace(self.gains, **mf) if mf else self.gains  # type: ignore[arg-type]
@@ -92,7 +96,11 @@ class ProjectionExecutor:
         sub = self.sub
         if "force_axes" in changes:
             sub = Subspaces.from_force_axes(changes["force_axes"])  # type: ignore[arg-type]
+        backend = qp.check_backend(changes.get("qp_backend", self.qp_backend))
         self.gains, self.nullspace = gains, nullspace
+        if backend != self.qp_backend:
+            self.qp_backend = backend
+            self.qp = NullspaceQP(self.n, backend=backend)
         if sub is not self.sub:
             self.sub = sub
             self.force_integral = np.zeros(sub.n_f)
@@ -182,7 +190,7 @@ class ProjectionExecutor:
         self.last_qp = res
 
         # [T13] nullspace velocity tracking, [T14] torque
-        F_n = dyn.Lambda_n @ (self._kn * (res.dq_goal - dyn.N @ dyn.dq))
+        F_n = dyn.Lambda_n @ (self._kn * (res.x - dyn.N @ dyn.dq))
         tau = dyn.J.T @ F + dyn.N.T @ F_n + dyn.h
 
         W_f, W_a, W_d = _w_values(terms)
@@ -194,7 +202,7 @@ class ProjectionExecutor:
             "force_error_n": float(F_hat[0] - F_f[0]),
             "qp_iterations": float(res.iterations),
             "qp_fallback": float(res.fallback),
-            "nullspace_speed": math.sqrt(float(res.dq_goal @ res.dq_goal)),
+            "nullspace_speed": math.sqrt(float(res.x @ res.x)),
             "coupled_accel": float(terms.P_f[0] @ F_e[m_idx]),
         }
         return ControlOutput(tau=tau, fallback=res.fallback, info=info)

@@ -95,7 +95,7 @@ def test_identity_weighted_posture_gives_other_torques(rizon):
     J = dyn.J
     J_pinv = J.T @ np.linalg.inv(J @ J.T)
     b = task.Lambda_hat_inv @ (task.Lambda_hat @ task.reference_acc + WRENCH) - dyn.dJ_dq
-    ddq0 = task.law.gains.nullspace_kd[0] * (task.law.last_qp.dq_goal - dyn.dq)
+    ddq0 = task.law.gains.nullspace_kd[0] * (task.law.last_qp.x - dyn.dq)
     ddq_pred = J_pinv @ b + (np.eye(7) - J_pinv @ J) @ ddq0
     tau_pred = dyn.M @ ddq_pred + dyn.h - tau_e
     scale = np.linalg.norm(tau_t)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from app.sim.world import World
-from control.compliance_qp import ComplianceQPExecutor, DenseOSQP, pose_error
+from control.compliance_qp import ComplianceQPExecutor, pose_error
 from control.executor import ControlInputs, TaskTarget
 from control.gains import ComplianceQPSettings, EstimatorGains, PoseTaskGains, PostureTaskGains, compliance_matrix
 from control.model import RobotModel
@@ -130,19 +130,3 @@ def test_infeasible_constraints_never_raise_and_keep_torque_limits(gen3):
     nan_dyn.M = np.full((7, 7), np.nan)
     out = ex.step(nan_dyn, ControlInputs(0.0, target, np.zeros(6)))  # garbage in: flagged, no raise
     assert out.fallback
-
-
-def test_osqp_pattern_keeps_zeros_so_updates_can_fill_them():
-    settings = ComplianceQPSettings(eps=1e-10, polish=True)
-    qp = DenseOSQP(np.ones((3, 3), dtype=bool), 2, settings)
-    A = np.zeros((2, 3))  # set up all-zero, then filled in
-    A[0, 0] = 1.0
-    A[1] = [1.0, 1.0, 1.0]
-    P = np.diag([2.0, 1.0, 1.0])
-    P[0, 1] = P[1, 0] = 0.5
-    x, status, _ = qp.solve(P, np.array([-1.0, 0.0, 0.0]), A, np.array([-1e30, 1.0]), np.array([1e30, 1.0]))
-    assert x is not None and status == 1  # OSQP_SOLVED
-    # KKT reference: min ½xᵀPx + qᵀx s.t. 1ᵀx = 1
-    K = np.block([[P, np.ones((3, 1))], [np.ones((1, 3)), np.zeros((1, 1))]])
-    ref = np.linalg.solve(K, np.array([1.0, 0.0, 0.0, 1.0]))[:3]
-    np.testing.assert_allclose(x, ref, atol=1e-7)

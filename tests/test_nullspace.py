@@ -29,8 +29,8 @@ def test_qp_solution_lies_in_the_kernel_of_J_and_inside_the_bounds(robot):
         step = 2.0 * grad / np.linalg.norm(grad)  # large enough that some bounds bind
         res = qp.solve(dyn.J, step, lower, upper)
         assert not res.fallback, res.status
-        assert np.max(np.abs(dyn.J @ res.dq_goal)) < 1e-5 * np.linalg.norm(step)  # [T16]
-        assert np.all(res.dq_goal >= lower - 1e-5) and np.all(res.dq_goal <= upper + 1e-5)  # [T17]
+        assert np.max(np.abs(dyn.J @ res.x)) < 1e-5 * np.linalg.norm(step)  # [T16]
+        assert np.all(res.x >= lower - 1e-5) and np.all(res.x <= upper + 1e-5)  # [T17]
 
 
 def test_qp_equals_the_projected_gradient_when_no_bound_is_active(rizon):
@@ -41,7 +41,7 @@ def test_qp_equals_the_projected_gradient_when_no_bound_is_active(rizon):
     big = np.full(7, 10.0)
     res = NullspaceQP().solve(dyn.J, g, -big, big)
     expected = -_kernel_projection(dyn.J) @ g  # minimiser of ½xᵀx + gᵀx on J x = 0
-    np.testing.assert_allclose(res.dq_goal, expected, atol=1e-6)
+    np.testing.assert_allclose(res.x, expected, atol=1e-6)
 
 
 def test_dampers_tighten_bounds_near_position_limits(rizon):
@@ -68,14 +68,14 @@ def test_infeasible_or_invalid_input_falls_back_without_raising(rizon):
     lower[0], upper[0] = 0.5, -0.5  # inconsistent bounds
     res = qp.solve(J, np.ones(7), lower, upper)
     assert res.fallback and res.status == "inconsistent bounds"
-    assert np.all(np.isfinite(res.dq_goal))
+    assert np.all(np.isfinite(res.x))
     # bounds that exclude zero on a joint J cannot move alone: OSQP reports infeasible -> fallback
     lower, upper = np.full(7, 0.2), np.full(7, 0.3)
     res = qp.solve(J, np.zeros(7), lower, upper)
     assert res.fallback
-    assert np.all(res.dq_goal >= lower - 1e-12) and np.all(res.dq_goal <= upper + 1e-12)
+    assert np.all(res.x >= lower - 1e-12) and np.all(res.x <= upper + 1e-12)
     res = qp.solve(J, np.full(7, np.nan), -np.ones(7), np.ones(7))
-    assert res.fallback and np.all(res.dq_goal == 0.0)
+    assert res.fallback and np.all(res.x == 0.0)
     # and the solver recovers on the next normal step
     res = qp.solve(J, np.linspace(-0.1, 0.1, 7), -np.ones(7), np.ones(7))
     assert not res.fallback
@@ -103,7 +103,7 @@ def test_integrating_the_W_a_qp_at_a_fixed_tcp_decreases_W_a_monotonically(rizon
         W, grad = c.objective_gradient("a", dyn, sub, model)
         values.append(W)
         lower, upper = damper_bounds(q, rizon.q_lower, rizon.q_upper, 0.5 * rizon.dq_max, rizon.endless, gains)
-        x = qp.solve(dyn.J, gains.k0 * grad, lower, upper).dq_goal
+        x = qp.solve(dyn.J, gains.k0 * grad, lower, upper).x
         q = c.project_to_pose(model, q + 0.02 * x, pose.translation, pose.rotation, iters=5)
     values_arr = np.array(values)
     assert np.all(np.diff(values_arr) <= 1e-9 * values_arr[0])

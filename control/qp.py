@@ -1,0 +1,336 @@
+"""The one QP interface of both executors, with a dense and an OSQP backend.
+
+    min_x ½ xᵀ P x + qᵀ x   s.t.   lb ≤ x ≤ ub,   l ≤ A x ≤ u,   the last `n_eq` rows of A equalities
+
+`make_qp(backend, n, m, ...)` sets a problem of a fixed shape up once; every `solve(P, q, A, l, u,
+lb, ub)` updates it in place (P or A may be None: unchanged since the last call) and warm-starts
+from the previous solution. Both executors call only this module: the [T] nullspace velocity QP
+[T15–17] (`control.nullspace`) and the [C] acceleration QP [C9, C10, C17–24]
+(`control.compliance_qp`).
+
+Backends (`BACKENDS`):
+- "dense": DAQP's dual active-set solver (`daqp.Model`, workspace allocated once): exact to its
+  tolerances, ~5 µs for these 7-variable problems on the bench machine. The box is passed as
+  DAQP's simple bounds, equalities with its "equality" sense.
+- "osqp": OSQP with an explicit fixed sparsity pattern (zeros kept, so updates may fill them;
+  DESIGN §9), updated with Px/Ax in that CSC order: the reference backend.
+
+OSQP's private extension object (`OSQP._solver`) is used only here, only on the OSQP versions it
+was checked on (`OSQP_INTERNAL_VERSIONS`), and tests compare it with the public
+`update`/`solve` path. A solve never raises on bad numbers: its `status` says what happened and
+`solved` whether `x` may be used; the executors fall back on their own.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+INF = 1e30  # what "no bound" becomes (OSQP_INFTY); callers may pass ±inf or ±INF
+
+# one status vocabulary for every backend
+SOLVED = "solved"
+SOLVED_INACCURATE = "solved inaccurate"
+MAX_ITER = "max iter"  # iteration cap reached: x is the last iterate (approximate)
+INFEASIBLE = "infeasible"
+NON_FINITE = "non-finite"  # the solver returned NaN/inf
+FAILED = "failed"
+USABLE = (SOLVED, SOLVED_INACCURATE)
+# numeric codes for the step log (OSQP's values where it has one)
+STATUS_CODES = {SOLVED: 1, SOLVED_INACCURATE: 2, MAX_ITER: -2, INFEASIBLE: -3, NON_FINITE: -10, FAILED: -11}
+
+BACKENDS = ("dense", "osqp")
+DEFAULT_BACKEND = "osqp"
+OSQP_INTERNAL_VERSIONS = ((1, 1, 3), (1, 2, 0))  # [first checked, first unchecked) for `OSQP._solver`
+
+
+class QPResult(NamedTuple):
+    """One solve: x and what the backend said (`fallback` is set by the executor that replaced x)."""
+
+    x: np.ndarray  # (n,) solution (NaN-free only when `solved`, or the caller's fallback)
+    status: str  # one of SOLVED, SOLVED_INACCURATE, MAX_ITER, INFEASIBLE, NON_FINITE, FAILED or a reason
+    iterations: int
+    solve_us: float  # wall time of the backend's update + solve, µs
+    backend: str
+    fallback: bool = False
+
+    @property
+    def solved(self) -> bool:
+        """The backend found an optimum (to its tolerance)."""
+        return self.status in USABLE
+
+    @property
+    def status_code(self) -> float:
+        """Numeric status for logs (see STATUS_CODES; 0 for an executor's own reason)."""
+        return float(STATUS_CODES.get(self.status, 0))
+
+
+@dataclass(frozen=True)
+class QPSettings:
+    """Solver tolerances. eps: OSQP absolute/relative tolerance and DAQP's primal tolerance;
+    max_iter: iteration cap; polish: OSQP solution polishing; check_termination: OSQP's check
+    interval (0 = OSQP's default)."""
+
+    eps: float = 1e-6
+    max_iter: int = 400
+    polish: bool = False
+    check_termination: int = 0
+
+    def __post_init__(self) -> None:
+        if not (self.eps > 0 and self.max_iter > 0 and self.check_termination >= 0):
+            raise ValueError(f"QPSettings needs eps > 0, max_iter > 0, check_termination ≥ 0, got {self}")
+
+
+class QP(Protocol):
+    """A QP of fixed shape, set up once and solved many times."""
+
+    backend: str
+    n: int
+    m: int
+
+    def solve(
+        self,
+        P: np.ndarray | None,
+        q: np.ndarray,
+        A: np.ndarray | None,
+        l: np.ndarray,
+        u: np.ndarray,
+        lb: np.ndarray,
+        ub: np.ndarray,
+    ) -> QPResult:
+        """Update the data (P, A None: unchanged) and solve, warm-started."""
+        ...
+
+
+def check_backend(name: object) -> str:
+    """The backend name, or ValueError naming the choices."""
+    if name not in BACKENDS:
+        raise ValueError(f"unknown QP backend {name!r}; choose one of {', '.join(BACKENDS)}")
+    return str(name)
+
+
+def make_qp(
+    backend: str,
+    n: int,
+    m: int,
+    n_eq: int = 0,
+    P_pattern: np.ndarray | None = None,
+    A_pattern: np.ndarray | None = None,
+    settings: QPSettings | None = None,
+    osqp_internal: bool | None = None,
+) -> QP:
+    """A QP with n variables, a box on them and m rows of A (the last n_eq of them equalities).
+
+    P_pattern (n, n) / A_pattern (m, n) are the entries that may ever be non-zero (default: all);
+    only OSQP uses them. `osqp_internal` (OSQP only): None = the extension object when this OSQP
+    version was checked, False = the public API, True = the extension object or ValueError.
+    """
+    settings = settings or QPSettings()
+    if not 0 <= n_eq <= m:
+        raise ValueError(f"n_eq must lie in 0..{m}, got {n_eq}")
+    if check_backend(backend) == "osqp":
+        return OSQPBackend(n, m, n_eq, P_pattern, A_pattern, settings, osqp_internal)
+    return DenseBackend(n, m, n_eq, settings)
+
+
+def _clip_inf(src: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """src with ±inf (and anything beyond ±INF) replaced by ±INF, written into out."""
+    return np.clip(src, -INF, INF, out=out)
+
+
+def _finite(*arrays: np.ndarray | None) -> bool:
+    """No NaN/inf in any of the arrays (one dot product each; None is skipped)."""
+    total = 0.0
+    for a in arrays:
+        if a is not None:
+            r = np.asarray(a, dtype=float).ravel()
+            total += float(r @ r)
+    return math.isfinite(total)
+
+
+class DenseBackend:
+    """DAQP's dense dual active-set solver on a workspace set up at the first solve."""
+
+    backend = "dense"
+
+    def __init__(self, n: int, m: int, n_eq: int, settings: QPSettings):
+        import daqp  # the dense backend's one dependency
+
+        self._daqp = daqp
+        self.n, self.m, self.n_eq = n, m, n_eq
+        self.settings = settings
+        self._model: Any = None
+        self._sense = np.zeros(n + m, dtype=np.int32)
+        self._sense[n + m - n_eq :] = 5  # DAQP: equality (active, immutable)
+        self._lo = np.empty(n + m)  # [lb; l]
+        self._hi = np.empty(n + m)  # [ub; u]
+        self._P = np.eye(n)  # P starts as the identity (as OSQP's pattern), A as zeros
+        self._A = np.zeros((m, n))
+
+    def solve(self, P, q, A, l, u, lb, ub) -> QPResult:
+        """Update and solve (see `QP.solve`)."""
+        n = self.n
+        t0 = time.perf_counter()
+        _clip_inf(lb, self._lo[:n])
+        _clip_inf(l, self._lo[n:])
+        _clip_inf(ub, self._hi[:n])
+        _clip_inf(u, self._hi[n:])
+        if not _finite(P, q, A, self._lo, self._hi):  # never hand NaN to the warm start
+            return QPResult(np.full(n, np.nan), NON_FINITE, 0, _us(t0), self.backend)
+        try:
+            if self._model is None:
+                self._setup(P, q, A)
+            else:
+                self._model.update(H=P, f=q, A=A, bupper=self._hi, blower=self._lo)
+            x, _, flag, info = self._model.solve()
+        except (ValueError, TypeError, RuntimeError, ArithmeticError) as exc:
+            self._model = None  # set up afresh next time
+            return QPResult(np.full(n, np.nan), f"{FAILED}: {exc}", 0, _us(t0), self.backend)
+        status = _DAQP_STATUS.get(int(flag), FAILED)
+        x = np.asarray(x, dtype=float)
+        if not math.isfinite(float(x @ x)):
+            status = NON_FINITE
+            self._model = None  # no warm start from garbage
+        return QPResult(x, status, int(info["iterations"]), _us(t0), self.backend)
+
+    def _setup(self, P, q, A) -> None:
+        if P is not None:
+            self._P[:] = P
+        if A is not None:
+            self._A[:] = A
+        model = self._daqp.Model()
+        model.settings = {"primal_tol": self.settings.eps}
+        model.setup(self._P, np.asarray(q, dtype=float), self._A, self._hi, self._lo, self._sense)
+        self._model = model
+
+
+# DAQP exit flags: 1 optimal, 2 soft optimal, -1 infeasible, -2 cycling, -3 unbounded,
+# -4 iteration limit, -5 non-convex, -6 overdetermined initial active set
+_DAQP_STATUS = {1: SOLVED, 2: SOLVED, -1: INFEASIBLE, -4: MAX_ITER}
+
+
+def _us(t0: float) -> float:
+    return (time.perf_counter() - t0) * 1e6
+
+
+def osqp_internal_supported(version: str | None = None) -> bool:
+    """True when this OSQP version lies in OSQP_INTERNAL_VERSIONS (the extension object's API
+    was checked there against the public path)."""
+    import osqp
+
+    text = osqp.__version__ if version is None else version
+    try:
+        parts = tuple(int(p) for p in text.split("+")[0].split(".")[:3])
+    except ValueError:
+        return False
+    lo, hi = OSQP_INTERNAL_VERSIONS
+    return lo <= parts < hi
+
+
+class OSQPBackend:
+    """OSQP over the constraint matrix [I; A] with a fixed CSC pattern (DESIGN §9)."""
+
+    backend = "osqp"
+    _EXT_API = ("update_data_vec", "update_data_mat", "solve", "info", "solution")
+
+    def __init__(self, n, m, n_eq, P_pattern, A_pattern, settings: QPSettings, internal: bool | None):
+        import osqp
+        import scipy.sparse as sp
+
+        self.n, self.m, self.n_eq = n, m, n_eq
+        P_mask = np.ones((n, n), dtype=bool) if P_pattern is None else np.asarray(P_pattern, dtype=bool)
+        A_mask = np.ones((m, n), dtype=bool) if A_pattern is None else np.asarray(A_pattern, dtype=bool)
+        if P_mask.shape != (n, n) or A_mask.shape != (m, n):
+            raise ValueError(f"patterns must be ({n}, {n}) and ({m}, {n}), got {P_mask.shape}, {A_mask.shape}")
+        # P: upper triangle in column-major order (OSQP's Px order)
+        P_mask = np.triu(P_mask | P_mask.T | np.eye(n, dtype=bool))
+        cols, rows = np.nonzero(P_mask.T)
+        self._P_rows, self._P_cols = rows, cols
+        P_csc = sp.csc_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
+        P_csc.data[:] = np.where(P_csc.indices == np.repeat(np.arange(n), np.diff(P_csc.indptr)), 1.0, 0.0)
+        # constraints [I; A]: column j holds row j (the box), then A's rows n + i with A_mask[i, j]
+        full = np.vstack([np.eye(n, dtype=bool), A_mask])
+        cols_c, rows_c = np.nonzero(full.T)
+        C_csc = sp.csc_matrix((np.ones(rows_c.size), (rows_c, cols_c)), shape=(n + m, n))
+        self._is_A = C_csc.indices >= n
+        self._A_rows = C_csc.indices[self._is_A] - n
+        self._A_cols = np.repeat(np.arange(n), np.diff(C_csc.indptr))[self._is_A]
+        self._Ax = np.where(self._is_A, 0.0, 1.0)
+        self._Px = P_csc.data.copy()
+        C_csc.data[:] = self._Ax
+        self._lo = np.full(n + m, -INF)
+        self._hi = np.full(n + m, INF)
+        self._solver = osqp.OSQP()
+        options: dict = {
+            "verbose": False,
+            "warm_starting": True,
+            "polishing": settings.polish,
+            "eps_abs": settings.eps,
+            "eps_rel": settings.eps,
+            "max_iter": settings.max_iter,
+        }
+        if settings.check_termination:
+            options["check_termination"] = settings.check_termination
+        self._solver.setup(P=P_csc, q=np.zeros(n), A=C_csc, l=self._lo, u=self._hi, **options)
+        supported = osqp_internal_supported()
+        ext = getattr(self._solver, "_solver", None)
+        has_api = ext is not None and all(hasattr(ext, a) for a in self._EXT_API)
+        if internal and not (supported and has_api):
+            raise ValueError(f"OSQP {osqp.__version__}: the extension object is not checked for this version")
+        self._ext = ext if (internal is None and supported and has_api) or internal else None
+        self._codes = {
+            1: SOLVED,
+            2: SOLVED_INACCURATE,
+            -2: MAX_ITER,
+            -3: INFEASIBLE,
+            3: INFEASIBLE,
+        }
+
+    @property
+    def internal(self) -> bool:
+        """True when solves go through OSQP's extension object (skips ~20–40 µs of wrapper)."""
+        return self._ext is not None
+
+    def solve(self, P, q, A, l, u, lb, ub) -> QPResult:
+        """Update (Px/Ax in the fixed CSC order) and solve (see `QP.solve`)."""
+        n = self.n
+        t0 = time.perf_counter()
+        _clip_inf(lb, self._lo[:n])
+        _clip_inf(l, self._lo[n:])
+        _clip_inf(ub, self._hi[:n])
+        _clip_inf(u, self._hi[n:])
+        if not _finite(P, q, A, self._lo, self._hi):  # never hand NaN to the warm start
+            return QPResult(np.full(n, np.nan), NON_FINITE, 0, _us(t0), self.backend)
+        Px = None if P is None else np.asarray(P, dtype=float)[self._P_rows, self._P_cols]
+        Ax = None
+        if A is not None:
+            self._Ax[self._is_A] = np.asarray(A, dtype=float)[self._A_rows, self._A_cols]
+            Ax = self._Ax
+        try:
+            if self._ext is not None:
+                ext = self._ext
+                ext.update_data_vec(q=q, l=self._lo, u=self._hi)
+                if Px is not None or Ax is not None:
+                    ext.update_data_mat(P_x=Px, P_i=None, A_x=Ax, A_i=None)
+                ext.solve()
+                info, x = ext.info, ext.solution.x
+            else:
+                kwargs = {} if Px is None else {"Px": Px}
+                if Ax is not None:
+                    kwargs["Ax"] = Ax.copy()  # the wrapper keeps a reference to it
+                self._solver.update(q=q, l=self._lo, u=self._hi, **kwargs)
+                res = self._solver.solve(raise_error=False)
+                info, x = res.info, res.x
+            code, iters = int(info.status_val), int(info.iter)
+        except (ValueError, TypeError, RuntimeError, ArithmeticError) as exc:
+            return QPResult(np.full(n, np.nan), f"{FAILED}: {exc}", 0, _us(t0), self.backend)
+        status = self._codes.get(code, FAILED)
+        x = np.full(n, np.nan) if x is None else np.array(x, dtype=float)
+        if not math.isfinite(float(x @ x)):
+            status = NON_FINITE if status in (*USABLE, MAX_ITER) else status
+            self._solver.warm_start(x=np.zeros(n), y=np.zeros(n + self.m))  # no warm start from garbage
+        return QPResult(x, status, iters, _us(t0), self.backend)
