@@ -20,6 +20,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from control.kernels import (
+    OBJECTIVE_CODES,
+    coupling_fused,
+    gradient_contraction_fused,
+    gradient_contraction_reference,
+)
 from control.model import Dynamics, RobotModel
 
 AXIS_NAMES = ("px", "py", "pz", "rx", "ry", "rz")
@@ -109,24 +115,9 @@ def coupling_terms(
     block-inverse identities give the rest without a matrix inversion: with L = Λx⁻¹,
     D̂ = L_ff⁻¹, BᵀA⁻¹ = −D̂ L_fm and A⁻¹ = L_mm − L_mf D̂ L_fm.
     """
-    k = sub.n_m
-    Lp = Lambda.take(sub.perm_flat).reshape(6, 6)  # [[A, B], [Bᵀ, D]] [T6]
-    A = Lp[:k, :k]
-    B = Lp[:k, k:]
-    D = Lp[k:, k:]
-    P_a = B.T  # [T20]
-    if exact_inverse:
-        Li = Lambda_inv.take(sub.perm_flat).reshape(6, 6)
-        P_f = Li[k:, :k]  # S_f Λx⁻¹ S_mᵀ
-        L_ff = Li[k:, k:]
-        D_hat = (1.0 / L_ff) if sub.n_f == 1 else np.linalg.inv(L_ff)  # [T9]
-        P_d = -(D_hat @ P_f)  # BᵀA⁻¹ [T10]
-        A_inv = Li[:k, :k] + Li[:k, k:] @ P_d
-    else:
-        A_inv = np.linalg.inv(A)
-        P_d = P_a @ A_inv  # [T10]
-        D_hat = D - P_d @ B  # [T9]
-        P_f = Lambda_inv[np.ix_(sub.force_axes, sub.motion_axes)]
+    A, B, D, A_inv, D_hat, P_f, P_a, P_d, _, _, _ = coupling_fused(
+        Lambda, Lambda_inv, sub.perm, sub.n_m, exact_inverse
+    )  # compiled `control.kernels.coupling_reference`
     return CouplingTerms(A, B, D, A_inv, D_hat, P_f, P_a, P_d)
 
 
@@ -526,36 +517,21 @@ def coupling_gradient_direct(
     """
     import pinocchio as pin
 
-    m, f = sub.motion_axes, sub.force_axes
-    if objective == "f":  # [T25]
-        P = terms.P_f
-        left = -dyn.Lambda_inv[list(f), :]
-        right = dyn.Lambda_inv[:, list(m)]
-    elif objective == "a":  # [T26]
-        P = terms.P_a
-        left = sub.S_f
-        right = sub.S_m.T
-    elif objective == "d":  # [T27]
-        P = terms.P_d
-        left = sub.S_f - P @ sub.S_m
-        right = sub.S_m.T @ terms.A_inv
+    P = projection(terms, objective)  # [T25-27]: left and right factors are built in the kernel
+    if model.revolute_chain:  # compiled, ∂J from J itself
+        term_J, A_, B_ = gradient_contraction_fused(
+            OBJECTIVE_CODES[objective], dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, terms.A_inv, sub.perm, sub.n_m
+        )
     else:
-        raise ValueError(f"unknown coupling objective {objective!r}; use f, a or d")
-    L = dyn.Lambda
-    U = L @ left.T  # (6, n_f)
-    V = L @ (P @ right.T).T  # (6, n_f): H = U Vᵀ = Λ G Λ with G = leftᵀ P rightᵀ
-    X = dyn.M_inv @ dyn.J.T  # (n, 6)
-    H = U @ V.T
-    n = X.shape[0]
-    dJ = model.tcp_jacobian_derivative(dyn.q)  # (n, 6, n)
-    term_J = dJ.reshape(n, 6 * n) @ ((H + H.T) @ X.T).reshape(6 * n)
-    A_ = X @ U  # (n, n_f)
-    B_ = X @ V
-    term_M = np.zeros(n)
-    for c in range(A_.shape[1]):
+        term_J, A_, B_ = gradient_contraction_reference(
+            objective, dyn.J, model.tcp_jacobian_derivative(dyn.q), dyn.M_inv, dyn.Lambda, dyn.Lambda_inv,
+            P, terms.A_inv, sub.perm, sub.n_m,
+        )  # fmt: skip
+    term_M = np.zeros(len(dyn.q))
+    for c in range(A_.shape[1]):  # [k] = aᵀ ∂(M b)/∂q_k from RNEA derivatives at q̇ = 0, no gravity
         dtau_dq = pin.computeRNEADerivatives(
             model._model_no_gravity, model._data_no_gravity, dyn.q, model._zeros, B_[:, c]
         )[0]
-        term_M += np.asarray(dtau_dq).T @ A_[:, c]  # [k] = aᵀ ∂(M b)/∂q_k
+        term_M += dtau_dq.T @ A_[:, c]
     pr = P.ravel()
     return float(pr @ pr), -2.0 * (term_J - term_M)

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from control.kernels import snapshot_fused, snapshot_reference
+
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 # Λx⁻¹ eigenvalues below this (in 1/kg or 1/(kg m²)) count as singular: the inverse is damped.
@@ -45,14 +47,6 @@ class Dynamics:
         return self.J @ self.dq
 
 
-def sym_pinv(S: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
-    """Moore-Penrose pseudo-inverse of a symmetric matrix via eigh (cheaper than pinv's SVD)."""
-    w, V = np.linalg.eigh(S)
-    cutoff = rtol * max(float(np.max(np.abs(w))), 1e-300)
-    w_inv = np.where(np.abs(w) > cutoff, 1.0 / np.where(w == 0, 1.0, w), 0.0)
-    return (V * w_inv) @ V.T
-
-
 class RobotModel:
     """Pinocchio model of the arm with a TCP frame; computes `Dynamics` snapshots and ∂Λx/∂q."""
 
@@ -69,50 +63,40 @@ class RobotModel:
         self._data_no_gravity = self._model_no_gravity.createData()
         self._data_hessian = model.createData()
         self._zeros = np.zeros(self.nv)
-        self._eye = np.eye(self.nv)
         self._lower = np.tril_indices(self.nv, -1)
+        # ∂J/∂q from J alone (control.kernels) holds for a serial chain of 1-DoF revolute joints
+        self.revolute_chain = all(
+            model.parents[i] == i - 1
+            and model.joints[i].nv == 1
+            and model.joints[i].shortname().startswith(("JointModelR", "JointModelRevoluteUnaligned"))
+            and not model.joints[i].shortname().startswith("JointModelRUB")
+            for i in range(1, model.njoints)
+        )
 
     # ---- snapshot -------------------------------------------------------------------------
     def compute(self, q: np.ndarray, dq: np.ndarray) -> Dynamics:
-        """Fill one `Dynamics` snapshot at (q, q̇)."""
+        """Fill one `Dynamics` snapshot at (q, q̇).
+
+        Pinocchio gives M (CRBA), h, J and J̇q̇ in one `computeAllTerms`; the algebra of [T2-5] runs in
+        one compiled kernel (`control.kernels.snapshot_fused`, tested against its numpy reference).
+        """
         model, data, fid = self.model, self.data, self.tcp_frame_id
-        q = np.asarray(q, dtype=float)
-        dq = np.asarray(dq, dtype=float)
-        pin.forwardKinematics(model, data, q, dq, self._zeros)  # data.a = bias accelerations (q̈ = 0)
-        pin.computeJointJacobians(model, data, q)
+        q = np.array(q, dtype=float)
+        dq = np.array(dq, dtype=float)
+        pin.computeAllTerms(model, data, q, dq)  # M (upper), h, joint Jacobians, data.a at q̈ = 0
         pin.updateFramePlacements(model, data)
-        M = pin.crba(model, data, q).copy()
-        M[self._lower] = M.T[self._lower]  # crba fills the upper triangle only
-        h = pin.nonLinearEffects(model, data, q, dq).copy()
-        M_inv = pin.computeMinverse(model, data, q).copy()
-        M_inv[self._lower] = M_inv.T[self._lower]
-        J = pin.getFrameJacobian(model, data, fid, LWA).copy()
+        J = pin.getFrameJacobian(model, data, fid, LWA)
         dJ_dq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector.copy()
+        M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular = snapshot_fused(
+            data.M, J, SINGULAR_EIGENVALUE
+        )
         oMf = data.oMf[fid]
-        X = M_inv @ J.T  # (n, 6)
-        Lambda_inv = J @ X
-        Lambda_inv = 0.5 * (Lambda_inv + Lambda_inv.T)
-        w, V = np.linalg.eigh(Lambda_inv)
-        min_eig = float(w[0])
-        near_singular = min_eig < SINGULAR_EIGENVALUE
-        if near_singular:  # damped inverse w / (w² + ρ²): bounded as w → 0
-            rho2 = SINGULAR_EIGENVALUE**2
-            Lambda = (V * (w / (w * w + rho2))) @ V.T
-        else:
-            Lambda = (V * (1.0 / w)) @ V.T  # [T3]
-        J_bar = X @ Lambda  # [T2]
-        N = self._eye - J_bar @ J  # [T4]
-        S = N @ M_inv @ N.T
-        if self.nv == 7:  # rank(S) = n − 6 = 1: S = σ u uᵀ, so S# = S / σ² = S / ‖S‖_F²  [T5]
-            Lambda_n = S / max(float(np.sum(S * S)), 1e-300)
-        else:
-            Lambda_n = sym_pinv(S, rtol=1e-8)  # [T5]
         return Dynamics(
-            q=q.copy(),
-            dq=dq.copy(),
+            q=q,
+            dq=dq,
             M=M,
             M_inv=M_inv,
-            h=h,
+            h=data.nle.copy(),
             tcp_rotation_world=oMf.rotation.copy(),
             tcp_position_world=oMf.translation.copy(),
             J=J,
@@ -122,9 +106,28 @@ class RobotModel:
             J_bar=J_bar,
             N=N,
             Lambda_n=Lambda_n,
-            near_singular=near_singular,
-            min_eig_Lambda_inv=min_eig,
+            near_singular=bool(near_singular),
+            min_eig_Lambda_inv=float(min_eig),
         )
+
+    def compute_reference(self, q: np.ndarray, dq: np.ndarray) -> Dynamics:
+        """`compute` with the plain-numpy algebra (`control.kernels.snapshot_reference`): the readable
+        statement of [T2-5] that the compiled snapshot is tested against."""
+        model, data, fid = self.model, self._data_hessian, self.tcp_frame_id
+        q = np.array(q, dtype=float)
+        dq = np.array(dq, dtype=float)
+        pin.computeAllTerms(model, data, q, dq)
+        pin.updateFramePlacements(model, data)
+        J = pin.getFrameJacobian(model, data, fid, LWA)
+        dJ_dq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector.copy()
+        M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near = snapshot_reference(
+            data.M.copy(), J, SINGULAR_EIGENVALUE
+        )
+        oMf = data.oMf[fid]
+        return Dynamics(
+            q, dq, M, M_inv, data.nle.copy(), oMf.rotation.copy(), oMf.translation.copy(), J, dJ_dq,
+            Lambda_inv, Lambda, J_bar, N, Lambda_n, bool(near), float(min_eig),
+        )  # fmt: skip
 
     # ---- kinematics helpers ---------------------------------------------------------------
     def frame_pose(self, q: np.ndarray, frame: str) -> pin.SE3:

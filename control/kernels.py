@@ -1,0 +1,399 @@
+"""Fused compiled kernels for the per-step algebra, each beside its plain-numpy reference.
+
+The snapshot, the coupling blocks and the gradient contraction are small dense algebra on 6×7
+matrices: in plain numpy every product and every `np.linalg` call costs more in Python overhead
+than in arithmetic. Each `*_fused` function below does the same algebra as the `*_reference`
+function of the same name in one compiled call (numba, `cache=True`: compiled once per machine,
+then loaded from `__pycache__`). The references are the readable statement of the formulas; the
+tests (`tests/test_kernels.py`) hold the fused versions to them (relative 1e-10 over random and
+near-singular states of both robots).
+
+Kernels:
+- `snapshot_*`: from M (upper triangle, as CRBA fills it) and the TCP Jacobian J: M⁻¹, Λx⁻¹,
+  Λx [T3] (damped near singularities), J̄ [T2], N [T4], Λn [T5].
+- `coupling_*`: blocks A, B, D [T6, T20], A⁻¹, D̂ [T9], P_f, P_a, P_d (Table I) and W [T22].
+- `gradient_contraction_*`: the ∂J part of ∂W/∂q [T24-27] and the vectors whose RNEA
+  derivative gives the ∂M part (see `control.coupling.coupling_gradient_direct`).
+- `kinematic_hessian_reference`: ∂J/∂q of a serial chain of revolute joints from J alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+OBJECTIVE_CODES = {"f": 0, "a": 1, "d": 2}
+
+
+# ==== snapshot [T2-5] ============================================================================
+def snapshot_reference(M_upper: np.ndarray, J: np.ndarray, singular_eig: float) -> tuple:
+    """(M, M⁻¹, Λx⁻¹, Λx, J̄, N, Λn, min eig Λx⁻¹, near_singular) from CRBA's upper triangle and J."""
+    n = J.shape[1]
+    M = np.triu(M_upper) + np.triu(M_upper, 1).T  # CRBA fills the upper triangle only
+    M_inv = np.linalg.inv(M)
+    M_inv = 0.5 * (M_inv + M_inv.T)
+    X = M_inv @ J.T  # (n, 6)
+    Lambda_inv = J @ X  # J M⁻¹ Jᵀ
+    Lambda_inv = 0.5 * (Lambda_inv + Lambda_inv.T)
+    w, V = np.linalg.eigh(Lambda_inv)
+    min_eig = float(w[0])
+    near_singular = min_eig < singular_eig
+    if near_singular:  # damped inverse w / (w² + ρ²): bounded as w → 0
+        Lambda = (V * (w / (w * w + singular_eig**2))) @ V.T
+    else:
+        Lambda = (V * (1.0 / w)) @ V.T  # [T3] Λx = (J M⁻¹ Jᵀ)⁻¹
+    J_bar = X @ Lambda  # [T2] J̄ = M⁻¹ Jᵀ Λx
+    N = np.eye(n) - J_bar @ J  # [T4] N = I − J̄ J
+    S = N @ M_inv @ N.T
+    Lambda_n = nullspace_inertia_reference(S)  # [T5] Λn = (N M⁻¹ Nᵀ)#
+    return M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular
+
+
+def nullspace_inertia_reference(S: np.ndarray) -> np.ndarray:
+    """(N M⁻¹ Nᵀ)# [T5]: rank n − 6; for one redundant joint S = σ u uᵀ, so S# = S / ‖S‖_F²."""
+    if S.shape[0] == 7:
+        return S / max(float(np.sum(S * S)), 1e-300)
+    w, V = np.linalg.eigh(S)
+    cutoff = 1e-8 * max(float(np.max(np.abs(w))), 1e-300)
+    w_inv = np.where(np.abs(w) > cutoff, 1.0 / np.where(w == 0, 1.0, w), 0.0)
+    return (V * w_inv) @ V.T
+
+
+@njit(cache=True)
+def _matmul(A, B):
+    m, k = A.shape
+    n = B.shape[1]
+    out = np.zeros((m, n))
+    for i in range(m):
+        for p in range(k):
+            a = A[i, p]
+            for j in range(n):
+                out[i, j] += a * B[p, j]
+    return out
+
+
+@njit(cache=True)
+def _matmul_bt(A, B):
+    """A @ Bᵀ."""
+    m, k = A.shape
+    n = B.shape[0]
+    out = np.empty((m, n))
+    for i in range(m):
+        for j in range(n):
+            s = 0.0
+            for p in range(k):
+                s += A[i, p] * B[j, p]
+            out[i, j] = s
+    return out
+
+
+@njit(cache=True)
+def _spd_inverse(M):
+    """Inverse of a symmetric positive definite matrix via Cholesky (NaN if M is not SPD)."""
+    n = M.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = M[j, j]
+        for p in range(j):
+            s -= L[j, p] * L[j, p]
+        if not s > 0.0:
+            return np.full((n, n), np.nan)
+        d = np.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            t = M[i, j]
+            for p in range(j):
+                t -= L[i, p] * L[j, p]
+            L[i, j] = t / d
+    Li = np.zeros((n, n))  # L⁻¹, lower triangular
+    for j in range(n):
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, n):
+            t = 0.0
+            for p in range(j, i):
+                t -= L[i, p] * Li[p, j]
+            Li[i, j] = t / L[i, i]
+    out = np.empty((n, n))  # M⁻¹ = L⁻ᵀ L⁻¹
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for p in range(j, n):
+                s += Li[p, i] * Li[p, j]
+            out[i, j] = s
+            out[j, i] = s
+    return out
+
+
+@njit(cache=True)
+def _sym_from_eig(V, f):
+    n = V.shape[0]
+    out = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for p in range(n):
+                s += V[i, p] * f[p] * V[j, p]
+            out[i, j] = s
+            out[j, i] = s
+    return out
+
+
+@njit(cache=True)
+def snapshot_fused(M_upper, J, singular_eig):
+    """Compiled `snapshot_reference` (same outputs, same order)."""
+    n = J.shape[1]
+    M = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            M[i, j] = M_upper[i, j]
+            M[j, i] = M_upper[i, j]
+    M_inv = _spd_inverse(M)
+    X = _matmul_bt(M_inv, J)  # M⁻¹ Jᵀ
+    Lambda_inv = _matmul(J, X)
+    for i in range(6):
+        for j in range(i + 1, 6):
+            s = 0.5 * (Lambda_inv[i, j] + Lambda_inv[j, i])
+            Lambda_inv[i, j] = s
+            Lambda_inv[j, i] = s
+    w, V = np.linalg.eigh(Lambda_inv)
+    min_eig = w[0]
+    near_singular = min_eig < singular_eig
+    f = np.empty(6)
+    for i in range(6):
+        f[i] = w[i] / (w[i] * w[i] + singular_eig * singular_eig) if near_singular else 1.0 / w[i]
+    Lambda = _sym_from_eig(V, f)  # [T3]
+    J_bar = _matmul(X, Lambda)  # [T2]
+    N = -_matmul(J_bar, J)  # [T4]
+    for i in range(n):
+        N[i, i] += 1.0
+    S = _matmul_bt(_matmul(N, M_inv), N)
+    for i in range(n):
+        for j in range(i + 1, n):
+            s = 0.5 * (S[i, j] + S[j, i])
+            S[i, j] = s
+            S[j, i] = s
+    if n == 7:  # [T5] rank one: S# = S / ‖S‖_F²
+        ss = 0.0
+        for i in range(n):
+            for j in range(n):
+                ss += S[i, j] * S[i, j]
+        Lambda_n = S / max(ss, 1e-300)
+    else:
+        ws, Vs = np.linalg.eigh(S)
+        cutoff = 1e-8 * max(np.max(np.abs(ws)), 1e-300)
+        g = np.zeros(n)
+        for i in range(n):
+            if abs(ws[i]) > cutoff:
+                g[i] = 1.0 / ws[i]
+        Lambda_n = _sym_from_eig(Vs, g)
+    return M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular
+
+
+# ==== coupling blocks [T6, T9, T10, T20, T22, Table I] =============================================
+def coupling_reference(Lambda: np.ndarray, Lambda_inv: np.ndarray, perm: np.ndarray, n_m: int, exact: bool) -> tuple:
+    """(A, B, D, A⁻¹, D̂, P_f, P_a, P_d, W_f, W_a, W_d) in (motion, force) order `perm` [T6].
+
+    With `exact` (Λx⁻¹ is the inverse of Λx) the block-inverse identities avoid an inversion:
+    with L = Λx⁻¹, D̂ = L_ff⁻¹, BᵀA⁻¹ = −D̂ L_fm and A⁻¹ = L_mm − L_mf D̂ L_fm.
+    """
+    k = n_m
+    Lp = Lambda[np.ix_(perm, perm)]  # [[A, B], [Bᵀ, D]] [T6]
+    A, B, D = Lp[:k, :k].copy(), Lp[:k, k:].copy(), Lp[k:, k:].copy()
+    P_a = B.T.copy()  # [T20] P_a = S_f Λx S_mᵀ = Bᵀ
+    Li = Lambda_inv[np.ix_(perm, perm)]
+    P_f = Li[k:, :k].copy()  # S_f Λx⁻¹ S_mᵀ
+    if exact:
+        D_hat = np.linalg.inv(Li[k:, k:])  # [T9]
+        P_d = -(D_hat @ P_f)  # [T10] BᵀA⁻¹
+        A_inv = Li[:k, :k] + Li[:k, k:] @ P_d
+    else:
+        A_inv = np.linalg.inv(A)
+        P_d = P_a @ A_inv  # [T10]
+        D_hat = D - P_d @ B  # [T9]
+    W = [float(np.sum(P * P)) for P in (P_f, P_a, P_d)]  # [T22] W = ‖P‖²_F
+    return A, B, D, A_inv, D_hat, P_f, P_a, P_d, W[0], W[1], W[2]
+
+
+@njit(cache=True)
+def _inverse(A):
+    """Inverse of a small square matrix by Gauss-Jordan with partial pivoting."""
+    n = A.shape[0]
+    a = A.copy()
+    out = np.eye(n)
+    for c in range(n):
+        p = c
+        for r in range(c + 1, n):
+            if abs(a[r, c]) > abs(a[p, c]):
+                p = r
+        if p != c:
+            for j in range(n):
+                a[c, j], a[p, j] = a[p, j], a[c, j]
+                out[c, j], out[p, j] = out[p, j], out[c, j]
+        d = a[c, c]
+        for j in range(n):
+            a[c, j] /= d
+            out[c, j] /= d
+        for r in range(n):
+            if r != c:
+                fct = a[r, c]
+                if fct != 0.0:
+                    for j in range(n):
+                        a[r, j] -= fct * a[c, j]
+                        out[r, j] -= fct * out[c, j]
+    return out
+
+
+@njit(cache=True)
+def _sqnorm(P):
+    s = 0.0
+    for i in range(P.shape[0]):
+        for j in range(P.shape[1]):
+            s += P[i, j] * P[i, j]
+    return s
+
+
+@njit(cache=True)
+def coupling_fused(Lambda, Lambda_inv, perm, n_m, exact):
+    """Compiled `coupling_reference` (same outputs, same order)."""
+    k = n_m
+    nf = 6 - k
+    Lp = np.empty((6, 6))
+    Li = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            Lp[i, j] = Lambda[perm[i], perm[j]]
+            Li[i, j] = Lambda_inv[perm[i], perm[j]]
+    A = Lp[:k, :k].copy()
+    B = Lp[:k, k:].copy()
+    D = Lp[k:, k:].copy()
+    P_a = B.T.copy()
+    P_f = Li[k:, :k].copy()
+    if exact:
+        if nf == 1:
+            D_hat = np.empty((1, 1))
+            D_hat[0, 0] = 1.0 / Li[k, k]
+        else:
+            D_hat = _inverse(Li[k:, k:].copy())
+        P_d = -_matmul(D_hat, P_f)
+        A_inv = Li[:k, :k] + _matmul(Li[:k, k:].copy(), P_d)
+    else:
+        A_inv = _inverse(A)
+        P_d = _matmul(P_a, A_inv)
+        D_hat = D - _matmul(P_d, B)
+    return A, B, D, A_inv, D_hat, P_f, P_a, P_d, _sqnorm(P_f), _sqnorm(P_a), _sqnorm(P_d)
+
+
+# ==== gradient contraction [T24-27] ===============================================================
+def kinematic_hessian_reference(J: np.ndarray) -> np.ndarray:
+    """(n, 6, n) ∂J/∂q_k of a serial chain of revolute joints from its world-aligned J = [v; ω].
+
+    Joint k turns everything distal to it about ω_k: for k < i, ∂ω_i = ω_k × ω_i and
+    ∂v_i = ω_k × v_i; for k ≥ i only the end point moves (by v_k): ∂v_i = ω_i × v_k, ∂ω_i = 0.
+    """
+    n = J.shape[1]
+    v, w = J[:3].T, J[3:].T
+    H = np.zeros((n, 6, n))
+    for k in range(n):
+        for i in range(n):
+            if k < i:
+                H[k, :3, i] = np.cross(w[k], v[i])
+                H[k, 3:, i] = np.cross(w[k], w[i])
+            else:
+                H[k, :3, i] = np.cross(w[i], v[k])
+    return H
+
+
+def _objective_sides(objective, Lambda_inv, P, A_inv, S_f, S_m, perm, n_m):
+    """(P, left, right) with ∂P/∂q_k = left ∂Λx_k right [T25-27]."""
+    m, f = perm[:n_m], perm[n_m:]
+    if objective == "f":  # [T25] ∂P_f = −S_f Λx⁻¹ ∂Λx Λx⁻¹ S_mᵀ
+        return -Lambda_inv[f, :], Lambda_inv[:, m]
+    if objective == "a":  # [T26] ∂P_a = S_f ∂Λx S_mᵀ
+        return S_f, S_m.T
+    return S_f - P @ S_m, S_m.T @ A_inv  # [T27] ∂P_d = (S_f − BᵀA⁻¹S_m) ∂Λx S_mᵀ A⁻¹
+
+
+def gradient_contraction_reference(
+    objective: str,
+    J: np.ndarray,
+    dJ: np.ndarray,
+    M_inv: np.ndarray,
+    Lambda: np.ndarray,
+    Lambda_inv: np.ndarray,
+    P: np.ndarray,
+    A_inv: np.ndarray,
+    perm: np.ndarray,
+    n_m: int,
+) -> tuple:
+    """(term_J, a, b): ∂W/∂q = −2 (term_J − term_M) with term_M[k] = Σ_c a_cᵀ ∂(M b_c)/∂q_k [T24].
+
+    ∂W/∂q_k = 2⟨∂Λx_k, G⟩, G = leftᵀ P rightᵀ, and ∂Λx_k = −Λx ∂(Λx⁻¹)_k Λx with
+    ∂(Λx⁻¹)_k = ∂J_k X + Xᵀ∂J_kᵀ − Xᵀ∂M_k X (X = M⁻¹Jᵀ). With H = Λx G Λx = U Vᵀ:
+    term_J[k] = ⟨∂J_k, (H + Hᵀ) Xᵀ⟩ and ⟨∂M_k, X H Xᵀ⟩ = Σ_c (X U)_cᵀ ∂M_k (X V)_c.
+    """
+    eye = np.eye(6)
+    S_f, S_m = eye[perm[n_m:]], eye[perm[:n_m]]
+    left, right = _objective_sides(objective, Lambda_inv, P, A_inv, S_f, S_m, perm, n_m)
+    U = Lambda @ left.T  # (6, n_f)
+    V = Lambda @ (P @ right.T).T  # (6, n_f)
+    X = M_inv @ J.T
+    H = U @ V.T
+    n = J.shape[1]
+    term_J = dJ.reshape(n, 6 * n) @ ((H + H.T) @ X.T).reshape(6 * n)
+    return term_J, X @ U, X @ V
+
+
+@njit(cache=True)
+def gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m):
+    """Compiled `gradient_contraction_reference` with ∂J from `kinematic_hessian_reference`'s
+    formula (serial revolute chain), never forming the (n, 6, n) Hessian. `objective` is 0/1/2
+    for f/a/d (`OBJECTIVE_CODES`)."""
+    n = J.shape[1]
+    nf = 6 - n_m
+    left = np.zeros((nf, 6))
+    right = np.zeros((6, n_m))
+    if objective == 0:  # [T25]
+        for r in range(nf):
+            for j in range(6):
+                left[r, j] = -Lambda_inv[perm[n_m + r], j]
+        for j in range(6):
+            for c in range(n_m):
+                right[j, c] = Lambda_inv[j, perm[c]]
+    elif objective == 1:  # [T26]
+        for r in range(nf):
+            left[r, perm[n_m + r]] = 1.0
+        for c in range(n_m):
+            right[perm[c], c] = 1.0
+    else:  # [T27]
+        for r in range(nf):
+            left[r, perm[n_m + r]] = 1.0
+            for c in range(n_m):
+                left[r, perm[c]] -= P[r, c]
+        for c in range(n_m):
+            for c2 in range(n_m):
+                right[perm[c], c2] = A_inv[c, c2]
+    U = _matmul_bt(Lambda, left)  # (6, n_f)
+    Pr = _matmul_bt(P, right)  # (n_f, 6) = P rightᵀ
+    V = _matmul_bt(Lambda, Pr)  # (6, n_f)
+    X = _matmul_bt(M_inv, J)  # (n, 6)
+    H = _matmul_bt(U, V)
+    Hs = H + H.T
+    Y = _matmul_bt(Hs, X)  # (6, n)
+    term_J = np.zeros(n)
+    for k in range(n):
+        wk0, wk1, wk2 = J[3, k], J[4, k], J[5, k]
+        vk0, vk1, vk2 = J[0, k], J[1, k], J[2, k]
+        s = 0.0
+        for i in range(n):
+            y0, y1, y2 = Y[0, i], Y[1, i], Y[2, i]
+            if k < i:  # ∂v_i = ω_k × v_i, ∂ω_i = ω_k × ω_i
+                v0, v1, v2 = J[0, i], J[1, i], J[2, i]
+                w0, w1, w2 = J[3, i], J[4, i], J[5, i]
+                z0, z1, z2 = Y[3, i], Y[4, i], Y[5, i]
+                s += y0 * (wk1 * v2 - wk2 * v1) + y1 * (wk2 * v0 - wk0 * v2) + y2 * (wk0 * v1 - wk1 * v0)
+                s += z0 * (wk1 * w2 - wk2 * w1) + z1 * (wk2 * w0 - wk0 * w2) + z2 * (wk0 * w1 - wk1 * w0)
+            else:  # ∂v_i = ω_i × v_k
+                w0, w1, w2 = J[3, i], J[4, i], J[5, i]
+                s += y0 * (w1 * vk2 - w2 * vk1) + y1 * (w2 * vk0 - w0 * vk2) + y2 * (w0 * vk1 - w1 * vk0)
+        term_J[k] = s
+    return term_J, _matmul(X, U), _matmul(X, V)

@@ -1,0 +1,153 @@
+"""The compiled kernels equal their plain-numpy references (control/kernels.py).
+
+Relative tolerance 1e-10 on each output (max abs difference over max abs entry), at random states
+of both robots and at near-singular states where Λx reaches 1e5-1e6 (wrist singularity approached
+from a random direction, on both sides of the damping threshold).
+
+Near a singularity, Λx = (J M⁻¹ Jᵀ)⁻¹ is ill-conditioned: inputs that agree to machine precision
+(M⁻¹ from two Cholesky/LU implementations, two LAPACK builds of eigh) give a Λx that agrees only
+to about eps·κ, κ = cond(J M⁻¹ Jᵀ). The outputs derived from Λx are therefore held to
+max(1e-10, 100·eps·κ) — the first-order bound for inverting an input known to eps — and everything
+else to 1e-10 flat. The same bound covers the coupling and gradient kernels, whose algebra
+(A⁻¹, D − BᵀA⁻¹B, Λx G Λx) loses digits to cancellation at those states.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from control import kernels as K
+from control.coupling import Subspaces, coupling_gradient, coupling_gradient_direct, terms_of
+from control.model import SINGULAR_EIGENVALUE, RobotModel
+from tests.conftest import random_configurations
+
+RTOL = 1e-10
+SUBSPACES = [Subspaces.from_force_axes(a) for a in (("pz",), ("px", "rz"), ("py", "pz", "rx"))]
+
+
+def _rel(a, b, scale: float = 0.0) -> float:
+    """max |a − b| over max |b| (or over `scale` when larger: the size of the terms b was computed from)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), scale, 1e-300))
+
+
+def _tolerance(Lambda_inv: np.ndarray) -> float:
+    """max(1e-10, 100·eps·cond(Λx⁻¹)): see the module docstring."""
+    w = np.linalg.eigvalsh(Lambda_inv)
+    return max(RTOL, 100 * np.finfo(float).eps * w[-1] / max(w[0], 1e-300))
+
+
+def near_singular_configurations(robot, count: int, seed: int = 0) -> list[np.ndarray]:
+    """Postures close to a singular one: min eig of J M⁻¹ Jᵀ from ~1e-4 down to ~1e-8."""
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(seed)
+    q_sing = np.zeros(robot.model.nq)  # straight up: shoulder and wrist axes aligned (both robots)
+    assert model.compute(q_sing, np.zeros(7)).min_eig_Lambda_inv < 1e-9
+    out = []
+    for scale in np.geomspace(3e-1, 3e-5, count):
+        d = rng.standard_normal(robot.model.nq)
+        out.append(q_sing + scale * d / np.linalg.norm(d))
+    return out
+
+
+def _states(robot, seed: int):
+    return random_configurations(robot, 4, seed=seed) + near_singular_configurations(robot, 6, seed=seed)
+
+
+def test_near_singular_states_cover_both_sides_of_the_damping_threshold(robot):
+    model = RobotModel(robot.model)
+    eigs = [model.compute(q, np.zeros(7)).min_eig_Lambda_inv for q in near_singular_configurations(robot, 6)]
+    assert min(eigs) < SINGULAR_EIGENVALUE < max(eigs)
+    assert max(np.abs(model.compute(q, np.zeros(7)).Lambda).max() for q in near_singular_configurations(robot, 6)) > 1e5
+
+
+def test_snapshot_kernel_equals_numpy_reference(robot):
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(5)
+    for q in _states(robot, seed=11):
+        dq = rng.uniform(-1, 1, 7)
+        fused, ref = model.compute(q, dq), model.compute_reference(q, dq)
+        assert fused.near_singular == ref.near_singular
+        for name in ("M", "M_inv", "h", "J", "dJ_dq", "Lambda_inv"):
+            assert _rel(getattr(fused, name), getattr(ref, name)) < RTOL, name
+        tol = _tolerance(ref.Lambda_inv)
+        for name in ("Lambda", "J_bar", "N", "Lambda_n"):
+            assert _rel(getattr(fused, name), getattr(ref, name)) < tol, (name, fused.min_eig_Lambda_inv)
+        assert abs(fused.min_eig_Lambda_inv - ref.min_eig_Lambda_inv) < RTOL * np.abs(ref.Lambda_inv).max()
+
+
+def test_snapshot_kernel_for_more_than_one_redundant_joint_uses_the_pseudo_inverse():
+    """n = 8 (a random SPD M and a random 6×8 J): Λn from the eigh path equals the reference."""
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((8, 8))
+    M = A @ A.T + 8 * np.eye(8)
+    J = rng.standard_normal((6, 8))
+    for a, b in zip(K.snapshot_fused(np.triu(M), J, 1e-6), K.snapshot_reference(np.triu(M), J, 1e-6), strict=True):
+        assert _rel(a, b) < RTOL
+
+
+@pytest.mark.parametrize("sub", SUBSPACES, ids=lambda s: "+".join(s.names()[1]))
+def test_coupling_kernel_equals_numpy_reference(robot, sub):
+    model = RobotModel(robot.model)
+    for q in _states(robot, seed=12):
+        dyn = model.compute(q, np.zeros(7))
+        for exact in (True, False):
+            fused = K.coupling_fused(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact)
+            ref = K.coupling_reference(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact)
+            tol = _tolerance(dyn.Lambda_inv)
+            for i, (a, b) in enumerate(zip(fused, ref, strict=True)):
+                # D̂ = D − BᵀA⁻¹B (inexact path) is a difference of terms of the size of D
+                scale = float(np.abs(ref[2]).max()) if i == 4 and not exact else 0.0
+                assert _rel(a, b, scale) < tol, (i, exact, dyn.min_eig_Lambda_inv)
+
+
+def test_kinematic_hessian_from_J_equals_pinocchio(robot):
+    model = RobotModel(robot.model)
+    assert model.revolute_chain
+    for q in _states(robot, seed=13):
+        H = K.kinematic_hessian_reference(model.tcp_jacobian(q))
+        H_pin = model.tcp_jacobian_derivative(q)
+        assert np.max(np.abs(H - H_pin)) < 1e-12 * max(1.0, np.abs(H_pin).max())
+
+
+@pytest.mark.parametrize("sub", SUBSPACES, ids=lambda s: "+".join(s.names()[1]))
+@pytest.mark.parametrize("objective", ["f", "a", "d"])
+def test_gradient_contraction_kernel_equals_numpy_reference(robot, sub, objective):
+    model = RobotModel(robot.model)
+    for q in _states(robot, seed=14):
+        dyn = model.compute(q, np.zeros(7))
+        t = terms_of(dyn, sub)
+        P = {"f": t.P_f, "a": t.P_a, "d": t.P_d}[objective]
+        args = (dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, t.A_inv, sub.perm, sub.n_m)
+        fused = K.gradient_contraction_fused(K.OBJECTIVE_CODES[objective], dyn.J, *args)
+        ref = K.gradient_contraction_reference(objective, dyn.J, model.tcp_jacobian_derivative(q), *args)
+        for a, b in zip(fused, ref, strict=True):
+            assert _rel(a, b) < _tolerance(dyn.Lambda_inv), dyn.min_eig_Lambda_inv
+
+
+@pytest.mark.parametrize("objective", ["f", "a", "d"])
+def test_direct_gradient_equals_gradient_through_dLambda(robot, objective):
+    """The fused ∂W/∂q path against the one through the full (n, 6, 6) ∂Λx/∂q (random states)."""
+    model = RobotModel(robot.model)
+    sub = SUBSPACES[0]
+    for q in random_configurations(robot, 3, seed=15):
+        dyn = model.compute(q, np.zeros(7))
+        t = terms_of(dyn, sub)
+        W1, g1 = coupling_gradient(t, dyn.Lambda_inv, model.dLambda_dq(dyn), sub, objective)
+        W2, g2 = coupling_gradient_direct(model, dyn, t, sub, objective)
+        assert abs(W1 - W2) <= RTOL * abs(W1)
+        assert _rel(g2, g1) < 1e-9
+
+
+def test_classical_acceleration_after_compute_all_terms_is_the_bias_acceleration(rizon):
+    """compute() reads J̇q̇ after computeAllTerms: the same as forwardKinematics with q̈ = 0."""
+    model = RobotModel(rizon.model)
+    q, dq = random_configurations(rizon, 1, seed=16)[0], np.linspace(-1, 1, 7)
+    data = rizon.model.createData()
+    pin.forwardKinematics(rizon.model, data, q, dq, np.zeros(7))
+    pin.updateFramePlacements(rizon.model, data)
+    fid = rizon.model.getFrameId("tcp")
+    expected = pin.getFrameClassicalAcceleration(rizon.model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector
+    np.testing.assert_allclose(model.compute(q, dq).dJ_dq, expected, rtol=0, atol=1e-12)
