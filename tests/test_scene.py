@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from app.commands import DragCommand
+from app.scenarios.mass_drop import MASS_BODY, PAYLOAD_KG, MassDropScenario
 from app.session import Session
 from app.ui.overlays import (
     Trail,
@@ -285,7 +286,7 @@ def test_scene_view_survives_a_diverged_snapshot(server, session):
 
 
 def test_an_attached_payload_is_drawn_until_it_is_released(server):
-    session = Session("mass-drop")
+    session = Session(MassDropScenario(case="held-release"))
     view = SceneView(server, session.robot, lambda c: None)
     try:
         snap = capture(session)
@@ -303,6 +304,15 @@ def test_an_attached_payload_is_drawn_until_it_is_released(server):
         assert not view.overlays.payload.visible
     finally:
         view.remove()
+
+
+def test_the_mass_on_its_rope_is_drawn_where_it_hangs(server):
+    session = Session("mass-drop")
+    snap = capture(session)
+    body = session.world.model.body(MASS_BODY).id
+    assert snap.payload_mass_kg == pytest.approx(PAYLOAD_KG)
+    np.testing.assert_allclose(snap.payload_position, session.world.data.xipos[body])
+    np.testing.assert_allclose(snap.payload_position, session.world.site_pose(session.world.tcp_site)[0], atol=1e-9)
 
 
 def test_gen3_l_shape_of_the_limit_drop_counts_as_near_singular_and_the_polish_start_does_not():

@@ -1,11 +1,23 @@
-"""Mass drop [C] §IV-D (Fig. 5): the Gen3 holds a 1.25 kg mass at the tool and lets it go; the
-TCP must stay put. Three modes: Position (an acceleration-based joint PID standing in for the
-arm's internal position loop), Torque + Residual and Torque + Fusion (pose task non-compliant,
-Γ = 0; nullspace compliant, Γ₀ = I).
+"""Mass drop [C] §IV-D (Fig. 5): "A 1.25 kg mass is attached at the wrist, lifted to the
+attachment point, and released." The mass hangs from the Gen3's tool on a rope; a hand holds it at
+the attachment point; at the release it falls, the rope goes taut and jerks the arm; the TCP must
+stay put. Three modes: Position (an acceleration-based joint PID standing in for the arm's internal
+position loop), Torque + Residual and Torque + Fusion (pose task non-compliant, Γ = 0; nullspace
+compliant, Γ₀ = I). A second case, "held-release" (labelled so in the report), is the opposite
+transient: the arm holds the mass rigidly and lets it go (an unloading step, no impact).
 
 Constants, chosen once from the paper and physical sense, not tuned afterwards:
 - posture `mass_drop_nominal` (robots/gen3.toml): the nominal posture with the TCP 5 cm forward;
-- payload 1.25 kg at the TCP, distal to the F/T sensor (as in the paper, the sensor sees it);
+- mass 1.25 kg, a free body in MuJoCo (steel sphere, 3.4 cm radius); the rope attaches at the TCP,
+  distal to the F/T sensor (the sensor feels the rope's pull, as in [C]'s compliance experiment);
+- rope length 0.05 m: [C] gives none for this experiment; a short loop at the wrist. The mass is
+  released at the attachment point, so it falls the rope's length. (With the 18 cm of [C]'s
+  compliance experiment the catch, mg + √((mg)² + 2kmg·d) ≈ 61 N, exceeds the ≈ 48 N at the TCP
+  that the Gen3's 9 N m wrist joint 6 holds, and the paper's arm survived 90 drops.)
+- rope stiffness 500 N/m: an elastic cord (the 12 N weight stretches it 2.5 cm); it also stands
+  in for the joint and link flexibility our rigid model lacks ([C] names robot flexibility as the
+  main limitation of its results);
+- rope damping 5 N s/m: damping ratio ≈ 0.1 of the mass on the cord, a lightly damped polymer;
 - release at t = 1.5 s: the PID integral and the observer have settled (both < 0.3 s);
 - analysis window 4 s from the release ([C] §IV-D);
 - Position mode: joint PID with a triple real pole at ω = 20 rad/s (K_p = 3ω², K_d = 3ω,
@@ -15,17 +27,23 @@ Constants, chosen once from the paper and physical sense, not tuned afterwards:
 - F/T sensor: Gaussian noise σ = 0.1 N / 0.005 N m per channel, no filter (a digital 6-axis
   sensor read within 1 ms, [C] §IV-A); the 1 Hz sinusoid of the [T] sensor model is not used;
 - actuator torque ripple: Gaussian σ = 0.05 N m per joint per step (the low-level torque loop is
-  never exact), so that repetitions with different seeds differ as on hardware;
+  never exact);
 - stabilisation band 1 mm around the target.
+What varies between repetitions (`MassDropParams`, drawn by the experiment, seeded): the drop
+height (a hand lifts the mass to the attachment point within ±1 cm), the rope stiffness (±20 %,
+cord and knot) and the true mass (±10 % about the 1.25 kg, which no controller is told).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor
-from app.scenarios.payload import PayloadEnvironment, add_payload_body
+from app.scenarios.payload import PayloadEnvironment, add_payload_body, set_inertial_at_origin
+from app.sim.rope import Rope
 from app.sim.sensor import FTSensor
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor, PoseTask
@@ -33,7 +51,10 @@ from control.gains import EstimatorGains, PoseTaskGains, PostureTaskGains
 from robots import RobotDescription
 
 MODES = ("position", "torque-residual", "torque-fusion")
+CASES = ("rope-drop", "held-release")
 PAYLOAD_KG = 1.25
+MASS_BODY = "drop_mass"
+MASS_RADIUS_M = 0.034  # a 1.25 kg steel sphere
 RELEASE_TIME_S = 1.5
 WINDOW_S = 4.0
 PID_OMEGA = 20.0  # rad/s
@@ -41,6 +62,61 @@ TASK_OMEGA = 20.0  # rad/s
 OBSERVER_GAIN = 50.0  # 1/s
 FORCE_NOISE_STD = 0.1  # N
 TORQUE_NOISE_STD = 0.005  # N m (sensor moment channels)
+ACTUATOR_RIPPLE_STD = 0.05  # N m
+STABLE_BAND_M = 1e-3
+
+
+def _meta(label: str, unit: str, lo: float, hi: float, step: float, help: str) -> dict:
+    return {"label": label, "unit": unit, "range": (lo, hi), "step": step, "help": help, "paper": "[C] §IV-D"}
+
+
+@dataclass(frozen=True)
+class MassDropParams:
+    """The mass-drop rig: what a repetition may vary (validated here, ValueError otherwise)."""
+
+    rope_length_m: float = field(
+        default=0.05, metadata=_meta("rope length", "m", 0.02, 0.5, 0.01, "rest length of the rope")
+    )
+    rope_stiffness_n_per_m: float = field(
+        default=500.0,
+        metadata=_meta("rope stiffness", "N/m", 100.0, 1e5, 100.0, "axial stiffness of the taut rope"),
+    )
+    rope_damping_n_s_per_m: float = field(
+        default=5.0, metadata=_meta("rope damping", "N s/m", 0.0, 200.0, 1.0, "axial damping of the taut rope")
+    )
+    drop_height_m: float | None = field(
+        default=None,
+        metadata=_meta(
+            "drop height", "m", 0.0, 0.5, 0.01, "free fall before the rope goes taut; default: the rope length"
+        ),
+    )
+    payload_mass_error: float = field(
+        default=0.0,
+        metadata=_meta("mass error", "", -0.2, 0.2, 0.01, "true mass = 1.25 kg × (1 + error); no controller is told"),
+    )
+
+    def __post_init__(self) -> None:
+        Rope(self.rope_length_m, self.rope_stiffness_n_per_m, self.rope_damping_n_s_per_m)  # validates
+        drop = self.drop_height
+        if not (np.isfinite(drop) and 0.0 <= drop <= 2 * self.rope_length_m):
+            raise ValueError(f"drop height must be between 0 and twice the rope length, got {drop!r}")
+        e = self.payload_mass_error
+        if not (isinstance(e, int | float) and np.isfinite(e) and -0.5 < e < 0.5):
+            raise ValueError(f"payload mass error must be a fraction within ±0.5, got {e!r}")
+
+    @property
+    def drop_height(self) -> float:
+        """Free fall before the rope goes taut (m): the rope length unless set."""
+        return self.rope_length_m if self.drop_height_m is None else float(self.drop_height_m)
+
+    @property
+    def mass_kg(self) -> float:
+        """The true mass in the simulation."""
+        return PAYLOAD_KG * (1.0 + self.payload_mass_error)
+
+    @property
+    def rope(self) -> Rope:
+        return Rope(self.rope_length_m, self.rope_stiffness_n_per_m, self.rope_damping_n_s_per_m)
 
 
 def wrist_ft_sensor(rng: np.random.Generator) -> Sensor:
@@ -56,22 +132,97 @@ def wrist_ft_sensor(rng: np.random.Generator) -> Sensor:
     )
 
 
-ACTUATOR_RIPPLE_STD = 0.05  # N m
-STABLE_BAND_M = 1e-3
+def _ripple(world: World, rng: np.random.Generator) -> None:
+    world.data.qfrc_applied[world.dof_adr] += ACTUATOR_RIPPLE_STD * rng.standard_normal(len(world.dof_adr))
 
 
 class RippleAndPayload(PayloadEnvironment):
-    """The payload (released at RELEASE_TIME_S) plus seeded actuator torque ripple."""
+    """Second case: the payload held rigidly at the TCP, let go at RELEASE_TIME_S; torque ripple."""
 
-    def __init__(self, world: World, rng: np.random.Generator):
-        super().__init__(world, PAYLOAD_KG, release_time_s=RELEASE_TIME_S)
+    def __init__(self, world: World, rng: np.random.Generator, mass_kg: float = PAYLOAD_KG):
+        super().__init__(world, mass_kg, release_time_s=RELEASE_TIME_S)
         self.rng = rng
 
     def apply(self, world: World, t: float) -> dict[str, float]:
         signals = super().apply(world, t)
-        ripple = ACTUATOR_RIPPLE_STD * self.rng.standard_normal(len(world.dof_adr))
-        world.data.qfrc_applied[world.dof_adr] += ripple
+        _ripple(world, self.rng)
         return signals
+
+
+def add_drop_mass(spec: mujoco.MjSpec, mass_kg: float) -> None:
+    """The hanging mass: a free body (solid sphere) in the world; its state is set by the environment."""
+    inertia = 0.4 * mass_kg * MASS_RADIUS_M**2
+    body = spec.worldbody.add_body(name=MASS_BODY, pos=[0.0, 0.0, 0.2], mass=mass_kg, inertia=[inertia] * 3)
+    set_inertial_at_origin(body)
+    body.add_freejoint()
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[MASS_RADIUS_M, 0, 0], rgba=[0.3, 0.3, 0.35, 1])
+
+
+class RopeDrop(Environment):
+    """The mass on its rope from the TCP: held at the release point until RELEASE_TIME_S, then free.
+
+    Each step, at the current state, the rope's tension (`Rope`)
+    pulls the mass towards the TCP and the TCP towards the mass (equal and opposite, `mj_applyFT`),
+    plus the seeded actuator torque ripple. Before the release a hand holds the mass still at the
+    release point, `drop_height` below the point where the rope goes taut (no force on the arm)."""
+
+    def __init__(self, world: World, rng: np.random.Generator, params: MassDropParams):
+        self.world = world
+        self.rng = rng
+        self.params = params
+        self.rope = params.rope
+        self.body_id = int(world.model.body(MASS_BODY).id)
+        joint = int(world.model.body_jntadr[self.body_id])
+        self.qpos_adr = int(world.model.jnt_qposadr[joint])
+        self.dof_adr = int(world.model.jnt_dofadr[joint])
+        self.mass_kg = params.mass_kg
+        self.attached = True  # on its rope for the whole run (the scene draws it at its body)
+        self.released = False
+        self.tension = 0.0
+        self._jacp = np.zeros((3, world.model.nv))
+        self._hold(*self._refresh())
+        mujoco.mj_kinematics(world.model, world.data)
+
+    def _refresh(self) -> tuple[np.ndarray, np.ndarray]:
+        """(TCP position, TCP velocity) at the current state (the world keeps its kinematics current)."""
+        m, d = self.world.model, self.world.data
+        mujoco.mj_jacSite(m, d, self._jacp, None, self.world.tcp_site)
+        return d.site_xpos[self.world.tcp_site].copy(), self._jacp @ d.qvel
+
+    def _hold(self, anchor: np.ndarray, anchor_velocity: np.ndarray) -> None:
+        """Put the mass at the release point, at rest (a hand holding it)."""
+        d = self.world.data
+        below = self.rope.length_m - self.params.drop_height
+        d.qpos[self.qpos_adr : self.qpos_adr + 3] = anchor - np.array([0.0, 0.0, below])
+        d.qpos[self.qpos_adr + 3 : self.qpos_adr + 7] = (1.0, 0.0, 0.0, 0.0)
+        d.qvel[self.dof_adr : self.dof_adr + 6] = 0.0
+
+    def mass_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(position, linear velocity) of the mass, world frame (free joint: world-frame velocity)."""
+        d = self.world.data
+        return d.qpos[self.qpos_adr : self.qpos_adr + 3].copy(), d.qvel[self.dof_adr : self.dof_adr + 3].copy()
+
+    def apply(self, world: World, t: float) -> dict[str, float]:
+        anchor, anchor_velocity = self._refresh()
+        if not self.released and t >= RELEASE_TIME_S - 1e-12:
+            self.released = True
+        stretch = 0.0
+        self.tension = 0.0
+        if not self.released:
+            self._hold(anchor, anchor_velocity)
+        else:
+            end, end_velocity = self.mass_state()
+            force, stretch = self.rope.force_on_end(anchor, anchor_velocity, end, end_velocity)
+            self.tension = float(np.linalg.norm(force))
+            if self.tension > 0.0:
+                world.apply_force(self.body_id, end, force)
+                world.apply_force(world.wrist_body, anchor, -force)
+        _ripple(world, self.rng)
+        return {"mass_released": float(self.released), "rope_tension_n": self.tension, "rope_stretch_mm": 1e3 * stretch}
+
+    def overlay(self) -> dict[str, np.ndarray]:
+        end, _ = self.mass_state()
+        return {"rope_end": end}
 
 
 class SensorAdapter(Sensor):
@@ -94,26 +245,40 @@ class MassDropScenario(Scenario):
     name = "mass-drop"
     title = "Mass drop [C]"
     description = (
-        "The Gen3 holds 1.25 kg at its tool and lets go at t = 1.5 s. Compare a stiff joint position "
-        "loop with torque control fed by the momentum observer alone or fused with the F/T sensor: "
-        "peak deflection, stabilisation time and residual error of the TCP."
+        "A 1.25 kg mass on a 5 cm elastic cord from the Gen3's tool is let go at the attachment point at "
+        "t = 1.5 s: it falls, the rope goes taut and jerks the arm. Compare a stiff joint position loop "
+        "with torque control fed by the momentum observer alone or fused with the F/T sensor: peak "
+        "deflection, stabilisation time and residual error of the TCP."
     )
     default_robot = "gen3"
     default_executor = "compliance-qp"
 
-    def __init__(self, mode: str = "torque-fusion"):
+    def __init__(self, mode: str = "torque-fusion", case: str = "rope-drop", params: MassDropParams | None = None):
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+        if case not in CASES:
+            raise ValueError(f"case must be one of {', '.join(CASES)}, got {case!r}")
         self.mode = mode
+        self.case = case
+        self.params = params or MassDropParams()
+
+    def with_params(self, **changes: object) -> MassDropScenario:
+        """A copy with some rig parameters changed (validated by `MassDropParams`)."""
+        return MassDropScenario(self.mode, self.case, replace(self.params, **changes))  # type: ignore[arg-type]
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         return self.named_posture(robot, "mass_drop_nominal")
 
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
-        add_payload_body(spec, robot, PAYLOAD_KG)
+        if self.case == "held-release":
+            add_payload_body(spec, robot, self.params.mass_kg)
+        else:
+            add_drop_mass(spec, self.params.mass_kg)
 
     def make_environment(self, world: World, rng: np.random.Generator) -> Environment:
-        return RippleAndPayload(world, rng)
+        if self.case == "held-release":
+            return RippleAndPayload(world, rng, self.params.mass_kg)
+        return RopeDrop(world, rng, self.params)
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         return wrist_ft_sensor(rng)

@@ -4,9 +4,10 @@ Physics: the payload is a rigid body fixed to the last link (so its mass and ine
 arm in MuJoCo), with MuJoCo's gravity compensation on that body switched on and its weight
 applied instead as an explicit external force at its centre of mass every step. The arm feels
 exactly the same as with MuJoCo gravity, but the weight now goes through `World.apply_force`, so
-the F/T sensor (the payload hangs distal to it) and the oracle see it. The inertial reaction of
-the payload (m·a) acts in the simulation but only the momentum observer sees it; the sensor model
-reads the applied forces only.
+the F/T sensor (the payload hangs distal to it) and the oracle see it. The payload is registered
+as carried by the sensor (`World.carried`), so the sensor also feels its inertia: in total it reads
+m(g − a) at the payload's COM and the moment of that force about the sensor, plus −(I α + ω × I ω)
+(`World.inertial_wrench_at_sensor`). The oracle τ̂_e sees the applied weight only.
 
 Release: at the release time the payload's mass and inertia are set to zero in the compiled
 model and its weight is no longer applied — for the arm this is the same as a gripper letting
@@ -33,7 +34,17 @@ def add_payload_body(spec: mujoco.MjSpec, robot: RobotDescription, mass_kg: floa
     last = _body_of_joint(spec, robot.joint_names[-1])
     tcp = next(s for s in spec.sites if s.name == TCP_FRAME)
     inertia = 0.4 * mass_kg * radius_m**2
-    last.add_body(name=PAYLOAD_BODY, pos=list(tcp.pos), mass=mass_kg, inertia=[inertia] * 3, gravcomp=1.0)
+    body = last.add_body(name=PAYLOAD_BODY, pos=list(tcp.pos), mass=mass_kg, inertia=[inertia] * 3, gravcomp=1.0)
+    set_inertial_at_origin(body)
+
+
+def set_inertial_at_origin(body: mujoco.MjsBody) -> None:
+    """Put a body's centre of mass at its origin with its given inertia. MjSpec leaves `ipos`
+    unset (NaN) when only mass and inertia are given, and the compiler then places the COM
+    elsewhere (6 cm off the TCP for the payload); the explicit inertial frame fixes it."""
+    body.ipos = [0.0, 0.0, 0.0]
+    body.iquat = [1.0, 0.0, 0.0, 0.0]
+    body.explicitinertial = True
 
 
 class PayloadEnvironment(Environment):
@@ -51,12 +62,14 @@ class PayloadEnvironment(Environment):
         """Put the payload (back) on the arm."""
         self.world.model.body_mass[self.body_id] = self.mass_kg
         self.world.model.body_inertia[self.body_id] = self.inertia
+        self.world.carried.add(self.body_id)
         self.attached = True
 
     def release(self) -> None:
         """Let go of the payload."""
         self.world.model.body_mass[self.body_id] = 0.0
         self.world.model.body_inertia[self.body_id] = 0.0
+        self.world.carried.discard(self.body_id)
         self.attached = False
 
     def configure(self, **changes: object) -> None:

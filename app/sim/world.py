@@ -115,6 +115,8 @@ class World:
         self.sensor_site = self.model.site(SENSOR_FRAME).id
         self.wrist_body = int(self.model.site_bodyid[self.tcp_site])
         self.applied: list[AppliedForce] = []
+        self.carried: set[int] = set()  # payload bodies distal to the F/T sensor (their inertia loads it)
+        self._acc_valid = False  # MuJoCo's body accelerations (cacc) hold the last step's values
         self.tau_applied = np.zeros(len(robot.joint_names))
         self.torque_delay_steps = 0
         self._tau_pipeline: deque[np.ndarray] = deque()
@@ -142,6 +144,7 @@ class World:
         self.applied.clear()
         self.data.qfrc_applied[:] = 0.0
         self._tau_pipeline.clear()
+        self._acc_valid = False
 
     # ---- settings ---------------------------------------------------------------------------
     def settings(self) -> dict[str, float]:
@@ -201,8 +204,10 @@ class World:
         self.applied.append(AppliedForce(body_id, p.copy(), f.copy(), t.copy()))
 
     def external_wrench_at_sensor(self) -> np.ndarray:
-        """True wrench [f; m] (world axes, about the sensor origin) of the forces applied this step
-        on the bodies distal to the sensor (the sensor's body and its subtree)."""
+        """True wrench [f; m] (world axes, about the sensor origin) the F/T sensor carries: the forces
+        applied this step on the bodies distal to it (the sensor's body and its subtree: payload
+        weights, a rope, drag, contact) plus the inertial load of the carried payloads
+        (`inertial_wrench_at_sensor`), so a payload reads m(g − a), not only its weight."""
         p_sensor = self.data.site_xpos[self.sensor_site]
         sensor_body = int(self.model.site_bodyid[self.sensor_site])
         wrench = np.zeros(6)
@@ -210,6 +215,38 @@ class World:
             if self._is_in_subtree(a.body_id, sensor_body):
                 wrench[:3] += a.force_world
                 wrench[3:] += a.torque_world + np.cross(a.point_world - p_sensor, a.force_world)
+        if self.carried:
+            wrench += self.inertial_wrench_at_sensor()
+        return wrench
+
+    def inertial_wrench_at_sensor(self) -> np.ndarray:
+        """Wrench [f; m] (world axes, about the sensor origin) the carried payloads' inertia puts on
+        the sensor: −m a at each centre of mass and −(I α + ω × I ω) about it (Newton–Euler), from
+        MuJoCo's body accelerations of the last step (one step old, as a sampled sensor is).
+        Their weights are applied as external forces (`app.scenarios.payload`), so in total the
+        sensor reads m(g − a) at the COM and its moment about the sensor origin."""
+        wrench = np.zeros(6)
+        if not self._acc_valid:
+            return wrench  # no step taken yet: the payload is at rest
+        p_sensor = self.data.site_xpos[self.sensor_site]
+        gravity = self.model.opt.gravity
+        acc = np.zeros(6)
+        vel = np.zeros(6)
+        for body in self.carried:
+            mass = float(self.model.body_mass[body])
+            if mass <= 0.0:
+                continue
+            # [rot; lin] at the COM, world axes; MuJoCo's linear part is a − g (an accelerometer's)
+            mujoco.mj_objectAcceleration(self.model, self.data, mujoco.mjtObj.mjOBJ_BODY, body, acc, 0)
+            mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_BODY, body, vel, 0)
+            a_com = acc[3:] + gravity
+            rot = self.data.ximat[body].reshape(3, 3)
+            inertia_world = rot @ np.diag(self.model.body_inertia[body]) @ rot.T
+            omega = vel[:3]
+            force = -mass * a_com
+            torque = -(inertia_world @ acc[:3] + np.cross(omega, inertia_world @ omega))
+            wrench[:3] += force
+            wrench[3:] += torque + np.cross(self.data.xipos[body] - p_sensor, force)
         return wrench
 
     def external_joint_torque(self) -> np.ndarray:
@@ -243,6 +280,11 @@ class World:
         # one (a one-step-late contact spring acts like a negative damper of k·Δt).
         mujoco.mj_step2(self.model, self.data)
         mujoco.mj_step1(self.model, self.data)
+        if self.carried:
+            # body accelerations (cacc) for the sensor's inertial load: the acceleration of the
+            # step just taken, on the kinematics of the new state (a sensor sampled once a step)
+            mujoco.mj_rnePostConstraint(self.model, self.data)
+        self._acc_valid = bool(self.carried)
         self.data.qfrc_applied[:] = 0.0
         self.applied.clear()
 
