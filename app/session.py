@@ -78,6 +78,9 @@ class Session:
     ):
         self.scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
         self.robot = robots.load(robot or self.scenario.default_robot)
+        prepare = getattr(self.scenario, "prepare_robot", None)
+        if callable(prepare):  # e.g. a scaled armature, before the controller model and the world exist
+            prepare(self.robot)
         self.model = RobotModel(self.robot.model)
         self.executor_name = executor or self.scenario.default_executor
         self.seed = seed
@@ -182,6 +185,7 @@ class Session:
         signals = dict(out.info)
         signals.update(env_signals)
         signals["drag_force_n"] = float(np.linalg.norm(drag_force))
+        self.environment.observe(signals, t)
         self.last = StepRecord(
             t=t,
             q=dyn.q,

@@ -92,3 +92,46 @@ def test_cli_registers_the_polish_experiment_with_its_options():
     args = parser.parse_args(["--objectives", "j,a", "--mu", "1.0", "--sander", "--seed", "4", "--no-diagnostics"])
     assert args.objectives == "j,a" and args.mu == "1.0" and args.sander and args.seed == 4
     assert args.no_diagnostics and not args.no_sensitivity
+
+
+def test_a_gradient_flow_on_a_plateau_is_not_declared_converged():
+    """1-D gradient flow ψ̇ = −∂W/∂ψ at 1 kHz: a plateau of constant slope (flow speed 0.008 rad/s,
+    the W_a plateau speed of the Fig. 6a start) from ψ = 0.6 to 1, then a quadratic well at 1.2.
+
+    The old criterion (‖q̇‖ < 0.01 rad/s for 0.3 s) stops on the plateau; the settle criterion must
+    not fire before the flow has reached the well's minimum within 0.025 rad (where the speed
+    0.04·|ψ − 1.2| falls below 1e-3 rad/s), and must fire once it is there."""
+
+    def grad(psi: float) -> float:
+        return -0.008 if psi < 1.0 else 0.04 * (psi - 1.2)
+
+    def value(psi: float) -> float:
+        return 1.0 - 0.008 * psi if psi < 1.0 else 0.992 + 0.02 * ((psi - 1.2) ** 2 - 0.04)
+
+    crit = P.SettleCriterion()
+    psi, dt = 0.6, 1e-3
+    old_fired_at = fired_at = None
+    quiet = 0
+    for _ in range(150_000):
+        speed = abs(grad(psi))
+        quiet = quiet + 1 if speed < 0.01 else 0
+        if old_fired_at is None and quiet >= 300:
+            old_fired_at = psi
+        if crit.update(speed, value(psi)):
+            fired_at = psi
+            break
+        psi -= dt * grad(psi)
+    assert old_fired_at is not None and old_fired_at < 1.0  # the old test stops on the plateau
+    assert fired_at is not None and abs(fired_at - 1.2) <= 0.025 + 1e-3
+
+
+def test_settle_criterion_needs_a_full_quiet_second_and_restarts_on_bad_numbers():
+    crit = P.SettleCriterion()
+    for _ in range(1000):
+        assert not crit.update(0.0, 1.0)  # the window is not full yet
+    assert crit.update(0.0, 1.0)
+    assert not crit.update(2e-3, 1.0)  # one fast step: a new quiet second is needed
+    assert not any(crit.update(0.0, 1.0) for _ in range(999))
+    assert crit.update(0.0, 1.0)
+    assert not crit.update(float("nan"), 1.0)
+    assert not crit.update(0.0, 1.0)

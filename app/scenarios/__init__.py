@@ -42,6 +42,9 @@ class Environment:
     def apply(self, world: World, t: float) -> dict[str, float]:
         return {}
 
+    def observe(self, signals: dict[str, float], t: float) -> None:
+        """Called after the controller each step with its signals (e.g. to detect convergence)."""
+
     def configure(self, **changes: object) -> None:
         """Change environment settings (friction, sander amplitude...); ValueError on bad input."""
         if changes:

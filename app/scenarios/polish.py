@@ -13,9 +13,12 @@ the same line) and is not re-tuned to match the paper's tables.
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+import mujoco
 import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor
@@ -26,6 +29,8 @@ from app.sim.world import World
 from control.coupling import move_to_swivel, project_to_pose
 from control.executor import TaskTarget
 from control.model import Dynamics, RobotModel
+from control.planner import PLAN_COSTS, Plan, cost_map, loops_along, swivel_of_points
+from control.planner import plan as make_plan
 from robots import RobotDescription
 
 # ---- geometry -------------------------------------------------------------------------------
@@ -44,11 +49,16 @@ HOLD_AFTER_S = 0.5  # rest at the end so the last segment's transient is recorde
 
 # ---- phases ---------------------------------------------------------------------------------
 CONTACT_TIME_S = 1.0  # approach + 20 N settle (force loop settles in ~0.1 s)
-CONVERGE_MIN_S = 1.0  # the posture converges at least this long
-CONVERGE_TIMEOUT_S = 15.0  # give up waiting for the self-motion to stop (gradient flows crawl on plateaus)
-CONVERGED_SPEED_RAD_S = 0.01  # ‖q̇‖ below this for CONVERGED_HOLD_S counts as converged
-CONVERGED_HOLD_S = 0.3
-
+CONVERGE_MIN_S = 1.0  # the posture converges at least this long (one W window)
+# The settle phase ends when the posture has converged ([T] §IV-B "until the robot configuration
+# converged"), judged on the QP's goal nullspace velocity and on W over the last second:
+SETTLE_WINDOW_S = 1.0  # both tests look at the last second
+SETTLE_SPEED_RAD_S = (
+    1e-3  # max ‖q̂̇n‖ over the window: ≤ 0.9° of drift over the 15 s trajectory, 8× below the W_a plateau flow
+)
+SETTLE_W_RTOL = 1e-3  # |W(t) − W(t − 1 s)| ≤ rtol·|W| + atol: W changes < 1.5 % over the trajectory at that rate
+SETTLE_W_ATOL = 1e-6  # absolute floor for W → 0 (W_j, rad²: ‖q − q_d‖ ≈ 1.4 mrad)
+CONVERGE_TIMEOUT_S = 120.0  # safety cap of the settle phase; a run that reaches it is reported as not converged
 # ---- contact, sensor, disturbance -------------------------------------------------------------
 DESIRED_FORCE_N = 20.0  # Table II
 CONTACT_STIFFNESS_N_PER_M = 30000.0  # [T] §IV-A
@@ -76,27 +86,93 @@ def segment_waypoints(start_xy: tuple[float, float] = START_XY_M) -> np.ndarray:
     return np.array(pts)
 
 
+class SettleCriterion:
+    """Convergence of the posture while the TCP is held: over the last `SETTLE_WINDOW_S` the goal
+    nullspace speed ‖q̂̇n‖ of the QP stayed below `SETTLE_SPEED_RAD_S` and W changed by at most
+    `SETTLE_W_RTOL`·|W| + `SETTLE_W_ATOL`. A slow flow over a plateau fails the speed test; a
+    flow whose speed is small but whose W still falls fails the W test."""
+
+    def __init__(
+        self,
+        speed_tol: float = SETTLE_SPEED_RAD_S,
+        w_rtol: float = SETTLE_W_RTOL,
+        w_atol: float = SETTLE_W_ATOL,
+        window_s: float = SETTLE_WINDOW_S,
+        dt: float = 1e-3,
+    ):
+        self.speed_tol, self.w_rtol, self.w_atol = float(speed_tol), float(w_rtol), float(w_atol)
+        self.window = max(1, round(window_s / dt))
+        self._w: deque[float] = deque(maxlen=self.window + 1)
+        self._last_fast = -1  # sample index of the last speed above the tolerance
+        self._n = 0
+
+    def reset(self) -> None:
+        """Forget the history (a new settle phase, or the objective changed)."""
+        self._w.clear()
+        self._last_fast = -1
+        self._n = 0
+
+    def update(self, nullspace_speed: float, w: float) -> bool:
+        """Add one step's ‖q̂̇n‖ (rad/s) and W; True when the posture counts as converged."""
+        if not (math.isfinite(nullspace_speed) and math.isfinite(w)):
+            self.reset()
+            return False
+        if nullspace_speed > self.speed_tol:
+            self._last_fast = self._n
+        self._w.append(w)
+        self._n += 1
+        if len(self._w) <= self.window or self._n - 1 - self._last_fast < self.window:
+            return False
+        return abs(self._w[-1] - self._w[0]) <= self.w_rtol * abs(self._w[-1]) + self.w_atol
+
+    def progress(self) -> tuple[float, float]:
+        """(seconds the speed has been below its tolerance, relative W change over the window)."""
+        quiet = (self._n - 1 - self._last_fast) / self.window * SETTLE_WINDOW_S if self._n else 0.0
+        if len(self._w) < 2:
+            return quiet, float("nan")
+        return quiet, abs(self._w[-1] - self._w[0]) / max(abs(self._w[-1]), 1e-12)
+
+
 @dataclass
 class PhaseClock:
-    """When the trajectory starts: set by the environment once the posture has converged."""
+    """When the trajectory starts: set once the posture has converged (or at the cap)."""
 
     trajectory_start: float | None = None
-    quiet_since: float | None = None
     timeout_s: float = CONVERGE_TIMEOUT_S
+    converged: bool = False  # the settle phase ended on the criterion, not at the cap
+    earliest_end_s: float = CONTACT_TIME_S + CONVERGE_MIN_S  # e.g. a planned transfer's end
+    criterion: SettleCriterion = field(default_factory=SettleCriterion)
+    last_speed: float = float("nan")
+    last_w: float = float("nan")
 
-    def observe(self, t: float, joint_speed: float) -> None:
-        """Update with the measured joint speed (the TCP is held, so this is the self-motion)."""
+    @property
+    def settle_start(self) -> float:
+        """Time the settle phase begins (the TCP is on the table)."""
+        return CONTACT_TIME_S
+
+    @property
+    def convergence_time_s(self) -> float | None:
+        """Seconds from the settle start to the trajectory start (None while settling)."""
+        return None if self.trajectory_start is None else self.trajectory_start - CONTACT_TIME_S
+
+    def observe(self, t: float, nullspace_speed: float, w: float) -> None:
+        """Feed one step's goal nullspace speed ‖q̂̇n‖ and W (the TCP is held, so this is the self-motion)."""
         if self.trajectory_start is not None:
             return
+        self.last_speed, self.last_w = nullspace_speed, w
+        if t < CONTACT_TIME_S:
+            return
+        done = self.criterion.update(nullspace_speed, w)
         if t >= CONTACT_TIME_S + self.timeout_s:
             self.trajectory_start = t
             return
-        if t < CONTACT_TIME_S + CONVERGE_MIN_S or joint_speed > CONVERGED_SPEED_RAD_S:
-            self.quiet_since = None
-            return
-        if self.quiet_since is None:
-            self.quiet_since = t
-        elif t - self.quiet_since >= CONVERGED_HOLD_S:
+        if done and t >= self.earliest_end_s:
+            self.converged = True
+            self.trajectory_start = t
+
+    def start_now(self, t: float) -> None:
+        """Start the trajectory at t whatever the criterion says (not converged)."""
+        if self.trajectory_start is None:
             self.trajectory_start = t
 
     def segment(self, t: float) -> tuple[int, float]:
@@ -127,10 +203,14 @@ class PolishEnvironment(Environment):
         self.sander = sander
         self.clock = clock
         self._sander_force = np.zeros(3)
+        self._world: World | None = None
+        self._joints: list[int] = []
 
     def apply(self, world: World, t: float) -> dict[str, float]:
-        """Contact and sander forces for this step; advances the phase clock."""
-        self.clock.observe(t, float(np.linalg.norm(world.dq)))
+        """Contact and sander forces for this step, and the settle progress."""
+        if self._world is not world:  # joint anchors (shoulder, elbow, wrist = joints 2, 4, 6) for the swivel
+            self._world = world
+            self._joints = [world.model.joint(n).id for n in world.robot.joint_names]
         state = self.contact.apply(world)
         self._sander_force = self.sander.apply(world, t)
         friction = state.friction_force if state.friction_force is not None else np.zeros(3)
@@ -141,7 +221,33 @@ class PolishEnvironment(Environment):
             "friction_y_n": float(friction[1]),
             "tcp_speed_m_s": state.tangential_speed,
             "segment": float(segment),
+            **self.settle_signals(t),
         }
+
+    def settle_signals(self, t: float) -> dict[str, float]:
+        """Settle progress for the status line and plots: seconds settling, converged (1/0, NaN while
+        settling), seconds the nullspace speed has been quiet, relative W change over the last second."""
+        clock = self.clock
+        settling = clock.trajectory_start is None
+        quiet, dw = clock.criterion.progress()
+        anchors = self._world.data.xanchor if self._world is not None else None
+        swivel = (
+            math.degrees(swivel_of_points(anchors[self._joints[1]], anchors[self._joints[3]], anchors[self._joints[5]]))
+            if anchors is not None
+            else float("nan")
+        )
+        return {
+            "swivel_deg": swivel,
+            "settle_s": max(t - CONTACT_TIME_S, 0.0) if settling else float(clock.convergence_time_s or 0.0),
+            "settle_converged": float("nan") if settling else float(clock.converged),
+            "settle_quiet_s": quiet if settling else float("nan"),
+            "settle_dW_rel": dw if settling else float("nan"),
+        }
+
+    def observe(self, signals: dict[str, float], t: float) -> None:
+        """After the controller: feed the clock with the QP's goal nullspace speed and W."""
+        speed = signals.get("nullspace_speed")
+        self.clock.observe(t, float("nan") if speed is None else speed, signals.get("W", float("nan")))
 
     def configure(self, **changes: object) -> None:
         """mu, stiffness_n_per_m, v_eps_m_per_s (contact); sander_amplitude_n, sander_enabled."""
@@ -208,6 +314,9 @@ class PolishScenario(Scenario):
         start_swivel_deg: float = START_SWIVEL_DEG,
         sensor_noise: bool = True,
         converge_timeout_s: float = CONVERGE_TIMEOUT_S,
+        hold_swivel_deg: float | None = None,
+        armature_scale: float = 1.0,
+        plan_cost: str | None = None,
     ):
         if not np.isfinite(mu) or mu < 0:
             raise ValueError(f"friction coefficient mu must be finite and non-negative, got {mu!r}")
@@ -218,8 +327,35 @@ class PolishScenario(Scenario):
         if not np.isfinite(converge_timeout_s) or converge_timeout_s < CONVERGE_MIN_S:
             raise ValueError(f"converge_timeout_s must be at least {CONVERGE_MIN_S} s, got {converge_timeout_s!r}")
         self.converge_timeout_s = float(converge_timeout_s)
+        if hold_swivel_deg is not None and not np.isfinite(hold_swivel_deg):
+            raise ValueError(f"hold_swivel_deg must be a finite angle, got {hold_swivel_deg!r}")
+        # the posture held fixed at this swivel by the nullspace (W_j on the start posture, no flow)
+        self.hold_swivel_deg = None if hold_swivel_deg is None else float(hold_swivel_deg)
+        if not np.isfinite(armature_scale) or armature_scale < 0:
+            raise ValueError(f"armature_scale must be finite and non-negative, got {armature_scale!r}")
+        self.armature_scale = float(armature_scale)  # robot and controller model alike (the armature is a guess)
+        if plan_cost is not None and plan_cost not in PLAN_COSTS:
+            raise ValueError(f"unknown plan cost {plan_cost!r}; choose one of {', '.join(PLAN_COSTS)}")
+        self.plan_cost = plan_cost  # "planned" objective: track the globally planned swivel path
         self._q0_cache: dict[tuple[str, float], np.ndarray] = {}
         self._clock: PhaseClock | None = None
+        self.plan: Plan | None = None
+
+    @property
+    def start_swivel_used_deg(self) -> float:
+        """The swivel the run starts from (the held swivel when holding)."""
+        return self.start_swivel_deg if self.hold_swivel_deg is None else self.hold_swivel_deg
+
+    def prepare_robot(self, robot: RobotDescription) -> None:
+        """Scale the armature of the controller model and the simulated arm (before either is built)."""
+        if self.armature_scale != 1.0:
+            robot.armature[:] = robot.armature * self.armature_scale  # a fresh description per session
+            robot.model.armature = robot.armature.copy()
+
+    def configure_executor(self, executor: object, robot: RobotDescription) -> None:
+        """Holding a swivel or following a plan runs the W_j objective [T18] on the target's posture."""
+        if self.hold_swivel_deg is not None or self.plan_cost is not None:
+            executor.configure(objective="j")  # type: ignore[attr-defined]
 
     def start_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """TCP position and rotation at the start (2 mm above the table, tool down)."""
@@ -227,12 +363,12 @@ class PolishScenario(Scenario):
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         """Posture at the start pose with the chosen swivel (elbow up at 0°), from the home posture."""
-        key = (robot.name, self.start_swivel_deg)
+        key = (robot.name, self.start_swivel_used_deg)
         if key not in self._q0_cache:
             model = RobotModel(robot.model)
             p, R = self.start_pose()
             q = project_to_pose(model, robot.home, p, R, iters=200)
-            q = move_to_swivel(model, q, np.deg2rad(self.start_swivel_deg))
+            q = move_to_swivel(model, q, np.deg2rad(self.start_swivel_used_deg))
             self._q0_cache[key] = q
         return self._q0_cache[key].copy()
 
@@ -262,17 +398,85 @@ class PolishScenario(Scenario):
         clock = self._clock if self._clock is not None else PhaseClock()
         p0, R0 = self.start_pose()
         q_posture = dyn0.q.copy()
-        return PolishTarget(p0, R0, q_posture, clock)
+        self.plan = None
+        if self.plan_cost is not None:
+            self.plan = planned_path(robot, model, self.start_swivel_used_deg, self.plan_cost, self.armature_scale)
+            clock.earliest_end_s = CONTACT_TIME_S + self.plan.transfer_s
+        return PolishTarget(p0, R0, q_posture, clock, self.plan)
+
+    def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
+        """The simulated armature follows the (scaled) robot description."""
+        for name, arm in zip(robot.joint_names, robot.armature, strict=True):
+            spec.joint(name).armature = float(arm)
+
+
+# ---- the planned nullspace path (control.planner) --------------------------------------------------
+PLAN_SAMPLE_S = 0.5  # trajectory samples of the plan: 31 over the 15 s zig-zag
+PLAN_GRID_DEG = 4.0  # swivel grid of the plan: 90 postures per self-motion loop
+PLAN_RATE_MAX_DEG_S = 20.0  # swivel-rate bound: the W_j flow (k0_j = 1/s) follows it within a few degrees
+_PLAN_CACHE: dict[tuple, Plan] = {}
+
+
+def trajectory_state(
+    tau: float, start_xy: tuple[float, float] = START_XY_M
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(xy, velocity xy, acceleration xy) of the zig-zag at time tau since the trajectory start."""
+    corners = segment_waypoints(start_xy)
+    if tau <= 0.0:
+        return corners[0].copy(), np.zeros(2), np.zeros(2)
+    k = int(tau // SEGMENT_DURATION_S)
+    if k >= N_SEGMENTS:
+        return corners[-1].copy(), np.zeros(2), np.zeros(2)
+    a, b = corners[k], corners[k + 1]
+    T = SEGMENT_DURATION_S
+    s_p, s_v, s_a = min_jerk((tau - k * T) / T)
+    return a + s_p * (b - a), s_v / T * (b - a), s_a / T**2 * (b - a)
+
+
+def friction_direction(tau: float) -> np.ndarray:
+    """Unit friction direction in world xy at trajectory time tau (opposite the segment's motion;
+    at a corner, that of the segment starting there)."""
+    corners = segment_waypoints()
+    k = min(max(int(tau // SEGMENT_DURATION_S), 0), N_SEGMENTS - 1)
+    d = corners[k + 1] - corners[k]
+    return -d / np.linalg.norm(d)
+
+
+def planned_path(
+    robot: RobotDescription, model: RobotModel, start_swivel_deg: float, cost: str, armature_scale: float = 1.0
+) -> Plan:
+    """The swivel path planned over the zig-zag (cached per robot, start, cost and armature)."""
+    key = (robot.name, round(start_swivel_deg, 6), cost, armature_scale, PLAN_SAMPLE_S, PLAN_GRID_DEG)
+    if key not in _PLAN_CACHE:
+        p0, R0 = np.array([*START_XY_M, TABLE_HEIGHT_M]), TOOL_DOWN.copy()
+        q0 = move_to_swivel(model, project_to_pose(model, robot.home, p0, R0, iters=200), np.deg2rad(start_swivel_deg))
+        times = np.arange(0.0, trajectory_duration() + 1e-9, PLAN_SAMPLE_S)
+        positions = np.array([[*trajectory_state(t)[0], TABLE_HEIGHT_M] for t in times])
+        loops = loops_along(model, q0, positions, R0, robot.q_lower, robot.q_upper, np.deg2rad(PLAN_GRID_DEG))
+        dirs = np.array([friction_direction(t) for t in times])
+        costs = cost_map(model, loops, cost, dirs)
+        _PLAN_CACHE[key] = make_plan(
+            loops, costs, PLAN_SAMPLE_S, np.deg2rad(start_swivel_deg), rate_max_rad_s=np.deg2rad(PLAN_RATE_MAX_DEG_S)
+        )
+    return _PLAN_CACHE[key]
 
 
 class PolishTarget:
     """TaskTarget as a function of time: the zig-zag of Fig. 7 with 20 N along +z."""
 
-    def __init__(self, start_position: np.ndarray, rotation: np.ndarray, q_posture: np.ndarray, clock: PhaseClock):
+    def __init__(
+        self,
+        start_position: np.ndarray,
+        rotation: np.ndarray,
+        q_posture: np.ndarray,
+        clock: PhaseClock,
+        plan: Plan | None = None,
+    ):
         self.start = np.asarray(start_position, dtype=float)
         self.rotation = rotation
         self.q_posture = q_posture
         self.clock = clock
+        self.plan = plan
         self.corners = segment_waypoints((float(self.start[0]), float(self.start[1])))
         self.wrench = np.array([0.0, 0.0, DESIRED_FORCE_N, 0.0, 0.0, 0.0])
 
@@ -299,8 +503,32 @@ class PolishTarget:
             velocity=vel,
             acceleration=acc,
             wrench=self.wrench,
-            q_posture=self.q_posture,
+            q_posture=self.q_posture if self.plan is None else self.planned_posture(t),
         )
+
+    def plan_time(self, t: float) -> float:
+        """Time on the plan's clock at t: −transfer at the settle start, 0 at the trajectory start."""
+        assert self.plan is not None
+        if self.clock.trajectory_start is not None and t >= self.clock.trajectory_start:
+            return t - self.clock.trajectory_start
+        return min(t - CONTACT_TIME_S - self.plan.transfer_s, 0.0)
+
+    def planned_posture(self, t: float) -> np.ndarray:
+        """The planned posture at t: the transfer during the settle phase, held at its end until the
+        trajectory starts, then the trajectory part (linear between plan samples)."""
+        assert self.plan is not None
+        pt = self.plan.t
+        s = min(max(self.plan_time(t), pt[0]), pt[-1])
+        i = min(int(np.searchsorted(pt, s, side="right")) - 1, len(pt) - 2)
+        w = (s - pt[i]) / (pt[i + 1] - pt[i])
+        return (1.0 - w) * self.plan.q[i] + w * self.plan.q[i + 1]
+
+    def planned_swivel_deg(self, t: float) -> float:
+        """The planned swivel at t (deg), for the plots; NaN without a plan."""
+        if self.plan is None:
+            return float("nan")
+        psi = np.unwrap(self.plan.swivel_rad)
+        return float(np.rad2deg(np.interp(self.plan_time(t), self.plan.t, psi)))
 
 
 SCENARIO = PolishScenario()

@@ -1,0 +1,160 @@
+"""Stability margin of the force loop at one posture, along one friction direction.
+
+"Equal W is not equal coupling" (DESIGN §8) made quantitative: the linearised closed loop of the
+[T] projection executor pressing on a table while sliding, stepped exactly as the simulation
+steps it (1 ms, semi-implicit Euler, the F/T reading through the first-order low-pass).
+
+Model (perturbations δ about sliding at speed v along the motion direction m̂ with F_n = F̂):
+
+- plant: Λx δẍ = F_cmd + δF^e in task space [T6] (the nullspace term Nᵀ F_n [T14] does not
+  accelerate the task, and μx cancels h and J̇q̇ to first order);
+- contact: δF_n = −k δz (spring [T] Fig. 4); friction F_t = −μ F_n v/√(‖v‖² + v_ε²), so
+  δF_t = μ δF_n f̂·(‖v‖/s) − μ F̂ (I/s − v vᵀ/s³) δv_t with s = √(‖v‖² + v_ε²) and f̂ = −m̂;
+- sensor: y ← y + α (F − y), α = 1 − exp(−2π f_c Δt) ([T] §IV-A, 25 Hz);
+- law: u_m = −K_m^p δx_m − K_m^d δẋ_m [T11], u_f = K_f^p δy_f − K_f^d δẋ_f [T12],
+  F_m = u_m, F_f = u_f + BᵀA⁻¹(u_m + y_m) with shaping [T7, T9, T10] (F_f = u_f without).
+
+With shaping the force row reads D̂ z̈ = u_f + F_z + BᵀA⁻¹(y_m − F_m^e): the lagged reading of the
+friction, which follows the normal force, enters through P_d = BᵀA⁻¹ scaled by P_d·f̂ — the
+directional coupling — on top of the lag of the K_f^p feedback itself. The margin is the decay
+rate −ln ρ(Φ)/Δt of the one-step map Φ (1/s; negative: the oscillation grows and the TCP
+leaves the table), and the K_f^d at which it crosses zero.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from control.coupling import Subspaces, coupling_terms
+from control.gains import MotionForceGains
+
+
+@dataclass(frozen=True)
+class ContactLoop:
+    """What the force loop sees besides the posture: contact, friction, sensor, step."""
+
+    stiffness_n_per_m: float = 30000.0  # [T] §IV-A
+    mu: float = 1.0
+    normal_force_n: float = 20.0  # operating point F̂ (Table II)
+    speed_m_s: float = 0.16  # sliding speed (the polish segments' peak ≈ 0.16 m/s)
+    v_eps_m_per_s: float = 0.01
+    sensor_cutoff_hz: float = 25.0  # [T] §IV-A; 0 = no filter
+    dt: float = 1e-3
+
+
+@dataclass(frozen=True)
+class Margin:
+    """Stability of the linearised force loop at one posture and friction direction."""
+
+    rate_per_s: float  # −ln ρ/Δt: > 0 stable (decay rate), < 0 growing
+    spectral_radius: float
+    directional_coupling: float  # P_d·f̂ (force-subspace wrench per unit friction wrench) [T10]
+    kd_critical: float | None  # K_f^d (N s/m) below which the loop is unstable (None: not found)
+
+
+def step_matrix(
+    Lambda: np.ndarray,
+    sub: Subspaces,
+    gains: MotionForceGains,
+    loop: ContactLoop,
+    friction_dir: np.ndarray,
+) -> np.ndarray:
+    """(15, 15) one-step map Φ of the state (δx, δẋ, y_{k−1}) (task space, filtered force xyz).
+
+    `friction_dir` is the unit friction direction f̂ in world xy (opposite to the sliding motion).
+    The force subspace must be a single translational axis along z (the polish task).
+    """
+    if sub.force_axes != (2,):
+        raise ValueError("the force-loop margin needs the force subspace pz alone")
+    f_hat = np.asarray(friction_dir, dtype=float)
+    f_hat = f_hat / np.linalg.norm(f_hat)
+    v0 = -loop.speed_m_s * f_hat  # sliding velocity (xy)
+    s = math.sqrt(float(v0 @ v0) + loop.v_eps_m_per_s**2)
+    dFt_dv = -loop.mu * loop.normal_force_n * (np.eye(2) / s - np.outer(v0, v0) / s**3)
+    dFt_dFn = -loop.mu * v0 / s  # = μ f̂ ‖v‖/s
+    L_inv = np.linalg.inv(Lambda)
+    terms = coupling_terms(Lambda, L_inv, sub, exact_inverse=False)
+    m_idx, f_idx = np.array(sub.motion_axes), np.array(sub.force_axes)
+    kp = np.asarray(gains.motion_kp)[m_idx]
+    kd = 2.0 * np.asarray(gains.motion_zeta)[m_idx] * np.sqrt(kp * np.diag(terms.A))
+    alpha = 1.0 - math.exp(-2.0 * math.pi * loop.sensor_cutoff_hz * loop.dt) if loop.sensor_cutoff_hz > 0 else 1.0
+    # motion-subspace rows that carry the xy forces (the friction reading the shaping term uses)
+    pos_in_m = {int(a): i for i, a in enumerate(m_idx)}
+
+    def advance(state: np.ndarray) -> np.ndarray:
+        x, dx, y_prev = state[:6], state[6:12], state[12:15]
+        f_env = np.zeros(6)
+        dFn = -loop.stiffness_n_per_m * x[2]
+        f_env[2] = dFn
+        f_env[:2] = dFt_dFn * dFn + dFt_dv @ dx[:2]
+        y = y_prev + alpha * (f_env[:3] - y_prev)
+        u_m = -kp * x[m_idx] - kd * dx[m_idx]
+        u_f = gains.force_kp * y[2] - gains.force_kd * dx[2]
+        F = np.zeros(6)
+        F[m_idx] = u_m
+        if gains.shaping:
+            y_m = np.zeros(len(m_idx))
+            for axis in (0, 1):
+                y_m[pos_in_m[axis]] = y[axis]
+            F[f_idx] = u_f + terms.P_d @ (u_m + y_m)
+        else:
+            F[f_idx] = u_f
+        dx_new = dx + loop.dt * (L_inv @ (F + f_env))
+        x_new = x + loop.dt * dx_new
+        return np.concatenate([x_new, dx_new, y])
+
+    return np.column_stack([advance(e) for e in np.eye(15)])
+
+
+def force_loop_margin(
+    Lambda: np.ndarray,
+    sub: Subspaces,
+    gains: MotionForceGains,
+    loop: ContactLoop,
+    friction_dir: np.ndarray,
+    find_kd: bool = True,
+) -> Margin:
+    """The `Margin` of one posture (its Λx) for one friction direction (module docstring)."""
+    rho = _radius(Lambda, sub, gains, loop, friction_dir)
+    terms = coupling_terms(Lambda, np.linalg.inv(Lambda), sub, exact_inverse=False)
+    f_hat = np.asarray(friction_dir, dtype=float) / np.linalg.norm(friction_dir)
+    m_idx = list(sub.motion_axes)
+    p_d = float(terms.P_d[0, m_idx.index(0)] * f_hat[0] + terms.P_d[0, m_idx.index(1)] * f_hat[1])
+    kd_crit = critical_force_kd(Lambda, sub, gains, loop, friction_dir) if find_kd else None
+    return Margin(-math.log(rho) / loop.dt, rho, p_d, kd_crit)
+
+
+def critical_force_kd(
+    Lambda: np.ndarray,
+    sub: Subspaces,
+    gains: MotionForceGains,
+    loop: ContactLoop,
+    friction_dir: np.ndarray,
+    kd_max: float = 2000.0,
+    tol: float = 0.5,
+) -> float | None:
+    """Smallest K_f^d (N s/m) in [0, kd_max] that keeps ρ(Φ) < 1, by bisection (0.0 when even
+    K_f^d = 0 is stable, None when kd_max is not)."""
+    from dataclasses import replace
+
+    def stable(kd: float) -> bool:
+        return _radius(Lambda, sub, replace(gains, force_kd=kd), loop, friction_dir) < 1.0
+
+    if stable(0.0):
+        return 0.0
+    if not stable(kd_max):
+        return None
+    lo, hi = 0.0, kd_max
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if stable(mid) else (mid, hi)
+    return hi
+
+
+def _radius(
+    Lambda: np.ndarray, sub: Subspaces, gains: MotionForceGains, loop: ContactLoop, friction_dir: np.ndarray
+) -> float:
+    return float(np.max(np.abs(np.linalg.eigvals(step_matrix(Lambda, sub, gains, loop, friction_dir)))))
