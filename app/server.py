@@ -14,6 +14,7 @@ import contextlib
 import gc
 import io
 import socket
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,14 +36,9 @@ from app.ui.panels.safety import SafetyPanel
 from app.ui.panels.scenario import ScenarioPanel
 from app.ui.plots import Plots
 from app.ui.publisher import Publisher
-
-try:  # the 3D scene is optional: the app runs (panels, plots) without it
-    from app.ui.scene import SceneView
-    from app.ui.visuals import VisualSettings, VisualsPanel
-except ImportError:  # pragma: no cover - only while the scene modules are missing
-    SceneView = None  # type: ignore[assignment,misc]
-    VisualSettings = None  # type: ignore[assignment,misc]
-    VisualsPanel = None  # type: ignore[assignment,misc]
+from app.ui.scene import SceneView
+from app.ui.snapshot import capture
+from app.ui.visuals import VisualSettings, VisualsPanel
 
 
 @dataclass
@@ -56,7 +52,7 @@ class App:
     port: int
     requested_port: int
     panels: list[Any] = field(default_factory=list)
-    visual_settings: Any = None  # the Visuals panel's settings (None without the scene modules)
+    visual_settings: Any = None  # the Visuals panel's settings
     stopped: bool = False
 
     def stop(self) -> None:
@@ -101,7 +97,9 @@ def start_app(
     verbose: bool = False,
 ) -> App:
     """Start loop, server, panels and scene; returns at once. `port=0` picks any free port."""
-    loop = SimLoop(scenario, robot=robot, executor=executor, settings_reader=make_settings_reader(ALL_KNOBS))
+    loop = SimLoop(
+        scenario, robot=robot, executor=executor, capture=capture, settings_reader=make_settings_reader(ALL_KNOBS)
+    )
     out = io.StringIO()
     with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
@@ -117,14 +115,11 @@ def start_app(
         SafetyPanel(server, loop, order=4),
         MoreGainsPanel(server, loop, claimed=_claimed_executor_keys(), order=4.5),
     ]
-    make_scene = None
-    visual_settings: Any = None
-    if SceneView is not None and VisualSettings is not None:
-        visual_settings = VisualSettings()
-        VisualsPanel(server.gui, visual_settings, order=5)
+    visual_settings = VisualSettings()
+    VisualsPanel(server.gui, visual_settings, order=5)
 
-        def make_scene(robot_desc: Any) -> Any:
-            return SceneView(server, robot_desc, loop.submit, settings=visual_settings)
+    def make_scene(robot_desc: Any) -> Any:
+        return SceneView(server, robot_desc, loop.submit, settings=visual_settings)
 
     plots = Plots(server, n_joints=loop.session.robot.nq, order=6)
     RecordPanel(server, loop, order=7)
@@ -173,4 +168,7 @@ def serve(args: argparse.Namespace) -> int:
         pass
     finally:
         app.stop()
+    if app.loop.failure:
+        print(f"torquelab: error: the simulation loop stopped: {app.loop.failure}", file=sys.stderr, flush=True)
+        return 1
     return 0

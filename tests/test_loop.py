@@ -14,6 +14,7 @@ from app.pacing import Pacer, RateMeter
 from app.scenarios import SCENARIOS
 from app.session import Session
 from app.steplog import StepLog
+from app.ui.snapshot import capture
 
 DT = 1e-3
 
@@ -319,7 +320,7 @@ def test_scenario_cases_switch_and_survive_a_robot_switch(loop):
 
 
 def test_frames_carry_the_scene_status_and_a_decimated_ten_second_plot_window():
-    lp = SimLoop("free", publish_hz=60.0, plot_hz=60.0)
+    lp = SimLoop("free", publish_hz=60.0, plot_hz=60.0, capture=capture)
     lp.start(running=False)
     try:
         lp.submit(StepOnce(10_000))  # 10 s of simulated time at once
@@ -341,3 +342,89 @@ def test_frames_carry_the_scene_status_and_a_decimated_ten_second_plot_window():
             assert frame.scene.t == pytest.approx(status.t, abs=DT)
     finally:
         lp.stop()
+
+
+# ---- the runner: queue priorities, bounded single steps, failures ----------------------------------
+def test_a_release_behind_a_ten_thousand_step_single_step_is_applied_within_a_thousand_steps(loop):
+    s = loop.session
+    body = s.world.model.body(s.world.wrist_body).name
+    p0 = s.world.site_pose(s.world.tcp_site)[0]
+    loop.submit(DragCommand("grab", client_id=1, body_name=body, point_world=tuple(p0)))
+    loop.submit(DragCommand("move", client_id=1, target_world=tuple(p0 + np.array([0.0, 0.2, 0.0]))))
+    loop.submit(StepOnce(10_000))
+    deadline = time.monotonic() + 30.0
+    while loop.lab.total_steps < 50 and time.monotonic() < deadline:  # the single step is under way
+        time.sleep(0.001)
+    sent_at = loop.lab.total_steps
+    loop.submit(DragCommand("release", client_id=1))
+    status = loop.sync(60.0)
+    assert status.steps == 10_000 and status.drag_client is None  # the release did not cut the step short
+    force = loop.call(lambda s: loop.log.window(10.0, DT)["drag_force_n"])
+    assert len(force) == 10_000 and force[sent_at - 1] > 0
+    released_at = int(np.flatnonzero(force == 0.0)[0])
+    print(f"release sent at step {sent_at}, applied at step {released_at}")
+    assert 0 <= released_at - sent_at <= 1000
+
+
+def test_pause_jumps_the_queue_and_cancels_the_single_step_and_play_before_it(loop):
+    loop.submit(StepOnce(10_000))
+    loop.submit(Play())
+    loop.submit(Pause())
+    status = loop.sync(30.0)
+    assert not status.running and status.steps < 10_000
+
+
+def test_an_exception_while_publishing_is_reported_once_and_the_loop_keeps_stepping(loop):
+    def broken(*args, **kwargs):
+        raise KeyError("no such plot column")
+
+    loop.frames.build = broken  # type: ignore[method-assign]
+    loop.submit(Play())
+    time.sleep(0.5)
+    first = loop.sync().steps
+    time.sleep(0.3)
+    assert loop.alive and loop.sync().steps > first > 100
+    problems = [n for n in loop.notice_log if n.title == "Display problem"]
+    assert len(problems) == 1 and "no such plot column" in problems[0].body
+
+
+def test_a_dead_loop_says_why_and_call_does_not_run_on_the_callers_thread():
+    lp = SimLoop("free")
+
+    def boom():
+        raise RuntimeError("pacing exploded")
+
+    lp._follow_pacing = boom  # type: ignore[method-assign]
+    lp.start(running=False)
+    deadline = time.monotonic() + 10.0
+    while lp.alive and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not lp.alive and lp.failure == "RuntimeError: pacing exploded"
+    ran = []
+    with pytest.raises(RuntimeError, match="pacing exploded"):
+        lp.call(lambda s: ran.append(1))
+    assert ran == []
+    lp.stop()
+
+
+def test_stop_keeps_a_thread_that_did_not_end_in_time(loop):
+    import threading
+
+    busy = threading.Thread(target=lambda: loop.call(lambda s: time.sleep(1.0)))
+    busy.start()
+    time.sleep(0.2)
+    assert loop.stop(timeout=0.05) is False and loop.alive
+    busy.join()
+    assert loop.stop(timeout=5.0) is True and not loop.alive
+
+
+def test_nothing_under_the_loop_imports_the_ui():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, app.loop, app.lab, app.frames, app.session, app.twin, app.commands; "
+        "print(sorted(m for m in sys.modules if m.startswith('app.ui') or m == 'viser'))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

@@ -7,10 +7,11 @@ import numpy as np
 from app.commands import StepOnce
 from app.loop import SimLoop
 from app.ui.plots import COUPLING_TITLE, FORCE_TITLE, NO_SETPOINT_TITLE, Plots
+from app.ui.snapshot import capture
 
 
 def _plot_data(scenario: str):
-    loop = SimLoop(scenario)
+    loop = SimLoop(scenario, capture=capture)
     loop.start(running=False)
     try:
         loop.submit(StepOnce(300))

@@ -228,3 +228,18 @@ def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):
 
     assert _wait(shown_free)
     assert plots.joint.value == "6"  # a preset without a focus joint leaves the choice alone
+
+
+def test_serve_exits_non_zero_with_the_reason_when_the_loop_thread_dies(monkeypatch, capsys):
+    import argparse
+
+    from app.loop import SimLoop
+    from app.server import serve
+
+    def boom(self):
+        raise RuntimeError("the loop broke")
+
+    monkeypatch.setattr(SimLoop, "_loop", boom)
+    args = argparse.Namespace(scenario="free", host="127.0.0.1", port=0, robot=None, urdf=None)
+    assert serve(args) == 1
+    assert "the simulation loop stopped: RuntimeError: the loop broke" in capsys.readouterr().err

@@ -7,11 +7,12 @@ import pytest
 
 from app.commands import Configure, DragCommand, Reset, SetTwin, StepOnce, SwitchSession
 from app.loop import SimLoop
+from app.ui.snapshot import capture
 
 
 @pytest.fixture
 def polish():
-    lp = SimLoop("polish")  # with the scene snapshot, so frames carry the twin's poses
+    lp = SimLoop("polish", capture=capture)  # with the scene snapshot, so frames carry the twin's poses
     lp.start(running=False)
     yield lp
     lp.stop()

@@ -1,0 +1,544 @@
+"""The lab: one Session (and its twin arm) with everything a person changes about it — no threads.
+
+`Lab.apply(command)` applies one command of `app.commands` (a refused one becomes a `Notice`,
+nothing raises); `Lab.advance(n)` runs n steps through `Session.run`, logging each, and halts on
+divergence or a step error. The person's accepted changes are kept as `overrides`, replayed in
+order after a reset or a rebuild. After a halt, Reset recovers: if the preset with the current
+overrides halts again within `RECOVERY_STEPS` steps, the overrides applied since the simulation
+last ran healthy are dropped, newest first, until it runs (each dropped one is named in a notice).
+
+`app.loop.SimLoop` runs a Lab on its own thread (pacing, the command queue, publishing); tests
+drive a Lab directly.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from app.commands import (
+    Command,
+    Configure,
+    DragCommand,
+    Pause,
+    Play,
+    Reset,
+    SetSpeed,
+    SetTwin,
+    StepOnce,
+    SwitchSession,
+)
+from app.executors import EXECUTORS
+from app.scenarios import Scenario
+from app.session import DRAG_FIELDS, RunResult, Session, StepRecord
+from app.settings import finite_number, settings_of
+from app.steplog import StepLog
+from app.twin import Twin
+from app.variants import make_variant
+
+SPEED_RANGE = (0.1, 1.0)
+MAX_SINGLE_STEP = 10_000  # steps one StepOnce may ask for
+RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
+SETTINGS_TARGETS = ("executor", "environment", "sensor", "drag", "target", "world")
+RESET_TARGETS = ("environment", "sensor", "target")  # rebuilt by Session.reset: replayed after it
+
+
+@dataclass(frozen=True)
+class Notice:
+    """A message for the browser: to one client (`client_id`) or to all (None)."""
+
+    level: str  # "info", "warning" or "error"
+    title: str
+    body: str
+    client_id: int | None = None
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Current tunables per target ("executor", "environment", "sensor", "drag"...); `version` grows."""
+
+    version: int
+    values: dict[str, dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class Override:
+    """One accepted change of one setting, replayed after a reset or a rebuild."""
+
+    target: str
+    key: str
+    value: Any
+
+    def label(self) -> str:
+        """How a notice names it."""
+        return f"{self.target} {self.key} = {self.value!r}"
+
+
+class Lab:
+    """One session and the person's changes to it (see the module docstring)."""
+
+    def __init__(
+        self,
+        scenario: str | Scenario = "free",
+        robot: str | None = None,
+        executor: str | None = None,
+        seed: int = 0,
+        log_seconds: float = 60.0,
+        settings_reader: Any = None,
+    ):
+        self.seed = seed
+        self.robot_choice = robot or ""  # "" = the scenario's default robot
+        self.session = Session(scenario, robot=robot or None, executor=executor or None, seed=seed)
+        self.dt = float(self.session.world.model.opt.timestep)
+        self._log_seconds = log_seconds
+        self._settings_reader = settings_reader  # Session -> {target: {name: value}}, or None
+        self.log = StepLog(self.session.robot.nq, capacity=round(log_seconds / self.dt))
+        self.twin: Twin | None = None  # a second session in lockstep with another objective (app.twin)
+        self.overrides: list[Override] = []  # accepted changes, oldest first
+        self._healthy = 0  # overrides[:_healthy] were all in force while the simulation ran healthy
+        self._steps_since_change = 0  # steps run without a halt since the last override
+        self.running = False
+        self.halted = ""  # why the simulation auto-paused, "" otherwise
+        self._resume_after_reset = False
+        self.pending_steps = 0  # steps of a single-step request not yet run (run in chunks)
+        self.speed = 1.0
+        self.pacing_epoch = 0  # grows when the pacing must restart (play, reset, switch, speed)
+        self.session_id = 0  # grows when the session (robot, scenario) is rebuilt
+        self.restarts = 0  # grows at every reset or rebuild (the log starts over)
+        self.total_steps = 0
+        self.fallback_steps = 0  # fallback steps since the last reset
+        self.step_cpu_s = 0.0  # CPU time spent in steps
+        self.drag_client: int | None = None
+        self.notices: deque[Notice] = deque(maxlen=100)  # not yet taken by the publisher
+        self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice (for tests and logs)
+        self.dirty = True  # something changed since the last frame
+        self.settings = Settings(0, self._read_settings())
+
+    # ---- commands -------------------------------------------------------------------------------
+    def apply(self, cmd: Command) -> None:
+        """Apply one command; a refused or failing one becomes a notice (never raises)."""
+        try:
+            self._apply(cmd)
+        except (ValueError, KeyError) as exc:
+            self.notify("error", "Refused", _reason(exc), getattr(cmd, "client_id", None))
+        except Exception as exc:  # never let a command take the loop down
+            traceback.print_exc()
+            self.notify("error", "Command failed", f"{type(exc).__name__}: {exc}")
+        self.dirty = True
+
+    def _apply(self, cmd: Command) -> None:
+        if isinstance(cmd, DragCommand):
+            self._apply_drag(cmd)
+        elif isinstance(cmd, Play):
+            if self.halted:
+                self.notify("warning", "Cannot play", "The simulation diverged: press Reset first.")
+            elif not self.running:
+                self.running = True
+                self.pacing_epoch += 1
+        elif isinstance(cmd, Pause):
+            self.running = False
+            self.pending_steps = 0
+        elif isinstance(cmd, StepOnce):
+            self.running = False
+            if self.halted:
+                self.notify("warning", "Cannot step", "The simulation diverged: press Reset first.")
+                return
+            steps = None if isinstance(cmd.steps, str) else finite_number(cmd.steps)
+            if steps is None or steps != int(steps) or not 1 <= steps <= MAX_SINGLE_STEP:
+                raise ValueError(f"step count must be a whole number 1…{MAX_SINGLE_STEP}, got {cmd.steps!r}")
+            self.pending_steps += int(steps)
+        elif isinstance(cmd, Reset):
+            self.reset()
+        elif isinstance(cmd, SetSpeed):
+            self._set_speed(cmd.factor)
+        elif isinstance(cmd, SwitchSession):
+            self._switch(cmd)
+        elif isinstance(cmd, Configure):
+            self._configure(cmd)
+        elif isinstance(cmd, SetTwin):
+            self._set_twin(cmd.objective)
+        else:
+            raise ValueError(f"unknown command {cmd!r}")
+
+    # ---- stepping -------------------------------------------------------------------------------
+    def advance(self, n: int) -> RunResult:
+        """Run n steps, logging each (and the twin in lockstep); halt at the first sign of divergence."""
+        cpu0 = time.thread_time()
+        log, twin = self.log, self.twin
+
+        def record(rec: StepRecord) -> None:
+            log.append(rec)
+            self.total_steps += 1
+            if rec.fallback:
+                self.fallback_steps += 1
+            if twin is not None:
+                twin.step()
+
+        result = self.session.run(steps=n, record=record)
+        if result.error is not None:  # a bug or numerical failure must not kill the server
+            traceback.print_exception(result.error)
+        if result.halted:
+            self._halt(result.reason)
+        else:
+            self._steps_since_change += result.steps
+            if self._steps_since_change >= RECOVERY_STEPS:
+                self._healthy = len(self.overrides)
+            if twin is not None and twin.diverged():
+                self._drop_twin(f"the twin arm (W_{twin.objective}) diverged; it is switched off")
+        self.step_cpu_s += time.thread_time() - cpu0
+        self.dirty = True
+        return result
+
+    def step_pending(self, chunk: int) -> RunResult | None:
+        """Run up to `chunk` steps of a pending single-step request (None if there is none)."""
+        n = min(self.pending_steps, int(chunk))
+        if n <= 0:
+            return None
+        self.pending_steps -= n
+        result = self.advance(n)
+        if result.halted:
+            self.pending_steps = 0
+        return result
+
+    def _halt(self, reason: str) -> None:
+        self._resume_after_reset = self.running
+        self.running = False
+        self.pending_steps = 0
+        self.halted = reason
+        self.notify("error", "Simulation paused", f"{reason}. Press Reset to start again.")
+
+    # ---- reset and recovery ---------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to t = 0 with the accepted settings; after a halt, recover (see the module docstring)."""
+        if self.halted:
+            self._recover()
+            self.halted = ""
+            self.running = self._resume_after_reset
+            self._resume_after_reset = False
+        self.session.reset()
+        self._after_rebuild(RESET_TARGETS)
+        if self.twin is not None:
+            self.twin.reset(self.override_map())
+
+    def _recover(self) -> None:
+        """Rebuild the session from scratch until the preset with the overrides runs RECOVERY_STEPS
+        steps without a halt, dropping overrides (newest first, those since the last healthy run
+        first) until it does."""
+        while True:
+            self._rebuild()
+            probe = self.session.run(steps=RECOVERY_STEPS)
+            if not probe.halted:
+                return
+            if not self.overrides:
+                self.notify("error", "Preset halts", f"the preset itself halts within {RECOVERY_STEPS} steps")
+                return
+            newest = len(self.overrides) - 1
+            recent = newest >= self._healthy
+            dropped = self.overrides.pop(newest)
+            self._healthy = min(self._healthy, len(self.overrides))
+            since = "since the simulation last ran healthy" if recent else "earlier"
+            self.notify(
+                "warning",
+                "Setting dropped",
+                f"{dropped.label()} (applied {since}) is undone: with it the preset halts again ({probe.reason})",
+            )
+
+    def _rebuild(self) -> None:
+        """A fresh session of the same preset, robot and executor (after a halt)."""
+        s = self.session
+        self._install(Session(s.scenario, robot=self.robot_choice or None, executor=s.executor_name, seed=self.seed))
+
+    def _install(self, session: Session) -> None:
+        """Make `session` the lab's, with every override it accepts; the twin follows."""
+        self.session = session
+        self.session_id += 1
+        self.log = StepLog(session.robot.nq, capacity=round(self._log_seconds / self.dt))
+        twin, self.twin = self.twin, None  # the old twin belongs to the old session
+        self._after_rebuild(SETTINGS_TARGETS)
+        self.twin = twin
+        self._rebuild_twin()
+
+    def _after_rebuild(self, targets: tuple[str, ...]) -> None:
+        """After a reset or a new session: replay the overrides of `targets`, clear logs and drag."""
+        self._replay(targets)
+        self.drag_client = None
+        self.fallback_steps = 0
+        self._steps_since_change = 0
+        self.pending_steps = 0
+        self.log.clear()
+        self.restarts += 1
+        self.pacing_epoch += 1
+        self._settings_changed()
+
+    def _replay(self, targets: tuple[str, ...]) -> None:
+        """Apply the overrides of `targets` in order; forget those the session no longer accepts."""
+        kept = []
+        for i, o in enumerate(self.overrides):
+            if o.target in targets:
+                try:
+                    self._configure_target(o.target, {o.key: o.value})
+                except (ValueError, TypeError, KeyError, AttributeError):
+                    if i < self._healthy:
+                        self._healthy -= 1
+                    continue
+            kept.append(o)
+        self.overrides = kept
+
+    def override_map(self) -> dict[str, dict[str, Any]]:
+        """The overrides as {target: {key: value}} (the newest value of each setting)."""
+        out: dict[str, dict[str, Any]] = {t: {} for t in SETTINGS_TARGETS}
+        for o in self.overrides:
+            out[o.target][o.key] = o.value
+        return out
+
+    # ---- settings -------------------------------------------------------------------------------
+    def _configure(self, cmd: Configure) -> None:
+        if cmd.target not in SETTINGS_TARGETS:
+            self.notify("error", "Invalid setting", f"unknown settings target {cmd.target!r}", cmd.client_id)
+            return
+        changes = dict(cmd.changes)
+        try:
+            self._check_types(cmd.target, changes)
+            self._configure_target(cmd.target, changes)
+        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+            self.notify("error", "Value refused", _reason(exc), cmd.client_id)
+            self._settings_changed()  # the panels show the value that is still in force
+            return
+        self.overrides += [Override(cmd.target, k, v) for k, v in changes.items()]
+        self._steps_since_change = 0
+        self._settings_changed()
+
+    def _check_types(self, target: str, changes: dict[str, Any]) -> None:
+        """Refuse a value whose kind differs from the current one (text for a number...)."""
+        current = self.settings.values.get(target, {})
+        for key, value in changes.items():
+            if key not in current:
+                continue
+            now = current[key]
+            if isinstance(now, bool):
+                ok = isinstance(value, bool)
+            elif isinstance(now, (int, float)):  # a scalar gain may become per-axis values
+                ok = finite_number(value) is not None or (
+                    not isinstance(value, bool) and _finite_array(value) is not None
+                )
+            elif isinstance(now, str):
+                ok = isinstance(value, str)
+            elif isinstance(now, list):
+                ok = isinstance(value, (list, tuple)) or finite_number(value) is not None
+            else:
+                ok = True
+            if not ok:
+                raise ValueError(f"{key} must be like {now!r}, got {value!r}")
+
+    def _configure_target(self, target: str, changes: dict[str, Any]) -> None:
+        self.session.configure(target, changes)
+        if self.twin is not None:
+            self.twin.configure(target, changes)
+
+    def _set_speed(self, factor: object) -> None:
+        value = finite_number(factor)
+        if value is None or not SPEED_RANGE[0] <= value <= SPEED_RANGE[1]:
+            raise ValueError(f"speed must be between {SPEED_RANGE[0]} and {SPEED_RANGE[1]}, got {factor!r}")
+        self.speed = value
+        self.pacing_epoch += 1
+
+    def _settings_changed(self) -> None:
+        self.settings = Settings(self.settings.version + 1, self._read_settings())
+        self.dirty = True
+
+    def _read_settings(self) -> dict[str, dict[str, Any]]:
+        s = self.session
+        values: dict[str, dict[str, Any]] = {
+            "executor": {},
+            "environment": {},
+            "sensor": {},
+            "target": {},
+            "world": s.world.settings(),
+        }
+        if self._settings_reader is None:
+            values |= {
+                "executor": settings_of(s.executor),
+                "environment": settings_of(s.environment),
+                "sensor": settings_of(s.sensor),
+            }
+        else:
+            try:
+                values.update(self._settings_reader(s))
+            except Exception:  # a reader bug must not stop the simulation
+                traceback.print_exc()
+        values["drag"] = {k: float(getattr(s.drag, k)) for k in DRAG_FIELDS}
+        return values
+
+    # ---- switching ------------------------------------------------------------------------------
+    def _switch(self, cmd: SwitchSession) -> None:
+        s = self.session
+        if cmd.scenario is None and cmd.robot is None and cmd.variant is None:
+            if cmd.executor is not None and cmd.executor != s.executor_name:
+                self._switch_executor(cmd.executor)
+            return
+        scenario = cmd.scenario if cmd.scenario is not None else s.scenario.name
+        robot_choice = self.robot_choice if cmd.robot is None else cmd.robot
+        # a new scenario brings its default executor unless one is asked for explicitly
+        executor = cmd.executor if cmd.executor is not None else (None if cmd.scenario is not None else s.executor_name)
+        if cmd.variant is not None:
+            spec: str | Scenario = make_variant(scenario, cmd.variant)
+        elif cmd.scenario is None:
+            spec = s.scenario  # same scenario object, same case (robot switch)
+        else:
+            spec = scenario
+        try:
+            new = Session(spec, robot=robot_choice or None, executor=executor, seed=self.seed)
+        except ValueError as exc:
+            if cmd.scenario is None or not robot_choice:
+                raise
+            # a preset that needs its own arm (a posture the picked one lacks): run it on its default robot
+            new = Session(spec, robot=None, executor=executor, seed=self.seed)
+            self.notify("info", "Robot changed", f"{exc}. Using {new.robot.name}.")
+            robot_choice = ""
+        if cmd.scenario is not None or cmd.variant is not None:  # a new preset starts from its defaults
+            self.overrides = [o for o in self.overrides if o.target == "drag"]
+            self._healthy = len(self.overrides)
+        self.robot_choice = robot_choice
+        self._install(new)
+        self.halted = ""
+
+    def _switch_executor(self, name: str) -> None:
+        if name not in EXECUTORS:
+            raise ValueError(f"unknown executor {name!r}; choose one of {', '.join(EXECUTORS)}")
+        twin, self.twin = self.twin, None
+        self.session.set_executor(name)
+        self._replay(("executor",))
+        self.twin = twin
+        if twin is not None:
+            try:
+                twin.set_executor(name, self.override_map()["executor"])
+            except ValueError as exc:
+                self._drop_twin(f"the twin arm is switched off: {exc}")
+        self._settings_changed()
+
+    # ---- the twin arm ---------------------------------------------------------------------------
+    def _set_twin(self, objective: str | None) -> None:
+        """Switch the twin off (None) or on with an objective; on restarts the scenario."""
+        if objective is None or objective == "":
+            self.twin = None
+            return
+        self.twin = self._new_twin(str(objective))  # ValueError for a wrong objective or executor
+        self.reset()
+
+    def _rebuild_twin(self) -> None:
+        """After a new session: the same twin objective on it, or no twin if it cannot have one."""
+        if self.twin is None:
+            return
+        try:
+            self.twin = self._new_twin(self.twin.objective)
+        except ValueError as exc:
+            self._drop_twin(f"the twin arm is switched off: {exc}")
+
+    def _new_twin(self, objective: str) -> Twin:
+        s = self.session
+        return Twin(
+            s.scenario,
+            self.robot_choice or None,
+            s.executor_name,
+            self.seed,
+            objective,
+            self.dt,
+            self.override_map(),
+            self._log_seconds,
+        )
+
+    def _drop_twin(self, reason: str) -> None:
+        self.twin = None
+        self.notify("warning", "Twin arm off", reason)
+
+    # ---- the drag spring ------------------------------------------------------------------------
+    def _apply_drag(self, cmd: DragCommand) -> None:
+        drag = self.session.drag
+        if cmd.kind == "grab":
+            point = _vec3(cmd.point_world)
+            if point is None:
+                raise ValueError("grab needs a finite 3-D point")
+            body_id = self.session.world.model.body(cmd.body_name).id  # KeyError for unknown names
+            if body_id == 0:
+                raise ValueError("the world body cannot be dragged")
+            drag.grab(self.session.world, body_id, point)
+            self.drag_client = cmd.client_id
+        elif cmd.kind == "move":
+            target = _vec3(cmd.target_world)
+            if target is not None and drag.active and cmd.client_id == self.drag_client:
+                drag.move(target)
+        elif cmd.kind == "release":
+            if cmd.client_id == self.drag_client:
+                drag.release()
+                self.drag_client = None
+        else:
+            raise ValueError(f"unknown drag command {cmd.kind!r}")
+
+    # ---- output ---------------------------------------------------------------------------------
+    def notify(self, level: str, title: str, body: str, client_id: int | None = None) -> None:
+        """Queue a notice for the browser (and keep it in `notice_log`)."""
+        notice = Notice(level, title, body, client_id)
+        self.notices.append(notice)
+        self.notice_log.append(notice)
+        self.dirty = True
+
+    def take_notices(self) -> list[Notice]:
+        """Notices produced since the last call."""
+        out = []
+        while True:
+            try:
+                out.append(self.notices.popleft())
+            except IndexError:
+                return out
+
+    def export(self, seconds: float) -> dict[str, Any]:
+        """The last `seconds` of the step log (every step) plus what produced it."""
+        columns = self.log.window(seconds, self.dt)
+        twin = self.twin
+        if twin is not None and "t" in columns:  # the twin's columns beside the main ones, same rows
+            columns |= {f"twin_{k}": v for k, v in twin.columns_at(columns["t"]).items() if k != "t"}
+        s = self.session
+        return {
+            "columns": columns,
+            "twin_objective": twin.objective if twin is not None else None,
+            "scenario": s.scenario.name,
+            "robot": s.robot.name,
+            "executor": s.executor_name,
+            "dt": self.dt,
+            "seed": self.seed,
+            "settings": self.settings.values,
+        }
+
+
+def _finite_array(value: object) -> np.ndarray | None:
+    """A finite numeric array, or None."""
+    if isinstance(value, (str, bytes)):
+        return None
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    return arr if np.all(np.isfinite(arr)) else None
+
+
+def _vec3(value: object) -> np.ndarray | None:
+    """A finite 3-vector, or None."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        return None
+    return arr
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc) or type(exc).__name__
+    if isinstance(exc, TypeError) and "unexpected keyword" in text:
+        return f"this controller has no such setting ({text})"
+    return text

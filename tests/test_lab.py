@@ -1,0 +1,189 @@
+"""The lab without threads: commands, single steps in chunks, halts, and Reset that always recovers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.commands import Configure, DragCommand, Pause, Play, Reset, StepOnce, SwitchSession
+from app.lab import RECOVERY_STEPS, Lab
+from app.scenarios import Environment, Scenario
+from app.scenarios.free import FreeScenario
+
+
+class Fuse(Environment):
+    """An environment with two settings: a harmless `gain`, and `blow_at_s`, after which every step
+    raises (as a gain of the wrong type did) or pushes NaN into the state."""
+
+    def __init__(self) -> None:
+        self.gain = 1.0
+        self.blow_at_s: float | None = None
+        self.how = "raise"
+
+    def configure(self, **changes: object) -> None:
+        for key, value in changes.items():
+            if key not in ("gain", "blow_at_s", "how"):
+                raise ValueError(f"no setting {key!r}")
+            setattr(self, key, value)
+
+    def apply(self, world, t: float) -> dict[str, float]:
+        if self.blow_at_s is not None and t >= float(self.blow_at_s):  # type: ignore[arg-type]
+            if self.how == "raise":
+                raise TypeError("unsupported operand type(s) for *: 'float' and 'str'")
+            world.data.qvel[0] = np.nan
+        return {"gain": self.gain}
+
+
+class FuseScenario(FreeScenario):
+    name = "fuse"
+
+    def make_environment(self, world, rng) -> Environment:
+        return Fuse()
+
+
+def _lab(scenario: Scenario | str = "free") -> Lab:
+    return Lab(FuseScenario() if scenario == "fuse" else scenario)
+
+
+def _recovered(lab: Lab) -> bool:
+    """Not halted, and RECOVERY_STEPS steps run without a halt."""
+    return not lab.halted and not lab.advance(RECOVERY_STEPS).halted and not lab.halted
+
+
+def test_a_single_step_runs_in_chunks_and_pause_cancels_the_rest():
+    lab = _lab()
+    lab.apply(StepOnce(1200))
+    assert lab.pending_steps == 1200 and lab.session.steps == 0
+    lab.step_pending(500)
+    assert lab.session.steps == 500 and lab.pending_steps == 700
+    lab.apply(Pause())
+    assert lab.pending_steps == 0 and lab.step_pending(500) is None and lab.session.steps == 500
+    for bad in (0, -3, 10_001, 2.5, "7", None, float("nan")):
+        n = len(lab.notice_log)
+        lab.apply(StepOnce(bad))  # type: ignore[arg-type]
+        assert len(lab.notice_log) == n + 1 and lab.pending_steps == 0
+
+
+def test_a_halt_pauses_with_its_reason_and_reset_resumes_what_ran():
+    lab = _lab("fuse")
+    lab.apply(Play())
+    lab.apply(Configure("environment", {"blow_at_s": 0.05, "how": "nan"}))
+    lab.advance(200)
+    assert "diverged" in lab.halted and not lab.running
+    lab.apply(Play())  # refused while halted
+    lab.apply(StepOnce(5))
+    assert not lab.running and lab.pending_steps == 0
+    lab.apply(Reset())
+    assert lab.running and _recovered(lab)
+    assert any(n.title == "Setting dropped" and "blow_at_s" in n.body for n in lab.notice_log)
+
+
+def test_reset_drops_the_overrides_since_the_last_healthy_run_newest_first_and_keeps_older_ones():
+    lab = _lab("fuse")
+    lab.apply(Configure("environment", {"gain": 2.0}))
+    lab.advance(RECOVERY_STEPS)  # the gain ran healthy
+    lab.apply(Configure("environment", {"blow_at_s": 0.0}))
+    lab.apply(Configure("environment", {"how": "raise"}))  # harmless on its own, but newer
+    lab.apply(Configure("drag", {"max_force_n": 77.0}))
+    result = lab.advance(50)
+    assert result.stop == "error" and isinstance(result.error, TypeError) and "TypeError" in lab.halted
+    n0 = len(lab.notice_log)
+    lab.apply(Reset())
+    dropped = [n.body for n in list(lab.notice_log)[n0:] if n.title == "Setting dropped"]
+    # newest first, stopping as soon as the preset runs again: the drag limit and `how` go, then blow_at_s
+    assert [d.split(" (")[0] for d in dropped] == [
+        "drag max_force_n = 77.0",
+        "environment how = 'raise'",
+        "environment blow_at_s = 0.0",
+    ]
+    assert all("since the simulation last ran healthy" in d for d in dropped)
+    assert [(o.target, o.key, o.value) for o in lab.overrides] == [("environment", "gain", 2.0)]
+    assert lab.session.environment.gain == 2.0 and lab.session.steps == 0  # back at t = 0, gain kept
+    assert _recovered(lab)
+
+
+def test_reset_without_a_halt_keeps_every_override():
+    lab = _lab("fuse")
+    lab.apply(Configure("environment", {"blow_at_s": 0.5}))
+    lab.apply(Configure("drag", {"max_force_n": 42.0}))
+    lab.advance(100)
+    lab.apply(Reset())
+    assert len(lab.overrides) == 2 and lab.session.environment.blow_at_s == 0.5 and lab.session.drag.max_force_n == 42
+
+
+def test_a_release_is_applied_whatever_the_state_and_a_reset_releases_the_drag():
+    lab = _lab()
+    s = lab.session
+    body = s.world.model.body(s.world.wrist_body).name
+    p0 = tuple(s.world.site_pose(s.world.tcp_site)[0])
+    lab.apply(DragCommand("grab", client_id=4, body_name=body, point_world=p0))
+    lab.apply(DragCommand("move", client_id=4, target_world=(0.3, 0.2, 0.3)))
+    lab.advance(10)
+    assert s.drag.active and lab.drag_client == 4
+    lab.apply(Reset())
+    assert not lab.session.drag.active and lab.drag_client is None
+
+
+JUNK = (
+    -1.0,
+    0.0,
+    1e6,
+    1e300,
+    -1e300,
+    float("nan"),
+    float("inf"),
+    "5",
+    "abc",
+    None,
+    [1, 2],
+    [[1.0], [2.0]],
+    [0.0] * 7,
+    True,
+)
+
+
+def _random_change(lab: Lab, rng: np.random.Generator) -> Configure:
+    """A change of a setting the lab shows, to an in-range-ish multiple of its value or to junk."""
+    values = lab.settings.values
+    targets = [t for t in values if values[t]]
+    target = targets[rng.integers(len(targets))]
+    keys = sorted(values[target])
+    key = keys[rng.integers(len(keys))]
+    now = values[target][key]
+    if rng.random() < 0.5 and isinstance(now, (int, float)) and not isinstance(now, bool):
+        value: object = float(now) * float(rng.choice([0.0, 0.5, 2.0, 10.0, 100.0]))
+    else:
+        value = JUNK[rng.integers(len(JUNK))]
+    return Configure(target, {key: value})
+
+
+@pytest.mark.parametrize("scenario", ["free", "polish", "compliance", "limit-drop", "mass-drop", "fuse"])
+def test_seeded_fuzz_after_every_halt_reset_recovers(scenario):
+    """Random changes (in range, out of range, junk) interleaved with steps: nothing escapes, and
+    after every halt one Reset leads to RECOVERY_STEPS healthy steps (zero stuck states)."""
+    rng = np.random.default_rng(10)
+    lab = _lab(scenario)
+    halts = 0
+    for k in range(60):
+        if scenario == "fuse" and k % 5 == 3:
+            lab.apply(Configure("environment", {"blow_at_s": lab.session.world.time + 0.01}))
+        else:
+            lab.apply(_random_change(lab, rng))
+        if not lab.halted:
+            lab.advance(int(rng.integers(1, 40)))
+        if lab.halted:
+            halts += 1
+            lab.apply(Reset())
+            assert _recovered(lab), f"stuck after change {k}: {lab.halted}"
+    print(f"{scenario}: {halts} halts, each recovered by one Reset")
+    if scenario == "fuse":
+        assert halts >= 5  # the property was exercised
+
+
+def test_a_new_preset_starts_from_its_defaults_but_keeps_the_drag_settings():
+    lab = _lab()
+    lab.apply(Configure("drag", {"max_force_n": 55.0}))
+    lab.apply(Configure("world", {"torque_delay_ms": 3.0}))
+    lab.apply(SwitchSession(scenario="polish"))
+    assert [(o.target, o.key) for o in lab.overrides] == [("drag", "max_force_n")]
+    assert lab.session.drag.max_force_n == 55.0 and lab.session.world.torque_delay_steps == 0
