@@ -92,15 +92,27 @@ MASS_DROP_KNOBS = (
         "Position PID, Torque + Residual or Torque + Fusion",
         ("mode",),
     ),
+    Knob("rope_stiffness", "scenario.mass-drop", "rope_stiffness_n_per_m", "float", "rope stiffness (N/m)"),
+    Knob("drop_height", "scenario.mass-drop", "drop_height_m", "float", "free fall before the rope goes taut (m)"),
+    Knob("mass_error", "scenario.mass-drop", "payload_mass_error", "float", "true mass = 1.25 kg × (1 + error)"),
 )
+MASS_DROP_RIG = {
+    "rope_stiffness": "rope_stiffness_n_per_m",
+    "drop_height": "drop_height_m",
+    "mass_error": "payload_mass_error",
+}
 
 
 def mass_drop_cell(values: dict, seed: int) -> dict:
-    """One release of mass-drop (`run_mass_drop`); stable = the TCP settles inside the 1 mm band."""
-    from app.experiments.mass_drop import run_mass_drop
+    """One release of mass-drop (`run_mass_drop`) on the seed's rig draw with the swept rig values
+    put in its place; stable = the TCP settles inside the 1 mm band."""
+    from dataclasses import replace
+
+    from app.experiments.mass_drop import draw_rig, run_mass_drop
     from app.scenarios.mass_drop import WINDOW_S
 
-    r = run_mass_drop(str(values.get("controller", "torque-fusion")), seed)
+    rig = replace(draw_rig(seed), **{MASS_DROP_RIG[k]: float(v) for k, v in values.items() if k in MASS_DROP_RIG})
+    r = run_mass_drop(str(values.get("controller", "torque-fusion")), seed, params=rig)
     metrics = _scalars({k: v for k, v in r.items() if not k.startswith("trace")})
     return {"metrics": metrics, "stable": bool(r["stabilization_time_s"] < WINDOW_S)}
 

@@ -90,7 +90,7 @@ def _non_negative(value: Any) -> None:
 def _checks() -> dict[tuple[str, str], Callable[[Any], object]]:
     """(group, field) → validator, from the groups' own dataclasses and ranges."""
     from app.scenarios.limit_drop import LimitDropScenario
-    from app.scenarios.mass_drop import MassDropScenario
+    from app.scenarios.mass_drop import MassDropParams, MassDropScenario
     from app.scenarios.polish import PolishScenario
     from app.sim.world import MAX_TORQUE_DELAY_MS
     from control.gains import (
@@ -113,6 +113,9 @@ def _checks() -> dict[tuple[str, str], Callable[[Any], object]]:
         ("nullspace", "objective"): _dataclass_check(NullspaceGains, "objective"),
         ("scenario.limit-drop", "limit"): lambda v: LimitDropScenario(str(v)),
         ("scenario.mass-drop", "mode"): lambda v: MassDropScenario(str(v)),
+        ("scenario.mass-drop", "rope_stiffness_n_per_m"): lambda v: MassDropParams(rope_stiffness_n_per_m=float(v)),
+        ("scenario.mass-drop", "drop_height_m"): lambda v: MassDropParams(drop_height_m=float(v)),
+        ("scenario.mass-drop", "payload_mass_error"): lambda v: MassDropParams(payload_mass_error=float(v)),
         ("scenario.polish", "mu"): lambda v: PolishScenario(mu=float(v)),
         ("scenario.polish", "start_swivel_deg"): _range_check(-360.0, 360.0, "°"),
         ("scenario.polish", "hold_swivel_deg"): _range_check(-360.0, 360.0, "°"),
