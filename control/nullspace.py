@@ -82,7 +82,14 @@ class NullspaceQP:
     P = I [T15] stays; A = J with J x = 0 [T16] as equality rows; the bounds are the box [T17].
     """
 
-    def __init__(self, n: int = 7, eps: float = 1e-7, max_iter: int = 400, backend: str = qp.DEFAULT_BACKEND):
+    def __init__(
+        self,
+        n: int = 7,
+        eps: float = 1e-7,
+        max_iter: int = 400,
+        backend: str = qp.DEFAULT_BACKEND,
+        polish: bool = False,
+    ):
         self.n = n
         self.backend = qp.check_backend(backend)
         self._qp = qp.make_qp(
@@ -91,7 +98,7 @@ class NullspaceQP:
             N_TASK,
             n_eq=N_TASK,
             P_pattern=np.eye(n, dtype=bool),
-            settings=qp.QPSettings(eps=eps, max_iter=max_iter),
+            settings=qp.QPSettings(eps=eps, max_iter=max_iter, polish=polish),
         )
         self._zero = np.zeros(N_TASK)
         self.last: NullspaceResult | None = None

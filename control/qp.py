@@ -40,8 +40,8 @@ INFEASIBLE = "infeasible"
 NON_FINITE = "non-finite"  # the solver returned NaN/inf
 FAILED = "failed"
 USABLE = (SOLVED, SOLVED_INACCURATE)
-# numeric codes for the step log (OSQP's values where it has one)
-STATUS_CODES = {SOLVED: 1, SOLVED_INACCURATE: 2, MAX_ITER: -2, INFEASIBLE: -3, NON_FINITE: -10, FAILED: -11}
+# numeric codes for the step log (OSQP 1.x's `SolverStatus` values where it has one)
+STATUS_CODES = {SOLVED: 1, SOLVED_INACCURATE: 2, INFEASIBLE: 3, MAX_ITER: 7, FAILED: 11, NON_FINITE: -1}
 
 BACKENDS = ("dense", "osqp")
 DEFAULT_BACKEND = "osqp"
@@ -194,7 +194,8 @@ class DenseBackend:
         x = np.asarray(x, dtype=float)
         if not math.isfinite(float(x @ x)):
             status = NON_FINITE
-            self._model = None  # no warm start from garbage
+        if status not in USABLE:
+            self._model = None  # set up afresh next time (no warm start from a failed solve)
         return QPResult(x, status, int(info["iterations"]), _us(t0), self.backend)
 
     def _setup(self, P, q, A) -> None:
@@ -282,12 +283,13 @@ class OSQPBackend:
         if internal and not (supported and has_api):
             raise ValueError(f"OSQP {osqp.__version__}: the extension object is not checked for this version")
         self._ext = ext if (internal is None and supported and has_api) or internal else None
+        st = osqp.SolverStatus
         self._codes = {
-            1: SOLVED,
-            2: SOLVED_INACCURATE,
-            -2: MAX_ITER,
-            -3: INFEASIBLE,
-            3: INFEASIBLE,
+            int(st.OSQP_SOLVED.value): SOLVED,
+            int(st.OSQP_SOLVED_INACCURATE.value): SOLVED_INACCURATE,
+            int(st.OSQP_MAX_ITER_REACHED.value): MAX_ITER,
+            int(st.OSQP_PRIMAL_INFEASIBLE.value): INFEASIBLE,
+            int(st.OSQP_PRIMAL_INFEASIBLE_INACCURATE.value): INFEASIBLE,
         }
 
     @property
@@ -332,5 +334,6 @@ class OSQPBackend:
         x = np.full(n, np.nan) if x is None else np.array(x, dtype=float)
         if not math.isfinite(float(x @ x)):
             status = NON_FINITE if status in (*USABLE, MAX_ITER) else status
-            self._solver.warm_start(x=np.zeros(n), y=np.zeros(n + self.m))  # no warm start from garbage
+        if status not in (*USABLE, MAX_ITER):  # an infeasible problem's iterates diverge: start afresh
+            self._solver.warm_start(x=np.zeros(n), y=np.zeros(n + self.m))
         return QPResult(x, status, iters, _us(t0), self.backend)

@@ -114,3 +114,11 @@ def test_osqp_is_used_only_through_control_qp():
         if re.search(r"^\s*(import osqp|from osqp)", text, re.M) or "._solver" in text:
             offenders.append(str(path.relative_to(ROOT)))
     assert offenders == []
+
+
+def test_osqp_iteration_cap_is_reported_as_max_iter_with_its_iterate():
+    rng = np.random.default_rng(3)
+    solver = qp.make_qp("osqp", 7, 7, settings=qp.QPSettings(eps=1e-12, max_iter=5))
+    res = solver.solve(*_random_problem(rng, 7, 7, 0))
+    assert res.status == qp.MAX_ITER and not res.solved and np.all(np.isfinite(res.x))
+    assert res.status_code == float(osqp.SolverStatus.OSQP_MAX_ITER_REACHED.value)
