@@ -144,3 +144,76 @@ def _tang_session_step(robot):
     session.executor.configure(objective="a")
     session.run(0.3)
     return session.step
+
+
+# ---- the QP solve alone (control/qp.py), per backend, on problems the executors built ----------
+def _nullspace_qp_solve(robot, backend: str):
+    """[T15–17] nullspace QP: one solve (warm-started) on a cycle of 50 problems of a moving state."""
+    from control.coupling import POLISH_SUBSPACES, objective_gradient
+    from control.gains import NullspaceGains
+    from control.nullspace import NullspaceQP, damper_bounds
+
+    model = RobotModel(robot.model)
+    gains = NullspaceGains()
+    problems = []
+    for k in range(50):
+        q = robot.home + 0.05 * np.sin(0.02 * k + np.arange(7.0))
+        dyn = model.compute(q, np.zeros(7))
+        _, grad = objective_gradient("a", dyn, POLISH_SUBSPACES, model)
+        lo, up = damper_bounds(q, robot.q_lower, robot.q_upper, 0.5 * robot.dq_max, robot.endless, gains)
+        problems.append((dyn.J.copy(), gains.k0_a * grad, lo, up))
+    solver = NullspaceQP(backend=backend)
+    at = [0]
+
+    def solve():
+        at[0] = (at[0] + 1) % len(problems)
+        return solver.solve(*problems[at[0]])
+
+    return solve
+
+
+def _compliance_qp_solve(robot, backend: str):
+    """[C9, C10, C17–24] acceleration QP: one solve on a cycle of the 50 problems the executor built
+    along the moving state of `qp_executor_step`."""
+    from control.compliance_qp import AccelerationQP, make_compliance_qp
+    from control.executor import ControlInputs, TaskTarget
+    from control.gains import ComplianceQPSettings
+
+    model = RobotModel(robot.model)
+    ex = make_compliance_qp(robot, model)
+    dyn0 = model.compute(robot.home, np.zeros(7))
+    target = TaskTarget(position=dyn0.tcp_position_world, rotation=dyn0.tcp_rotation_world, q_posture=robot.home)
+    ex.reset(dyn0, target)
+    problems = []
+    inner = ex.qp.solve
+
+    def capture(P, q):
+        a = ex.qp
+        problems.append((P.copy(), q.copy(), a.A.copy(), a.l.copy(), a.u.copy(), a.lb.copy(), a.ub.copy()))
+        return inner(P, q)
+
+    ex.qp.solve = capture  # type: ignore[method-assign]
+    wrench = np.array([1.0, -2.0, 3.0, 0.1, 0.0, -0.1])
+    for k in range(1, 51):
+        s = 0.01 * k + np.arange(7.0)
+        dyn = model.compute(robot.home + 0.05 * np.sin(s), 0.2 * np.cos(s))
+        ex.step(dyn, ControlInputs(t=1e-3 * k, target=target, wrench_tcp=wrench))
+    solver = AccelerationQP(7, 0, ComplianceQPSettings(), backend)
+    at = [0]
+
+    def solve():
+        at[0] = (at[0] + 1) % len(problems)
+        P, q, A, l, u, lb, ub = problems[at[0]]
+        solver.A[:], solver.l[:], solver.u[:], solver.lb[:], solver.ub[:] = A, l, u, lb, ub
+        return solver.solve(P, q)
+
+    return solve
+
+
+BENCHES.update(
+    {
+        f"qp_solve_{kind}_{backend}": (lambda f, b: lambda robot: f(robot, b))(factory, backend)
+        for kind, factory in (("nullspace", _nullspace_qp_solve), ("compliance", _compliance_qp_solve))
+        for backend in ("dense", "osqp")
+    }
+)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
 import robots
@@ -105,7 +106,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_parsers(sub)
     _add_sweep(sub)
+    for name, command in sub.choices.items():
+        if name != "check":
+            _qp_backend_arg(command)
     return parser
+
+
+def _qp_backend_arg(parser: argparse.ArgumentParser) -> None:
+    from control.qp import BACKENDS, DEFAULT_BACKEND
+
+    parser.add_argument(
+        "--qp-backend",
+        choices=BACKENDS,
+        default=None,
+        help=f"QP solver of both executors (default {DEFAULT_BACKEND}: DAQP active set; osqp: the reference)",
+    )
 
 
 def _add_sweep(sub) -> None:
@@ -123,6 +138,10 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 0
+    if getattr(args, "qp_backend", None):
+        from control.qp import BACKEND_ENV
+
+        os.environ[BACKEND_ENV] = args.qp_backend  # every executor built from now on, workers included
     try:
         return int(args.func(args) or 0)
     except robots.RobotLoadError as exc:

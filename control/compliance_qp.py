@@ -174,10 +174,10 @@ class AccelerationQP:
 
     SLACK_WEIGHT = 1e3  # times the largest diagonal entry of the task Hessian
 
-    def __init__(self, n: int, n_strict: int, settings: ComplianceQPSettings, backend: str = qp.DEFAULT_BACKEND):
+    def __init__(self, n: int, n_strict: int, settings: ComplianceQPSettings, backend: str | None = None):
         self.n = n
         self.n_strict = n_strict
-        self.backend = qp.check_backend(backend)
+        self.backend = qp.check_backend(backend or qp.default_backend())
         qp_settings = qp.QPSettings(
             eps=settings.eps, max_iter=settings.max_iter, polish=settings.polish, check_termination=10
         )
@@ -188,7 +188,7 @@ class AccelerationQP:
         self.u = np.full(self.m, OSQP_INF)
         self.lb = np.full(n, -OSQP_INF)  # damper bounds on q̈
         self.ub = np.full(n, OSQP_INF)
-        self.primary = qp.make_qp(backend, n, self.m, n_eq=n_strict, settings=qp_settings)
+        self.primary = qp.make_qp(self.backend, n, self.m, n_eq=n_strict, settings=qp_settings)
         # fallback over [q̈; s]: rows [I −I] ≤ u_d, [I I] ≥ l_d, [M 0] torque, [J 0] strict; box s ≥ 0
         self.m2 = 3 * n + n_strict
         eye = np.eye(n)
@@ -201,7 +201,13 @@ class AccelerationQP:
         P2_pattern[:n, :n] = True
         P2_pattern[n:, n:] = np.eye(n, dtype=bool)
         self.fallback = qp.make_qp(
-            backend, 2 * n, self.m2, n_eq=n_strict, P_pattern=P2_pattern, A_pattern=A2_pattern, settings=qp_settings
+            self.backend,
+            2 * n,
+            self.m2,
+            n_eq=n_strict,
+            P_pattern=P2_pattern,
+            A_pattern=A2_pattern,
+            settings=qp_settings,
         )
         self.P2 = np.zeros((2 * n, 2 * n))
         self.q2 = np.zeros(2 * n)
@@ -263,10 +269,10 @@ class ComplianceQPExecutor:
         estimator: EstimatorGains | None = None,
         settings: ComplianceQPSettings | None = None,
         dt: float = 1e-3,
-        qp_backend: str = qp.DEFAULT_BACKEND,
+        qp_backend: str | None = None,
     ):
         self.n = n = len(q_lower)
-        self.qp_backend = qp.check_backend(qp_backend)
+        self.qp_backend = qp.check_backend(qp_backend or qp.default_backend())
         self.dt = float(dt)
         self.tau_max = np.asarray(tau_max, dtype=float).copy()
         self.tasks: list = [PoseTask()] if tasks is None else list(tasks)

@@ -52,7 +52,7 @@ class ProjectionExecutor:
         subspaces: Subspaces = POLISH_SUBSPACES,
         gains: MotionForceGains | None = None,
         nullspace: NullspaceGains | None = None,
-        qp_backend: str = qp.DEFAULT_BACKEND,
+        qp_backend: str | None = None,
     ):
         self.model = model
         self.n = model.nv
@@ -63,7 +63,7 @@ class ProjectionExecutor:
         self.sub = subspaces
         self.gains = gains or MotionForceGains()
         self.nullspace = nullspace or NullspaceGains()
-        self.qp_backend = qp.check_backend(qp_backend)
+        self.qp_backend = qp.check_backend(qp_backend or qp.default_backend())
         self.qp = NullspaceQP(self.n, backend=self.qp_backend)
         self._cache_gains()
         self.force_integral = np.zeros(self.sub.n_f)

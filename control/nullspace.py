@@ -87,13 +87,13 @@ class NullspaceQP:
         n: int = 7,
         eps: float = 1e-7,
         max_iter: int = 400,
-        backend: str = qp.DEFAULT_BACKEND,
+        backend: str | None = None,
         polish: bool = False,
     ):
         self.n = n
-        self.backend = qp.check_backend(backend)
+        self.backend = qp.check_backend(backend or qp.default_backend())
         self._qp = qp.make_qp(
-            backend,
+            self.backend,
             n,
             N_TASK,
             n_eq=N_TASK,

@@ -24,6 +24,7 @@ was checked on (`OSQP_INTERNAL_VERSIONS`), and tests compare it with the public
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 from typing import Any, NamedTuple, Protocol
@@ -44,7 +45,8 @@ USABLE = (SOLVED, SOLVED_INACCURATE)
 STATUS_CODES = {SOLVED: 1, SOLVED_INACCURATE: 2, INFEASIBLE: 3, MAX_ITER: 7, FAILED: 11, NON_FINITE: -1}
 
 BACKENDS = ("dense", "osqp")
-DEFAULT_BACKEND = "osqp"
+DEFAULT_BACKEND = "dense"
+BACKEND_ENV = "TORQUELAB_QP_BACKEND"  # overrides DEFAULT_BACKEND (set by the CLI's --qp-backend)
 OSQP_INTERNAL_VERSIONS = ((1, 1, 3), (1, 2, 0))  # [first checked, first unchecked) for `OSQP._solver`
 
 
@@ -106,6 +108,12 @@ class QP(Protocol):
         ...
 
 
+def default_backend() -> str:
+    """The backend for executors built without one: $TORQUELAB_QP_BACKEND, else DEFAULT_BACKEND
+    (an environment variable, so worker processes of experiments and sweeps inherit it)."""
+    return check_backend(os.environ.get(BACKEND_ENV) or DEFAULT_BACKEND)
+
+
 def check_backend(name: object) -> str:
     """The backend name, or ValueError naming the choices."""
     if name not in BACKENDS:
@@ -153,7 +161,11 @@ def _finite(*arrays: np.ndarray | None) -> bool:
 
 
 class DenseBackend:
-    """DAQP's dense dual active-set solver on a workspace set up at the first solve."""
+    """DAQP's dense dual active-set solver on a workspace set up at the first solve.
+
+    The data is copied into one preallocated buffer [P, A, q, lower, upper], so a single dot
+    product checks it all for NaN/inf; DAQP's own workspace is allocated once (`daqp.Model`).
+    """
 
     backend = "dense"
 
@@ -166,47 +178,55 @@ class DenseBackend:
         self._model: Any = None
         self._sense = np.zeros(n + m, dtype=np.int32)
         self._sense[n + m - n_eq :] = 5  # DAQP: equality (active, immutable)
-        self._lo = np.empty(n + m)  # [lb; l]
-        self._hi = np.empty(n + m)  # [ub; u]
-        self._P = np.eye(n)  # P starts as the identity (as OSQP's pattern), A as zeros
-        self._A = np.zeros((m, n))
+        k = n + m
+        self._data = np.zeros(n * n + m * n + n + 2 * k)
+        self._P = self._data[: n * n].reshape(n, n)
+        self._A = self._data[n * n : n * n + m * n].reshape(m, n)
+        rest = self._data[n * n + m * n :]
+        self._q = rest[:n]
+        self._bounds = rest[n:]
+        self._lo, self._hi = self._bounds[:k], self._bounds[k:]  # [lb; l], [ub; u]
+        self._P[:] = np.eye(n)  # P starts as the identity (as OSQP's pattern), A as zeros
 
     def solve(self, P, q, A, l, u, lb, ub) -> QPResult:
         """Update and solve (see `QP.solve`)."""
         n = self.n
         t0 = time.perf_counter()
-        _clip_inf(lb, self._lo[:n])
-        _clip_inf(l, self._lo[n:])
-        _clip_inf(ub, self._hi[:n])
-        _clip_inf(u, self._hi[n:])
-        if not _finite(P, q, A, self._lo, self._hi):  # never hand NaN to the warm start
-            return QPResult(np.full(n, np.nan), NON_FINITE, 0, _us(t0), self.backend)
+        if P is not None:
+            self._P[:] = P
+        if A is not None:
+            self._A[:] = A
+        self._q[:] = q
+        self._lo[:n], self._lo[n:], self._hi[:n], self._hi[n:] = lb, l, ub, u
+        d = self._data
+        if not math.isfinite(float(d @ d)):  # ±inf bounds become ±INF; NaN anywhere is refused
+            _clip_inf(self._bounds, self._bounds)
+            if not math.isfinite(float(d @ d)):
+                return QPResult(np.full(n, np.nan), NON_FINITE, 0, _us(t0), self.backend)
         try:
             if self._model is None:
-                self._setup(P, q, A)
+                model = self._daqp.Model()
+                model.settings = {"primal_tol": self.settings.eps}
+                model.setup(self._P, self._q, self._A, self._hi, self._lo, self._sense)
+                self._model = model
             else:
-                self._model.update(H=P, f=q, A=A, bupper=self._hi, blower=self._lo)
+                self._model.update(
+                    H=None if P is None else self._P,
+                    f=self._q,
+                    A=None if A is None else self._A,
+                    bupper=self._hi,
+                    blower=self._lo,
+                )
             x, _, flag, info = self._model.solve()
         except (ValueError, TypeError, RuntimeError, ArithmeticError) as exc:
             self._model = None  # set up afresh next time
             return QPResult(np.full(n, np.nan), f"{FAILED}: {exc}", 0, _us(t0), self.backend)
         status = _DAQP_STATUS.get(int(flag), FAILED)
-        x = np.asarray(x, dtype=float)
         if not math.isfinite(float(x @ x)):
             status = NON_FINITE
         if status not in USABLE:
             self._model = None  # set up afresh next time (no warm start from a failed solve)
         return QPResult(x, status, int(info["iterations"]), _us(t0), self.backend)
-
-    def _setup(self, P, q, A) -> None:
-        if P is not None:
-            self._P[:] = P
-        if A is not None:
-            self._A[:] = A
-        model = self._daqp.Model()
-        model.settings = {"primal_tol": self.settings.eps}
-        model.setup(self._P, np.asarray(q, dtype=float), self._A, self._hi, self._lo, self._sense)
-        self._model = model
 
 
 # DAQP exit flags: 1 optimal, 2 soft optimal, -1 infeasible, -2 cycling, -3 unbounded,

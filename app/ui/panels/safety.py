@@ -6,6 +6,7 @@ import viser
 
 from app.loop import SimLoop
 from app.ui.panels.base import Knob, KnobPanel
+from control.qp import BACKENDS
 
 INTRO = (
     "Near a joint limit the damper bounds the acceleration: proposed ë_p = −λė − λ²/(4M²)(e − d_s) "
@@ -96,6 +97,14 @@ KNOBS: tuple[Knob, ...] = (
         kind="checkbox",
         read=("settings.torque_limits",),
         hint="Torque limits on τ_d including τ̂_e as QP constraints [C10]",
+    ),
+    Knob(
+        "qp_backend",
+        "QP solver",
+        kind="dropdown",
+        options=BACKENDS,
+        read=("qp_backend",),
+        hint="dense: DAQP active set (exact, a few µs); osqp: the ADMM reference. Both executors' QPs.",
     ),
     Knob(
         "torque_delay_ms",
