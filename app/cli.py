@@ -113,8 +113,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _qp_backend_arg(parser: argparse.ArgumentParser) -> None:
+    """--qp-backend on a command, or on each of its subcommands (a leaf's default would override it)."""
     from control.qp import BACKENDS, DEFAULT_BACKEND
 
+    nested = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if nested:
+        for action in nested:
+            for command in action.choices.values():
+                _qp_backend_arg(command)
+        return
     parser.add_argument(
         "--qp-backend",
         choices=BACKENDS,

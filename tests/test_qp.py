@@ -122,3 +122,30 @@ def test_osqp_iteration_cap_is_reported_as_max_iter_with_its_iterate():
     res = solver.solve(*_random_problem(rng, 7, 7, 0))
     assert res.status == qp.MAX_ITER and not res.solved and np.all(np.isfinite(res.x))
     assert res.status_code == float(osqp.SolverStatus.OSQP_MAX_ITER_REACHED.value)
+
+
+def test_backend_is_chosen_by_cli_environment_and_configure(monkeypatch, rizon, capsys):
+    from app.cli import main
+    from control.compliance_qp import ComplianceQPExecutor
+    from control.model import RobotModel
+    from control.motion_force import make_projection_executor
+
+    monkeypatch.setenv(qp.BACKEND_ENV, "")  # restored afterwards, though main() writes os.environ itself
+    assert qp.default_backend() == qp.DEFAULT_BACKEND == "dense"
+    assert main(["bench", "--only", "qp_solve_compliance_osqp", "--repeats", "3", "--qp-backend", "osqp"]) == 0
+    assert qp.default_backend() == "osqp"  # set for everything built afterwards (and worker processes)
+    ex = ComplianceQPExecutor.for_robot(rizon)
+    proj = make_projection_executor(rizon, RobotModel(rizon.model))
+    assert ex.qp.primary.backend == proj.qp._qp.backend == "osqp"
+    ex.configure(qp_backend="dense")
+    proj.configure(qp_backend="dense")
+    assert ex.qp.primary.backend == proj.qp._qp.backend == "dense"
+    for bad in ("cvxpy", 1.0, None):
+        with pytest.raises(ValueError, match="QP backend"):
+            ex.configure(qp_backend=bad)
+        with pytest.raises(ValueError, match="QP backend"):
+            proj.configure(qp_backend=bad)
+    assert ex.qp_backend == proj.qp_backend == "dense"
+    monkeypatch.setenv(qp.BACKEND_ENV, "nonsense")
+    with pytest.raises(ValueError, match="nonsense"):
+        qp.default_backend()
