@@ -12,6 +12,8 @@ The web app's loop and the headless experiments both call this, so they agree st
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -184,7 +186,7 @@ class Session:
         self.steps += 1
         signals = dict(out.info)
         signals.update(env_signals)
-        signals["drag_force_n"] = float(np.linalg.norm(drag_force))
+        signals["drag_force_n"] = math.sqrt(float(drag_force @ drag_force))  # ‖F‖ as np.linalg.norm computes it
         self.environment.observe(signals, t)
         self.last = StepRecord(
             t=t,
@@ -244,7 +246,8 @@ class Session:
             out = self.executor.step(dyn, inputs)
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
             out = ControlOutput(tau=dyn.h.copy(), fallback=True, info={"executor_error": 1.0})
-        if not np.all(np.isfinite(out.tau)):
+        tau = np.asarray(out.tau, dtype=float)
+        if not math.isfinite(float(tau @ tau)):  # NaN/inf anywhere (one dot product)
             out = ControlOutput(tau=dyn.h.copy(), fallback=True, info={**out.info, "executor_error": 1.0})
         return out
 
@@ -263,6 +266,6 @@ class Session:
         data = self.model.data  # frames were updated by this step's compute()
         return data.oMf[self._sensor_frame_id].translation
 
-    @property
+    @functools.cached_property
     def _sensor_frame_id(self) -> int:
-        return self.model.model.getFrameId(robots.SENSOR_FRAME)
+        return self.model.model.getFrameId(robots.SENSOR_FRAME)  # a name lookup: once per session

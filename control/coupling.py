@@ -126,6 +126,12 @@ def terms_of(dyn: Dynamics, sub: Subspaces) -> CouplingTerms:
     return coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub, exact_inverse=not dyn.near_singular)
 
 
+def terms_and_values(dyn: Dynamics, sub: Subspaces) -> tuple[CouplingTerms, tuple[float, float, float]]:
+    """`terms_of` and (W_f, W_a, W_d) = ‖P‖²_F [T22] from the same compiled call."""
+    *blocks, W_f, W_a, W_d = coupling_fused(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, not dyn.near_singular)
+    return CouplingTerms(*blocks), (W_f, W_a, W_d)
+
+
 def partially_decoupled_inertia(Lambda: np.ndarray, sub: Subspaces) -> np.ndarray:
     """Λ̂x = [[A, B], [0, D − BᵀA⁻¹B]] [T9], returned in task order (6×6)."""
     t = coupling_terms(Lambda, np.linalg.inv(Lambda), sub, exact_inverse=False)

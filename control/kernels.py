@@ -397,3 +397,145 @@ def gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv
                 s += y0 * (w1 * vk2 - w2 * vk1) + y1 * (w2 * vk0 - w0 * vk2) + y2 * (w0 * vk1 - w1 * vk0)
         term_J[k] = s
     return term_J, _matmul(X, U), _matmul(X, V)
+
+
+# ==== the [T] law around the nullspace QP [T7, T9, T11-14] ========================================
+def task_wrench_reference(
+    J: np.ndarray,
+    dq: np.ndarray,
+    e: np.ndarray,
+    target_velocity: np.ndarray,
+    target_acceleration: np.ndarray,
+    A: np.ndarray,
+    P_d: np.ndarray,
+    P_f: np.ndarray,
+    Lambda: np.ndarray,
+    dJ_dq: np.ndarray,
+    F_e: np.ndarray,
+    F_hat: np.ndarray,
+    u_f_extra: np.ndarray,
+    m_idx: np.ndarray,
+    f_idx: np.ndarray,
+    kp_m: np.ndarray,
+    kd_scale_m: np.ndarray,
+    force_kp: float,
+    force_kd: float,
+    shaping: bool,
+) -> tuple:
+    """(F [T7] before μx, F − Λx J̇q̇, coupled acceleration P_f F_m^e) of the [T] executor.
+
+    e: pose error [p° − p; log(R° Rᵀ)]; `u_f_extra`: the integral term K_f^i ∫e_f (or zeros).
+    """
+    v = J @ dq
+    de = target_velocity - v
+    kd_m = kd_scale_m * np.sqrt(A.diagonal())  # [T11] K_m^d = 2ζ√(K_m^p A_ii)
+    u_m = A @ target_acceleration[m_idx] + kd_m * de[m_idx] + kp_m * e[m_idx]  # [T11]
+    u_f = -F_hat + force_kp * (F_e[f_idx] - F_hat) - force_kd * v[f_idx] + u_f_extra  # [T12]
+    F = np.empty(6)
+    F[m_idx] = u_m
+    F[f_idx] = u_f + P_d @ (u_m + F_e[m_idx]) if shaping else u_f  # [T7] with Λ̂x [T9]
+    return F, F - Lambda @ dJ_dq, float(P_f[0] @ F_e[m_idx])
+
+
+@njit(cache=True)
+def task_wrench_fused(
+    J,
+    dq,
+    e,
+    target_velocity,
+    target_acceleration,
+    A,
+    P_d,
+    P_f,
+    Lambda,
+    dJ_dq,
+    F_e,
+    F_hat,
+    u_f_extra,
+    m_idx,
+    f_idx,
+    kp_m,
+    kd_scale_m,
+    force_kp,
+    force_kd,
+    shaping,
+):
+    """Compiled `task_wrench_reference` (same outputs, same order)."""
+    n = J.shape[1]
+    v = np.zeros(6)
+    for a in range(6):
+        s = 0.0
+        for j in range(n):
+            s += J[a, j] * dq[j]
+        v[a] = s
+    nm = m_idx.shape[0]
+    nf = f_idx.shape[0]
+    u_m = np.empty(nm)
+    for i in range(nm):
+        s = 0.0
+        for j in range(nm):
+            s += A[i, j] * target_acceleration[m_idx[j]]
+        mi = m_idx[i]
+        u_m[i] = s + kd_scale_m[i] * np.sqrt(A[i, i]) * (target_velocity[mi] - v[mi]) + kp_m[i] * e[mi]
+    F = np.empty(6)
+    for i in range(nm):
+        F[m_idx[i]] = u_m[i]
+    coupled = 0.0
+    for j in range(nm):
+        coupled += P_f[0, j] * F_e[m_idx[j]]
+    for r in range(nf):
+        fr = f_idx[r]
+        u_f = -F_hat[r] + force_kp * (F_e[fr] - F_hat[r]) - force_kd * v[fr] + u_f_extra[r]
+        if shaping:
+            for j in range(nm):
+                u_f += P_d[r, j] * (u_m[j] + F_e[m_idx[j]])
+        F[fr] = u_f
+    F_mu = F.copy()
+    for a in range(6):
+        s = 0.0
+        for b in range(6):
+            s += Lambda[a, b] * dJ_dq[b]
+        F_mu[a] -= s
+    return F, F_mu, coupled
+
+
+def joint_torque_reference(
+    J: np.ndarray,
+    F: np.ndarray,
+    N: np.ndarray,
+    Lambda_n: np.ndarray,
+    kn: np.ndarray,
+    dq_goal: np.ndarray,
+    dq: np.ndarray,
+    h: np.ndarray,
+) -> np.ndarray:
+    """τ = Jᵀ F + Nᵀ F_n + h [T14] with F_n = Λn K_n^d (q̂̇n − N q̇) [T13] (μn = h)."""
+    F_n = Lambda_n @ (kn * (dq_goal - N @ dq))  # [T13]
+    return J.T @ F + N.T @ F_n + h  # [T14]
+
+
+@njit(cache=True)
+def joint_torque_fused(J, F, N, Lambda_n, kn, dq_goal, dq, h):
+    """Compiled `joint_torque_reference`."""
+    n = J.shape[1]
+    y = np.empty(n)
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += N[i, j] * dq[j]
+        y[i] = kn[i] * (dq_goal[i] - s)
+    F_n = np.zeros(n)
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += Lambda_n[i, j] * y[j]
+        F_n[i] = s
+    tau = h.copy()
+    for i in range(n):
+        s = 0.0
+        for a in range(6):
+            s += J[a, i] * F[a]
+        for j in range(n):
+            s += N[j, i] * F_n[j]
+        tau[i] += s
+    return tau

@@ -29,10 +29,11 @@ from control.coupling import (
     CouplingTerms,
     Subspaces,
     coupling_gradient_direct,
-    terms_of,
+    terms_and_values,
 )
 from control.executor import ControlInputs, ControlOutput, TaskTarget
 from control.gains import MotionForceGains, NullspaceGains
+from control.kernels import joint_torque_fused, task_wrench_fused
 from control.model import Dynamics, RobotModel
 from control.nullspace import NullspaceQP, NullspaceResult, damper_bounds
 
@@ -112,16 +113,19 @@ class ProjectionExecutor:
         A non-finite F/T reading is replaced by the last valid one (flagged); on numerical trouble
         the step returns gravity/Coriolis compensation only, flagged as a fallback.
         """
-        sensor_invalid = not np.all(np.isfinite(inputs.wrench_tcp))
+        wrench = np.asarray(inputs.wrench_tcp, dtype=float)
+        sensor_invalid = not math.isfinite(float(wrench @ wrench))  # NaN/inf anywhere (one dot product)
         if sensor_invalid:
             inputs = replace(inputs, wrench_tcp=self._last_valid_wrench.copy())
         else:
-            self._last_valid_wrench = np.array(inputs.wrench_tcp, dtype=float)
+            self._last_valid_wrench = wrench.copy()
+            if wrench is not inputs.wrench_tcp:
+                inputs = replace(inputs, wrench_tcp=wrench)
         try:
             out = self._step(dyn, inputs)
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
             return ControlOutput(tau=dyn.h.copy(), fallback=True, info={"executor_error": 1.0})
-        if not np.all(np.isfinite(out.tau)):
+        if not math.isfinite(float(out.tau @ out.tau)):
             return ControlOutput(tau=dyn.h.copy(), fallback=True, info={**out.info, "executor_error": 1.0})
         if sensor_invalid:
             out.fallback = True
@@ -133,50 +137,44 @@ class ProjectionExecutor:
         g = self.gains
         kp = np.asarray(g.motion_kp)
         two_zeta_sqrt_kp = 2.0 * np.asarray(g.motion_zeta) * np.sqrt(kp)
-        self._kn = np.asarray(g.nullspace_kd)
+        self._kn = np.broadcast_to(np.asarray(g.nullspace_kd, dtype=float), (self.n,)).copy()
         self._dq_limit = self.nullspace.velocity_scale * self.dq_max
-        self._m = np.array(self.sub.motion_axes)
-        self._f = np.array(self.sub.force_axes)
-        self._kp_m = kp[self._m]
-        self._kd_scale_m = two_zeta_sqrt_kp[self._m]
+        self._m = np.array(self.sub.motion_axes, dtype=np.int64)
+        self._f = np.array(self.sub.force_axes, dtype=np.int64)
+        self._kp_m = np.asarray(kp[self._m], dtype=float)
+        self._kd_scale_m = np.asarray(two_zeta_sqrt_kp[self._m], dtype=float)
+        self._zeros_f = np.zeros(self.sub.n_f)
 
     def _step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
         g, ns = self.gains, self.nullspace
-        m_idx, f_idx = self._m, self._f
         target = inputs.target
         F_e = inputs.wrench_tcp
-        terms = terms_of(dyn, self.sub)
+        terms, (W_f, W_a, W_d) = terms_and_values(dyn, self.sub)
         self.last_terms = terms
 
         # task errors, world-aligned [px py pz rx ry rz]
-        v = dyn.J @ dyn.dq
         e = np.empty(6)
         e[:3] = target.position - dyn.tcp_position_world
         e[3:] = pin.log3(target.rotation @ dyn.tcp_rotation_world.T)
-        de = target.velocity - v
 
-        # [T11] motion subspace impedance, K_m^d from ζ and the motion inertia diagonal
-        A = terms.A
-        kd_m = self._kd_scale_m * np.sqrt(A.diagonal())
-        u_m = A @ target.acceleration[m_idx] + kd_m * de[m_idx] + self._kp_m * e[m_idx]
-
-        # [T12] explicit force control with velocity damping and clamped integral
-        F_f = F_e[f_idx]
-        F_hat = target.wrench[f_idx]
-        e_f = F_f - F_hat
-        u_f = -F_hat + g.force_kp * e_f - g.force_kd * v[f_idx]
+        # [T12] clamped force integral (anti-windup)
+        F_hat = target.wrench[self._f]
         if g.force_ki > 0:
-            self.force_integral += e_f * 1e-3
+            self.force_integral += (F_e[self._f] - F_hat) * 1e-3
             lim = g.force_integral_limit_n / g.force_ki
             np.clip(self.force_integral, -lim, lim, out=self.force_integral)
-            u_f += g.force_ki * self.force_integral
+            u_f_extra = g.force_ki * self.force_integral
+        else:
+            u_f_extra = self._zeros_f
 
-        # [T7] with Λ̂x [T9]: F_m = u_m, F_f = u_f + BᵀA⁻¹(u_m + F_m^e)
-        F = np.empty(6)
-        F[m_idx] = u_m
-        F[f_idx] = u_f + terms.P_d @ (u_m + F_e[m_idx]) if g.shaping else u_f
-        self.last_wrench = F.copy()
-        F -= dyn.Lambda @ dyn.dJ_dq  # μx without its gravity part (h is added below)
+        # [T11] motion impedance, [T12] force law, [T7] with Λ̂x [T9]: F_m = u_m,
+        # F_f = u_f + BᵀA⁻¹(u_m + F_m^e); F minus Λx J̇q̇ (μx without gravity: h is added in τ)
+        F, F_mu, coupled = task_wrench_fused(
+            dyn.J, dyn.dq, e, target.velocity, target.acceleration, terms.A, terms.P_d, terms.P_f,
+            dyn.Lambda, dyn.dJ_dq, F_e, F_hat, u_f_extra, self._m, self._f, self._kp_m, self._kd_scale_m,
+            float(g.force_kp), float(g.force_kd), bool(g.shaping),
+        )  # fmt: skip
+        self.last_wrench = F
 
         # [T15-17] goal nullspace velocity
         if ns.objective == "j":
@@ -190,28 +188,20 @@ class ProjectionExecutor:
         self.last_qp = res
 
         # [T13] nullspace velocity tracking, [T14] torque
-        F_n = dyn.Lambda_n @ (self._kn * (res.x - dyn.N @ dyn.dq))
-        tau = dyn.J.T @ F + dyn.N.T @ F_n + dyn.h
+        tau = joint_torque_fused(dyn.J, F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
 
-        W_f, W_a, W_d = _w_values(terms)
         info = {
             "W": W_obj,
             "W_f": W_f,
             "W_a": W_a,
             "W_d": W_d,
-            "force_error_n": float(F_hat[0] - F_f[0]),
+            "force_error_n": float(F_hat[0] - F_e[self._f[0]]),
             "qp_iterations": float(res.iterations),
             "qp_fallback": float(res.fallback),
             "nullspace_speed": math.sqrt(float(res.x @ res.x)),
-            "coupled_accel": float(terms.P_f[0] @ F_e[m_idx]),
+            "coupled_accel": coupled,
         }
         return ControlOutput(tau=tau, fallback=res.fallback, info=info)
-
-
-def _w_values(terms: CouplingTerms) -> tuple[float, float, float]:
-    """(W_f, W_a, W_d) = ‖P‖²_F [T22]."""
-    pf, pa, pd = terms.P_f.ravel(), terms.P_a.ravel(), terms.P_d.ravel()
-    return float(pf @ pf), float(pa @ pa), float(pd @ pd)
 
 
 def make_projection_executor(robot, model: RobotModel, **kwargs) -> ProjectionExecutor:

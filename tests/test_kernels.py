@@ -151,3 +151,28 @@ def test_classical_acceleration_after_compute_all_terms_is_the_bias_acceleration
     fid = rizon.model.getFrameId("tcp")
     expected = pin.getFrameClassicalAcceleration(rizon.model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector
     np.testing.assert_allclose(model.compute(q, dq).dJ_dq, expected, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("sub", SUBSPACES, ids=lambda s: "+".join(s.names()[1]))
+@pytest.mark.parametrize("shaping", [True, False])
+def test_projection_law_kernels_equal_numpy_reference(robot, sub, shaping):
+    """[T7, T11-14] around the QP: the task wrench and the joint torque, random inputs."""
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(17)
+    m_idx, f_idx = np.array(sub.motion_axes), np.array(sub.force_axes)
+    for q in _states(robot, seed=18):
+        dyn = model.compute(q, rng.uniform(-1, 1, 7))
+        t = terms_of(dyn, sub)
+        vec = [rng.standard_normal(6) for _ in range(3)]  # e, target velocity, target acceleration
+        args = (
+            dyn.J, dyn.dq, *vec, t.A, t.P_d, t.P_f, dyn.Lambda, dyn.dJ_dq, rng.standard_normal(6),
+            rng.standard_normal(sub.n_f), rng.standard_normal(sub.n_f), m_idx, f_idx,
+            rng.uniform(10, 4000, sub.n_m), rng.uniform(0.5, 200, sub.n_m),
+            0.5, 200.0, shaping,
+        )  # fmt: skip
+        fused, ref = K.task_wrench_fused(*args), K.task_wrench_reference(*args)
+        tol = _tolerance(dyn.Lambda_inv)
+        for a, b in zip(fused, ref, strict=True):
+            assert _rel(a, b) < tol
+        targs = (dyn.J, ref[1], dyn.N, dyn.Lambda_n, rng.uniform(1, 100, 7), rng.standard_normal(7), dyn.dq, dyn.h)
+        assert _rel(K.joint_torque_fused(*targs), K.joint_torque_reference(*targs)) < tol
