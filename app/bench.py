@@ -1,7 +1,13 @@
 """Timing benchmarks: median and p95 in µs of the pieces of one 1 kHz control step.
 
 Each entry builds its objects once and returns a zero-argument callable that is timed
-repeatedly. Figures are also given as a share of the 1000 µs real-time budget.
+repeatedly. Figures are also given as a share of the 1000 µs real-time budget and as a
+real-time factor (1000 µs over the median: how many times faster than real time a loop doing
+only this would run).
+
+`--vs-placo PYTHON` also times placo's DynamicsSolver (the compiled peer of the [C] QP step) on
+the same URDF, in the Python of another virtual environment (`app/placo_peer.py`, see there),
+and reports the ratio of our [C] QP executor step to placo's step.
 """
 
 from __future__ import annotations
@@ -30,7 +36,12 @@ def time_call(fn: Callable[[], object], repeats: int = 300, warmup: int = 20) ->
         samples[i] = time.perf_counter() - t0
     us = samples * 1e6
     med = float(np.median(us))
-    return {"median_us": med, "p95_us": float(np.percentile(us, 95)), "share_of_1ms": med / BUDGET_US}
+    return {
+        "median_us": med,
+        "p95_us": float(np.percentile(us, 95)),
+        "share_of_1ms": med / BUDGET_US,
+        "real_time_factor": BUDGET_US / med,
+    }
 
 
 def _snapshot(robot):
@@ -91,8 +102,37 @@ def _qp_executor_step(robot):
     return step
 
 
-def run_bench(robot_name: str = robots.DEFAULT_ROBOT, repeats: int = 300, only: list[str] | None = None) -> dict:
-    """Run every registered benchmark (or those in `only`) on one robot; ValueError for an unknown name."""
+def placo_step(python: str, robot, steps: int = 2000, timeout_s: float = 300.0) -> dict:
+    """Median µs of placo's DynamicsSolver step on the robot's URDF, run by `python` (a venv with
+    placo==0.10.2) on `app/placo_peer.py`. The frame task is on the flange (placo reads the URDF
+    alone, which has no TCP frame: the cost is the same). ValueError with the reason on failure."""
+    import json
+    import subprocess
+    from pathlib import Path
+
+    script = Path(__file__).with_name("placo_peer.py")
+    cmd = [python, str(script), str(robot.urdf_path), robot.flange_frame, str(steps), json.dumps(robot.home.tolist())]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise ValueError(f"could not run placo with {python}: {exc}") from exc
+    lines = proc.stdout.strip().splitlines()
+    if proc.returncode != 0 or not lines:
+        last = (proc.stderr.strip().splitlines() or lines or ["no output"])[-1]
+        raise ValueError(f"placo run with {python} failed: {last}")
+    out = json.loads(lines[-1])
+    out["real_time_factor"] = BUDGET_US / out["step_us"]
+    return out
+
+
+def run_bench(
+    robot_name: str = robots.DEFAULT_ROBOT,
+    repeats: int = 300,
+    only: list[str] | None = None,
+    placo_python: str | None = None,
+) -> dict:
+    """Run every registered benchmark (or those in `only`) on one robot; ValueError for an unknown name.
+    With `placo_python`, also placo's step (`placo_step`) and the ratio of our [C] QP step to it."""
     unknown = sorted(set(only or ()) - set(BENCHES))
     if unknown:
         raise ValueError(f"unknown benchmark {', '.join(unknown)}; choose from {', '.join(BENCHES)}")
@@ -106,7 +146,13 @@ def run_bench(robot_name: str = robots.DEFAULT_ROBOT, repeats: int = 300, only: 
     summary = {}
     if a and f:
         summary["dLambda_analytic_speedup_vs_fd"] = f["median_us"] / a["median_us"]
-    return {"robot": robot.name, "repeats": repeats, "results": results, "summary": summary}
+    report = {"robot": robot.name, "repeats": repeats, "results": results, "summary": summary}
+    if placo_python is not None:
+        report["placo"] = placo_step(placo_python, robot)
+        ours = results.get("qp_executor_step")
+        if ours:
+            summary["qp_executor_step_over_placo"] = ours["median_us"] / report["placo"]["step_us"]
+    return report
 
 
 def _tang_step(robot, objective: str):

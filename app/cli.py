@@ -45,13 +45,19 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return cmd_bench_serve(args)
     from app.bench import run_bench
 
-    report = run_bench(_robot_name(args), repeats=args.repeats, only=args.only)
+    report = run_bench(_robot_name(args), repeats=args.repeats, only=args.only, placo_python=args.vs_placo)
     if args.json:
         print(json.dumps(report, indent=2))
     else:
         print(f"robot {report['robot']}  (median / p95 µs, share of the 1 ms step)")
         for name, r in report["results"].items():
-            print(f"  {name:34s} {r['median_us']:9.1f} {r['p95_us']:9.1f}   {100 * r['share_of_1ms']:5.1f} %")
+            print(
+                f"  {name:34s} {r['median_us']:9.1f} {r['p95_us']:9.1f}   {100 * r['share_of_1ms']:5.1f} %"
+                f"   ×{r['real_time_factor']:.1f} real time"
+            )
+        if "placo" in report:
+            pl = report["placo"]
+            print(f"  {'placo DynamicsSolver step':34s} {pl['step_us']:9.1f} {pl['p95_us']:9.1f}")
         for key, value in report["summary"].items():
             print(f"  {key}: {value:.2f}")
     return 0
@@ -98,6 +104,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seconds", type=float, default=20.0, help="measuring time for --serve (wall seconds)")
     p.add_argument(
         "--twin", choices=("j", "f", "a", "d"), default=None, help="with --serve: also run a twin arm with this W"
+    )
+    p.add_argument(
+        "--vs-placo",
+        metavar="PYTHON",
+        default=None,
+        help="also time placo 0.10.2's DynamicsSolver with this Python (a venv with placo) and print the ratio",
     )
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_bench)

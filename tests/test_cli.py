@@ -31,6 +31,7 @@ def six_dof_urdf(tmp_path):
         (["check", "--urdf", "/no/such/arm.urdf"], "not found"),
         (["serve", "--robot", "ur5", "--port", "0"], "unknown robot"),
         (["bench", "--only", "no_such_bench"], "unknown benchmark"),
+        (["bench", "--only", "mj_step", "--repeats", "5", "--vs-placo", "/no/such/python"], "could not run placo"),
     ],
 )
 def test_bad_robot_gives_one_line_error(args, needle):
