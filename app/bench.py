@@ -146,12 +146,12 @@ def run_bench(
     summary = {}
     if a and f:
         summary["dLambda_analytic_speedup_vs_fd"] = f["median_us"] / a["median_us"]
-    report = {"robot": robot.name, "repeats": repeats, "results": results, "summary": summary}
+    report: dict = {"robot": robot.name, "repeats": repeats, "results": results, "summary": summary}
     if placo_python is not None:
-        report["placo"] = placo_step(placo_python, robot)
+        peer = report["placo"] = placo_step(placo_python, robot)
         ours = results.get("qp_executor_step")
         if ours:
-            summary["qp_executor_step_over_placo"] = ours["median_us"] / report["placo"]["step_us"]
+            summary["qp_executor_step_over_placo"] = ours["median_us"] / peer["step_us"]
     return report
 
 
