@@ -16,11 +16,11 @@ from app.cli import main
 from app.sweep.grid import cells, parse_grid, parse_item
 from app.sweep.knobs import build_axes
 from app.sweep.report import _cell_summary
-from app.sweep.runner import run_sweep
+from app.sweep.runner import run_sweep, spread_order
 from app.sweep.store import CellStore
 
-KILL_FLAG = "TORQUELAB_TEST_SWEEP_KILL"  # file: the cell x = 3 raises SystemExit while it exists
-FAIL_FLAG = "TORQUELAB_TEST_SWEEP_FAIL"  # file: the cell x = 4 raises ValueError while it exists
+KILL_FLAG = "TORQUELAB_TEST_SWEEP_KILL"  # file: the cell x = 4 raises SystemExit while it exists
+FAIL_FLAG = "TORQUELAB_TEST_SWEEP_FAIL"  # file: the cell x = 3 raises ValueError while it exists
 RUN_LOG = "TORQUELAB_TEST_SWEEP_LOG"  # file: every cell that runs appends its x
 
 
@@ -29,10 +29,10 @@ def toy_cell(values: dict, seed: int) -> dict:
     x = values["x"]
     with open(os.environ[RUN_LOG], "a") as f:
         f.write(f"{x}\n")
-    if x == 3 and os.path.exists(os.environ[KILL_FLAG]):
+    if x == 4 and os.path.exists(os.environ[KILL_FLAG]):
         raise SystemExit("killed")
-    if x == 4 and os.path.exists(os.environ[FAIL_FLAG]):
-        raise ValueError("cell four refuses")
+    if x == 3 and os.path.exists(os.environ[FAIL_FLAG]):
+        raise ValueError("cell three refuses")
     return {"metrics": {"square": float(x * x), "seed": seed}, "stable": x < 5}
 
 
@@ -110,12 +110,12 @@ def test_a_killed_sweep_resumes_with_only_the_missing_cells(tmp_path, toy_env):
         run_sweep("toy", toy_cell, grid, out, pool, progress=False)
     kept = CellStore(out / "cells.jsonl").records
     done_first = sorted(r["params"]["x"] for r in kept.values())
-    assert done_first == [0, 1, 2]  # one worker runs the cells in order; x = 3 "killed" the sweep
+    assert done_first == [0, 1, 3]  # one worker runs them in the spread order 0, 3, 1, 4, …; x = 4 "killed" it
     toy_env[KILL_FLAG].unlink()
     toy_env[RUN_LOG].unlink()
     with ProcessPoolExecutor(max_workers=1) as pool:
         result = run_sweep("toy", toy_cell, grid, out, pool, progress=False)
-    assert sorted(_ran(toy_env[RUN_LOG])) == [3, 4, 5]
+    assert sorted(_ran(toy_env[RUN_LOG])) == [2, 4, 5]
     assert (result.ran, result.skipped, result.failed) == (3, 3, 0)
     lines = (out / "cells.jsonl").read_text().splitlines()
     assert len(lines) == 6 and len({json.loads(line)["key"] for line in lines}) == 6
@@ -130,8 +130,8 @@ def test_a_failing_cell_is_recorded_and_rerun_only_with_retry_failed(tmp_path, t
         first = run_sweep("toy", toy_cell, grid, out, pool, progress=False)
     assert (first.ran, first.failed) == (6, 2)
     errors = [r for r in first.records if r["status"] == "error"]
-    assert {r["params"]["x"] for r in errors} == {4}
-    assert all("ValueError: cell four refuses" in r["error"] for r in errors)
+    assert {r["params"]["x"] for r in errors} == {3}
+    assert all("ValueError: cell three refuses" in r["error"] for r in errors)
     toy_env[FAIL_FLAG].unlink()
     with ProcessPoolExecutor(max_workers=2) as pool:
         again = run_sweep("toy", toy_cell, grid, out, pool, progress=False)
@@ -142,6 +142,14 @@ def test_a_failing_cell_is_recorded_and_rerun_only_with_retry_failed(tmp_path, t
     rows = list(csv.DictReader((out / "cells.csv").open()))
     assert len(rows) == 6 and {r["status"] for r in rows} == {"ok"}
     assert sorted(float(r["m_square"]) for r in rows) == [9.0, 9.0, 16.0, 16.0, 25.0, 25.0]
+
+
+def test_cells_are_submitted_spread_over_the_grid():
+    order = spread_order(24)
+    assert sorted(order) == list(range(24))
+    assert order[:4] == [0, 12, 6, 18]
+    first_half = order[:12]
+    assert min(first_half) == 0 and max(first_half) >= 18  # an early stop still covers the whole axis
 
 
 def test_a_half_written_last_line_is_ignored(tmp_path):

@@ -44,6 +44,7 @@ def add_parser(sub) -> None:
         help="run the cells on a Dask cluster: tcp://HOST:PORT of its scheduler, or local (a LocalCluster)",
     )
     p.add_argument("--retry-failed", action="store_true", help="run again the cells that failed earlier")
+    p.add_argument("--report-only", action="store_true", help="run nothing: redraw report.html from cells.jsonl")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)
 
@@ -62,6 +63,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     grid = cells(axes, args.seeds)
     meta_path = out / "sweep.json"
     meta = json.loads(meta_path.read_text()) if meta_path.exists() else {"invocations": []}
+    if args.report_only:
+        return _report_only(exp, axes, args.seeds, out, meta)
     started = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())
     t0 = time.perf_counter()
     try:
@@ -96,3 +99,17 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     )
     print(f"wrote {out / 'cells.jsonl'}, {out / 'cells.csv'} and {report}")
     return 1 if failed_total else 0
+
+
+def _report_only(exp, axes, seeds: int, out: Path, meta: dict) -> int:
+    """report.html and cells.csv from the cells already in out/cells.jsonl (none is run)."""
+    from app.sweep.store import CellStore, cell_key, write_csv
+
+    store = CellStore(out / "cells.jsonl")
+    records = [store.records[k] for p, s in cells(axes, seeds) if (k := cell_key(exp.name, p, s)) in store.records]
+    if not records:
+        raise SweepError(f"no finished cells of this grid in {out / 'cells.jsonl'}")
+    write_csv(out / "cells.csv", records)
+    report = write_report(out, exp, axes, seeds, records, meta["invocations"])
+    print(f"{len(records)} of {len(cells(axes, seeds))} cells finished; wrote {report}")
+    return 0

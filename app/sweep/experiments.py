@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from app.sweep.grid import SweepError
 from app.sweep.knobs import Knob
+from app.sweep.overlays import polish_notes, polish_overlay
 
 
 @dataclass(frozen=True)
@@ -26,6 +27,8 @@ class SweepExperiment:
     map_metrics: tuple[str, ...]  # metrics drawn as maps / lines in the report
     stable_means: str  # what "stable" means for this experiment (shown in the report)
     seeded: bool = True  # False: the run does not depend on the seed (seeds repeat it)
+    overlay: Callable | None = None  # (ax, axes, records) → extra layers on its maps
+    report_notes: Callable | None = None  # (axes, records) → HTML paragraph for the report
 
     def check_combination(self, names: list[str]) -> None:
         """SweepError for knobs that cannot be swept together."""
@@ -183,6 +186,8 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         polish_cell,
         ("stable", "force_error_ptp", "force_error_ma", "contact_lost_ms", "converged_swivel_deg"),
         "no divergence and no contact loss during the six segments",
+        overlay=polish_overlay,
+        report_notes=polish_notes,
     ),
 }
 

@@ -4,7 +4,7 @@ Each headline metric gets a heat map over (axis 1 → x, axis 2 → y), the mean
 each cell, one panel per combination of any further axes; an × marks a cell whose seeds
 disagree on stability, a ! a cell with a failed run. A single-axis grid gets line plots (mean
 ± sd over seeds). Figures are PNGs written beside the report and embedded in it.
-Experiments may add overlays to their maps (`OVERLAYS`).
+An experiment may add layers to its maps (`SweepExperiment.overlay`) and a note.
 """
 
 from __future__ import annotations
@@ -59,11 +59,7 @@ def _cell_summary(recs: list[dict], metric: str) -> tuple[float, float, bool, bo
     return mean, sd, len(flags) > 1, any(r.get("status") != "ok" for r in recs)
 
 
-# experiment name -> function(ax, axes, records) drawing extra layers on its (x, y) maps
-OVERLAYS: dict[str, Callable] = {}
-
-
-def _heatmaps(exp_name: str, metric: str, axes: list[Axis], records: list[dict], path: Path) -> None:
+def _heatmaps(overlay: Callable | None, metric: str, axes: list[Axis], records: list[dict], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -115,7 +111,6 @@ def _heatmaps(exp_name: str, metric: str, axes: list[Axis], records: list[dict],
         ax.set_ylabel(ax_y.name)
         title = ", ".join(f"{a.name} = {_label(v)}" for a, v in zip(rest, combo, strict=True))
         ax.set_title(title or metric, fontsize=9)
-        overlay = OVERLAYS.get(exp_name)
         if overlay is not None:
             overlay(ax, axes, records)
     for idx in range(len(panels), nrow * ncol):
@@ -184,7 +179,7 @@ def write_report(
     for metric in experiment.map_metrics:
         path = out / f"map_{metric}.png"
         if len(axes) >= 2:
-            _heatmaps(experiment.name, metric, axes, records, path)
+            _heatmaps(experiment.overlay, metric, axes, records, path)
         else:
             _lines(metric, axes[0], records, path)
         figures.append((metric, path))
@@ -225,9 +220,8 @@ def write_report(
         ("Invocations", _table(["started (UTC)", "engine", "ran", "failed", "resumed", "wall s"], runs_rows)),
     ]
     sections += [(f"Map: {m}" if len(axes) >= 2 else f"Line: {m}", _img(p)) for m, p in figures]
-    notes = getattr(experiment, "report_notes", None)
-    if callable(notes):
-        sections.append(("Notes", notes(axes, records)))
+    if experiment.report_notes is not None:
+        sections.append(("Notes", experiment.report_notes(axes, records)))
     if failed:
         rows = [
             [", ".join(f"{k}={_label(v)}" for k, v in r["params"].items()), r["seed"], r.get("error", "")]

@@ -23,6 +23,30 @@ from tqdm import tqdm
 from app.sweep.store import CellStore, cell_key, code_version, write_csv
 
 
+def spread_order(n: int) -> list[int]:
+    """0 … n−1 in van der Corput order (0, n/2, n/4, 3n/4, …): a sweep stopped early has a coarse,
+    even cover of the grid instead of its first rows."""
+
+    def radical_inverse(i: int) -> float:
+        x, f = 0.0, 0.5
+        while i:
+            x += f * (i & 1)
+            i >>= 1
+            f /= 2
+        return x
+
+    order: list[int] = []
+    seen: set[int] = set()
+    j = 0
+    while len(order) < n:
+        k = int(radical_inverse(j) * n)
+        if k not in seen:
+            seen.add(k)
+            order.append(k)
+        j += 1
+    return order
+
+
 def worker_id() -> str:
     """Host and process id of whoever runs this: "host:pid"."""
     return f"{socket.gethostname()}:{os.getpid()}"
@@ -70,7 +94,11 @@ def run_sweep(
     store = CellStore(out / "cells.jsonl")
     code = code_version()
     keyed = [(cell_key(experiment, params, seed), params, seed) for params, seed in cells]
-    todo = [(k, p, s) for k, p, s in keyed if not store.finished(k, retry_failed)]
+    points = list(dict.fromkeys(cell_key(experiment, params, 0) for params, _ in cells))
+    rank = {k: r for r, k in enumerate(points[i] for i in spread_order(len(points)))}
+    # submission order: every grid point's first seed before any second seed, points spread out
+    order = sorted(range(len(keyed)), key=lambda i: (keyed[i][2], rank[cell_key(experiment, keyed[i][1], 0)]))
+    todo = [keyed[i] for i in order if not store.finished(keyed[i][0], retry_failed)]
     result = SweepResult(total=len(keyed), skipped=len(keyed) - len(todo))
     t0 = time.perf_counter()
     futures: dict[Future, tuple[str, dict, int]] = {}
