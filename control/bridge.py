@@ -17,7 +17,7 @@ import numpy as np
 
 from control.compliance_qp import ComplianceQPExecutor, PostureTask, TaskRows
 from control.coupling import partially_decoupled_inertia
-from control.executor import ControlInputs, TaskTarget
+from control.executor import ControlInputs, StepView, TaskTarget
 from control.gains import ComplianceQPSettings, EstimatorGains, PostureTaskGains
 from control.model import Dynamics
 from control.motion_force import ProjectionExecutor
@@ -60,6 +60,10 @@ class ShapedMotionForceTask:
         self.reference_acc = dyn.Lambda_inv @ (self.law.last_wrench + F_e) - self.Lambda_hat_inv @ F_e
         if self.posture is not None and self.law.last_qp is not None:
             self.posture.dq_ref = self.law.last_qp.x.copy()
+
+    def view(self) -> StepView:
+        """The [T] law's view of this step (objective, W, split, coupling terms, its nullspace QP)."""
+        return self.law.view()
 
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
         """J q̈ = Λ̂x⁻¹u + Γ_x J q̈_e − J̇ q̇ with Γ_x = Λ̂x⁻¹Λx [C9]."""

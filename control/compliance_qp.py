@@ -30,7 +30,7 @@ import pinocchio as pin
 from control import qp
 from control.dampers import JointLimitDamper
 from control.estimation import ExternalTorqueEstimator
-from control.executor import ControlInputs, ControlOutput, TaskTarget
+from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
 from control.gains import (
     ComplianceQPSettings,
     DamperGains,
@@ -353,6 +353,17 @@ class ComplianceQPExecutor:
         if c:
             raise ValueError(f"compliance-qp has no setting {', '.join(c)}")
 
+    def view(self) -> StepView:
+        """The latest step's damper zone d_i and QP result; objective, W, split and P from the first
+        task that offers a view (the [T] bridge task), else none."""
+        base = StepView(self.name)
+        for task in self.tasks:
+            task_view = getattr(task, "view", None)  # an optional method of a task (Task protocol)
+            if callable(task_view):
+                base = replace(task_view(), executor=self.name)
+                break
+        return _qp_view(base, self.last_qp, self.qp_backend, self.damper.d_i)
+
     def step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
         """One control step; never raises on numerical trouble (flags a fallback instead)."""
         n = self.n
@@ -421,6 +432,18 @@ class ComplianceQPExecutor:
         }
         self.last_info = info
         return ControlOutput(tau=tau_cmd, fallback=res.fallback or bounds.crossed, info=info)
+
+
+def _qp_view(view: StepView, res: qp.QPResult | None, backend: str, limit_zone: np.ndarray) -> StepView:
+    return replace(
+        view,
+        limit_zone=limit_zone,
+        qp_status=None if res is None else res.status,
+        qp_backend=backend if res is None else res.backend,
+        qp_fallback=False if res is None else res.fallback,
+        qp_iterations=0 if res is None else res.iterations,
+        qp_solve_us=0.0 if res is None else res.solve_us,
+    )
 
 
 def make_compliance_qp(robot, model=None, **kwargs) -> ComplianceQPExecutor:

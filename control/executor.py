@@ -7,7 +7,9 @@ the measured (q, q̇), the filtered F/T reading, the task target, and the time. 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Protocol
 
 import numpy as np
@@ -46,6 +48,42 @@ class ControlOutput:
     info: dict[str, float] = field(default_factory=dict)  # scalar signals for plots and logs
 
 
+def frozen_copy(array: object) -> np.ndarray:
+    """A read-only float copy of an array (for a `StepView`)."""
+    out = np.array(array, dtype=float)
+    out.flags.writeable = False
+    return out
+
+
+@dataclass(frozen=True)
+class StepView:
+    """What an executor's latest step computed, for the UI to read (read-only copies).
+
+    Built by `Executor.view()` when a frame is published, not every step. Fields an executor does
+    not compute are None (or empty): the reader computes those itself, never reaches inside.
+    """
+
+    executor: str  # the executor's name
+    objective: str | None = None  # nullspace objective [T15]: "j", "f", "a", "d"; None without one
+    W: Mapping[str, float] = field(default_factory=dict)  # W_f, W_a, W_d [T22] and "W" (the objective's)
+    force_axes: tuple[int, ...] | None = None  # the force/motion split the step used [T19]
+    motion_axes: tuple[int, ...] | None = None
+    P: Mapping[str, np.ndarray] | None = None  # "P_f", "P_a", "P_d" (n_f, n_m) of this step (Table I)
+    limit_zone: np.ndarray | None = None  # (n,) rad: the joint-limit damper's influence distance d_i
+    qp_status: str | None = None  # `control.qp` status of the step's QP (or the fallback's reason)
+    qp_backend: str | None = None  # "dense" or "osqp"
+    qp_fallback: bool = False  # the QP's solution was replaced by a fallback
+    qp_iterations: int = 0
+    qp_solve_us: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "W", MappingProxyType(dict(self.W)))
+        if self.P is not None:
+            object.__setattr__(self, "P", MappingProxyType({k: frozen_copy(v) for k, v in self.P.items()}))
+        if self.limit_zone is not None:
+            object.__setattr__(self, "limit_zone", frozen_copy(self.limit_zone))
+
+
 class Executor(Protocol):
     """A torque controller stepped at 1 kHz."""
 
@@ -60,3 +98,7 @@ class Executor(Protocol):
 
     def configure(self, **changes: object) -> None:
         """Change tunables between steps; raise ValueError (naming the field) on invalid values."""
+
+    def view(self) -> StepView:
+        """What the latest step computed (copies), for the UI; called at the frame rate."""
+        ...

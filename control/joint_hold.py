@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from control.executor import ControlInputs, ControlOutput, TaskTarget
+from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
 from control.gains import validate_non_negative
 from control.model import Dynamics
 
@@ -47,3 +47,7 @@ class JointHold:
             q_d = dyn.q
         tau = dyn.h + self.gains.stiffness * (q_d - dyn.q) - self.gains.damping * dyn.dq
         return ControlOutput(tau=tau)
+
+    def view(self) -> StepView:
+        """Nothing beyond the torque: no objective, split, limit zone or QP."""
+        return StepView(self.name)

@@ -31,7 +31,7 @@ from control.coupling import (
     coupling_gradient_direct,
     terms_and_values,
 )
-from control.executor import ControlInputs, ControlOutput, TaskTarget
+from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
 from control.gains import MotionForceGains, NullspaceGains
 from control.kernels import joint_torque_fused, task_wrench_fused
 from control.model import Dynamics, RobotModel
@@ -71,6 +71,8 @@ class ProjectionExecutor:
         self.q_posture: np.ndarray | None = None
         self.last_terms: CouplingTerms | None = None
         self.last_qp: NullspaceResult | None = None
+        self._last_W: dict[str, float] = {}
+        self._last_sub: Subspaces = self.sub
         self.last_wrench = np.zeros(6)
         self._last_valid_wrench = np.zeros(6)
 
@@ -132,6 +134,24 @@ class ProjectionExecutor:
             out.info["sensor_invalid"] = 1.0
         return out
 
+    def view(self) -> StepView:
+        """The latest step's objective, W values, split, P_f/P_a/P_d, damper zone d_i and QP result."""
+        terms, res, sub = self.last_terms, self.last_qp, self._last_sub
+        return StepView(
+            self.name,
+            objective=self.nullspace.objective,
+            W=self._last_W,
+            force_axes=sub.force_axes,
+            motion_axes=sub.motion_axes,
+            P=None if terms is None else {"P_f": terms.P_f, "P_a": terms.P_a, "P_d": terms.P_d},
+            limit_zone=np.full(self.n, self.nullspace.damper_influence),
+            qp_status=None if res is None else res.status,
+            qp_backend=self.qp_backend if res is None else res.backend,
+            qp_fallback=False if res is None else res.fallback,
+            qp_iterations=0 if res is None else res.iterations,
+            qp_solve_us=0.0 if res is None else res.solve_us,
+        )
+
     # ---- the law --------------------------------------------------------------------------------
     def _cache_gains(self) -> None:
         g = self.gains
@@ -151,6 +171,7 @@ class ProjectionExecutor:
         F_e = inputs.wrench_tcp
         terms, (W_f, W_a, W_d) = terms_and_values(dyn, self.sub)
         self.last_terms = terms
+        self._last_sub = self.sub
 
         # task errors, world-aligned [px py pz rx ry rz]
         e = np.empty(6)
@@ -190,6 +211,7 @@ class ProjectionExecutor:
         # [T13] nullspace velocity tracking, [T14] torque
         tau = joint_torque_fused(dyn.J, F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
 
+        self._last_W = {"W": W_obj, "W_f": W_f, "W_a": W_a, "W_d": W_d}
         info = {
             "W": W_obj,
             "W_f": W_f,

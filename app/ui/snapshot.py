@@ -3,7 +3,9 @@
 The loop thread calls `capture(session)` at 30–60 Hz; the publisher hands the result to
 `SceneView.update`. A `SceneSnapshot` holds plain copies only (no view into MjData or the
 Dynamics arrays), so the scene can read it on another thread while the simulation steps on.
-Cost: about 0.1 ms (link poses, one coupling-terms evaluation, a few target samples).
+The controller's part (objective, split, coupling terms, damper zone, QP status) comes from its
+`view()` of the latest step; the coupling terms are computed here only for a controller that has
+none (or when another split is asked for). Cost: about 0.1 ms (link poses, a few target samples).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import mujoco
 import numpy as np
 
 from control.coupling import POLISH_SUBSPACES, Subspaces, coupling_terms, coupling_values
+from control.executor import StepView
 
 PATH_HORIZON_S = 5.0  # how far ahead the commanded path is sampled
 PATH_SAMPLES = 40
@@ -58,6 +61,7 @@ class SceneSnapshot:
     twin_link_wxyz: np.ndarray | None = None  # (L, 4)
     twin_objective: str | None = None  # "j", "f", "a" or "d"
     twin_W: dict[str, float] = field(default_factory=dict)  # the twin's "W" (its own objective), W_f, W_a, W_d
+    step: StepView | None = None  # the controller's view of its latest step (QP status, backend, …)
 
     @cached_property
     def subspaces(self) -> Subspaces:
@@ -69,19 +73,17 @@ class SceneSnapshot:
         return self.link_names.index(name)
 
 
-def subspaces_of(session: object) -> Subspaces:
-    """The force/motion split the running controller uses, else the scenario's, else pz only."""
-    for owner in (getattr(session, "executor", None), getattr(session, "scenario", None)):
-        for attr in ("subspaces", "sub"):
-            value = getattr(owner, attr, None)
-            if isinstance(value, Subspaces):
-                return value
-        axes = getattr(owner, "force_axes", None)
-        if axes:
-            try:
-                return Subspaces.from_force_axes(tuple(axes))
-            except (TypeError, ValueError):
-                pass
+def subspaces_of(session, view: StepView | None = None) -> Subspaces:
+    """The force/motion split the running controller's step used (its view), else the scenario's
+    `force_axes`, else pz only."""
+    if view is not None and view.force_axes is not None:
+        return Subspaces.from_force_axes(view.force_axes)
+    axes = getattr(session.scenario, "force_axes", None)
+    if axes:
+        try:
+            return Subspaces.from_force_axes(tuple(axes))
+        except (TypeError, ValueError):
+            pass
     return POLISH_SUBSPACES
 
 
@@ -99,16 +101,21 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
     margins = np.minimum(q - robot.q_lower, robot.q_upper - q)
     margins = np.where(robot.endless, np.inf, margins)
 
-    sub = subspaces or subspaces_of(session)
+    view = session.executor.view()  # what the step computed (built now, at the frame rate)
+    sub = subspaces or subspaces_of(session, view)
     dyn = session.dyn
-    try:
-        terms = coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub)
-        P = {"P_f": terms.P_f.copy(), "P_a": terms.P_a.copy(), "P_d": terms.P_d.copy()}
-        W = coupling_values(terms)
-    except np.linalg.LinAlgError:  # a singular motion block (diverged state): nothing to draw
-        nan = np.full((sub.n_f, sub.n_m), np.nan)
-        P = {"P_f": nan, "P_a": nan.copy(), "P_d": nan.copy()}
-        W = {"W_f": float("nan"), "W_a": float("nan"), "W_d": float("nan")}
+    if view.P is not None and view.force_axes == sub.force_axes and {"W_f", "W_a", "W_d"} <= set(view.W):
+        P = {k: np.array(v) for k, v in view.P.items()}  # the step's own terms: not computed again
+        W = {k: float(view.W[k]) for k in ("W_f", "W_a", "W_d")}
+    else:  # the controller has no split (or another one is asked for): compute them here
+        try:
+            terms = coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub)
+            P = {"P_f": terms.P_f.copy(), "P_a": terms.P_a.copy(), "P_d": terms.P_d.copy()}
+            W = coupling_values(terms)
+        except np.linalg.LinAlgError:  # a singular motion block (diverged state): nothing to draw
+            nan = np.full((sub.n_f, sub.n_m), np.nan)
+            P = {"P_f": nan, "P_a": nan.copy(), "P_d": nan.copy()}
+            W = {"W_f": float("nan"), "W_a": float("nan"), "W_d": float("nan")}
 
     last = session.last
     wrench = np.array(last.wrench_tcp, dtype=float) if last is not None else np.zeros(6)
@@ -138,22 +145,13 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         target_position=target_position,
         path=_sample_path(session, float(world.time)),
         table=_table_box(model),
-        objective=_objective(session),
-        limit_zone=_limit_zone(session),
+        objective=view.objective,
+        limit_zone=_limit_zone(view, len(robot.joint_names)),
+        step=view,
         near_singular=bool(dyn.near_singular or dyn.min_eig_Lambda_inv < NEAR_SINGULAR_EIG),
         q=q,
         **_payload(session),
     )
-
-
-def _objective(session) -> str | None:
-    """The running controller's nullspace objective ("j", "f", "a", "d"), if it has one."""
-    executor = getattr(session, "executor", None)
-    for owner in (executor, getattr(executor, "nullspace", None)):
-        value = getattr(owner, "objective", None)
-        if isinstance(value, str):
-            return value
-    return None
 
 
 def _payload(session) -> dict:
@@ -168,21 +166,11 @@ def _payload(session) -> dict:
     }
 
 
-def _limit_zone(session) -> np.ndarray | None:
-    """d_i per joint (rad) of the running controller's joint-limit damper: the [C] damper's
-    `d_i` array, or the nullspace QP's `damper_influence`; None for controllers without one."""
-    executor = getattr(session, "executor", None)
-    n = len(session.robot.joint_names)
-    d_i = getattr(getattr(executor, "damper", None), "d_i", None)
-    if d_i is None:
-        d_i = getattr(getattr(executor, "nullspace", None), "damper_influence", None)
-    if d_i is None:
+def _limit_zone(view: StepView, n: int) -> np.ndarray | None:
+    """d_i per joint (rad) of the running controller's joint-limit damper (from its view)."""
+    if view.limit_zone is None or view.limit_zone.shape != (n,) or not np.all(np.isfinite(view.limit_zone)):
         return None
-    try:
-        out = np.broadcast_to(np.asarray(d_i, dtype=float), (n,)).copy()
-    except ValueError:
-        return None
-    return out if np.all(np.isfinite(out)) else None
+    return np.array(view.limit_zone)
 
 
 def _body_ids(model: mujoco.MjModel, names: tuple[str, ...]) -> list[int]:
