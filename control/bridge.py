@@ -61,6 +61,10 @@ class ShapedMotionForceTask:
         if self.posture is not None and self.law.last_qp is not None:
             self.posture.dq_ref = self.law.last_qp.x.copy()
 
+    def set_qp_backend(self, backend: str) -> None:
+        """The [T] law's nullspace QP follows the executor's QP backend."""
+        self.law.configure(qp_backend=backend)
+
     def view(self) -> StepView:
         """The [T] law's view of this step (objective, W, split, coupling terms, its nullspace QP)."""
         return self.law.view()

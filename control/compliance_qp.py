@@ -325,6 +325,10 @@ class ComplianceQPExecutor:
             if backend != self.qp_backend:
                 self.qp_backend = backend
                 self._build_qp()
+            for task in self.tasks:  # tasks with a QP of their own (the [T] bridge's nullspace QP)
+                hook = getattr(task, "set_qp_backend", None)
+                if callable(hook):
+                    hook(backend)
         s_fields = {k: c.pop(k) for k in ("feedback", "torque_limits") if k in c}
         if s_fields:
             self.settings = replace(self.settings, **s_fields)  # type: ignore[arg-type]

@@ -210,6 +210,22 @@ def test_status_shows_the_fallback_badge_the_halt_message_and_a_slow_machine(app
     assert "slower than requested" in panel.status_md.content.lower()
 
 
+def test_status_line_names_the_qp_backend_and_the_fallback_reason_from_the_step_view(app):
+    import dataclasses
+
+    from app.ui.panels.scenario import ScenarioPanel
+    from control.executor import StepView
+
+    panel = next(p for p in app.panels if isinstance(p, ScenarioPanel))
+    frame = app.loop.wait_frame(0, timeout=5.0)
+    assert frame is not None and frame.scene is not None
+    failed = StepView("compliance-qp", qp_status="infeasible", qp_backend="dense", qp_fallback=True, qp_solve_us=6.0)
+    status = dataclasses.replace(frame.status, fallback=True, fallback_steps=frame.status.fallback_steps + 1)
+    panel.live(dataclasses.replace(frame, status=status, scene=dataclasses.replace(frame.scene, step=failed)))
+    assert "QP dense 6 µs" in panel.status_md.content
+    assert panel.fallback_md.visible and "(infeasible)" in panel.fallback_md.content
+
+
 def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):
     from app.commands import SwitchSession
 

@@ -80,6 +80,8 @@ def test_compliance_and_bridge_views_carry_damper_zone_qp_and_the_law(gen3):
     assert bv.executor == "compliance-qp" and bv.objective == "a" and bv.W == lv.W
     np.testing.assert_array_equal(bv.P["P_a"], lv.P["P_a"])
     assert bv.qp_status == bridge.last_qp.status  # its own acceleration QP, not the law's
+    bridge.configure(qp_backend="osqp")  # the law's nullspace QP follows
+    assert bridge.qp.primary.backend == law.qp._qp.backend == "osqp"
     assert JointHold().view().P is None
 
 

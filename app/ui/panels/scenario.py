@@ -166,6 +166,9 @@ class ScenarioPanel(KnobPanel):
             f"t = {st.t:.2f} s · {state} · {rtf} (speed {st.speed:.2f}×, compute {100 * st.load:.0f} %)  \n"
             f"{st.robot} · {st.executor}"
         )
+        step = getattr(frame.scene, "step", None)  # the controller's view of its latest step
+        if step is not None and step.qp_status is not None:
+            status += f" · QP {step.qp_backend} {step.qp_solve_us:.0f} µs"
         if st.drag_client is not None:
             status += f" · dragging ({st.signals.get('drag_force_n', 0.0):.0f} N)"
         if st.running and 0.0 < st.rtf < SLOW_WARNING * st.speed:
@@ -177,6 +180,10 @@ class ScenarioPanel(KnobPanel):
             self._last_fallback_wall = now
         self._seen_fallback_steps = st.fallback_steps
         show = now - self._last_fallback_wall < FALLBACK_SHOW_S
+        if step is not None and step.qp_fallback and step.qp_status:
+            text = f"**QP fallback!** A QP failed in the last seconds ({step.qp_status}); a fallback torque was used."
+            if self.fallback_md.content != text:
+                self.fallback_md.content = text
         if self.fallback_md.visible != show:
             self.fallback_md.visible = show
         halted = f"**Paused:** {st.halted}. Press **Reset**." if st.halted else ""
