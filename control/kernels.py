@@ -539,3 +539,27 @@ def joint_torque_fused(J, F, N, Lambda_n, kn, dq_goal, dq, h):
             s += N[j, i] * F_n[j]
         tau[i] += s
     return tau
+
+
+# ==== nullspace velocity bounds [T17] with first-order dampers ====================================
+@njit(cache=True)
+def damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, influence, safety, speed):
+    """Compiled `control.nullspace.damper_bounds` (its numpy reference): (l, u) = ±dq_limit
+    tightened near the position limits to −ξ (d − d_s)/(d_i − d_s), never on endless joints."""
+    n = q.shape[0]
+    slope = speed / (influence - safety)
+    lower = np.empty(n)
+    upper = np.empty(n)
+    for i in range(n):
+        lo = -dq_limit[i]
+        up = dq_limit[i]
+        if not endless[i]:
+            d_low = q[i] - q_lower[i]
+            d_up = q_upper[i] - q[i]
+            if d_low < influence:
+                lo = max(lo, -slope * (d_low - safety))
+            if d_up < influence:
+                up = min(up, slope * (d_up - safety))
+        lower[i] = lo
+        upper[i] = up
+    return lower, upper

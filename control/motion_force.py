@@ -33,9 +33,9 @@ from control.coupling import (
 )
 from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
 from control.gains import MotionForceGains, NullspaceGains
-from control.kernels import joint_torque_fused, task_wrench_fused
+from control.kernels import damper_bounds_fused, joint_torque_fused, task_wrench_fused
 from control.model import Dynamics, RobotModel
-from control.nullspace import NullspaceQP, NullspaceResult, damper_bounds
+from control.nullspace import NullspaceQP, NullspaceResult
 
 
 class ProjectionExecutor:
@@ -204,7 +204,10 @@ class ProjectionExecutor:
             W_obj = 0.5 * float(grad @ grad)
         else:
             W_obj, grad = coupling_gradient_direct(self.model, dyn, terms, self.sub, ns.objective)  # [T24-27]
-        lower, upper = damper_bounds(dyn.q, self.q_lower, self.q_upper, self._dq_limit, self.endless, ns)
+        lower, upper = damper_bounds_fused(
+            dyn.q, self.q_lower, self.q_upper, self._dq_limit, self.endless,
+            float(ns.damper_influence), float(ns.damper_safety), float(ns.damper_speed),
+        )  # fmt: skip  # compiled `damper_bounds`
         res = self.qp.solve(dyn.J, ns.k0 * grad, lower, upper)
         self.last_qp = res
 

@@ -12,6 +12,7 @@ moving q_d). Pure math over `control.coupling`'s swivel tools: numpy + pinocchio
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -29,16 +30,24 @@ from control.model import RobotModel
 
 def swivel_of_points(shoulder: np.ndarray, elbow: np.ndarray, wrist: np.ndarray) -> float:
     """Elbow swivel angle (rad) of shoulder, elbow and wrist points: the formula of
-    `control.coupling.swivel_angle` (0 = elbow straight up, right-handed about shoulder→wrist)."""
-    u = np.asarray(wrist, dtype=float) - shoulder
-    u = u / np.linalg.norm(u)
-    ref = np.array([0.0, 0.0, 1.0]) - u[2] * u
-    if np.linalg.norm(ref) < 1e-9:
-        ref = np.array([1.0, 0.0, 0.0]) - u[0] * u
-    ref = ref / np.linalg.norm(ref)
-    d = (np.asarray(elbow, dtype=float) - shoulder) - ((np.asarray(elbow, dtype=float) - shoulder) @ u) * u
-    cross = np.array([ref[1] * d[2] - ref[2] * d[1], ref[2] * d[0] - ref[0] * d[2], ref[0] * d[1] - ref[1] * d[0]])
-    return float(np.arctan2(u @ cross, ref @ d))
+    `control.coupling.swivel_angle` (0 = elbow straight up, right-handed about shoulder→wrist).
+
+    Written on Python floats: it runs every step for the status line, and numpy's helpers on
+    3-vectors cost more in call overhead than the arithmetic."""
+    s0, s1, s2 = float(shoulder[0]), float(shoulder[1]), float(shoulder[2])
+    u0, u1, u2 = float(wrist[0]) - s0, float(wrist[1]) - s1, float(wrist[2]) - s2
+    norm = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    u0, u1, u2 = u0 / norm, u1 / norm, u2 / norm
+    r0, r1, r2 = -u2 * u0, -u2 * u1, 1.0 - u2 * u2  # world +z minus its component along u
+    if math.sqrt(r0 * r0 + r1 * r1 + r2 * r2) < 1e-9:  # shoulder→wrist vertical: world +x instead
+        r0, r1, r2 = 1.0 - u0 * u0, -u0 * u1, -u0 * u2
+    norm = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    r0, r1, r2 = r0 / norm, r1 / norm, r2 / norm
+    e0, e1, e2 = float(elbow[0]) - s0, float(elbow[1]) - s1, float(elbow[2]) - s2
+    along = e0 * u0 + e1 * u1 + e2 * u2
+    d0, d1, d2 = e0 - along * u0, e1 - along * u1, e2 - along * u2
+    c0, c1, c2 = r1 * d2 - r2 * d1, r2 * d0 - r0 * d2, r0 * d1 - r1 * d0  # ref × d
+    return math.atan2(u0 * c0 + u1 * c1 + u2 * c2, r0 * d0 + r1 * d1 + r2 * d2)
 
 
 # ---- the self-motion loops along a trajectory -------------------------------------------------

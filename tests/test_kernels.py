@@ -176,3 +176,37 @@ def test_projection_law_kernels_equal_numpy_reference(robot, sub, shaping):
             assert _rel(a, b) < tol
         targs = (dyn.J, ref[1], dyn.N, dyn.Lambda_n, rng.uniform(1, 100, 7), rng.standard_normal(7), dyn.dq, dyn.h)
         assert _rel(K.joint_torque_fused(*targs), K.joint_torque_reference(*targs)) < tol
+
+
+def test_damper_bounds_kernel_equals_numpy_reference(robot):
+    """Random postures, some inside d_s, d_i or beyond a limit, endless joints included."""
+    from control.gains import NullspaceGains
+    from control.nullspace import damper_bounds
+
+    rng = np.random.default_rng(19)
+    gains = NullspaceGains()
+    endless = np.asarray(robot.endless, dtype=bool)
+    dq_limit = 0.5 * np.asarray(robot.dq_max, dtype=float)
+    for _ in range(200):
+        edge = np.where(rng.random(7) < 0.5, robot.q_lower, robot.q_upper)
+        q = edge + rng.uniform(-0.35, 0.35, 7)  # around a limit: outside, inside d_s, inside d_i, free
+        ref = damper_bounds(q, robot.q_lower, robot.q_upper, dq_limit, endless, gains)
+        fused = K.damper_bounds_fused(
+            q, robot.q_lower, robot.q_upper, dq_limit, endless,
+            gains.damper_influence, gains.damper_safety, gains.damper_speed,
+        )  # fmt: skip
+        for a, b in zip(fused, ref, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_swivel_of_points_equals_swivel_angle(robot):
+    """The per-step float version of the swivel formula agrees with `coupling.swivel_angle`."""
+    from control.coupling import swivel_angle
+    from control.planner import swivel_of_points
+
+    model = RobotModel(robot.model)
+    data = robot.model.createData()
+    for q in random_configurations(robot, 20, seed=20):
+        pin.forwardKinematics(robot.model, data, q)
+        points = [data.oMi[j].translation for j in (2, 4, 6)]
+        assert abs(swivel_of_points(*points) - swivel_angle(model, q)) < 1e-12

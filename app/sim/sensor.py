@@ -62,11 +62,14 @@ class FTSensor:
 
     def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
         """The filtered reading for this step's true wrench [f; m] at time t."""
-        x = np.array(true_wrench, dtype=float) + self._std * self.rng.standard_normal(6)
+        x = self.rng.standard_normal(6)  # the same arithmetic as true + std·noise, y + α(x − y), in place
+        x *= self._std
+        x += true_wrench
         if self.sine_amplitude_n > 0:
             x[:3] += self.sine_amplitude_n * np.sin(2.0 * np.pi * self.sine_hz * t)
-        if self._y is None:
-            self._y = x
-        else:
-            self._y = self._y + self.alpha * (x - self._y)
-        return self._y.copy()
+        if self._y is not None:
+            x -= self._y
+            x *= self.alpha
+            x += self._y
+        self._y = x
+        return x.copy()

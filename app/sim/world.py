@@ -118,6 +118,7 @@ class World:
         self._distal_to_sensor: dict[int, bool] = {}  # body id -> in the sensor's subtree (model is fixed)
         self._jacp = np.zeros((3, self.model.nv))  # Jacobian buffers (mj_jac* overwrite them)
         self._jacr = np.zeros((3, self.model.nv))
+        self._solve_buf = np.zeros((3, self.model.nv))
         self.applied: list[AppliedForce] = []
         self.carried: set[int] = set()  # payload bodies distal to the F/T sensor (their inertia loads it)
         self._acc_valid = False  # MuJoCo's body accelerations (cacc) hold the last step's values
@@ -186,9 +187,9 @@ class World:
     def site_inverse_mass(self, site_id: int) -> np.ndarray:
         """(3, 3) translational inverse mass J_p M⁻¹ J_pᵀ of a site point (world axes): the
         acceleration of that point per newton applied there, from MuJoCo's own factorised M."""
-        jacp = np.zeros((3, self.model.nv))
+        jacp = self._jacp
         mujoco.mj_jacSite(self.model, self.data, jacp, None, site_id)
-        x = np.zeros_like(jacp)
+        x = self._solve_buf
         mujoco.mj_solveM(self.model, self.data, x, jacp)
         return jacp @ x.T
 
