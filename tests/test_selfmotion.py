@@ -90,7 +90,8 @@ def test_the_app_draws_the_ghost_at_the_flow_target_and_hides_it_when_off():
         preview = panel.preview
         assert not preview.ghost_visible
         _browser_update(preview.enabled, True)
-        assert preview.wait_scans(1, timeout=10.0)
+        assert preview.wait_scans(1, timeout=30.0)
+        assert preview._in_process  # the scan ran in the scan process, not on the server's interpreter
         deadline = time.monotonic() + 5.0
         while not preview.ghost_visible and time.monotonic() < deadline:
             time.sleep(0.02)
@@ -108,3 +109,19 @@ def test_the_app_draws_the_ghost_at_the_flow_target_and_hides_it_when_off():
     finally:
         app.stop()
     assert not preview._thread.is_alive()
+
+
+def test_scan_in_the_worker_process_equals_the_scan_here(rizon):
+    """The picklable entry point of the scan process gives the same preview as a scan in-process."""
+    import pickle
+
+    from app.ui.selfmotion_worker import scan_in_worker
+
+    q0 = rizon.postures.get("polish_start", rizon.home)
+    model = RobotModel(rizon.model)
+    here = scan_preview(model, rizon, q0, c.POLISH_SUBSPACES, "a")
+    args = (str(rizon.urdf_path), rizon.model, rizon.q_lower, rizon.q_upper, q0, c.POLISH_SUBSPACES.force_axes, "a")
+    there = pickle.loads(pickle.dumps(scan_in_worker(*pickle.loads(pickle.dumps(args)))))
+    np.testing.assert_array_equal(there.W, here.W)
+    np.testing.assert_array_equal(there.q, here.q)
+    assert (there.flow, there.best) == (here.flow, here.best)

@@ -3,10 +3,12 @@
 At a fixed TCP pose the self-motion of a 7-DOF arm is a one-dimensional loop (the elbow swivel).
 W_f, W_a and W_d have several local minima along it, and the gradient flow of [T15] only finds the
 nearest one downhill. When switched on, the preview traces that loop through the current posture
-about once a second (`control.coupling.swivel_scan`, on its own `RobotModel` in a worker thread, so
-the simulation's model is never shared), plots the chosen W along it with the current posture, the
-flow's end and the best posture inside the joint limits marked, and draws a translucent ghost arm
-at one of them. Nothing here touches the session: it reads the joint positions of the last frame.
+about once a second (`control.coupling.swivel_scan`, in a separate process: a scan is ~0.1 s of
+Python, which in a thread would hold the interpreter the simulation loop needs; the process gets
+the robot's Pinocchio model, so the simulation's model is never shared), plots the chosen W along
+it with the current posture, the flow's end and the best posture inside the joint limits marked,
+and draws a translucent ghost arm at one of them. Nothing here touches the session: it reads the
+joint positions of the last frame.
 """
 
 from __future__ import annotations
@@ -14,7 +16,8 @@ from __future__ import annotations
 import threading
 import time
 import traceback
-from dataclasses import dataclass
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
 from typing import Any
 
 import numpy as np
@@ -22,9 +25,12 @@ import pinocchio as pin
 import viser
 
 from app.ui.scene import add_ghost_arm, hide_ghost_arm, link_meshes, pose_ghost_arm
-from control.coupling import Subspaces, flow_minimum, swivel_scan
+from app.ui.selfmotion_worker import Preview, scan_in_worker, scan_preview
+from control.coupling import Subspaces
 from control.model import RobotModel
 from robots import RobotDescription
+
+__all__ = ["Preview", "SelfMotionPreview", "link_poses", "preview_objective", "scan_preview"]
 
 PREVIEW_PERIOD_S = 1.0  # s between two scans while the preview is on (a scan takes ~0.1 s)
 GHOST_COLOR = (110, 130, 255)
@@ -39,40 +45,6 @@ INTRO = (
 )
 
 
-@dataclass(frozen=True)
-class Preview:
-    """One scan of the self-motion loop for one objective (angles in degrees)."""
-
-    objective: str  # "f", "a" or "d"
-    swivel_deg: np.ndarray  # (k,) unwrapped from the current posture's swivel, increasing
-    W: np.ndarray  # (k,) the objective along the loop
-    feasible: np.ndarray  # (k,) bool: every joint inside its position limits
-    q: np.ndarray  # (k, 7) postures along the loop
-    flow: int  # index where the gradient flow from index 0 (the current posture) settles
-    best: int | None  # index of the smallest W inside the limits, None if no sample is inside
-
-    @property
-    def name(self) -> str:
-        return f"W_{self.objective}"
-
-    def summary(self) -> str:
-        """One line in words: now, where the flow settles, the best feasible posture."""
-        name, deg = self.name, self.swivel_deg
-        text = f"Now {name} = {self.W[0]:.3g} at {_deg(deg[0])}; the flow settles at {_deg(deg[self.flow])} "
-        text += f"({name} = {self.W[self.flow]:.3g})"
-        if self.best is None:
-            return text + "; no posture on the loop is inside all joint limits."
-        if self.best == self.flow:
-            return text + ", which is also the best posture inside the joint limits."
-        best = f"{_deg(deg[self.best])} ({name} = {self.W[self.best]:.3g})"
-        return text + f"; the best inside the joint limits is {best}."
-
-
-def _deg(value: float) -> str:
-    wrapped = (float(value) + 180.0) % 360.0 - 180.0
-    return f"{wrapped:+.0f}°"
-
-
 def preview_objective(choice: str, controller_objective: str | None) -> str:
     """The objective letter a dropdown choice stands for (W_a when the controller's is W_j or none)."""
     if choice == AS_CONTROLLER:
@@ -80,17 +52,6 @@ def preview_objective(choice: str, controller_objective: str | None) -> str:
     if choice not in OBJECTIVE_CHOICES:
         raise ValueError(f"unknown objective {choice!r}")
     return choice[2:]
-
-
-def scan_preview(model: RobotModel, robot: RobotDescription, q: np.ndarray, sub: Subspaces, objective: str) -> Preview:
-    """Trace the self-motion loop through q and find the flow's end and the best feasible posture."""
-    scan = swivel_scan(model, np.asarray(q, dtype=float), sub, robot.q_lower, robot.q_upper)
-    values = {"f": scan.W_f, "a": scan.W_a, "d": scan.W_d}[objective]
-    feasible = np.asarray(scan.within_limits, dtype=bool)
-    flow = flow_minimum(values, feasible, start=0, closed=scan.closed)
-    inside = np.flatnonzero(feasible)
-    best = int(inside[np.argmin(values[inside])]) if inside.size else None
-    return Preview(objective, np.rad2deg(scan.swivel_rad), values, feasible, scan.q, flow, best)
 
 
 def link_poses(model: RobotModel, robot: RobotDescription, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -139,6 +100,8 @@ class SelfMotionPreview:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._models: dict[str, RobotModel] = {}
+        self._pool: ProcessPoolExecutor | None = None
+        self._in_process = True  # off after the scan process failed once: scans then run in this thread
         self._ghost: dict[str, viser.MeshHandle] = {}
         self._ghost_robot: str | None = None
         for handle in (self.enabled, self.objective, self.ghost_at):
@@ -171,6 +134,8 @@ class SelfMotionPreview:
         self._stop.set()
         self._wake.set()
         self._thread.join(timeout=2.0)
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
 
     # ---- worker ---------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -193,13 +158,29 @@ class SelfMotionPreview:
         if job is None:
             return
         robot, q, sub, controller_objective = job
-        model = self._model_for(robot)
-        result = scan_preview(model, robot, q, sub, preview_objective(str(self.objective.value), controller_objective))
+        result = self._scan(robot, q, sub, preview_objective(str(self.objective.value), controller_objective))
         self.latest = result
         self.scans += 1
         self._show_plot(result)
         index = {GHOST_CHOICES[0]: result.flow, GHOST_CHOICES[1]: result.best}.get(str(self.ghost_at.value))
         self._show_ghost(robot, None if index is None else result.q[index])
+
+    def _scan(self, robot: RobotDescription, q: np.ndarray, sub: Subspaces, objective: str) -> Preview:
+        """One scan in the scan process (started on first use; this thread waits without the GIL),
+        or here if that process cannot run."""
+        if self._in_process:
+            try:
+                if self._pool is None:
+                    self._pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"))
+                job = self._pool.submit(
+                    scan_in_worker, str(robot.urdf_path), robot.model, robot.q_lower, robot.q_upper, q,
+                    sub.force_axes, objective,
+                )  # fmt: skip
+                return job.result(timeout=60.0)
+            except Exception as exc:  # a broken or missing process: say so once, then scan in this thread
+                print(f"torquelab: self-motion scan process failed ({exc!r}); scanning in the server process")
+                self._in_process = False
+        return scan_preview(self._model_for(robot), robot, q, sub, objective)
 
     def _model_for(self, robot: RobotDescription) -> RobotModel:
         key = str(robot.urdf_path)
