@@ -105,18 +105,18 @@ class NullspaceQP:
 
     def solve(self, J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> NullspaceResult:
         """Goal nullspace velocity for q = k0 ∇W (`gradient_step`), J x = 0 and l ≤ x ≤ u."""
-        n = self.n
-        # one dot product per array: NaN/inf anywhere makes it non-finite (cheaper than isfinite)
+        res = self._qp.solve(None, gradient_step, J, self._zero, self._zero, lower, upper)
+        if res.solved:
+            self.last = res
+            return res
+        # why not (checked only now, off the normal path): one dot product per array
         Jr = J.ravel()
         if not (math.isfinite(float(Jr @ Jr)) and math.isfinite(float(gradient_step @ gradient_step))):
-            return self._fallback(np.zeros((N_TASK, n)), np.zeros(n), lower, upper, "non-finite input")
-        if not (math.isfinite(float(lower @ lower)) and math.isfinite(float(upper @ upper))) or np.any(lower > upper):
-            return self._fallback(J, gradient_step, lower, upper, "inconsistent bounds")
-        res = self._qp.solve(None, gradient_step, J, self._zero, self._zero, lower, upper)
-        if not res.solved:
-            return self._fallback(J, gradient_step, lower, upper, res.status, res)
-        self.last = res
-        return res
+            n = self.n
+            return self._fallback(np.zeros((N_TASK, n)), np.zeros(n), lower, upper, "non-finite input", res)
+        if np.any(np.isnan(lower)) or np.any(np.isnan(upper)) or np.any(lower > upper):
+            return self._fallback(J, gradient_step, lower, upper, "inconsistent bounds", res)
+        return self._fallback(J, gradient_step, lower, upper, res.status, res)
 
     def _fallback(
         self,

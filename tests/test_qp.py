@@ -90,6 +90,11 @@ def test_infeasible_and_garbage_give_a_status_not_an_exception(backend):
     # x1 + x2 = 5 with |x| ≤ 1: infeasible
     res = solver.solve(np.eye(2), np.zeros(2), np.ones((1, 2)), np.array([5.0]), np.array([5.0]), -box, box)
     assert not res.solved and res.status == qp.INFEASIBLE
+    # lower above upper on a bound or a row
+    res = solver.solve(np.eye(2), np.zeros(2), np.ones((1, 2)), np.zeros(1), np.zeros(1), box, -box)
+    assert not res.solved and res.status == qp.INFEASIBLE
+    res = solver.solve(np.eye(2), np.zeros(2), np.ones((1, 2)), np.ones(1), -np.ones(1), -box, box)
+    assert not res.solved and res.status == qp.INFEASIBLE
     nan = np.full(2, np.nan)
     res = solver.solve(np.eye(2), nan, np.ones((1, 2)), np.zeros(1), np.zeros(1), -box, box)
     assert not res.solved
