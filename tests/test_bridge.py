@@ -120,3 +120,123 @@ def test_bridge_needs_one_nullspace_gain(rizon):
     law = make_projection_executor(rizon, model, gains=MotionForceGains(nullspace_kd=(50, 50, 50, 50, 50, 50, 40)))
     with pytest.raises(ValueError, match="one K_n"):
         make_bridge_executor(rizon, law)
+
+
+# ---- two independent implementations in closed loop, with the fused estimate [C26] -----------
+def _closed_loop(rizon, seconds: float, force_world: np.ndarray):
+    """The bridge executor with the fused estimate (K_I = 50 s⁻¹, ideal F/T reading) steers the
+    simulated arm under a constant push at the TCP; a separate [T] projection executor (its own
+    law, integrator and nullspace QP) is fed the same snapshot and reading each step. Yields per
+    step (t, a_C, a_T, Γ_x J M⁻¹ (τ̂_e − JᵀF^e)): the bridge QP's task acceleration, the one the
+    [T] torque gives with the sensed wrench as the true one, and what the estimate error explains."""
+    from app.sim.world import World
+
+    world = World(rizon)
+    model = RobotModel(rizon.model)
+    world.reset(rizon.home)
+    dyn = model.compute(world.q, world.dq)
+    target = TaskTarget(
+        position=dyn.tcp_position_world.copy(),
+        rotation=dyn.tcp_rotation_world.copy(),
+        velocity=np.zeros(6),
+        wrench=np.array([0.0, 0.0, float(force_world[2]), 0.0, 0.0, 0.0]),
+        q_posture=rizon.home,
+    )
+    bridge = make_bridge_executor(
+        rizon, make_projection_executor(rizon, model), strict=True, estimator=EstimatorGains(source="fusion"),
+        settings=EXACT,
+    )  # fmt: skip
+    shadow = make_projection_executor(rizon, model)
+    bridge.reset(dyn, target)
+    shadow.reset(dyn, target)
+    for _ in range(round(seconds / 1e-3)):
+        dyn = model.compute(world.q, world.dq)
+        p_tcp, _ = world.site_pose(world.tcp_site)
+        world.apply_force(world.wrist_body, p_tcp, force_world)
+        wrench = np.concatenate([force_world, np.zeros(3)])  # ideal sensor, already at the TCP
+        inputs = ControlInputs(t=world.time, target=target, wrench_tcp=wrench, tau_ext_oracle=dyn.J.T @ wrench)
+        out = bridge.step(dyn, inputs)
+        tau_t = shadow.step(dyn, inputs).tau
+        task = bridge.tasks[0]
+        tau_e = dyn.J.T @ wrench
+        a_c = dyn.J @ bridge.ddq + dyn.dJ_dq
+        a_t = dyn.J @ (dyn.M_inv @ (tau_t + tau_e - dyn.h)) + dyn.dJ_dq
+        gamma_x = task.Lambda_hat_inv @ dyn.Lambda
+        explained = gamma_x @ (dyn.J @ (dyn.M_inv @ (bridge.estimator.estimate - tau_e)))
+        yield world.time, a_c, a_t, explained
+        world.step(out.tau)
+
+
+def test_bridge_with_the_fused_estimate_agrees_with_the_projection_law_in_closed_loop(rizon):
+    """Accepted residual, and why: the QP plans with τ̂_e (fusion) where [T] uses the sensed wrench,
+    so a_C − a_T = Γ_x J M⁻¹ (τ̂_e − JᵀF^e) exactly (equality rows, OSQP at 1e-10: checked to
+    1e-6 of the push's own acceleration |Λx⁻¹F^e|). The estimate error itself is the fusion's
+    start-up transient (its high-pass starts on the first reading, so τ̂_e starts at the observer's
+    r = 0 and closes the gap as e^(−K_I t)) plus the discretisation of r + s/(K_I + s)τ_s: after
+    10/K_I = 0.2 s (e^−10 ≈ 5e-5) the two task accelerations must agree to 1e-3 of |Λx⁻¹F^e|."""
+    force = np.array([4.0, -3.0, 15.0])
+    worst_identity = 0.0
+    early, late = [], []
+    for t, a_c, a_t, explained in _closed_loop(rizon, 0.3, force):
+        if t == 0.0:
+            scale = float(np.linalg.norm(explained))  # |Λx⁻¹F^e|: τ̂_e = 0 at the start
+        worst_identity = max(worst_identity, np.linalg.norm(a_c - a_t - explained) / scale)
+        (late if t > 0.2 else early).append(np.linalg.norm(a_c - a_t) / scale)
+    assert worst_identity < 1e-6
+    assert max(late) < 1e-3
+    assert early[0] == pytest.approx(1.0, abs=1e-6)  # the start: no estimate yet, the full push unexplained
+
+
+def test_the_qp_own_pose_task_with_a_diagonal_compliance_cannot_give_the_shaped_response(rizon):
+    """[C]'s own tasks take a diagonal Γ (per axis, 0…1), one for all wrenches. [T]'s response to
+    F^e is Γ_x J q̈_e with the full Γ_x = Λ̂x⁻¹Λx. With shaping off Γ_x = I: the QP's pose task with
+    Γ = I gives [T]'s response exactly. With shaping on, the best diagonal Γ over many wrenches
+    (least squares per axis, clipped to 0…1) leaves more than 5 % of the response unexplained."""
+    from control.bridge import gamma_x_matrix
+    from control.coupling import POLISH_SUBSPACES
+
+    _, dyn, _, _, _ = _case(rizon, 0)
+    wrenches = np.random.default_rng(4).normal(size=(6, 200)) * np.array([[10.0], [10.0], [10.0], [1.0], [1.0], [1.0]])
+    response = dyn.J @ (dyn.M_inv @ (dyn.J.T @ wrenches))  # J q̈_e = Λx⁻¹ F^e, one column per wrench
+    # shaping off: Λ̂x = Λx
+    np.testing.assert_allclose(gamma_x_matrix(dyn.Lambda, POLISH_SUBSPACES, shaping=False), np.eye(6), atol=1e-12)
+    # shaping on: [T]'s response is Λ̂x⁻¹ F^e = Γ_x Λx⁻¹ F^e
+    G = gamma_x_matrix(dyn.Lambda, POLISH_SUBSPACES)
+    shaped = G @ response
+    best = np.clip(np.sum(shaped * response, axis=1) / np.sum(response**2, axis=1), 0.0, 1.0)
+    residual = np.linalg.norm(shaped - best[:, None] * response) / np.linalg.norm(shaped)
+    off = np.linalg.norm(G - np.diag(np.diag(G))) / np.linalg.norm(G)
+    assert off > 0.05 and residual > 0.05  # a full coupling matrix, not a per-axis factor in 0…1
+
+
+def test_gamma_x_summary_reports_symmetric_eigenvalues_and_skew_size(rizon):
+    from control.bridge import gamma_x_matrix, gamma_x_summary
+    from control.coupling import POLISH_SUBSPACES
+
+    _, dyn, _, _, _ = _case(rizon, 1)
+    G = gamma_x_matrix(dyn.Lambda, POLISH_SUBSPACES)
+    s = gamma_x_summary(G)
+    sym = 0.5 * (G + G.T)
+    np.testing.assert_allclose(np.sort(s.sym_eigenvalues), np.linalg.eigvalsh(sym), atol=1e-12)
+    assert s.skew_norm == pytest.approx(np.linalg.norm(0.5 * (G - G.T), 2))
+    assert s.skew_norm > 1e-3  # Γ_x is not symmetric at this posture
+
+
+def test_the_app_shows_gamma_x_live_while_the_projection_executor_runs():
+    from app.session import Session
+    from app.ui.panels.compliance import gamma_x_text
+    from app.ui.snapshot import capture
+    from control.bridge import gamma_x_matrix, gamma_x_summary
+
+    session = Session("free", robot="rizon4s", executor="projection")
+    session.run(steps=5)
+    snap = capture(session)
+    expected = gamma_x_summary(gamma_x_matrix(session.dyn.Lambda, session.executor.sub))
+    np.testing.assert_allclose(snap.gamma_x_sym_eigs, expected.sym_eigenvalues, atol=1e-12)
+    assert snap.gamma_x_skew == pytest.approx(expected.skew_norm)
+    text = gamma_x_text(snap.gamma_x_sym_eigs, snap.gamma_x_skew)
+    assert f"{expected.sym_eigenvalues[0]:.2f} … {expected.sym_eigenvalues[-1]:.2f}" in text
+    assert "not a [C] compliance" in text  # the free-drag pose couples its axes
+    session.set_executor("compliance-qp")
+    session.run(steps=2)
+    assert capture(session).gamma_x_sym_eigs is None  # [C]'s own executor: no Γ_x to show

@@ -56,6 +56,8 @@ class SceneSnapshot:
     near_singular: bool = False  # Λx damped or ill-conditioned (NEAR_SINGULAR_EIG): no coupling shapes
     payload_position: np.ndarray | None = None  # (3,) attached payload mass (mass-drop, limit-drop), if any
     payload_mass_kg: float = 0.0
+    gamma_x_sym_eigs: np.ndarray | None = None  # (6,) real eigenvalues of ½(Γ_x + Γ_xᵀ), projection executor only
+    gamma_x_skew: float | None = None  # ‖½(Γ_x − Γ_xᵀ)‖₂ of Γ_x = Λ̂x⁻¹Λx (control.bridge)
     q: np.ndarray | None = None  # (7,) rad, joint positions (the self-motion preview starts from them)
     twin_link_positions: np.ndarray | None = None  # (L, 3) m: the twin arm's bodies (app.twin), if one runs
     twin_link_wxyz: np.ndarray | None = None  # (L, 4)
@@ -151,7 +153,24 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         near_singular=bool(dyn.near_singular or dyn.min_eig_Lambda_inv < NEAR_SINGULAR_EIG),
         q=q,
         **_payload(session),
+        **_gamma_x(session, view, dyn.Lambda),
     )
+
+
+def _gamma_x(session, view, Lambda: np.ndarray) -> dict:
+    """Γ_x = Λ̂x⁻¹Λx of the running [T] projection executor on the split its step used, summarised
+    (control.bridge); {} for other executors."""
+    from control.bridge import gamma_x_matrix, gamma_x_summary
+
+    if view.executor != "projection" or view.force_axes is None:
+        return {}
+    shaping = bool(getattr(getattr(session.executor, "gains", None), "shaping", True))
+    try:
+        G = gamma_x_matrix(Lambda, Subspaces.from_force_axes(view.force_axes), shaping=shaping)
+        summary = gamma_x_summary(G)
+    except np.linalg.LinAlgError:
+        return {}
+    return {"gamma_x_sym_eigs": summary.sym_eigenvalues, "gamma_x_skew": summary.skew_norm}
 
 
 def _payload(session) -> dict:

@@ -15,6 +15,12 @@ INTRO = (
     "(0 stiff, 1 compliant) [C9]; τ̂_e comes from the momentum observer [C25], its fusion with the F/T "
     "sensor [C26], or the simulation (oracle). Feedback off drops τ̂_e from [C8, C10] (Fig. 4)."
 )
+GAMMA_X_HELP = (
+    "With the [T] projection executor the task's response to a push is Γ_x = Λ̂x⁻¹Λx, written in [C]'s "
+    "form but not a [C] compliance: a full, non-symmetric matrix that couples the axes, whose symmetric "
+    "part can have eigenvalues below 0 or above 1."
+)
+GAMMA_X_OFF = "**Γ_x** (projection executor only): –"
 
 N_JOINTS = 7
 SOURCES = ("none", "residual", "fusion", "oracle")
@@ -111,9 +117,28 @@ class CompliancePanel(KnobPanel):
         super().__init__(server, loop, "Compliance", INTRO, KNOBS, order=order)
 
     def build_extra_bottom(self) -> None:
-        """The per-joint Γ₀ fold."""
+        """The read-only Γ_x line and the per-joint Γ₀ fold."""
+        self.gamma_x_help = self.server.gui.add_markdown(GAMMA_X_HELP)
+        self.gamma_x = self.server.gui.add_markdown(GAMMA_X_OFF)
         base = len(self.knobs)
         with self.server.gui.add_folder("Per-joint Γ₀", expand_by_default=False):
             for j, knob in enumerate(JOINT_KNOBS):
                 self.knobs.append(knob)
                 self.handles[base + j] = self._add(knob)
+
+    def live(self, frame: Any) -> None:
+        """Γ_x of the running projection executor: real eigenvalues of its symmetric part, skew size."""
+        scene = getattr(frame, "scene", None)
+        eigs = getattr(scene, "gamma_x_sym_eigs", None)
+        skew = getattr(scene, "gamma_x_skew", None)
+        text = GAMMA_X_OFF if eigs is None or skew is None else gamma_x_text(eigs, skew)
+        if self.gamma_x.content != text:
+            self.gamma_x.content = text
+
+
+def gamma_x_text(eigs: np.ndarray, skew: float) -> str:
+    """The Γ_x line: symmetric-part eigenvalues (min…max, all six) and ‖skew‖."""
+    e = np.sort(np.asarray(eigs, dtype=float))
+    listed = ", ".join(f"{x:.2f}" for x in e)
+    verdict = "a compliance (0…1)" if e[0] >= -1e-9 and e[-1] <= 1 + 1e-9 and skew < 1e-9 else "not a [C] compliance"
+    return f"**Γ_x = Λ̂x⁻¹Λx:** sym. eigenvalues {e[0]:.2f} … {e[-1]:.2f} ({listed}) · ‖skew‖ = {skew:.2f} — {verdict}"
