@@ -186,9 +186,11 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
 def _with_posture_objective(session: Session, signals: dict[str, float]) -> dict[str, float]:
     """Add W_j = ½‖q − q_posture‖² [T18] when the executor did not report it."""
     if "W_j" not in signals:
-        q_posture = getattr(session.executor, "q_posture", None)
-        if q_posture is None and session.last is not None:
-            q_posture = session.last.target.q_posture
+        view_W = session.executor.view().W  # the executor's own W_j, when it has a posture
+        if "W_j" in view_W:
+            signals["W_j"] = float(view_W["W_j"])
+            return signals
+        q_posture = session.last.target.q_posture if session.last is not None else None
         if q_posture is not None:
             e = session.world.q - np.asarray(q_posture, dtype=float)
             signals["W_j"] = 0.5 * float(e @ e)

@@ -73,6 +73,8 @@ class ProjectionExecutor:
         self.last_qp: NullspaceResult | None = None
         self._last_W: dict[str, float] = {}
         self._last_sub: Subspaces = self.sub
+        self._last_q: np.ndarray | None = None
+        self._last_q_d: np.ndarray | None = None
         self.last_wrench = np.zeros(6)
         self._last_valid_wrench = np.zeros(6)
 
@@ -135,12 +137,17 @@ class ProjectionExecutor:
         return out
 
     def view(self) -> StepView:
-        """The latest step's objective, W values, split, P_f/P_a/P_d, damper zone d_i and QP result."""
+        """The latest step's objective, W values (W_j [T18] included), split, P_f/P_a/P_d, damper zone
+        d_i and QP result."""
         terms, res, sub = self.last_terms, self.last_qp, self._last_sub
+        W = dict(self._last_W)
+        if self._last_q is not None and self._last_q_d is not None:
+            e = self._last_q - np.asarray(self._last_q_d, dtype=float)
+            W["W_j"] = 0.5 * float(e @ e)  # [T18], at the step's q and posture
         return StepView(
             self.name,
             objective=self.nullspace.objective,
-            W=self._last_W,
+            W=W,
             force_axes=sub.force_axes,
             motion_axes=sub.motion_axes,
             P=None if terms is None else {"P_f": terms.P_f, "P_a": terms.P_a, "P_d": terms.P_d},
@@ -198,8 +205,9 @@ class ProjectionExecutor:
         self.last_wrench = F
 
         # [T15-17] goal nullspace velocity
+        q_d = target.q_posture if target.q_posture is not None else self.q_posture
+        self._last_q, self._last_q_d = dyn.q, q_d  # for W_j in the view
         if ns.objective == "j":
-            q_d = target.q_posture if target.q_posture is not None else self.q_posture
             grad = dyn.q - (dyn.q if q_d is None else q_d)  # [T18]
             W_obj = 0.5 * float(grad @ grad)
         else:

@@ -57,6 +57,8 @@ def test_projection_view_equals_what_the_step_computed(rizon):
     ex.step(dyn2, ControlInputs(1e-3, _target(dyn), np.zeros(6)))
     np.testing.assert_array_equal(view.P["P_f"], before)
     assert not np.allclose(ex.view().P["P_f"], before)
+    e = dyn2.q - ex.q_posture  # the target has no posture: the one held at reset [T18]
+    assert ex.view().W["W_j"] == pytest.approx(0.5 * float(e @ e), rel=1e-12) and float(e @ e) > 0.05
 
 
 def test_compliance_and_bridge_views_carry_damper_zone_qp_and_the_law(gen3):
