@@ -158,3 +158,46 @@ def _radius(
     Lambda: np.ndarray, sub: Subspaces, gains: MotionForceGains, loop: ContactLoop, friction_dir: np.ndarray
 ) -> float:
     return float(np.max(np.abs(np.linalg.eigvals(step_matrix(Lambda, sub, gains, loop, friction_dir)))))
+
+
+@dataclass(frozen=True)
+class PostureMargin:
+    """The force-loop margin of one posture over a segment's speed profile, per friction direction."""
+
+    kd_margin: float  # N s/m: K_f^d minus the largest critical K_f^d (> 0 stable, < 0 loses contact)
+    kd_critical: float  # the largest critical K_f^d over directions and speeds
+    worst_direction: int  # index into the directions given
+    worst_speed_m_s: float
+    directional_coupling: tuple[float, ...]  # P_d·f̂ per direction [T10]
+    kd_critical_per_direction: tuple[float, ...]
+
+
+def posture_margin(
+    Lambda: np.ndarray,
+    sub: Subspaces,
+    gains: MotionForceGains,
+    loop: ContactLoop,
+    friction_dirs: list[np.ndarray],
+    speeds: tuple[float, ...] | None = None,
+) -> PostureMargin:
+    """`PostureMargin` over the friction directions (e.g. stretching and retracting) and the speeds a
+    segment passes through (default 0 … loop.speed_m_s in 8 steps: a minimum-jerk segment starts and
+    ends at rest, where the regularised friction is a stiff viscous damper, and the margin is
+    often smallest at a few cm/s)."""
+    from dataclasses import replace
+
+    speeds = speeds if speeds is not None else tuple(np.linspace(0.0, loop.speed_m_s, 9))
+    crit_dir, pd_dir = [], []
+    worst = (-np.inf, 0, 0.0)
+    for d_i, f_hat in enumerate(friction_dirs):
+        worst_here = -np.inf
+        for v in speeds:
+            m = force_loop_margin(Lambda, sub, gains, replace(loop, speed_m_s=float(v)), f_hat)
+            kd = np.inf if m.kd_critical is None else m.kd_critical
+            if kd > worst_here:
+                worst_here = kd
+            if kd > worst[0]:
+                worst = (kd, d_i, float(v))
+        crit_dir.append(float(worst_here))
+        pd_dir.append(m.directional_coupling)
+    return PostureMargin(gains.force_kd - worst[0], float(worst[0]), worst[1], worst[2], tuple(pd_dir), tuple(crit_dir))

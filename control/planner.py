@@ -92,7 +92,19 @@ def loops_along(
                 continue
             Q[i, j], ok[i, j] = _on_swivel(model, Q[i - 1, j], psi, positions[i], rotation, project=True)
     inside = np.all(within_limits_mod_2pi(np.nan_to_num(Q), q_lower, q_upper), axis=2)
-    return LoopGrid(grid, Q, ok & inside)
+    return LoopGrid(grid, wrap_into_limits(Q, q_lower, q_upper), ok & inside)
+
+
+def wrap_into_limits(q: np.ndarray, q_lower: np.ndarray, q_upper: np.ndarray) -> np.ndarray:
+    """Each joint angle moved by ±2π into [q_lower, q_upper] where that lands inside (the
+    continuation of a self-motion loop may leave the interval while an equivalent angle is in it)."""
+    out = np.array(q, dtype=float)
+    two_pi = 2.0 * np.pi
+    for shift in (two_pi, -two_pi):
+        moved = out + shift
+        use = ((out < q_lower) | (out > q_upper)) & (moved >= q_lower) & (moved <= q_upper)
+        out = np.where(use, moved, out)
+    return out
 
 
 def _on_swivel(
@@ -160,6 +172,8 @@ class Plan(NamedTuple):
     total_cost: float  # Σ stage cost·Δt + rate penalty over the trajectory
     rate_max_rad_s: float
     transfer_s: float
+    grid_rad: np.ndarray  # (m,) the swivel grid
+    cost_map: np.ndarray  # (k, m) stage cost at the trajectory samples (inf: infeasible)
 
 
 def plan_swivel_path(
@@ -176,7 +190,9 @@ def plan_swivel_path(
     Σ ((ψ_{i+1} − ψ_i)/dt)²·dt over the circle of swivels, with |Δψ| ≤ rate_max·dt and only
     feasible grid points. With `start_index` the path begins there and first spends
     `transfer_steps` steps at sample 0's loop at zero stage cost (the transfer during the settle
-    phase). Returns (indices, total cost); ValueError when no feasible path exists."""
+    phase), where the rate penalty is 1000× smaller: it only keeps the transfer smooth and does
+    not decide where the trajectory part starts. Returns (indices, total cost); ValueError when
+    no feasible path exists."""
     k, m = costs.shape
     step = float(grid[1] - grid[0])
     reach = int(np.floor(rate_max_rad_s * dt / step + 1e-9))
@@ -194,7 +210,8 @@ def plan_swivel_path(
     back = np.zeros((len(rows), m), dtype=int)
     for i in range(1, len(rows)):
         # candidate predecessors j − s for every shift s (circular)
-        cand = np.stack([np.roll(V, s) + p for s, p in zip(shifts, penalty, strict=True)])
+        scale = 1e-3 if i <= transfer_steps else 1.0
+        cand = np.stack([np.roll(V, s) + scale * p for s, p in zip(shifts, penalty, strict=True)])
         best = np.argmin(cand, axis=0)
         V = cand[best, np.arange(m)] + rows[i]
         back[i] = (np.arange(m) - shifts[best]) % m
@@ -238,4 +255,4 @@ def plan(
     t = np.r_[-(n_tr - np.arange(n_tr)) * dt, np.arange(k) * dt]
     q = loops.q[sample, idx]
     stage = np.r_[np.zeros(n_tr), costs[np.arange(k), idx[n_tr:]]]
-    return Plan(t, grid[idx], q, stage, total, rate_max_rad_s, n_tr * dt)
+    return Plan(t, grid[idx], q, stage, total, rate_max_rad_s, n_tr * dt, grid, costs)

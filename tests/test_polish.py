@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.experiments.polish import _parse_list, _stats, format_table
+from app.experiments.polish import _parse_mu, _stats, format_table, summarise
 from app.scenarios import polish as P
 from app.session import Session
 from control.coupling import swivel_angle
@@ -62,36 +62,60 @@ def test_short_polish_run_holds_20_newtons(rizon):
     assert xs[-1] == pytest.approx(P.START_XY_M[0] - P.SEGMENT_DX_M, abs=0.01)  # S1 reached its corner
 
 
-def test_metrics_and_table_helpers():
+def test_metrics_summary_and_table_helpers():
     st = _stats(np.array([1.0, -3.0, 2.0]))
     assert st["ma"] == pytest.approx(2.0) and st["ptp"] == pytest.approx(5.0)
     assert st["std"] == pytest.approx(np.std([1.0, -3.0, 2.0]))
-    with pytest.raises(ValueError, match="unknown objective"):
-        _parse_list("j,x", "objectives")
     with pytest.raises(ValueError, match="non-negative"):
-        _parse_list("-1", "mu")
-    run = {
-        "objective": "a",
-        "mu": 1.0,
-        "force_error": {"ma": 1.0, "ptp": 2.0, "std": 0.5},
-        "stable": True,
-    }
-    text = format_table([run])
-    assert "W_a" in text and "1.6/10.8/2.0" in text
+        _parse_mu("-1")
+    with pytest.raises(ValueError, match="numbers"):
+        _parse_mu("x")
+
+    def run(seed: int, ma: float, stable: bool) -> dict:
+        return {
+            "row": "W_a",
+            "objective": "a",
+            "mu": 1.0,
+            "seed": seed,
+            "start_swivel_deg": 0.0,
+            "shaping": True,
+            "converged": True,
+            "convergence_time_s": 50.0 + seed,
+            "converged_swivel_deg": 75.0,
+            "force_error": {"ma": ma, "ptp": 10 * ma, "std": ma / 2},
+            "stable": stable,
+            "margin": 20.0,
+            "contact_lost_ms": 0,
+            "W": {"f": 0.1, "a": 0.7, "d": 0.5},
+            "Pf_fhat": {"stretch": -0.1, "retract": 0.1},
+            "Pd_fhat": {"stretch": 0.8, "retract": -0.7},
+        }
+
+    summary = summarise([run(0, 1.0, True), run(1, 3.0, False)])
+    assert len(summary) == 1 and summary[0]["n"] == 2 and summary[0]["stable"] == 1
+    assert summary[0]["ma"]["mean"] == pytest.approx(2.0) and summary[0]["ma"]["sd"] == pytest.approx(np.sqrt(2.0))
+    assert summary[0]["paper"] == [1.6, 10.8, 2.0]
+    text = format_table(summary)
+    assert "W_a" in text and "2.0 ± 1.4" in text and "1.6/10.8/2.0" in text
 
 
 def test_cli_registers_the_polish_experiment_with_its_options():
     import argparse
 
     from app.experiments import EXPERIMENTS
-    from app.experiments.polish import add_arguments
+    from app.experiments.polish import add_arguments, table_specs
 
     assert EXPERIMENTS["polish"] == "polish"
     parser = argparse.ArgumentParser()
     add_arguments(parser)
-    args = parser.parse_args(["--objectives", "j,a", "--mu", "1.0", "--sander", "--seed", "4", "--no-diagnostics"])
-    assert args.objectives == "j,a" and args.mu == "1.0" and args.sander and args.seed == 4
-    assert args.no_diagnostics and not args.no_sensitivity
+    args = parser.parse_args(["--mu", "1.0", "--sander", "--seeds", "3", "--quick"])
+    assert args.mu == "1.0" and args.sander and args.seeds == 3 and args.quick
+    quick = table_specs([0.25, 1.0], 5, quick=True)
+    assert len(quick) == 8 and {s["objective"] for s in quick} == {"j", "f", "a", "d"}
+    full = table_specs([0.25, 1.0], 5, quick=False)
+    assert len(full) == 8 * 2 * 5
+    assert {s["objective"] for s in full} == {"j", "f", "a", "d", "planned", "planned_a"}
+    assert any(s["start_swivel_deg"] == -30.0 for s in full) and any(not s["shaping"] for s in full)
 
 
 def test_a_gradient_flow_on_a_plateau_is_not_declared_converged():

@@ -1,9 +1,12 @@
 """Polish: reproduce the simulation study of [T] §IV-B (Table III, Figs. 6, 8, 9) headless.
 
-Each run is one `Session` of the polish scenario (contact, posture convergence, six-segment
-zig-zag) with one nullspace objective and one friction coefficient. Runs go to worker processes
-(`--jobs`). Outputs in --out: polish.json (metrics per run), polish_series.npz (time series),
-fig6_postures.png, fig8_coupling.png, fig9_force_error.png, swivel_scan.png, report.html.
+Each run is one `Session` of the polish scenario (contact, settle until the posture has
+converged, six-segment zig-zag) with one nullspace objective, one friction coefficient and one
+noise seed; rows add the W_a start across the ridge, W_j without inertia shaping and the two
+planned-path rows ([T] §IV-B future work, `control.planner`). Every run carries the force-loop
+margin of its converged posture (`control.margin`). Runs go to worker processes (`--jobs`).
+Outputs in --out: polish.json (every run and the mean ± sd per row), polish_series.npz,
+figures and report.html.
 """
 
 from __future__ import annotations
@@ -25,177 +28,236 @@ PAPER_TABLE_III = {  # [T] Table III: force error MA / PTP / STD (N)
     0.25: {"j": (2.3, 18.2, 2.8), "f": (2.5, 17.4, 3.1), "a": (1.5, 10.5, 1.8), "d": (1.6, 12.2, 2.0)},
     1.0: {"j": (5.9, 72.4, 9.3), "f": (7.4, 74.0, 12.0), "a": (1.6, 10.8, 2.0), "d": (1.8, 14.1, 2.1)},
 }
-OBJECTIVE_NAMES = {"j": "W_j", "f": "W_f", "a": "W_a", "d": "W_d"}
-COLORS = {"j": "black", "f": "tab:green", "a": "tab:red", "d": "tab:blue"}
-SENSITIVITY_SWIVELS_DEG = (-30.0, -15.0, 15.0, 30.0)  # start swivels on both sides of 0° (DESIGN §8)
-LONG_CONVERGE_S = 60.0  # one more W_a run from 0° that may converge 4× longer than the protocol's timeout
+OBJECTIVE_NAMES = {
+    "j": "W_j",
+    "f": "W_f",
+    "a": "W_a",
+    "d": "W_d",
+    "planned": "planned (P_d·f̂)²",
+    "planned_a": "planned W_a",
+}
+PLAN_COST_OF = {"planned": "directional", "planned_a": "a"}
+MIRROR_START_DEG = -30.0  # just across the W_a ridge (about −27° from the Fig. 6a start): the other basin
+DEFAULT_SEEDS = 5
+ARMATURE_SCALES = (0.0, 0.5, 1.0, 2.0)  # item 6: the armature is not published (robots/rizon4s.toml)
+V_EPS_CHECK_M_PER_S = (0.001, 0.002, 0.01)  # friction regularisation re-measured each run (W_j hold, μ = 1)
+V_EPS_HOLD_S = 3.0
 RECORD_EVERY = 5  # time series kept at 200 Hz for the figures
-MAX_SIM_S = 100.0  # safety cap on one run
+SAFETY_CAP_S = scenario_module.CONVERGE_TIMEOUT_S + scenario_module.CONTACT_TIME_S + 20.0  # settle cap + trajectory
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `torquelab experiment polish`."""
-    parser.add_argument("--objectives", default="j,f,a,d", help="nullspace objectives, comma separated (j,f,a,d)")
     parser.add_argument("--mu", default="0.25,1.0", help="Coulomb friction coefficients, comma separated")
+    parser.add_argument("--seeds", type=int, default=DEFAULT_SEEDS, help="noise seeds per cell (0, 1, ...)")
     parser.add_argument("--sander", action="store_true", help="add the 7000 RPM electric-sander disturbance")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
     parser.add_argument(
-        "--no-diagnostics",
-        action="store_true",
-        help="skip the diagnostic runs (W_j at the largest μ without inertia shaping / without sensor low-pass)",
+        "--quick", action="store_true", help="1 seed, the 8 paper cells only (W_j/W_f/W_a/W_d × μ): a few-minute look"
     )
-    parser.add_argument(
-        "--no-sensitivity",
-        action="store_true",
-        help="skip the start-posture sensitivity runs (W_a at the largest μ from other start swivels)",
-    )
+    parser.add_argument("--no-armature", action="store_true", help="skip the armature sensitivity runs")
 
 
-def _parse_list(text: str, kind: str) -> list:
+def _parse_mu(text: str) -> list[float]:
     items = [s.strip() for s in str(text).split(",") if s.strip()]
     if not items:
-        raise ValueError(f"--{kind} needs at least one value")
-    if kind == "objectives":
-        bad = [s for s in items if s not in OBJECTIVE_NAMES]
-        if bad:
-            raise ValueError(f"unknown objective(s) {', '.join(bad)}; choose from j, f, a, d")
-        return items
+        raise ValueError("--mu needs at least one value")
     try:
         values = [float(s) for s in items]
     except ValueError:
-        raise ValueError(f"--{kind} must be numbers, got {text!r}") from None
+        raise ValueError(f"--mu must be numbers, got {text!r}") from None
     if any(not np.isfinite(v) or v < 0 for v in values):
-        raise ValueError(f"--{kind} values must be finite and non-negative")
+        raise ValueError("--mu values must be finite and non-negative")
     return values
+
+
+# ---- the rows of Table III -----------------------------------------------------------------------
+def table_specs(mus: list[float], seeds: int, quick: bool, sander: bool = False) -> list[dict]:
+    """Every run of the table: (row, μ, seed)."""
+    rows: list[dict] = [{"row": OBJECTIVE_NAMES[o], "objective": o} for o in ("j", "f", "a", "d")]
+    if not quick:
+        rows += [
+            {"row": f"W_a from {MIRROR_START_DEG:+.0f}°", "objective": "a", "start_swivel_deg": MIRROR_START_DEG},
+            {"row": "W_j, no shaping", "objective": "j", "shaping": False},
+            {"row": OBJECTIVE_NAMES["planned_a"], "objective": "planned_a"},
+            {"row": OBJECTIVE_NAMES["planned"], "objective": "planned"},
+        ]
+    n_seeds = 1 if quick else max(1, int(seeds))
+    base = {"sander": bool(sander), "start_swivel_deg": 0.0, "shaping": True, "armature_scale": 1.0, "group": "table"}
+    return [{**base, **row, "mu": mu, "seed": s} for row in rows for mu in mus for s in range(n_seeds)]
+
+
+def armature_specs(mu: float = 1.0) -> list[dict]:
+    """Item 6: W_j/W_f/W_a/W_d from the Fig. 6a start at μ = 1 with the armature scaled (×1 is in the table)."""
+    return [
+        {
+            "row": f"{OBJECTIVE_NAMES[o]}, armature ×{scale:g}",
+            "objective": o,
+            "mu": mu,
+            "seed": 0,
+            "sander": False,
+            "start_swivel_deg": 0.0,
+            "shaping": True,
+            "armature_scale": scale,
+            "group": "armature",
+        }
+        for scale in ARMATURE_SCALES
+        if scale != 1.0
+        for o in ("j", "f", "a", "d")
+    ]
 
 
 # ---- one run ------------------------------------------------------------------------------------
 def simulate(spec: dict) -> dict:
-    """Run one polish session and return its metrics and (downsampled) time series."""
+    """Run one polish session and return its metrics and (downsampled) time series.
+
+    spec: objective ("j", "f", "a", "d", "planned", "planned_a"), mu, seed, start_swivel_deg,
+    optional shaping, armature_scale, sander, sensor_cutoff_hz, converge_timeout_s (settle cap),
+    hold_swivel_deg, row, group."""
     from app.session import Session
     from control.coupling import swivel_angle
 
     t_wall = time.perf_counter()
+    objective = str(spec["objective"])
+    plan_cost = PLAN_COST_OF.get(objective)
     scenario = PolishScenario(
-        mu=spec["mu"],
-        sander=spec["sander"],
-        start_swivel_deg=spec["start_swivel_deg"],
-        converge_timeout_s=spec.get("converge_timeout_s", scenario_module.CONVERGE_TIMEOUT_S),
+        mu=float(spec["mu"]),
+        sander=bool(spec.get("sander", False)),
+        start_swivel_deg=float(spec.get("start_swivel_deg", 0.0)),
+        converge_timeout_s=float(spec.get("converge_timeout_s", scenario_module.CONVERGE_TIMEOUT_S)),
+        hold_swivel_deg=spec.get("hold_swivel_deg"),
+        armature_scale=float(spec.get("armature_scale", 1.0)),
+        plan_cost=plan_cost,
     )
-    session = Session(scenario, seed=spec["seed"])
-    session.executor.configure(objective=spec["objective"], shaping=bool(spec.get("shaping", True)))
+    session = Session(scenario, seed=int(spec["seed"]))
+    changes: dict[str, Any] = {"shaping": bool(spec.get("shaping", True))}
+    if plan_cost is None and spec.get("hold_swivel_deg") is None:
+        changes["objective"] = objective
+    session.executor.configure(**changes)
     if spec.get("sensor_cutoff_hz") is not None:
         session.sensor.configure(cutoff_hz=spec["sensor_cutoff_hz"])
     clock = session.environment.clock  # type: ignore[attr-defined]
-    ex = session.executor
+    target = session.target_fn
     q_start = session.world.q.copy()
-    cutoff = spec.get("sensor_cutoff_hz", scenario_module.SENSOR_CUTOFF_HZ)
-    lag_s = 1.0 / (2.0 * np.pi * cutoff) if cutoff and spec.get("shaping", True) else 0.0
-    lag_stiffness = scenario_module.CONTACT_STIFFNESS_N_PER_M * lag_s
-    n_max = int(MAX_SIM_S * 1000)
-    cols = ("t", "force_error", "force_error_true", "W_f", "W_a", "W_d", "segment", "x", "y", "coupled", "lag_damping")
-    rec = {k: np.full(n_max, np.nan) for k in cols}
-    q_converged = None
-    diverged = False
-    fallbacks = 0
-    n = 0
-    for i in range(n_max):
-        r = session.step()
+    cols = ("t", "force_error", "force_error_true", "W_f", "W_a", "W_d", "segment", "swivel", "swivel_plan")
+    rec: dict[str, list[float]] = {k: [] for k in cols}
+    q_converged: list[np.ndarray] = []
+
+    def record(r) -> None:
         sig = r.signals
-        seg = sig["segment"]
-        if q_converged is None and clock.trajectory_start is not None:
-            q_converged = r.q.copy()
-        fallbacks += int(r.fallback)
-        terms = ex.last_terms  # type: ignore[attr-defined]
-        # friction direction from the commanded TCP velocity (friction opposes the motion)
-        v = r.target.velocity[:2]
-        speed = float(np.hypot(v[0], v[1]))
-        coupled = lag_damping = 0.0
-        if terms is not None and speed > 1e-6:
-            fdir = -v / speed
-            coupled = float(terms.P_f[0, :2] @ fdir)  # m/s² per N of friction: <0 pushes into the table
-            # lagged shaping term BᵀA⁻¹F_m^e of [T7]: with the reading τ late, it adds a force
-            # μ (P_d·dir) k τ ż along z, i.e. negative damping (N s/m) when positive
-            lag_damping = float(spec["mu"] * (terms.P_d[0, :2] @ fdir)) * lag_stiffness
-        rec["t"][i] = r.t
-        rec["force_error"][i] = scenario_module.DESIRED_FORCE_N - r.wrench_tcp[2]  # filtered F/T reading
-        rec["force_error_true"][i] = scenario_module.DESIRED_FORCE_N - sig["contact_force_n"]
-        rec["W_f"][i], rec["W_a"][i], rec["W_d"][i] = sig["W_f"], sig["W_a"], sig["W_d"]
-        rec["segment"][i] = seg
-        rec["x"][i], rec["y"][i] = session.dyn.tcp_position_world[:2]
-        rec["coupled"][i] = coupled
-        rec["lag_damping"][i] = lag_damping
-        n = i + 1
-        if session.diverged():
-            diverged = True
-            break
-        if clock.finished(r.t):
-            break
-    for k in cols:
-        rec[k] = rec[k][:n]
-    if q_converged is None:
-        q_converged = session.world.q.copy()
+        if not q_converged and clock.trajectory_start is not None:
+            q_converged.append(r.q.copy())
+        rec["t"].append(r.t)
+        rec["force_error"].append(scenario_module.DESIRED_FORCE_N - r.wrench_tcp[2])  # filtered F/T reading
+        rec["force_error_true"].append(scenario_module.DESIRED_FORCE_N - sig["contact_force_n"])
+        rec["W_f"].append(sig["W_f"])
+        rec["W_a"].append(sig["W_a"])
+        rec["W_d"].append(sig["W_d"])
+        rec["segment"].append(sig["segment"])
+        rec["swivel"].append(sig["swivel_deg"])
+        rec["swivel_plan"].append(target.planned_swivel_deg(r.t) if plan_cost else np.nan)  # type: ignore[attr-defined]
+
+    result_run = session.run(SAFETY_CAP_S, until=lambda r: clock.finished(r.t), record=record)
+    series = {k: np.asarray(v, dtype=float) for k, v in rec.items()}
+    qc = q_converged[0] if q_converged else session.world.q.copy()
     model = session.model
-    traj = (rec["segment"] >= 1) & (rec["segment"] <= N_SEGMENTS)
-    hold = (rec["segment"] == 0) & (rec["t"] >= scenario_module.CONTACT_TIME_S)  # TCP held, posture converging
+    traj = (series["segment"] >= 1) & (series["segment"] <= N_SEGMENTS)
+    posture = posture_figures(session, qc, float(spec["mu"]), bool(spec.get("shaping", True)))
     result: dict[str, Any] = {
-        "group": spec.get("group", "main"),
-        "label": _label(spec, clock.timeout_s),
+        "row": spec.get("row", OBJECTIVE_NAMES.get(objective, objective)),
+        "group": spec.get("group", "table"),
+        "objective": objective,
+        "mu": float(spec["mu"]),
+        "seed": int(spec["seed"]),
+        "start_swivel_deg": float(np.rad2deg(swivel_angle(model, q_start))),
         "shaping": bool(spec.get("shaping", True)),
+        "armature_scale": float(spec.get("armature_scale", 1.0)),
+        "sander": bool(spec.get("sander", False)),
         "sensor_cutoff_hz": spec.get("sensor_cutoff_hz", scenario_module.SENSOR_CUTOFF_HZ),
-        "objective": spec["objective"],
-        "mu": spec["mu"],
-        "sander": spec["sander"],
-        "seed": spec["seed"],
-        "start_swivel_deg": spec["start_swivel_deg"],
-        "converge_timeout_s": clock.timeout_s,
-        "force_error": _stats(rec["force_error"][traj]),
-        "force_error_true_contact": _stats(rec["force_error_true"][traj]),
-        "hold_force_error": _stats(rec["force_error"][hold]),
-        "coupling": {w: _mean_max(rec[w][traj]) for w in ("W_f", "W_a", "W_d")},
-        "posture_change_deg": [float(x) for x in np.rad2deg(q_converged - q_start)],
-        "converged_swivel_deg": float(np.rad2deg(swivel_angle(model, q_converged))),
-        "convergence_time_s": None if clock.trajectory_start is None else float(clock.trajectory_start),
-        "converged_before_timeout": bool(
-            clock.trajectory_start is not None
-            and clock.trajectory_start < scenario_module.CONTACT_TIME_S + clock.timeout_s - 1e-9
-        ),
-        "contact_lost_ms": int(np.sum(rec["force_error_true"][traj] >= scenario_module.DESIRED_FORCE_N)),
-        "qp_fallback_steps": fallbacks,
-        "diverged": diverged,
+        "converged": bool(clock.converged),
+        "convergence_time_s": clock.convergence_time_s,
+        "settle_cap_s": clock.timeout_s,
+        "converged_swivel_deg": float(np.rad2deg(swivel_angle(model, qc))),
+        "posture_change_deg": [float(x) for x in np.rad2deg(qc - q_start)],
+        **posture,
+        "force_error": _stats(series["force_error"][traj]),
+        "force_error_true_contact": _stats(series["force_error_true"][traj]),
+        "contact_lost_ms": int(np.sum(series["force_error_true"][traj] >= scenario_module.DESIRED_FORCE_N)),
+        "run_stop": result_run.stop,
+        "diverged": result_run.stop == "diverged",
         "per_segment": [],
-        "wall_s": 0.0,
+        "q_start": [float(x) for x in q_start],
+        "q_converged": [float(x) for x in qc],
     }
-    result["stable"] = bool(not diverged and result["contact_lost_ms"] == 0 and np.any(traj))
-    for seg_k in range(1, N_SEGMENTS + 1):
-        sel = rec["segment"] == seg_k
-        segment: dict[str, Any] = {
-            "segment": seg_k,
-            "direction": "retract (-X)" if seg_k % 2 == 1 else "stretch (+X)",
-            "force_error": _stats(rec["force_error"][sel]),
-            "contact_lost_ms": int(np.sum(rec["force_error_true"][sel] >= scenario_module.DESIRED_FORCE_N)),
-            "W_f_mean": _mean(rec["W_f"][sel]),
-            "W_a_mean": _mean(rec["W_a"][sel]),
-            "W_d_mean": _mean(rec["W_d"][sel]),
-            "coupled_response_mps2_per_n": _mean(rec["coupled"][sel]),
-            "lag_negative_damping_ns_per_m": _mean(rec["lag_damping"][sel]),
+    result["stable"] = bool(result_run.stop != "diverged" and result["contact_lost_ms"] == 0 and np.any(traj))
+    if plan_cost is not None:
+        plan = scenario.plan
+        assert plan is not None
+        result["plan_cost"] = plan.total_cost
+        result["plan_cost_kind"] = plan_cost
+        sel = traj | ((series["segment"] == 0) & (series["t"] >= scenario_module.CONTACT_TIME_S + plan.transfer_s))
+        err = np.abs((series["swivel"][sel] - series["swivel_plan"][sel] + 180.0) % 360.0 - 180.0)
+        result["plan_tracking_deg"] = {"mean": _mean(err), "max": float(np.max(err)) if err.size else None}
+        result["plan"] = {
+            "t": [float(x) for x in plan.t],
+            "swivel_deg": [float(x) for x in np.rad2deg(plan.swivel_rad)],
+            "transfer_s": plan.transfer_s,
         }
-        result["per_segment"].append(segment)
-    result["q_start"] = [float(x) for x in q_start]
-    result["q_converged"] = [float(x) for x in q_converged]
+    for seg_k in range(1, N_SEGMENTS + 1):
+        sel = series["segment"] == seg_k
+        result["per_segment"].append(
+            {
+                "segment": seg_k,
+                "direction": "retract (-X)" if seg_k % 2 == 1 else "stretch (+X)",
+                "force_error": _stats(series["force_error"][sel]),
+                "contact_lost_ms": int(np.sum(series["force_error_true"][sel] >= scenario_module.DESIRED_FORCE_N)),
+            }
+        )
     result["wall_s"] = time.perf_counter() - t_wall
-    series = {k: v[::RECORD_EVERY].astype(np.float32) for k, v in rec.items()}
-    return {"result": result, "series": series}
+    down = {k: v[::RECORD_EVERY].astype(np.float32) for k, v in series.items()}
+    return {"result": result, "series": down}
 
 
-def _label(spec: dict, timeout_s: float) -> str:
-    """Short unique name of a run, e.g. "a_mu1_sw+30_to15" or "j_mu1_noshaping"."""
-    label = f"{spec['objective']}_mu{spec['mu']:g}_sw{spec['start_swivel_deg']:+.0f}_to{timeout_s:.0f}"
-    if not spec.get("shaping", True):
-        label += "_noshaping"
-    if spec.get("sensor_cutoff_hz") is not None:
-        label += f"_lpf{spec['sensor_cutoff_hz']:g}"
-    return label
+def posture_figures(session, q: np.ndarray, mu: float, shaping: bool) -> dict:
+    """W_f/W_a/W_d, P_f·f̂ and P_d·f̂ (stretching and retracting friction directions) and the
+    force-loop margin at a posture (the trajectory start)."""
+    from dataclasses import replace
+
+    from control.coupling import POLISH_SUBSPACES, coupling_values, terms_of
+    from control.margin import ContactLoop, posture_margin
+
+    dyn = session.model.compute(q, np.zeros(len(q)))
+    terms = terms_of(dyn, POLISH_SUBSPACES)
+    W = coupling_values(terms)
+    dirs = {"stretch": scenario_module.friction_direction(1.5 * scenario_module.SEGMENT_DURATION_S)}
+    dirs["retract"] = scenario_module.friction_direction(0.5 * scenario_module.SEGMENT_DURATION_S)
+    gains = replace(session.executor.gains, shaping=shaping)  # type: ignore[attr-defined]
+    loop = ContactLoop(
+        stiffness_n_per_m=scenario_module.CONTACT_STIFFNESS_N_PER_M,
+        mu=mu,
+        normal_force_n=scenario_module.DESIRED_FORCE_N,
+        speed_m_s=peak_speed(),
+        v_eps_m_per_s=session.environment.contact.v_eps_m_per_s,
+        sensor_cutoff_hz=session.sensor.ft.cutoff_hz,
+    )
+    pm = posture_margin(dyn.Lambda, POLISH_SUBSPACES, gains, loop, [dirs["stretch"], dirs["retract"]])
+    return {
+        "W": {"f": W["W_f"], "a": W["W_a"], "d": W["W_d"]},
+        "Pf_fhat": {k: float(terms.P_f[0, :2] @ d) for k, d in dirs.items()},
+        "Pd_fhat": {k: float(terms.P_d[0, :2] @ d) for k, d in dirs.items()},
+        "margin": pm.kd_margin,
+        "margin_detail": {
+            "kd_critical": pm.kd_critical,
+            "kd_critical_stretch": pm.kd_critical_per_direction[0],
+            "kd_critical_retract": pm.kd_critical_per_direction[1],
+            "worst_direction": ("stretch", "retract")[pm.worst_direction],
+            "worst_speed_m_s": pm.worst_speed_m_s,
+        },
+    }
+
+
+def peak_speed() -> float:
+    """Peak TCP speed of a segment (minimum jerk: 1.875 × length / duration)."""
+    return scenario_module.PEAK_SPEED_M_S
 
 
 def _stats(e: np.ndarray) -> dict:
@@ -204,92 +266,170 @@ def _stats(e: np.ndarray) -> dict:
     return {"ma": float(np.mean(np.abs(e))), "ptp": float(np.ptp(e)), "std": float(np.std(e))}
 
 
-def _mean_max(x: np.ndarray) -> dict:
-    if x.size == 0:
-        return {"mean": None, "max": None}
-    return {"mean": float(np.mean(x)), "max": float(np.max(x))}
-
-
 def _mean(x: np.ndarray) -> float | None:
     return float(np.mean(x)) if x.size else None
 
 
+def v_eps_check(v_eps: float, seed: int = 0) -> dict:
+    """Force-error STD (true contact force) of a W_j hold at μ = 1 with friction regularised at v_ε."""
+    from app.session import Session
+
+    session = Session(PolishScenario(mu=1.0), seed=seed)
+    session.executor.configure(objective="j")
+    session.environment.configure(v_eps_m_per_s=v_eps)
+    f: list[float] = []
+    res = session.run(
+        scenario_module.CONTACT_TIME_S + V_EPS_HOLD_S,
+        record=lambda r: f.append(r.signals["contact_force_n"]) if r.t >= scenario_module.CONTACT_TIME_S else None,
+    )
+    arr = np.asarray(f)
+    return {
+        "v_eps_m_per_s": v_eps,
+        "force_std_n": float(np.std(arr)),
+        "lost_ms": int(np.sum(arr <= 0)),
+        "stop": res.stop,
+    }
+
+
+# ---- summary ------------------------------------------------------------------------------------
+def summarise(runs: list[dict]) -> list[dict]:
+    """Mean ± sd per row and μ (the JSON's `summary`)."""
+    keys: list[tuple[str, float]] = []
+    for r in runs:
+        if (r["row"], r["mu"]) not in keys:
+            keys.append((r["row"], r["mu"]))
+    out = []
+    for row, mu in keys:
+        rs = [r for r in runs if r["row"] == row and r["mu"] == mu]
+        entry: dict[str, Any] = {
+            "row": row,
+            "objective": rs[0]["objective"],
+            "mu": mu,
+            "n": len(rs),
+            "converged": sum(r["converged"] for r in rs),
+            "stable": sum(r["stable"] for r in rs),
+            "start_swivel_deg": rs[0]["start_swivel_deg"],
+            "shaping": rs[0]["shaping"],
+        }
+        for k in ("ma", "ptp", "std"):
+            entry[k] = _mean_sd([r["force_error"][k] for r in rs])
+        entry["converged_swivel_deg"] = _mean_sd([r["converged_swivel_deg"] for r in rs])
+        entry["convergence_time_s"] = _mean_sd([r["convergence_time_s"] for r in rs])
+        entry["margin"] = _mean_sd([r["margin"] for r in rs])
+        entry["contact_lost_ms"] = _mean_sd([r["contact_lost_ms"] for r in rs])
+        for w in ("f", "a", "d"):
+            entry[f"W_{w}"] = _mean_sd([r["W"][w] for r in rs])
+        for key in ("Pf_fhat", "Pd_fhat"):
+            for d in ("stretch", "retract"):
+                entry[f"{key}_{d}"] = _mean_sd([r[key][d] for r in rs])
+        if "plan_cost" in rs[0]:
+            entry["plan_cost"] = _mean_sd([r["plan_cost"] for r in rs])
+            entry["plan_tracking_max_deg"] = _mean_sd([r["plan_tracking_deg"]["max"] for r in rs])
+        paper = (
+            PAPER_TABLE_III.get(mu, {}).get(rs[0]["objective"])
+            if row == OBJECTIVE_NAMES.get(rs[0]["objective"])
+            else None
+        )
+        entry["paper"] = None if paper is None or not rs[0]["shaping"] else list(paper)
+        out.append(entry)
+    return out
+
+
+def _mean_sd(values: list) -> dict:
+    xs = np.array([v for v in values if v is not None], dtype=float)
+    if xs.size == 0:
+        return {"mean": None, "sd": None, "n": 0}
+    return {"mean": float(np.mean(xs)), "sd": float(np.std(xs, ddof=1)) if xs.size > 1 else 0.0, "n": int(xs.size)}
+
+
 # ---- the experiment -------------------------------------------------------------------------------
 def run(args: argparse.Namespace) -> int:
-    """Run all (objective, μ) combinations (+ sensitivity), write JSON, figures and the report."""
-    objectives = _parse_list(args.objectives, "objectives")
-    mus = _parse_list(args.mu, "mu")
+    """Run the table (+ armature sensitivity and the v_ε check), write JSON, figures and the report."""
+    mus = _parse_mu(args.mu)
+    if args.seeds < 1:
+        raise ValueError("--seeds must be at least 1")
     jobs = max(1, int(args.jobs))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    base = {"sander": bool(args.sander), "seed": int(args.seed), "start_swivel_deg": 0.0}
-    specs = [{**base, "group": "main", "objective": o, "mu": m} for m in mus for o in objectives]
-    mu_hi = max(mus)
-    if not args.no_sensitivity and "a" in objectives:
-        specs += [
-            {**base, "group": "sensitivity", "objective": "a", "mu": mu_hi, "start_swivel_deg": sw}
-            for sw in SENSITIVITY_SWIVELS_DEG
-        ]
-        specs.append(
-            {**base, "group": "sensitivity", "objective": "a", "mu": mu_hi, "converge_timeout_s": LONG_CONVERGE_S}
-        )
-    if not args.no_diagnostics and "j" in objectives:
-        # why W_j fails at high friction: the same run without inertia shaping, and without sensor lag
-        specs.append({**base, "group": "diagnostic", "objective": "j", "mu": mu_hi, "shaping": False})
-        specs.append({**base, "group": "diagnostic", "objective": "j", "mu": mu_hi, "sensor_cutoff_hz": 0.0})
+    quick = bool(args.quick)
+    specs = table_specs(mus, args.seeds, quick, bool(args.sander))
+    if not quick and not args.no_armature:
+        specs += armature_specs(max(mus))
     t0 = time.perf_counter()
-    outputs: list[dict | None] = [None] * len(specs)
     print(f"polish: {len(specs)} runs on {jobs} process(es)", file=sys.stderr, flush=True)
-    if jobs == 1:
-        for i, spec in enumerate(specs):
-            outputs[i] = simulate(spec)
-            _progress(i, len(specs), outputs[i], t0)
-    else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = {pool.submit(simulate, spec): i for i, spec in enumerate(specs)}
-            done = 0
-            for fut in as_completed(futures):
-                i = futures[fut]
-                outputs[i] = fut.result()
-                _progress(done, len(specs), outputs[i], t0)
-                done += 1
-    results = [o["result"] for o in outputs if o is not None]
-    series = [o["series"] for o in outputs if o is not None]
-    main = [r for r in results if r["group"] == "main"]
-    sensitivity = [r for r in results if r["group"] == "sensitivity"]
-    if ("a", mu_hi) in {(r["objective"], r["mu"]) for r in main}:
-        sensitivity += [r for r in main if r["objective"] == "a" and r["mu"] == mu_hi]
-    sensitivity.sort(key=lambda r: (r["start_swivel_deg"], r["converge_timeout_s"]))
-    diagnostics = [r for r in results if r["group"] == "diagnostic"]
+    outputs = _map(simulate, specs, jobs, t0)
+    results = [o["result"] for o in outputs]
+    series = [o["series"] for o in outputs]
+    v_eps = [] if quick else [v_eps_check(v) for v in V_EPS_CHECK_M_PER_S]
 
-    from app.experiments.polish_report import scan_at_start, write_figures, write_report
+    from app.experiments.polish_report import armature_basins, scan_at_start, write_figures, write_report
 
     scan = scan_at_start()
+    table = [r for r in results if r["group"] == "table"]
     doc = {
         "experiment": "polish",
-        "settings": _settings(args, mus, objectives),
+        "settings": _settings(args, mus, quick),
         "paper_table_iii": {
             str(mu): {OBJECTIVE_NAMES[k]: v for k, v in row.items()} for mu, row in PAPER_TABLE_III.items()
         },
-        "runs": main,
-        "sensitivity": sensitivity,
-        "diagnostics": diagnostics,
+        "runs": table,
+        "summary": summarise(table),
+        "armature": {
+            "runs": [r for r in results if r["group"] == "armature"] + [r for r in table if _is_fig6a_start(r, mus)],
+            "basins": armature_basins(ARMATURE_SCALES),
+        },
+        "v_eps": v_eps,
         "swivel_scan": scan["summary"],
-        "wall_s": time.perf_counter() - t0,
     }
+    doc["wall_s"] = time.perf_counter() - t0
     (out / "polish.json").write_text(json.dumps(doc, indent=2))
     np.savez_compressed(
         out / "polish_series.npz",
-        **{f"{r['label']}__{k}": v for r, s in zip(results, series, strict=True) for k, v in s.items()},
+        **{f"{_label(r)}__{k}": v for r, s in zip(results, series, strict=True) for k, v in s.items()},
     )
     write_figures(out, results, series, scan)
     write_report(out, doc)
     if args.json:
         print(json.dumps(doc, indent=2))
     else:
-        print(format_table(main))
+        print(format_table(doc["summary"]))
         print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} in {doc['wall_s']:.0f} s")
     return 0
+
+
+def _is_fig6a_start(r: dict, mus: list[float]) -> bool:
+    return (
+        r["objective"] in ("j", "f", "a", "d")
+        and r["mu"] == max(mus)
+        and r["seed"] == 0
+        and abs(r["start_swivel_deg"]) < 1e-6
+        and r["shaping"]
+    )
+
+
+def _map(fn, specs: list[dict], jobs: int, t0: float) -> list[dict]:
+    outputs: list[dict | None] = [None] * len(specs)
+    if jobs == 1:
+        for i, spec in enumerate(specs):
+            outputs[i] = fn(spec)
+            _progress(i, len(specs), outputs[i], t0)
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = {pool.submit(fn, spec): i for i, spec in enumerate(specs)}
+            for done, fut in enumerate(as_completed(futures)):
+                outputs[futures[fut]] = fut.result()
+                _progress(done, len(specs), outputs[futures[fut]], t0)
+    return [o for o in outputs if o is not None]
+
+
+def _label(r: dict) -> str:
+    """Unique name of a run, e.g. "a_mu1_sw+0_s0" or "j_mu1_sw+0_s0_noshaping_arm0.5"."""
+    label = f"{r['objective']}_mu{r['mu']:g}_sw{r['start_swivel_deg']:+.0f}_s{r['seed']}"
+    if not r["shaping"]:
+        label += "_noshaping"
+    if r["armature_scale"] != 1.0:
+        label += f"_arm{r['armature_scale']:g}"
+    return label
 
 
 def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
@@ -298,46 +438,63 @@ def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
     r = output["result"]
     fe = r["force_error"]
     ma = "-" if fe["ma"] is None else f"{fe['ma']:.1f}/{fe['ptp']:.1f}/{fe['std']:.1f}"
+    conv = f"converged in {r['convergence_time_s']:.1f} s" if r["converged"] else "NOT converged"
     print(
-        f"[{i + 1}/{total}] {r['label']}: "
-        f"force error MA/PTP/STD {ma} N, {'stable' if r['stable'] else 'UNSTABLE'} "
+        f"[{i + 1}/{total}] {_label(r)}: {conv} at {r['converged_swivel_deg']:+.0f}°, "
+        f"MA/PTP/STD {ma} N, margin {r['margin']:+.0f} N s/m, {'stable' if r['stable'] else 'UNSTABLE'} "
         f"({r['wall_s']:.0f} s, total {time.perf_counter() - t0:.0f} s)",
         file=sys.stderr,
         flush=True,
     )
 
 
-def _settings(args: argparse.Namespace, mus: list, objectives: list) -> dict:
+def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
     s = scenario_module
     return {
-        "objectives": objectives,
+        "command": "torquelab experiment polish" + (" --quick" if quick else f" --seeds {args.seeds}"),
+        "quick": quick,
+        "seeds": 1 if quick else int(args.seeds),
+        "jobs": int(args.jobs),
         "mu": mus,
         "sander": bool(args.sander),
-        "seed": int(args.seed),
         "table_height_m": s.TABLE_HEIGHT_M,
         "start_xy_m": list(s.START_XY_M),
         "start_swivel_deg": s.START_SWIVEL_DEG,
         "segment_dx_m": s.SEGMENT_DX_M,
         "segment_dy_m": s.SEGMENT_DY_M,
         "segment_duration_s": s.SEGMENT_DURATION_S,
-        "converge_timeout_s": s.CONVERGE_TIMEOUT_S,
+        "settle": {
+            "speed_tol_rad_s": s.SETTLE_SPEED_RAD_S,
+            "w_rtol": s.SETTLE_W_RTOL,
+            "w_atol": s.SETTLE_W_ATOL,
+            "window_s": s.SETTLE_WINDOW_S,
+            "cap_s": s.CONVERGE_TIMEOUT_S,
+        },
+        "plan": {"sample_s": s.PLAN_SAMPLE_S, "grid_deg": s.PLAN_GRID_DEG, "rate_max_deg_s": s.PLAN_RATE_MAX_DEG_S},
         "friction_v_eps_m_per_s": s.FRICTION_V_EPS_M_PER_S,
         "force_error": "20 N minus the filtered F/T reading along z, over the six segments",
     }
 
 
-def format_table(runs: list[dict]) -> str:
-    """Our Table III beside the paper's, as text."""
-    lines = [f"{'case':6s} {'mu':>5s}   {'MA':>6s} {'PTP':>6s} {'STD':>6s}   paper MA/PTP/STD   stable"]
-    for r in sorted(runs, key=lambda r: (r["mu"], "jfad".index(r["objective"]))):
-        fe = r["force_error"]
-        paper = PAPER_TABLE_III.get(r["mu"], {}).get(r["objective"])
-        ptxt = "-" if paper is None else f"{paper[0]:.1f}/{paper[1]:.1f}/{paper[2]:.1f}"
-        if fe["ma"] is None:
-            lines.append(f"{OBJECTIVE_NAMES[r['objective']]:6s} {r['mu']:5.2f}   (no trajectory)")
-            continue
+def _pm(x: dict, digits: int = 1) -> str:
+    if x["mean"] is None:
+        return "-"
+    return f"{x['mean']:.{digits}f} ± {x['sd']:.{digits}f}"
+
+
+def format_table(summary: list[dict]) -> str:
+    """Our Table III (mean ± sd) beside the paper's, as text."""
+    lines = [
+        f"{'row':22s} {'mu':>5s} {'MA':>12s} {'PTP':>13s} {'STD':>12s}  {'paper':>15s} {'swivel':>8s} "
+        f"{'margin':>8s} conv stable"
+    ]
+    for e in summary:
+        paper = "-" if not e.get("paper") else "/".join(f"{x:.1f}" for x in e["paper"])
+        sw = e["converged_swivel_deg"]["mean"]
+        mg = e["margin"]["mean"]
         lines.append(
-            f"{OBJECTIVE_NAMES[r['objective']]:6s} {r['mu']:5.2f}   {fe['ma']:6.1f} {fe['ptp']:6.1f} {fe['std']:6.1f}"
-            f"   {ptxt:>16s}   {'yes' if r['stable'] else 'no'}"
+            f"{e['row']:22s} {e['mu']:5.2f} {_pm(e['ma']):>12s} {_pm(e['ptp']):>13s} {_pm(e['std']):>12s}  "
+            f"{paper:>15s} {'-' if sw is None else f'{sw:+.0f}°':>8s} {'-' if mg is None else f'{mg:+.0f}':>8s} "
+            f"{e['converged']}/{e['n']} {e['stable']}/{e['n']}"
         )
     return "\n".join(lines)

@@ -1,4 +1,8 @@
-"""Figures and the HTML report of the polish experiment ([T] Figs. 6, 8, 9, Table III)."""
+"""Figures and the HTML report of the polish experiment ([T] Figs. 6, 8, 9, Table III).
+
+Every number and every "matches / does not match" sentence is computed from the run's JSON; a
+sentence whose premise does not hold is not printed.
+"""
 
 from __future__ import annotations
 
@@ -10,28 +14,41 @@ import numpy as np
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
 
-OBJECTIVE_NAMES = {"j": "W_j", "f": "W_f", "a": "W_a", "d": "W_d"}
-COLORS = {"j": "black", "f": "tab:green", "a": "tab:red", "d": "tab:blue"}
-PAPER_FINDINGS = (
-    "With μ = 1.0, W_j and W_f oscillate in the stretching segments (S2, S4, S6) while W_a and W_d stay "
-    "stable; W_a lowers the elbow by about 90°; W_f reaches the smallest own value but not the best force "
-    "tracking; W_d turns the elbow from top to bottom."
+COLORS = {
+    "j": "black",
+    "f": "tab:green",
+    "a": "tab:red",
+    "d": "tab:blue",
+    "planned": "tab:purple",
+    "planned_a": "tab:orange",
+}
+NAMES = {"j": "W_j", "f": "W_f", "a": "W_a", "d": "W_d", "planned": "planned (P_d·f̂)²", "planned_a": "planned W_a"}
+# robots/rizon4s.toml: armature = rotor inertia × gear ratio², neither published for the Rizon 4s
+ROTOR_INERTIA_KG_M2 = (4e-5, 4e-5, 2e-5, 2e-5, 1e-5, 1e-5, 1e-5)  # harmonic-drive motors for 123 / 64 / 39 N m joints
+GEAR_RATIO = 100.0
+MATCH_REL = 0.25  # "matches the paper": within 25 % of its value or 2 sd of our seeds, whichever is larger
+V_EPS_HEAD = (
+    "<h2>Friction regularisation (W_j hold, μ = 1, 3 s)</h2><table><tr><th>v_ε (mm/s)</th>"
+    "<th>contact force STD (N)</th><th>contact lost (ms)</th></tr>"
 )
+PAPER_STABLE_MU1 = {"j": False, "f": False, "a": True, "d": True}  # [T] Fig. 9: W_j/W_f oscillate at μ = 1
 
 
 # ---- swivel scan at the start pose (DESIGN §8) -----------------------------------------------------
-def scan_at_start() -> dict:
-    """W_f, W_a, W_d along the self-motion loop at the polish start pose (Rizon 4s)."""
+def scan_at_start(armature_scale: float = 1.0) -> dict:
+    """W_f, W_a, W_d along the self-motion loop at the polish start pose (Rizon 4s), the basin
+    each gradient flow from the Fig. 6a start reaches, and the W_a ridge between the two basins."""
     import robots
-    from control.coupling import POLISH_SUBSPACES, swivel_scan
+    from control.coupling import POLISH_SUBSPACES, flow_minimum, swivel_scan
     from control.model import RobotModel
 
     robot = robots.load("rizon4s")
+    scenario = PolishScenario(armature_scale=armature_scale)
+    scenario.prepare_robot(robot)
     model = RobotModel(robot.model)
-    q0 = PolishScenario().initial_q(robot)
-    scan = swivel_scan(model, q0, POLISH_SUBSPACES, robot.q_lower, robot.q_upper, step_rad=np.deg2rad(2.0))
-    psi = np.rad2deg(scan.swivel_rad)
-    psi = (psi + 180.0) % 360.0 - 180.0  # report in (−180°, 180°]
+    q0 = scenario.initial_q(robot)
+    scan = swivel_scan(model, q0, POLISH_SUBSPACES, robot.q_lower, robot.q_upper, step_rad=np.deg2rad(1.0))
+    psi = (np.rad2deg(scan.swivel_rad) + 180.0) % 360.0 - 180.0
     order = np.argsort(psi)
     data = {
         "swivel_deg": psi[order],
@@ -40,116 +57,173 @@ def scan_at_start() -> dict:
         "W_d": scan.W_d[order],
         "feasible": scan.within_limits[order],
     }
-    summary: dict = {"closed_loop": bool(scan.closed), "points": len(psi)}
-    feas = data["feasible"]
+    summary: dict = {"closed_loop": bool(scan.closed), "points": len(psi), "armature_scale": armature_scale}
+    start = int(np.argmin(np.abs(data["swivel_deg"])))
     for w in ("W_f", "W_a", "W_d"):
-        vals = np.where(feas, data[w], np.inf)
+        vals = np.where(data["feasible"], data[w], np.inf)
         i = int(np.argmin(vals))
+        reached = flow_minimum(data[w], data["feasible"], start)
         summary[w] = {
-            "at_start": float(scan.__getattribute__(w)[0]),
+            "at_start": float(data[w][start]),
             "feasible_min": float(vals[i]),
             "feasible_min_swivel_deg": float(data["swivel_deg"][i]),
-            "feasible_max": float(np.max(np.where(feas, data[w], -np.inf))),
-            "local_minima_swivel_deg": _local_minima(data["swivel_deg"], data[w], feas),
+            "feasible_max": float(np.max(np.where(data["feasible"], data[w], -np.inf))),
+            "local_minima_swivel_deg": _local_minima(data["swivel_deg"], data[w], data["feasible"]),
+            "flow_from_start_deg": float(data["swivel_deg"][reached]),
+            "flow_from_start_value": float(data[w][reached]),
         }
+    summary["W_a"]["ridge_swivel_deg"] = _ridge(data, start, "W_a")
     return {"data": data, "summary": summary}
 
 
+def _ridge(data: dict, start: int, w: str) -> float | None:
+    """The swivel nearest the start (on either side) from which the flow reaches another basin."""
+    from control.coupling import flow_minimum
+
+    home = flow_minimum(data[w], data["feasible"], start)
+    k = len(data[w])
+    for off in range(1, k // 2):
+        for i in (start - off, start + off):
+            j = i % k
+            if data["feasible"][j] and abs(flow_minimum(data[w], data["feasible"], j) - home) > 2:
+                prev = (j + (1 if i < start else -1)) % k
+                return float(0.5 * (data["swivel_deg"][j] + data["swivel_deg"][prev]))
+    return None
+
+
 def _local_minima(psi: np.ndarray, w: np.ndarray, feas: np.ndarray) -> list[float]:
+    return [
+        round(float(psi[i]), 1) for i in range(len(w)) if feas[i] and w[i] < w[i - 1] and w[i] < w[(i + 1) % len(w)]
+    ]
+
+
+def armature_basins(scales: tuple[float, ...]) -> list[dict]:
+    """Per armature scale: the swivel each coupling objective's flow reaches from the Fig. 6a start
+    (from the swivel scan) and the W_a ridge."""
     out = []
-    for i in range(len(w)):
-        a, b = w[i - 1], w[(i + 1) % len(w)]
-        if feas[i] and w[i] < a and w[i] < b:
-            out.append(round(float(psi[i]), 1))
+    for scale in scales:
+        s = scan_at_start(scale)["summary"]
+        out.append(
+            {
+                "armature_scale": scale,
+                **{f"{w}_flow_deg": s[w]["flow_from_start_deg"] for w in ("W_f", "W_a", "W_d")},
+                "W_a_ridge_deg": s["W_a"]["ridge_swivel_deg"],
+            }
+        )
     return out
 
 
 # ---- figures ------------------------------------------------------------------------------------
 def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict) -> None:
-    """fig6_postures.png, fig8_coupling.png, fig9_force_error.png, swivel_scan.png."""
+    """fig9_force_error.png, fig8_coupling.png, fig6_postures.png, swivel_scan.png, planned_path.png."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    main = [(r, s) for r, s in zip(results, series, strict=True) if r["group"] == "main"]
+    main = [
+        (r, s)
+        for r, s in zip(results, series, strict=True)
+        if r["group"] == "table" and r["seed"] == 0 and r["shaping"] and abs(r["start_swivel_deg"]) < 1e-6
+    ]
     mus = sorted({r["mu"] for r, _ in main})
 
-    # Fig. 8: coupling objectives during the runs
     fig, axes = plt.subplots(3, len(mus), figsize=(6 * len(mus), 7.5), squeeze=False, sharex=True)
     for col, mu in enumerate(mus):
         for r, s in main:
-            if r["mu"] != mu:
-                continue
-            t, sel = _trajectory_time(s)
-            for row, w in enumerate(("W_f", "W_a", "W_d")):
-                axes[row][col].plot(
-                    t, s[w][sel], color=COLORS[r["objective"]], lw=1.0, label=OBJECTIVE_NAMES[r["objective"]]
-                )
+            if r["mu"] == mu:
+                t, sel = _trajectory_time(s)
+                for row, w in enumerate(("W_f", "W_a", "W_d")):
+                    axes[row][col].plot(t, s[w][sel], color=COLORS[r["objective"]], lw=1.0, label=NAMES[r["objective"]])
         for row, w in enumerate(("W_f", "W_a", "W_d")):
-            ax = axes[row][col]
-            _shade_segments(ax)
-            ax.set_ylabel(w)
-            if w == "W_a":
-                ax.set_yscale("log")  # W_a spans two decades between postures
-            if row == 0:
-                ax.set_title(f"coupling objectives, μ = {mu:g}")
+            _shade_segments(axes[row][col])
+            axes[row][col].set_ylabel(w)
+            axes[row][col].set_yscale("log")
+        axes[0][col].set_title(f"coupling objectives, μ = {mu:g} (seed 0)")
         axes[-1][col].set_xlabel("time since trajectory start (s)")
-        axes[0][col].legend(title="QP objective", fontsize=8, ncol=4)
+        axes[0][col].legend(fontsize=7, ncol=3)
     fig.tight_layout()
     fig.savefig(out / "fig8_coupling.png", dpi=110)
     plt.close(fig)
 
-    # Fig. 9: force error
     fig, axes = plt.subplots(len(mus), 1, figsize=(10, 3.2 * len(mus)), squeeze=False, sharex=True)
     for row, mu in enumerate(mus):
         ax = axes[row][0]
         for r, s in main:
-            if r["mu"] != mu:
-                continue
-            t, sel = _trajectory_time(s)
-            ax.plot(
-                t, s["force_error"][sel], color=COLORS[r["objective"]], lw=0.8, label=OBJECTIVE_NAMES[r["objective"]]
-            )
+            if r["mu"] == mu:
+                t, sel = _trajectory_time(s)
+                ax.plot(t, s["force_error"][sel], color=COLORS[r["objective"]], lw=0.8, label=NAMES[r["objective"]])
         _shade_segments(ax, labels=True)
         ax.set_ylabel("20 N − filtered force (N)")
-        ax.set_title(f"force error, μ = {mu:g} (grey: stretching segments S2, S4, S6)", pad=14)
-        ax.legend(fontsize=8, ncol=4, loc="lower left")
+        ax.set_title(f"force error, μ = {mu:g}, seed 0 (grey: stretching segments S2, S4, S6)", pad=14)
+        ax.legend(fontsize=7, ncol=3, loc="lower left")
     axes[-1][0].set_xlabel("time since trajectory start (s)")
     fig.tight_layout()
     fig.savefig(out / "fig9_force_error.png", dpi=110)
     plt.close(fig)
 
-    # Fig. 6: postures at the trajectory start (after convergence)
     _posture_figure(out, [r for r, _ in main if r["mu"] == mus[0]], plt)
 
-    # swivel scan with start / converged postures
     d = scan["data"]
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
     for ax, w in zip(axes, ("W_f", "W_a", "W_d"), strict=True):
         ax.plot(d["swivel_deg"], d[w], color="0.3", lw=1.2)
-        infeasible = ~d["feasible"]
-        ax.fill_between(d["swivel_deg"], 0, 1, where=infeasible, transform=ax.get_xaxis_transform(), color="0.85", lw=0)
+        ax.fill_between(d["swivel_deg"], 0, 1, where=~d["feasible"], transform=ax.get_xaxis_transform(), color="0.85")
         ax.axvline(0.0, color="k", ls="--", lw=0.8)
         for r in results:
-            if r["group"] == "diagnostic":
+            if r["group"] != "table" or r["objective"] not in ("f", "a", "d") or f"W_{r['objective']}" != w:
                 continue
-            marker = "o" if r["group"] == "main" else "^"
             psi = (r["converged_swivel_deg"] + 180.0) % 360.0 - 180.0
+            marker = "o" if abs(r["start_swivel_deg"]) < 1e-6 else "^"
             ax.plot(psi, np.interp(psi, d["swivel_deg"], d[w]), marker, color=COLORS[r["objective"]], ms=6, mfc="none")
+        ridge = scan["summary"]["W_a"].get("ridge_swivel_deg")
+        if w == "W_a" and ridge is not None:
+            ax.axvline(ridge, color="tab:red", ls=":", lw=1.0)
         ax.set_ylabel(w)
-    axes[0].set_title("coupling along the self-motion loop at the start pose (grey band: outside joint limits)")
-    axes[-1].set_xlabel(
-        "elbow swivel angle (deg, 0 = elbow up = Fig. 6a start; circles: converged, triangles: other starts)"
-    )
+        ax.set_yscale("log")
+    axes[0].set_title("coupling along the self-motion loop at the start pose (grey: outside joint limits)")
+    axes[-1].set_xlabel("swivel (deg; 0 = Fig. 6a start; o: converged from 0°, ^: from −30°; dotted: W_a ridge)")
     fig.tight_layout()
     fig.savefig(out / "swivel_scan.png", dpi=110)
     plt.close(fig)
 
+    planned = [(r, s) for r, s in zip(results, series, strict=True) if "plan" in r and r["seed"] == 0]
+    if planned:
+        _plan_figure(out, planned, plt)
+
+
+def _plan_figure(out: Path, planned: list[tuple[dict, dict]], plt) -> None:
+    """Planned and executed swivel over time, over the planning cost along the trajectory."""
+    import robots
+    from control.model import RobotModel
+
+    robot = robots.load("rizon4s")
+    model = RobotModel(robot.model)
+    fig, axes = plt.subplots(len(planned), 1, figsize=(10, 3.6 * len(planned)), squeeze=False)
+    for ax, (r, s) in zip(axes[:, 0], planned, strict=True):
+        plan = scenario_module.planned_path(robot, model, r["start_swivel_deg"], r["plan_cost_kind"])
+        k = plan.cost_map.shape[0]
+        t_traj = np.arange(k) * scenario_module.PLAN_SAMPLE_S
+        C = np.where(np.isfinite(plan.cost_map), plan.cost_map, np.nan)
+        mesh = ax.pcolormesh(t_traj, np.rad2deg(plan.grid_rad), C.T, shading="nearest", cmap="viridis")
+        fig.colorbar(mesh, ax=ax, label=r["plan_cost_kind"] + " cost")
+        psi = np.rad2deg(np.unwrap(plan.swivel_rad))
+        ax.plot(plan.t, (psi + 180) % 360 - 180, "w-", lw=2, label="planned")
+        t0 = r["convergence_time_s"] + scenario_module.CONTACT_TIME_S
+        sel = s["t"] >= scenario_module.CONTACT_TIME_S
+        ax.plot(s["t"][sel] - t0, s["swivel"][sel], "r--", lw=1.2, label="executed")
+        ax.set_xlim(plan.t[0], t_traj[-1])
+        ax.set_ylabel("swivel (deg)")
+        ax.set_title(f"{NAMES[r['objective']]}, μ = {r['mu']:g}: transfer (t < 0) and trajectory")
+        ax.legend(fontsize=8, loc="upper right")
+    axes[-1][0].set_xlabel("time since trajectory start (s)")
+    fig.tight_layout()
+    fig.savefig(out / "planned_path.png", dpi=110)
+    plt.close(fig)
+
 
 def _trajectory_time(s: dict) -> tuple[np.ndarray, np.ndarray]:
-    seg = s["segment"]
-    sel = seg >= 1
+    sel = s["segment"] >= 1
     if not np.any(sel):
         return np.zeros(0), sel
     t = s["t"][sel]
@@ -162,15 +236,7 @@ def _shade_segments(ax, labels: bool = False) -> None:
         if k % 2 == 1:
             ax.axvspan(k * T, (k + 1) * T, color="0.9", lw=0)
         if labels:
-            ax.text(
-                (k + 0.5) * T,
-                1.0,
-                f"S{k + 1}",
-                transform=ax.get_xaxis_transform(),
-                ha="center",
-                va="bottom",
-                fontsize=8,
-            )
+            ax.text((k + 0.5) * T, 1.0, f"S{k + 1}", transform=ax.get_xaxis_transform(), ha="center", va="bottom")
 
 
 def _posture_figure(out: Path, runs: list[dict], plt) -> None:
@@ -185,17 +251,14 @@ def _posture_figure(out: Path, runs: list[dict], plt) -> None:
     def chain(q: np.ndarray) -> np.ndarray:
         pin.forwardKinematics(model, data, np.asarray(q))
         pin.updateFramePlacements(model, data)
-        pts = [data.oMi[j].translation.copy() for j in range(1, model.njoints)]
-        pts.insert(0, np.zeros(3))
+        pts = [np.zeros(3)] + [data.oMi[j].translation.copy() for j in range(1, model.njoints)]
         pts.append(data.oMf[model.getFrameId("tcp")].translation.copy())
         return np.array(pts)
 
-    runs = sorted(runs, key=lambda r: "jfad".index(r["objective"]))
     fig = plt.figure(figsize=(4.2 * max(len(runs), 1), 4.4))
     for i, r in enumerate(runs):
         ax = fig.add_subplot(1, max(len(runs), 1), i + 1, projection="3d")
-        p0 = chain(np.array(r["q_start"]))
-        p1 = chain(np.array(r["q_converged"]))
+        p0, p1 = chain(np.array(r["q_start"])), chain(np.array(r["q_converged"]))
         ax.plot(p0[:, 0], p0[:, 1], p0[:, 2], "-o", color="0.6", ms=3, lw=2, label="start (Fig. 6a)")
         ax.plot(p1[:, 0], p1[:, 1], p1[:, 2], "-o", color=COLORS[r["objective"]], ms=3, lw=2.5, label="converged")
         xx, yy = np.meshgrid([0.3, 0.8], [-0.35, 0.3])
@@ -204,7 +267,7 @@ def _posture_figure(out: Path, runs: list[dict], plt) -> None:
         ax.set_ylim(-0.45, 0.45)
         ax.set_zlim(0.0, 0.9)
         ax.view_init(elev=20, azim=-60)
-        ax.set_title(f"{OBJECTIVE_NAMES[r['objective']]}: swivel {r['converged_swivel_deg']:+.0f}°", fontsize=10)
+        ax.set_title(f"{NAMES[r['objective']]}: swivel {r['converged_swivel_deg']:+.0f}°", fontsize=10)
         ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(out / "fig6_postures.png", dpi=110)
@@ -212,315 +275,184 @@ def _posture_figure(out: Path, runs: list[dict], plt) -> None:
 
 
 # ---- report ---------------------------------------------------------------------------------------
-def write_report(out: Path, doc: dict) -> None:
-    """report.html: our Table III beside the paper's, findings in words, figures."""
-    runs = doc["runs"]
-    paper = {float(k): v for k, v in doc["paper_table_iii"].items()}
-    rows = []
-    for r in sorted(runs, key=lambda r: (r["mu"], "jfad".index(r["objective"]))):
-        fe = r["force_error"]
-        p = paper.get(r["mu"], {}).get(OBJECTIVE_NAMES[r["objective"]])
-        ours = (
-            "<td colspan=3>no trajectory</td>"
-            if fe["ma"] is None
-            else "".join(f"<td>{fe[k]:.1f}</td>" for k in ("ma", "ptp", "std"))
-        )
-        theirs = "<td colspan=3>-</td>" if p is None else "".join(f"<td>{x:.1f}</td>" for x in p)
-        cp = r["coupling"]
-        rows.append(
-            f"<tr><td>{OBJECTIVE_NAMES[r['objective']]}</td><td>{r['mu']:g}</td>{ours}{theirs}"
-            f"<td>{'yes' if r['stable'] else 'no'}</td><td>{r['contact_lost_ms']}</td>"
-            + "".join(f"<td>{_fmt(cp[w]['mean'])} / {_fmt(cp[w]['max'])}</td>" for w in ("W_f", "W_a", "W_d"))
-            + f"<td>{r['converged_swivel_deg']:+.0f}°</td></tr>"
-        )
-    seg_rows = []
-    for r in sorted(runs, key=lambda r: (r["mu"], "jfad".index(r["objective"]))):
-        for s in r["per_segment"]:
-            fe = s["force_error"]
-            if fe["ma"] is None:
-                continue
-            seg_rows.append(
-                f"<tr><td>{OBJECTIVE_NAMES[r['objective']]}</td><td>{r['mu']:g}</td>"
-                f"<td>S{s['segment']} {s['direction']}</td>"
-                f"<td>{fe['ma']:.1f}</td><td>{fe['ptp']:.1f}</td><td>{fe['std']:.1f}</td><td>{s['contact_lost_ms']}</td>"
-                f"<td>{_fmt(s['coupled_response_mps2_per_n'], 3)}</td>"
-                f"<td>{_fmt(s['lag_negative_damping_ns_per_m'], 0)}</td></tr>"
-            )
-    sens_rows = []
-    for r in doc["sensitivity"]:
-        fe = r["force_error"]
-        ftxt = "-" if fe["ma"] is None else f"{fe['ma']:.1f} / {fe['ptp']:.1f} / {fe['std']:.1f}"
-        sens_rows.append(
-            f"<tr><td>{r['start_swivel_deg']:+.0f}°</td><td>{r['converge_timeout_s']:.0f} s</td>"
-            f"<td>{_fmt(r['convergence_time_s'], 1)} s</td><td>{r['converged_swivel_deg']:+.0f}°</td>"
-            f"<td>{_fmt(r['coupling']['W_a']['mean'])}</td>"
-            f"<td>{_fmt(max(sg['lag_negative_damping_ns_per_m'] or 0.0 for sg in r['per_segment']), 0)}</td>"
-            f"<td>{ftxt}</td>"
-            f"<td>{'yes' if r['stable'] else 'no'}</td></tr>"
-        )
-    findings = "".join(f"<li>{html.escape(s)}</li>" for s in findings_in_words(doc))
-    diag_rows = []
-    for r in doc.get("diagnostics", []):
-        fe = r["force_error"]
-        what = (
-            "no inertia shaping (Λ̂x = Λx)"
-            if not r["shaping"]
-            else f"sensor low-pass off (cutoff {r['sensor_cutoff_hz']:g})"
-        )
-        ftxt = "-" if fe["ma"] is None else f"{fe['ma']:.1f} / {fe['ptp']:.1f} / {fe['std']:.1f}"
-        diag_rows.append(
-            f"<tr><td>{OBJECTIVE_NAMES[r['objective']]}</td><td>{r['mu']:g}</td><td>{html.escape(what)}</td>"
-            f"<td>{ftxt}</td><td>{'yes' if r['stable'] else 'no'}</td><td>{r['contact_lost_ms']}</td></tr>"
-        )
-    diag_html = (
-        "<table><tr><th>case</th><th>μ</th><th>change</th><th>MA / PTP / STD (N)</th><th>stable</th>"
-        "<th>contact lost (ms)</th></tr>" + "".join(diag_rows) + "</table>"
-        if diag_rows
-        else ""
-    )
-    discussion_html = "".join(f"<p>{html.escape(p)}</p>" for p in discussion(doc))
-    s = doc["settings"]
-    scan = doc["swivel_scan"]
-    scan_txt = ", ".join(
-        f"{w}: {scan[w]['at_start']:.2f} at the start, feasible minimum {scan[w]['feasible_min']:.2f} at "
-        f"{scan[w]['feasible_min_swivel_deg']:+.0f}° (local minima at {scan[w]['local_minima_swivel_deg']})"
-        for w in ("W_f", "W_a", "W_d")
-    )
-    page = f"""<!doctype html>
-<html><head><meta charset="utf-8"><title>torquelab — polish experiment</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}}
-table{{border-collapse:collapse;margin:1em 0}}td,th{{border:1px solid #bbb;padding:3px 7px;text-align:right}}
-th{{background:#eee}}img{{max-width:100%}}</style></head><body>
-<h1>Polishing with nullspace coupling optimization — simulation study of [T] §IV-B</h1>
-<p>Rizon 4s model, 1 kHz, table contact 30 000 N/m with Coulomb friction (regularised below
-{s["friction_v_eps_m_per_s"] * 1000:.0f} mm/s), F/T noise 5 N² + 2 N at 1 Hz, 25 Hz low-pass; Table II gains;
-start elbow up (swivel 0°) with the tool {s["table_height_m"]:.2f} m above the base; six segments of
-{s["segment_dx_m"]:.2f} m in X and {s["segment_dy_m"]:.2f} m in Y, {s["segment_duration_s"]:.1f} s each.
-Force error = {html.escape(s["force_error"])}. Seed {s["seed"]}{", electric sander on" if s["sander"] else ""}.</p>
-<h2>Table III — force error (N): ours beside the paper's</h2>
-<table><tr><th>case</th><th>μ</th><th colspan=3>ours MA / PTP / STD</th><th colspan=3>paper MA / PTP / STD</th>
-<th>stable</th><th>contact lost (ms)</th><th>W_f mean / max</th><th>W_a mean / max</th>
-<th>W_d mean / max</th><th>converged swivel</th></tr>
-{"".join(rows)}</table>
-<p>"stable" means the simulation did not diverge and the TCP never left the table during the six segments.</p>
-<h2>What the paper found, and what we find</h2>
-<p><b>Paper:</b> {html.escape(PAPER_FINDINGS)}</p>
-<ul>{findings}</ul>
-<h2>Why: diagnostics and discussion</h2>
-{diag_html}
-{discussion_html}
-<h2>Figures</h2>
-<h3>Fig. 9 — force error</h3><img src="fig9_force_error.png">
-<h3>Fig. 8 — coupling objectives during the runs</h3><img src="fig8_coupling.png">
-<h3>Fig. 6 — postures at the trajectory start</h3><img src="fig6_postures.png">
-<h3>Swivel scan at the start pose</h3><img src="swivel_scan.png">
-<p>{html.escape(scan_txt)}.</p>
-<h2>Per segment</h2>
-<p>"coupled response" is P_f applied to the unit friction direction (−commanded velocity): the TCP
-acceleration along z per newton of friction under the natural inertia (negative = into the table, which
-raises the contact force and with it the friction). "lag damping" is μ·(P_d·friction direction)·k·τ:
-the shaping term BᵀA⁻¹F_m^e of [T7] acts on a friction reading that is τ = 1/(2π·25 Hz) = 6.4 ms late;
-since the friction follows the contact force μk(z_table − z), the late term adds a force proportional to
-the TCP's vertical velocity. Positive values are negative damping, to compare with K_f^d = 200 N s/m.</p>
-<table><tr><th>case</th><th>μ</th><th>segment</th><th>MA</th><th>PTP</th><th>STD</th><th>contact lost (ms)</th>
-<th>coupled response (m/s² per N)</th><th>lag damping (N s/m)</th></tr>{"".join(seg_rows)}</table>
-<h2>Start sensitivity (W_a, μ = {max(s["mu"]):g})</h2>
-<table><tr><th>start swivel</th><th>converge timeout</th><th>trajectory start</th>
-<th>converged swivel</th><th>W_a mean</th><th>lag damping, max (N s/m)</th><th>MA / PTP / STD (N)</th>
-<th>stable</th></tr>
-{"".join(sens_rows)}</table>
-<p>Wall time {doc["wall_s"]:.0f} s.</p>
-</body></html>
-"""
-    (out / "report.html").write_text(page)
+def _pm(x: dict | None, digits: int = 1) -> str:
+    if not x or x.get("mean") is None:
+        return "-"
+    return f"{x['mean']:.{digits}f} ± {x['sd']:.{digits}f}"
 
 
 def _fmt(x, digits: int = 2) -> str:
     return "-" if x is None else f"{x:.{digits}f}"
 
 
+def write_report(out: Path, doc: dict) -> None:
+    """report.html: Table III (mean ± sd) beside the paper's, the computed findings, figures."""
+    s = doc["settings"]
+    rows = []
+    for e in doc["summary"]:
+        paper = e.get("paper")
+        ptxt = "-" if not paper else " / ".join(f"{x:.1f}" for x in paper)
+        rows.append(
+            "<tr>"
+            f"<td>{html.escape(e['row'])}</td><td>{e['mu']:g}</td><td>{_pm(e['ma'])}</td><td>{_pm(e['ptp'])}</td>"
+            f"<td>{_pm(e['std'])}</td><td>{ptxt}</td><td>{e['stable']}/{e['n']}</td>"
+            f"<td>{_pm(e['contact_lost_ms'], 0)}</td>"
+            f"<td>{e['converged']}/{e['n']}</td><td>{_pm(e['convergence_time_s'])}</td>"
+            f"<td>{_pm(e['converged_swivel_deg'], 0)}°</td>"
+            f"<td>{_pm(e['W_f'], 3)}</td><td>{_pm(e['W_a'], 3)}</td><td>{_pm(e['W_d'], 3)}</td>"
+            f"<td>{_pm(e['Pf_fhat_stretch'], 3)}</td><td>{_pm(e['Pf_fhat_retract'], 3)}</td>"
+            f"<td>{_pm(e['Pd_fhat_stretch'], 3)}</td><td>{_pm(e['Pd_fhat_retract'], 3)}</td>"
+            f"<td>{_pm(e['margin'], 0)}</td><td>{_pm(e.get('plan_cost'), 3) if 'plan_cost' in e else '-'}</td></tr>"
+        )
+    findings = "".join(f"<li>{html.escape(t)}</li>" for t in findings_in_words(doc))
+    arm_rows = "".join(
+        f"<tr><td>×{b['armature_scale']:g}</td><td>{_fmt(b['W_f_flow_deg'], 0)}°</td>"
+        f"<td>{_fmt(b['W_a_flow_deg'], 0)}°</td>"
+        f"<td>{_fmt(b['W_d_flow_deg'], 0)}°</td><td>{_fmt(b['W_a_ridge_deg'], 0)}°</td>"
+        + "".join(f"<td>{_arm_ptp(doc, b['armature_scale'], o)}</td>" for o in "jfad")
+        + "</tr>"
+        for b in doc["armature"]["basins"]
+    )
+    arithmetic = ", ".join(
+        f"joint {i + 1}: {j:.0e} × {GEAR_RATIO:.0f}² = {j * GEAR_RATIO**2:.2f}"
+        for i, j in enumerate(ROTOR_INERTIA_KG_M2)
+    )
+    v_rows = "".join(
+        f"<tr><td>{v['v_eps_m_per_s'] * 1e3:g}</td><td>{v['force_std_n']:.2f}</td><td>{v['lost_ms']}</td></tr>"
+        for v in doc.get("v_eps", [])
+    )
+    figs = ["fig9_force_error", "fig8_coupling", "fig6_postures", "swivel_scan"]
+    if (out / "planned_path.png").exists():
+        figs.append("planned_path")
+    page = f"""<!doctype html>
+<html><head><meta charset="utf-8"><title>torquelab — polish experiment</title>
+<style>body{{font-family:sans-serif;max-width:1300px;margin:2em auto;line-height:1.4}}
+table{{border-collapse:collapse;margin:1em 0;font-size:90%}}
+td,th{{border:1px solid #bbb;padding:3px 6px;text-align:right}}
+th{{background:#eee}}img{{max-width:100%}}</style></head><body>
+<h1>Polishing with nullspace coupling optimization — simulation study of [T] §IV-B</h1>
+<p>Run: <code>{html.escape(s["command"])}</code> ({s["seeds"]} seed(s) per cell, {s["jobs"]} process(es), wall time
+{doc["wall_s"]:.0f} s). Rizon 4s model, 1 kHz, table contact 30 000 N/m with Coulomb friction regularised at
+v_ε = {s["friction_v_eps_m_per_s"] * 1000:g} mm/s and integrated implicitly, F/T noise 5 N² + 2 N at 1 Hz,
+25 Hz low-pass; Table II gains; start elbow up (swivel 0°); six segments of {s["segment_dx_m"]:.2f} m in X and
+{s["segment_dy_m"]:.2f} m in Y, {s["segment_duration_s"]:.1f} s each. The settle phase ends when the QP's goal
+nullspace speed stayed below {s["settle"]["speed_tol_rad_s"]:g} rad/s and W changed by less than
+{s["settle"]["w_rtol"]:g}·|W| + {s["settle"]["w_atol"]:g} over the last {s["settle"]["window_s"]:g} s (cap
+{s["settle"]["cap_s"]:g} s). Force error = {html.escape(s["force_error"])}.</p>
+<h2>Table III — force error (N), mean ± sd over seeds, ours beside the paper's</h2>
+<table><tr><th>row</th><th>μ</th><th>MA</th><th>PTP</th><th>STD</th><th>paper MA / PTP / STD</th><th>stable</th>
+<th>contact lost (ms)</th><th>converged</th><th>settle time (s)</th><th>swivel reached</th>
+<th>W_f</th><th>W_a</th><th>W_d</th>
+<th>P_f·f̂ stretch</th><th>P_f·f̂ retract</th><th>P_d·f̂ stretch</th><th>P_d·f̂ retract</th><th>margin (N s/m)</th>
+<th>plan cost</th></tr>
+{"".join(rows)}</table>
+<p>W, P_f·f̂ (m/s² per N) and P_d·f̂ (N per N) at the trajectory start, f̂ the unit friction direction of a
+stretching (S2) and a retracting (S1) segment. "margin" is K_f^d minus the critical K_f^d of the linearised
+force loop (contact stiffness, K_f^p, K_f^d, the 25 Hz sensor lag, the shaping term BᵀA⁻¹, friction, the 1 ms
+step; worst over both directions and the speeds of a segment): negative means the loop is predicted to lose
+contact. "stable": no divergence and the TCP never left the table in the six segments.</p>
+<h2>Findings (computed from this run)</h2>
+<ul>{findings}</ul>
+<h2>Armature sensitivity</h2>
+<p>The Rizon 4s armature is not published; robots/rizon4s.toml sets rotor inertia × gear ratio² with
+a ratio of {GEAR_RATIO:.0f}: {arithmetic} kg m². Basins below are where each gradient flow from the Fig. 6a start
+ends along the swivel scan with the armature scaled (model and simulation alike); PTP is the simulated
+μ = {max(s["mu"]):g} force-error PTP (seed 0) where that run was made.</p>
+<table><tr><th>armature</th><th>W_f flow</th><th>W_a flow</th><th>W_d flow</th><th>W_a ridge</th>
+<th>W_j PTP</th><th>W_f PTP</th><th>W_a PTP</th><th>W_d PTP</th></tr>{arm_rows}</table>
+{V_EPS_HEAD + v_rows + "</table>" if v_rows else ""}
+<h2>Figures</h2>
+{"".join(f'<h3>{f}</h3><img src="{f}.png">' for f in figs)}
+</body></html>
+"""
+    (out / "report.html").write_text(page)
+
+
+def _arm_ptp(doc: dict, scale: float, objective: str) -> str:
+    for r in doc["armature"]["runs"]:
+        if r["armature_scale"] == scale and r["objective"] == objective and r["force_error"]["ptp"] is not None:
+            return f"{r['force_error']['ptp']:.1f} ({r['converged_swivel_deg']:+.0f}°)"
+    return "-"
+
+
 def findings_in_words(doc: dict) -> list[str]:
-    """Sentences comparing our runs with the paper's findings, with numbers."""
-    runs = doc["runs"]
+    """Sentences from this run's numbers only; each is printed only when its premise holds."""
     out: list[str] = []
-    by = {(r["objective"], r["mu"]): r for r in runs}
-    mus = sorted({r["mu"] for r in runs})
-    for mu in mus:
-        stable = [OBJECTIVE_NAMES[o] for o in "jfad" if (o, mu) in by and by[(o, mu)]["stable"]]
-        unstable = [OBJECTIVE_NAMES[o] for o in "jfad" if (o, mu) in by and not by[(o, mu)]["stable"]]
-        ranking = sorted(
-            (r for r in runs if r["mu"] == mu and r["force_error"]["ma"] is not None),
-            key=lambda r: r["force_error"]["ma"],
-        )
-        rank_txt = ", ".join(f"{OBJECTIVE_NAMES[r['objective']]} {r['force_error']['ma']:.1f}" for r in ranking)
+    runs, summary = doc["runs"], doc["summary"]
+    not_conv = [r for r in runs if not r["converged"]]
+    times = [r["convergence_time_s"] for r in runs if r["converged"]]
+    if runs and not not_conv:
         out.append(
-            f"μ = {mu:g}: stable runs {', '.join(stable) or 'none'}; unstable {', '.join(unstable) or 'none'}. "
-            f"Mean absolute force error, best first: {rank_txt} N."
+            f"Every run converged before the {doc['settings']['settle']['cap_s']:g} s cap "
+            f"(longest settle {max(times):.1f} s)."
         )
-        for r in runs:
-            if r["mu"] != mu or r["force_error"]["ma"] is None:
-                continue
-            segs = r["per_segment"]
-            stretch = [
-                s["force_error"]["ptp"] for s in segs if s["segment"] % 2 == 0 and s["force_error"]["ptp"] is not None
-            ]
-            retract = [
-                s["force_error"]["ptp"] for s in segs if s["segment"] % 2 == 1 and s["force_error"]["ptp"] is not None
-            ]
-            if stretch and retract and max(stretch) > 2 * max(retract):
-                out.append(
-                    f"μ = {mu:g}, {OBJECTIVE_NAMES[r['objective']]}: the force error peaks in the stretching segments "
-                    f"(PTP up to {max(stretch):.1f} N vs {max(retract):.1f} N when retracting), "
-                    "as in the paper's Fig. 9."
-                )
-    for mu in mus:
-        if ("a", mu) in by:
-            r = by[("a", mu)]
-            out.append(
-                f"W_a moves the elbow from the elbow-up start (0°) to a swivel of {r['converged_swivel_deg']:+.0f}° "
-                f"(μ = {mu:g}); the paper reports about 90°."
-            )
-            break
-    for mu in mus:
-        cands = [
-            (o, by[(o, mu)]) for o in "jfad" if (o, mu) in by and by[(o, mu)]["coupling"]["W_f"]["mean"] is not None
-        ]
-        if len(cands) >= 2 and ("f", mu) in by:
-            best_wf = min(cands, key=lambda c: c[1]["coupling"]["W_f"]["mean"])[0]
-            best_fe = min(cands, key=lambda c: c[1]["force_error"]["ma"])[0]
-            out.append(
-                f"μ = {mu:g}: the smallest mean W_f is reached by {OBJECTIVE_NAMES[best_wf]}; the best force tracking "
-                f"by {OBJECTIVE_NAMES[best_fe]}."
-            )
-    sens = doc.get("sensitivity", [])
-    if sens:
-        txt = "; ".join(
-            f"start {r['start_swivel_deg']:+.0f}° (timeout {r['converge_timeout_s']:.0f} s) → "
-            f"{r['converged_swivel_deg']:+.0f}°, MA "
-            f"{_fmt(r['force_error']['ma'], 1)} N, {'stable' if r['stable'] else 'unstable'}"
-            for r in sens
-        )
-        out.append(f"Start sensitivity of W_a at μ = {max(mus):g}: {txt}.")
-    return out
-
-
-def discussion(doc: dict) -> list[str]:
-    """Paragraphs that explain the differences to the paper, with this run set's numbers."""
-    runs = doc["runs"]
-    by = {(r["objective"], r["mu"]): r for r in runs}
-    mus = sorted({r["mu"] for r in runs})
-    out: list[str] = []
-    lo = mus[0]
-    rows = [by[(o, lo)] for o in "jfad" if (o, lo) in by and by[(o, lo)]["force_error"]["ma"] is not None]
-    if rows and len(mus) > 1:
-        ma = [r["force_error"]["ma"] for r in rows]
-        true_ma = [r["force_error_true_contact"]["ma"] for r in rows]
+    elif not_conv:
         out.append(
-            f"Low friction (μ = {lo:g}): every objective tracks the force about equally well here "
-            f"(MA {min(ma):.1f}-{max(ma):.1f} N), close to the paper's W_a/W_d rows (1.5-1.6 N) but better than its "
-            f"W_j/W_f rows (2.3-2.5 N). Most of our error is the sensor's own disturbance: the error of the true "
-            f"contact force is only {min(true_ma):.1f}-{max(true_ma):.1f} N MA, so the 1 Hz, 2 N sinusoid and the "
-            "filtered noise in the reading set the floor. The paper's larger W_j/W_f errors at low friction suggest "
-            "some coupling-dependent disturbance in its simulation (e.g. model mismatch) that ours does not have."
+            f"{len(not_conv)} of {len(runs)} runs reached the settle cap without converging: "
+            + ", ".join(f"{r['row']} μ = {r['mu']:g} seed {r['seed']}" for r in not_conv)
+            + "; their rows are not converged postures."
         )
-    hi = mus[-1]
-    unstable = [OBJECTIVE_NAMES[o] for o in "jfad" if (o, hi) in by and not by[(o, hi)]["stable"]]
-    if unstable:
-        r = by.get(("j", hi)) or by[(unstable[0][-1], hi)]
-        segs = r["per_segment"]
-        lost_stretch = sum(s["contact_lost_ms"] for s in segs if s["segment"] % 2 == 0)
-        lost_retract = sum(s["contact_lost_ms"] for s in segs if s["segment"] % 2 == 1)
-        damp_stretch = np.mean([s["lag_negative_damping_ns_per_m"] for s in segs if s["segment"] % 2 == 0])
-        damp_retract = np.mean([s["lag_negative_damping_ns_per_m"] for s in segs if s["segment"] % 2 == 1])
-        coup = np.mean([s["coupled_response_mps2_per_n"] for s in segs if s["segment"] % 2 == 0])
-        out.append(
-            f"High friction (μ = {hi:g}): {', '.join(unstable)} lose contact, mostly while stretching "
-            f"({OBJECTIVE_NAMES[r['objective']]}: {lost_stretch} ms off the table in S2/S4/S6 vs {lost_retract} ms "
-            "in S1/S3/S5) - the paper's pattern. The natural coupling points the same way as in the paper's "
-            f"Fig. 2a: in the stretching segments friction accelerates the TCP into the table "
-            f"(P_f·friction direction = {coup:.3f} m/s² per N). In our simulation the instability comes through "
-            "the inertia-shaping term of [T7], BᵀA⁻¹F_m^e, fed with the 25 Hz low-passed reading: the friction "
-            "follows the contact force, the reading lags it by 6.4 ms, and the late compensation acts on the "
-            f"TCP like a damper of {damp_stretch:.0f} N s/m with the wrong sign when stretching (and "
-            f"{-damp_retract:.0f} N s/m of extra damping when retracting), against K_f^d = 200 N s/m. This is the "
-            "mechanism the paper names in §IV-B (time delay in the force sensing for inertia shaping) and [T8] "
-            "predicts (P_d amplifies sensing disturbances)."
-        )
-    hold_txt = ", ".join(
-        f"{OBJECTIVE_NAMES[o]} {by[(o, hi)]['hold_force_error']['std']:.1f} N"
-        for o in "jfad"
-        if (o, hi) in by and by[(o, hi)].get("hold_force_error", {}).get("std") is not None
-    )
-    if hold_txt and len(mus) > 1:
-        hold_lo = ", ".join(
-            f"{OBJECTIVE_NAMES[o]} {by[(o, lo)]['hold_force_error']['std']:.1f} N"
-            for o in "jfad"
-            if (o, lo) in by and by[(o, lo)].get("hold_force_error", {}).get("std") is not None
-        )
-        out.append(
-            "The same loop acts before the trajectory, while the TCP is held on the table and the posture "
-            f"converges: force-error STD during that phase at μ = {hi:g}: {hold_txt} (μ = {lo:g}: {hold_lo}). "
-            "Micro-vibrations of the TCP slide in both directions, so half of the time the lagged shaping term "
-            "injects energy; this also keeps the joints moving, so at high friction the protocol's 'self-motion "
-            "has stopped' criterion is rarely met and the convergence phase ends at its timeout."
-        )
-    diags = doc.get("diagnostics", [])
-    for d in diags:
-        fe = d["force_error"]
-        if fe["ma"] is None:
+    for e in summary:
+        paper = e.get("paper")
+        if not paper or e["ma"]["mean"] is None:
             continue
-        what = "without inertia shaping" if not d["shaping"] else "with the sensor low-pass removed"
+        verdict = []
+        for name, key, p in (("MA", "ma", paper[0]), ("PTP", "ptp", paper[1]), ("STD", "std", paper[2])):
+            ours, sd = e[key]["mean"], e[key]["sd"]
+            ok = abs(ours - p) <= max(MATCH_REL * p, 2 * sd)
+            verdict.append(f"{name} {ours:.1f} vs {p:.1f} {'matches' if ok else 'does not match'}")
+        out.append(f"{e['row']}, μ = {e['mu']:g}: " + "; ".join(verdict) + f" (within {MATCH_REL:.0%} or 2 sd).")
+    hi = max((e["mu"] for e in summary), default=None)
+    if hi is not None:
+        for o, paper_stable in PAPER_STABLE_MU1.items():
+            e = next((x for x in summary if x["row"] == NAMES[o] and x["mu"] == hi), None)
+            if e is None or hi != 1.0:
+                continue
+            ours_stable = e["stable"] == e["n"]
+            same = ours_stable == paper_stable
+            out.append(
+                f"{NAMES[o]} at μ = 1: {e['stable']}/{e['n']} runs stay on the table; the paper's Fig. 9 has it "
+                f"{'stable' if paper_stable else 'oscillating'} - {'same' if same else 'different'} outcome."
+            )
+    predicted = [(r["margin"] > 0, r["stable"]) for r in runs if r["margin"] is not None]
+    if predicted:
+        agree = sum(p == s for p, s in predicted)
         out.append(
-            f"Diagnostic: {OBJECTIVE_NAMES[d['objective']]} at μ = {d['mu']:g} {what}: MA/PTP/STD "
-            f"{fe['ma']:.1f}/{fe['ptp']:.1f}/{fe['std']:.1f} N, "
-            f"{'stable' if d['stable'] else 'unstable'} ({d['contact_lost_ms']} ms off the table)."
+            f"The force-loop margin's sign predicts stay-on-table vs contact loss for {agree} of {len(predicted)} runs "
+            f"(margin > 0 and stable: {sum(p and s for p, s in predicted)}; margin < 0 and contact lost: "
+            f"{sum((not p) and (not s) for p, s in predicted)})."
         )
-    stable_hi = [by[(o, hi)] for o in "jfad" if (o, hi) in by and by[(o, hi)]["stable"]]
-    for r in stable_hi:
-        segs = r["per_segment"]
-        damp = max(s["lag_negative_damping_ns_per_m"] for s in segs)
-        out.append(
-            f"{OBJECTIVE_NAMES[r['objective']]} at μ = {hi:g} stays on the table: its posture (swivel "
-            f"{r['converged_swivel_deg']:+.0f}°) has a smaller P_d, so the lag term peaks at {damp:.0f} N s/m; the "
-            "natural coupling P_f·friction direction hardly differs from the start posture (see the per-segment "
-            "table), so it is not W_f that decides stability here - which is why minimising W_f does not help "
-            "(as the paper found)."
-        )
-    if ("a", hi) in by and not by[("a", hi)]["stable"]:
-        out.append(
-            "W_a from the elbow-up start did not reach its minimum within the protocol's convergence timeout: along "
-            "the swivel scan W_a falls from 0° towards its minimum, but over a plateau where the gradient flow "
-            "(k0 chosen once by the rule in NullspaceGains) crawls. The sensitivity table shows what happens with "
-            "more time or from other starts; the protocol timeout was not changed to make the table look better."
-        )
-    post = []
-    for o in "fad":
-        if (o, lo) in by:
-            r = by[(o, lo)]
-            post.append(f"{OBJECTIVE_NAMES[o]} {r['converged_swivel_deg']:+.0f}°")
     scan = doc.get("swivel_scan", {})
-    wa_min = scan.get("W_a", {}).get("local_minima_swivel_deg", [])
-    wd_min = scan.get("W_d", {}).get("local_minima_swivel_deg", [])
-    wf = scan.get("W_f", {})
-    start_txt = (
-        f"Postures at the trajectory start (swivel from the elbow-up start, μ = {lo:g}): {', '.join(post)}. "
-        if post
-        else ""
-    )
-    out.append(
-        start_txt
-        + f"Along the self-motion loop W_a has its minima at {wa_min}° and W_d at {wd_min}°, so W_a lowers the "
-        "elbow to the side as the paper describes (about 90° there), while our W_d settles in the same flat-elbow "
-        "region instead of turning the elbow from top to bottom. W_f varies little along the whole loop "
-        f"({wf.get('feasible_min', float('nan')):.3f} to {wf.get('feasible_max', float('nan')):.3f}), so its "
-        "gradient is weak and it moves the posture only a little, while it lets W_a grow (a large task inertia "
-        "makes Λx⁻¹ small). The link inertias of our Rizon 4s model may differ from the authors' model, which "
-        "shifts these minima."
-    )
-    out.append(
-        "Contact model: friction is regularised as μF_n·v/√(v² + v_ε²) with v_ε = 10 mm/s; below v_ε it behaves "
-        "like a viscous damper, so 'sticking' is replaced by slow creep. A smaller v_ε makes the high-friction "
-        "oscillation stronger, not weaker (checked once while building the scenario: static force STD 11.9 N at "
-        "v_ε = 2 mm/s vs 7.5 N at 10 mm/s, W_j, μ = 1.0)."
-    )
+    wa = scan.get("W_a", {})
+    rows_a = [e for e in summary if e["objective"] == "a"]
+    if wa and rows_a:
+        txt = "; ".join(f"{e['row']} (μ = {e['mu']:g}) reaches {_pm(e['converged_swivel_deg'], 0)}°" for e in rows_a)
+        out.append(
+            f"W_a basins: along the scan at the start pose W_a has local minima at {wa['local_minima_swivel_deg']}°, "
+            f"the flow from 0° ends at {wa['flow_from_start_deg']:+.0f}° (W_a {wa['flow_from_start_value']:.3f}), "
+            f"the feasible minimum is at {wa['feasible_min_swivel_deg']:+.0f}° (W_a {wa['feasible_min']:.3f}) "
+            f"and the ridge between the "
+            f"basins at {_fmt(wa.get('ridge_swivel_deg'), 0)}°. {txt}."
+        )
+    for e in summary:
+        if e["mu"] != hi or e["Pd_fhat_stretch"]["mean"] is None:
+            continue
+        out.append(
+            f"{e['row']} at μ = {hi:g}: P_d·f̂ stretch {_pm(e['Pd_fhat_stretch'], 3)}, W_a {_pm(e['W_a'], 3)}, margin "
+            f"{_pm(e['margin'], 0)} N s/m, stable {e['stable']}/{e['n']}."
+        )
+    for e in summary:
+        if "plan_cost" in e:
+            out.append(
+                f"{e['row']}, μ = {e['mu']:g}: plan cost {_pm(e['plan_cost'], 3)}, executed swivel within "
+                f"{_pm(e['plan_tracking_max_deg'], 1)}° (max over the trajectory) of the plan, swivel at the start "
+                f"{_pm(e['converged_swivel_deg'], 0)}°, MA/PTP {_pm(e['ma'])} / {_pm(e['ptp'])} N."
+            )
+    ve = doc.get("v_eps", [])
+    if len(ve) >= 2:
+        out.append(
+            "Friction regularisation (implicit step), W_j hold at μ = 1: contact-force STD "
+            + ", ".join(f"{v['force_std_n']:.2f} N at v_ε = {v['v_eps_m_per_s'] * 1e3:g} mm/s" for v in ve)
+            + "."
+        )
     return out

@@ -26,8 +26,10 @@ from app.sim.contact import TableContact
 from app.sim.disturbances import Sander
 from app.sim.sensor import FTSensor
 from app.sim.world import World
-from control.coupling import move_to_swivel, project_to_pose
+from control.coupling import POLISH_SUBSPACES, move_to_swivel, project_to_pose
 from control.executor import TaskTarget
+from control.gains import MotionForceGains
+from control.margin import ContactLoop, posture_margin
 from control.model import Dynamics, RobotModel
 from control.planner import PLAN_COSTS, Plan, cost_map, loops_along, swivel_of_points
 from control.planner import plan as make_plan
@@ -45,6 +47,7 @@ SEGMENT_DX_M = 0.20  # x between 0.45 and 0.65 m: keeps the elbow clear of full 
 SEGMENT_DY_M = 0.06  # y advances 6 cm per segment: a zig-zag across 0.36 m of table
 SEGMENT_DURATION_S = 2.5  # peak speed 1.875·0.21/2.5 ≈ 0.16 m/s: a hand-polishing pace
 N_SEGMENTS = 6
+PEAK_SPEED_M_S = 1.875 * float(np.hypot(SEGMENT_DX_M, SEGMENT_DY_M)) / SEGMENT_DURATION_S  # minimum-jerk peak
 HOLD_AFTER_S = 0.5  # rest at the end so the last segment's transient is recorded
 
 # ---- phases ---------------------------------------------------------------------------------
@@ -59,6 +62,8 @@ SETTLE_SPEED_RAD_S = (
 SETTLE_W_RTOL = 1e-3  # |W(t) − W(t − 1 s)| ≤ rtol·|W| + atol: W changes < 1.5 % over the trajectory at that rate
 SETTLE_W_ATOL = 1e-6  # absolute floor for W → 0 (W_j, rad²: ‖q − q_d‖ ≈ 1.4 mrad)
 CONVERGE_TIMEOUT_S = 120.0  # safety cap of the settle phase; a run that reaches it is reported as not converged
+LIVE_MARGIN_EVERY_S = 1.0  # the live force-loop margin signal is recomputed once a simulated second
+
 # ---- contact, sensor, disturbance -------------------------------------------------------------
 DESIRED_FORCE_N = 20.0  # Table II
 CONTACT_STIFFNESS_N_PER_M = 30000.0  # [T] §IV-A
@@ -205,6 +210,10 @@ class PolishEnvironment(Environment):
         self._sander_force = np.zeros(3)
         self._world: World | None = None
         self._joints: list[int] = []
+        self.target: PolishTarget | None = None  # set by the scenario once the target exists
+        self.executor: object | None = None  # the executor whose gains the live margin uses
+        self._margin = float("nan")
+        self._margin_at = -np.inf
 
     def apply(self, world: World, t: float) -> dict[str, float]:
         """Contact and sander forces for this step, and the settle progress."""
@@ -236,13 +245,48 @@ class PolishEnvironment(Environment):
             if anchors is not None
             else float("nan")
         )
+        if self._world is not None and t - self._margin_at >= LIVE_MARGIN_EVERY_S:
+            self._margin_at = t
+            self._margin = self.live_margin(t)
+        target = self.target
         return {
             "swivel_deg": swivel,
+            "swivel_plan_deg": target.planned_swivel_deg(t) if target is not None else float("nan"),
+            "margin_kd": self._margin,
             "settle_s": max(t - CONTACT_TIME_S, 0.0) if settling else float(clock.convergence_time_s or 0.0),
             "settle_converged": float("nan") if settling else float(clock.converged),
             "settle_quiet_s": quiet if settling else float("nan"),
             "settle_dW_rel": dw if settling else float("nan"),
         }
+
+    def live_margin(self, t: float) -> float:
+        """Force-loop margin (N s/m, `control.margin`) of the current posture: K_f^d minus the critical
+        K_f^d over the stretching and retracting friction directions, at rest and at the segments'
+        peak speed (a coarse version of the report's, cheap enough for once a second)."""
+        gains = getattr(self.executor, "gains", None)
+        if self._world is None or not isinstance(gains, MotionForceGains):
+            return float("nan")
+        world = self._world
+        J = world.tcp_jacobian()
+        try:
+            Lambda = np.linalg.inv(J @ np.linalg.solve(world.mass_matrix(), J.T))
+        except np.linalg.LinAlgError:
+            return float("nan")
+        loop = ContactLoop(
+            stiffness_n_per_m=self.contact.stiffness_n_per_m,
+            mu=self.contact.mu,
+            normal_force_n=DESIRED_FORCE_N,
+            speed_m_s=PEAK_SPEED_M_S,
+            v_eps_m_per_s=self.contact.v_eps_m_per_s,
+        )
+        dirs = [friction_direction(1.5 * SEGMENT_DURATION_S), friction_direction(0.5 * SEGMENT_DURATION_S)]
+        try:
+            pm = posture_margin(
+                Lambda, POLISH_SUBSPACES, gains, loop, dirs, speeds=(0.0, 0.3 * PEAK_SPEED_M_S, PEAK_SPEED_M_S)
+            )
+        except (ValueError, np.linalg.LinAlgError):
+            return float("nan")
+        return pm.kd_margin
 
     def observe(self, signals: dict[str, float], t: float) -> None:
         """After the controller: feed the clock with the QP's goal nullspace speed and W."""
@@ -340,6 +384,9 @@ class PolishScenario(Scenario):
         self._q0_cache: dict[tuple[str, float], np.ndarray] = {}
         self._clock: PhaseClock | None = None
         self.plan: Plan | None = None
+        self._plan_lead_s = 0.0
+        self._executor: object | None = None
+        self._environment: PolishEnvironment | None = None
 
     @property
     def start_swivel_used_deg(self) -> float:
@@ -356,6 +403,12 @@ class PolishScenario(Scenario):
         """Holding a swivel or following a plan runs the W_j objective [T18] on the target's posture."""
         if self.hold_swivel_deg is not None or self.plan_cost is not None:
             executor.configure(objective="j")  # type: ignore[attr-defined]
+        self._executor = executor
+        if self._environment is not None:
+            self._environment.executor = executor
+        k0_j = getattr(getattr(executor, "nullspace", None), "k0_j", 0.0)
+        # W_j [T18] follows a moving q_d with the lag 1/k0_j: the target leads the plan by that much
+        self._plan_lead_s = 1.0 / k0_j if k0_j > 0 else 0.0
 
     def start_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """TCP position and rotation at the start (2 mm above the table, tool down)."""
@@ -383,7 +436,9 @@ class PolishScenario(Scenario):
         sander = Sander(amplitude_n=SANDER_AMPLITUDE_N, enabled=self.sander)
         # reset() builds the environment and then the target: the target reads this clock.
         self._clock = PhaseClock(timeout_s=self.converge_timeout_s)
-        return PolishEnvironment(contact, sander, self._clock)
+        self._environment = PolishEnvironment(contact, sander, self._clock)
+        self._environment.executor = self._executor
+        return self._environment
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         """F/T sensor of [T] §IV-A (noise off when sensor_noise is False; the filter stays)."""
@@ -402,7 +457,10 @@ class PolishScenario(Scenario):
         if self.plan_cost is not None:
             self.plan = planned_path(robot, model, self.start_swivel_used_deg, self.plan_cost, self.armature_scale)
             clock.earliest_end_s = CONTACT_TIME_S + self.plan.transfer_s
-        return PolishTarget(p0, R0, q_posture, clock, self.plan)
+        target = PolishTarget(p0, R0, q_posture, clock, self.plan, self._plan_lead_s)
+        if self._environment is not None:
+            self._environment.target = target
+        return target
 
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         """The simulated armature follows the (scaled) robot description."""
@@ -471,12 +529,14 @@ class PolishTarget:
         q_posture: np.ndarray,
         clock: PhaseClock,
         plan: Plan | None = None,
+        plan_lead_s: float = 0.0,
     ):
         self.start = np.asarray(start_position, dtype=float)
         self.rotation = rotation
         self.q_posture = q_posture
         self.clock = clock
         self.plan = plan
+        self.plan_lead_s = float(plan_lead_s)
         self.corners = segment_waypoints((float(self.start[0]), float(self.start[1])))
         self.wrench = np.array([0.0, 0.0, DESIRED_FORCE_N, 0.0, 0.0, 0.0])
 
@@ -518,7 +578,10 @@ class PolishTarget:
         trajectory starts, then the trajectory part (linear between plan samples)."""
         assert self.plan is not None
         pt = self.plan.t
-        s = min(max(self.plan_time(t), pt[0]), pt[-1])
+        s = self.plan_time(t) + self.plan_lead_s  # lead by the W_j lag 1/k0_j
+        if self.clock.trajectory_start is None or t < self.clock.trajectory_start:
+            s = min(s, 0.0)  # hold the plan's start until the trajectory starts
+        s = min(max(s, pt[0]), pt[-1])
         i = min(int(np.searchsorted(pt, s, side="right")) - 1, len(pt) - 2)
         w = (s - pt[i]) / (pt[i + 1] - pt[i])
         return (1.0 - w) * self.plan.q[i] + w * self.plan.q[i + 1]
@@ -529,6 +592,18 @@ class PolishTarget:
             return float("nan")
         psi = np.unwrap(self.plan.swivel_rad)
         return float(np.rad2deg(np.interp(self.plan_time(t), self.plan.t, psi)))
+
+
+def settle_now(session) -> object:
+    """Run the settle phase of a polish session unpaced (as fast as the machine allows) until the
+    posture has converged or the cap is reached: `Session.run` with the settle criterion as its
+    `until`. Returns the `RunResult` (stop "until" when the settle phase ended; "done" when it
+    had already ended or there is nothing to settle). For the app's "settle now" action."""
+    clock = getattr(session.environment, "clock", None)
+    if not isinstance(clock, PhaseClock) or clock.trajectory_start is not None:
+        return session.run(steps=0)
+    remaining = CONTACT_TIME_S + clock.timeout_s - session.world.time + 2 * session.world.model.opt.timestep
+    return session.run(max(remaining, 0.0), until=lambda r: clock.trajectory_start is not None)
 
 
 SCENARIO = PolishScenario()

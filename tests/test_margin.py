@@ -1,0 +1,69 @@
+"""The force-loop stability margin (control.margin) against short closed-loop simulations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.experiments.polish import peak_speed
+from app.scenarios import polish as P
+from app.session import Session
+from control.coupling import POLISH_SUBSPACES
+from control.gains import MotionForceGains
+from control.margin import ContactLoop, force_loop_margin, posture_margin, step_matrix
+from control.model import RobotModel
+
+STRETCH = P.friction_direction(1.5 * P.SEGMENT_DURATION_S)
+RETRACT = P.friction_direction(0.5 * P.SEGMENT_DURATION_S)
+
+
+def _lambda(rizon, swivel_deg: float) -> np.ndarray:
+    model = RobotModel(rizon.model)
+    q = P.PolishScenario(hold_swivel_deg=swivel_deg).initial_q(rizon)
+    return model.compute(q, np.zeros(7)).Lambda
+
+
+def test_without_friction_the_loop_is_the_lagged_force_loop_and_the_sign_of_p_d_matters(rizon):
+    """μ = 0: the margin does not depend on the posture's coupling (the K_f^p lag alone sets the
+    critical K_f^d, ≈ 65 N s/m here); with μ = 1 the stretching direction (P_d·f̂ > 0) needs more
+    K_f^d than the retracting one (P_d·f̂ < 0) at the Fig. 6a start."""
+    L = _lambda(rizon, 0.0)
+    crit0 = [
+        force_loop_margin(L, POLISH_SUBSPACES, MotionForceGains(), ContactLoop(mu=0.0), d).kd_critical
+        for d in (STRETCH, RETRACT)
+    ]
+    assert crit0[0] == pytest.approx(crit0[1], abs=1.0) and 30.0 < crit0[0] < 120.0
+    s = force_loop_margin(L, POLISH_SUBSPACES, MotionForceGains(), ContactLoop(mu=1.0), STRETCH)
+    r = force_loop_margin(L, POLISH_SUBSPACES, MotionForceGains(), ContactLoop(mu=1.0), RETRACT)
+    assert s.directional_coupling > 0.5 > -0.5 > r.directional_coupling
+    assert s.kd_critical is not None and r.kd_critical is not None and s.kd_critical > r.kd_critical + 100.0
+    # the step map is the simulation's: a stable map has spectral radius < 1 exactly when rate > 0
+    phi = step_matrix(L, POLISH_SUBSPACES, MotionForceGains(), ContactLoop(mu=1.0), STRETCH)
+    assert phi.shape == (15, 15) and (np.max(np.abs(np.linalg.eigvals(phi))) < 1.0) == (s.rate_per_s > 0)
+
+
+def _loses_contact(swivel_deg: float, kd: float) -> bool:
+    """Hold the posture (W_j on it), press 20 N at μ = 1, then S1 (retract) and S2 (stretch)."""
+    session = Session(P.PolishScenario(mu=1.0, hold_swivel_deg=swivel_deg), seed=0)
+    session.executor.configure(force_kd=kd)
+    clock = session.environment.clock  # type: ignore[attr-defined]
+    lost = []
+    session.run(P.CONTACT_TIME_S + 0.3, record=lambda r: lost.append(r.signals["contact_force_n"] <= 0 and r.t > 0.5))
+    clock.start_now(session.world.time)
+    res = session.run(2 * P.SEGMENT_DURATION_S, record=lambda r: lost.append(r.signals["contact_force_n"] <= 0))
+    return res.stop == "diverged" or any(lost)
+
+
+@pytest.mark.parametrize("swivel_deg", [0.0, -82.3])
+def test_margin_sign_predicts_contact_loss_within_15_percent_of_the_boundary(rizon, swivel_deg):
+    """Sweep K_f^d through the predicted boundary at two postures (the Fig. 6a start, where the
+    stretching segment decides, and the mirror W_a minimum, where the rest at the segment ends
+    decides): 15 % below it the short run loses contact, 15 % above it it stays on the table."""
+    L = _lambda(rizon, swivel_deg)
+    pm = posture_margin(
+        L, POLISH_SUBSPACES, MotionForceGains(), ContactLoop(mu=1.0, speed_m_s=peak_speed()), [STRETCH, RETRACT]
+    )
+    boundary = pm.kd_critical
+    assert 100.0 < boundary < 250.0
+    assert _loses_contact(swivel_deg, 0.85 * boundary)
+    assert not _loses_contact(swivel_deg, 1.15 * boundary)

@@ -1,0 +1,100 @@
+"""The planned nullspace path: dynamic programming over the swivel grid (control.planner)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from control.coupling import POLISH_SUBSPACES, flow_minimum, swivel_angle, swivel_scan
+from control.model import RobotModel
+from control.planner import _grid, cost_map, loops_along, plan, plan_swivel_path
+
+
+def _brute_force(costs, feasible, grid, dt, rate_max, weight):
+    k, m = costs.shape
+    step = grid[1] - grid[0]
+    best = np.inf
+    for path in itertools.product(range(m), repeat=k):
+        if not all(feasible[i, j] for i, j in enumerate(path)):
+            continue
+        total = sum(costs[i, j] * dt for i, j in enumerate(path))
+        ok = True
+        for a, b in itertools.pairwise(path):
+            d = ((b - a + m // 2) % m - m // 2) * step
+            if abs(d) > rate_max * dt + 1e-9:
+                ok = False
+                break
+            total += weight * (d / dt) ** 2 * dt
+        if ok:
+            best = min(best, total)
+    return best
+
+
+def test_dynamic_programme_finds_the_brute_force_optimum_on_the_circle():
+    rng = np.random.default_rng(4)
+    grid = _grid(2 * np.pi / 7)
+    for _ in range(5):
+        costs = rng.uniform(0, 1, size=(4, 7))
+        feasible = rng.uniform(size=(4, 7)) > 0.2
+        feasible[:, 0] = True
+        idx, total = plan_swivel_path(costs, feasible, grid, 1.0, rate_max_rad_s=2 * np.pi / 7 * 1.5, rate_weight=0.05)
+        assert total == pytest.approx(_brute_force(costs, feasible, grid, 1.0, 2 * np.pi / 7 * 1.5, 0.05), rel=1e-12)
+        assert all(feasible[i, j] for i, j in enumerate(idx))
+
+
+def test_plan_leaves_the_local_basin_and_respects_limits_and_rate():
+    """Two basins on the loop: the start sits in the shallow one (minimum 0.5 at +90°), the deep one
+    (0 at −90°) lies across a ridge at 0°... the transfer crosses it; infeasible band at 150–180°."""
+    grid = _grid(np.deg2rad(5.0))
+    deg = np.rad2deg(grid)
+    base = np.where(deg > 0, 0.5 + ((deg - 90) / 90) ** 2, ((deg + 90) / 90) ** 2)
+    costs = np.tile(base, (12, 1))
+    feasible = np.tile(~((deg > 150) | (deg < -170)), (12, 1))
+    start = np.deg2rad(60.0)
+    assert deg[flow_minimum(base, feasible[0], int(np.argmin(abs(deg - 60))))] == pytest.approx(90.0)
+    rate = np.deg2rad(20.0)
+    idx, _ = plan_swivel_path(costs, feasible, grid, 0.5, rate, 1e-4, int(np.argmin(abs(grid - start))), 20)
+    psi = np.rad2deg(grid[idx])
+    assert psi[0] == pytest.approx(60.0) and abs(psi[-1] + 90.0) <= 5.0  # the deep basin
+    steps = np.abs((np.diff(psi) + 180) % 360 - 180)
+    assert np.max(steps) <= 20.0 * 0.5 + 1e-9  # rate bound
+    assert np.all(feasible[0, idx[:20]]) and np.all(feasible[0, idx[20:]])  # never through the band
+
+
+@pytest.fixture(scope="module")
+def start_loops(rizon):
+    from app.scenarios.polish import PolishScenario
+
+    model = RobotModel(rizon.model)
+    scenario = PolishScenario()
+    q0 = scenario.initial_q(rizon)
+    p0, R0 = scenario.start_pose()
+    positions = np.array([p0, p0 + np.array([-0.02, 0.006, 0.0]), p0 + np.array([-0.04, 0.012, 0.0])])
+    loops = loops_along(model, q0, positions, R0, rizon.q_lower, rizon.q_upper, np.deg2rad(4.0))
+    return model, q0, positions, R0, loops
+
+
+def test_planned_w_a_path_reaches_the_global_minimum_the_flow_misses(rizon, start_loops):
+    """From the Fig. 6a start the W_a gradient flow ends near +76° (local minimum); the global one
+    is near −82°. The plan with cost W_a must end in the global basin (within 10°)."""
+    model, q0, positions, _, loops = start_loops
+    scan = swivel_scan(model, q0, POLISH_SUBSPACES, rizon.q_lower, rizon.q_upper, step_rad=np.deg2rad(2.0))
+    local = np.rad2deg(scan.swivel_rad[flow_minimum(scan.W_a, scan.within_limits, 0)])
+    assert 60.0 < local < 90.0
+    costs = cost_map(model, loops, "a")
+    p = plan(loops, costs, 0.5, 0.0, rate_max_rad_s=np.deg2rad(20.0))
+    assert p.swivel_rad[0] == pytest.approx(0.0, abs=1e-9)
+    feasible_min = np.rad2deg(loops.swivel_rad[np.argmin(np.where(loops.feasible[0], costs[0], np.inf))])
+    assert -95.0 < feasible_min < -70.0
+    assert abs(np.rad2deg(p.swivel_rad[-1]) - feasible_min) <= 10.0
+    # every planned posture is at its TCP pose, inside the limits and on its swivel
+    n_tr = len(p.t) - len(positions)
+    for i, q in enumerate(p.q):
+        assert np.all(q >= rizon.q_lower) and np.all(q <= rizon.q_upper)
+        pose = model.frame_pose(q, "tcp")
+        np.testing.assert_allclose(pose.translation, positions[max(i - n_tr, 0)], atol=1e-6)
+        assert swivel_angle(model, q) == pytest.approx(p.swivel_rad[i], abs=1e-4)
+    rates = np.abs(np.diff(np.unwrap(p.swivel_rad))) / 0.5
+    assert np.max(rates) <= np.deg2rad(20.0) + 1e-9
