@@ -70,6 +70,7 @@ class StepView:
     motion_axes: tuple[int, ...] | None = None
     P: Mapping[str, np.ndarray] | None = None  # "P_f", "P_a", "P_d" (n_f, n_m) of this step (Table I)
     limit_zone: np.ndarray | None = None  # (n,) rad: the joint-limit damper's influence distance d_i
+    shaping: bool | None = None  # the step used Λ̂x [T9] (True) or Λx (False); None without a split
     qp_status: str | None = None  # `control.qp` status of the step's QP (or the fallback's reason)
     qp_backend: str | None = None  # "dense" or "osqp"
     qp_fallback: bool = False  # the QP's solution was replaced by a fallback

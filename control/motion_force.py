@@ -152,6 +152,7 @@ class ProjectionExecutor:
             motion_axes=sub.motion_axes,
             P=None if terms is None else {"P_f": terms.P_f, "P_a": terms.P_a, "P_d": terms.P_d},
             limit_zone=np.full(self.n, self.nullspace.damper_influence),
+            shaping=bool(self.gains.shaping),
             qp_status=None if res is None else res.status,
             qp_backend=self.qp_backend if res is None else res.backend,
             qp_fallback=False if res is None else res.fallback,

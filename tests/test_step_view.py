@@ -44,6 +44,7 @@ def test_projection_view_equals_what_the_step_computed(rizon):
     assert view.W["W_d"] == pytest.approx(float(np.sum(terms.P_d**2)), rel=1e-12)
     assert view.force_axes == c.POLISH_SUBSPACES.force_axes and view.motion_axes == c.POLISH_SUBSPACES.motion_axes
     np.testing.assert_array_equal(view.limit_zone, np.full(7, ex.nullspace.damper_influence))
+    assert view.shaping is ex.gains.shaping is True
     res = ex.last_qp
     assert (view.qp_status, view.qp_backend, view.qp_fallback) == (res.status, res.backend, res.fallback)
     assert view.qp_iterations == out.info["qp_iterations"] and view.qp_fallback == bool(out.info["qp_fallback"])

@@ -164,7 +164,7 @@ def _gamma_x(session, view, Lambda: np.ndarray) -> dict:
 
     if view.executor != "projection" or view.force_axes is None:
         return {}
-    shaping = bool(getattr(getattr(session.executor, "gains", None), "shaping", True))
+    shaping = True if view.shaping is None else view.shaping
     try:
         G = gamma_x_matrix(Lambda, Subspaces.from_force_axes(view.force_axes), shaping=shaping)
         summary = gamma_x_summary(G)
