@@ -25,6 +25,7 @@ from control.kernels import (
     coupling_fused,
     gradient_contraction_fused,
     gradient_contraction_reference,
+    inertia_contraction_fused,
 )
 from control.model import Dynamics, RobotModel
 
@@ -519,7 +520,9 @@ def coupling_gradient_direct(
     With ∂W/∂q_k = 2⟨∂Λx_k, G⟩ and ∂Λx_k = −Λx ∂(Λx⁻¹)_k Λx, ∂(Λx⁻¹)_k = ∂J_k X + Xᵀ∂J_kᵀ − Xᵀ∂M_k X
     (X = M⁻¹Jᵀ), the gradient is −2(⟨∂J_k, (H + Hᵀ)Xᵀ⟩ − ⟨∂M_k, X H Xᵀ⟩) with H = Λx G Λx. G has
     rank ≤ n_f, so X H Xᵀ = Σ_c a_c b_cᵀ and each ⟨∂M_k, a bᵀ⟩ = aᵀ ∂(M b)/∂q_k comes from one
-    RNEA-derivative call: n_f calls instead of six.
+    RNEA-derivative call: n_f calls instead of six. On a serial revolute chain both parts run in
+    compiled kernels (`control.kernels`, each tested against its reference: Pinocchio's Hessian and
+    RNEA derivatives).
     """
     import pinocchio as pin
 
@@ -534,10 +537,13 @@ def coupling_gradient_direct(
             P, terms.A_inv, sub.perm, sub.n_m,
         )  # fmt: skip
     term_M = np.zeros(len(dyn.q))
-    for c in range(A_.shape[1]):  # [k] = aᵀ ∂(M b)/∂q_k from RNEA derivatives at q̇ = 0, no gravity
-        dtau_dq = pin.computeRNEADerivatives(
-            model._model_no_gravity, model._data_no_gravity, dyn.q, model._zeros, B_[:, c]
-        )[0]
-        term_M += dtau_dq.T @ A_[:, c]
+    for c in range(A_.shape[1]):  # [k] = aᵀ ∂(M b)/∂q_k
+        if model.revolute_chain:  # compiled, from the chain's kinematics and inertias
+            term_M += inertia_contraction_fused(dyn.q, *model.chain, A_[:, c], B_[:, c])  # type: ignore[call-arg]
+        else:  # RNEA derivatives at q̇ = 0, no gravity
+            dtau_dq = pin.computeRNEADerivatives(
+                model._model_no_gravity, model._data_no_gravity, dyn.q, model._zeros, B_[:, c]
+            )[0]
+            term_M += dtau_dq.T @ A_[:, c]
     pr = P.ravel()
     return float(pr @ pr), -2.0 * (term_J - term_M)

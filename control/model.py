@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from control.kernels import snapshot_fused, snapshot_reference
+from control.kernels import chain_constants, snapshot_fused, snapshot_reference
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -72,6 +72,7 @@ class RobotModel:
             and not model.joints[i].shortname().startswith("JointModelRUB")
             for i in range(1, model.njoints)
         )
+        self.chain = chain_constants(model) if self.revolute_chain else ()  # for the ∂M/∂q kernel
 
     # ---- snapshot -------------------------------------------------------------------------
     def compute(self, q: np.ndarray, dq: np.ndarray) -> Dynamics:

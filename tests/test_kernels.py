@@ -210,3 +210,13 @@ def test_swivel_of_points_equals_swivel_angle(robot):
         pin.forwardKinematics(robot.model, data, q)
         points = [data.oMi[j].translation for j in (2, 4, 6)]
         assert abs(swivel_of_points(*points) - swivel_angle(model, q)) < 1e-12
+
+
+def test_inertia_contraction_kernel_equals_rnea_derivatives(robot):
+    """aᵀ ∂M/∂q_k b from the chain's kinematics and inertias equals Pinocchio's RNEA derivatives."""
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(21)
+    for q in _states(robot, seed=22):
+        a, b = rng.standard_normal(7), rng.standard_normal(7)
+        ref = K.inertia_contraction_reference(model._model_no_gravity, q, a, b)
+        assert _rel(K.inertia_contraction_fused(q, *model.chain, a, b), ref) < RTOL
