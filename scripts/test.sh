@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The test command: bash scripts/test.sh [pytest args]
 # Creates or reuses .venv, installs torquelab with its test extras, makes sure a Chromium is
-# available for the browser tests, then runs ruff, mypy and pytest. Exits non-zero on any failure.
+# available for the browser tests, then runs ruff, mypy, pytest and the wheel smoke test
+# (scripts/wheel_smoke.sh: the built wheel installed in a throw-away venv; only without pytest
+# arguments). Exits non-zero on any failure.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -42,3 +44,7 @@ echo "== mypy"
 echo "== pytest"
 mkdir -p test-artifacts
 .venv/bin/python -m pytest "$@"
+if [ "$#" -eq 0 ]; then  # the full run; with pytest arguments (a subset) the wheel is not built
+    echo "== wheel smoke test"
+    bash scripts/wheel_smoke.sh
+fi
