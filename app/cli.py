@@ -64,18 +64,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    try:
-        from app.server import serve
-    except ImportError:
-        print("torquelab: the web app is not built yet; available now: check, bench, experiment")
-        return 0
+    from app.server import serve
+
     return serve(args)
-
-
-def cmd_experiment(args: argparse.Namespace) -> int:
-    from app.experiments import run_experiment
-
-    return run_experiment(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -86,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     _robot_arg(p)
     p.add_argument("--scenario", default="polish", help="polish, free, limit-drop, mass-drop, compliance")
     p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1, local only)")
-    p.add_argument("--port", type=int, default=8080)
+    p.add_argument("--port", type=int, default=8080, help="TCP port (0: any free port; the URL printed says which)")
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("check", help="cross-check Pinocchio against MuJoCo")

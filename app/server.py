@@ -156,7 +156,9 @@ def serve(args: argparse.Namespace) -> int:
     busy = args.port != 0 and not port_is_free(args.host, args.port)
     print(f"torquelab: starting scenario {scenario!r} …", flush=True)
     app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)
-    if busy or app.port != args.port:
+    if args.port == 0:
+        print(f"torquelab: --port 0: using free port {app.port}", flush=True)
+    elif busy or app.port != args.port:
         print(f"torquelab: port {args.port} is busy; using port {app.port} instead", flush=True)
     print(f"torquelab: open {app.url} in a browser (Ctrl-C to stop)", flush=True)
     if args.host not in ("127.0.0.1", "localhost", "::1"):

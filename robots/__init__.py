@@ -8,7 +8,11 @@ sensible defaults are used (flange = last link, TCP = flange, no armature).
 
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
+import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -92,11 +96,17 @@ def load(name_or_path: str | Path = DEFAULT_ROBOT) -> RobotDescription:
 
 
 def _build(name: str, urdf: Path, sidecar: dict) -> RobotDescription:
-    try:
-        model = pin.buildModelFromUrdf(str(urdf))
-    except (RuntimeError, ValueError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise RobotLoadError(f"cannot parse URDF {urdf}: {first}") from None
+    error = ""
+    with _captured_stderr() as parser_says:
+        try:
+            model = pin.buildModelFromUrdf(str(urdf))
+        except (RuntimeError, ValueError) as exc:
+            error = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    if error:  # the parser's own first complaint says more than Pinocchio's "not a valid URDF model"
+        detail = next((ln.split("Error:", 1)[1].strip() for ln in parser_says if "Error:" in ln), error)
+        raise RobotLoadError(f"cannot parse URDF {urdf}: {detail}")
+    if parser_says:  # warnings of a model that loaded: pass them on
+        print("\n".join(parser_says), file=sys.stderr)
     joint_names = tuple(model.names[1:])
     if model.nv != N_JOINTS:
         raise RobotLoadError(f"{urdf.name} has {model.nv} degrees of freedom; torquelab needs a 7-DOF serial arm")
@@ -170,6 +180,24 @@ def _build(name: str, urdf: Path, sidecar: dict) -> RobotDescription:
         postures=postures,
         link_names=link_names,
     )
+
+
+@contextlib.contextmanager
+def _captured_stderr() -> Iterator[list[str]]:
+    """Collect what native code writes to file descriptor 2 meanwhile (urdfdom prints its parse
+    errors there, before Pinocchio raises): the lines are in the yielded list afterwards."""
+    lines: list[str] = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            lines.extend(ln for ln in tmp.read().decode(errors="replace").splitlines() if ln.strip())
 
 
 def _last_body_frame(model: pin.Model) -> str:

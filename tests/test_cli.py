@@ -53,3 +53,61 @@ def test_check_passes_for_shipped_robots():
     res = run_cli("check", "--samples", "20", "--json")
     assert res.returncode == 0, res.stderr
     assert res.stdout.count('"ok": true') == 2
+
+
+@pytest.mark.parametrize("jobs", ["0", "-2"])
+def test_jobs_below_one_is_refused_in_one_line(jobs, tmp_path):
+    res = run_cli("experiment", "compliance", "--jobs", jobs, "--out", str(tmp_path / "out"))
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 2 and lines == [f"torquelab: error: --jobs must be at least 1, got {jobs}"]
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ('<robot name="x"><link name="a"></robot>', "XML_ERROR_MISMATCHED_ELEMENT"),
+        (
+            '<robot name="x"><link name="a"/><link name="b"/><joint name="j" type="revolute">'
+            '<parent link="a"/><child link="b"/></joint></robot>',
+            "does not specify limits",
+        ),
+        ("not xml at all", "XML_ERROR_PARSING_TEXT"),
+    ],
+)
+def test_a_urdf_that_does_not_parse_gives_one_line_with_its_path_and_no_parser_noise(tmp_path, text, needle):
+    path = tmp_path / "broken.urdf"
+    path.write_text(text)
+    res = run_cli("check", "--urdf", str(path))
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert lines[0].startswith(f"torquelab: error: cannot parse URDF {path.resolve()}") and needle in lines[0]
+
+
+def test_port_zero_serves_on_a_free_port_and_says_which():
+    import signal
+    import urllib.request
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "serve", "--scenario", "free", "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        lines = []
+        for line in proc.stdout:
+            lines.append(line)
+            if "open http://" in line:
+                break
+        text = "".join(lines)
+        port = int(re.search(r"using free port (\d+)", text).group(1))  # type: ignore[union-attr]
+        assert port > 0 and f"open http://127.0.0.1:{port} " in text
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=10) as resp:
+            assert resp.status == 200
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()

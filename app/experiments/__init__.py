@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+from collections.abc import Callable
 
 # experiment name -> module under app.experiments providing `add_arguments(parser)` and `run(args)`
 EXPERIMENTS: dict[str, str] = {
@@ -29,15 +30,22 @@ def add_parsers(sub) -> None:
         ep.add_argument("--json", action="store_true", help="print the results as JSON")
         ep.add_argument("--jobs", type=int, default=1, help="parallel runs over processes")
         module.add_arguments(ep)
-        ep.set_defaults(func=module.run)
+        ep.set_defaults(func=_with_checked_jobs(module.run))
     p.set_defaults(func=lambda args: _no_experiment(p))
+
+
+def _with_checked_jobs(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """`run`, refusing a --jobs below 1 first (ValueError: one line at the command line)."""
+
+    def checked(args: argparse.Namespace) -> int:
+        if args.jobs < 1:
+            raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
+        return run(args)
+
+    return checked
 
 
 def _no_experiment(parser: argparse.ArgumentParser) -> int:
     names = ", ".join(EXPERIMENTS) or "none yet"
     print(f"choose an experiment: {names}")
     return 2
-
-
-def run_experiment(args: argparse.Namespace) -> int:
-    return int(args.func(args) or 0)
