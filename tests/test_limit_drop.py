@@ -83,3 +83,25 @@ def test_a_few_ms_of_torque_delay_make_a_high_lambda_ring_but_not_a_low_one():
     assert low["torque_delay_ms"] == high["torque_delay_ms"] == pytest.approx(5.0)
     assert low["oscillations"] == 0 and low["max_violation"] < 0.0
     assert high["oscillations"] >= 10
+
+
+@pytest.mark.slow
+def test_velocity_limit_excess_is_the_observers_lag_and_fusion_removes_most_of_it():
+    """Lowered velocity limit, feedback on: with the observer alone the excess shrinks as K_I grows
+    (its lag is 1/K_I); fusion, whose sensor feels the payload's m(g − a), exceeds it far less at the
+    default K_I. Each run ends once joint 4 is at rest."""
+    slow = run_drop("proposed", 100.0, 2.0, True, "velocity", 6.0, 50.0, 0, "residual")
+    fast = run_drop("proposed", 100.0, 2.0, True, "velocity", 6.0, 1000.0, 0, "residual")
+    fused = run_drop("proposed", 100.0, 2.0, True, "velocity", 6.0, 50.0, 0, "fusion")
+    lim = slow["dq_limit"]
+    assert slow["max_violation"] > 0.02 * lim  # a visible excess with the slow observer alone
+    assert fast["max_violation"] < 0.2 * slow["max_violation"]
+    assert fused["max_violation"] < 0.2 * slow["max_violation"]
+    for r in (slow, fast, fused):
+        assert r["stop"] == "until" and abs(r["trace_dq"][-1]) < 0.01  # the curve ends at rest
+
+
+def test_a_drop_runs_until_joint_4_has_stopped(drops):
+    on = drops[True]
+    assert on["stop"] == "until" and on["duration_s"] < DURATION
+    assert abs(on["trace_dq"][-1]) < 0.01

@@ -13,7 +13,8 @@ Constants, chosen once from the paper and not tuned afterwards:
   ideal F/T sensor (the drop is about the dampers, not about sensor noise);
 - lowered velocity limit for case (b): 0.5 rad/s on joint 4, about a third of its 1.40 rad/s
   limit, so the velocity damper acts well before the position damper;
-- run length 3 s: the fall takes about 1 s, the rest shows settling or oscillation.
+- run length: until joint 4 has stopped, at most 6 s (`app.experiments.limit_drop`), so that no
+  curve ends mid-motion; the fall takes about 1 s.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ POSTURE_STIFFNESS = 1.0  # 1/s², mc_rtc posture-task default
 POSTURE_DAMPING = 2.0  # 1/s, critical damping for K_p = 1
 OBSERVER_GAIN = 50.0  # 1/s
 LOWERED_VELOCITY_LIMIT = 0.5  # rad/s, case (b)
-DURATION_S = 3.0
+DURATION_S = 6.0  # s: the cap; the experiment stops a drop once joint 4 is at rest
 
 
 class LimitDropScenario(Scenario):
