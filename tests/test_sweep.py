@@ -16,7 +16,7 @@ from app.cli import main
 from app.sweep.grid import cells, parse_grid, parse_item
 from app.sweep.knobs import build_axes
 from app.sweep.report import _cell_summary
-from app.sweep.runner import run_sweep, spread_order
+from app.sweep.runner import coarse_to_fine, run_sweep, spread_order
 from app.sweep.store import CellStore
 
 KILL_FLAG = "TORQUELAB_TEST_SWEEP_KILL"  # file: the cell x = 4 raises SystemExit while it exists
@@ -77,6 +77,8 @@ def test_grid_values_as_linspace_list_or_single():
         (["polish", "--grid", "mu=-0.5"], "non-negative"),
         (["polish", "--grid", "objective=z"], "objective"),
         (["polish", "--grid", "hold_swivel=0,30", "swivel=10"], "drop swivel"),
+        (["mass-drop", "--grid", "payload_mass_error=0.6"], "within ±0.5"),
+        (["mass-drop", "--grid", "controller=magic"], "choose from position"),
         (["juggle", "--grid", "x=1"], "unknown experiment 'juggle'"),
         (["limit-drop", "--grid", "M=2", "--seeds", "0"], "--seeds"),
         (["limit-drop", "--grid", "M=2", "--jobs", "0"], "--jobs"),
@@ -150,6 +152,14 @@ def test_cells_are_submitted_spread_over_the_grid():
     assert order[:4] == [0, 12, 6, 18]
     first_half = order[:12]
     assert min(first_half) == 0 and max(first_half) >= 18  # an early stop still covers the whole axis
+
+
+def test_a_two_axis_grid_is_filled_coarse_to_fine_on_both_axes():
+    points = [{"a": a, "b": b} for a in range(24) for b in range(3)]
+    keys = coarse_to_fine(points)
+    first = [points[i] for i in sorted(range(len(points)), key=keys.__getitem__)[:12]]
+    assert {p["b"] for p in first} == {0, 1, 2}  # every value of the short axis early
+    assert {p["a"] for p in first} == {0, 12, 6, 18}  # and the long axis at quarter steps
 
 
 def test_a_half_written_last_line_is_ignored(tmp_path):

@@ -98,7 +98,9 @@ def _heatmaps(overlay: Callable | None, metric: str, axes: list[Axis], records: 
             for i in range(len(ax_y)):
                 for j in range(len(ax_x)):
                     if np.isfinite(z[i, j]):
-                        ax.text(j, i, f"{z[i, j]:.3g}", ha="center", va="center", fontsize=7, color="w")
+                        light = (z[i, j] - vmin) / (vmax - vmin) > 0.6 if metric != STABLE else True
+                        color = "k" if light else "w"
+                        ax.text(j, i, f"{z[i, j]:.3g}", ha="center", va="center", fontsize=7, color=color)
         for j, i, m in marks:
             if m == "x":
                 ax.plot(j, i, marker="x", color="k", ms=9, mew=2)
@@ -112,7 +114,7 @@ def _heatmaps(overlay: Callable | None, metric: str, axes: list[Axis], records: 
         title = ", ".join(f"{a.name} = {_label(v)}" for a, v in zip(rest, combo, strict=True))
         ax.set_title(title or metric, fontsize=9)
         if overlay is not None:
-            overlay(ax, axes, records)
+            overlay(ax, axes, [r for r in records if tuple(r["params"][a.name] for a in rest) == tuple(combo)])
     for idx in range(len(panels), nrow * ncol):
         grid[idx // ncol][idx % ncol].axis("off")
     if image is not None:

@@ -47,6 +47,24 @@ def spread_order(n: int) -> list[int]:
     return order
 
 
+def coarse_to_fine(points: list[dict]) -> list[tuple]:
+    """A sort key per grid point: coarse points of every axis first, then the finer ones in between.
+
+    On each axis the values are ranked in `spread_order`; a point's level is the coarsest level
+    that contains all its coordinates (level L holds the first 2^L ranks of each axis)."""
+    names = list(points[0]) if points else []
+    axis_rank = {}
+    for name in names:
+        values = list(dict.fromkeys(p[name] for p in points))
+        axis_rank[name] = {values[i]: r for r, i in enumerate(spread_order(len(values)))}
+    keys = []
+    for p in points:
+        ranks = tuple(axis_rank[n][p[n]] for n in names)
+        level = max((r.bit_length() for r in ranks), default=0)
+        keys.append((level, sum(ranks), ranks))
+    return keys
+
+
 def worker_id() -> str:
     """Host and process id of whoever runs this: "host:pid"."""
     return f"{socket.gethostname()}:{os.getpid()}"
@@ -94,10 +112,9 @@ def run_sweep(
     store = CellStore(out / "cells.jsonl")
     code = code_version()
     keyed = [(cell_key(experiment, params, seed), params, seed) for params, seed in cells]
-    points = list(dict.fromkeys(cell_key(experiment, params, 0) for params, _ in cells))
-    rank = {k: r for r, k in enumerate(points[i] for i in spread_order(len(points)))}
-    # submission order: every grid point's first seed before any second seed, points spread out
-    order = sorted(range(len(keyed)), key=lambda i: (keyed[i][2], rank[cell_key(experiment, keyed[i][1], 0)]))
+    spread = coarse_to_fine([p for p, _ in cells])
+    # submission order: every grid point's first seed before any second seed, coarse points first
+    order = sorted(range(len(keyed)), key=lambda i: (keyed[i][2], spread[i]))
     todo = [keyed[i] for i in order if not store.finished(keyed[i][0], retry_failed)]
     result = SweepResult(total=len(keyed), skipped=len(keyed) - len(todo))
     t0 = time.perf_counter()
