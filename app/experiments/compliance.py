@@ -35,32 +35,37 @@ def run_mode(mode: str) -> dict:
     session.reset()
     p0 = session.target_fn(0.0).position.copy()
     q0 = session.world.q
-    steps = round(DURATION_S / session.world.model.opt.timestep)
     cols = ("t", "v", "w", "dq", "disp", "posture", "force", "est")
-    rec = {c: np.empty(steps) for c in cols}
-    for k in range(steps):
-        r = session.step()
+    rec: dict[str, list[float]] = {c: [] for c in cols}
+
+    def record(r) -> None:
         dyn = session.dyn
         twist = dyn.J @ dyn.dq
-        rec["t"][k] = r.t
-        rec["v"][k] = np.linalg.norm(twist[:3])
-        rec["w"][k] = np.linalg.norm(twist[3:])
-        rec["dq"][k] = np.linalg.norm(r.dq)
-        rec["disp"][k] = np.linalg.norm(dyn.tcp_position_world - p0)
-        rec["posture"][k] = np.linalg.norm(r.q - q0)
-        rec["force"][k] = PUSH_N * (r.signals.get("push_tcp", 0.0) + r.signals.get("push_elbow", 0.0))
-        rec["est"][k] = r.signals.get("tau_ext_estimate_norm", 0.0)
+        rec["t"].append(r.t)
+        rec["v"].append(float(np.linalg.norm(twist[:3])))
+        rec["w"].append(float(np.linalg.norm(twist[3:])))
+        rec["dq"].append(float(np.linalg.norm(r.dq)))
+        rec["disp"].append(float(np.linalg.norm(dyn.tcp_position_world - p0)))
+        rec["posture"].append(float(np.linalg.norm(r.q - q0)))
+        rec["force"].append(PUSH_N * (r.signals.get("push_tcp", 0.0) + r.signals.get("push_elbow", 0.0)))
+        rec["est"].append(r.signals.get("tau_ext_estimate_norm", 0.0))
+
+    result = session.run(DURATION_S, record=record)  # a halted run keeps what it ran (stop says why)
+    arr = {c: np.array(v) for c, v in rec.items()}
     phases = {}
     for where, start, end in PUSHES:
-        sel = (rec["t"] >= start) & (rec["t"] < end + 0.5)  # the push and the half second after it
+        sel = (arr["t"] >= start) & (arr["t"] < end + 0.5)  # the push and the half second after it
+        if not sel.any():
+            continue
         phases[where] = {
-            "peak_tcp_speed_m_s": float(rec["v"][sel].max()),
-            "peak_tcp_angular_speed_rad_s": float(rec["w"][sel].max()),
-            "peak_joint_speed_rad_s": float(rec["dq"][sel].max()),
-            "peak_tcp_displacement_mm": 1e3 * float(rec["disp"][sel].max()),
-            "peak_posture_deviation_rad": float(rec["posture"][sel].max()),
+            "peak_tcp_speed_m_s": float(arr["v"][sel].max()),
+            "peak_tcp_angular_speed_rad_s": float(arr["w"][sel].max()),
+            "peak_joint_speed_rad_s": float(arr["dq"][sel].max()),
+            "peak_tcp_displacement_mm": 1e3 * float(arr["disp"][sel].max()),
+            "peak_posture_deviation_rad": float(arr["posture"][sel].max()),
         }
-    return {"mode": mode, "phases": phases, "traces": {c: rec[c][::4].tolist() for c in cols}}
+    traces = {c: arr[c][::4].tolist() for c in cols}
+    return {"mode": mode, "phases": phases, "traces": traces, "stop": result.stop, "reason": result.reason}
 
 
 def _figure(runs: list[dict], out: Path) -> None:
@@ -92,7 +97,7 @@ def _figure(runs: list[dict], out: Path) -> None:
 def findings(runs: list[dict]) -> list[str]:
     """[C] §IV-E's three statements checked against our numbers."""
     by = {r["mode"]: r["phases"] for r in runs}
-    if not all(m in by for m in MODES):
+    if not all(by.get(m) for m in MODES):
         return []
 
     def worst(mode: str, key: str) -> float:
@@ -137,7 +142,15 @@ def run(args: argparse.Namespace) -> int:
         "TCP moved (mm)",
         "posture (rad)",
     ]
-    rows = [[LABELS[m], where, *summary[m][where].values()] for m in MODES for where, _, _ in PUSHES if m in summary]
+    rows = [
+        [LABELS[m], where, *summary[m][where].values()]
+        for m in MODES
+        for where, _, _ in PUSHES
+        if where in summary.get(m, {})
+    ]
+    for r in runs:
+        if r["stop"] != "done":
+            print(f"compliance: the {r['mode']} run ended early: {r['reason']}")
     for r in rows:
         print(f"{r[0]:32s} {r[1]:6s} " + " ".join(f"{x:9.4f}" for x in r[2:]))
     setup = (

@@ -424,7 +424,7 @@ def run(args: argparse.Namespace) -> int:
             r["oscillations"],
             r["peak_torque"],
             r["brake_onset_margin"],
-            f"stopped at {r['duration_s']:.2f} s" if r["stop"] == "until" else f"moving at {r['duration_s']:.2f} s",
+            {"until": "stopped", "done": "moving"}.get(r["stop"], "halted") + f" at {r['duration_s']:.2f} s",
         ]
         for r in runs
     ]
