@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from control.gains import DamperGains
+from control.kernels import acceleration_bounds_fused
 
 NO_BOUND = 1e9  # rad/s², stands for "unbounded" in the QP rows (OSQP treats ≥ 1e30 as inf)
 
@@ -104,7 +105,17 @@ class JointLimitDamper:
         return np.maximum(e_p, e_v)
 
     def bounds(self, q: np.ndarray, dq: np.ndarray) -> AccelerationBounds:
-        """Acceleration bounds lower ≤ q̈ ≤ upper at (q, q̇)."""
+        """Acceleration bounds lower ≤ q̈ ≤ upper at (q, q̇): `bounds_reference` in one compiled call."""
+        g = self.gains
+        lower, upper, crossed = acceleration_bounds_fused(
+            np.asarray(q, dtype=float), np.asarray(dq, dtype=float), self.q_lower, self.q_upper, self.d_s,
+            self.d_i, self.xi, float(self.kp), float(g.lambda_), float(self.velocity_gain), self.dq_limit,
+            self.endless, g.form == "proposed", self.dt, NO_BOUND,
+        )  # fmt: skip
+        return AccelerationBounds(lower, upper, bool(crossed))
+
+    def bounds_reference(self, q: np.ndarray, dq: np.ndarray) -> AccelerationBounds:
+        """Acceleration bounds lower ≤ q̈ ≤ upper at (q, q̇) (numpy; the reference of `bounds`)."""
         n = self.n
         side = np.minimum(self._both_sides(q, dq), NO_BOUND)
         upper = -side[:n]  # ë = −q̈ on the upper side

@@ -699,3 +699,58 @@ def inertia_contraction_fused(q, R_place, p_place, axes, mass, lever, inertia, a
             total += cv0 * h[0] + cv1 * h[1] + cv2 * h[2] + cw0 * h[3] + cw1 * h[4] + cw2 * h[5]
         out[k] = -total
     return out
+
+
+# ==== [C] joint-limit dampers as acceleration bounds [C13-24] =====================================
+@njit(cache=True)
+def _np_max(a, b):
+    """numpy.maximum of two floats (NaN if either is NaN)."""
+    if a != a or b != b:
+        return np.nan
+    return a if a >= b else b
+
+
+@njit(cache=True)
+def acceleration_bounds_fused(
+    q, dq, q_lower, q_upper, d_s, d_i, xi, kp, lam, velocity_gain, dq_limit, endless, proposed, dt, no_bound
+):
+    """Compiled `control.dampers.JointLimitDamper.bounds_reference`: (lower, upper, crossed).
+
+    Per joint and side (upper: e = q⁺ − q, ė = −q̇; lower: e = q − q⁻, ė = q̇): ë_p proposed [C24]
+    −λė − k_p(e − d_s) or classic [C15, C17] −(ė − ė_d)/δt below d_i, ë_v = −g(ė + q̇⁺) [C18, C20],
+    ë ≥ max(ë_p, ë_v) [C19] capped at `no_bound`; crossed rows go to their midpoint."""
+    n = q.shape[0]
+    lower = np.empty(n)
+    upper = np.empty(n)
+    crossed = False
+    for i in range(n):
+        for side in range(2):
+            if side == 0:
+                e, de = q_upper[i] - q[i], -dq[i]
+            else:
+                e, de = q[i] - q_lower[i], dq[i]
+            if endless[i]:
+                e_p = -no_bound
+            elif proposed:
+                e_p = (-lam) * de - kp * (e - d_s[i])  # [C24]
+            else:
+                de_d = (-xi[i]) * (e - d_s[i]) / (d_i[i] - d_s[i])  # [C15]
+                e_p = -(de - de_d) / dt if e < d_i[i] else -no_bound  # [C17]
+            e_v = (-velocity_gain) * (de + dq_limit[i])  # [C18]/[C20]
+            bound = _np_max(e_p, e_v)  # [C19]
+            if bound > no_bound:
+                bound = no_bound
+            if side == 0:
+                upper[i] = -bound
+            else:
+                lower[i] = bound
+    for i in range(n):
+        if lower[i] > upper[i]:
+            crossed = True
+    if crossed:
+        for i in range(n):
+            if lower[i] > upper[i]:
+                mid = 0.5 * (lower[i] + upper[i])
+                lower[i] = mid
+                upper[i] = mid
+    return lower, upper, crossed

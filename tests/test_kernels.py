@@ -220,3 +220,26 @@ def test_inertia_contraction_kernel_equals_rnea_derivatives(robot):
         a, b = rng.standard_normal(7), rng.standard_normal(7)
         ref = K.inertia_contraction_reference(model._model_no_gravity, q, a, b)
         assert _rel(K.inertia_contraction_fused(q, *model.chain, a, b), ref) < RTOL
+
+
+@pytest.mark.parametrize("form", ["proposed", "classic"])
+def test_acceleration_bounds_kernel_equals_numpy_reference(robot, form):
+    """[C13-24] damper bounds, bit for bit, at states inside, near and beyond the limits."""
+    from control.dampers import JointLimitDamper
+    from control.gains import DamperGains
+
+    damper = JointLimitDamper(
+        robot.q_lower, robot.q_upper, robot.dq_max, robot.endless, DamperGains(form=form), dt=1e-3
+    )
+    rng = np.random.default_rng(23)
+    crossed = 0
+    for _ in range(300):
+        edge = np.where(rng.random(7) < 0.5, robot.q_lower, robot.q_upper)
+        q = edge + rng.uniform(-0.3, 0.3, 7)
+        dq = rng.uniform(-3, 3, 7) * robot.dq_max
+        fused, ref = damper.bounds(q, dq), damper.bounds_reference(q, dq)
+        np.testing.assert_array_equal(fused.lower, ref.lower)
+        np.testing.assert_array_equal(fused.upper, ref.upper)
+        assert fused.crossed == ref.crossed
+        crossed += ref.crossed
+    assert 0 < crossed < 300  # both branches exercised
