@@ -119,6 +119,7 @@ class World:
         self._jacp = np.zeros((3, self.model.nv))  # Jacobian buffers (mj_jac* overwrite them)
         self._jacr = np.zeros((3, self.model.nv))
         self._solve_buf = np.zeros((3, self.model.nv))
+        self._warning_counts = self.data.warning.number  # a live view of MjData's warning counters
         self.applied: list[AppliedForce] = []
         self.carried: set[int] = set()  # payload bodies distal to the F/T sensor (their inertia loads it)
         self._acc_valid = False  # MuJoCo's body accelerations (cacc) hold the last step's values
@@ -310,8 +311,8 @@ class World:
         # a dot product is NaN/inf when any element is, and `not <=` is True for NaN: one cheap test
         if not float(qvel @ qvel) <= 1e6 or not math.isfinite(float(qpos @ qpos)):
             return True
-        warnings = data.warning
-        return any(warnings[w].number > 0 for w in _BAD_STATE_WARNINGS)
+        counts = self._warning_counts
+        return any(counts[w] > 0 for w in _BAD_STATE_WARNINGS)
 
     # ---- model quantities for cross-checks --------------------------------------------------
     def mass_matrix(self) -> np.ndarray:
