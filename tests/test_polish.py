@@ -159,3 +159,32 @@ def test_settle_criterion_needs_a_full_quiet_second_and_restarts_on_bad_numbers(
     assert crit.update(0.0, 1.0)
     assert not crit.update(float("nan"), 1.0)
     assert not crit.update(0.0, 1.0)
+
+
+def test_settle_now_ends_the_settle_phase_on_the_criterion_and_the_panel_shows_it():
+    """A W_j hold converges one window after contact (q̂̇n ≈ 0, W_j ≈ 0); settle_now runs until then."""
+    from app.ui.panels.nullspace import _polish_lines
+
+    session = Session(P.PolishScenario(mu=0.25, hold_swivel_deg=0.0), seed=0)
+    assert session.executor.nullspace.objective == "j"  # holding a swivel runs W_j on the start posture
+    clock = session.environment.clock  # type: ignore[attr-defined]
+    res = P.settle_now(session)
+    assert res.stop == "until" and clock.converged
+    assert clock.convergence_time_s == pytest.approx(P.CONVERGE_MIN_S, abs=0.01)
+    sig = session.step().signals
+    assert sig["settle_converged"] == 1.0 and abs(sig["swivel_deg"]) < 0.5
+    assert P.settle_now(session).steps == 0  # nothing left to settle
+    text = _polish_lines({**sig, "margin_kd": 12.0})
+    assert "+12 N s/m" in text and "converged after 1.0 s" in text
+    assert _polish_lines({}) == ""
+
+
+def test_polish_cases_pick_the_mirror_start_or_a_planned_path():
+    from app.variants import make_variant, variant_of
+
+    assert variant_of(P.SCENARIO).options == P.MODES
+    assert make_variant("polish", "mirror start").start_swivel_deg == P.MIRROR_START_DEG
+    assert make_variant("polish", "planned W_a").plan_cost == "a"
+    assert make_variant("polish", "planned (P_d·f̂)²").plan_cost == "directional"
+    with pytest.raises(ValueError, match="unknown polish case"):
+        P.PolishScenario(mode="x")

@@ -37,7 +37,7 @@ OBJECTIVE_NAMES = {
     "planned_a": "planned W_a",
 }
 PLAN_COST_OF = {"planned": "directional", "planned_a": "a"}
-MIRROR_START_DEG = -30.0  # just across the W_a ridge (about −27° from the Fig. 6a start): the other basin
+MIRROR_START_DEG = scenario_module.MIRROR_START_DEG
 DEFAULT_SEEDS = 5
 ARMATURE_SCALES = (0.0, 0.5, 1.0, 2.0)  # item 6: the armature is not published (robots/rizon4s.toml)
 V_EPS_CHECK_M_PER_S = (0.001, 0.002, 0.01)  # friction regularisation re-measured each run (W_j hold, μ = 1)
@@ -55,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--quick", action="store_true", help="1 seed, the 8 paper cells only (W_j/W_f/W_a/W_d × μ): a few-minute look"
     )
     parser.add_argument("--no-armature", action="store_true", help="skip the armature sensitivity runs")
+    parser.add_argument(
+        "--rows", default=None, help=f"only these rows of the table, comma separated ({', '.join(ROW_KEYS)})"
+    )
 
 
 def _parse_mu(text: str) -> list[float]:
@@ -71,16 +74,25 @@ def _parse_mu(text: str) -> list[float]:
 
 
 # ---- the rows of Table III -----------------------------------------------------------------------
-def table_specs(mus: list[float], seeds: int, quick: bool, sander: bool = False) -> list[dict]:
-    """Every run of the table: (row, μ, seed)."""
-    rows: list[dict] = [{"row": OBJECTIVE_NAMES[o], "objective": o} for o in ("j", "f", "a", "d")]
-    if not quick:
-        rows += [
-            {"row": f"W_a from {MIRROR_START_DEG:+.0f}°", "objective": "a", "start_swivel_deg": MIRROR_START_DEG},
-            {"row": "W_j, no shaping", "objective": "j", "shaping": False},
-            {"row": OBJECTIVE_NAMES["planned_a"], "objective": "planned_a"},
-            {"row": OBJECTIVE_NAMES["planned"], "objective": "planned"},
-        ]
+ROWS: dict[str, dict[str, Any]] = {
+    **{o: {"row": OBJECTIVE_NAMES[o], "objective": o} for o in ("j", "f", "a", "d")},
+    "mirror": {"row": f"W_a from {MIRROR_START_DEG:+.0f}°", "objective": "a", "start_swivel_deg": MIRROR_START_DEG},
+    "noshaping": {"row": "W_j, no shaping", "objective": "j", "shaping": False},
+    "planned_a": {"row": OBJECTIVE_NAMES["planned_a"], "objective": "planned_a"},
+    "planned": {"row": OBJECTIVE_NAMES["planned"], "objective": "planned"},
+}
+ROW_KEYS = tuple(ROWS)
+
+
+def table_specs(
+    mus: list[float], seeds: int, quick: bool, sander: bool = False, only: list[str] | None = None
+) -> list[dict]:
+    """Every run of the table: (row, μ, seed); `only` picks rows by key (`ROW_KEYS`)."""
+    keys = list(only) if only else (["j", "f", "a", "d"] if quick else list(ROW_KEYS))
+    bad = [k for k in keys if k not in ROWS]
+    if bad:
+        raise ValueError(f"unknown row(s) {', '.join(bad)}; choose from {', '.join(ROW_KEYS)}")
+    rows = [ROWS[k] for k in keys]
     n_seeds = 1 if quick else max(1, int(seeds))
     base = {"sander": bool(sander), "start_swivel_deg": 0.0, "shaping": True, "armature_scale": 1.0, "group": "table"}
     return [{**base, **row, "mu": mu, "seed": s} for row in rows for mu in mus for s in range(n_seeds)]
@@ -352,7 +364,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     quick = bool(args.quick)
-    specs = table_specs(mus, args.seeds, quick, bool(args.sander))
+    only = [k.strip() for k in args.rows.split(",") if k.strip()] if getattr(args, "rows", None) else None
+    specs = table_specs(mus, args.seeds, quick, bool(args.sander), only)
     if not quick and not args.no_armature:
         specs += armature_specs(max(mus))
     t0 = time.perf_counter()
@@ -451,7 +464,10 @@ def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
 def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
     s = scenario_module
     return {
-        "command": "torquelab experiment polish" + (" --quick" if quick else f" --seeds {args.seeds}"),
+        "command": "torquelab experiment polish"
+        + (" --quick" if quick else f" --seeds {args.seeds}")
+        + (f" --rows {args.rows}" if getattr(args, "rows", None) else "")
+        + f" --mu {','.join(f'{m:g}' for m in mus)}",
         "quick": quick,
         "seeds": 1 if quick else int(args.seeds),
         "jobs": int(args.jobs),

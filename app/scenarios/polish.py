@@ -50,6 +50,11 @@ N_SEGMENTS = 6
 PEAK_SPEED_M_S = 1.875 * float(np.hypot(SEGMENT_DX_M, SEGMENT_DY_M)) / SEGMENT_DURATION_S  # minimum-jerk peak
 HOLD_AFTER_S = 0.5  # rest at the end so the last segment's transient is recorded
 
+MIRROR_START_DEG = -30.0  # just across the W_a ridge (≈ −31° on the scan) from the Fig. 6a start: the other basin
+# The app's cases: the gradient flow of the chosen objective from the Fig. 6a start, the same from the
+# mirror start, or the globally planned swivel path with cost W_a or the directional coupling (P_d·f̂)².
+MODES = ("flow", "mirror start", "planned W_a", "planned (P_d·f̂)²")
+
 # ---- phases ---------------------------------------------------------------------------------
 CONTACT_TIME_S = 1.0  # approach + 20 N settle (force loop settles in ~0.1 s)
 CONVERGE_MIN_S = 1.0  # the posture converges at least this long (one W window)
@@ -361,7 +366,15 @@ class PolishScenario(Scenario):
         hold_swivel_deg: float | None = None,
         armature_scale: float = 1.0,
         plan_cost: str | None = None,
+        mode: str = "flow",
     ):
+        if mode not in MODES:
+            raise ValueError(f"unknown polish case {mode!r}; choose one of {', '.join(MODES)}")
+        self.mode = mode  # the app's "Case": how the posture is chosen (see MODES)
+        if mode == "mirror start":
+            start_swivel_deg = MIRROR_START_DEG
+        elif mode.startswith("planned"):
+            plan_cost = "a" if mode == "planned W_a" else "directional"
         if not np.isfinite(mu) or mu < 0:
             raise ValueError(f"friction coefficient mu must be finite and non-negative, got {mu!r}")
         self.mu = float(mu)

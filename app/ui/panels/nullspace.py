@@ -139,6 +139,31 @@ class NullspacePanel(KnobPanel):
         for name in ("W_j", "W_f", "W_a", "W_d"):
             value = sig.get(name, scene_W.get(name))
             parts.append(f"{name} = {value:.4g}" if value is not None else f"{name} = –")
-        text = "**Live:** " + " · ".join(parts)
+        text = "**Live:** " + " · ".join(parts) + _polish_lines(sig)
         if self.values.content != text:
             self.values.content = text
+
+
+def _polish_lines(sig: dict) -> str:
+    """Settle progress and the force-loop margin (polish preset signals), or "" elsewhere."""
+    out = ""
+    margin = sig.get("margin_kd")
+    if margin is not None and margin == margin:  # not NaN
+        verdict = "stays on the table" if margin > 0 else "predicted to lose contact when sliding"
+        out += f"  \n**Force-loop margin:** {margin:+.0f} N s/m (K_f^d − critical K_f^d; {verdict})"
+    settle = sig.get("settle_s")
+    if settle is not None:
+        converged = sig.get("settle_converged")
+        swivel = sig.get("swivel_deg", float("nan"))
+        if converged is None or converged != converged:  # NaN: still settling
+            out += (
+                f"  \n**Settling:** {settle:.1f} s, swivel {swivel:+.0f}°, q̂̇n quiet "
+                f"{sig.get('settle_quiet_s', 0.0):.1f} s, ΔW/W {sig.get('settle_dW_rel', float('nan')):.1e} per s"
+            )
+        else:
+            state = "converged" if converged else "cap reached, not converged"
+            out += f"  \n**Settle:** {state} after {settle:.1f} s; swivel now {swivel:+.0f}°"
+        plan = sig.get("swivel_plan_deg")
+        if plan is not None and plan == plan:
+            out += f" (planned {plan:+.0f}°)"
+    return out
