@@ -455,9 +455,12 @@ def run(args: argparse.Namespace) -> int:
         items.append(
             f"<li>Posture of the other joints: with feedback they move at most {max(drifts_on) * 1e3:.1f} mrad; "
             f"without feedback up to {max(drifts_off):.2f} rad. As joint 4 turns, the mass loads joint 2 as well, "
-            "which only the soft posture task (K_p = 1) holds; it sags and pulls joint 4 back from its limit. The "
-            "single velocity reversal counted as an 'oscillation' in the no-feedback runs is this sag, not a "
-            "rebound from the damper.</li>"
+            "which only the soft posture task (K_p = 1) holds; it sags and pulls joint 4 back from its limit. "
+            "Velocity reversals of joint 4 without feedback: "
+            + ", ".join(f"{_label(r)}: {r['oscillations']}" for r in runs if not r["feedback"])
+            + f"; {sum(r['stop'] == 'done' for r in runs if not r['feedback'])} of these runs are still moving at "
+            "the cap (the sagging arm swings), so their reversals are the sag's swing, not a rebound from the "
+            "damper.</li>"
         )
     if delayed:
         items.append(
