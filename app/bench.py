@@ -187,7 +187,7 @@ def _tang_session_step(robot):
     from app.session import Session
 
     session = Session(PolishScenario(mu=0.25))
-    session.executor.configure(objective="a")
+    session.set_param("nullspace", "objective", "a")
     session.run(0.3)
     return session.step
 

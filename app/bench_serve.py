@@ -16,7 +16,7 @@ import time
 from dataclasses import fields
 from typing import Any
 
-from app.commands import Configure, Play, Reset, SetTwin
+from app.commands import Play, Reset, SetParam, SetTwin
 from app.server import start_app
 
 CHROMIUM = os.environ.get("TORQUELAB_CHROMIUM", "/usr/bin/chromium")
@@ -68,8 +68,8 @@ def run_serve_bench(
     try:
         toggles = overlays_on(app.visual_settings) if app.visual_settings is not None else []
         preview = _preview_on(app)
-        if "objective" in app.loop.settings.values.get("executor", {}):
-            app.loop.submit(Configure("executor", {"objective": objective}))
+        if "nullspace" in app.loop.settings.groups:
+            app.loop.submit(SetParam("nullspace", "objective", objective))
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
             page = browser.new_page(viewport={"width": 1280, "height": 800})
@@ -112,7 +112,7 @@ def run_serve_bench(
             "scenario": scenario,
             "robot": s1.robot,
             "executor": s1.executor,
-            "objective": app.loop.settings.values.get("executor", {}).get("objective"),
+            "objective": app.loop.settings.values.get("nullspace", {}).get("objective"),
             "overlays_on": toggles,
             "browser_clients": clients,
             "wall_s": wall,

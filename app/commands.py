@@ -73,16 +73,23 @@ class SwitchSession:
 
 
 @dataclass(frozen=True)
-class Configure:
-    """Change settings of one part of the session between two steps.
+class SetParam:
+    """Set one parameter (`control.params`) of the session between two steps: field `field` of group
+    `group` (see `Session.params()`), or only element `index` of a vector field — applied on the
+    loop thread, so two element changes in one frame both land. The group's dataclass validates
+    the value; a refused one changes nothing and is reported to `client_id`."""
 
-    target: "executor", "environment", "sensor", "target", "drag" (`max_force_n`, `stiffness_per_s2`)
-    or "world" (the simulation itself: `torque_delay_ms`).
-    A refused change (ValueError) is reported to `client_id` and leaves everything unchanged.
-    """
+    group: str
+    field: str
+    value: object
+    index: int | None = None
+    client_id: int | None = None
 
-    target: str
-    changes: dict[str, object]
+
+@dataclass(frozen=True)
+class RestoreDefaults:
+    """Every parameter of the preset back to its defaults (overrides forgotten; the run restarts)."""
+
     client_id: int | None = None
 
 
@@ -95,4 +102,6 @@ class SetTwin:
     client_id: int | None = None
 
 
-Command = DragCommand | Play | Pause | StepOnce | Reset | SetSpeed | SwitchSession | Configure | SetTwin
+Command = (
+    DragCommand | Play | Pause | StepOnce | Reset | SetSpeed | SwitchSession | SetParam | RestoreDefaults | SetTwin
+)

@@ -23,11 +23,12 @@ import numpy as np
 
 from app.commands import (
     Command,
-    Configure,
     DragCommand,
     Pause,
     Play,
     Reset,
+    RestoreDefaults,
+    SetParam,
     SetSpeed,
     SetTwin,
     StepOnce,
@@ -35,17 +36,17 @@ from app.commands import (
 )
 from app.executors import EXECUTORS
 from app.scenarios import Scenario
-from app.session import DRAG_FIELDS, RunResult, Session, StepRecord
-from app.settings import finite_number, settings_of
+from app.session import RunResult, Session, StepRecord
+from app.settings import finite_number, plain
 from app.steplog import StepLog
 from app.twin import Twin
 from app.variants import make_variant
+from control.params import ParamError, ParamGroup
 
 SPEED_RANGE = (0.1, 1.0)
 MAX_SINGLE_STEP = 10_000  # steps one StepOnce may ask for
 RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
-SETTINGS_TARGETS = ("executor", "environment", "sensor", "drag", "target", "world")
-RESET_TARGETS = ("environment", "sensor", "target")  # rebuilt by Session.reset: replayed after it
+KEPT_ON_PRESET_SWITCH = ("drag",)  # parameter groups a new preset keeps from the old one
 
 
 @dataclass(frozen=True)
@@ -60,23 +61,21 @@ class Notice:
 
 @dataclass(frozen=True)
 class Settings:
-    """Current tunables per target ("executor", "environment", "sensor", "drag"...); `version` grows."""
+    """The session's parameter groups in force (`Session.params()`, frozen); `version` grows."""
 
     version: int
-    values: dict[str, dict[str, Any]]
+    groups: dict[str, ParamGroup]
+
+    @property
+    def values(self) -> dict[str, dict[str, Any]]:
+        """Group → field → value as plain data (for exports and tests)."""
+        return {name: group.values() for name, group in self.groups.items()}
 
 
-@dataclass(frozen=True)
-class Override:
-    """One accepted change of one setting, replayed after a reset or a rebuild."""
-
-    target: str
-    key: str
-    value: Any
-
-    def label(self) -> str:
-        """How a notice names it."""
-        return f"{self.target} {self.key} = {self.value!r}"
+def label(o: SetParam) -> str:
+    """How a notice names an override: "damper.lambda_ = 300.0", "posture_task.compliance[3] = 1.0"."""
+    index = "" if o.index is None else f"[{o.index}]"
+    return f"{o.group}.{o.field}{index} = {o.value!r}"
 
 
 class Lab:
@@ -89,17 +88,15 @@ class Lab:
         executor: str | None = None,
         seed: int = 0,
         log_seconds: float = 60.0,
-        settings_reader: Any = None,
     ):
         self.seed = seed
         self.robot_choice = robot or ""  # "" = the scenario's default robot
         self.session = Session(scenario, robot=robot or None, executor=executor or None, seed=seed)
         self.dt = float(self.session.world.model.opt.timestep)
         self._log_seconds = log_seconds
-        self._settings_reader = settings_reader  # Session -> {target: {name: value}}, or None
         self.log = StepLog(self.session.robot.nq, capacity=round(log_seconds / self.dt))
         self.twin: Twin | None = None  # a second session in lockstep with another objective (app.twin)
-        self.overrides: list[Override] = []  # accepted changes, oldest first
+        self.overrides: list[SetParam] = []  # accepted parameter changes, oldest first
         self._healthy = 0  # overrides[:_healthy] were all in force while the simulation ran healthy
         self._steps_since_change = 0  # steps run without a halt since the last override
         self.running = False
@@ -158,8 +155,10 @@ class Lab:
             self._set_speed(cmd.factor)
         elif isinstance(cmd, SwitchSession):
             self._switch(cmd)
-        elif isinstance(cmd, Configure):
-            self._configure(cmd)
+        elif isinstance(cmd, SetParam):
+            self._set_param(cmd)
+        elif isinstance(cmd, RestoreDefaults):
+            self._restore_defaults()
         elif isinstance(cmd, SetTwin):
             self._set_twin(cmd.objective)
         else:
@@ -220,10 +219,10 @@ class Lab:
             self.halted = ""
             self.running = self._resume_after_reset
             self._resume_after_reset = False
-        self.session.reset()
-        self._after_rebuild(RESET_TARGETS)
+        self.session.reset()  # the session re-applies its parameter overrides itself
+        self._after_rebuild(replay=False)
         if self.twin is not None:
-            self.twin.reset(self.override_map())
+            self.twin.reset()
 
     def _recover(self) -> None:
         """Rebuild the session from scratch until the preset with the overrides runs RECOVERY_STEPS
@@ -245,13 +244,13 @@ class Lab:
             self.notify(
                 "warning",
                 "Setting dropped",
-                f"{dropped.label()} (applied {since}) is undone: with it the preset halts again ({probe.reason})",
+                f"{label(dropped)} (applied {since}) is undone: with it the preset halts again ({probe.reason})",
             )
 
     def _rebuild(self) -> None:
         """A fresh session of the same preset, robot and executor (after a halt)."""
         s = self.session
-        self._install(Session(s.scenario, robot=self.robot_choice or None, executor=s.executor_name, seed=self.seed))
+        self._install(Session(s.preset, robot=self.robot_choice or None, executor=s.executor_name, seed=self.seed))
 
     def _install(self, session: Session) -> None:
         """Make `session` the lab's, with every override it accepts; the twin follows."""
@@ -259,13 +258,14 @@ class Lab:
         self.session_id += 1
         self.log = StepLog(session.robot.nq, capacity=round(self._log_seconds / self.dt))
         twin, self.twin = self.twin, None  # the old twin belongs to the old session
-        self._after_rebuild(SETTINGS_TARGETS)
+        self._after_rebuild(replay=True)
         self.twin = twin
         self._rebuild_twin()
 
-    def _after_rebuild(self, targets: tuple[str, ...]) -> None:
-        """After a reset or a new session: replay the overrides of `targets`, clear logs and drag."""
-        self._replay(targets)
+    def _after_rebuild(self, replay: bool) -> None:
+        """After a reset or a new session: replay the overrides on a new session, clear logs and drag."""
+        if replay:
+            self._replay()
         self.drag_client = None
         self.fallback_steps = 0
         self._steps_since_change = 0
@@ -275,70 +275,45 @@ class Lab:
         self.pacing_epoch += 1
         self._settings_changed()
 
-    def _replay(self, targets: tuple[str, ...]) -> None:
-        """Apply the overrides of `targets` in order; forget those the session no longer accepts."""
+    def _replay(self) -> None:
+        """Apply the overrides in order; forget those the session no longer accepts."""
         kept = []
         for i, o in enumerate(self.overrides):
-            if o.target in targets:
-                try:
-                    self._configure_target(o.target, {o.key: o.value})
-                except (ValueError, TypeError, KeyError, AttributeError):
-                    if i < self._healthy:
-                        self._healthy -= 1
-                    continue
+            try:
+                self.session.set_param(o.group, o.field, o.value, o.index)
+            except ParamError:
+                if i < self._healthy:
+                    self._healthy -= 1
+                continue
             kept.append(o)
         self.overrides = kept
 
-    def override_map(self) -> dict[str, dict[str, Any]]:
-        """The overrides as {target: {key: value}} (the newest value of each setting)."""
-        out: dict[str, dict[str, Any]] = {t: {} for t in SETTINGS_TARGETS}
-        for o in self.overrides:
-            out[o.target][o.key] = o.value
-        return out
-
-    # ---- settings -------------------------------------------------------------------------------
-    def _configure(self, cmd: Configure) -> None:
-        if cmd.target not in SETTINGS_TARGETS:
-            self.notify("error", "Invalid setting", f"unknown settings target {cmd.target!r}", cmd.client_id)
-            return
-        changes = dict(cmd.changes)
+    # ---- parameters -----------------------------------------------------------------------------
+    def _set_param(self, cmd: SetParam) -> None:
+        """One parameter change, validated by its group's dataclass; refused: a notice, nothing changes."""
         try:
-            self._check_types(cmd.target, changes)
-            self._configure_target(cmd.target, changes)
-        except (ValueError, TypeError, KeyError, AttributeError) as exc:
-            self.notify("error", "Value refused", _reason(exc), cmd.client_id)
+            self.session.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
+        except ParamError as exc:
+            self.notify("error", "Value refused", str(exc), cmd.client_id)
             self._settings_changed()  # the panels show the value that is still in force
             return
-        self.overrides += [Override(cmd.target, k, v) for k, v in changes.items()]
+        self.overrides.append(cmd)
+        if self.twin is not None:
+            self.twin.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
         self._steps_since_change = 0
         self._settings_changed()
 
-    def _check_types(self, target: str, changes: dict[str, Any]) -> None:
-        """Refuse a value whose kind differs from the current one (text for a number...)."""
-        current = self.settings.values.get(target, {})
-        for key, value in changes.items():
-            if key not in current:
-                continue
-            now = current[key]
-            if isinstance(now, bool):
-                ok = isinstance(value, bool)
-            elif isinstance(now, (int, float)):  # a scalar gain may become per-axis values
-                ok = finite_number(value) is not None or (
-                    not isinstance(value, bool) and _finite_array(value) is not None
-                )
-            elif isinstance(now, str):
-                ok = isinstance(value, str)
-            elif isinstance(now, list):
-                ok = isinstance(value, (list, tuple)) or finite_number(value) is not None
-            else:
-                ok = True
-            if not ok:
-                raise ValueError(f"{key} must be like {now!r}, got {value!r}")
-
-    def _configure_target(self, target: str, changes: dict[str, Any]) -> None:
-        self.session.configure(target, changes)
-        if self.twin is not None:
-            self.twin.configure(target, changes)
+    def _restore_defaults(self) -> None:
+        """Every parameter of the preset back to its defaults; the run restarts (twin too)."""
+        self.overrides = []
+        self._healthy = 0
+        self.session.restore_defaults()
+        self._after_rebuild(replay=False)
+        self._rebuild_twin()
+        if self.halted:
+            self.halted = ""
+            self.running = self._resume_after_reset
+            self._resume_after_reset = False
 
     def _set_speed(self, factor: object) -> None:
         value = finite_number(factor)
@@ -351,28 +326,8 @@ class Lab:
         self.settings = Settings(self.settings.version + 1, self._read_settings())
         self.dirty = True
 
-    def _read_settings(self) -> dict[str, dict[str, Any]]:
-        s = self.session
-        values: dict[str, dict[str, Any]] = {
-            "executor": {},
-            "environment": {},
-            "sensor": {},
-            "target": {},
-            "world": s.world.settings(),
-        }
-        if self._settings_reader is None:
-            values |= {
-                "executor": settings_of(s.executor),
-                "environment": settings_of(s.environment),
-                "sensor": settings_of(s.sensor),
-            }
-        else:
-            try:
-                values.update(self._settings_reader(s))
-            except Exception:  # a reader bug must not stop the simulation
-                traceback.print_exc()
-        values["drag"] = {k: float(getattr(s.drag, k)) for k in DRAG_FIELDS}
-        return values
+    def _read_settings(self) -> dict[str, ParamGroup]:
+        return self.session.params()
 
     # ---- switching ------------------------------------------------------------------------------
     def _switch(self, cmd: SwitchSession) -> None:
@@ -388,7 +343,7 @@ class Lab:
         if cmd.variant is not None:
             spec: str | Scenario = make_variant(scenario, cmd.variant)
         elif cmd.scenario is None:
-            spec = s.scenario  # same scenario object, same case (robot switch)
+            spec = s.preset  # same scenario object, same case (robot switch; its parameters are replayed)
         else:
             spec = scenario
         try:
@@ -401,7 +356,7 @@ class Lab:
             self.notify("info", "Robot changed", f"{exc}. Using {new.robot.name}.")
             robot_choice = ""
         if cmd.scenario is not None or cmd.variant is not None:  # a new preset starts from its defaults
-            self.overrides = [o for o in self.overrides if o.target == "drag"]
+            self.overrides = [o for o in self.overrides if o.group in KEPT_ON_PRESET_SWITCH]
             self._healthy = len(self.overrides)
         self.robot_choice = robot_choice
         self._install(new)
@@ -411,12 +366,11 @@ class Lab:
         if name not in EXECUTORS:
             raise ValueError(f"unknown executor {name!r}; choose one of {', '.join(EXECUTORS)}")
         twin, self.twin = self.twin, None
-        self.session.set_executor(name)
-        self._replay(("executor",))
+        self.session.set_executor(name)  # re-applies the overrides the new executor has
         self.twin = twin
         if twin is not None:
             try:
-                twin.set_executor(name, self.override_map()["executor"])
+                twin.set_executor(name)
             except ValueError as exc:
                 self._drop_twin(f"the twin arm is switched off: {exc}")
         self._settings_changed()
@@ -442,13 +396,13 @@ class Lab:
     def _new_twin(self, objective: str) -> Twin:
         s = self.session
         return Twin(
-            s.scenario,
+            s.preset,
             self.robot_choice or None,
             s.executor_name,
             self.seed,
             objective,
             self.dt,
-            self.override_map(),
+            self.overrides,
             self._log_seconds,
         )
 
@@ -511,19 +465,8 @@ class Lab:
             "executor": s.executor_name,
             "dt": self.dt,
             "seed": self.seed,
-            "settings": self.settings.values,
+            "settings": plain(self.settings.values),
         }
-
-
-def _finite_array(value: object) -> np.ndarray | None:
-    """A finite numeric array, or None."""
-    if isinstance(value, (str, bytes)):
-        return None
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        return None
-    return arr if np.all(np.isfinite(arr)) else None
 
 
 def _vec3(value: object) -> np.ndarray | None:

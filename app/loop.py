@@ -89,10 +89,8 @@ class SimLoop:
         log_seconds: float = 60.0,
         clock: Callable[[], float] = time.perf_counter,
         capture: Callable[[Session], Any] | None = None,
-        settings_reader: Callable[[Session], dict[str, dict[str, Any]]] | None = None,
     ):
-        self.lab = Lab(scenario, robot=robot, executor=executor, seed=seed, log_seconds=log_seconds,
-                       settings_reader=settings_reader)  # fmt: skip
+        self.lab = Lab(scenario, robot=robot, executor=executor, seed=seed, log_seconds=log_seconds)
         self._clock = clock
         self.publish_period = 1.0 / publish_hz
         self.frames = FrameBuilder(self.publish_period, 1.0 / plot_hz, capture)

@@ -25,10 +25,9 @@ import robots
 from app.commands import DragCommand
 from app.loop import SimLoop
 from app.scenarios import SCENARIOS
-from app.ui.panels import ALL_KNOBS
-from app.ui.panels.base import make_settings_reader
+from app.ui.panels import ALL_FIELDS
 from app.ui.panels.compliance import CompliancePanel
-from app.ui.panels.more_gains import MoreGainsPanel
+from app.ui.panels.more_gains import MoreGainsPanel, claimed_fields
 from app.ui.panels.motion_force import MotionForcePanel
 from app.ui.panels.nullspace import NullspacePanel
 from app.ui.panels.record import RecordPanel
@@ -81,12 +80,6 @@ def port_is_free(host: str, port: int) -> bool:
     return True
 
 
-def _claimed_executor_keys() -> set[str]:
-    """Executor settings some panel already shows (the knobs, and the Nullspace panel's k0 of each W):
-    the More gains fold leaves them out."""
-    return {k.key for k in ALL_KNOBS if k.target == "executor"} | {f"k0_{o}" for o in "jfad"}
-
-
 def start_app(
     host: str = "127.0.0.1",
     port: int = 8080,
@@ -97,9 +90,7 @@ def start_app(
     verbose: bool = False,
 ) -> App:
     """Start loop, server, panels and scene; returns at once. `port=0` picks any free port."""
-    loop = SimLoop(
-        scenario, robot=robot, executor=executor, capture=capture, settings_reader=make_settings_reader(ALL_KNOBS)
-    )
+    loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
     out = io.StringIO()
     with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
@@ -113,7 +104,7 @@ def start_app(
         NullspacePanel(server, loop, order=2),
         CompliancePanel(server, loop, order=3),
         SafetyPanel(server, loop, order=4),
-        MoreGainsPanel(server, loop, claimed=_claimed_executor_keys(), order=4.5),
+        MoreGainsPanel(server, loop, claimed=claimed_fields(ALL_FIELDS), order=4.5),
     ]
     visual_settings = VisualSettings()
     VisualsPanel(server.gui, visual_settings, order=5)

@@ -12,9 +12,10 @@ The web app's loop and the headless experiments both call this, so they agree st
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,14 +24,46 @@ import numpy as np
 import robots
 from app.executors import make_executor
 from app.scenarios import Environment, Scenario, Sensor, get_scenario
-from app.settings import finite_number
 from app.sim.drag import DragSpring
-from app.sim.world import World
+from app.sim.world import World, WorldParams
 from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
 from control.model import Dynamics, RobotModel
+from control.params import ParamError, ParamGroup, expect, param, replaced, spec_of
 
-FORCE_SETPOINT_RANGE_N = (-100.0, 100.0)
-DRAG_FIELDS = ("max_force_n", "stiffness_per_s2", "damping_ratio")
+
+@dataclass(frozen=True)
+class TargetParams(ParamGroup):
+    """The task target's tunable: the desired contact force."""
+
+    title = "Task target"
+
+    force_setpoint_n: float = param(
+        20.0,
+        label="Force setpoint F̂",
+        unit="N",
+        lo=0.0,
+        hi=60.0,
+        step=0.5,
+        help="desired force the table exerts on the tool, +z (Table II: 20 N)",
+        tag="[T12]",
+    )
+
+
+class _TargetOwner:
+    """The "target" group of a target that carries a desired wrench (a `wrench` array, F^e_z [T12])."""
+
+    def __init__(self, target_fn: Any):
+        self.wrench = getattr(target_fn, "wrench", None)
+
+    def params(self) -> dict[str, ParamGroup]:
+        if not isinstance(self.wrench, np.ndarray):
+            return {}
+        return {"target": TargetParams(force_setpoint_n=float(self.wrench[2]))}
+
+    def set_params(self, name: str, group: Any) -> None:
+        p = expect(name, group, TargetParams if name == "target" and isinstance(self.wrench, np.ndarray) else None)
+        assert isinstance(self.wrench, np.ndarray)
+        self.wrench[2] = p.force_setpoint_n
 
 
 @dataclass(frozen=True)
@@ -78,7 +111,10 @@ class Session:
         seed: int = 0,
         q0: np.ndarray | None = None,
     ):
-        self.scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
+        self._overrides: dict[str, dict[str, Any]] = {}  # group -> field -> value set by set_param
+        # a copy: scenario parameters set on this session must not leak into the shared preset
+        self._scenario_origin = get_scenario(scenario) if isinstance(scenario, str) else scenario
+        self.scenario = copy.copy(self._scenario_origin)
         self.robot = robots.load(robot or self.scenario.default_robot)
         prepare = getattr(self.scenario, "prepare_robot", None)
         if callable(prepare):  # e.g. a scaled armature, before the controller model and the world exist
@@ -108,6 +144,7 @@ class Session:
         self.sensor: Sensor = self.scenario.make_sensor(rng)
         self.dyn: Dynamics = self.model.compute(self.world.q, self.world.dq)
         self.target_fn: Callable[[float], TaskTarget] = self.scenario.make_target(self.robot, self.model, self.dyn)
+        self._reinstall(("environment", "sensor", "target"))
         self.executor.reset(self.dyn, self.target_fn(0.0))
         self.steps = 0
         self.last: StepRecord | None = None
@@ -117,6 +154,7 @@ class Session:
         self.executor = make_executor(name, self.robot, self.model)
         self.executor_name = name
         self._configure_executor_for_scenario()
+        self._reinstall(("executor",))
         self.executor.reset(self.dyn, self.target_fn(self.world.time))
 
     def _configure_executor_for_scenario(self) -> None:
@@ -125,47 +163,96 @@ class Session:
         if callable(hook):
             hook(self.executor, self.robot)
 
-    def configure(self, target: str, changes: Mapping[str, Any]) -> None:
-        """Change settings of one part: "executor", "environment", "sensor", "world", "drag"
-        (`DRAG_FIELDS`) or "target" (`force_setpoint_n`, the desired F^e along +z in N [T12]).
-        ValueError (or TypeError from a configure()) for a setting the part refuses."""
-        changes = dict(changes)
-        if target == "executor":
-            self.executor.configure(**changes)
-        elif target == "environment":
-            self.environment.configure(**changes)
-        elif target == "sensor":
-            self.sensor.configure(**changes)
-        elif target == "world":
-            self.world.configure(**changes)
-        elif target == "drag":
-            for key, value in changes.items():
-                if key not in DRAG_FIELDS:
-                    raise ValueError(f"the drag spring has no setting {key!r}")
-                number = finite_number(value)
-                if number is None or number <= 0:
-                    raise ValueError(f"drag {key} must be a positive number, got {value!r}")
-            for key, value in changes.items():
-                setattr(self.drag, key, float(value))
-        elif target == "target":
-            self._configure_task_target(changes)
-        else:
-            raise ValueError(f"unknown settings target {target!r}")
+    @property
+    def preset(self) -> Scenario:
+        """The scenario as given (without the parameters set on this session's copy)."""
+        return self._scenario_origin
 
-    def _configure_task_target(self, changes: dict[str, Any]) -> None:
-        method = getattr(self.target_fn, "configure", None)
-        if callable(method):
-            method(**changes)
+    # ---- parameters (control.params) -----------------------------------------------------------
+    def params(self) -> dict[str, ParamGroup]:
+        """Every parameter group of this session by name: the executor's ("motion_force",
+        "nullspace", "pose_task", "posture_task", "damper", "estimator", "compliance_qp", "joint_hold"), the
+        environment's ("contact", "sander", "payload"), "sensor", "world", "drag", "target" and
+        "scenario" — those the running parts have. The groups are frozen: safe to hand to any thread."""
+        return {name: owner.params()[name] for name, owner in self._owners().items()}
+
+    def set_param(self, group: str, field: str, value: Any, index: int | None = None) -> ParamGroup:
+        """Set one field (or element `index` of a vector field) of a group, validated by its
+        dataclass, and hand the new group to its owner; returns the new group. A refused value
+        raises ParamError ("group.field ...") and changes nothing. The value is remembered and
+        re-applied after `reset()` (environment, sensor and target are rebuilt then) and after an
+        executor switch; a "scenario" change takes effect at the next reset."""
+        owners = self._owners()
+        if group not in owners:
+            raise ParamError(f"this session has no parameter group {group!r} (it has {', '.join(owners)})")
+        owner = owners[group]
+        try:
+            new = replaced(owner.params()[group], field, value, index)
+        except ParamError as exc:
+            raise ParamError(f"{group}.{exc}") from None
+        owner.set_params(group, new)
+        self._overrides.setdefault(group, {})[field] = getattr(new, field)
+        return new
+
+    def overrides(self) -> dict[str, dict[str, Any]]:
+        """The values set through `set_param` since construction (or `restore_defaults`), by group."""
+        return {g: dict(f) for g, f in self._overrides.items()}
+
+    def restore_defaults(self) -> None:
+        """Every parameter back to the preset's defaults (a fresh executor, world, drag and scenario
+        copy), then `reset()`."""
+        self._overrides = {}
+        self.scenario = copy.copy(self._scenario_origin)
+        self.world.set_params("world", WorldParams())
+        self.drag = DragSpring()
+        self.executor = make_executor(self.executor_name, self.robot, self.model)
+        self._configure_executor_for_scenario()
+        self.reset()
+
+    def _owners(self) -> dict[str, Any]:
+        """Group name → the object that owns it (a name defined twice is a bug: RuntimeError)."""
+        out: dict[str, Any] = {}
+        parts = (
+            self.executor,
+            self.environment,
+            self.sensor,
+            self.world,
+            self.drag,
+            _TargetOwner(self.target_fn),
+            self.scenario,
+        )
+        for owner in parts:
+            for name in owner.params():
+                if name in out:
+                    raise RuntimeError(f"parameter group {name!r} is defined twice")
+                out[name] = owner
+        return out
+
+    def _reinstall(self, parts: tuple[str, ...]) -> None:
+        """Re-apply remembered values to the groups of rebuilt parts (those they still have)."""
+        if not self._overrides:
             return
-        for key, value in changes.items():
-            wrench = getattr(self.target_fn, "wrench", None)
-            if key != "force_setpoint_n" or not isinstance(wrench, np.ndarray):
-                raise ValueError(f"this scenario's target has no setting {key!r}")
-            number = finite_number(value)
-            lo, hi = FORCE_SETPOINT_RANGE_N
-            if number is None or not lo <= number <= hi:
-                raise ValueError(f"force setpoint must be between {lo:g} and {hi:g} N, got {value!r}")
-            wrench[2] = number
+        owners = self._owners()
+        objects = {
+            "environment": self.environment,
+            "sensor": self.sensor,
+            "executor": self.executor,
+        }
+        for group, fields in self._overrides.items():
+            owner = owners.get(group)
+            if owner is None:
+                continue
+            is_part = any(owner is objects.get(p) for p in parts) or ("target" in parts and group == "target")
+            if not is_part:
+                continue
+            current = owner.params()[group]
+            for name, value in fields.items():
+                try:
+                    spec_of(current, name)
+                    current = replaced(current, name, value)
+                except ParamError:
+                    continue
+            owner.set_params(group, current)
 
     # ---- stepping -----------------------------------------------------------------------------
     def step(self) -> StepRecord:

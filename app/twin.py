@@ -9,15 +9,15 @@ It costs a second control step per millisecond: the status line shows when that 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from app.scenarios import Scenario
 from app.session import Session
-from app.settings import settings_of
 from app.steplog import StepLog
+from control.params import ParamError
 
 TWIN_OBJECTIVES = ("j", "f", "a", "d")
 
@@ -33,48 +33,43 @@ class Twin:
         seed: int,
         objective: str,
         dt: float,
-        overrides: Mapping[str, Mapping[str, Any]],
+        overrides: Sequence[Any],  # the loop's SetParam records: .group, .field, .value, .index
         log_seconds: float = 60.0,
     ):
         if objective not in TWIN_OBJECTIVES:
             raise ValueError(f"the twin's objective must be one of {', '.join(TWIN_OBJECTIVES)}, got {objective!r}")
         self.session = Session(scenario, robot=robot, executor=executor, seed=seed)
-        if "objective" not in settings_of(self.session.executor):
-            raise ValueError(f"the {executor} executor has no nullspace objective: the twin needs the projection one")
         self.objective = objective
-        for target, changes in overrides.items():
-            self.configure(target, changes)
-        self.session.executor.configure(objective=objective)
+        self._own_objective(executor)
+        for o in overrides:
+            self.set_param(o.group, o.field, o.value, o.index)
         self.dt = dt
         self.log = StepLog(self.session.robot.nq, capacity=round(log_seconds / dt))  # as the main log
 
-    def configure(self, target: str, changes: Mapping[str, Any]) -> None:
-        """Apply a person's change to the twin too, one setting at a time; its own objective and
-        the drag spring stay its own, and a setting the twin refuses is left out (the main session
-        has already accepted it)."""
-        if target == "drag":
+    def _own_objective(self, executor: str) -> None:
+        if "nullspace" not in self.session.params():
+            raise ValueError(f"the {executor} executor has no nullspace objective: the twin needs the projection one")
+        self.session.set_param("nullspace", "objective", self.objective)
+
+    def set_param(self, group: str, field: str, value: Any, index: int | None = None) -> None:
+        """Apply a person's change to the twin too; its own objective and the drag spring stay its
+        own, and a value the twin refuses is left out (the main session has already accepted it)."""
+        if group == "drag" or (group == "nullspace" and field == "objective"):
             return
-        for key, value in changes.items():
-            if target == "executor" and key == "objective":
-                continue
-            try:
-                self.session.configure(target, {key: value})
-            except (ValueError, TypeError, KeyError):
-                pass
+        try:
+            self.session.set_param(group, field, value, index)
+        except ParamError:
+            pass
 
-    def set_executor(self, name: str, executor_overrides: Mapping[str, Any]) -> None:
-        """Follow the main session's executor switch (state kept); ValueError if it has no objective."""
+    def set_executor(self, name: str) -> None:
+        """Follow the main session's executor switch (its overrides re-applied by the session);
+        ValueError if the new executor has no objective."""
         self.session.set_executor(name)
-        if "objective" not in settings_of(self.session.executor):
-            raise ValueError(f"the {name} executor has no nullspace objective")
-        self.configure("executor", executor_overrides)
-        self.session.executor.configure(objective=self.objective)
+        self._own_objective(name)
 
-    def reset(self, overrides: Mapping[str, Mapping[str, Any]]) -> None:
-        """Back to t = 0 with the main session (environment, sensor and target settings re-applied)."""
+    def reset(self) -> None:
+        """Back to t = 0 with the main session (the session keeps its parameter overrides)."""
         self.session.reset()
-        for target in ("environment", "sensor", "target"):
-            self.configure(target, overrides.get(target, {}))
         self.log.clear()
 
     def step(self) -> None:

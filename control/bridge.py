@@ -30,7 +30,7 @@ import numpy as np
 from control.compliance_qp import ComplianceQPExecutor, PostureTask, TaskRows
 from control.coupling import Subspaces, partially_decoupled_inertia
 from control.executor import ControlInputs, StepView, TaskTarget
-from control.gains import ComplianceQPSettings, EstimatorGains, PostureTaskGains
+from control.gains import ComplianceQPSettings, EstimatorGains, PostureTaskGains, SolverParams
 from control.model import Dynamics
 from control.motion_force import ProjectionExecutor
 
@@ -100,7 +100,7 @@ class ShapedMotionForceTask:
 
     def set_qp_backend(self, backend: str) -> None:
         """The [T] law's nullspace QP follows the executor's QP backend."""
-        self.law.configure(qp_backend=backend)
+        self.law.set_params("solver", SolverParams(qp_backend=backend))
 
     def view(self) -> StepView:
         """The [T] law's view of this step (objective, W, split, coupling terms, its nullspace QP)."""

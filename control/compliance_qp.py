@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -37,9 +37,11 @@ from control.gains import (
     EstimatorGains,
     PoseTaskGains,
     PostureTaskGains,
+    SolverParams,
     compliance_matrix,
 )
 from control.model import Dynamics
+from control.params import expect
 
 OSQP_INF = qp.INF  # "no bound"
 
@@ -315,13 +317,39 @@ class ComplianceQPExecutor:
         self.tau_hat = np.zeros(self.n)
         self._build_qp()
 
-    def configure(self, **changes: object) -> None:
-        """Change tunables by name: feedback, torque_limits, source, observer_gain, lambda_, M,
-        form, velocity_scale, task_compliance, posture_compliance, posture_metric, qp_backend
-        (`control.qp.BACKENDS`: a new QP) (ValueError on bad input)."""
-        c = dict(changes)
-        if "qp_backend" in c:
-            backend = qp.check_backend(c.pop("qp_backend"))
+    def params(self) -> dict[str, Any]:
+        """Its groups: "pose_task" (the first TCP pose task, if any), "posture_task", "damper",
+        "estimator", "compliance_qp" (switches and solver settings) and "solver" (the QP backend)."""
+        out: dict[str, Any] = {}
+        pose = self._pose_task()
+        if pose is not None:
+            out["pose_task"] = pose.gains
+        out["posture_task"] = self.posture.gains
+        out["damper"] = self.damper.gains
+        out["estimator"] = self.estimator.gains
+        out["compliance_qp"] = self.settings
+        out["solver"] = SolverParams(qp_backend=self.qp_backend)
+        return out
+
+    def set_params(self, name: str, group: Any) -> None:
+        """Hand a new validated group to its owner (ParamError for a group this executor lacks).
+        New solver settings (eps, polish, max_iter) rebuild the QP."""
+        pose = self._pose_task()
+        if name == "pose_task" and pose is not None:
+            pose.configure(expect(name, group, PoseTaskGains))
+        elif name == "posture_task":
+            self.posture.configure(expect(name, group, PostureTaskGains))
+        elif name == "damper":
+            self.damper.configure(expect(name, group, DamperGains))
+        elif name == "estimator":
+            self.estimator.configure(expect(name, group, EstimatorGains))
+        elif name == "compliance_qp":
+            new = expect(name, group, ComplianceQPSettings)
+            old, self.settings = self.settings, new
+            if (old.eps, old.polish, old.max_iter) != (new.eps, new.polish, new.max_iter):
+                self._build_qp()
+        elif name == "solver":
+            backend = expect(name, group, SolverParams).qp_backend
             if backend != self.qp_backend:
                 self.qp_backend = backend
                 self._build_qp()
@@ -329,33 +357,11 @@ class ComplianceQPExecutor:
                 hook = getattr(task, "set_qp_backend", None)
                 if callable(hook):
                     hook(backend)
-        s_fields = {k: c.pop(k) for k in ("feedback", "torque_limits") if k in c}
-        if s_fields:
-            self.settings = replace(self.settings, **s_fields)  # type: ignore[arg-type]
-        e_fields = {k: c.pop(k) for k in ("source", "observer_gain") if k in c}
-        if e_fields:
-            self.estimator.configure(replace(self.estimator.gains, **e_fields))  # type: ignore[arg-type]
-        d_fields = {
-            k: c.pop(k)
-            for k in ("lambda_", "M", "form", "velocity_scale", "safety_fraction", "influence_fraction")
-            if k in c
-        }
-        if d_fields:
-            self.damper.configure(replace(self.damper.gains, **d_fields))  # type: ignore[arg-type]
-        if "task_compliance" in c:
-            value = c.pop("task_compliance")
-            for task in self.tasks:
-                if isinstance(task, PoseTask):
-                    task.configure(replace(task.gains, compliance=value))  # type: ignore[arg-type]
-        p_fields = {}
-        if "posture_compliance" in c:
-            p_fields["compliance"] = c.pop("posture_compliance")
-        if "posture_metric" in c:
-            p_fields["metric"] = c.pop("posture_metric")
-        if p_fields:
-            self.posture.configure(replace(self.posture.gains, **p_fields))  # type: ignore[arg-type]
-        if c:
-            raise ValueError(f"compliance-qp has no setting {', '.join(c)}")
+        else:
+            expect(name, group, None)
+
+    def _pose_task(self) -> PoseTask | None:
+        return next((t for t in self.tasks if isinstance(t, PoseTask)), None)
 
     def view(self) -> StepView:
         """The latest step's damper zone d_i and QP result; objective, W, split and P from the first

@@ -15,6 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from control.model import Dynamics
+from control.params import ParamGroup
 
 
 @dataclass
@@ -97,8 +98,12 @@ class Executor(Protocol):
         """Compute the joint torques for this step. Must not raise on numerical trouble."""
         ...
 
-    def configure(self, **changes: object) -> None:
-        """Change tunables between steps; raise ValueError (naming the field) on invalid values."""
+    def params(self) -> dict[str, ParamGroup]:
+        """Its parameter groups by name (frozen, validated; see `control.params`)."""
+        ...
+
+    def set_params(self, name: str, group: ParamGroup) -> None:
+        """Take a new (already validated) group between two steps; ParamError for an unknown name."""
 
     def view(self) -> StepView:
         """What the latest step computed (copies), for the UI; called at the frame rate."""

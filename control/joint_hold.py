@@ -6,24 +6,26 @@ reference when the task-space executors are switched off.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
-from control.gains import validate_non_negative
 from control.model import Dynamics
+from control.params import ParamGroup, expect, param
 
 
 @dataclass(frozen=True)
-class JointHoldGains:
-    """Joint stiffness (N m/rad) and damping (N m s/rad), one value for all joints."""
+class JointHoldGains(ParamGroup):
+    """Joint stiffness and damping, one value for all joints."""
 
-    stiffness: float = 400.0
-    damping: float = 40.0
+    title = "Joint hold"
 
-    def __post_init__(self) -> None:
-        validate_non_negative(self)
+    stiffness: float = param(
+        400.0, label="K_p joint", unit="N m/rad", lo=0.0, hi=2000.0, step=10.0, help="joint stiffness"
+    )
+    damping: float = param(40.0, label="K_d joint", unit="N m s/rad", lo=0.0, hi=200.0, step=1.0, help="joint damping")
 
 
 class JointHold:
@@ -38,8 +40,13 @@ class JointHold:
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
         self.q_hold = dyn.q.copy() if target.q_posture is None else np.array(target.q_posture)
 
-    def configure(self, **changes: object) -> None:
-        self.gains = replace(self.gains, **changes)  # type: ignore[arg-type]
+    def params(self) -> dict[str, Any]:
+        """Its one group, "joint_hold"."""
+        return {"joint_hold": self.gains}
+
+    def set_params(self, name: str, group: Any) -> None:
+        """Take new joint-hold gains (ParamError for another group)."""
+        self.gains = expect(name, group, JointHoldGains if name == "joint_hold" else None)
 
     def step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
         q_d = inputs.target.q_posture if inputs.target.q_posture is not None else self.q_hold

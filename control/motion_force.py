@@ -19,23 +19,24 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
 from control import qp
 from control.coupling import (
-    POLISH_SUBSPACES,
     CouplingTerms,
     Subspaces,
     coupling_gradient_direct,
     terms_and_values,
 )
 from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
-from control.gains import MotionForceGains, NullspaceGains
+from control.gains import MotionForceGains, NullspaceGains, SolverParams
 from control.kernels import damper_bounds_fused, joint_torque_fused, task_wrench_fused
 from control.model import Dynamics, RobotModel
 from control.nullspace import NullspaceQP, NullspaceResult
+from control.params import ParamGroup, expect
 
 
 class ProjectionExecutor:
@@ -50,7 +51,6 @@ class ProjectionExecutor:
         q_upper: np.ndarray,
         dq_max: np.ndarray,
         endless: np.ndarray | None = None,
-        subspaces: Subspaces = POLISH_SUBSPACES,
         gains: MotionForceGains | None = None,
         nullspace: NullspaceGains | None = None,
         qp_backend: str | None = None,
@@ -61,8 +61,8 @@ class ProjectionExecutor:
         self.q_upper = np.asarray(q_upper, dtype=float)
         self.dq_max = np.asarray(dq_max, dtype=float)
         self.endless = np.zeros(self.n, dtype=bool) if endless is None else np.asarray(endless, dtype=bool)
-        self.sub = subspaces
         self.gains = gains or MotionForceGains()
+        self.sub = Subspaces.from_force_axes(self.gains.force_axis_names)
         self.nullspace = nullspace or NullspaceGains()
         self.qp_backend = qp.check_backend(qp_backend or qp.default_backend())
         self.qp = NullspaceQP(self.n, backend=self.qp_backend)
@@ -87,28 +87,33 @@ class ProjectionExecutor:
         self._last_valid_wrench = np.zeros(6)
         self.q_posture = dyn.q.copy() if target.q_posture is None else np.array(target.q_posture, dtype=float)
 
-    def configure(self, **changes: object) -> None:
-        """Change gains between steps: any MotionForceGains or NullspaceGains field, or
-        `force_axes` (names or indices), or `qp_backend` (`control.qp.BACKENDS`; a new QP then).
-        Raises ValueError naming a bad field; otherwise keeps the QP and its warm start."""
-        mf = {k: v for k, v in changes.items() if k in MotionForceGains.__dataclass_fields__}
-        ns = {k: v for k, v in changes.items() if k in NullspaceGains.__dataclass_fields__}
-        rest = set(changes) - set(mf) - set(ns) - {"force_axes", "qp_backend"}
-        if rest:
-            raise ValueError(f"projection executor has no setting {', '.join(sorted(rest))}")
-        gains = replace(self.gains, **mf) if mf else self.gains  # type: ignore[arg-type]
-        nullspace = replace(self.nullspace, **ns) if ns else self.nullspace  # type: ignore[arg-type]
-        sub = self.sub
-        if "force_axes" in changes:
-            sub = Subspaces.from_force_axes(changes["force_axes"])  # type: ignore[arg-type]
-        backend = qp.check_backend(changes.get("qp_backend", self.qp_backend))
-        self.gains, self.nullspace = gains, nullspace
-        if backend != self.qp_backend:
-            self.qp_backend = backend
-            self.qp = NullspaceQP(self.n, backend=backend)
-        if sub is not self.sub:
-            self.sub = sub
-            self.force_integral = np.zeros(sub.n_f)
+    def params(self) -> dict[str, ParamGroup]:
+        """ "motion_force" (the law [T11–12], incl. the force axes), "nullspace" (the QP [T15–17]) and
+        "solver" (its QP backend)."""
+        return {
+            "motion_force": self.gains,
+            "nullspace": self.nullspace,
+            "solver": SolverParams(qp_backend=self.qp_backend),
+        }
+
+    def set_params(self, name: str, group: Any) -> None:
+        """Take a new validated group; new force axes restart the force integral; the QP is kept
+        unless the backend changes."""
+        if name == "motion_force":
+            gains = expect(name, group, MotionForceGains)
+            if gains.force_axes != self.gains.force_axes:
+                self.sub = Subspaces.from_force_axes(gains.force_axis_names)
+                self.force_integral = np.zeros(self.sub.n_f)
+            self.gains = gains
+        elif name == "nullspace":
+            self.nullspace = expect(name, group, NullspaceGains)
+        elif name == "solver":
+            backend = expect(name, group, SolverParams).qp_backend
+            if backend != self.qp_backend:  # a new QP (no warm start carries over)
+                self.qp_backend = backend
+                self.qp = NullspaceQP(self.n, backend=backend)
+        else:
+            expect(name, group, None)
         self._cache_gains()
 
     def step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:

@@ -269,9 +269,9 @@ def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page
     assert {"W_j", "W_f", "W_a", "W_d"} <= set(offered)
     objective = lambda: app.loop.call(lambda s: s.executor.nullspace.objective)  # noqa: E731
     wait_for(lambda: objective() == "d", 20, "the server's objective to become d")
-    from app.commands import Configure
+    from app.commands import SetParam
 
-    app.loop.submit(Configure("executor", {"objective": "a"}))  # back to the polish default for the screenshot
+    app.loop.submit(SetParam("nullspace", "objective", "a"))  # back to the polish default for the screenshot
     wait_for(lambda: objective() == "a", 20, "the objective to return to a")
     wait_for(lambda: pg.get_by_label("Objective", exact=True).input_value() == "W_a", 20, "the page to show W_a")
 

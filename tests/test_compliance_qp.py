@@ -10,6 +10,7 @@ from control.compliance_qp import ComplianceQPExecutor, pose_error
 from control.executor import ControlInputs, TaskTarget
 from control.gains import ComplianceQPSettings, EstimatorGains, PoseTaskGains, PostureTaskGains, compliance_matrix
 from control.model import RobotModel
+from control.params import ParamError, replaced, with_values
 
 KP = 100.0  # 1/s²
 FORCE = np.array([0.0, 10.0, -5.0])  # N at the TCP
@@ -84,15 +85,21 @@ def test_compliance_accepts_scalar_diagonal_and_matrix_and_rejects_bad_values():
         PostureTaskGains(metric="euclid")
 
 
-def test_configure_rejects_unknown_settings_and_bad_values(gen3):
+def test_set_params_routes_each_group_and_refuses_unknown_ones(gen3):
     ex = ComplianceQPExecutor.for_robot(gen3)
-    with pytest.raises(ValueError, match="no setting"):
-        ex.configure(wobble=1.0)
-    with pytest.raises(ValueError, match="lambda_"):
-        ex.configure(lambda_=-3.0)
-    ex.configure(feedback=False, source="residual", lambda_=70.0, M=3.0, task_compliance=[1, 1, 1, 0, 0, 0])
+    assert set(ex.params()) == {"pose_task", "posture_task", "damper", "estimator", "compliance_qp", "solver"}
+    with pytest.raises(ParamError, match="no parameter group"):
+        ex.set_params("wobble", ex.settings)
+    with pytest.raises(ParamError, match="takes a DamperGains"):
+        ex.set_params("damper", ex.settings)
+    with pytest.raises(ParamError, match="lambda_"):
+        replaced(ex.damper.gains, "lambda_", -3.0)
+    ex.set_params("compliance_qp", replaced(ex.settings, "feedback", False))
+    ex.set_params("estimator", replaced(ex.estimator.gains, "source", "residual"))
+    ex.set_params("damper", with_values(ex.damper.gains, {"lambda_": 70.0, "M": 3.0}))
+    ex.set_params("pose_task", replaced(ex.params()["pose_task"], "compliance", [1, 1, 1, 0, 0, 0]))
     assert not ex.settings.feedback and ex.estimator.gains.source == "residual"
-    assert ex.damper.gains.lambda_ == 70.0 and ex.tasks[0].gamma[0, 0] == 1.0
+    assert ex.damper.gains.lambda_ == 70.0 and ex.tasks[0].gamma[0, 0] == 1.0 and ex.tasks[0].gamma[3, 3] == 0.0
 
 
 def test_inverse_dynamics_is_c8_with_and_without_feedback(gen3):

@@ -9,6 +9,7 @@ from app.sim.contact import TableContact
 from app.sim.disturbances import Sander
 from app.sim.sensor import FTSensor
 from app.sim.world import World
+from control.params import ParamError, replaced
 
 
 def test_friction_never_exceeds_mu_times_normal_force_and_opposes_sliding():
@@ -96,20 +97,24 @@ def test_sander_force_rotates_in_the_tool_plane_at_7000_rpm():
     np.testing.assert_allclose(f @ R[:, 2], 0.0, atol=1e-12)
     crossings = np.sum(np.diff(np.sign(f[:, 1])) != 0)  # two per revolution
     assert crossings / 2 / t[-1] == pytest.approx(7000 / 60, rel=0.05)
-    sander.configure(enabled=False)
+    sander.set_params("sander", replaced(sander.params()["sander"], "enabled", False))
     assert not np.any(sander.force(0.01, R))
 
 
-@pytest.mark.parametrize("bad", [{"mu": -0.1}, {"mu": float("nan")}, {"v_eps_m_per_s": 0.0}, {"grip": 1.0}])
-def test_bad_contact_settings_raise(bad):
-    with pytest.raises(ValueError):
-        TableContact(0.2).configure(**bad)
+@pytest.mark.parametrize("field, bad", [("mu", -0.1), ("mu", float("nan")), ("v_eps_m_per_s", 0.0), ("grip", 1.0)])
+def test_bad_contact_settings_raise(field, bad):
+    contact = TableContact(0.2)
+    with pytest.raises(ParamError):
+        contact.set_params("contact", replaced(contact.params()["contact"], field, bad))
+    assert contact.mu == 0.25 and contact.v_eps_m_per_s == 0.01
 
 
-@pytest.mark.parametrize("bad", [{"force_noise_var": -1.0}, {"cutoff_hz": float("inf")}, {"gain": 2.0}])
-def test_bad_sensor_settings_raise(bad):
-    with pytest.raises(ValueError):
-        FTSensor(np.random.default_rng(0)).configure(**bad)
+@pytest.mark.parametrize("field, bad", [("force_noise_var", -1.0), ("cutoff_hz", float("inf")), ("gain", 2.0)])
+def test_bad_sensor_settings_raise(field, bad):
+    sensor = FTSensor(np.random.default_rng(0))
+    with pytest.raises(ParamError):
+        sensor.set_params("sensor", replaced(sensor.params()["sensor"], field, bad))
+    assert sensor.force_noise_var == 5.0 and sensor.cutoff_hz == 25.0
 
 
 def test_implicit_friction_is_the_backward_euler_damper_and_bounded():
@@ -148,9 +153,9 @@ def test_friction_at_1_mm_per_s_is_stable_at_the_heaviest_tangential_mass():
     flips, vmax = {}, {}
     for implicit in (True, False):
         session = Session(PolishScenario(mu=1.0, start_swivel_deg=75.0), seed=0)
-        session.executor.configure(objective="j")
+        session.set_param("nullspace", "objective", "j")
         session.environment.contact.implicit = implicit  # type: ignore[attr-defined]
-        session.environment.configure(v_eps_m_per_s=0.001)
+        session.set_param("contact", "v_eps_m_per_s", 0.001)
         fx, v, fn = [], [], []
         for _ in range(1500):
             sig = session.step().signals

@@ -2,32 +2,41 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 
-from app.commands import Configure, DragCommand, Pause, Play, Reset, StepOnce, SwitchSession
+from app.commands import DragCommand, Pause, Play, Reset, SetParam, StepOnce, SwitchSession
 from app.lab import RECOVERY_STEPS, Lab
 from app.scenarios import Environment, Scenario
 from app.scenarios.free import FreeScenario
+from control.params import ParamGroup, expect, param
+
+
+@dataclass(frozen=True)
+class FuseParams(ParamGroup):
+    gain: float = param(1.0, label="gain", lo=0.0, hi=10.0, step=0.1)
+    blow_at_s: float = param(1e9, label="blow at", unit="s", lo=0.0, hi=1e9)
+    how: str = param("raise", label="how", choices=("raise", "nan"))
 
 
 class Fuse(Environment):
-    """An environment with two settings: a harmless `gain`, and `blow_at_s`, after which every step
-    raises (as a gain of the wrong type did) or pushes NaN into the state."""
+    """An environment with a harmless `gain`, and `blow_at_s`, after which every step raises (as a
+    gain of the wrong type did) or pushes NaN into the state — valid values that halt."""
 
     def __init__(self) -> None:
-        self.gain = 1.0
-        self.blow_at_s: float | None = None
-        self.how = "raise"
+        self.set_params("fuse", FuseParams())
 
-    def configure(self, **changes: object) -> None:
-        for key, value in changes.items():
-            if key not in ("gain", "blow_at_s", "how"):
-                raise ValueError(f"no setting {key!r}")
-            setattr(self, key, value)
+    def params(self) -> dict[str, ParamGroup]:
+        return {"fuse": FuseParams(self.gain, self.blow_at_s, self.how)}
+
+    def set_params(self, name: str, group) -> None:
+        p = expect(name, group, FuseParams if name == "fuse" else None)
+        self.gain, self.blow_at_s, self.how = p.gain, p.blow_at_s, p.how
 
     def apply(self, world, t: float) -> dict[str, float]:
-        if self.blow_at_s is not None and t >= float(self.blow_at_s):  # type: ignore[arg-type]
+        if t >= self.blow_at_s:
             if self.how == "raise":
                 raise TypeError("unsupported operand type(s) for *: 'float' and 'str'")
             world.data.qvel[0] = np.nan
@@ -67,7 +76,8 @@ def test_a_single_step_runs_in_chunks_and_pause_cancels_the_rest():
 def test_a_halt_pauses_with_its_reason_and_reset_resumes_what_ran():
     lab = _lab("fuse")
     lab.apply(Play())
-    lab.apply(Configure("environment", {"blow_at_s": 0.05, "how": "nan"}))
+    lab.apply(SetParam("fuse", "blow_at_s", 0.05))
+    lab.apply(SetParam("fuse", "how", "nan"))
     lab.advance(200)
     assert "diverged" in lab.halted and not lab.running
     lab.apply(Play())  # refused while halted
@@ -80,11 +90,11 @@ def test_a_halt_pauses_with_its_reason_and_reset_resumes_what_ran():
 
 def test_reset_drops_the_overrides_since_the_last_healthy_run_newest_first_and_keeps_older_ones():
     lab = _lab("fuse")
-    lab.apply(Configure("environment", {"gain": 2.0}))
+    lab.apply(SetParam("fuse", "gain", 2.0))
     lab.advance(RECOVERY_STEPS)  # the gain ran healthy
-    lab.apply(Configure("environment", {"blow_at_s": 0.0}))
-    lab.apply(Configure("environment", {"how": "raise"}))  # harmless on its own, but newer
-    lab.apply(Configure("drag", {"max_force_n": 77.0}))
+    lab.apply(SetParam("fuse", "blow_at_s", 0.0))
+    lab.apply(SetParam("fuse", "how", "raise"))  # harmless on its own, but newer
+    lab.apply(SetParam("drag", "max_force_n", 77.0))
     result = lab.advance(50)
     assert result.stop == "error" and isinstance(result.error, TypeError) and "TypeError" in lab.halted
     n0 = len(lab.notice_log)
@@ -92,20 +102,20 @@ def test_reset_drops_the_overrides_since_the_last_healthy_run_newest_first_and_k
     dropped = [n.body for n in list(lab.notice_log)[n0:] if n.title == "Setting dropped"]
     # newest first, stopping as soon as the preset runs again: the drag limit and `how` go, then blow_at_s
     assert [d.split(" (")[0] for d in dropped] == [
-        "drag max_force_n = 77.0",
-        "environment how = 'raise'",
-        "environment blow_at_s = 0.0",
+        "drag.max_force_n = 77.0",
+        "fuse.how = 'raise'",
+        "fuse.blow_at_s = 0.0",
     ]
     assert all("since the simulation last ran healthy" in d for d in dropped)
-    assert [(o.target, o.key, o.value) for o in lab.overrides] == [("environment", "gain", 2.0)]
+    assert [(o.group, o.field, o.value) for o in lab.overrides] == [("fuse", "gain", 2.0)]
     assert lab.session.environment.gain == 2.0 and lab.session.steps == 0  # back at t = 0, gain kept
     assert _recovered(lab)
 
 
 def test_reset_without_a_halt_keeps_every_override():
     lab = _lab("fuse")
-    lab.apply(Configure("environment", {"blow_at_s": 0.5}))
-    lab.apply(Configure("drag", {"max_force_n": 42.0}))
+    lab.apply(SetParam("fuse", "blow_at_s", 0.5))
+    lab.apply(SetParam("drag", "max_force_n", 42.0))
     lab.advance(100)
     lab.apply(Reset())
     assert len(lab.overrides) == 2 and lab.session.environment.blow_at_s == 0.5 and lab.session.drag.max_force_n == 42
@@ -142,7 +152,7 @@ JUNK = (
 )
 
 
-def _random_change(lab: Lab, rng: np.random.Generator) -> Configure:
+def _random_change(lab: Lab, rng: np.random.Generator) -> SetParam:
     """A change of a setting the lab shows, to an in-range-ish multiple of its value or to junk."""
     values = lab.settings.values
     targets = [t for t in values if values[t]]
@@ -154,7 +164,7 @@ def _random_change(lab: Lab, rng: np.random.Generator) -> Configure:
         value: object = float(now) * float(rng.choice([0.0, 0.5, 2.0, 10.0, 100.0]))
     else:
         value = JUNK[rng.integers(len(JUNK))]
-    return Configure(target, {key: value})
+    return SetParam(target, key, value)
 
 
 @pytest.mark.parametrize("scenario", ["free", "polish", "compliance", "limit-drop", "mass-drop", "fuse"])
@@ -166,7 +176,7 @@ def test_seeded_fuzz_after_every_halt_reset_recovers(scenario):
     halts = 0
     for k in range(60):
         if scenario == "fuse" and k % 5 == 3:
-            lab.apply(Configure("environment", {"blow_at_s": lab.session.world.time + 0.01}))
+            lab.apply(SetParam("fuse", "blow_at_s", lab.session.world.time + 0.01))
         else:
             lab.apply(_random_change(lab, rng))
         if not lab.halted:
@@ -182,8 +192,8 @@ def test_seeded_fuzz_after_every_halt_reset_recovers(scenario):
 
 def test_a_new_preset_starts_from_its_defaults_but_keeps_the_drag_settings():
     lab = _lab()
-    lab.apply(Configure("drag", {"max_force_n": 55.0}))
-    lab.apply(Configure("world", {"torque_delay_ms": 3.0}))
+    lab.apply(SetParam("drag", "max_force_n", 55.0))
+    lab.apply(SetParam("world", "torque_delay_ms", 3.0))
     lab.apply(SwitchSession(scenario="polish"))
-    assert [(o.target, o.key) for o in lab.overrides] == [("drag", "max_force_n")]
+    assert [(o.group, o.field) for o in lab.overrides] == [("drag", "max_force_n")]
     assert lab.session.drag.max_force_n == 55.0 and lab.session.world.torque_delay_steps == 0

@@ -42,7 +42,7 @@ def _braking_torques(torque_limits: bool) -> tuple[np.ndarray, float]:
     ex = session.executor
     assert isinstance(ex, ComplianceQPExecutor)
     scenario.configure_executor(ex, session.robot, DamperGains(lambda_=100.0, M=1.5), feedback=True)
-    ex.configure(torque_limits=torque_limits)
+    session.set_param("compliance_qp", "torque_limits", torque_limits)
     ex.tau_max[FALLING_JOINT] = 16.0  # holding the arm and the mass needs about 13 N m
     session.reset()
     taus = []

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from app.commands import Configure, DragCommand, Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
+from app.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, StepOnce, SwitchSession
 from app.loop import SimLoop
 from app.pacing import Pacer, RateMeter
 from app.scenarios import SCENARIOS
@@ -58,20 +58,20 @@ def test_two_seconds_in_the_loop_match_the_headless_session_step_for_step(scenar
     assert np.max(np.abs(q_ref[-1] - q_ref[0])) > 1e-3  # the drag really moved the arm
 
 
-def test_configure_applies_between_steps_and_invalid_values_are_refused(loop):
+def test_set_param_applies_between_steps_and_invalid_values_are_refused(loop):
     v0 = loop.settings.version
-    loop.submit(Configure("executor", {"stiffness": 250.0}, client_id=7))
+    loop.submit(SetParam("joint_hold", "stiffness", 250.0, client_id=7))
     loop.sync()
     assert loop.session.executor.gains.stiffness == 250.0
-    assert loop.settings.values["executor"]["stiffness"] == 250.0
+    assert loop.settings.values["joint_hold"]["stiffness"] == 250.0
     assert loop.settings.version > v0
     bad = [
-        Configure("executor", {"stiffness": -1.0}, client_id=7),
-        Configure("executor", {"stiffness": float("nan")}, client_id=7),
-        Configure("executor", {"stiffness": "abc"}, client_id=7),
-        Configure("executor", {"no_such_gain": 1.0}, client_id=7),
-        Configure("nowhere", {"x": 1}, client_id=7),
-        Configure("drag", {"max_force_n": -5}, client_id=7),
+        SetParam("joint_hold", "stiffness", -1.0, client_id=7),
+        SetParam("joint_hold", "stiffness", float("nan"), client_id=7),
+        SetParam("joint_hold", "stiffness", "abc", client_id=7),
+        SetParam("joint_hold", "no_such_gain", 1.0, client_id=7),
+        SetParam("nowhere", "x", 1, client_id=7),
+        SetParam("drag", "max_force_n", -5, client_id=7),
         SetSpeed(5.0),
         SetSpeed(float("nan")),
         StepOnce(-3),
@@ -155,7 +155,7 @@ def test_drag_belongs_to_the_client_that_grabbed_it_and_reset_releases_it(loop):
 
 
 def test_environment_and_drag_settings_survive_a_reset(loop):
-    loop.submit(Configure("drag", {"max_force_n": 42.0}))
+    loop.submit(SetParam("drag", "max_force_n", 42.0))
     loop.submit(Reset())
     loop.sync()
     assert loop.session.drag.max_force_n == 42.0
@@ -183,13 +183,13 @@ def test_a_robot_without_the_scenarios_posture_is_refused_in_words():
 
 
 def test_simulated_torque_delay_is_a_world_setting_that_survives_a_reset(loop):
-    loop.submit(Configure("world", {"torque_delay_ms": 5.0}, client_id=7))
+    loop.submit(SetParam("world", "torque_delay_ms", 5.0, client_id=7))
     loop.submit(Reset())
     loop.sync()
     assert loop.session.world.torque_delay_steps == 5
     assert loop.settings.values["world"]["torque_delay_ms"] == pytest.approx(5.0)
     n0 = len(loop.notice_log)
-    loop.submit(Configure("world", {"torque_delay_ms": 1e9}, client_id=7))
+    loop.submit(SetParam("world", "torque_delay_ms", 1e9, client_id=7))
     loop.sync()
     assert len(loop.notice_log) == n0 + 1 and loop.session.world.torque_delay_steps == 5
 

@@ -45,7 +45,7 @@ def test_without_friction_the_loop_is_the_lagged_force_loop_and_the_sign_of_p_d_
 def _loses_contact(swivel_deg: float, kd: float) -> bool:
     """Hold the posture (W_j on it), press 20 N at μ = 1, then S1 (retract) and S2 (stretch)."""
     session = Session(P.PolishScenario(mu=1.0, hold_swivel_deg=swivel_deg), seed=0)
-    session.executor.configure(force_kd=kd)
+    session.set_param("motion_force", "force_kd", kd)
     clock = session.environment.clock  # type: ignore[attr-defined]
     lost = []
     session.run(P.CONTACT_TIME_S + 0.3, record=lambda r: lost.append(r.signals["contact_force_n"] <= 0 and r.t > 0.5))

@@ -12,6 +12,7 @@ from control.executor import ControlInputs, TaskTarget
 from control.gains import MotionForceGains, NullspaceGains
 from control.model import RobotModel
 from control.motion_force import make_projection_executor
+from control.params import ParamError, replaced, with_values
 
 
 def _push_sideways(rizon, shaping: bool, steps: int = 300, push_n: float = 15.0) -> np.ndarray:
@@ -72,19 +73,22 @@ def test_executor_survives_nan_input_and_flags_it(rizon):
     assert not ok.fallback
 
 
-def test_configure_switches_objective_and_axes_without_rebuilding_the_qp(rizon):
+def test_set_params_switches_objective_and_axes_without_rebuilding_the_qp(rizon):
     model = RobotModel(rizon.model)
     ex = make_projection_executor(rizon, model)
     qp = ex.qp
-    ex.configure(objective="d", k0_d=0.1, force_kp=0.3)
+    ex.set_params("nullspace", with_values(ex.nullspace, {"objective": "d", "k0_d": 0.1}))
+    ex.set_params("motion_force", replaced(ex.gains, "force_kp", 0.3))
     assert ex.nullspace.objective == "d" and ex.nullspace.k0 == 0.1 and ex.gains.force_kp == 0.3
-    ex.configure(force_axes=("px", "pz"))
-    assert ex.sub.force_axes == (0, 2)
+    ex.set_params("motion_force", replaced(ex.gains, "force_axes", "px py"))
+    assert ex.sub.force_axes == (0, 1) and ex.force_integral.shape == (2,)
     assert ex.qp is qp
-    with pytest.raises(ValueError, match="force_kd"):
-        ex.configure(force_kd=-1.0)
-    with pytest.raises(ValueError, match="no setting"):
-        ex.configure(stiffness=3.0)
+    with pytest.raises(ParamError, match="force_kd"):
+        ex.set_params("motion_force", replaced(ex.gains, "force_kd", -1.0))
+    with pytest.raises(ParamError, match="no parameter"):
+        replaced(ex.gains, "stiffness", 3.0)
+    with pytest.raises(ParamError, match="no parameter group"):
+        ex.set_params("damper", ex.gains)
     assert ex.gains.force_kd == 200.0  # a rejected change leaves the gains as they were
 
 
@@ -93,7 +97,7 @@ def test_static_contact_force_converges_to_the_desired_force(rizon):
     from app.session import Session
 
     session = Session(PolishScenario(mu=0.25, sensor_noise=False), seed=0)
-    session.executor.configure(objective="j")
+    session.set_param("nullspace", "objective", "j")
     forces = []
     for _ in range(1200):
         forces.append(session.step().signals["contact_force_n"])

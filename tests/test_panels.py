@@ -1,4 +1,4 @@
-"""Panels: knobs read the values in force from every executor and write well-formed changes."""
+"""Panels: knobs are generated from parameter metadata and send SetParam commands the loop applies."""
 
 from __future__ import annotations
 
@@ -7,114 +7,125 @@ import json
 import numpy as np
 import pytest
 
-from app.commands import Configure
+from app.commands import SetParam
 from app.export import to_csv, to_json
 from app.loop import SimLoop
+from app.params import GROUP_TYPES
 from app.scenarios import SCENARIOS
 from app.session import Session
-from app.ui.panels import ALL_KNOBS
-from app.ui.panels.base import Knob, coerce, make_settings_reader
-from app.ui.panels.compliance import JOINT_KNOBS
-from app.ui.panels.compliance import KNOBS as COMPLIANCE
-from app.ui.panels.motion_force import KNOBS as MOTION_FORCE
-from app.ui.panels.safety import KNOBS as SAFETY
-
-READER = make_settings_reader((*ALL_KNOBS, *JOINT_KNOBS))
+from app.ui.panels import ALL_FIELDS
+from app.ui.panels.base import knob
+from app.ui.panels.more_gains import claimed_fields
+from control.params import specs
 
 
-def _knob(knobs, key: str, label_part: str = "") -> Knob:
-    return next(k for k in knobs if k.key == key and label_part in k.label)
+def _qp_loop() -> SimLoop:
+    loop = SimLoop("free", executor="compliance-qp", capture=lambda s: None)
+    loop.start(running=False)
+    return loop
 
 
-def _qp_session() -> Session:
-    qp = pytest.importorskip("control.compliance_qp")
-    s = Session("free")
-    s.executor = qp.ComplianceQPExecutor.for_robot(s.robot)
-    s.executor_name = "compliance-qp"
-    s.executor.reset(s.dyn, s.target_fn(0.0))
-    return s
+def test_every_panel_name_has_metadata_and_a_labelled_input():
+    for path in ALL_FIELDS:
+        k = knob(path)  # raises for an unknown group or field
+        assert k.label and k.kind in ("checkbox", "dropdown", "slider", "number")
+        if k.kind == "slider":
+            lo, hi = k.bounds
+            assert lo is not None and hi is not None and lo < hi and 0 < k.step <= hi - lo
+        if k.spec.tag:
+            assert k.spec.tag in (k.hint or "")
+    with pytest.raises(ValueError, match=r"group\.field"):
+        knob("lambda_")
+    with pytest.raises(ValueError, match="no parameter"):
+        knob("damper.lambda")
+    with pytest.raises(ValueError, match="elements"):
+        knob("damper.lambda_[0]")
 
 
-@pytest.mark.skipif("polish" not in SCENARIOS, reason="polish scenario not registered")
-def test_projection_executor_and_polish_settings_are_read():
-    values = READER(Session("polish"))
-    ex, env, sensor, target = values["executor"], values["environment"], values["sensor"], values["target"]
-    assert ex["objective"] in ("j", "f", "a", "d") and f"k0_{ex['objective']}" in ex
-    assert ex["force_kp"] >= 0 and len(ex["motion_kp"]) == 6 and ex["motion_kp_rot"] == ex["motion_kp"]
-    assert 0 < ex["velocity_scale"] <= 1 and ex["damper_influence"] > ex["damper_safety"]
-    assert env["mu"] == pytest.approx(0.25) and env["sander_enabled"] is False and env["sander_amplitude_n"] > 0
-    assert sensor["force_noise_var"] == pytest.approx(5.0)
-    assert target["force_setpoint_n"] == pytest.approx(20.0)
-    assert "lambda_" not in ex  # the QP executor's knobs are hidden for this executor
+@pytest.mark.parametrize("scenario", sorted(SCENARIOS))
+def test_every_group_of_every_preset_is_registered_with_its_dataclass(scenario):
+    for executor in ("joint-hold", "projection", "compliance-qp"):
+        groups = Session(scenario, executor=executor).params()
+        for name, group in groups.items():
+            assert type(group) is GROUP_TYPES[name], name
+            assert specs(group), name  # every group has fields with metadata
 
 
-def test_compliance_qp_executor_settings_are_read():
-    values = READER(_qp_session())["executor"]
-    assert values["lambda_"] == pytest.approx(100.0) and values["M"] == pytest.approx(2.0)
-    assert values["form"] == "proposed" and values["source"] in ("none", "residual", "fusion", "oracle")
-    assert values["feedback"] is True and values["torque_limits"] is True
-    assert values["task_compliance"] == 0.0 and values["posture_compliance"] == 0.0
-    assert 0 < values["safety_fraction"] < values["influence_fraction"]
-    assert "objective" not in values
+def test_knob_labels_ranges_and_commands_come_from_the_metadata():
+    trans, rot = knob("motion_force.motion_kp[0:3]"), knob("motion_force.motion_kp[3:6]")
+    assert trans.label == "K_m^p px–pz (N/m)" and rot.label == "K_m^p rx–rz (N m/rad)"
+    assert trans.bounds == (0.0, 10000.0) and rot.bounds == (0.0, 1000.0)
+    assert [c.index for c in rot.commands(100.0, 1)] == [3, 4, 5]
+    assert all(c == SetParam("motion_force", "motion_kp", 100.0, c.index, 1) for c in rot.commands(100.0, 1))
+    joint = knob("posture_task.compliance[3]")
+    assert joint.label == "Γ₀ joint 4" and joint.bounds == (0.0, 1.2)
+    assert joint.shown((0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)) == pytest.approx(0.3)
+    assert knob("posture_task.compliance").shown(np.eye(7).tolist()) == pytest.approx(1.0)
+    objective = knob("nullspace.objective")
+    assert objective.options == ("W_j", "W_f", "W_a", "W_d") and objective.shown("d") == "W_d"
+    assert objective.commands("W_f", None) == [SetParam("nullspace", "objective", "f")]
+    assert knob("world.torque_delay_ms").bounds == (0.0, 20.0)  # the range is written once, in WorldParams
 
 
 def test_qp_knob_changes_reach_the_executor_through_the_loop():
-    loop = SimLoop("free", capture=lambda s: None, settings_reader=READER)
-    loop.start(running=False)
+    loop = _qp_loop()
     try:
-        session = loop.call(lambda s: s)
-        qp = _qp_session().executor
-        loop.call(lambda s: setattr(s, "executor", qp))
-        joint3 = JOINT_KNOBS[3]
-        for knob, value in (
-            (_knob(SAFETY, "lambda_"), 500.0),
-            (_knob(SAFETY, "velocity_scale"), 50.0),
-            (_knob(COMPLIANCE, "task_compliance"), 1.0),
-            (joint3, 1.0),
-            (_knob(COMPLIANCE, "feedback"), False),
+        for path, value in (
+            ("damper.lambda_", 500.0),
+            ("damper.velocity_scale", 0.5),
+            ("pose_task.compliance", 1.0),
+            ("posture_task.compliance[3]", 1.0),
+            ("compliance_qp.feedback", False),
+            ("estimator.source", "residual"),
         ):
-            stored = loop.settings.values["executor"].get(knob.key)
-            loop.submit(Configure("executor", knob.to_changes(coerce(knob, value), stored), client_id=1))
-            loop.sync()
+            for cmd in knob(path).commands(value, 1):
+                loop.submit(cmd)
+        loop.sync()
         assert not [n for n in loop.notice_log if n.level == "error"]
-        assert session.executor.damper.gains.lambda_ == 500.0
-        assert session.executor.damper.gains.velocity_scale == pytest.approx(0.5)
-        assert session.executor.settings.feedback is False
-        np.testing.assert_allclose(np.diag(qp.posture.gamma), [0, 0, 0, 1, 0, 0, 0])
-        np.testing.assert_allclose(qp.tasks[0].gamma, np.eye(6))
-        shown = loop.settings.values["executor"]
-        assert _knob(SAFETY, "velocity_scale").display(shown["velocity_scale"]) == pytest.approx(50.0)
-        assert joint3.display(shown["posture_compliance"]) == 1.0
+        ex = loop.session.executor
+        assert ex.damper.gains.lambda_ == 500.0 and ex.damper.gains.velocity_scale == pytest.approx(0.5)
+        assert ex.settings.feedback is False and ex.estimator.gains.source == "residual"
+        np.testing.assert_allclose(np.diag(ex.posture.gamma), [0, 0, 0, 1, 0, 0, 0])
+        np.testing.assert_allclose(ex.tasks[0].gamma, np.eye(6))
+        shown = loop.settings.groups
+        assert knob("posture_task.compliance[3]").shown(shown["posture_task"].compliance) == 1.0
     finally:
         loop.stop()
 
 
-def test_vector_knobs_change_only_their_part():
-    rot = _knob(MOTION_FORCE, "motion_kp_rot")
-    stored = [4000.0, 4000.0, 4000.0, 400.0, 400.0, 400.0]
-    assert rot.display(stored) == 400.0
-    assert rot.to_changes(100.0, stored) == {"motion_kp": (4000.0, 4000.0, 4000.0, 100.0, 100.0, 100.0)}
-    trans = _knob(MOTION_FORCE, "motion_kp", "translation")
-    assert trans.to_changes(10.0, stored) == {"motion_kp": (10.0, 10.0, 10.0, 400.0, 400.0, 400.0)}
-    assert JOINT_KNOBS[6].to_changes(0.5, 0.2) == {"posture_compliance": (0.2,) * 6 + (0.5,)}
-    noise = _knob(MOTION_FORCE, "force_noise_var")
-    assert noise.to_changes(False, 5.0) == {"force_noise_var": 0.0, "sine_amplitude_n": 0.0}
-    axes = _knob(MOTION_FORCE, "force_axes")
-    assert axes.display([0, 1, 2]) == "px py pz" and axes.to_changes("px py", [2]) == {"force_axes": ("px", "py")}
+def test_two_element_updates_of_one_vector_within_one_frame_are_both_applied():
+    """The lost-update bug: translation 1000 then rotation 100 before the loop publishes."""
+    loop = SimLoop("polish", capture=lambda s: None)
+    loop.start(running=False)
+    try:
+        loop.sync()
+        version = loop.settings.version
+        for cmd in (
+            *knob("motion_force.motion_kp[0:3]").commands(1000.0, 1),
+            *knob("motion_force.motion_kp[3:6]").commands(100.0, 1),
+        ):
+            loop.submit(cmd)
+        loop.sync()
+        assert loop.settings.version > version
+        assert loop.session.executor.gains.motion_kp == (1000.0,) * 3 + (100.0,) * 3
+    finally:
+        loop.stop()
+    qp = _qp_loop()
+    try:
+        qp.submit(SetParam("posture_task", "compliance", 0.2))
+        qp.submit(SetParam("posture_task", "compliance", 0.5, 1))
+        qp.submit(SetParam("posture_task", "compliance", 0.9, 4))
+        qp.sync()
+        assert qp.session.params()["posture_task"].compliance == (0.2, 0.5, 0.2, 0.2, 0.9, 0.2, 0.2)
+    finally:
+        qp.stop()
 
 
-@pytest.mark.parametrize("value", ["abc", None, float("nan"), float("inf"), -1.0, 1e12, True, [1.0]])
-def test_slider_values_outside_the_knob_are_refused(value):
-    with pytest.raises(ValueError):
-        coerce(_knob(SAFETY, "lambda_"), value)
-
-
-def test_checkbox_and_dropdown_accept_only_their_kind():
-    with pytest.raises(ValueError):
-        coerce(_knob(COMPLIANCE, "feedback"), "yes")
-    with pytest.raises(ValueError):
-        coerce(_knob(SAFETY, "form"), "<script>")
-    assert coerce(_knob(SAFETY, "form"), "classic") == "classic"
+def test_more_gains_shows_exactly_the_fields_no_panel_claims():
+    claimed = claimed_fields(ALL_FIELDS)
+    assert "motion_force.motion_kp" in claimed and "posture_task.compliance" in claimed
+    assert "nullspace.k0_d" in claimed and "damper.lambda_" in claimed
+    assert "compliance_qp.eps" not in claimed and "joint_hold.stiffness" not in claimed
 
 
 def test_export_writes_every_column_and_marks_missing_values():
@@ -123,13 +134,3 @@ def test_export_writes_every_column_and_marks_missing_values():
     assert lines[0] == "t,W_a" and len(lines) == 4 and lines[1] == "0,"
     doc = json.loads(to_json({"columns": cols, "scenario": "free", "settings": {"drag": {"max_force_n": 150.0}}}))
     assert doc["columns"]["W_a"] == [None, 1.5, 2.0] and doc["scenario"] == "free"
-
-
-def test_more_gains_lists_exactly_the_scalars_the_executor_accepts():
-    s = Session("free")
-    values = READER(s)
-    assert set(values["meta"]["executor_scalars"]) == {"stiffness", "damping"}  # joint-hold
-    qp_values = READER(_qp_session())
-    scalars = set(qp_values["meta"]["executor_scalars"])
-    assert {"feedback", "torque_limits"} <= scalars
-    assert "eps" not in scalars and "dt" not in scalars  # present on the object, refused by configure()

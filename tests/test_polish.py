@@ -44,7 +44,7 @@ def test_short_polish_run_holds_20_newtons(rizon):
     the true contact force within 20 ± 5 N with the TCP on the table at all times.
     """
     session = Session(P.PolishScenario(mu=0.25), seed=3)
-    session.executor.configure(objective="j")
+    session.set_param("nullspace", "objective", "j")
     clock = session.environment.clock  # type: ignore[attr-defined]
     session.run(0.8)  # press on the table
     clock.trajectory_start = session.world.time

@@ -10,6 +10,7 @@ import osqp
 import pytest
 
 from control import qp
+from control.gains import SolverParams
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -142,14 +143,12 @@ def test_backend_is_chosen_by_cli_environment_and_configure(monkeypatch, rizon, 
     ex = ComplianceQPExecutor.for_robot(rizon)
     proj = make_projection_executor(rizon, RobotModel(rizon.model))
     assert ex.qp.primary.backend == proj.qp._qp.backend == "osqp"
-    ex.configure(qp_backend="dense")
-    proj.configure(qp_backend="dense")
+    ex.set_params("solver", SolverParams(qp_backend="dense"))
+    proj.set_params("solver", SolverParams(qp_backend="dense"))
     assert ex.qp.primary.backend == proj.qp._qp.backend == "dense"
     for bad in ("cvxpy", 1.0, None):
-        with pytest.raises(ValueError, match="QP backend"):
-            ex.configure(qp_backend=bad)
-        with pytest.raises(ValueError, match="QP backend"):
-            proj.configure(qp_backend=bad)
+        with pytest.raises(ValueError, match="qp_backend must be one of dense, osqp"):
+            SolverParams(qp_backend=bad)
     assert ex.qp_backend == proj.qp_backend == "dense"
     monkeypatch.setenv(qp.BACKEND_ENV, "nonsense")
     with pytest.raises(ValueError, match="nonsense"):

@@ -62,7 +62,7 @@ def _knob_handle(app, key: str):
     for panel in app.panels:
         if isinstance(panel, KnobPanel):
             for i, knob in enumerate(panel.knobs):
-                if knob.key == key:
+                if knob.field == key:
                     return panel, knob, panel.handles[i]
     raise KeyError(key)
 

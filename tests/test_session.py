@@ -51,7 +51,10 @@ def test_executor_nan_output_falls_back_to_gravity_compensation():
         def reset(self, dyn, target):
             pass
 
-        def configure(self, **changes):
+        def params(self):
+            return {}
+
+        def set_params(self, name, group):
             pass
 
         def step(self, dyn, inputs):

@@ -14,7 +14,7 @@ from control import coupling as c
 from control.bridge import make_bridge_executor
 from control.compliance_qp import ComplianceQPExecutor
 from control.executor import ControlInputs, TaskTarget
-from control.gains import NullspaceGains
+from control.gains import NullspaceGains, SolverParams
 from control.joint_hold import JointHold
 from control.model import RobotModel
 from control.motion_force import make_projection_executor
@@ -83,14 +83,14 @@ def test_compliance_and_bridge_views_carry_damper_zone_qp_and_the_law(gen3):
     assert bv.executor == "compliance-qp" and bv.objective == "a" and bv.W == lv.W
     np.testing.assert_array_equal(bv.P["P_a"], lv.P["P_a"])
     assert bv.qp_status == bridge.last_qp.status  # its own acceleration QP, not the law's
-    bridge.configure(qp_backend="osqp")  # the law's nullspace QP follows
+    bridge.set_params("solver", SolverParams(qp_backend="osqp"))  # the law's nullspace QP follows
     assert bridge.qp.primary.backend == law.qp._qp.backend == "osqp"
     assert JointHold().view().P is None
 
 
 def test_scene_takes_objective_split_coupling_and_zone_from_the_view(monkeypatch):
     s = Session("polish")
-    s.configure("executor", {"objective": "a"})
+    s.set_param("nullspace", "objective", "a")
     for _ in range(5):
         s.step()
     view = s.executor.view()

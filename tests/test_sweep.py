@@ -64,7 +64,7 @@ def test_grid_values_as_linspace_list_or_single():
     ("argv", "words"),
     [
         (["limit-drop", "--grid", "bogus=1"], "unknown parameter 'bogus'"),
-        (["limit-drop", "--grid", "lambda=-5"], "lambda_ must be positive"),
+        (["limit-drop", "--grid", "lambda=-5"], "lambda_ must be between 1 and 1000"),
         (["limit-drop", "--grid", "form=wobbly"], "choose from proposed, classic"),
         (["limit-drop", "--grid", "torque_delay_ms=50"], "0 to 20 ms"),
         (["limit-drop", "--grid", "M=1:2"], "a:b:n"),

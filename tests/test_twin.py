@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.commands import Configure, DragCommand, Reset, SetTwin, StepOnce, SwitchSession
+from app.commands import DragCommand, Reset, SetParam, SetTwin, StepOnce, SwitchSession
 from app.loop import SimLoop
 from app.ui.snapshot import capture
 
@@ -46,7 +46,7 @@ def test_a_twin_with_the_same_objective_repeats_the_main_arm_step_for_step(polis
 
 
 def test_a_twin_with_another_objective_takes_another_posture_and_shares_the_settings(polish):
-    polish.submit(Configure("environment", {"mu": 1.0}))
+    polish.submit(SetParam("contact", "mu", 1.0))
     polish.submit(SetTwin("j"))
     polish.submit(StepOnce(2000))
     polish.sync()

@@ -8,6 +8,7 @@ import pytest
 from app.check import TOLERANCE, cross_check
 from app.sim.world import World
 from control.model import RobotModel
+from control.params import ParamError, replaced
 
 
 def test_pinocchio_and_mujoco_agree(robot):
@@ -41,8 +42,8 @@ def test_applied_tcp_force_shows_in_sensor_wrench_and_joint_torque(rizon):
 
 def test_torque_delay_applies_each_command_that_many_steps_later(rizon):
     world = World(rizon)
-    world.configure(torque_delay_ms=3.0)
-    assert world.settings() == {"torque_delay_ms": 3.0}
+    world.set_params("world", replaced(world.params()["world"], "torque_delay_ms", 3.0))
+    assert world.params()["world"].torque_delay_ms == 3.0
     commands = [np.full(7, float(k)) for k in range(10)]
     applied = []
     for tau in commands:
@@ -57,13 +58,21 @@ def test_torque_delay_applies_each_command_that_many_steps_later(rizon):
 
 def test_torque_delay_refuses_nonsense(rizon):
     world = World(rizon)
-    for bad in (
-        {"torque_delay_ms": -1.0},
-        {"torque_delay_ms": float("nan")},
-        {"torque_delay_ms": 1e9},
-        {"torque_delay_ms": "5"},
-        {"latency": 1.0},
+    for field, bad in (
+        ("torque_delay_ms", -1.0),
+        ("torque_delay_ms", float("nan")),
+        ("torque_delay_ms", 1e9),
+        ("torque_delay_ms", "5"),
+        ("latency", 1.0),
     ):
-        with pytest.raises(ValueError):
-            world.configure(**bad)
+        with pytest.raises(ParamError):
+            world.set_params("world", replaced(world.params()["world"], field, bad))
     assert world.torque_delay_steps == 0
+
+
+def test_armature_scale_changes_the_simulated_arm_only(rizon):
+    world = World(rizon)
+    nominal = world.model.dof_armature[world.dof_adr].copy()
+    world.set_params("world", replaced(world.params()["world"], "armature_scale", 2.0))
+    np.testing.assert_allclose(world.model.dof_armature[world.dof_adr], 2.0 * nominal, rtol=1e-12)
+    np.testing.assert_allclose(rizon.armature, nominal, rtol=1e-12)  # the controller's model keeps the nominal

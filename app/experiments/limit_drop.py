@@ -84,11 +84,11 @@ def run_drop(
     assert isinstance(executor, ComplianceQPExecutor)
     scenario.configure_executor(executor, robot, gains, feedback=feedback)
     if observer_gain is not None:
-        executor.configure(observer_gain=observer_gain)
+        session.set_param("estimator", "observer_gain", observer_gain)
     if source is not None:
-        executor.configure(source=source)
+        session.set_param("estimator", "source", source)
     if delay_steps > 0:  # actuator latency in the simulation (the app's Safety → Torque delay)
-        session.world.configure(torque_delay_ms=delay_steps * 1e3 * session.world.model.opt.timestep)
+        session.set_param("world", "torque_delay_ms", delay_steps * 1e3 * session.world.model.opt.timestep)
     session.reset()
     j = FALLING_JOINT
     dt = session.world.model.opt.timestep

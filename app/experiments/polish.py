@@ -141,12 +141,11 @@ def simulate(spec: dict) -> dict:
         plan_cost=plan_cost,
     )
     session = Session(scenario, seed=int(spec["seed"]))
-    changes: dict[str, Any] = {"shaping": bool(spec.get("shaping", True))}
+    session.set_param("motion_force", "shaping", bool(spec.get("shaping", True)))
     if plan_cost is None and spec.get("hold_swivel_deg") is None:
-        changes["objective"] = objective
-    session.executor.configure(**changes)
+        session.set_param("nullspace", "objective", objective)
     if spec.get("sensor_cutoff_hz") is not None:
-        session.sensor.configure(cutoff_hz=spec["sensor_cutoff_hz"])
+        session.set_param("sensor", "cutoff_hz", float(spec["sensor_cutoff_hz"]))
     clock = session.environment.clock  # type: ignore[attr-defined]
     target = session.target_fn
     q_start = session.world.q.copy()
@@ -287,8 +286,8 @@ def v_eps_check(v_eps: float, seed: int = 0) -> dict:
     from app.session import Session
 
     session = Session(PolishScenario(mu=1.0), seed=seed)
-    session.executor.configure(objective="j")
-    session.environment.configure(v_eps_m_per_s=v_eps)
+    session.set_param("nullspace", "objective", "j")
+    session.set_param("contact", "v_eps_m_per_s", v_eps)
     f: list[float] = []
     res = session.run(
         scenario_module.CONTACT_TIME_S + V_EPS_HOLD_S,

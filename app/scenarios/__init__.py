@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -20,6 +21,7 @@ import numpy as np
 from app.sim.world import World
 from control.executor import TaskTarget
 from control.model import Dynamics, RobotModel
+from control.params import ParamGroup, expect
 from robots import RobotDescription
 
 # name -> module under app.scenarios with a module-level SCENARIO
@@ -45,10 +47,13 @@ class Environment:
     def observe(self, signals: dict[str, float], t: float) -> None:
         """Called after the controller each step with its signals (e.g. to detect convergence)."""
 
-    def configure(self, **changes: object) -> None:
-        """Change environment settings (friction, sander amplitude...); ValueError on bad input."""
-        if changes:
-            raise ValueError(f"this scenario has no environment settings {', '.join(changes)}")
+    def params(self) -> dict[str, ParamGroup]:
+        """Its parameter groups by name (friction, sander...); none by default."""
+        return {}
+
+    def set_params(self, name: str, group: Any) -> None:
+        """Take a new validated group; ParamError for a group it lacks."""
+        expect(name, group, None)
 
     def overlay(self) -> dict[str, np.ndarray]:
         """Vectors the UI may draw (e.g. 'contact_force' at 'contact_point'), world frame."""
@@ -61,9 +66,13 @@ class Sensor:
     def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
         return np.array(true_wrench, dtype=float)
 
-    def configure(self, **changes: object) -> None:
-        if changes:
-            raise ValueError(f"the ideal sensor has no settings {', '.join(changes)}")
+    def params(self) -> dict[str, ParamGroup]:
+        """Its parameter groups by name; the ideal sensor has none."""
+        return {}
+
+    def set_params(self, name: str, group: Any) -> None:
+        """Take a new validated group; ParamError for a group it lacks."""
+        expect(name, group, None)
 
     def reset(self) -> None:
         """Clear filter states."""
@@ -79,6 +88,15 @@ class Scenario:
     default_executor = "joint-hold"
     table_height: float | None = None
     focus_joint: int | None = None  # 0-based joint the phase plot should show when the preset starts
+
+    def params(self) -> dict[str, ParamGroup]:
+        """The scenario's own parameters (e.g. the polish start swivel) as group "scenario", if any;
+        they take effect at the next reset. The Session works on its own copy of the scenario."""
+        return {}
+
+    def set_params(self, name: str, group: Any) -> None:
+        """Take a new validated "scenario" group; ParamError for a group it lacks."""
+        expect(name, group, None)
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         """Joint positions at t = 0."""

@@ -15,6 +15,8 @@ Constants, chosen once, not tuned afterwards:
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor
@@ -93,7 +95,7 @@ class ComplianceScenario(Scenario):
         executor.set_tasks([PoseTask(PoseTaskGains(stiffness=100.0, damping=20.0, weight=1e4, compliance=g_task))])
         executor.posture.configure(PostureTaskGains(stiffness=1.0, damping=2.0, weight=1.0, compliance=g_posture))
         executor.estimator.configure(EstimatorGains(source="fusion", observer_gain=OBSERVER_GAIN))
-        executor.configure(feedback=True)
+        executor.set_params("compliance_qp", replace(executor.settings, feedback=True))
 
 
 SCENARIO = ComplianceScenario()

@@ -20,6 +20,7 @@ Constants, chosen once from the paper and not tuned afterwards:
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -102,7 +103,7 @@ class LimitDropScenario(Scenario):
         )
         executor.estimator.configure(EstimatorGains(source="fusion", observer_gain=OBSERVER_GAIN))
         executor.damper.configure(dampers or DamperGains(), dq_max=self.velocity_limits(robot))
-        executor.configure(feedback=feedback)
+        executor.set_params("compliance_qp", replace(executor.settings, feedback=feedback))
 
 
 SCENARIO = LimitDropScenario()

@@ -37,6 +37,7 @@ cord and knot) and the true mass (±10 % about the 1.25 kg, which no controller 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -169,7 +170,7 @@ class RopeDrop(Environment):
     def __init__(self, world: World, rng: np.random.Generator, params: MassDropParams):
         self.world = world
         self.rng = rng
-        self.params = params
+        self.rig = params
         self.rope = params.rope
         self.body_id = int(world.model.body(MASS_BODY).id)
         joint = int(world.model.body_jntadr[self.body_id])
@@ -192,7 +193,7 @@ class RopeDrop(Environment):
     def _hold(self, anchor: np.ndarray, anchor_velocity: np.ndarray) -> None:
         """Put the mass at the release point, at rest (a hand holding it)."""
         d = self.world.data
-        below = self.rope.length_m - self.params.drop_height
+        below = self.rope.length_m - self.rig.drop_height
         d.qpos[self.qpos_adr : self.qpos_adr + 3] = anchor - np.array([0.0, 0.0, below])
         d.qpos[self.qpos_adr + 3 : self.qpos_adr + 7] = (1.0, 0.0, 0.0, 0.0)
         d.qvel[self.dof_adr : self.dof_adr + 6] = 0.0
@@ -234,8 +235,11 @@ class SensorAdapter(Sensor):
     def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
         return self.sensor.measure(true_wrench, t)
 
-    def configure(self, **changes: object) -> None:
-        self.sensor.configure(**changes)
+    def params(self) -> dict[str, Any]:
+        return self.sensor.params()
+
+    def set_params(self, name: str, group: Any) -> None:
+        self.sensor.set_params(name, group)
 
     def reset(self) -> None:
         self.sensor.reset()
@@ -260,25 +264,25 @@ class MassDropScenario(Scenario):
             raise ValueError(f"case must be one of {', '.join(CASES)}, got {case!r}")
         self.mode = mode
         self.case = case
-        self.params = params or MassDropParams()
+        self.rig = params or MassDropParams()  # not `params`: that is the Scenario's parameter groups
 
     def with_params(self, **changes: object) -> MassDropScenario:
         """A copy with some rig parameters changed (validated by `MassDropParams`)."""
-        return MassDropScenario(self.mode, self.case, replace(self.params, **changes))  # type: ignore[arg-type]
+        return MassDropScenario(self.mode, self.case, replace(self.rig, **changes))  # type: ignore[arg-type]
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         return self.named_posture(robot, "mass_drop_nominal")
 
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         if self.case == "held-release":
-            add_payload_body(spec, robot, self.params.mass_kg)
+            add_payload_body(spec, robot, self.rig.mass_kg)
         else:
-            add_drop_mass(spec, self.params.mass_kg)
+            add_drop_mass(spec, self.rig.mass_kg)
 
     def make_environment(self, world: World, rng: np.random.Generator) -> Environment:
         if self.case == "held-release":
-            return RippleAndPayload(world, rng, self.params.mass_kg)
-        return RopeDrop(world, rng, self.params)
+            return RippleAndPayload(world, rng, self.rig.mass_kg)
+        return RopeDrop(world, rng, self.rig)
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         return wrist_ft_sensor(rng)
@@ -297,14 +301,14 @@ class MassDropScenario(Scenario):
                 PostureTaskGains(stiffness=3 * w * w, damping=3 * w, integral=w**3, weight=1.0, compliance=0.0)
             )
             executor.estimator.configure(EstimatorGains(source="none", observer_gain=OBSERVER_GAIN))
-            executor.configure(feedback=False)
+            executor.set_params("compliance_qp", replace(executor.settings, feedback=False))
             return
         w = TASK_OMEGA
         executor.set_tasks([PoseTask(PoseTaskGains(stiffness=w * w, damping=2 * w, weight=1e4, compliance=0.0))])
         executor.posture.configure(PostureTaskGains(stiffness=1.0, damping=2.0, weight=1.0, compliance=1.0))
         source = "residual" if self.mode == "torque-residual" else "fusion"
         executor.estimator.configure(EstimatorGains(source=source, observer_gain=OBSERVER_GAIN))
-        executor.configure(feedback=True)
+        executor.set_params("compliance_qp", replace(executor.settings, feedback=True))
 
 
 SCENARIO = MassDropScenario()

@@ -16,18 +16,42 @@ go (the mass leaves with no force on the arm). Each new environment restores the
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import mujoco
 import numpy as np
 
 from app.scenarios import Environment
 from app.sim.world import World, _body_of_joint
+from control.params import ParamGroup, expect, param
 from robots import TCP_FRAME, RobotDescription
 
 PAYLOAD_BODY = "payload"
+PAYLOAD_RADIUS_M = 0.04
 GRAVITY = 9.81
 
 
-def add_payload_body(spec: mujoco.MjSpec, robot: RobotDescription, mass_kg: float, radius_m: float = 0.04) -> None:
+@dataclass(frozen=True)
+class PayloadParams(ParamGroup):
+    """The simulated payload (the controller model does not know it: its mass is a model error)."""
+
+    title = "Payload"
+
+    mass_kg: float = param(
+        1.25,
+        label="Payload mass",
+        unit="kg",
+        lo=0.0,
+        hi=3.0,
+        step=0.05,
+        help="simulated mass at the tool",
+        tag="[C] §IV",
+    )
+
+
+def add_payload_body(
+    spec: mujoco.MjSpec, robot: RobotDescription, mass_kg: float, radius_m: float = PAYLOAD_RADIUS_M
+) -> None:
     """Add the payload body at the TCP site of the last link (solid sphere inertia)."""
     if not mass_kg > 0:
         raise ValueError(f"payload mass must be positive, got {mass_kg!r}")
@@ -54,7 +78,7 @@ class PayloadEnvironment(Environment):
         self.world = world
         self.body_id = int(world.model.body(PAYLOAD_BODY).id)
         self.mass_kg = float(mass_kg)
-        self.inertia = np.full(3, 0.4 * mass_kg * 0.04**2)
+        self.inertia = np.full(3, 0.4 * mass_kg * PAYLOAD_RADIUS_M**2)
         self.release_time_s = release_time_s
         self.attach()
 
@@ -72,15 +96,17 @@ class PayloadEnvironment(Environment):
         self.world.carried.discard(self.body_id)
         self.attached = False
 
-    def configure(self, **changes: object) -> None:
-        """`attached=True/False` attaches or releases now; `release_time_s` schedules a release."""
-        for key, value in changes.items():
-            if key == "attached":
-                self.attach() if value else self.release()
-            elif key == "release_time_s":
-                self.release_time_s = None if value is None else float(value)  # type: ignore[arg-type]
-            else:
-                raise ValueError(f"payload has no setting {key!r}")
+    def params(self) -> dict[str, ParamGroup]:
+        """Its one group, "payload" (the simulated mass; the controller model never includes it)."""
+        return {"payload": PayloadParams(mass_kg=self.mass_kg)}
+
+    def set_params(self, name: str, group: PayloadParams) -> None:
+        """A new simulated payload mass (solid-sphere inertia), in force at once while attached."""
+        p = expect(name, group, PayloadParams if name == "payload" else None)
+        self.mass_kg = p.mass_kg
+        self.inertia = np.full(3, 0.4 * p.mass_kg * PAYLOAD_RADIUS_M**2)
+        if self.attached:
+            self.attach()
 
     def apply(self, world: World, t: float) -> dict[str, float]:
         """Apply the weight at the payload's centre of mass (world frame) while attached."""

@@ -17,6 +17,7 @@ import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -31,6 +32,7 @@ from control.executor import TaskTarget
 from control.gains import MotionForceGains
 from control.margin import ContactLoop, posture_margin
 from control.model import Dynamics, RobotModel
+from control.params import ParamGroup, expect, param, replaced
 from control.planner import PLAN_COSTS, Plan, cost_map, loops_along, swivel_of_points
 from control.planner import plan as make_plan
 from robots import RobotDescription
@@ -298,19 +300,13 @@ class PolishEnvironment(Environment):
         speed = signals.get("nullspace_speed")
         self.clock.observe(t, float("nan") if speed is None else speed, signals.get("W", float("nan")))
 
-    def configure(self, **changes: object) -> None:
-        """mu, stiffness_n_per_m, v_eps_m_per_s (contact); sander_amplitude_n, sander_enabled."""
-        contact = {k: v for k, v in changes.items() if k in ("mu", "stiffness_n_per_m", "v_eps_m_per_s")}
-        sander = {}
-        if "sander_amplitude_n" in changes:
-            sander["amplitude_n"] = changes["sander_amplitude_n"]
-        if "sander_enabled" in changes:
-            sander["enabled"] = changes["sander_enabled"]
-        rest = set(changes) - set(contact) - {"sander_amplitude_n", "sander_enabled"}
-        if rest:
-            raise ValueError(f"polish environment has no setting {', '.join(sorted(rest))}")
-        self.contact.configure(**contact)
-        self.sander.configure(**sander)
+    def params(self) -> dict[str, Any]:
+        """ "contact" (μ, stiffness, v_ε) and "sander"."""
+        return {**self.contact.params(), **self.sander.params()}
+
+    def set_params(self, name: str, group: Any) -> None:
+        """Hand a new group to the contact or the sander."""
+        (self.sander if name == "sander" else self.contact).set_params(name, group)
 
     def overlay(self) -> dict[str, np.ndarray]:
         """Contact force and friction at the contact point (world)."""
@@ -334,13 +330,35 @@ class SensorAdapter(Sensor):
         """Noisy, filtered reading (world axes, at the sensor)."""
         return self.ft.measure(true_wrench, t)
 
-    def configure(self, **changes: object) -> None:
+    def params(self) -> dict[str, Any]:
+        """The F/T model's "sensor" group."""
+        return self.ft.params()
+
+    def set_params(self, name: str, group: Any) -> None:
         """Noise and filter settings of `FTSensor`."""
-        self.ft.configure(**changes)
+        self.ft.set_params(name, group)
 
     def reset(self) -> None:
         """Clear the filter state."""
         self.ft.reset()
+
+
+@dataclass(frozen=True)
+class PolishParams(ParamGroup):
+    """The polish preset's own parameters (in force from the next reset)."""
+
+    title = "Polish preset"
+
+    start_swivel_deg: float = param(
+        START_SWIVEL_DEG,
+        label="Start swivel",
+        unit="deg",
+        lo=-180.0,
+        hi=180.0,
+        step=5.0,
+        help="elbow swivel of the start posture (0 = elbow up, Fig. 6a); applies at Reset",
+        tag="DESIGN §8",
+    )
 
 
 class PolishScenario(Scenario):
@@ -414,14 +432,23 @@ class PolishScenario(Scenario):
 
     def configure_executor(self, executor: object, robot: RobotDescription) -> None:
         """Holding a swivel or following a plan runs the W_j objective [T18] on the target's posture."""
-        if self.hold_swivel_deg is not None or self.plan_cost is not None:
-            executor.configure(objective="j")  # type: ignore[attr-defined]
+        groups: dict = getattr(executor, "params", dict)()
+        if (self.hold_swivel_deg is not None or self.plan_cost is not None) and "nullspace" in groups:
+            executor.set_params("nullspace", replaced(groups["nullspace"], "objective", "j"))  # type: ignore[attr-defined]
         self._executor = executor
         if self._environment is not None:
             self._environment.executor = executor
         k0_j = getattr(getattr(executor, "nullspace", None), "k0_j", 0.0)
         # W_j [T18] follows a moving q_d with the lag 1/k0_j: the target leads the plan by that much
         self._plan_lead_s = 1.0 / k0_j if k0_j > 0 else 0.0
+
+    def params(self) -> dict[str, ParamGroup]:
+        """ "scenario": the start swivel (used at the next reset)."""
+        return {"scenario": PolishParams(start_swivel_deg=self.start_swivel_deg)}
+
+    def set_params(self, name: str, group: Any) -> None:
+        """A new start swivel for the next reset."""
+        self.start_swivel_deg = expect(name, group, PolishParams if name == "scenario" else None).start_swivel_deg
 
     def start_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """TCP position and rotation at the start (2 mm above the table, tool down)."""
@@ -455,11 +482,7 @@ class PolishScenario(Scenario):
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         """F/T sensor of [T] §IV-A (noise off when sensor_noise is False; the filter stays)."""
-        if self.sensor_noise:
-            return SensorAdapter(FTSensor(rng, cutoff_hz=SENSOR_CUTOFF_HZ))
-        return SensorAdapter(
-            FTSensor(rng, force_noise_var=0.0, torque_noise_var=0.0, sine_amplitude_n=0.0, cutoff_hz=SENSOR_CUTOFF_HZ)
-        )
+        return SensorAdapter(FTSensor(rng, cutoff_hz=SENSOR_CUTOFF_HZ, noise=self.sensor_noise))
 
     def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
         """Hold the start XY with 20 N, then the zig-zag once the clock starts it."""

@@ -32,6 +32,38 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.sim.world import World
+from control.params import ParamGroup, expect, param
+
+
+@dataclass(frozen=True)
+class ContactParams(ParamGroup):
+    """The table contact's tunables (see the module docstring)."""
+
+    title = "Table contact"
+
+    mu: float = param(
+        0.25,
+        label="Friction μ",
+        lo=0.0,
+        hi=1.5,
+        step=0.05,
+        help="Coulomb friction of the table, F_t = μ F_n",
+        tag="[T] Fig. 4",
+    )
+    stiffness_n_per_m: float = param(
+        30000.0,
+        label="Contact stiffness",
+        unit="N/m",
+        lo=5000.0,
+        hi=60000.0,
+        step=1000.0,
+        help="normal spring of the table (no damping)",
+        tag="[T] Fig. 4",
+    )
+    # the implicit friction step is stable for any v_ε > 0; 1 mm/s is the smallest the tests cover
+    v_eps_m_per_s: float = param(
+        0.01, label="Friction v_ε", unit="m/s", lo=0.001, hi=0.1, step=0.001, help="friction smoothing speed"
+    )
 
 
 @dataclass
@@ -57,21 +89,19 @@ class TableContact:
     ):
         self.height = float(height)
         self.implicit = bool(implicit)  # False: the explicit law (kept to show why it is not used)
-        self.stiffness_n_per_m = 0.0
-        self.mu = 0.0
-        self.v_eps_m_per_s = 1.0
-        self.configure(stiffness_n_per_m=stiffness_n_per_m, mu=mu, v_eps_m_per_s=v_eps_m_per_s)
+        self.set_params(
+            "contact", ContactParams(mu=mu, stiffness_n_per_m=stiffness_n_per_m, v_eps_m_per_s=v_eps_m_per_s)
+        )
         self.state = ContactState(friction_force=np.zeros(3), point=np.zeros(3))
 
-    def configure(self, **changes: object) -> None:
-        """Set stiffness_n_per_m, mu or v_eps_m_per_s; ValueError on negative/NaN values."""
-        for key, value in changes.items():
-            if key not in ("stiffness_n_per_m", "mu", "v_eps_m_per_s", "height"):
-                raise ValueError(f"table contact has no setting {key!r}")
-            x = float(value)  # type: ignore[arg-type]
-            if not np.isfinite(x) or (x < 0 and key != "height") or (key == "v_eps_m_per_s" and x <= 0):
-                raise ValueError(f"table contact {key} must be a finite non-negative number, got {value!r}")
-            setattr(self, key, x)
+    def params(self) -> dict[str, ContactParams]:
+        """Its one group, "contact"."""
+        return {"contact": self._params}
+
+    def set_params(self, name: str, group: ContactParams) -> None:
+        """New friction / stiffness / smoothing (validated by `ContactParams`)."""
+        self._params = p = expect(name, group, ContactParams if name == "contact" else None)
+        self.mu, self.stiffness_n_per_m, self.v_eps_m_per_s = p.mu, p.stiffness_n_per_m, p.v_eps_m_per_s
 
     def forces(self, point: np.ndarray, velocity: np.ndarray) -> tuple[float, np.ndarray]:
         """(F_n, friction force (3,)) at a TCP position and linear velocity."""

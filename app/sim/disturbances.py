@@ -7,32 +7,41 @@ The amplitude a = m e ω² of the imbalance is set directly in newtons.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from app.sim.world import World
+from control.params import ParamGroup, expect, param
+
+
+@dataclass(frozen=True)
+class SanderParams(ParamGroup):
+    """The electric sander of [T] Fig. 5b."""
+
+    title = "Sander"
+
+    enabled: bool = param(True, label="Sander", help="eccentric rotating force on the tool", tag="[T] Fig. 5b")
+    amplitude_n: float = param(
+        10.0, label="Sander amplitude", unit="N", lo=0.0, hi=40.0, step=1.0, help="imbalance force"
+    )
+    rpm: float = param(7000.0, label="Sander speed", unit="RPM", lo=0.0, hi=10000.0, step=100.0, help="pad speed")
 
 
 class Sander:
     """Rotating eccentric force at the TCP (default 7000 RPM)."""
 
     def __init__(self, amplitude_n: float = 10.0, rpm: float = 7000.0, enabled: bool = True):
-        self.amplitude_n = 0.0
-        self.rpm = 0.0
-        self.enabled = bool(enabled)
-        self.configure(amplitude_n=amplitude_n, rpm=rpm)
+        self.set_params("sander", SanderParams(enabled=enabled, amplitude_n=amplitude_n, rpm=rpm))
 
-    def configure(self, **changes: object) -> None:
-        """Set amplitude_n, rpm or enabled; ValueError on negative or non-finite values."""
-        for key, value in changes.items():
-            if key == "enabled":
-                self.enabled = bool(value)
-                continue
-            if key not in ("amplitude_n", "rpm"):
-                raise ValueError(f"sander has no setting {key!r}")
-            x = float(value)  # type: ignore[arg-type]
-            if not np.isfinite(x) or x < 0:
-                raise ValueError(f"sander {key} must be a finite non-negative number, got {value!r}")
-            setattr(self, key, x)
+    def params(self) -> dict[str, SanderParams]:
+        """Its one group, "sander"."""
+        return {"sander": self._params}
+
+    def set_params(self, name: str, group: SanderParams) -> None:
+        """New switch / amplitude / speed (validated by `SanderParams`)."""
+        self._params = p = expect(name, group, SanderParams if name == "sander" else None)
+        self.enabled, self.amplitude_n, self.rpm = p.enabled, p.amplitude_n, p.rpm
 
     def force(self, t: float, tool_rotation_world: np.ndarray) -> np.ndarray:
         """Sander force (world, N) at time t for the tool orientation given."""

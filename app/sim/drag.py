@@ -13,6 +13,34 @@ import mujoco
 import numpy as np
 
 from app.sim.world import World
+from control.params import ParamGroup, expect, param
+
+
+@dataclass(frozen=True)
+class DragParams(ParamGroup):
+    """The mouse-drag spring's tunables."""
+
+    title = "Mouse drag"
+
+    max_force_n: float = param(
+        150.0,
+        label="Drag force limit",
+        unit="N",
+        lo=1.0,
+        hi=300.0,
+        step=5.0,
+        help="the spring force is clamped to this",
+    )
+    stiffness_per_s2: float = param(
+        400.0,
+        label="Drag stiffness",
+        unit="1/s²",
+        lo=10.0,
+        hi=2000.0,
+        step=10.0,
+        help="k, times the effective mass at the point",
+    )
+    damping_ratio: float = param(1.0, label="Drag damping ratio", lo=0.1, hi=3.0, step=0.1, help="c = 2ζ√k")
 
 
 @dataclass
@@ -29,13 +57,22 @@ class DragSpring:
     """A spring from a point fixed on a body to a target point, applied every simulation step."""
 
     def __init__(self, stiffness_per_s2: float = 400.0, damping_ratio: float = 1.0, max_force_n: float = 150.0):
-        self.stiffness_per_s2 = stiffness_per_s2
-        self.damping_ratio = damping_ratio
-        self.max_force_n = max_force_n
+        self.set_params(
+            "drag", DragParams(max_force_n=max_force_n, stiffness_per_s2=stiffness_per_s2, damping_ratio=damping_ratio)
+        )
         self.body_id: int | None = None
         self.point_body = np.zeros(3)
         self.target_world = np.zeros(3)
         self.state: DragState | None = None
+
+    def params(self) -> dict[str, DragParams]:
+        """Its one group, "drag"."""
+        return {"drag": self._params}
+
+    def set_params(self, name: str, group: DragParams) -> None:
+        """New force limit / stiffness / damping (validated by `DragParams`)."""
+        self._params = p = expect(name, group, DragParams if name == "drag" else None)
+        self.max_force_n, self.stiffness_per_s2, self.damping_ratio = p.max_force_n, p.stiffness_per_s2, p.damping_ratio
 
     @property
     def active(self) -> bool:

@@ -12,7 +12,37 @@ The random generator is passed in (seeded by the caller), so runs reproduce exac
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+
+from control.params import ParamGroup, expect, param
+
+
+@dataclass(frozen=True)
+class SensorParams(ParamGroup):
+    """The F/T sensor model's tunables ([T] §IV-A); `noise` off gives an ideal (filtered) reading."""
+
+    title = "F/T sensor"
+
+    noise: bool = param(
+        True, label="Sensor noise", help="Gaussian noise + sinusoid on; off: ideal filtered reading", tag="[T] §IV-A"
+    )
+    force_noise_var: float = param(
+        5.0, label="Force noise variance", unit="N²", lo=0.0, hi=50.0, step=0.5, help="per force channel"
+    )
+    torque_noise_var: float = param(
+        0.05, label="Torque noise variance", unit="(N m)²", lo=0.0, hi=1.0, step=0.01, help="per torque channel"
+    )
+    sine_amplitude_n: float = param(
+        2.0, label="Sinusoid amplitude", unit="N", lo=0.0, hi=10.0, step=0.5, help="on every force channel"
+    )
+    sine_hz: float = param(
+        1.0, label="Sinusoid frequency", unit="Hz", lo=0.0, hi=50.0, step=0.5, help="of the sinusoid"
+    )
+    cutoff_hz: float = param(
+        25.0, label="Low-pass cutoff", unit="Hz", lo=0.0, hi=500.0, step=1.0, help="first-order low-pass (0: no filter)"
+    )
 
 
 class FTSensor:
@@ -27,32 +57,33 @@ class FTSensor:
         sine_hz: float = 1.0,
         cutoff_hz: float = 25.0,
         dt: float = 1e-3,
+        noise: bool = True,
     ):
         self.rng = rng
         self.dt = float(dt)
-        self.force_noise_var = 0.0
-        self.torque_noise_var = 0.0
-        self.sine_amplitude_n = 0.0
-        self.sine_hz = 0.0
-        self.cutoff_hz = 0.0
-        self.configure(
-            force_noise_var=force_noise_var,
-            torque_noise_var=torque_noise_var,
-            sine_amplitude_n=sine_amplitude_n,
-            sine_hz=sine_hz,
-            cutoff_hz=cutoff_hz,
+        self.set_params(
+            "sensor",
+            SensorParams(
+                noise=noise,
+                force_noise_var=force_noise_var,
+                torque_noise_var=torque_noise_var,
+                sine_amplitude_n=sine_amplitude_n,
+                sine_hz=sine_hz,
+                cutoff_hz=cutoff_hz,
+            ),
         )
         self.reset()
 
-    def configure(self, **changes: object) -> None:
-        """Change noise/filter settings; ValueError on negative or non-finite values."""
-        for key, value in changes.items():
-            if key not in ("force_noise_var", "torque_noise_var", "sine_amplitude_n", "sine_hz", "cutoff_hz"):
-                raise ValueError(f"F/T sensor has no setting {key!r}")
-            x = float(value)  # type: ignore[arg-type]
-            if not np.isfinite(x) or x < 0:
-                raise ValueError(f"F/T sensor {key} must be a finite non-negative number, got {value!r}")
-            setattr(self, key, x)
+    def params(self) -> dict[str, SensorParams]:
+        """Its one group, "sensor"."""
+        return {"sensor": self._params}
+
+    def set_params(self, name: str, group: SensorParams) -> None:
+        """New noise/filter settings (validated by `SensorParams`); the filter state is kept."""
+        self._params = p = expect(name, group, SensorParams if name == "sensor" else None)
+        on = 1.0 if p.noise else 0.0
+        self.force_noise_var, self.torque_noise_var = on * p.force_noise_var, on * p.torque_noise_var
+        self.sine_amplitude_n, self.sine_hz, self.cutoff_hz = on * p.sine_amplitude_n, p.sine_hz, p.cutoff_hz
         self._std = np.array([np.sqrt(self.force_noise_var)] * 3 + [np.sqrt(self.torque_noise_var)] * 3)
         self.alpha = 1.0 - np.exp(-2.0 * np.pi * self.cutoff_hz * self.dt) if self.cutoff_hz > 0 else 1.0
 

@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 
-from app.settings import finite_number
+from control.params import ParamGroup, expect, param
 from robots import SENSOR_FRAME, TCP_FRAME, RobotDescription
 
 TIMESTEP_S = 1e-3
@@ -27,6 +27,33 @@ _BAD_STATE_WARNINGS = tuple(  # MuJoCo resets such a state and counts the warnin
     int(w)
     for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
 )
+
+
+@dataclass(frozen=True)
+class WorldParams(ParamGroup):
+    """The simulation's own tunables: actuator latency and the simulated arm's armature."""
+
+    title = "Simulation"
+
+    torque_delay_ms: float = param(
+        0.0,
+        label="Torque delay",
+        unit="ms",
+        lo=0.0,
+        hi=MAX_TORQUE_DELAY_MS,
+        step=1.0,
+        help="actuator latency: the joints get each torque this late (rounded to whole steps); "
+        "a few ms make a high λ ring",
+    )
+    armature_scale: float = param(
+        1.0,
+        label="Armature × (simulated)",
+        lo=0.25,
+        hi=4.0,
+        step=0.05,
+        help="the simulated arm's rotor armature times this; the controller model keeps the nominal "
+        "(a model error on purpose, DESIGN §4)",
+    )
 
 
 @dataclass
@@ -126,6 +153,8 @@ class World:
         self.tau_applied = np.zeros(len(robot.joint_names))
         self.torque_delay_steps = 0
         self._tau_pipeline: deque[np.ndarray] = deque()
+        self._armature_nominal = self.model.dof_armature[self.dof_adr].copy()
+        self.world_params = WorldParams()
         self.reset(robot.home)
 
     # ---- state -----------------------------------------------------------------------------
@@ -153,24 +182,19 @@ class World:
         self._acc_valid = False
 
     # ---- settings ---------------------------------------------------------------------------
-    def settings(self) -> dict[str, float]:
-        """The simulation's own tunables (the app's "world" settings target)."""
-        return {"torque_delay_ms": self.torque_delay_steps * self.model.opt.timestep * 1e3}
+    def params(self) -> dict[str, WorldParams]:
+        """Its one parameter group, "world"."""
+        return {"world": self.world_params}
 
-    def configure(self, **changes: object) -> None:
-        """`torque_delay_ms`: actuator latency, 0 … 20 ms, rounded to whole timesteps. Torques
-        reach the joints that much later (an ideal torque source is 0). ValueError otherwise."""
-        for key in changes:
-            if key != "torque_delay_ms":
-                raise ValueError(f"the simulation has no setting {key!r}")
-        if "torque_delay_ms" in changes:
-            value = changes["torque_delay_ms"]
-            ms = finite_number(value) if not isinstance(value, str) else None
-            if ms is None or not 0.0 <= ms <= MAX_TORQUE_DELAY_MS:
-                raise ValueError(f"torque delay must be 0 to {MAX_TORQUE_DELAY_MS:g} ms, got {value!r}")
-            self.torque_delay_steps = round(ms * 1e-3 / self.model.opt.timestep)
-            while len(self._tau_pipeline) > self.torque_delay_steps:
-                self._tau_pipeline.popleft()
+    def set_params(self, name: str, group: WorldParams) -> None:
+        """New torque delay (rounded to whole timesteps; queued torques beyond it are dropped) and
+        armature scale (written into the MuJoCo model at once)."""
+        p = expect(name, group, WorldParams if name == "world" else None)
+        self.world_params = p
+        self.torque_delay_steps = round(p.torque_delay_ms * 1e-3 / self.model.opt.timestep)
+        while len(self._tau_pipeline) > self.torque_delay_steps:
+            self._tau_pipeline.popleft()
+        self.model.dof_armature[self.dof_adr] = self._armature_nominal * p.armature_scale
 
     def site_pose(self, site_id: int) -> tuple[np.ndarray, np.ndarray]:
         """(position, rotation matrix) of a site in the world."""

@@ -1,15 +1,24 @@
 """GUI panels, one per file: Scenario, Motion–force, Nullspace, Compliance, Safety, Record/Export.
 
 Every panel only reads the loop's published frames and writes commands; none touches the session.
-`ALL_KNOBS` lists every bound knob so the loop can read their current values.
+A parameter panel is a list of "group.field" names (`app.ui.panels.base`); `ALL_FIELDS` lists
+every name some panel shows, so the More gains fold shows the rest.
 """
 
 from __future__ import annotations
 
-from app.ui.panels.base import Knob
-from app.ui.panels.compliance import KNOBS as COMPLIANCE_KNOBS
-from app.ui.panels.motion_force import KNOBS as MOTION_FORCE_KNOBS
-from app.ui.panels.nullspace import KNOBS as NULLSPACE_KNOBS
-from app.ui.panels.safety import KNOBS as SAFETY_KNOBS
+from app.ui.panels.compliance import FIELDS as COMPLIANCE_FIELDS
+from app.ui.panels.compliance import JOINT_FIELDS
+from app.ui.panels.motion_force import FIELDS as MOTION_FORCE_FIELDS
+from app.ui.panels.nullspace import FIELDS as NULLSPACE_FIELDS
+from app.ui.panels.safety import FIELDS as SAFETY_FIELDS
+from app.ui.panels.scenario import FIELDS as SCENARIO_FIELDS
 
-ALL_KNOBS: tuple[Knob, ...] = (*MOTION_FORCE_KNOBS, *NULLSPACE_KNOBS, *COMPLIANCE_KNOBS, *SAFETY_KNOBS)
+ALL_FIELDS: tuple[str, ...] = (
+    *SCENARIO_FIELDS,
+    *MOTION_FORCE_FIELDS,
+    *NULLSPACE_FIELDS,
+    *COMPLIANCE_FIELDS,
+    *JOINT_FIELDS,
+    *SAFETY_FIELDS,
+)

@@ -1,144 +1,161 @@
-"""Knobs: one GUI input bound to one setting of the running session.
+"""Panels generated from parameter metadata (`control.params`).
 
-A `Knob` names the `configure()` key it writes, the target it belongs to ("executor",
-"environment", "sensor", "drag", "target", "world"), how to read its current value from the session
-(`read`: dotted attribute paths tried in order, e.g. "damper.gains.lambda_"), and the input kind.
-`KnobPanel` builds a folder of knobs, writes each change as a `Configure` command (never touching
-the session), checks the value first (kind, finite, range) and refuses nonsense with a
-notification, and on every frame shows the values in force — greying out knobs the current
-controller does not have, so one panel serves every executor.
+A panel names the parameters it shows, in order, as `"group.field"` strings (see
+`Session.params()` for the groups), optionally with an element or a slice of a vector field:
+`"posture_task.compliance[3]"` (Γ₀ of joint 4), `"motion_force.motion_kp[0:3]"` (the translation
+stiffnesses, one slider). Everything else — the input kind (checkbox, dropdown, slider, number),
+label with unit, range, step and hint with the paper tag — comes from the field's metadata, so
+adding a knob is one field in its dataclass plus one name in a panel's list.
+
+A change is sent as `SetParam` commands (one per element for a slice) that the loop validates and
+applies between two steps — no read-modify-write of vectors on the GUI thread, so two element
+changes in one frame both land. Each frame the panel shows the values in force and greys out (or
+hides) inputs whose group the running session lacks, so one panel serves every executor.
 """
 
 from __future__ import annotations
 
 import math
+import re
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import numpy as np
 import viser
 
-from app.commands import Configure
+from app.commands import SetParam
 from app.loop import Settings, SimLoop
-from app.session import Session
-from app.settings import plain, settings_of
+from app.params import field_spec
+from control.params import ParamSpec
 
 TOUCH_HOLD_S = 0.6  # after a person moves a knob, the panel does not overwrite it for this long
+_PATH = re.compile(r"^(\w+)\.(\w+)(?:\[(\d+)(?::(\d+))?\])?$")
 
 
 @dataclass(frozen=True)
 class Knob:
-    """One input; see the module docstring. `show` maps the stored value to the input's value and
-    `changes` maps the input's value (and the stored one) to the `configure()` changes."""
+    """One input bound to `group.field` (elements `lo_index` … `hi_index` − 1 of a vector field,
+    or the whole field when `lo_index` is None)."""
 
-    key: str
-    label: str
-    target: str = "executor"
-    kind: str = "slider"  # "slider", "number", "checkbox" or "dropdown"
-    lo: float = 0.0
-    hi: float = 1.0
-    step: float = 0.01
-    options: tuple[str, ...] = ()
-    read: tuple[str, ...] = ()
-    hint: str | None = None
-    show: Callable[[Any], Any] | None = None
-    changes: Callable[[Any, Any], dict[str, Any]] | None = None
+    group: str
+    field: str
+    spec: ParamSpec
+    lo_index: int | None = None
+    hi_index: int | None = None
 
-    def display(self, stored: Any) -> Any:
-        """The input value for a stored setting."""
-        return self.show(stored) if self.show is not None else stored
+    @property
+    def path(self) -> str:
+        """The name it was declared with."""
+        if self.lo_index is None:
+            return f"{self.group}.{self.field}"
+        if self.hi_index == self.lo_index + 1:
+            return f"{self.group}.{self.field}[{self.lo_index}]"
+        return f"{self.group}.{self.field}[{self.lo_index}:{self.hi_index}]"
 
-    def to_changes(self, value: Any, stored: Any) -> dict[str, Any]:
-        """The configure() changes for an input value."""
-        return self.changes(value, stored) if self.changes is not None else {self.key: value}
+    @property
+    def kind(self) -> str:
+        """ "checkbox", "dropdown", "slider" or "number"."""
+        k = self.spec.kind
+        if k == "bool":
+            return "checkbox"
+        if k == "choice":
+            return "dropdown"
+        lo, hi = self.bounds
+        return "slider" if lo is not None and hi is not None and self.spec.step is not None else "number"
+
+    @property
+    def first(self) -> int:
+        return self.lo_index or 0
+
+    @property
+    def bounds(self) -> tuple[float | None, float | None]:
+        """(lo, hi) of the element shown."""
+        return self.spec.element(self.spec.lo, self.first), self.spec.element(self.spec.hi, self.first)
+
+    @property
+    def step(self) -> float:
+        lo, hi = self.bounds
+        step = self.spec.element(self.spec.step, self.first)
+        if step is not None:
+            return step
+        return (hi - lo) / 100.0 if lo is not None and hi is not None else 0.001
+
+    @property
+    def label(self) -> str:
+        """Label with the element names and the unit: "K_m^p px–pz (N/m)", "Γ₀ joint 4"."""
+        spec, text = self.spec, self.spec.label
+        if self.lo_index is not None and self.hi_index is not None:
+            first, last = spec.axis_name(self.lo_index), spec.axis_name(self.hi_index - 1)
+            text += f" {first}" if first == last else f" {first}–{last}"
+        unit = spec.element_unit(self.first)
+        return f"{text} ({unit})" if unit else text
+
+    @property
+    def hint(self) -> str | None:
+        """One-line help with the paper tag."""
+        text = " ".join(part for part in (self.spec.help, self.spec.tag) if part)
+        return (text[0].upper() + text[1:]) if text else None
+
+    @property
+    def options(self) -> tuple[str, ...]:
+        """Dropdown entries (the choice labels when the metadata has them)."""
+        return self.spec.choice_labels or self.spec.choices
+
+    def shown(self, value: Any) -> Any:
+        """The input value for a stored field value."""
+        spec = self.spec
+        if spec.kind == "choice":
+            return self.options[spec.choices.index(value)] if value in spec.choices else self.options[0]
+        if spec.kind in ("bool",):
+            return bool(value)
+        arr = np.asarray(value, dtype=float)
+        if arr.ndim == 2:  # Γ matrix: its diagonal
+            arr = np.diag(arr)
+        if arr.ndim == 0:
+            return float(arr)
+        return float(arr[self.first]) if self.lo_index is not None else float(np.mean(arr))
+
+    def commands(self, value: Any, client_id: int | None) -> list[SetParam]:
+        """The SetParam commands for an input value (one per element of a slice)."""
+        spec = self.spec
+        if spec.kind == "choice":
+            labels = self.options
+            value = spec.choices[labels.index(value)] if value in labels else value
+        if self.lo_index is None or self.hi_index is None:
+            return [SetParam(self.group, self.field, value, None, client_id)]
+        return [SetParam(self.group, self.field, value, i, client_id) for i in range(self.lo_index, self.hi_index)]
 
 
-def resolve(obj: Any, path: str) -> Any:
-    """Follow a dotted path of attributes / list indices; AttributeError if any part is missing."""
-    for part in path.split("."):
-        if part.isdigit() and not isinstance(obj, (str, bytes)) and hasattr(obj, "__getitem__"):
-            obj = obj[int(part)]
-        else:
-            obj = getattr(obj, part)
-    return obj
+def knob(path: str) -> Knob:
+    """The knob for `"group.field"`, `"group.field[i]"` or `"group.field[a:b]"` (ValueError for a
+    malformed path or an unknown group/field)."""
+    m = _PATH.match(path)
+    if m is None:
+        raise ValueError(f"a knob is named 'group.field', 'group.field[i]' or 'group.field[a:b]', got {path!r}")
+    group, field, a, b = m.groups()
+    spec = field_spec(group, field)
+    if a is None:
+        return Knob(group, field, spec)
+    lo = int(a)
+    hi = int(b) if b is not None else lo + 1
+    size = spec.size or 0
+    if spec.kind not in ("vector", "scalar_or_vector", "gamma") or not 0 <= lo < hi <= size:
+        raise ValueError(f"{path}: elements {lo}…{hi - 1} are not elements of {group}.{field}")
+    return Knob(group, field, spec, lo, hi)
 
 
-def target_object(session: Session, target: str) -> Any:
-    """The object behind a settings target."""
-    return {
-        "executor": session.executor,
-        "environment": session.environment,
-        "sensor": session.sensor,
-        "drag": session.drag,
-        "target": session.target_fn,
-        "world": session.world,
-    }.get(target)
-
-
-_PROBED: dict[int, tuple[Any, tuple[str, ...]]] = {}
-
-
-def configurable_scalars(executor: Any, values: dict[str, Any]) -> tuple[str, ...]:
-    """Scalar settings (numbers, switches) the executor's `configure()` accepts, found once per
-    executor by re-applying each current value (which changes nothing)."""
-    cached = _PROBED.get(id(executor))
-    if cached is not None and cached[0] is executor:
-        return cached[1]
-    keys = []
-    for key, value in values.items():
-        if isinstance(value, bool) or (isinstance(value, float) and math.isfinite(value)):
-            try:
-                executor.configure(**{key: value})
-            except Exception:
-                continue
-            keys.append(key)
-    _PROBED.clear()  # one executor at a time: keep the cache small
-    _PROBED[id(executor)] = (executor, tuple(keys))
-    return tuple(keys)
-
-
-def make_settings_reader(knobs: Sequence[Knob]) -> Callable[[Session], dict[str, dict[str, Any]]]:
-    """A reader for `SimLoop(settings_reader=...)`: generic settings plus every knob's `read` path,
-    and under "meta" the executor's configurable scalar settings (for the "More gains" fold)."""
-
-    def read(session: Session) -> dict[str, dict[str, Any]]:
-        out: dict[str, dict[str, Any]] = {}
-        for target in ("executor", "environment", "sensor", "target", "world"):
-            obj = target_object(session, target)
-            out[target] = settings_of(obj) if obj is not None else {}
-        out["meta"] = {"executor_scalars": configurable_scalars(session.executor, out["executor"])}
-        for knob in knobs:
-            obj = target_object(session, knob.target)
-            for path in knob.read:
-                try:
-                    out.setdefault(knob.target, {})[knob.key] = plain(resolve(obj, path))
-                    break
-                except (AttributeError, IndexError, TypeError, KeyError):
-                    continue
-        return out
-
-    return read
-
-
-def coerce(knob: Knob, value: Any) -> Any:
-    """The input value checked for its kind and range; ValueError with a short reason otherwise."""
-    if knob.kind == "checkbox":
-        if not isinstance(value, bool):
-            raise ValueError(f"{knob.label} must be on or off")
-        return value
-    if knob.kind == "dropdown":
-        if value not in knob.options:
-            raise ValueError(f"{knob.label} must be one of {', '.join(knob.options)}")
-        return value
-    if isinstance(value, bool):
-        raise ValueError(f"{knob.label} must be a number")
+def number_in_range(label: str, value: Any, lo: float, hi: float) -> float:
+    """A finite number within [lo, hi] from an input; ValueError with a short reason otherwise."""
+    if isinstance(value, bool) or isinstance(value, str):
+        raise ValueError(f"{label} must be a number, got {value!r}")
     try:
         number = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{knob.label} must be a number, got {value!r}") from None
-    if not math.isfinite(number) or not knob.lo <= number <= knob.hi:
-        raise ValueError(f"{knob.label} must be between {knob.lo:g} and {knob.hi:g}, got {value!r}")
+        raise ValueError(f"{label} must be a number, got {value!r}") from None
+    if not math.isfinite(number) or not lo <= number <= hi:
+        raise ValueError(f"{label} must be between {lo:g} and {hi:g}, got {value!r}")
     return number
 
 
@@ -155,9 +172,8 @@ def notify(server: viser.ViserServer, client_id: int | None, title: str, body: s
 
 
 class KnobPanel:
-    """A folder of knobs bound to the loop's settings (see the module docstring). Knobs the running
-    session lacks are greyed out (or hidden when `hide_missing`), so every knob of both papers
-    stays in view."""
+    """A folder of generated knobs (see the module docstring). Knobs whose group the running
+    session lacks are greyed out (or hidden when `hide_missing`)."""
 
     hide_missing = False
 
@@ -167,20 +183,20 @@ class KnobPanel:
         loop: SimLoop,
         title: str,
         intro: str,
-        knobs: Sequence[Knob],
+        fields: Sequence[str],
         order: float | None = None,
         expand: bool = True,
     ):
         self.server = server
         self.loop = loop
-        self.knobs = list(knobs)
-        self.handles: dict[int, Any] = {}
+        self.knobs: list[Knob] = []
+        self.handles: list[Any] = []
         self.folder = server.gui.add_folder(title, order=order, expand_by_default=expand)
         with self.folder:
             self.intro = server.gui.add_markdown(intro)
             self.build_extra_top()
-            for i, knob in enumerate(self.knobs):
-                self.handles[i] = self._add(knob)
+            for path in fields:
+                self.add(knob(path))
             self.build_extra_bottom()
 
     def build_extra_top(self) -> None:
@@ -189,45 +205,45 @@ class KnobPanel:
     def build_extra_bottom(self) -> None:
         """Hook for subclasses: inputs below the knobs."""
 
-    def _add(self, knob: Knob) -> Any:
+    def add(self, k: Knob) -> Any:
+        """Build the input of a knob in the current GUI container; returns its handle."""
         gui = self.server.gui
-        if knob.kind == "checkbox":
-            handle: Any = gui.add_checkbox(knob.label, False, hint=knob.hint)
-        elif knob.kind == "dropdown":
-            handle = gui.add_dropdown(knob.label, knob.options, initial_value=knob.options[0], hint=knob.hint)
-        elif knob.kind == "number":
-            handle = gui.add_number(knob.label, knob.lo, min=knob.lo, max=knob.hi, step=knob.step, hint=knob.hint)
+        hint = k.hint
+        if k.kind == "checkbox":
+            handle: Any = gui.add_checkbox(k.label, False, hint=hint)
+        elif k.kind == "dropdown":
+            handle = gui.add_dropdown(k.label, k.options, initial_value=k.options[0], hint=hint)
         else:
-            handle = gui.add_slider(knob.label, knob.lo, knob.hi, knob.step, knob.lo, hint=knob.hint)
-        handle.disabled = True  # until the loop says the running controller has this setting
+            lo, hi = k.bounds
+            lo_f = lo if lo is not None else -1e9
+            hi_f = hi if hi is not None else 1e9
+            if k.kind == "number":
+                handle = gui.add_number(k.label, lo_f, min=lo_f, max=hi_f, step=k.step, hint=hint)
+            else:
+                handle = gui.add_slider(k.label, lo_f, hi_f, k.step, lo_f, hint=hint)
+        handle.disabled = True  # until the loop says the running session has this group
         handle.visible = not self.hide_missing
 
-        def on_update(event: viser.GuiEvent, knob: Knob = knob) -> None:
+        def on_update(event: viser.GuiEvent, k: Knob = k) -> None:
             if event.client_id is None:  # our own refresh, not a person
                 return
-            self.submit(knob, event.target.value, event.client_id)
+            for cmd in k.commands(event.target.value, event.client_id):
+                self.loop.submit(cmd)
 
         handle.on_update(on_update)
+        self.knobs.append(k)
+        self.handles.append(handle)
         return handle
 
-    def submit(self, knob: Knob, value: Any, client_id: int | None) -> None:
-        """Check a value from the browser and queue it for the loop (or refuse it)."""
-        try:
-            checked = coerce(knob, value)
-            stored = self.loop.settings.values.get(knob.target, {}).get(knob.key)
-            changes = knob.to_changes(checked, stored)
-        except (ValueError, TypeError) as exc:
-            notify(self.server, client_id, "Value refused", str(exc))
-            return
-        self.loop.submit(Configure(knob.target, changes, client_id))
+    def wanted(self, k: Knob, settings: Settings) -> bool:
+        """Whether a knob applies now (its group exists); subclasses may narrow it."""
+        return k.group in settings.groups
 
     def refresh(self, settings: Settings) -> None:
         """Show the values in force; grey out (or hide) knobs the session lacks. Called every frame."""
         now = time.time()
-        for i, knob in enumerate(self.knobs):
-            handle = self.handles[i]
-            values = settings.values.get(knob.target, {})
-            present = knob.key in values
+        for k, handle in zip(self.knobs, self.handles, strict=True):
+            present = self.wanted(k, settings)
             if self.hide_missing and handle.visible != present:
                 handle.visible = present
             if handle.disabled == present:
@@ -235,12 +251,13 @@ class KnobPanel:
             if not present or now - handle.update_timestamp < TOUCH_HOLD_S:
                 continue
             try:
-                shown = knob.display(values[knob.key])
-                if knob.kind in ("slider", "number"):
-                    shown = min(max(float(shown), knob.lo), knob.hi)
+                shown = k.shown(getattr(settings.groups[k.group], k.field))
+                if k.kind in ("slider", "number"):
+                    lo, hi = k.bounds
+                    shown = min(max(float(shown), lo if lo is not None else -1e9), hi if hi is not None else 1e9)
                 if handle.value != shown:
                     handle.value = shown
-            except (TypeError, ValueError, IndexError):
+            except (TypeError, ValueError, IndexError, AttributeError):
                 continue
 
     def live(self, frame: Any) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import viser
 
 from app.loop import SimLoop
-from app.ui.panels.base import Knob, KnobPanel
+from app.ui.panels.base import KnobPanel, knob
 
 INTRO = (
     "Γ scales how much of the estimated external acceleration q̈_e = M⁻¹τ̂_e each task lets through "
@@ -23,108 +23,28 @@ GAMMA_X_HELP = (
 GAMMA_X_OFF = "**Γ_x** (projection executor only): –"
 
 N_JOINTS = 7
-SOURCES = ("none", "residual", "fusion", "oracle")
-
-
-def _diag(stored: Any, n: int) -> np.ndarray:
-    """Diagonal of a compliance given as a scalar, n values or an n×n matrix."""
-    arr = np.asarray(stored, dtype=float)
-    if arr.ndim == 0:
-        return np.full(n, float(arr))
-    if arr.ndim == 1:
-        return arr.copy()
-    return np.diag(arr).copy()
-
-
-def _scalar(n: int):
-    def show(stored: Any) -> float:
-        return float(np.mean(_diag(stored, n)))
-
-    return show
-
-
-def _joint(i: int):
-    def show(stored: Any) -> float:
-        return float(_diag(stored, N_JOINTS)[i])
-
-    def changes(value: float, stored: Any) -> dict[str, Any]:
-        d = _diag(stored if stored is not None else 0.0, N_JOINTS)
-        d[i] = value
-        return {"posture_compliance": tuple(float(x) for x in d)}
-
-    return show, changes
-
-
-def _joint_knob(i: int) -> Knob:
-    show, changes = _joint(i)
-    return Knob(
-        "posture_compliance",
-        f"Γ₀ joint {i + 1}",
-        lo=0.0,
-        hi=1.2,
-        step=0.05,
-        read=("posture.gains.compliance",),
-        show=show,
-        changes=changes,
-    )
-
-
-KNOBS: tuple[Knob, ...] = (
-    Knob(
-        "task_compliance",
-        "Γ task",
-        lo=0.0,
-        hi=1.2,
-        step=0.05,
-        read=("tasks.0.gains.compliance",),
-        show=_scalar(6),
-        hint="Compliance of the TCP pose task [C9], same on all six axes",
-    ),
-    Knob(
-        "posture_compliance",
-        "Γ₀ posture",
-        lo=0.0,
-        hi=1.2,
-        step=0.05,
-        read=("posture.gains.compliance",),
-        show=_scalar(N_JOINTS),
-        hint="Compliance of the posture (nullspace) task [C9], all joints",
-    ),
-    Knob(
-        "source",
-        "τ̂_e source",
-        kind="dropdown",
-        options=SOURCES,
-        read=("estimator.gains.source",),
-        hint="External-torque estimate: none, momentum observer [C25], fusion with F/T [C26], sim truth",
-    ),
-    Knob(
-        "feedback",
-        "External-force feedback",
-        kind="checkbox",
-        read=("settings.feedback",),
-        hint="Keep τ̂_e in the inverse dynamics [C8] and the torque limits [C10]",
-    ),
+FIELDS: tuple[str, ...] = (
+    "pose_task.compliance",
+    "posture_task.compliance",
+    "estimator.source",
+    "compliance_qp.feedback",
 )
-
-JOINT_KNOBS: tuple[Knob, ...] = tuple(_joint_knob(i) for i in range(N_JOINTS))
+JOINT_FIELDS: tuple[str, ...] = tuple(f"posture_task.compliance[{i}]" for i in range(N_JOINTS))
 
 
 class CompliancePanel(KnobPanel):
     """The Compliance folder with per-joint Γ₀ in an advanced fold."""
 
     def __init__(self, server: viser.ViserServer, loop: SimLoop, order: float | None = None):
-        super().__init__(server, loop, "Compliance", INTRO, KNOBS, order=order)
+        super().__init__(server, loop, "Compliance", INTRO, FIELDS, order=order)
 
     def build_extra_bottom(self) -> None:
-        """The read-only Γ_x line and the per-joint Γ₀ fold."""
+        """The read-only Γ_x line and the per-joint Γ₀ fold (each slider changes one element, on the loop thread)."""
         self.gamma_x_help = self.server.gui.add_markdown(GAMMA_X_HELP)
         self.gamma_x = self.server.gui.add_markdown(GAMMA_X_OFF)
-        base = len(self.knobs)
         with self.server.gui.add_folder("Per-joint Γ₀", expand_by_default=False):
-            for j, knob in enumerate(JOINT_KNOBS):
-                self.knobs.append(knob)
-                self.handles[base + j] = self._add(knob)
+            for path in JOINT_FIELDS:
+                self.add(knob(path))
 
     def live(self, frame: Any) -> None:
         """Γ_x of the running projection executor: real eigenvalues of its symmetric part, skew size."""

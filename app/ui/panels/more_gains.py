@@ -1,52 +1,49 @@
-"""More gains: every other scalar setting the running executor accepts, found from its gains
-dataclasses, so a new field appears here without GUI code. Values are checked by the executor."""
+"""More gains: every other parameter of the running session, generated from the metadata of its
+groups (`Session.params()`), so a new field appears here without GUI code. Values are checked by
+the group's dataclass on the loop thread."""
 
 from __future__ import annotations
-
-from typing import Any
 
 import viser
 
 from app.loop import Settings, SimLoop
-from app.ui.panels.base import Knob, KnobPanel
+from app.params import GROUP_TYPES
+from app.ui.panels.base import Knob, KnobPanel, knob
+from control.params import specs
 
-INTRO = "Every other number or switch of the running controller (names as in its gains dataclass)."
-LIMIT = 1e9
+INTRO = "Every other parameter of the running session, by group (range and help from its dataclass)."
 
 
 class MoreGainsPanel(KnobPanel):
-    """A fold of inputs built on demand from the executor's configurable scalars."""
+    """A fold of inputs built on demand for the fields no other panel shows (`claimed`: "group.field")."""
 
     hide_missing = True
 
     def __init__(self, server: viser.ViserServer, loop: SimLoop, claimed: set[str], order: float | None = None):
         self.claimed = set(claimed)
-        self._by_key: dict[str, int] = {}
+        self._paths: set[str] = set()
         super().__init__(server, loop, "More gains", INTRO, (), order=order, expand=False)
 
-    def _ensure(self, key: str, value: Any) -> None:
-        if key in self._by_key:
-            return
-        if isinstance(value, bool):
-            knob = Knob(key, key, kind="checkbox")
-        else:
-            knob = Knob(key, key, kind="number", lo=-LIMIT, hi=LIMIT, step=1e-3)
-        with self.folder:
-            handle = self._add(knob)
-        self.knobs.append(knob)
-        self.handles[len(self.knobs) - 1] = handle
-        self._by_key[key] = len(self.knobs) - 1
-
     def refresh(self, settings: Settings) -> None:
-        """Add inputs for new scalars, hide those the executor lacks, show the values in force."""
-        values = settings.values.get("executor", {})
-        keys = [k for k in settings.values.get("meta", {}).get("executor_scalars", ()) if k not in self.claimed]
-        for key in keys:
-            if key in values:
-                self._ensure(key, values[key])
-        shown = set(keys)
-        for key, i in self._by_key.items():
-            handle = self.handles[i]
-            if handle.visible != (key in shown):
-                handle.visible = key in shown
-        super().refresh(Settings(settings.version, {"executor": {k: values[k] for k in shown if k in values}}))
+        """Add inputs for the unclaimed fields of groups in force; hide those of absent groups."""
+        for group in settings.groups:
+            if group not in GROUP_TYPES:
+                continue
+            for field in specs(GROUP_TYPES[group]):
+                path = f"{group}.{field}"
+                if path in self.claimed or path in self._paths:
+                    continue
+                self._paths.add(path)
+                with self.folder:
+                    self.add(knob(path))
+        super().refresh(settings)
+
+
+def claimed_fields(*panels: tuple[str, ...]) -> set[str]:
+    """The "group.field" names the given panel lists show (elements count for their field)."""
+    out = set()
+    for fields in panels:
+        for path in fields:
+            k: Knob = knob(path)
+            out.add(f"{k.group}.{k.field}")
+    return out

@@ -7,63 +7,36 @@ from typing import Any
 
 import viser
 
-from app.commands import Configure, SetTwin
-from app.loop import Frame, SimLoop
-from app.ui.panels.base import TOUCH_HOLD_S, Knob, KnobPanel, coerce, notify
+from app.commands import SetTwin
+from app.loop import Frame, Settings, SimLoop
+from app.ui.panels.base import TOUCH_HOLD_S, Knob, KnobPanel, notify
 from app.ui.selfmotion import SelfMotionPreview
+from control.gains import TANG_OBJECTIVES, NullspaceGains
 
 INTRO = (
     "The nullspace QP moves the elbow at q̂̇ = argmin ½‖q̂̇‖² + k0 ∇Wᵀq̂̇ with J q̂̇ = 0 [T15–17]. "
     "W_j keeps the start posture [T18]; W_f, W_a, W_d = ‖P‖²_F reduce the motion/force coupling [T22]."
 )
 
-OBJECTIVES = ("W_j", "W_f", "W_a", "W_d")
+OBJECTIVES = tuple(f"W_{o}" for o in TANG_OBJECTIVES)
 TWIN_OFF = "off"
 TWIN_CHOICES = (TWIN_OFF, *OBJECTIVES)
-K0_RANGE_FACTOR = 20.0  # the k0 slider spans 0 … 20 × the objective's default k0
-
-
-def _k0_defaults() -> dict[str, float]:
-    """Default k0 per objective from the gains dataclass (empty if the [T] gains are absent)."""
-    try:
-        from control.gains import NullspaceGains
-    except ImportError:
-        return {}
-    g = NullspaceGains()
-    return {o: float(getattr(g, f"k0_{o}")) for o in "jfad" if hasattr(g, f"k0_{o}")}
-
-
-def _objective_label(stored: Any) -> str:
-    return f"W_{stored}"
-
-
-KNOBS: tuple[Knob, ...] = (
-    Knob(
-        "objective",
-        "Objective",
-        kind="dropdown",
-        options=OBJECTIVES,
-        show=_objective_label,
-        changes=lambda v, s: {"objective": str(v)[2:]},
-        read=("nullspace.objective",),
-        hint="Which W the nullspace QP minimises",
-    ),
+# the objective, then the k0 of each objective: only the selected objective's k0 is shown
+FIELDS: tuple[str, ...] = (
+    "nullspace.objective",
+    *(f"nullspace.{NullspaceGains.k0_field(o)}" for o in TANG_OBJECTIVES),
 )
 
 
 class NullspacePanel(KnobPanel):
-    """The Nullspace folder; the k0 slider edits k0 of the selected objective."""
+    """The Nullspace folder; only the selected objective's k0 slider is shown."""
 
     def __init__(self, server: viser.ViserServer, loop: SimLoop, order: float | None = None):
-        super().__init__(server, loop, "Nullspace", INTRO, KNOBS, order=order)
+        super().__init__(server, loop, "Nullspace", INTRO, FIELDS, order=order)
 
     def build_extra_bottom(self) -> None:
-        """The k0 slider, the live W line and the self-motion preview."""
+        """The live W line, the twin arm and the self-motion preview."""
         gui = self.server.gui
-        self.k0: Any = gui.add_slider("k0", 0.0, 1.0, 0.001, 0.0, hint="Gradient gain of the selected objective [T15]")
-        self.k0.disabled = True
-        self._k0_key = ""
-        self.k0.on_update(self._on_k0)
         self.values = gui.add_markdown("")
         self.twin: Any = gui.add_dropdown(
             "Twin arm",
@@ -74,6 +47,24 @@ class NullspacePanel(KnobPanel):
         )
         self.twin.on_update(self._on_twin)
         self.preview = SelfMotionPreview(self.server)
+
+    def wanted(self, k: Knob, settings: Settings) -> bool:
+        """A k0 knob only for the objective in force."""
+        group = settings.groups.get(k.group)
+        if group is None:
+            return False
+        if k.field.startswith("k0_") and isinstance(group, NullspaceGains):
+            return k.field == NullspaceGains.k0_field(group.objective)
+        return True
+
+    def refresh(self, settings: Settings) -> None:
+        """Values in force; only the selected objective's k0 is visible."""
+        for k, handle in zip(self.knobs, self.handles, strict=True):
+            if k.field.startswith("k0_"):
+                visible = self.wanted(k, settings) or ("nullspace" not in settings.groups and k.field == "k0_a")
+                if handle.visible != visible:
+                    handle.visible = visible
+        super().refresh(settings)
 
     def _on_twin(self, event: viser.GuiEvent) -> None:
         if event.client_id is None:  # our own refresh, not a person
@@ -88,38 +79,6 @@ class NullspacePanel(KnobPanel):
         """End the preview's worker thread."""
         self.preview.stop()
 
-    def _on_k0(self, event: viser.GuiEvent) -> None:
-        if event.client_id is None or not self._k0_key:
-            return
-        knob = Knob(self._k0_key, "k0", lo=0.0, hi=float(self.k0.max))
-        try:
-            value = coerce(knob, event.target.value)
-        except ValueError as exc:
-            notify(self.server, event.client_id, "Value refused", str(exc))
-            return
-        self.loop.submit(Configure("executor", {self._k0_key: value}, event.client_id))
-
-    def refresh(self, settings) -> None:
-        """Objective and k0 of the selected objective (range 0 … 20× its default)."""
-        super().refresh(settings)
-        values = settings.values.get("executor", {})
-        objective = values.get("objective")
-        key = f"k0_{objective}"
-        present = isinstance(objective, str) and key in values
-        if self.k0.disabled == present:
-            self.k0.disabled = not present
-        if not present:
-            return
-        if key != self._k0_key:
-            self._k0_key = key
-            default = _k0_defaults().get(objective) or abs(float(values[key])) or 1.0
-            hi = K0_RANGE_FACTOR * default
-            self.k0.max = hi
-            self.k0.step = hi / 1000.0
-            self.k0.label = f"k0 (W_{objective})"
-        if self.k0.value != float(values[key]) and not self._recently_touched(self.k0):
-            self.k0.value = min(float(values[key]), float(self.k0.max))
-
     @staticmethod
     def _recently_touched(handle: Any) -> bool:
         return time.time() - handle.update_timestamp < TOUCH_HOLD_S
@@ -130,7 +89,7 @@ class NullspacePanel(KnobPanel):
         twin = f"W_{frame.status.twin}" if frame.status.twin else TWIN_OFF
         if self.twin.value != twin and not self._recently_touched(self.twin):
             self.twin.value = twin
-        has_objective = "objective" in frame.settings.values.get("executor", {})
+        has_objective = "nullspace" in frame.settings.groups
         if self.twin.disabled == has_objective:
             self.twin.disabled = not has_objective
         sig = frame.status.signals

@@ -8,7 +8,7 @@ import viser
 
 from app.export import MAX_EXPORT_S, to_csv, to_json
 from app.loop import SimLoop
-from app.ui.panels.base import Knob, coerce, notify
+from app.ui.panels.base import notify, number_in_range
 
 INTRO = (
     "The app logs every 1 ms step (q, q̇, τ, F/T reading, desired force and the controller's signals) "
@@ -38,7 +38,7 @@ class RecordPanel:
         if client is None:
             return
         try:
-            seconds = coerce(Knob("seconds", "Seconds", lo=0.001, hi=MAX_EXPORT_S), self.seconds.value)
+            seconds = number_in_range("Seconds", self.seconds.value, 0.001, MAX_EXPORT_S)
         except ValueError as exc:
             notify(self.server, event.client_id, "Value refused", str(exc))
             return

@@ -12,7 +12,7 @@ from app.commands import Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
 from app.executors import EXECUTORS
 from app.loop import SPEED_RANGE, Frame, LoopStatus, SimLoop
 from app.scenarios import SCENARIOS
-from app.ui.panels.base import Knob, KnobPanel, coerce, notify
+from app.ui.panels.base import KnobPanel, notify, number_in_range
 
 DEFAULT_ROBOT = "scenario default"
 NO_CASE = "–"
@@ -25,17 +25,7 @@ INTRO = (
     "time; drag any link with the mouse to push it (spring force, clamped to the limit below)."
 )
 
-KNOBS: tuple[Knob, ...] = (
-    Knob(
-        "max_force_n",
-        "Drag force limit (N)",
-        target="drag",
-        lo=5.0,
-        hi=300.0,
-        step=5.0,
-        hint="The mouse-drag spring force is clamped to this",
-    ),
-)
+FIELDS: tuple[str, ...] = ("drag.max_force_n",)
 
 
 class ScenarioPanel(KnobPanel):
@@ -45,7 +35,7 @@ class ScenarioPanel(KnobPanel):
         self._extra_robots = extra_robots
         self._last_fallback_wall = -1e9
         self._seen_fallback_steps = 0
-        super().__init__(server, loop, "Scenario", INTRO, KNOBS, order=order)
+        super().__init__(server, loop, "Scenario", INTRO, FIELDS, order=order)
 
     def build_extra_top(self) -> None:
         """Preset, robot, executor, run buttons, speed and status lines."""
@@ -133,7 +123,7 @@ class ScenarioPanel(KnobPanel):
         if event.client_id is None:
             return
         try:
-            value = coerce(Knob("speed", "Speed", lo=SPEED_RANGE[0], hi=SPEED_RANGE[1]), event.target.value)
+            value = number_in_range("Speed", event.target.value, SPEED_RANGE[0], SPEED_RANGE[1])
         except ValueError as exc:
             notify(self.server, event.client_id, "Value refused", str(exc))
             return

@@ -1,0 +1,143 @@
+"""The parameter groups of the app by name, and settings files (TOML) validated by the same code.
+
+`GROUP_TYPES` names the dataclass of every group a session may have (`Session.params()`); the
+panels read labels, ranges and help from it before any session has the group. A settings file is
+one TOML table per group with the fields that differ from the defaults:
+
+    [damper]
+    lambda_ = 300.0
+    [posture_task]
+    compliance = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+
+`save_settings(session)` writes the session's overrides (`Session.overrides()`), `load_settings`
+applies a file through `Session.set_param` — every value validated by its dataclass — and returns
+one line per refused entry (nothing else is lost: the accepted ones stay applied).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from typing import Any
+
+from app.scenarios.payload import PayloadParams
+from app.scenarios.polish import PolishParams
+from app.session import Session, TargetParams
+from app.sim.contact import ContactParams
+from app.sim.disturbances import SanderParams
+from app.sim.drag import DragParams
+from app.sim.sensor import SensorParams
+from app.sim.world import WorldParams
+from control.gains import (
+    ComplianceQPSettings,
+    DamperGains,
+    EstimatorGains,
+    MotionForceGains,
+    NullspaceGains,
+    PoseTaskGains,
+    PostureTaskGains,
+    SolverParams,
+)
+from control.joint_hold import JointHoldGains
+from control.params import ParamError, ParamSpec, spec_of
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+GROUP_TYPES: dict[str, type] = {
+    "motion_force": MotionForceGains,
+    "nullspace": NullspaceGains,
+    "pose_task": PoseTaskGains,
+    "posture_task": PostureTaskGains,
+    "damper": DamperGains,
+    "estimator": EstimatorGains,
+    "compliance_qp": ComplianceQPSettings,
+    "solver": SolverParams,
+    "joint_hold": JointHoldGains,
+    "contact": ContactParams,
+    "sander": SanderParams,
+    "payload": PayloadParams,
+    "sensor": SensorParams,
+    "world": WorldParams,
+    "drag": DragParams,
+    "target": TargetParams,
+    "scenario": PolishParams,  # the only preset with parameters of its own so far
+}
+
+
+def field_spec(group: str, field: str) -> ParamSpec:
+    """The metadata of `group.field`; ParamError for an unknown group or field."""
+    if group not in GROUP_TYPES:
+        raise ParamError(f"unknown parameter group {group!r}")
+    try:
+        return spec_of(GROUP_TYPES[group], field)
+    except ParamError:
+        raise ParamError(f"{group} has no parameter {field!r}") from None
+
+
+# ---- TOML ---------------------------------------------------------------------------------------
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):  # never stored (the groups refuse it), but say so if it were
+            raise ValueError(f"cannot write {value!r} to TOML")
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise ValueError(f"cannot write {type(value).__name__} to TOML")
+
+
+def dumps(tables: dict[str, dict[str, Any]]) -> str:
+    """A TOML document of tables of scalars / arrays (the only shapes parameters take)."""
+    out = []
+    for name, fields in tables.items():
+        if not fields:
+            continue
+        out.append(f"[{name}]")
+        out.extend(f"{key} = {_toml_value(value)}" for key, value in fields.items())
+        out.append("")
+    return "\n".join(out)
+
+
+def save_settings(session: Session) -> str:
+    """The session's parameter overrides as TOML text (defaults are left out)."""
+    return "# torquelab settings: one table per parameter group\n" + dumps(session.overrides())
+
+
+def parse_settings(text: str) -> tuple[list[tuple[str, str, Any]], list[str]]:
+    """The (group, field, value) entries of a TOML settings text, in file order, and one line per
+    entry that is not of that shape (a syntax error gives no entries and one line)."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        return [], [f"not a TOML settings file: {exc}"]
+    entries: list[tuple[str, str, Any]] = []
+    problems: list[str] = []
+    for group, fields in doc.items():
+        if not isinstance(fields, dict):
+            problems.append(f"{group}: expected a [{group}] table of parameters, got a value")
+            continue
+        entries.extend((group, field, value) for field, value in fields.items())
+    return entries, problems
+
+
+def load_settings(session: Session, text: str) -> list[str]:
+    """Apply a TOML settings text through `Session.set_param` (each value validated by its group);
+    returns one line per refusal. The accepted values stay applied; "scenario" values take
+    effect at the next reset."""
+    entries, refused = parse_settings(text)
+    for group, field, value in entries:
+        try:
+            session.set_param(group, field, value)
+        except ParamError as exc:
+            refused.append(str(exc))
+    return refused
