@@ -96,7 +96,7 @@ def test_metrics_summary_and_table_helpers():
     assert summary[0]["ma"]["mean"] == pytest.approx(2.0) and summary[0]["ma"]["sd"] == pytest.approx(np.sqrt(2.0))
     assert summary[0]["paper"] == [1.6, 10.8, 2.0]
     text = format_table(summary)
-    assert "W_a" in text and "2.0 ± 1.4" in text and "1.6/10.8/2.0" in text
+    assert "W_a" in text and "2.0 ± 1.4" in text and "20.0" in text and "1.6/10.8/2.0" in text
 
 
 def test_cli_registers_the_polish_experiment_with_its_options():

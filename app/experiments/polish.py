@@ -55,6 +55,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--quick", action="store_true", help="1 seed, the 8 paper cells only (W_j/W_f/W_a/W_d × μ): a few-minute look"
     )
     parser.add_argument("--no-armature", action="store_true", help="skip the armature sensitivity runs")
+    parser.add_argument("--only-armature", action="store_true", help="run the armature sensitivity runs alone")
+    parser.add_argument(
+        "--combine",
+        default=None,
+        help="write one report from the runs of earlier output directories (comma separated), running nothing",
+    )
     parser.add_argument(
         "--rows", default=None, help=f"only these rows of the table, comma separated ({', '.join(ROW_KEYS)})"
     )
@@ -350,12 +356,14 @@ def _mean_sd(values: list) -> dict:
     xs = np.array([v for v in values if v is not None], dtype=float)
     if xs.size == 0:
         return {"mean": None, "sd": None, "n": 0}
-    return {"mean": float(np.mean(xs)), "sd": float(np.std(xs, ddof=1)) if xs.size > 1 else 0.0, "n": int(xs.size)}
+    return {"mean": float(np.mean(xs)), "sd": float(np.std(xs, ddof=1)) if xs.size > 1 else None, "n": int(xs.size)}
 
 
 # ---- the experiment -------------------------------------------------------------------------------
 def run(args: argparse.Namespace) -> int:
     """Run the table (+ armature sensitivity and the v_ε check), write JSON, figures and the report."""
+    if getattr(args, "combine", None):
+        return combine(args, [Path(d.strip()) for d in args.combine.split(",") if d.strip()])
     mus = _parse_mu(args.mu)
     if args.seeds < 1:
         raise ValueError("--seeds must be at least 1")
@@ -364,7 +372,9 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     quick = bool(args.quick)
     only = [k.strip() for k in args.rows.split(",") if k.strip()] if getattr(args, "rows", None) else None
-    specs = table_specs(mus, args.seeds, quick, bool(args.sander), only)
+    specs = (
+        [] if getattr(args, "only_armature", False) else table_specs(mus, args.seeds, quick, bool(args.sander), only)
+    )
     if not quick and not args.no_armature:
         specs += armature_specs(max(mus))
     t0 = time.perf_counter()
@@ -406,6 +416,65 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(format_table(doc["summary"]))
         print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} in {doc['wall_s']:.0f} s")
+    return 0
+
+
+def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
+    """One polish.json, figures and report from the runs of several earlier output directories
+    (e.g. rows run separately); a run (row, μ, seed, armature) present twice is kept once."""
+    from app.experiments.polish_report import scan_at_start, write_figures, write_report
+
+    docs, series_files = [], []
+    for d in dirs:
+        if not (d / "polish.json").is_file():
+            raise ValueError(f"{d} has no polish.json to combine")
+        docs.append(json.loads((d / "polish.json").read_text()))
+        series_files.append(np.load(d / "polish_series.npz"))
+    seen: set[tuple] = set()
+    results, series = [], []
+    for doc, npz in zip(docs, series_files, strict=True):
+        for r in doc["runs"] + [x for x in doc["armature"]["runs"] if x["group"] == "armature"]:
+            key = (r["row"], r["mu"], r["seed"], r["armature_scale"])
+            if key in seen:
+                continue
+            seen.add(key)
+            results.append(r)
+            prefix = f"{_label(r)}__"
+            series.append({k[len(prefix) :]: npz[k] for k in npz.files if k.startswith(prefix)})
+    table = [r for r in results if r["group"] == "table"]
+    mus = sorted({r["mu"] for r in table})
+    settings = dict(docs[0]["settings"])
+    settings["command"] = "; ".join(d["settings"]["command"] for d in docs) + f" (combined: {args.combine})"
+    settings["mu"] = mus
+    settings["seeds"] = max(d["settings"]["seeds"] for d in docs)
+    scan = scan_at_start()
+    basins: list = next((d["armature"]["basins"] for d in docs if d["armature"]["basins"]), [])
+    doc = {
+        "experiment": "polish",
+        "settings": settings,
+        "paper_table_iii": docs[0]["paper_table_iii"],
+        "runs": table,
+        "summary": summarise(table),
+        "armature": {
+            "runs": [r for r in results if r["group"] == "armature"] + [r for r in table if _is_fig6a_start(r, mus)],
+            "basins": basins,
+        },
+        "v_eps": next((d["v_eps"] for d in docs if d.get("v_eps")), []),
+        "swivel_scan": scan["summary"],
+        "wall_s": float(sum(d["wall_s"] for d in docs)),
+        "combined_from": [str(d) for d in dirs],
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "polish.json").write_text(json.dumps(doc, indent=2))
+    np.savez_compressed(
+        out / "polish_series.npz",
+        **{f"{_label(r)}__{k}": v for r, s in zip(results, series, strict=True) for k, v in s.items()},
+    )
+    write_figures(out, results, series, scan)
+    write_report(out, doc)
+    print(format_table(doc["summary"]))
+    print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} from {len(dirs)} directories")
     return 0
 
 
@@ -494,6 +563,8 @@ def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
 def _pm(x: dict, digits: int = 1) -> str:
     if x["mean"] is None:
         return "-"
+    if x["sd"] is None:  # one seed: no spread to show
+        return f"{x['mean']:.{digits}f}"
     return f"{x['mean']:.{digits}f} ± {x['sd']:.{digits}f}"
 
 
