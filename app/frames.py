@@ -46,6 +46,7 @@ class LoopStatus:
     robot: str = ""
     executor: str = ""
     halted: str = ""  # why the loop auto-paused (divergence), "" otherwise
+    overpowered: str = ""  # joints the surroundings overpower (torque beyond the motors', or at a stop)
     fallback: bool = False  # the last step used a fallback solution (QP failed)
     fallback_steps: int = 0  # fallback steps since the last reset
     drag_client: int | None = None  # client holding the drag spring
@@ -101,6 +102,7 @@ def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0) -> LoopStatus:
         robot=s.robot.name,
         executor=s.executor_name,
         halted=lab.halted,
+        overpowered=lab.overpowered,
         fallback=bool(last.fallback) if last is not None else False,
         fallback_steps=lab.fallback_steps,
         drag_client=lab.drag_client,

@@ -13,6 +13,7 @@ drive a Lab directly.
 
 from __future__ import annotations
 
+import math
 import time
 import traceback
 from collections import deque
@@ -47,6 +48,7 @@ SPEED_RANGE = (0.1, 1.0)
 MAX_SINGLE_STEP = 10_000  # steps one StepOnce may ask for
 RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
 KEPT_ON_PRESET_SWITCH = ("drag",)  # parameter groups a new preset keeps from the old one
+OVERPOWERED_NOTICE_S = 2.0  # simulated time between two "overpowered" notices
 
 
 @dataclass(frozen=True)
@@ -111,6 +113,8 @@ class Lab:
         self.fallback_steps = 0  # fallback steps since the last reset
         self.step_cpu_s = 0.0  # CPU time spent in steps
         self.drag_client: int | None = None
+        self.overpowered = ""  # joints the surroundings overpower, in words (World.overpowered)
+        self._overpowered_notice_t = -math.inf
         self.notices: deque[Notice] = deque(maxlen=100)  # not yet taken by the publisher
         self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice (for tests and logs)
         self.dirty = True  # something changed since the last frame
@@ -189,9 +193,24 @@ class Lab:
                 self._healthy = len(self.overrides)
             if twin is not None and twin.diverged():
                 self._drop_twin(f"the twin arm (W_{twin.objective}) diverged; it is switched off")
+            self._check_overpowered()
         self.step_cpu_s += time.thread_time() - cpu0
         self.dirty = True
         return result
+
+    def _check_overpowered(self) -> None:
+        """Say when the surroundings (the drag) overpower a joint: in the status, and in a notice when
+        it starts (at most every OVERPOWERED_NOTICE_S of simulated time)."""
+        last = self.session.last
+        was, self.overpowered = self.overpowered, self.session.world.overpowered(last.tau_ext if last else None)
+        t = self.session.world.time
+        if self.overpowered and not was and t - self._overpowered_notice_t >= OVERPOWERED_NOTICE_S:
+            self._overpowered_notice_t = t
+            self.notify(
+                "warning",
+                "Overpowered",
+                f"{self.overpowered}: more than the motors can resist, so no controller can hold the arm here",
+            )
 
     def step_pending(self, chunk: int) -> RunResult | None:
         """Run up to `chunk` steps of a pending single-step request (None if there is none)."""
@@ -267,6 +286,8 @@ class Lab:
         if replay:
             self._replay()
         self.drag_client = None
+        self.overpowered = ""
+        self._overpowered_notice_t = -math.inf
         self.fallback_steps = 0
         self._steps_since_change = 0
         self.pending_steps = 0

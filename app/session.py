@@ -98,6 +98,7 @@ class StepRecord:
     target: TaskTarget
     fallback: bool
     signals: dict[str, float] = field(default_factory=dict)  # executor + environment scalars
+    tau_ext: np.ndarray | None = None  # true external joint torque τ_ext of this step (N·m, sim truth)
 
 
 class Session:
@@ -267,7 +268,8 @@ class Session:
         reading_sensor = self.sensor.measure(true_wrench_sensor, t)  # [3] F/T reading
         wrench_tcp = self._sensor_to_tcp(reading_sensor, dyn)
         target = self.target_fn(t)
-        inputs = ControlInputs(t=t, target=target, wrench_tcp=wrench_tcp, tau_ext_oracle=world.external_joint_torque())
+        tau_ext = world.external_joint_torque()
+        inputs = ControlInputs(t=t, target=target, wrench_tcp=wrench_tcp, tau_ext_oracle=tau_ext)
         out = self._safe_step(dyn, inputs)  # [4]
         world.step(out.tau)  # [5]
         self.steps += 1
@@ -284,6 +286,7 @@ class Session:
             target=target,
             fallback=out.fallback,
             signals=signals,
+            tau_ext=tau_ext,
         )
         return self.last
 

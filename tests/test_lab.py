@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -197,3 +198,44 @@ def test_a_new_preset_starts_from_its_defaults_but_keeps_the_drag_settings():
     lab.apply(SwitchSession(scenario="polish"))
     assert [(o.group, o.field) for o in lab.overrides] == [("drag", "max_force_n")]
     assert lab.session.drag.max_force_n == 55.0 and lab.session.world.torque_delay_steps == 0
+
+
+def _body_of_joint(world, joint_name: str) -> int:
+    return int(world.model.jnt_bodyid[world.model.joint(joint_name).id])
+
+
+@pytest.mark.parametrize("scenario", ["free", "polish", "compliance", "limit-drop", "mass-drop"])
+def test_the_largest_drag_sinks_no_joint_beyond_its_hard_stop_and_says_it_overpowers_the_arm(scenario):
+    """A 300 N pull (the GUI's largest drag) at the TCP and at the elbow: every joint stays within
+    HARD_STOP_GIVE_RAD of its mechanical stop, and a notice and the status name an overpowered joint."""
+    from app.frames import make_status
+    from app.sim.world import HARD_STOP_BEYOND_RAD, HARD_STOP_GIVE_RAD
+
+    lab = _lab(scenario)
+    robot = lab.session.robot
+    lab.apply(SetParam("drag", "max_force_n", 300.0))
+    worst = 0.0
+    said = []
+    status_said = ""
+    for where, pull in (("tcp", (-1.0, 0.0, 0.0)), ("elbow", (0.0, 0.0, -1.0))):
+        lab.apply(Reset())
+        w = lab.session.world
+        body = w.wrist_body if where == "tcp" else _body_of_joint(w, robot.joint_names[3])
+        p0 = w.site_pose(w.tcp_site)[0] if where == "tcp" else w.data.xpos[body].copy()
+        lab.apply(DragCommand("grab", client_id=1, body_name=w.model.body(body).name, point_world=tuple(p0)))
+        lab.apply(DragCommand("move", client_id=1, target_world=tuple(p0 + 2.0 * np.array(pull))))
+        n0 = len(lab.notice_log)
+        for _ in range(30):  # 1.5 s in bursts of 50 steps, as the loop runs it
+            q_max = np.full(robot.nq, -np.inf)
+
+            def track(rec, q_max=q_max):
+                np.maximum(q_max, np.maximum(rec.q - robot.q_upper, robot.q_lower - rec.q), out=q_max)
+
+            assert not lab.session.run(steps=50, record=track).halted
+            lab._check_overpowered()
+            worst = max(worst, float(np.max(np.where(robot.endless, 0.0, q_max))))
+            status_said = status_said or make_status(lab).overpowered
+        said += [n.body for n in list(lab.notice_log)[n0:] if n.title == "Overpowered"]
+    print(f"{scenario}: worst {worst - HARD_STOP_BEYOND_RAD:+.4f} rad into a hard stop; {said}")
+    assert worst <= HARD_STOP_BEYOND_RAD + HARD_STOP_GIVE_RAD
+    assert said and all(re.search(r"joint \d", s) for s in said) and re.search(r"joint \d", status_said)

@@ -23,6 +23,13 @@ from robots import SENSOR_FRAME, TCP_FRAME, RobotDescription
 
 TIMESTEP_S = 1e-3
 MAX_TORQUE_DELAY_MS = 20.0  # actuator latency the simulation accepts (torque loop, bus, filters)
+HARD_STOP_BEYOND_RAD = 0.01  # the mechanical stop sits this far beyond the URDF (software) limit
+# Stops as stiff as MuJoCo stays stable with: a critically damped reference with the shortest time
+# constant it recommends (2 timesteps) and an impedance of 0.99 within 1 mrad, so that the largest
+# drag (300 N) sinks a joint less than HARD_STOP_GIVE_RAD into its stop (tested on every preset).
+HARD_STOP_SOLREF = (2 * TIMESTEP_S, 1.0)  # (time constant s, damping ratio)
+HARD_STOP_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)  # (d_min, d_max, width rad, midpoint, power)
+HARD_STOP_GIVE_RAD = 0.02
 _BAD_STATE_WARNINGS = tuple(  # MuJoCo resets such a state and counts the warning; we halt instead
     int(w)
     for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
@@ -74,11 +81,12 @@ def build_spec(robot: RobotDescription, table_height: float | None = None) -> mu
     spec.option.timestep = TIMESTEP_S
     spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     spec.option.gravity = [0.0, 0.0, -9.81]
-    for name, eff, arm in zip(robot.joint_names, robot.tau_max, robot.armature, strict=True):
+    for j, (name, eff, arm) in enumerate(zip(robot.joint_names, robot.tau_max, robot.armature, strict=True)):
         joint = spec.joint(name)
         if joint is None:
             raise ValueError(f"MuJoCo import lost joint {name!r} of {robot.urdf_path.name}")
         joint.armature = float(arm)
+        _hard_stop(joint, bool(robot.endless[j]), float(robot.q_lower[j]), float(robot.q_upper[j]))
         act = spec.add_actuator(name=f"motor_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         act.set_to_motor()
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
@@ -109,6 +117,19 @@ def build_spec(robot: RobotDescription, table_height: float | None = None) -> mu
             size=[0.01, 0.01, 0.01],
         )
     return spec
+
+
+def _hard_stop(joint: mujoco.MjsJoint, endless: bool, lower: float, upper: float) -> None:
+    """The joint's mechanical stops: stiff MuJoCo limits HARD_STOP_BEYOND_RAD beyond the URDF
+    (software) limits; an endless joint has none."""
+    if endless:
+        joint.limited = mujoco.mjtLimited.mjLIMITED_FALSE
+        return
+    joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+    joint.range = [lower - HARD_STOP_BEYOND_RAD, upper + HARD_STOP_BEYOND_RAD]
+    joint.margin = 0.0
+    joint.solref_limit = HARD_STOP_SOLREF
+    joint.solimp_limit = HARD_STOP_SOLIMP
 
 
 def _body_of_joint(spec: mujoco.MjSpec, joint_name: str) -> mujoco.MjsBody:
@@ -326,6 +347,21 @@ class World:
         self._acc_valid = bool(self.carried)
         self.data.qfrc_applied[:] = 0.0
         self.applied.clear()
+
+    def overpowered(self, tau_ext: np.ndarray | None) -> str:
+        """Joints the surroundings overpower, in words ("" if none): an external torque |τ_ext| beyond
+        the motor's torque limit, or the joint pressed against its mechanical stop."""
+        robot = self.robot
+        q = self.data.qpos[self.qpos_adr]
+        beyond = HARD_STOP_BEYOND_RAD - 1e-3  # at (or into) the stop, not merely near the software limit
+        parts = []
+        for j in range(len(robot.joint_names)):
+            tau = 0.0 if tau_ext is None else abs(float(tau_ext[j]))
+            if tau > robot.tau_max[j]:
+                parts.append(f"joint {j + 1}: external torque {tau:.0f} N·m > its {robot.tau_max[j]:.0f} N·m limit")
+            elif not robot.endless[j] and (q[j] > robot.q_upper[j] + beyond or q[j] < robot.q_lower[j] - beyond):
+                parts.append(f"joint {j + 1} is pressed against its hard stop")
+        return "; ".join(parts)
 
     def diverged(self) -> bool:
         """True when the state holds NaN/inf or a runaway velocity (‖q̇‖ > 1e3), or MuJoCo had to reset

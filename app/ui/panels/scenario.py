@@ -161,6 +161,8 @@ class ScenarioPanel(KnobPanel):
             status += f" · QP {step.qp_backend} {step.qp_solve_us:.0f} µs"
         if st.drag_client is not None:
             status += f" · dragging ({st.signals.get('drag_force_n', 0.0):.0f} N)"
+        if st.overpowered:
+            status += f"  \n**Overpowered:** {st.overpowered}."
         if st.running and 0.0 < st.rtf < SLOW_WARNING * st.speed:
             status += "  \n**Slower than requested:** this machine cannot keep up right now."
         if self.status_md.content != status:
