@@ -1,19 +1,17 @@
 """Scenario variants: the cases a preset can run in (mass drop: position / residual / fusion;
 compliance: stiff / nullspace / full; limit drop: position / velocity limit).
 
-A scenario class takes its case as one constructor argument (`mode` with the module's `MODES`,
-or `limit`); `variant_of` names the argument, the choices and the current one, and `make_variant`
-builds the scenario for a choice. Scenarios without cases have no variants.
+A scenario class lists its cases in `cases` and takes its case as one constructor argument named
+by `case_arg` (kept as the attribute of that name); `variant_of` names the argument, the choices
+and the current one, and `make_variant` builds the scenario for a choice. Scenarios without cases
+have no variants.
 """
 
 from __future__ import annotations
 
-import sys
 from typing import NamedTuple
 
 from app.scenarios import Scenario, get_scenario
-
-LIMIT_CASES = ("position", "velocity")
 
 
 class Variant(NamedTuple):
@@ -26,13 +24,9 @@ class Variant(NamedTuple):
 
 def variant_of(scenario: Scenario) -> Variant | None:
     """The cases of a scenario instance, or None."""
-    module = sys.modules.get(type(scenario).__module__)
-    modes = getattr(module, "MODES", None)
-    if modes and isinstance(getattr(scenario, "mode", None), str):
-        return Variant("mode", tuple(str(m) for m in modes), scenario.mode)  # type: ignore[attr-defined]
-    if getattr(scenario, "limit", None) in LIMIT_CASES:
-        return Variant("limit", LIMIT_CASES, scenario.limit)  # type: ignore[attr-defined]
-    return None
+    if not scenario.cases:
+        return None
+    return Variant(scenario.case_arg, tuple(scenario.cases), str(getattr(scenario, scenario.case_arg)))
 
 
 def make_variant(name: str, choice: str) -> Scenario:

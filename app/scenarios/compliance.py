@@ -64,6 +64,8 @@ class ScriptedPushes(Environment):
 
 class ComplianceScenario(Scenario):
     name = "compliance"
+    cases = MODES
+    case_arg = "mode"
     title = "Compliance modes [C]"
     description = (
         "One pose task and one posture task; only Γ changes. Stiff (Γ = 0): the arm resists pushes. "

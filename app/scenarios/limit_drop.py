@@ -45,6 +45,8 @@ DURATION_S = 6.0  # s: the cap; the experiment stops a drop once joint 4 is at r
 
 class LimitDropScenario(Scenario):
     name = "limit-drop"
+    cases = ("position", "velocity")
+    case_arg = "limit"
     title = "Joint-limit drop [C]"
     description = (
         "Gen3 in an L-shape carries 1.25 kg the controller does not know about. Only joint 4 is "

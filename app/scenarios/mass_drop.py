@@ -247,6 +247,8 @@ class SensorAdapter(Sensor):
 
 class MassDropScenario(Scenario):
     name = "mass-drop"
+    cases = MODES
+    case_arg = "mode"
     title = "Mass drop [C]"
     description = (
         "A 1.25 kg mass on a 5 cm elastic cord from the Gen3's tool is let go at the attachment point at "
