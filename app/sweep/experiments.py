@@ -146,7 +146,14 @@ POLISH_KNOBS = (
         "float",
         "start at this swivel and hold it (W_j on the start posture: no flow), degrees",
     ),
-    Knob("objective", "nullspace", "objective", ("j", "f", "a", "d"), "nullspace objective W_j/W_f/W_a/W_d [T15]"),
+    Knob(
+        "objective",
+        "nullspace",
+        "objective",
+        ("j", "f", "a", "d", "planned", "planned_a"),
+        "nullspace objective W_j/W_f/W_a/W_d [T15], or track the planned path (directional or W_a cost)",
+    ),
+    Knob("armature_scale", "scenario.polish", "armature_scale", "float", "armature × this, robot and model alike"),
     Knob("shaping", "motion_force", "shaping", "bool", "inertia shaping Λ̂x [T9] on/off"),
     Knob("sensor_cutoff", "sensor", "cutoff_hz", "float", "F/T low-pass cutoff, Hz (0 = none)", ("cutoff_hz",)),
     Knob("converge_timeout", "scenario.polish", "converge_timeout_s", "float", "posture settle cap, s"),
@@ -167,15 +174,17 @@ def polish_cell(values: dict, seed: int) -> dict:
         "shaping": bool(values.get("shaping", True)),
         "group": "sweep",
     }
-    if "hold_swivel" in values:  # the nullspace holds the start posture (W_j with q_d = q(0)): no flow
-        spec["start_swivel_deg"] = float(values["hold_swivel"])
-        spec["objective"] = "j"
+    if "hold_swivel" in values:  # the nullspace holds the start posture (W_j on it): no flow
+        spec["hold_swivel_deg"] = float(values["hold_swivel"])
+    if "armature_scale" in values:
+        spec["armature_scale"] = float(values["armature_scale"])
     if "sensor_cutoff" in values:
         spec["sensor_cutoff_hz"] = float(values["sensor_cutoff"])
     if "converge_timeout" in values:
         spec["converge_timeout_s"] = float(values["converge_timeout"])
     r = simulate(spec)["result"]
-    keep = {k: v for k, v in r.items() if k not in ("per_segment", "q_start", "q_converged", "posture_change_deg")}
+    drop = ("per_segment", "q_start", "q_converged", "posture_change_deg", "plan")
+    keep = {k: v for k, v in r.items() if k not in drop}
     return {"metrics": _scalars(keep), "stable": bool(r["stable"])}
 
 

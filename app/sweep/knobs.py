@@ -89,6 +89,7 @@ def _non_negative(value: Any) -> None:
 
 def _checks() -> dict[tuple[str, str], Callable[[Any], object]]:
     """(group, field) → validator, from the groups' own dataclasses and ranges."""
+    from app.experiments.polish import PLAN_COST_OF
     from app.scenarios.limit_drop import LimitDropScenario
     from app.scenarios.mass_drop import MassDropParams, MassDropScenario
     from app.scenarios.polish import PolishScenario
@@ -110,7 +111,8 @@ def _checks() -> dict[tuple[str, str], Callable[[Any], object]]:
         ("world", "torque_delay_ms"): _range_check(0.0, MAX_TORQUE_DELAY_MS, " ms"),
         ("sensor", "cutoff_hz"): _non_negative,
         ("motion_force", "shaping"): _dataclass_check(MotionForceGains, "shaping"),
-        ("nullspace", "objective"): _dataclass_check(NullspaceGains, "objective"),
+        ("nullspace", "objective"): lambda v: None if v in PLAN_COST_OF else NullspaceGains(objective=v),
+        ("scenario.polish", "armature_scale"): lambda v: PolishScenario(armature_scale=float(v)),
         ("scenario.limit-drop", "limit"): lambda v: LimitDropScenario(str(v)),
         ("scenario.mass-drop", "mode"): lambda v: MassDropScenario(str(v)),
         ("scenario.mass-drop", "case"): lambda v: MassDropScenario(case=str(v)),
