@@ -78,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", default="polish", help="polish, free, limit-drop, mass-drop, compliance")
     p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1, local only)")
     p.add_argument("--port", type=int, default=8080, help="TCP port (0: any free port; the URL printed says which)")
+    p.add_argument(
+        "--settings", default=None, metavar="FILE", help="TOML settings file to apply at start (one table per group)"
+    )
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("check", help="cross-check Pinocchio against MuJoCo")

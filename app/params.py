@@ -11,7 +11,9 @@ one TOML table per group with the fields that differ from the defaults:
 
 `save_settings(session)` writes the session's overrides (`Session.overrides()`), `load_settings`
 applies a file through `Session.set_param` — every value validated by its dataclass — and returns
-one line per refused entry (nothing else is lost: the accepted ones stay applied).
+one line per refused entry (nothing else is lost: the accepted ones stay applied). The running app
+goes through the loop instead: `settings_commands` turns a file into `SetParam` commands (checked
+against the groups in force) that the loop applies and remembers like any other change.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import math
 import sys
 from typing import Any
 
+from app.commands import SetParam
 from app.scenarios.payload import PayloadParams
 from app.scenarios.polish import PolishParams
 from app.session import Session, TargetParams
@@ -39,7 +42,7 @@ from control.gains import (
     SolverParams,
 )
 from control.joint_hold import JointHoldGains
-from control.params import ParamError, ParamSpec, spec_of
+from control.params import ParamError, ParamGroup, ParamSpec, replaced, spec_of
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -141,3 +144,22 @@ def load_settings(session: Session, text: str) -> list[str]:
         except ParamError as exc:
             refused.append(str(exc))
     return refused
+
+
+def settings_commands(groups: dict[str, ParamGroup], text: str) -> tuple[list[SetParam], list[str]]:
+    """The `SetParam` commands of a TOML settings text that the given groups accept, checked in file
+    order (so a rule across fields sees the earlier values), and one line per refused entry."""
+    entries, refused = parse_settings(text)
+    groups = dict(groups)
+    commands = []
+    for group, field, value in entries:
+        if group not in groups:
+            refused.append(f"this session has no parameter group {group!r}")
+            continue
+        try:
+            groups[group] = replaced(groups[group], field, value)
+        except ParamError as exc:
+            refused.append(f"{group}.{exc}")
+            continue
+        commands.append(SetParam(group, field, value))
+    return commands, refused

@@ -24,6 +24,7 @@ import viser
 import robots
 from app.commands import DragCommand
 from app.loop import SimLoop
+from app.params import parse_settings, save_settings, settings_commands
 from app.scenarios import SCENARIOS
 from app.ui.panels import ALL_FIELDS
 from app.ui.panels.compliance import CompliancePanel
@@ -132,6 +133,34 @@ def start_app(
     return app
 
 
+def _read_settings_file(path: str) -> str:
+    """The text of a settings file, checked as TOML; ValueError (one line) otherwise."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except OSError as exc:
+        raise ValueError(f"cannot read settings file {path}: {exc.strerror}") from None
+    _, problems = parse_settings(text)
+    if problems and problems[0].startswith("not a TOML"):
+        raise ValueError(f"{path}: {problems[0]}")
+    return text
+
+
+def save_settings_text(loop: SimLoop, timeout: float = 60.0) -> str:
+    """The running session's parameter overrides as TOML (for the page's "save settings")."""
+    return loop.call(save_settings, timeout)
+
+
+def load_settings_text(loop: SimLoop, text: str, timeout: float = 60.0) -> list[str]:
+    """Apply a TOML settings text to the running session through the loop (each value validated by
+    its group, remembered like any change); returns one line per refused entry."""
+    commands, refused = loop.call(lambda s: settings_commands(s.params(), text), timeout)
+    for cmd in commands:
+        loop.submit(cmd)
+    loop.sync(timeout)
+    return refused
+
+
 def serve(args: argparse.Namespace) -> int:
     """`torquelab serve`: start the app, print the URL, run until Ctrl-C."""
     scenario = args.scenario
@@ -144,9 +173,16 @@ def serve(args: argparse.Namespace) -> int:
         raise ValueError(f"cannot listen on host {args.host!r} (not an address of this machine)")
     if robot:
         robots.load(robot)  # a wrong name or URDF path is a one-line error before anything starts
+    settings_file = getattr(args, "settings", None)
+    settings_text = _read_settings_file(settings_file) if settings_file else None
     busy = args.port != 0 and not port_is_free(args.host, args.port)
     print(f"torquelab: starting scenario {scenario!r} …", flush=True)
     app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)
+    if settings_text is not None:
+        refused = load_settings_text(app.loop, settings_text)
+        for line in refused:
+            print(f"torquelab: {settings_file}: refused: {line}", flush=True)
+        print(f"torquelab: settings from {settings_file} applied ({len(refused)} refused)", flush=True)
     if args.port == 0:
         print(f"torquelab: --port 0: using free port {app.port}", flush=True)
     elif busy or app.port != args.port:

@@ -143,3 +143,41 @@ def test_settings_round_trip_through_toml_and_refusals_are_listed():
     assert dumps({"g": {"m": [[1.0, 0.0], [0.0, 1.0]], "s": 'a"b', "on": False}}) == (
         '[g]\nm = [[1.0, 0.0], [0.0, 1.0]]\ns = "a\\"b"\non = false\n'
     )
+
+
+def test_a_settings_file_reaches_the_running_loop_in_order_and_refusals_are_listed():
+    from app.loop import SimLoop
+    from app.server import load_settings_text, save_settings_text
+
+    loop = SimLoop("polish", capture=lambda s: None)
+    loop.start(running=False)
+    try:
+        text = (
+            "[nullspace]\ndamper_influence = 0.5\ndamper_safety = 0.4\nk0_a = 9.0\n"
+            "[contact]\nmu = 1.0\n[damper]\nM = 3\n"
+        )
+        refused = load_settings_text(loop, text)
+        # d_s = 0.4 is accepted because d_i = 0.5 came first in the file; k0_a is out of range
+        assert len(refused) == 2 and "nullspace.k0_a" in refused[0] and "'damper'" in refused[1]
+        ns = loop.session.params()["nullspace"]
+        assert (ns.damper_influence, ns.damper_safety, loop.session.environment.contact.mu) == (0.5, 0.4, 1.0)
+        assert [(o.group, o.field) for o in loop.lab.overrides] == [
+            ("nullspace", "damper_influence"),
+            ("nullspace", "damper_safety"),
+            ("contact", "mu"),
+        ]
+        saved = save_settings_text(loop)
+        assert "damper_safety = 0.4" in saved and "mu = 1.0" in saved
+    finally:
+        loop.stop()
+
+
+def test_serve_refuses_an_unreadable_or_malformed_settings_file_in_one_line(tmp_path, capsys):
+    from app.cli import main
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[damper\nlambda_ = 3")
+    for path in (str(tmp_path / "missing.toml"), str(bad)):
+        assert main(["serve", "--port", "0", "--settings", path]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and path in err[0], err
