@@ -181,3 +181,25 @@ def test_serve_refuses_an_unreadable_or_malformed_settings_file_in_one_line(tmp_
         assert main(["serve", "--port", "0", "--settings", path]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and path in err[0], err
+
+
+def test_restore_defaults_returns_every_parameter_of_the_preset_and_forgets_the_overrides():
+    from app.commands import RestoreDefaults, SetParam
+    from app.lab import Lab
+
+    lab = Lab("limit-drop")
+    defaults = lab.session.params()
+    for cmd in (
+        SetParam("damper", "lambda_", 300.0),
+        SetParam("posture_task", "compliance", 1.0, 3),
+        SetParam("world", "torque_delay_ms", 4.0),
+        SetParam("drag", "max_force_n", 50.0),
+        SetParam("solver", "qp_backend", "osqp"),
+    ):
+        lab.apply(cmd)
+    lab.advance(20)
+    assert len(lab.overrides) == 5 and lab.session.params() != defaults
+    lab.apply(RestoreDefaults())
+    assert lab.overrides == [] and lab.session.overrides() == {}
+    assert lab.session.params() == defaults and lab.session.steps == 0
+    assert lab.session.world.torque_delay_steps == 0 and lab.session.drag.max_force_n == 150.0

@@ -21,11 +21,9 @@ INTRO = (
 OBJECTIVES = tuple(f"W_{o}" for o in TANG_OBJECTIVES)
 TWIN_OFF = "off"
 TWIN_CHOICES = (TWIN_OFF, *OBJECTIVES)
+K0_FIELDS = tuple(NullspaceGains.k0_field(o) for o in TANG_OBJECTIVES)
 # the objective, then the k0 of each objective: only the selected objective's k0 is shown
-FIELDS: tuple[str, ...] = (
-    "nullspace.objective",
-    *(f"nullspace.{NullspaceGains.k0_field(o)}" for o in TANG_OBJECTIVES),
-)
+FIELDS: tuple[str, ...] = ("nullspace.objective", *(f"nullspace.{k0}" for k0 in K0_FIELDS))
 
 
 class NullspacePanel(KnobPanel):
@@ -53,15 +51,16 @@ class NullspacePanel(KnobPanel):
         group = settings.groups.get(k.group)
         if group is None:
             return False
-        if k.field.startswith("k0_") and isinstance(group, NullspaceGains):
+        if k.field in K0_FIELDS and isinstance(group, NullspaceGains):
             return k.field == NullspaceGains.k0_field(group.objective)
         return True
 
     def refresh(self, settings: Settings) -> None:
         """Values in force; only the selected objective's k0 is visible."""
         for k, handle in zip(self.knobs, self.handles, strict=True):
-            if k.field.startswith("k0_"):
-                visible = self.wanted(k, settings) or ("nullspace" not in settings.groups and k.field == "k0_a")
+            if k.field in K0_FIELDS:  # greyed k0 of the default objective when there is no nullspace QP
+                placeholder = "nullspace" not in settings.groups and k.field == NullspaceGains.k0_field("a")
+                visible = self.wanted(k, settings) or placeholder
                 if handle.visible != visible:
                     handle.visible = visible
         super().refresh(settings)
