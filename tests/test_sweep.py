@@ -33,7 +33,8 @@ def toy_cell(values: dict, seed: int) -> dict:
         raise SystemExit("killed")
     if x == 3 and os.path.exists(os.environ[FAIL_FLAG]):
         raise ValueError("cell three refuses")
-    return {"metrics": {"square": float(x * x), "seed": seed}, "stable": x < 5}
+    backend = os.environ.get("TORQUELAB_QP_BACKEND", "")
+    return {"metrics": {"square": float(x * x), "seed": seed, "backend": backend}, "stable": x < 5}
 
 
 def _one_line_error(capsys, argv: list[str]) -> str:
@@ -161,6 +162,16 @@ def test_a_two_axis_grid_is_filled_coarse_to_fine_on_both_axes():
     first = [points[i] for i in sorted(range(len(points)), key=keys.__getitem__)[:12]]
     assert {p["b"] for p in first} == {0, 1, 2}  # every value of the short axis early
     assert {p["a"] for p in first} == {0, 12, 6, 18}  # and the long axis at quarter steps
+
+
+def test_workers_started_earlier_see_the_submitters_qp_backend(tmp_path, toy_env, monkeypatch):
+    monkeypatch.delenv("TORQUELAB_QP_BACKEND", raising=False)
+    with ProcessPoolExecutor(max_workers=1) as pool:
+        assert pool.submit(os.getpid).result() != os.getpid()  # the worker exists before the setting
+        monkeypatch.setenv("TORQUELAB_QP_BACKEND", "osqp")
+        result = run_sweep("toy", toy_cell, [({"x": 1}, 0)], tmp_path / "sweep", pool, progress=False)
+    assert result.records[0]["metrics"]["backend"] == "osqp"
+    assert result.records[0]["env"] == {"TORQUELAB_QP_BACKEND": "osqp"}
 
 
 def test_a_half_written_last_line_is_ignored(tmp_path):

@@ -70,10 +70,19 @@ def worker_id() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def run_cell(cell: Callable[[dict, int], dict], params: dict, seed: int) -> dict:
-    """Run one cell where the executor puts it; an Exception becomes an "error" record."""
+def settings_env() -> dict[str, str]:
+    """Process-wide settings of this run that a worker elsewhere must see too (the QP backend)."""
+    from control.qp import BACKEND_ENV
+
+    return {k: os.environ[k] for k in (BACKEND_ENV,) if k in os.environ}
+
+
+def run_cell(cell: Callable[[dict, int], dict], params: dict, seed: int, env: dict[str, str] | None = None) -> dict:
+    """Run one cell where the executor puts it (with the submitter's `settings_env`); an Exception
+    becomes an "error" record."""
+    os.environ.update(env or {})
     t0, c0 = time.perf_counter(), time.process_time()
-    rec: dict = {"worker": worker_id()}
+    rec: dict = {"worker": worker_id(), "env": dict(env or {})}
     try:
         out = cell(params, seed)
         rec.update(status="ok", metrics=out["metrics"], stable=bool(out["stable"]), error=None)
@@ -121,8 +130,9 @@ def run_sweep(
     futures: dict[Future, tuple[str, dict, int]] = {}
     bar = tqdm(total=len(todo), desc=f"sweep {experiment}", unit="cell", disable=not progress)
     try:
+        env = settings_env()
         for k, p, s in todo:
-            futures[executor.submit(run_cell, cell, p, s)] = (k, p, s)
+            futures[executor.submit(run_cell, cell, p, s, env)] = (k, p, s)
         for fut in as_completed(futures):
             k, p, s = futures[fut]
             rec = fut.result()  # BaseException from a cell, or a dead pool, stops the sweep here
