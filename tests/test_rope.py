@@ -125,3 +125,19 @@ def test_released_mass_falls_freely_then_the_rope_pulls_tcp_and_mass_equally():
     assert np.linalg.norm(applied[0].force_world) > params.mass_kg * 9.81  # catching: above the weight
     # the F/T sensor carries the TCP side of the rope (pulled down)
     assert world.external_wrench_at_sensor()[2] < -params.mass_kg * 9.81
+
+
+def test_rig_parameters_are_set_through_the_session_and_apply_at_reset():
+    from app.session import Session
+    from control.params import ParamError
+
+    session = Session("mass-drop")
+    session.set_param("scenario", "rope_stiffness_n_per_m", 800.0)
+    session.set_param("scenario", "payload_mass_error", 0.1)
+    session.reset()
+    env = session.environment
+    assert env.rope.stiffness_n_per_m == 800.0
+    assert session.world.model.body_mass[env.body_id] == pytest.approx(1.25 * 1.1)
+    with pytest.raises(ParamError, match="drop_height_m"):
+        session.set_param("scenario", "drop_height_m", 0.2)  # more than twice the 5 cm rope
+    assert session.params()["scenario"].drop_height_m == pytest.approx(0.05)  # refused: unchanged

@@ -79,7 +79,7 @@ def test_grid_values_as_linspace_list_or_single():
         (["polish", "--grid", "objective=z"], "objective"),
         (["polish", "--grid", "armature_scale=-1"], "armature_scale must be finite and non-negative"),
         (["polish", "--grid", "hold_swivel=0,30", "swivel=10"], "drop swivel"),
-        (["mass-drop", "--grid", "payload_mass_error=0.6"], "within ±0.5"),
+        (["mass-drop", "--grid", "payload_mass_error=0.6"], "between -0.5 and 0.5"),
         (["mass-drop", "--grid", "controller=magic"], "choose from position"),
         (["juggle", "--grid", "x=1"], "unknown experiment 'juggle'"),
         (["limit-drop", "--grid", "M=2", "--seeds", "0"], "--seeds"),

@@ -36,7 +36,7 @@ cord and knot) and the true mass (±10 % about the 1.25 kg, which no controller 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import mujoco
@@ -49,6 +49,7 @@ from app.sim.sensor import FTSensor
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor, PoseTask
 from control.gains import EstimatorGains, PoseTaskGains, PostureTaskGains
+from control.params import ParamError, ParamGroup, expect, param
 from robots import RobotDescription
 
 MODES = ("position", "torque-residual", "torque-fusion")
@@ -67,48 +68,52 @@ ACTUATOR_RIPPLE_STD = 0.05  # N m
 STABLE_BAND_M = 1e-3
 
 
-def _meta(label: str, unit: str, lo: float, hi: float, step: float, help: str) -> dict:
-    return {"label": label, "unit": unit, "range": (lo, hi), "step": step, "help": help, "paper": "[C] §IV-D"}
-
-
 @dataclass(frozen=True)
-class MassDropParams:
-    """The mass-drop rig: what a repetition may vary (validated here, ValueError otherwise)."""
+class MassDropParams(ParamGroup):
+    """The mass-drop rig (group "scenario"): what a repetition may vary; in force from the next reset."""
 
-    rope_length_m: float = field(
-        default=0.05, metadata=_meta("rope length", "m", 0.02, 0.5, 0.01, "rest length of the rope")
+    title = "Mass-drop rig"
+
+    rope_length_m: float = param(
+        0.05, label="Rope length", unit="m", lo=0.02, hi=0.5, step=0.01, help="rest length of the rope", tag="[C] §IV-D"
     )
-    rope_stiffness_n_per_m: float = field(
-        default=500.0,
-        metadata=_meta("rope stiffness", "N/m", 100.0, 1e5, 100.0, "axial stiffness of the taut rope"),
+    rope_stiffness_n_per_m: float = param(
+        500.0, label="Rope stiffness", unit="N/m", lo=100.0, hi=1e5, step=50.0, help="axial stiffness of the taut rope"
     )
-    rope_damping_n_s_per_m: float = field(
-        default=5.0, metadata=_meta("rope damping", "N s/m", 0.0, 200.0, 1.0, "axial damping of the taut rope")
+    rope_damping_n_s_per_m: float = param(
+        5.0, label="Rope damping", unit="N s/m", lo=0.0, hi=200.0, step=1.0, help="axial damping of the taut rope"
     )
-    drop_height_m: float | None = field(
-        default=None,
-        metadata=_meta(
-            "drop height", "m", 0.0, 0.5, 0.01, "free fall before the rope goes taut; default: the rope length"
-        ),
+    drop_height_m: float = param(
+        0.05,
+        label="Drop height",
+        unit="m",
+        lo=0.0,
+        hi=0.5,
+        step=0.005,
+        help="free fall before the rope goes taut (the rope length: released at the attachment point)",
+        tag="[C] §IV-D",
     )
-    payload_mass_error: float = field(
-        default=0.0,
-        metadata=_meta("mass error", "", -0.2, 0.2, 0.01, "true mass = 1.25 kg × (1 + error); no controller is told"),
+    payload_mass_error: float = param(
+        0.0,
+        label="Mass error",
+        lo=-0.5,
+        hi=0.5,
+        step=0.01,
+        help="true mass = 1.25 kg × (1 + error); no controller is told",
     )
 
-    def __post_init__(self) -> None:
-        Rope(self.rope_length_m, self.rope_stiffness_n_per_m, self.rope_damping_n_s_per_m)  # validates
-        drop = self.drop_height
-        if not (np.isfinite(drop) and 0.0 <= drop <= 2 * self.rope_length_m):
-            raise ValueError(f"drop height must be between 0 and twice the rope length, got {drop!r}")
-        e = self.payload_mass_error
-        if not (isinstance(e, int | float) and np.isfinite(e) and -0.5 < e < 0.5):
-            raise ValueError(f"payload mass error must be a fraction within ±0.5, got {e!r}")
+    def check(self) -> None:
+        """The drop may not exceed twice the rope length (the mass is held below the wrist)."""
+        if self.drop_height_m > 2 * self.rope_length_m:
+            raise ParamError(
+                f"drop_height_m must be at most twice the rope length ({2 * self.rope_length_m:g} m), "
+                f"got {self.drop_height_m:g}"
+            )
 
     @property
     def drop_height(self) -> float:
-        """Free fall before the rope goes taut (m): the rope length unless set."""
-        return self.rope_length_m if self.drop_height_m is None else float(self.drop_height_m)
+        """Free fall before the rope goes taut (m)."""
+        return float(self.drop_height_m)
 
     @property
     def mass_kg(self) -> float:
@@ -177,6 +182,8 @@ class RopeDrop(Environment):
         self.qpos_adr = int(world.model.jnt_qposadr[joint])
         self.dof_adr = int(world.model.jnt_dofadr[joint])
         self.mass_kg = params.mass_kg
+        world.model.body_mass[self.body_id] = self.mass_kg  # the rig's mass applies from this reset on
+        world.model.body_inertia[self.body_id] = 0.4 * self.mass_kg * MASS_RADIUS_M**2
         self.attached = True  # on its rope for the whole run (the scene draws it at its body)
         self.released = False
         self.tension = 0.0
@@ -267,6 +274,14 @@ class MassDropScenario(Scenario):
         self.mode = mode
         self.case = case
         self.rig = params or MassDropParams()  # not `params`: that is the Scenario's parameter groups
+
+    def params(self) -> dict[str, ParamGroup]:
+        """ "scenario": the rig (rope, drop height, mass error), used from the next reset."""
+        return {"scenario": self.rig}
+
+    def set_params(self, name: str, group: Any) -> None:
+        """A new rig for the next reset (the mass is set on the compiled model then)."""
+        self.rig = expect(name, group, MassDropParams if name == "scenario" else None)
 
     def with_params(self, **changes: object) -> MassDropScenario:
         """A copy with some rig parameters changed (validated by `MassDropParams`)."""
