@@ -44,7 +44,8 @@ from app.twin import Twin
 from app.variants import make_variant
 from control.params import ParamError, ParamGroup
 
-SPEED_RANGE = (0.1, 1.0)
+UNPACED_SPEED = 1000.0  # a requested speed this high means "as fast as possible": every wake-up runs a full burst
+SPEED_RANGE = (0.01, UNPACED_SPEED)
 MAX_SINGLE_STEP = 10_000  # steps one StepOnce may ask for
 RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
 KEPT_ON_PRESET_SWITCH = ("drag",)  # parameter groups a new preset keeps from the old one

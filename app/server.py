@@ -26,6 +26,7 @@ from app.commands import DragCommand
 from app.loop import SimLoop
 from app.params import parse_settings, save_settings, settings_commands
 from app.scenarios import SCENARIOS
+from app.ui.keys import add_hotkeys
 from app.ui.panels import ALL_FIELDS
 from app.ui.panels.compliance import CompliancePanel
 from app.ui.panels.more_gains import MoreGainsPanel, claimed_fields
@@ -96,6 +97,7 @@ def start_app(
     with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
     server.gui.configure_theme(control_width="large")
+    server.gui.main_panel.dock_right()  # the 3D view is the canvas between the panels
     actual = server.get_port()
 
     extra = (robot,) if robot and robot not in ("rizon4s", "gen3") else ()
@@ -121,6 +123,9 @@ def start_app(
         loop.submit(DragCommand("release", client_id=client.client_id))
 
     publisher = Publisher(server, loop, panels, plots, make_scene)
+    scenario_panel = panels[0]
+    scenario_panel.on_frame = publisher.frame_view
+    add_hotkeys(server, loop, scenario_panel.toggle_run, publisher.frame_view)
     # Everything built so far lives as long as the app: keep it out of the garbage collector's
     # full passes, which otherwise stop every thread for ~50 ms now and then.
     gc.collect()

@@ -282,12 +282,12 @@ def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page)
     pg, _ = page
     preview = next(p for p in app.panels if isinstance(p, NullspacePanel)).preview
     scans = preview.scans
-    pg.get_by_text("Self-motion preview", exact=True).first.click()  # open the fold
-    box = pg.get_by_label("Scan once a second", exact=True)
+    box = pg.get_by_label("Self-motion preview", exact=True)
     box.wait_for(timeout=20_000)
-    box.check()
+    box.check()  # opening the preview starts the scans at once
     wait_for(lambda: preview.scans > scans and preview.ghost_visible, 30, "a scan and the ghost arm")
     assert "flow settles" in preview.text.content
+    wait_for(lambda: pg.get_by_text("the flow settles", exact=False).first.is_visible(), 20, "the scan text")
     box.uncheck()
     wait_for(lambda: not preview.ghost_visible, 30, "the ghost arm to hide")
 
@@ -352,8 +352,6 @@ def test_screenshot_of_the_running_app_is_saved(app, page):
             close.first.click()
         preview.set_enabled(True, ghost_at=GHOST_CHOICES[1])  # ghost at the best W_a inside the limits
         wait_for(lambda: preview.ghost_visible and "flow settles" in preview.text.content, 30, "the ghost arm")
-        if not pg.get_by_label("Scan once a second", exact=True).is_visible():
-            pg.get_by_text("Self-motion preview", exact=True).first.click()  # open the fold
         scan_text = pg.get_by_text("the flow settles", exact=False).first
         scan_text.wait_for(timeout=20_000)
         scan_text.scroll_into_view_if_needed()

@@ -72,7 +72,7 @@ def test_set_param_applies_between_steps_and_invalid_values_are_refused(loop):
         SetParam("joint_hold", "no_such_gain", 1.0, client_id=7),
         SetParam("nowhere", "x", 1, client_id=7),
         SetParam("drag", "max_force_n", -5, client_id=7),
-        SetSpeed(5.0),
+        SetSpeed(5000.0),
         SetSpeed(float("nan")),
         StepOnce(-3),
         SwitchSession(scenario="no-such-scenario"),
@@ -203,11 +203,17 @@ def test_executor_switch_keeps_the_simulation_state(loop):
     assert status.executor == "joint-hold" and loop.session.world.time == t
 
 
-def test_speed_is_limited_to_a_tenth_to_one(loop):
+def test_speed_is_limited_to_a_hundredth_to_unpaced(loop):
+    from app.loop import SPEED_RANGE
+
     loop.submit(SetSpeed(0.25))
     assert loop.sync().speed == 0.25
-    loop.submit(SetSpeed(0.05))
+    loop.submit(SetSpeed(0.005))
     assert loop.sync().speed == 0.25
+    loop.submit(SetSpeed(SPEED_RANGE[1] * 2))
+    assert loop.sync().speed == 0.25
+    loop.submit(SetSpeed(0.01))
+    assert loop.sync().speed == 0.01
 
 
 # ---- pacing (fake clock: exact numbers) ----------------------------------------------------------

@@ -1,20 +1,33 @@
-"""Live plots: titles say when a plot's quantity is not what its name promises."""
+"""Live plots: finite ranges whatever the data, titles that say what is plotted, history, markers, readouts."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+import pytest
 
 from app.commands import StepOnce
 from app.loop import SimLoop
-from app.ui.plots import COUPLING_TITLE, FORCE_TITLE, NO_SETPOINT_TITLE, Plots
+from app.ui.plots import (
+    COUPLING_TITLE,
+    FORCE_RANGE_N,
+    FORCE_TITLE,
+    NO_SETPOINT_TITLE,
+    Plots,
+    SignalHistory,
+    nice_ceiling,
+    phase_markers,
+    segment_std,
+)
 from app.ui.snapshot import capture
 
 
-def _plot_data(scenario: str):
+def _plot_data(scenario: str, steps: int = 300):
     loop = SimLoop(scenario, capture=capture)
     loop.start(running=False)
     try:
-        loop.submit(StepOnce(300))
+        loop.submit(StepOnce(steps))
         loop.sync()
         frame = loop.wait_frame(0, timeout=10.0)
         deadline = 50
@@ -29,15 +42,119 @@ def _plot_data(scenario: str):
         loop.stop()
 
 
-def test_force_plot_says_when_there_is_no_force_setpoint(server):
+@pytest.fixture(scope="module")
+def polish():
+    return _plot_data("polish")
+
+
+@pytest.fixture(scope="module")
+def drop():
+    return _plot_data("limit-drop")
+
+
+def test_force_plot_says_when_there_is_no_force_setpoint(server, polish, drop):
     plots = Plots(server)
-    polish = _plot_data("polish")
-    plots.update(polish)
+    plots.update(polish, session=1)
     assert np.any(polish.columns["Fd_z"] != 0) and plots.force.title == FORCE_TITLE
-    drop = _plot_data("limit-drop")
-    plots.update(drop)
+    plots.update(drop, session=2)
     assert np.all(drop.columns["Fd_z"] == 0) and plots.force.title == NO_SETPOINT_TITLE
-    # the L-shape is near a singularity: W is not plotted there and the title says why
-    assert np.all(np.isnan(drop.monitor["W_a"])) and plots.coupling.title != COUPLING_TITLE
-    plots.update(polish)
-    assert plots.coupling.title == COUPLING_TITLE and np.all(np.isfinite(polish.monitor["W_a"]))
+    # the L-shape is near a singularity: W is not plotted there and the heading says why
+    assert np.all(np.isnan(drop.monitor["W_a"])) and COUPLING_TITLE + ":" in plots.coupling.content
+    plots.update(polish, session=3)
+    assert plots.coupling.content == f"**{COUPLING_TITLE}**" and np.all(np.isfinite(polish.monitor["W_a"]))
+
+
+def test_every_plot_has_a_finite_y_range_and_data_with_no_twin(server, polish, drop):
+    """The twin's series is all NaN without a twin: the force plot keeps a fixed finite range and is
+    sent finite samples of the main arm (uPlot's auto range turned that into a blank plot)."""
+    plots = Plots(server)
+    for session, plot in enumerate((polish, drop)):
+        plots.update(plot, session=session)
+        for handle in (plots.force, plots.torque, plots.rtf, *plots.w_plots.values()):
+            lo, hi = handle.scales["y"]["range"]
+            assert np.isfinite(lo) and np.isfinite(hi) and hi > lo
+        lo, hi = plots.force.scales["y"]["range"]
+        err = plots.force.data[1]
+        top = float(np.nanmax(np.abs(err)))
+        assert lo == -hi and top <= hi <= 2.5 * max(1.1 * top, FORCE_RANGE_N)  # covers the data, not much more
+        assert np.count_nonzero(np.isfinite(plots.force.data[1])) > 10
+        assert plots.force.series[2].get("show") is False  # no twin: its legend entry is hidden
+        assert plots.force.data[0][-1] == pytest.approx(0.0)  # x is the time before now
+
+
+def test_y_range_widens_in_one_two_five_steps_and_comes_back(server, polish):
+    assert [nice_ceiling(v, 10.0) for v in (3.0, 10.0, 10.5, 27.0, 51.0, 180.0)] == [10, 10, 20, 50, 100, 200]
+    plots = Plots(server)
+    big = dict(polish.columns)
+    big["force_error_n"] = polish.columns["force_error_n"] + 0.0
+    plots.update(polish, session=1)
+    hi = nice_ceiling(1.1 * float(np.nanmax(np.abs(polish.columns["force_error_n"]))), FORCE_RANGE_N)
+    assert plots.force.scales["y"]["range"] == (-hi, hi)
+    big["force_error_n"][-3] = 3.0 * hi
+    plots.update(dataclasses.replace(polish, columns=big), session=2)
+    assert plots.force.scales["y"]["range"] == (-nice_ceiling(3.3 * hi, FORCE_RANGE_N), nice_ceiling(3.3 * hi, 10.0))
+    plots.update(polish, session=3)
+    assert plots.force.scales["y"]["range"] == (-hi, hi)
+
+
+def test_history_keeps_sixty_seconds_appends_new_rows_and_restarts_on_a_reset():
+    h = SignalHistory(seconds=60.0)
+    for start in np.arange(0.0, 80.0, 5.0):  # overlapping 10 s windows every 5 s, 50 samples per second
+        t = np.arange(start, start + 10.0, 0.02)
+        h.add({"t": t, "x": np.sin(t)})
+    assert np.all(np.diff(h.t) > 0)
+    assert h.t[-1] == pytest.approx(84.98) and h.t[0] >= 84.98 - 60.0 - 1e-9
+    assert h.t[0] == pytest.approx(24.98, abs=0.03)
+    np.testing.assert_allclose(h.columns["x"], np.sin(h.t))
+    assert len(h.window(10.0)["t"]) == pytest.approx(501, abs=1)
+    h.add({"t": np.arange(0.0, 1.0, 0.02), "y": np.ones(50)})  # a reset: time starts again
+    assert h.t[0] == 0.0 and len(h.t) == 50 and "x" not in h.columns
+
+
+def test_markers_and_segment_std_from_the_segment_signal():
+    t = np.arange(0.0, 20.0, 0.02)
+    seg = np.clip(np.floor((t - 2.0) / 2.5) + 1, 0, 7)
+    rng = np.random.default_rng(0)
+    err = rng.normal(0.0, 1.0, len(t)) * np.where(seg % 2 == 0, 3.0, 1.0)
+    columns = {"t": t, "segment": seg, "e": err, "payload_attached": (t < 5.0).astype(float)}
+    marks = phase_markers(columns)
+    labels = [m.label for m in marks]
+    assert labels == ["S1", "S2", "release", "S3", "S4", "S5", "S6", "end"]
+    s1 = next(m for m in marks if m.label == "S1")
+    assert s1.t == pytest.approx(2.0, abs=0.021)
+    std = segment_std(columns, "e")
+    assert sorted(std) == [1, 2, 3, 4, 5, 6]
+    assert std[2] / std[1] == pytest.approx(3.0, rel=0.25) and std[4] / std[3] == pytest.approx(3.0, rel=0.25)
+
+
+def test_freeze_holds_the_picture_while_the_history_fills(server, polish):
+    plots = Plots(server)
+    plots.update(polish, session=1)
+    shown = plots.force.data
+    plots.freeze.value = True
+    later = {k: v.copy() for k, v in polish.columns.items()}
+    later["t"] = later["t"] + 5.0
+    plots.update(dataclasses.replace(polish, columns=later), session=1)
+    assert plots.force.data is shown and plots.history.t[-1] == pytest.approx(later["t"][-1])
+    plots.freeze.value = False
+    plots.update(dataclasses.replace(polish, columns=later), session=1)
+    assert plots.force.data is not shown
+
+
+def test_window_choice_sets_the_x_range(server, polish):
+    plots = Plots(server)
+    plots.update(polish, session=1)
+    assert plots.force.scales["x"]["range"] == (-10.0, 0.0)
+    plots.window.value = "60 s"
+    plots._on_window()
+    assert plots.force.scales["x"]["range"] == (-60.0, 0.0)
+    assert all(h.scales["x"]["range"] == (-60.0, 0.0) for h in plots.w_plots.values())
+
+
+def test_limit_drop_readout_names_the_peak_torque_of_the_falling_joint(server, drop):
+    plots = Plots(server)
+    plots.focus(3)
+    plots.update(drop, session=1)
+    tau4 = np.abs(drop.columns["tau_4"])
+    assert plots.readouts["peak_torque_nm"] == pytest.approx(float(np.nanmax(tau4)))
+    assert "peak |τ|" in plots.readout.content

@@ -198,12 +198,21 @@ def test_status_shows_the_fallback_badge_the_halt_message_and_a_slow_machine(app
     frame = app.loop.wait_frame(0, timeout=5.0)
     assert frame is not None
     base = frame.status
-    ok = dataclasses.replace(base, running=True, rtf=1.0, speed=1.0, fallback=False, halted="")
+    # the status line's real-time factor is simulated over wall time across the last seconds of frames
+    wall = time.monotonic()
+    ok = dataclasses.replace(base, running=True, t=10.0, speed=1.0, fallback=False, halted="")
+    panel.live(dataclasses.replace(frame, status=ok))
+    time.sleep(1.2)
+    ok = dataclasses.replace(ok, t=10.0 + (time.monotonic() - wall))  # kept up with the wall clock
     panel.live(dataclasses.replace(frame, status=ok))
     assert not panel.fallback_md.visible and not panel.halted_md.visible
     assert "slower than requested" not in panel.status_md.content.lower()
+    assert "t = " in panel.status_md.content and "running" in panel.status_md.content
+    kept_up, wall = ok.t, time.monotonic()
+    time.sleep(1.2)
+    half = kept_up + 0.5 * (time.monotonic() - wall)  # from now on only half as fast as the wall clock
     bad = dataclasses.replace(
-        base, running=True, rtf=0.5, speed=1.0, fallback=True, fallback_steps=base.fallback_steps + 3, halted="x"
+        base, running=True, t=half, speed=1.0, fallback=True, fallback_steps=base.fallback_steps + 3, halted="x"
     )
     panel.live(dataclasses.replace(frame, status=bad))
     assert panel.fallback_md.visible and panel.halted_md.visible and "Reset" in panel.halted_md.content
@@ -224,6 +233,22 @@ def test_status_line_names_the_qp_backend_and_the_fallback_reason_from_the_step_
     panel.live(dataclasses.replace(frame, status=status, scene=dataclasses.replace(frame.scene, step=failed)))
     assert "QP dense 6 µs" in panel.status_md.content
     assert panel.fallback_md.visible and "(infeasible)" in panel.fallback_md.content
+
+
+def test_averaged_rate_does_not_read_a_catch_up_burst_as_faster_than_real_time():
+    from app.ui.panels.scenario import AveragedRate
+
+    rate = AveragedRate(window_s=2.0)
+    sim, values = 0.0, []
+    for k in range(100):  # 10 s of wall time in 0.1 s frames; a 0.1 s stall every 2 s, caught up in one burst
+        wall = 0.1 * k
+        sim = wall - (0.1 if k % 20 == 5 else 0.0)
+        value = rate.update(wall, sim, running=True)
+        if value is not None:
+            values.append(value)
+    # the burst itself runs at 2× (0.2 s simulated in 0.1 s); over the ≥ 1 s window it reads at most 1.1
+    assert values and max(values) <= 1.0 + 0.1 / 1.0 + 1e-9 and min(values) >= 1.0 - 0.1 / 1.0 - 1e-9
+    assert rate.update(11.0, sim, running=False) is None  # paused: no factor
 
 
 def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):

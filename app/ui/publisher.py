@@ -17,6 +17,7 @@ from typing import Any
 import viser
 
 from app.loop import Frame, SimLoop
+from app.ui.camera import frame_on_connect, frame_robot
 from app.ui.panels.base import notify
 from app.ui.plots import Plots
 
@@ -49,6 +50,8 @@ class Publisher:
         self._settings_version = -1
         self._plot_seq = -1
         self._next_live = 0.0
+        self._frame_pending = True  # frame the robot once a new scene has a snapshot
+        frame_on_connect(server, lambda: self.last_frame.scene if self.last_frame is not None else None)
 
     def start(self) -> None:
         """Start the thread."""
@@ -73,6 +76,12 @@ class Publisher:
             except Exception:  # keep publishing whatever one widget does
                 traceback.print_exc()
 
+    def frame_view(self, client: viser.ClientHandle | None = None) -> bool:
+        """Point one client's camera (every client's when None) at the arm of the newest frame."""
+        frame = self.last_frame
+        scene = frame.scene if frame is not None else None
+        return frame_robot(self.server, scene, None if client is None else [client])
+
     def show(self, frame: Frame) -> None:
         """Show one frame."""
         self.last_frame = frame
@@ -82,12 +91,15 @@ class Publisher:
                 self.scene = None
             self.scene = self.make_scene(frame.robot)
             self.scene_session_id = frame.session_id
+            self._frame_pending = True
             if self.plots is not None:
                 self.plots.focus(frame.status.focus_joint)
         if self.scene is not None and frame.scene is not None:
             with self.server.atomic():
                 self.scene.update(frame.scene)
             self.scene_updates += 1
+            if self._frame_pending:
+                self._frame_pending = not frame_robot(self.server, frame.scene)
         now = time.monotonic()
         settings_changed = frame.settings.version != self._settings_version
         if settings_changed or now >= self._next_live:
@@ -100,5 +112,5 @@ class Publisher:
                 panel.live(frame)
         if frame.plot is not None and self.plots is not None and frame.plot_seq != self._plot_seq:
             self._plot_seq = frame.plot_seq  # a frame skipped while busy does not lose a plot update
-            self.plots.update(frame.plot)
+            self.plots.update(frame.plot, frame.session_id)
         self.frames_shown += 1

@@ -33,6 +33,7 @@ from robots import RobotDescription
 __all__ = ["Preview", "SelfMotionPreview", "link_poses", "preview_objective", "scan_preview"]
 
 PREVIEW_PERIOD_S = 1.0  # s between two scans while the preview is on (a scan takes ~0.1 s)
+PLANNED_SIGNAL = "swivel_plan_deg"  # the polish scenario's planned swivel, when it runs a planned path
 GHOST_COLOR = (110, 130, 255)
 GHOST_OPACITY = 0.35
 AS_CONTROLLER = "as the controller"
@@ -43,6 +44,11 @@ INTRO = (
     "The scan shows W along it: the flow of [T15] only reaches the nearest minimum downhill; "
     "the ghost arm shows where it settles or the best posture inside the joint limits."
 )
+
+
+def wrap_deg(value: Any) -> Any:
+    """Angles in degrees wrapped into [−180, 180)."""
+    return (np.asarray(value, dtype=float) + 180.0) % 360.0 - 180.0
 
 
 def preview_objective(choice: str, controller_objective: str | None) -> str:
@@ -73,24 +79,29 @@ class SelfMotionPreview:
     def __init__(self, server: viser.ViserServer):
         self.server = server
         gui = server.gui
-        with gui.add_folder("Self-motion preview", expand_by_default=False):
+        self.enabled: Any = gui.add_checkbox(
+            "Self-motion preview", False, hint="Scan the elbow's self-motion loop once a second and show W along it"
+        )
+        self.folder = gui.add_folder("Self-motion loop", expand_by_default=True, visible=False)
+        with self.folder:
             gui.add_markdown(INTRO)
-            self.enabled: Any = gui.add_checkbox("Scan once a second", False, hint="Trace the self-motion loop")
             self.objective = gui.add_dropdown("Scan W", OBJECTIVE_CHOICES, initial_value=AS_CONTROLLER)
             self.ghost_at: Any = gui.add_dropdown("Ghost arm", GHOST_CHOICES, initial_value=GHOST_CHOICES[0])
             self.text = gui.add_markdown("")
             self.plot = gui.add_uplot(
-                tuple(np.zeros(2) for _ in range(6)),
+                tuple(np.zeros(2) for _ in range(7)),
                 (
-                    {"label": "swivel (°)"},
+                    {"label": "swivel (°, 0 = elbow up)"},
                     _line("W inside the limits", "#1f77b4", 2.0),
                     _line("beyond a limit", "#aaaaaa", 1.0, dash=(4.0, 4.0)),
                     _marker("now", "#222222"),
                     _marker("flow settles", "#6e82ff"),
                     _marker("best", "#2ca02c"),
+                    _marker("plan", "#ff7f0e"),
                 ),
                 title="W along the self-motion loop",
-                scales={"x": {"time": False}, "y": {"distr": 3}},
+                scales={"x": {"time": False, "auto": False, "range": (-180.0, 180.0)}, "y": {"distr": 3}},
+                legend={"live": False},  # type: ignore[typeddict-item]
                 aspect=1.6,
             )
         self.latest: Preview | None = None
@@ -104,8 +115,10 @@ class SelfMotionPreview:
         self._in_process = True  # off after the scan process failed once: scans then run in this thread
         self._ghost: dict[str, viser.MeshHandle] = {}
         self._ghost_robot: str | None = None
-        for handle in (self.enabled, self.objective, self.ghost_at):
+        self._planned_deg: float | None = None  # swivel the planned path heads for, if the scenario plans one
+        for handle in (self.objective, self.ghost_at):
             handle.on_update(lambda _: self._wake.set())
+        self.enabled.on_update(lambda _: self._on_enabled())
         self._thread = threading.Thread(target=self._run, name="torquelab-selfmotion", daemon=True)
         self._thread.start()
 
@@ -116,6 +129,9 @@ class SelfMotionPreview:
         q = getattr(scene, "q", None)
         if scene is None or q is None or not np.all(np.isfinite(q)) or getattr(scene, "near_singular", False):
             return
+        planned = getattr(frame, "status", None)
+        planned = planned.signals.get(PLANNED_SIGNAL) if planned is not None else None
+        self._planned_deg = float(planned) if planned is not None and np.isfinite(planned) else None
         with self._lock:
             self._input = (frame.robot, np.array(q, dtype=float), scene.subspaces, scene.objective)
 
@@ -127,6 +143,13 @@ class SelfMotionPreview:
                 raise ValueError(f"ghost_at must be one of {', '.join(GHOST_CHOICES)}")
             self.ghost_at.value = ghost_at
         self.enabled.value = bool(on)
+        self._on_enabled()
+
+    def _on_enabled(self) -> None:
+        """Show the loop's fold and scan at once when switched on; hide both when off."""
+        on = bool(self.enabled.value)
+        if self.folder.visible != on:
+            self.folder.visible = on
         self._wake.set()
 
     def stop(self) -> None:
@@ -190,14 +213,23 @@ class SelfMotionPreview:
         return self._models[key]
 
     def _show_plot(self, p: Preview) -> None:
-        x = p.swivel_deg
-        inside = np.where(p.feasible, p.W, np.nan)
-        outside = np.where(p.feasible, np.nan, p.W)
+        wrapped = wrap_deg(p.swivel_deg)  # −180…180°, as the text says the angles
+        order = np.argsort(wrapped, kind="stable")
+        x = wrapped[order]
+        W, feasible = p.W[order], p.feasible[order]
+        inside = np.where(feasible, W, np.nan)
+        outside = np.where(feasible, np.nan, W)
+        rank = np.empty(len(order), dtype=int)
+        rank[order] = np.arange(len(order))
+        plan = None
+        if self._planned_deg is not None and len(x):
+            gap = np.abs(wrap_deg(x - self._planned_deg))
+            plan = int(order[int(np.argmin(gap))])
         marks = []
-        for index in (0, p.flow, p.best):
+        for index in (0, p.flow, p.best, plan):
             m = np.full(len(x), np.nan)
             if index is not None:
-                m[index] = p.W[index]
+                m[rank[index]] = p.W[index]
             marks.append(m)
         self.plot.data = (x, inside, outside, *marks)
         self.plot.title = f"{p.name} along the self-motion loop"

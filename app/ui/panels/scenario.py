@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 from typing import Any
 
 import viser
@@ -10,13 +12,18 @@ import viser
 import robots
 from app.commands import Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
 from app.executors import EXECUTORS
-from app.loop import SPEED_RANGE, Frame, LoopStatus, SimLoop
+from app.lab import UNPACED_SPEED
+from app.loop import Frame, LoopStatus, SimLoop
 from app.scenarios import SCENARIOS
-from app.ui.panels.base import KnobPanel, notify, number_in_range
+from app.ui.panels.base import KnobPanel, notify
 
 DEFAULT_ROBOT = "scenario default"
 NO_CASE = "–"
 STEPS = {"1 ms": 1, "10 ms": 10, "100 ms": 100}
+UNPACED = "as fast as possible"
+SPEEDS = {"0.01×": 0.01, "0.03×": 0.03, "0.1×": 0.1, "0.3×": 0.3, "0.5×": 0.5, "1×": 1.0, "2×": 2.0, "5×": 5.0}
+SPEEDS[UNPACED] = UNPACED_SPEED
+RTF_WINDOW_S = 2.0  # the status line's real-time factor: simulated over wall time across this many seconds
 SLOW_WARNING = 0.95  # say so when the real-time factor stays below this share of the requested speed
 FALLBACK_SHOW_S = 2.0  # keep the fallback badge up this long after the last fallback step
 
@@ -35,6 +42,7 @@ class ScenarioPanel(KnobPanel):
         self._extra_robots = extra_robots
         self._last_fallback_wall = -1e9
         self._seen_fallback_steps = 0
+        self._rtf = AveragedRate()
         super().__init__(server, loop, "Scenario", INTRO, FIELDS, order=order)
 
     def build_extra_top(self) -> None:
@@ -55,12 +63,18 @@ class ScenarioPanel(KnobPanel):
         self.executor = gui.add_dropdown(
             "Executor", executors, initial_value=status.executor if status.executor in executors else executors[0]
         )
-        self.play = gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY)
-        self.pause = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE)
-        self.step = gui.add_button_group("Single step", tuple(STEPS))
-        self.reset = gui.add_button("Reset", icon=viser.Icon.REFRESH)
-        lo, hi = SPEED_RANGE
-        self.speed = gui.add_slider("Speed (× real time)", lo, hi, 0.05, 1.0)
+        self.run = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE, hint="Play / pause (Space)")
+        self._shown_running: bool | None = None
+        self.step = gui.add_button_group("Single step", tuple(STEPS), hint="→: 1 ms, Shift+→: 10 ms")
+        self.reset = gui.add_button("Reset", icon=viser.Icon.REFRESH, hint="Start the preset again (R)")
+        self.frame_button = gui.add_button(
+            "Frame the robot", icon=viser.Icon.FOCUS_CENTERED, hint="Point the camera at the arm (F)"
+        )
+        self.on_frame: Any = None  # set by the app: frames the camera of the client that clicked
+        self.frame_button.on_click(lambda e: self.on_frame(e.client) if self.on_frame is not None else None)
+        self.speed = gui.add_dropdown(
+            "Speed", tuple(SPEEDS), initial_value="1×", hint="Simulated time per wall second; the last runs unpaced"
+        )
         self.status_md = gui.add_markdown("")
         self.fallback_md = gui.add_markdown(
             "**QP fallback!** A QP failed in the last seconds; a fallback torque was used.", visible=False
@@ -71,8 +85,7 @@ class ScenarioPanel(KnobPanel):
         self.case.on_update(self._on_case)
         self.robot.on_update(self._on_robot)
         self.executor.on_update(self._on_executor)
-        self.play.on_click(lambda e: self.loop.submit(Play()))
-        self.pause.on_click(lambda e: self.loop.submit(Pause()))
+        self.run.on_click(lambda e: self.toggle_run())
         self.reset.on_click(lambda e: self.loop.submit(Reset()))
         self.step.on_click(self._on_step)
         self.speed.on_update(self._on_speed)
@@ -114,6 +127,10 @@ class ScenarioPanel(KnobPanel):
             return
         self.loop.submit(SwitchSession(executor=name))
 
+    def toggle_run(self) -> None:
+        """Pause when running, play when paused (the button and Space)."""
+        self.loop.submit(Pause() if self.loop.status.running else Play())
+
     def _on_step(self, event: viser.GuiEvent) -> None:
         steps = STEPS.get(event.target.value)
         if steps is not None:
@@ -122,10 +139,9 @@ class ScenarioPanel(KnobPanel):
     def _on_speed(self, event: viser.GuiEvent) -> None:
         if event.client_id is None:
             return
-        try:
-            value = number_in_range("Speed", event.target.value, SPEED_RANGE[0], SPEED_RANGE[1])
-        except ValueError as exc:
-            notify(self.server, event.client_id, "Value refused", str(exc))
+        value = SPEEDS.get(str(event.target.value))
+        if value is None:
+            notify(self.server, event.client_id, "Value refused", f"speed must be one of {', '.join(SPEEDS)}")
             return
         self.loop.submit(SetSpeed(value))
 
@@ -146,15 +162,18 @@ class ScenarioPanel(KnobPanel):
         if choice in self.robot.options:
             _set(self.robot, choice)
         if time.time() - self.speed.update_timestamp > 0.6:
-            _set(self.speed, round(st.speed, 2))
+            _set(self.speed, speed_label(st.speed))
         text = _describe(st)
         if self.description.content != text:
             self.description.content = text
-        state = "running" if st.running else "paused"
-        rtf = f"real-time factor **{st.rtf:.2f}×**" if st.running else "real-time factor –"
+        self._show_running(st.running)
+        rtf = self._rtf.update(time.monotonic(), st.t, st.running)
+        unpaced = st.speed >= UNPACED_SPEED
+        state = "▶ running" if st.running else "❚❚ paused"
+        rate = f"real-time factor **{rtf:.2f}×**" if st.running and rtf is not None else "real-time factor –"
+        pace = "unpaced: as fast as possible" if unpaced else f"speed {st.speed:g}×"
         status = (
-            f"t = {st.t:.2f} s · {state} · {rtf} (speed {st.speed:.2f}×, compute {100 * st.load:.0f} %)  \n"
-            f"{st.robot} · {st.executor}"
+            f"t = {st.t:.3f} s · {state} · {rate} ({pace}, compute {100 * st.load:.0f} %)  \n{st.robot} · {st.executor}"
         )
         step = getattr(frame.scene, "step", None)  # the controller's view of its latest step
         if step is not None and step.qp_status is not None:
@@ -163,7 +182,7 @@ class ScenarioPanel(KnobPanel):
             status += f" · dragging ({st.signals.get('drag_force_n', 0.0):.0f} N)"
         if st.overpowered:
             status += f"  \n**Overpowered:** {st.overpowered}."
-        if st.running and 0.0 < st.rtf < SLOW_WARNING * st.speed:
+        if st.running and not unpaced and rtf is not None and 0.0 < rtf < SLOW_WARNING * st.speed:
             status += "  \n**Slower than requested:** this machine cannot keep up right now."
         if self.status_md.content != status:
             self.status_md.content = status
@@ -183,6 +202,44 @@ class ScenarioPanel(KnobPanel):
             self.halted_md.content = halted
         if self.halted_md.visible != bool(halted):
             self.halted_md.visible = bool(halted)
+
+    def _show_running(self, running: bool) -> None:
+        """The run button offers what a click does: Pause while running, Play while paused."""
+        if self._shown_running == running:
+            return
+        self._shown_running = running
+        self.run.label = "Pause" if running else "Play"
+        self.run.icon = viser.Icon.PLAYER_PAUSE if running else viser.Icon.PLAYER_PLAY
+        self.run.color = None if running else "green"
+
+
+class AveragedRate:
+    """Real-time factor over the last `window_s` wall seconds from (wall, simulated time) samples, so a
+    catch-up burst after a stall does not read as faster than real time; None until it has a window."""
+
+    def __init__(self, window_s: float = RTF_WINDOW_S):
+        self.window_s = window_s
+        self._samples: deque[tuple[float, float]] = deque()
+
+    def update(self, wall: float, sim_t: float, running: bool) -> float | None:
+        """Add a sample; returns the factor over the window (None while paused or just restarted)."""
+        s = self._samples
+        if not running or (s and sim_t < s[-1][1]):
+            s.clear()
+            if not running:
+                return None
+        s.append((wall, sim_t))
+        while len(s) > 2 and wall - s[1][0] >= self.window_s:
+            s.popleft()
+        elapsed = wall - s[0][0]
+        if elapsed < 0.5 * self.window_s:
+            return None
+        return (sim_t - s[0][1]) / elapsed
+
+
+def speed_label(speed: float) -> str:
+    """The Speed dropdown's entry nearest to a requested speed."""
+    return min(SPEEDS, key=lambda k: abs(math.log(SPEEDS[k]) - math.log(max(speed, 1e-9))))
 
 
 def _describe(status: LoopStatus) -> str:
