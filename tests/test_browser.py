@@ -32,11 +32,12 @@ pytestmark = pytest.mark.browser
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = ROOT / "test-artifacts"
 README_SCREENSHOT = ROOT / "static" / "screenshot.png"
-VIEWPORT = {"width": 1100, "height": 720}
-SCREENSHOT_VIEWPORT = {"width": 1400, "height": 820}
-PANEL_WIDTH_PX = 420  # the GUI panel covers the right of the page; the WebGL notice the top-left
+VIEWPORT = {"width": 1600, "height": 1000}  # the plots dock left, the controls right: the 3D view is between
+SCREENSHOT_VIEWPORT = {"width": 1600, "height": 1000}
+PANEL_WIDTH_PX = 420  # the control panel covers the right of the page
 CAMERA_POSITION = np.array([0.55, -1.45, 0.75])  # side view of the polishing arm, elbow left of centre
 CAMERA_LOOK_AT = np.array([0.35, 0.0, 0.45])
+SCENE_CANVAS = "canvas[data-engine^=three]"  # the 3D view (the plots and a 0×0 helper draw on other canvases)
 DRAG_LINK = "link4"  # the elbow link: free in the nullspace while the tool presses the table
 
 
@@ -98,6 +99,8 @@ def open_page(app: Any, browser: Any) -> tuple[Any, Any]:
     new = wait_for(lambda: set(app.server.get_clients()) - before, 60, "the page to connect")
     client = app.server.get_clients()[min(new)]
     wait_for(lambda: client.camera.image_width > 0, 30, "the page to report its camera")
+    wait_for(lambda: client.client_id in app.publisher.framed_clients, 30, "the app to frame the robot")
+    time.sleep(0.5)  # the framing's camera message reaches the page before a test moves the camera
     return page, client
 
 
@@ -190,10 +193,10 @@ def drag_state(app: Any) -> DragView:
 def start_drag(page: Any, client: Any, app: Any, link: str) -> tuple[float, float]:
     """Press on the link and move until the server holds a drag of that link; returns the pointer."""
     set_camera(client, CAMERA_POSITION, CAMERA_LOOK_AT)
-    box = page.locator("canvas").first.bounding_box()
+    box = page.locator(SCENE_CANVAS).first.bounding_box()
     x, y = project(client, box, link_point_world(app, link))
-    free_x = box["width"] - PANEL_WIDTH_PX
-    assert 40 < x < free_x and 160 < y < box["height"] - 40, f"{link} projects off the free area: {x, y}"
+    inside = box["x"] + 40 < x < box["x"] + box["width"] - 40 and 160 < y < box["height"] - 40
+    assert inside, f"{link} projects off the 3D view: {x, y} in {box}"
     page.mouse.move(x, y)
     page.mouse.down()
     for k in range(1, 4):  # past the ~3 px drag threshold
@@ -233,14 +236,25 @@ def choose(pg: Any, label: str, option: str) -> list[str]:
 
 # ---- tests ------------------------------------------------------------------------------------------
 def test_page_loads_and_draws_the_robot_where_the_camera_projects_it(app, page):
+    from app.commands import Pause, Play
+
     pg, client = page
+    app.loop.submit(Pause())  # a still arm: the projected points stay on it however slow the page is
+    app.loop.sync()
+    try:
+        _robot_is_drawn_where_projected(app, pg, client)
+    finally:
+        app.loop.submit(Play())
+
+
+def _robot_is_drawn_where_projected(app: Any, pg: Any, client: Any) -> None:
     set_camera(client, CAMERA_POSITION, CAMERA_LOOK_AT)
-    box = pg.locator("canvas").first.bounding_box()
+    box = pg.locator(SCENE_CANVAS).first.bounding_box()
     links = [project(client, box, link_point_world(app, name)) for name in ("link2", "link4", "link6")]
     floor = project(client, box, np.array([0.3, 0.9, 0.0]))  # bare floor beside the table
     pts = np.array([*links, floor])
-    lo = np.maximum(pts.min(axis=0) - 20, 0)
-    hi = np.minimum(pts.max(axis=0) + 20, [box["width"], box["height"]])
+    lo = np.maximum(pts.min(axis=0) - 20, [box["x"], box["y"]])
+    hi = np.minimum(pts.max(axis=0) + 20, [box["x"] + box["width"], box["y"] + box["height"]])
     clip = {"x": float(lo[0]), "y": float(lo[1]), "width": float(hi[0] - lo[0]), "height": float(hi[1] - lo[1])}
 
     def is_green(image: np.ndarray, xy: tuple[float, float]) -> bool:
@@ -254,9 +268,18 @@ def test_page_loads_and_draws_the_robot_where_the_camera_projects_it(app, page):
         from PIL import Image
 
         image = np.asarray(Image.open(BytesIO(pg.screenshot(clip=clip))).convert("RGB")).astype(int)
+        last["image"] = image
         return all(is_green(image, xy) for xy in links) and not is_green(image, floor) and image.std() > 10
 
-    wait_for(robot_drawn, 60, "the green links at their projected pixels (and no green on the floor)", period=0.5)
+    last: dict[str, np.ndarray] = {}
+    try:
+        wait_for(robot_drawn, 60, "the green links at their projected pixels (and no green on the floor)", period=0.5)
+    finally:
+        if "image" in last:
+            from PIL import Image
+
+            ARTIFACTS.mkdir(exist_ok=True)
+            Image.fromarray(last["image"].astype(np.uint8)).save(ARTIFACTS / "browser-robot-clip.png")
     ARTIFACTS.mkdir(exist_ok=True)
     pg.screenshot(path=str(ARTIFACTS / "browser-robot.png"))
 
@@ -356,7 +379,8 @@ def test_screenshot_of_the_running_app_is_saved(app, page):
         scan_text.wait_for(timeout=20_000)
         scan_text.scroll_into_view_if_needed()
         set_camera(client, np.array([1.25, -1.0, 0.8]), np.array([0.42, 0.0, 0.3]))
-        wait_for(lambda: client.camera.image_width == SCREENSHOT_VIEWPORT["width"], 20, "the page to resize")
+        canvas = pg.locator(SCENE_CANVAS).first
+        wait_for(lambda: client.camera.image_width == round(canvas.bounding_box()["width"]), 20, "the page to resize")
         time.sleep(2.0)  # a few software-rendered frames at the new pose
         ARTIFACTS.mkdir(exist_ok=True)
         shot = ARTIFACTS / "app.png"

@@ -84,15 +84,16 @@ def frame_robot(server: viser.ViserServer, scene: Any, clients: Iterable[viser.C
     return True
 
 
-def frame_on_connect(server: viser.ViserServer, scene_of: Any) -> None:
+def frame_on_connect(server: viser.ViserServer, scene_of: Any) -> set[int]:
     """Frame each page's camera once, as soon as it reports its view size (`scene_of()` gives the
-    newest scene snapshot)."""
+    newest scene snapshot); returns the set of client ids framed so far (it fills as pages connect)."""
+    framed: set[int] = set()
 
     @server.on_client_connect
     def _(client: viser.ClientHandle) -> None:
-        done = [False]
-
         @client.camera.on_update
         def _(camera: Any) -> None:
-            if not done[0] and camera.image_width > 0:
-                done[0] = frame_robot(server, scene_of(), [client])
+            if client.client_id not in framed and camera.image_width > 0 and frame_robot(server, scene_of(), [client]):
+                framed.add(client.client_id)
+
+    return framed

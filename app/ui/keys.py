@@ -11,8 +11,8 @@ from typing import Any
 
 import viser
 
+from app.commands import Reset, StepOnce
 from app.loop import SimLoop
-from app.ui.commands import Reset, StepOnce
 
 
 def add_hotkeys(

@@ -51,7 +51,10 @@ class Publisher:
         self._plot_seq = -1
         self._next_live = 0.0
         self._frame_pending = True  # frame the robot once a new scene has a snapshot
-        frame_on_connect(server, lambda: self.last_frame.scene if self.last_frame is not None else None)
+        # pages whose camera was framed on connect (client ids)
+        self.framed_clients = frame_on_connect(
+            server, lambda: self.last_frame.scene if self.last_frame is not None else None
+        )
 
     def start(self) -> None:
         """Start the thread."""
