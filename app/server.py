@@ -2,8 +2,9 @@
 
 `start_app(...)` starts everything without blocking and returns an `App` (tests use it
 in-process); `serve(args)` is the `torquelab serve` command: it starts the app, prints the URL
-and runs until Ctrl-C. The server binds 127.0.0.1 unless `--host` says otherwise; if the port is
-taken, the next free one is used and the URL printed says which.
+and runs until Ctrl-C (exit 0), or until the simulation loop dies (exit 1, with the reason). The
+server binds 127.0.0.1 unless `--host` says otherwise; if the port is taken, the next free one is
+used, and `--port 0` picks any free port; the URL printed says which.
 """
 
 from __future__ import annotations

@@ -7,7 +7,9 @@
    step at the current state;
 3. the F/T sensor model turns the true wrench at the sensor into a reading, mapped to the TCP;
 4. the executor computes τ; 5. MuJoCo steps.
-The web app's loop and the headless experiments both call this, so they agree step for step.
+`Session.run(seconds, until=…, record=…)` is the one run loop around it, with the one divergence
+check: the web app's loop and the headless experiments both run through it, so they agree step
+for step.
 """
 
 from __future__ import annotations
