@@ -365,6 +365,8 @@ class PolishScenario(Scenario):
     """Scenario 1 of DESIGN §5 with its settings: friction μ, sander, start swivel."""
 
     name = "polish"
+    cases = MODES
+    case_arg = "mode"
     title = "Polish"
     description = (
         "Press 20 N on a table, let the elbow settle under the chosen nullspace objective, then polish "
