@@ -1,4 +1,5 @@
 """Pure control math for torquelab: dynamics snapshots, coupling metrics, controllers, estimators.
 
-Depends only on numpy, pinocchio and osqp; never on the simulator or the web UI.
+Depends only on numpy, numba, pinocchio and the QP solvers (daqp, osqp); never on the simulator or
+the web UI.
 """

@@ -43,8 +43,6 @@ from control.gains import (
 from control.model import Dynamics
 from control.params import expect
 
-OSQP_INF = qp.INF  # "no bound"
-
 
 class TaskRows(NamedTuple):
     """A task's contribution: weight · ‖J q̈ − b‖²_metric (or J q̈ = b when strict)."""
@@ -186,10 +184,10 @@ class AccelerationQP:
         # primary: x = q̈, rows A = [M; J_strict]
         self.m = n + n_strict
         self.A = np.zeros((self.m, n))
-        self.l = np.full(self.m, -OSQP_INF)
-        self.u = np.full(self.m, OSQP_INF)
-        self.lb = np.full(n, -OSQP_INF)  # damper bounds on q̈
-        self.ub = np.full(n, OSQP_INF)
+        self.l = np.full(self.m, -qp.INF)
+        self.u = np.full(self.m, qp.INF)
+        self.lb = np.full(n, -qp.INF)  # damper bounds on q̈
+        self.ub = np.full(n, qp.INF)
         self.primary = qp.make_qp(self.backend, n, self.m, n_eq=n_strict, settings=qp_settings)
         # fallback over [q̈; s]: rows [I −I] ≤ u_d, [I I] ≥ l_d, [M 0] torque, [J 0] strict; box s ≥ 0
         self.m2 = 3 * n + n_strict
@@ -213,10 +211,10 @@ class AccelerationQP:
         )
         self.P2 = np.zeros((2 * n, 2 * n))
         self.q2 = np.zeros(2 * n)
-        self.l2 = np.full(self.m2, -OSQP_INF)
-        self.u2 = np.full(self.m2, OSQP_INF)
-        self.lb2 = np.r_[np.full(n, -OSQP_INF), np.zeros(n)]
-        self.ub2 = np.full(2 * n, OSQP_INF)
+        self.l2 = np.full(self.m2, -qp.INF)
+        self.u2 = np.full(self.m2, qp.INF)
+        self.lb2 = np.r_[np.full(n, -qp.INF), np.zeros(n)]
+        self.ub2 = np.full(2 * n, qp.INF)
         self._last = np.zeros(n)
 
     def solve(self, P: np.ndarray, q: np.ndarray) -> qp.QPResult:
@@ -417,8 +415,8 @@ class ComplianceQPExecutor:
             aqp.l[:n] = -self.tau_max - dyn.h + tau_fb
             aqp.u[:n] = self.tau_max - dyn.h + tau_fb
         else:
-            aqp.l[:n] = -OSQP_INF
-            aqp.u[:n] = OSQP_INF
+            aqp.l[:n] = -qp.INF
+            aqp.u[:n] = qp.INF
         res = aqp.solve(P, q)
         self.ddq = res.x
         self.last_qp = res

@@ -433,10 +433,10 @@ class EstimatorGains(ParamGroup):
 
 @dataclass(frozen=True)
 class ComplianceQPSettings(ParamGroup):
-    """Switches of the [C] QP executor; eps: OSQP absolute/relative tolerance; polish: OSQP
-    solution polishing (slower, exact active set); max_iter: OSQP iteration cap per step (the
-    iterate at the cap is used, flagged by its status). Changing eps, polish or max_iter rebuilds
-    the QP."""
+    """Switches of the [C] QP executor; eps: the QP tolerance (OSQP's absolute/relative one, DAQP's
+    primal one); polish: OSQP solution polishing (slower, exact active set); max_iter: OSQP's
+    iteration cap per step (the iterate at the cap is used, flagged by its status; DAQP's active
+    set ends on its own). Changing eps, polish or max_iter rebuilds the QP."""
 
     title = "QP executor [C8, C10]"
 
@@ -449,7 +449,7 @@ class ComplianceQPSettings(ParamGroup):
     torque_limits: bool = param(
         True, label="Torque limits", help="torque limits on τ_d including τ̂_e as constraints", tag="[C10]"
     )
-    eps: float = param(1e-6, label="OSQP tolerance", lo=1e-12, hi=1e-2, help="absolute/relative tolerance")
+    eps: float = param(1e-6, label="QP tolerance", lo=1e-12, hi=1e-2, help="OSQP abs./rel. tolerance, DAQP primal")
     polish: bool = param(False, label="OSQP polishing", help="exact active set, slower")
     max_iter: int = param(400, label="OSQP iteration cap", lo=1, hi=100000, step=1, help="iterations per step")
 
