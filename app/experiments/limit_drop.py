@@ -209,7 +209,8 @@ def _select(runs, *, limit, feedback, sweep):
 
 def _label(r: dict) -> str:
     fb = "on" if r["feedback"] else "off"
-    return f"{r['limit']} {r['form']} λ={r['lambda']:g} M={r['M']:g} feedback {fb}"
+    delay = f", torque {r['torque_delay_ms']:g} ms late" if r.get("torque_delay_ms", 0.0) > 0 else ""
+    return f"{r['limit']} {r['form']} λ={r['lambda']:g} M={r['M']:g} feedback {fb}{delay}"
 
 
 def velocity_overshoot_item(study: list[dict]) -> str:
