@@ -193,7 +193,10 @@ def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict
 
 
 def _plan_figure(out: Path, planned: list[tuple[dict, dict]], plt) -> None:
-    """Planned and executed swivel over time, over the planning cost along the trajectory."""
+    """Planned and executed swivel against time since the settle start, over the planning cost
+    along the trajectory (drawn from the trajectory start the run actually had)."""
+    from matplotlib.colors import LogNorm
+
     import robots
     from control.model import RobotModel
 
@@ -202,21 +205,29 @@ def _plan_figure(out: Path, planned: list[tuple[dict, dict]], plt) -> None:
     fig, axes = plt.subplots(len(planned), 1, figsize=(10, 3.6 * len(planned)), squeeze=False)
     for ax, (r, s) in zip(axes[:, 0], planned, strict=True):
         plan = scenario_module.planned_path(robot, model, r["start_swivel_deg"], r["plan_cost_kind"])
+        start = r["convergence_time_s"]  # trajectory start, s after the settle start
         k = plan.cost_map.shape[0]
-        t_traj = np.arange(k) * scenario_module.PLAN_SAMPLE_S
-        C = np.where(np.isfinite(plan.cost_map), plan.cost_map, np.nan)
-        mesh = ax.pcolormesh(t_traj, np.rad2deg(plan.grid_rad), C.T, shading="nearest", cmap="viridis")
-        fig.colorbar(mesh, ax=ax, label=r["plan_cost_kind"] + " cost")
-        psi = np.rad2deg(np.unwrap(plan.swivel_rad))
-        ax.plot(plan.t, (psi + 180) % 360 - 180, "w-", lw=2, label="planned")
-        t0 = r["convergence_time_s"] + scenario_module.CONTACT_TIME_S
+        t_traj = start + np.arange(k) * scenario_module.PLAN_SAMPLE_S
+        C = np.where(np.isfinite(plan.cost_map) & (plan.cost_map > 0), plan.cost_map, np.nan)
+        positive = C[np.isfinite(C)]
+        norm = LogNorm(vmin=float(np.min(positive)), vmax=float(np.max(positive))) if positive.size else None
+        mesh = ax.pcolormesh(t_traj, np.rad2deg(plan.grid_rad), C.T, shading="nearest", cmap="viridis", norm=norm)
+        fig.colorbar(mesh, ax=ax, label=f"{r['plan_cost_kind']} cost (log)")
+        psi = (np.rad2deg(np.unwrap(plan.swivel_rad)) + 180.0) % 360.0 - 180.0
+        transfer = plan.t < 0
+        t_plan = np.where(transfer, plan.t + plan.transfer_s, plan.t + start)
+        ax.plot(t_plan[transfer], psi[transfer], "k-", lw=2, label="planned (transfer)")
+        ax.plot(
+            [plan.transfer_s, start], [psi[transfer][-1], psi[~transfer][0]], "k:", lw=1.5, label="hold until converged"
+        )
+        ax.plot(t_plan[~transfer], psi[~transfer], "w-", lw=2, label="planned (trajectory)")
         sel = s["t"] >= scenario_module.CONTACT_TIME_S
-        ax.plot(s["t"][sel] - t0, s["swivel"][sel], "r--", lw=1.2, label="executed")
-        ax.set_xlim(plan.t[0], t_traj[-1])
+        ax.plot(s["t"][sel] - scenario_module.CONTACT_TIME_S, s["swivel"][sel], "r--", lw=1.2, label="executed")
+        ax.set_xlim(0.0, t_traj[-1])
         ax.set_ylabel("swivel (deg)")
-        ax.set_title(f"{NAMES[r['objective']]}, μ = {r['mu']:g}: transfer (t < 0) and trajectory")
-        ax.legend(fontsize=8, loc="upper right")
-    axes[-1][0].set_xlabel("time since trajectory start (s)")
+        ax.set_title(f"{NAMES[r['objective']]}, μ = {r['mu']:g}, seed {r['seed']}")
+        ax.legend(fontsize=7, loc="upper right")
+    axes[-1][0].set_xlabel("time since the settle phase began (s)")
     fig.tight_layout()
     fig.savefig(out / "planned_path.png", dpi=110)
     plt.close(fig)
