@@ -261,15 +261,19 @@ def posture_figures(session, q: np.ndarray, mu: float, shaping: bool) -> dict:
         "W": {"f": W["W_f"], "a": W["W_a"], "d": W["W_d"]},
         "Pf_fhat": {k: float(terms.P_f[0, :2] @ d) for k, d in dirs.items()},
         "Pd_fhat": {k: float(terms.P_d[0, :2] @ d) for k, d in dirs.items()},
-        "margin": pm.kd_margin,
+        "margin": _finite_or_none(pm.kd_margin),  # None: no K_f^d up to 2000 N s/m stabilises the loop
         "margin_detail": {
-            "kd_critical": pm.kd_critical,
-            "kd_critical_stretch": pm.kd_critical_per_direction[0],
-            "kd_critical_retract": pm.kd_critical_per_direction[1],
+            "kd_critical": _finite_or_none(pm.kd_critical),
+            "kd_critical_stretch": _finite_or_none(pm.kd_critical_per_direction[0]),
+            "kd_critical_retract": _finite_or_none(pm.kd_critical_per_direction[1]),
             "worst_direction": ("stretch", "retract")[pm.worst_direction],
             "worst_speed_m_s": pm.worst_speed_m_s,
         },
     }
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 def peak_speed() -> float:
@@ -434,6 +438,8 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
     results, series = [], []
     for doc, npz in zip(docs, series_files, strict=True):
         for r in doc["runs"] + [x for x in doc["armature"]["runs"] if x["group"] == "armature"]:
+            if r.get("margin") is not None and not np.isfinite(r["margin"]):
+                r["margin"] = None  # older outputs wrote ±inf for "no K_f^d stabilises"
             key = (r["row"], r["mu"], r["seed"], r["armature_scale"])
             if key in seen:
                 continue

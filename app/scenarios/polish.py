@@ -359,6 +359,21 @@ class PolishParams(ParamGroup):
         help="elbow swivel of the start posture (0 = elbow up, Fig. 6a); applies at Reset",
         tag="DESIGN §8",
     )
+    hold_swivel: bool = param(
+        False,
+        label="Hold the start swivel",
+        help="the nullspace holds the start posture (W_j on it, no flow), for stability maps; applies at Reset",
+        tag="[T18]",
+    )
+    armature_scale: float = param(
+        1.0,
+        label="Armature scale",
+        lo=0.0,
+        hi=4.0,
+        step=0.25,
+        help="scales the (unpublished) rotor armature of the model and the simulated arm alike; applies at Reset",
+        tag="robots/rizon4s.toml",
+    )
 
 
 class PolishScenario(Scenario):
@@ -375,6 +390,8 @@ class PolishScenario(Scenario):
     default_robot = "rizon4s"
     default_executor = "projection"
     table_height = TABLE_HEIGHT_M
+    cases = MODES
+    case_arg = "mode"
 
     def __init__(
         self,
@@ -445,12 +462,25 @@ class PolishScenario(Scenario):
         self._plan_lead_s = 1.0 / k0_j if k0_j > 0 else 0.0
 
     def params(self) -> dict[str, ParamGroup]:
-        """ "scenario": the start swivel (used at the next reset)."""
-        return {"scenario": PolishParams(start_swivel_deg=self.start_swivel_deg)}
+        """ "scenario": the start swivel, holding it, the armature scale (used at the next reset; the
+        armature when the session is rebuilt, since the model and the world are built with it)."""
+        held = self.hold_swivel_deg is not None
+        return {
+            "scenario": PolishParams(
+                start_swivel_deg=self.hold_swivel_deg if held else self.start_swivel_deg,  # type: ignore[arg-type]
+                hold_swivel=held,
+                armature_scale=self.armature_scale,
+            )
+        }
 
     def set_params(self, name: str, group: Any) -> None:
-        """A new start swivel for the next reset."""
-        self.start_swivel_deg = expect(name, group, PolishParams if name == "scenario" else None).start_swivel_deg
+        """A new start swivel / hold / armature scale for the next reset."""
+        p = expect(name, group, PolishParams if name == "scenario" else None)
+        self.start_swivel_deg = p.start_swivel_deg
+        self.hold_swivel_deg = p.start_swivel_deg if p.hold_swivel else None
+        self.armature_scale = p.armature_scale
+        if self.hold_swivel_deg is not None and self._executor is not None:
+            self.configure_executor(self._executor, None)  # type: ignore[arg-type]  # holding runs W_j
 
     def start_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """TCP position and rotation at the start (2 mm above the table, tool down)."""
