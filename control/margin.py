@@ -136,18 +136,23 @@ def critical_force_kd(
     kd_max: float = 2000.0,
     tol: float = 0.5,
 ) -> float | None:
-    """Smallest K_f^d (N s/m) in [0, kd_max] that keeps ρ(Φ) < 1, by bisection (0.0 when even
-    K_f^d = 0 is stable, None when kd_max is not)."""
+    """Lowest K_f^d (N s/m) of the stable interval that holds the gains' own K_f^d (or, when that one
+    is unstable, the lowest stable K_f^d above it on a 25 N s/m grid up to kd_max), by bisection;
+    0.0 when K_f^d = 0 is already stable, None when no K_f^d up to kd_max is. (Too large a K_f^d
+    is unstable again in the 1 ms step, so the stable set is bounded on both sides.)"""
     from dataclasses import replace
 
     def stable(kd: float) -> bool:
         return _radius(Lambda, sub, replace(gains, force_kd=kd), loop, friction_dir) < 1.0
 
+    hi: float | None = gains.force_kd if stable(gains.force_kd) else None
+    if hi is None:
+        hi = next((float(k) for k in np.arange(gains.force_kd, kd_max + 1e-9, 25.0) if stable(float(k))), None)
+    if hi is None:
+        return None
     if stable(0.0):
         return 0.0
-    if not stable(kd_max):
-        return None
-    lo, hi = 0.0, kd_max
+    lo = 0.0
     while hi - lo > tol:
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if stable(mid) else (mid, hi)

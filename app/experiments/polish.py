@@ -207,7 +207,7 @@ def simulate(spec: dict) -> dict:
     }
     result["stable"] = bool(result_run.stop != "diverged" and result["contact_lost_ms"] == 0 and np.any(traj))
     if plan_cost is not None:
-        plan = scenario.plan
+        plan = session.scenario.plan  # type: ignore[attr-defined]  # the session's copy of the scenario
         assert plan is not None
         result["plan_cost"] = plan.total_cost
         result["plan_cost_kind"] = plan_cost
@@ -447,6 +447,8 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
             results.append(r)
             prefix = f"{_label(r)}__"
             series.append({k[len(prefix) :]: npz[k] for k in npz.files if k.startswith(prefix)})
+    if getattr(args, "recompute_margin", True):
+        _recompute_margins(results)
     table = [r for r in results if r["group"] == "table"]
     mus = sorted({r["mu"] for r in table})
     settings = dict(docs[0]["settings"])
@@ -482,6 +484,19 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
     print(format_table(doc["summary"]))
     print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} from {len(dirs)} directories")
     return 0
+
+
+def _recompute_margins(results: list[dict]) -> None:
+    """The posture figures (W, P·f̂, margin) of each run again from its converged posture with this
+    version's `control.margin`, so runs made by different versions are compared alike."""
+    from app.session import Session
+
+    sessions: dict[float, Any] = {}
+    for r in results:
+        scale = float(r["armature_scale"])
+        if scale not in sessions:
+            sessions[scale] = Session(PolishScenario(armature_scale=scale), seed=0)
+        r.update(posture_figures(sessions[scale], np.array(r["q_converged"]), float(r["mu"]), bool(r["shaping"])))
 
 
 def _is_fig6a_start(r: dict, mus: list[float]) -> bool:

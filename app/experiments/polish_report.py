@@ -127,6 +127,8 @@ def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict
         if r["group"] == "table" and r["seed"] == 0 and r["shaping"] and abs(r["start_swivel_deg"]) < 1e-6
     ]
     mus = sorted({r["mu"] for r, _ in main})
+    if not mus:  # e.g. the armature runs alone: no table figures
+        return
 
     fig, axes = plt.subplots(3, len(mus), figsize=(6 * len(mus), 7.5), squeeze=False, sharex=True)
     for col, mu in enumerate(mus):
