@@ -56,7 +56,8 @@ def test_grid_values_as_linspace_list_or_single():
     grid = parse_grid(["lambda=100,300", "M=1.5:3:2"])
     from app.sweep.experiments import get
 
-    axes = build_axes(get("limit-drop").knobs, grid)
+    exp = get("limit-drop")
+    axes = build_axes(exp.knobs, grid, exp.groups)
     assert [a.values for a in axes] == [(100.0, 300.0), (1.5, 3.0)]
     assert len(cells(axes, seeds=3)) == 2 * 2 * 3
 
@@ -67,7 +68,7 @@ def test_grid_values_as_linspace_list_or_single():
         (["limit-drop", "--grid", "bogus=1"], "unknown parameter 'bogus'"),
         (["limit-drop", "--grid", "lambda=-5"], "lambda_ must be between 1 and 1000"),
         (["limit-drop", "--grid", "form=wobbly"], "choose from proposed, classic"),
-        (["limit-drop", "--grid", "torque_delay_ms=50"], "0 to 20 ms"),
+        (["limit-drop", "--grid", "torque_delay_ms=50"], "between 0 and 20 ms"),
         (["limit-drop", "--grid", "M=1:2"], "a:b:n"),
         (["limit-drop", "--grid", "M=1:2:zero"], "whole number"),
         (["limit-drop", "--grid", "M=abc"], "must be a number"),
@@ -75,8 +76,8 @@ def test_grid_values_as_linspace_list_or_single():
         (["limit-drop", "--grid", "lambda"], "NAME=VALUES"),
         (["limit-drop", "--grid", "M=1", "M=2"], "given twice"),
         (["limit-drop", "--grid", "feedback=maybe"], "on/off"),
-        (["polish", "--grid", "mu=-0.5"], "non-negative"),
-        (["polish", "--grid", "objective=z"], "objective"),
+        (["polish", "--grid", "mu=-0.5"], "mu must be between 0 and 1.5"),
+        (["polish", "--grid", "objective=z"], "choose from j, f, a, d, planned"),
         (["polish", "--grid", "armature_scale=-1"], "armature_scale must be finite and non-negative"),
         (["polish", "--grid", "hold_swivel=0,30", "swivel=10"], "drop swivel"),
         (["mass-drop", "--grid", "payload_mass_error=0.6"], "between -0.5 and 0.5"),

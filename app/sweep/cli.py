@@ -52,7 +52,7 @@ def add_parser(sub) -> None:
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Validate everything, run the missing cells, write cells.csv and report.html."""
     exp = experiments.get(args.experiment)
-    axes = build_axes(exp.knobs, parse_grid(args.grid))
+    axes = build_axes(exp.knobs, parse_grid(args.grid), exp.groups)
     exp.check_combination([a.name for a in axes])
     if args.seeds < 1:
         raise SweepError(f"--seeds must be at least 1, got {args.seeds}")

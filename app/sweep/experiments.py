@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from app.sweep.grid import SweepError
-from app.sweep.knobs import Knob
+from app.sweep.knobs import RUN, Knob, positive
 from app.sweep.overlays import polish_notes, polish_overlay
 
 
@@ -27,6 +27,7 @@ class SweepExperiment:
     map_metrics: tuple[str, ...]  # metrics drawn as maps / lines in the report
     stable_means: str  # what "stable" means for this experiment (shown in the report)
     seeded: bool = True  # False: the run does not depend on the seed (seeds repeat it)
+    groups: Callable[[], dict] | None = None  # the default session's parameter groups by name
     overlay: Callable | None = None  # (ax, axes, records) → extra layers on its maps
     report_notes: Callable | None = None  # (axes, records) → HTML paragraph for the report
 
@@ -54,15 +55,30 @@ def _scalars(d: dict, prefix: str = "") -> dict:
 
 # ---- limit-drop [C] §IV-B–C -------------------------------------------------------------------
 LIMIT_DROP_KNOBS = (
-    Knob("lambda", "damper", "lambda_", "float", "damper gain λ (1/s) [C24]", ("lam", "λ", "lambda_")),
-    Knob("M", "damper", "M", "float", "damper overdamping M [C24]"),
-    Knob("form", "damper", "form", ("proposed", "classic"), "damper form: proposed [C24] or classic δt [C17–19]"),
-    Knob("feedback", "compliance_qp", "feedback", "bool", "τ̂_e kept in the inverse dynamics [C8]"),
-    Knob("torque_delay_ms", "world", "torque_delay_ms", "float", "actuator latency, ms", ("delay", "torque_delay")),
-    Knob("limit", "scenario.limit-drop", "limit", ("position", "velocity"), "which limit joint 4 falls into"),
-    Knob("K_I", "estimator", "observer_gain", "float", "momentum-observer gain K_I (1/s) [C25]", ("observer_gain",)),
-    Knob("duration", "run", "duration_s", "float", "simulated seconds per drop", ("duration_s",)),
+    Knob("lambda", "damper", "lambda_", "damper gain λ (1/s) [C24]", ("lam", "λ", "lambda_")),
+    Knob("M", "damper", "M", "damper overdamping M [C24]"),
+    Knob("form", "damper", "form", "damper form: proposed [C24] or classic δt [C17–19]"),
+    Knob("feedback", "compliance_qp", "feedback", "τ̂_e kept in the inverse dynamics [C8]"),
+    Knob("torque_delay_ms", "world", "torque_delay_ms", "actuator latency, ms", ("delay", "torque_delay")),
+    Knob("K_I", "estimator", "observer_gain", "momentum-observer gain K_I (1/s) [C25]", ("observer_gain",)),
+    Knob("limit", RUN, "limit", "which limit joint 4 falls into", kind=("position", "velocity")),
+    Knob(
+        "duration",
+        RUN,
+        "duration",
+        "simulated seconds per drop (a cap: it ends once joint 4 has stopped)",
+        ("duration_s",),
+        check=positive,
+    ),
 )
+
+
+def limit_drop_groups() -> dict:
+    """The limit-drop session's parameter groups (the QP executor's, the world's...)."""
+    from app.experiments.c_common import qp_session
+    from app.scenarios.limit_drop import LimitDropScenario
+
+    return qp_session(LimitDropScenario()).params()
 
 
 def limit_drop_cell(values: dict, seed: int) -> dict:
@@ -89,27 +105,56 @@ def limit_drop_cell(values: dict, seed: int) -> dict:
 MASS_DROP_KNOBS = (
     Knob(
         "controller",
-        "scenario.mass-drop",
+        RUN,
         "mode",
-        ("position", "torque-residual", "torque-fusion"),
         "Position PID, Torque + Residual or Torque + Fusion",
         ("mode",),
+        kind=("position", "torque-residual", "torque-fusion"),
     ),
-    Knob("case", "scenario.mass-drop", "case", ("rope-drop", "held-release"), "the mass falls on a rope, or is let go"),
+    Knob("case", RUN, "case", "the mass falls on a rope, or is let go", kind=("rope-drop", "held-release")),
     Knob(
         "payload_mass_error",
-        "mass_drop_rig",
+        RUN,
         "payload_mass_error",
-        "float",
         "true mass = 1.25 kg × (1 + error), unknown to every controller (nominal of the seeded rig draw)",
         ("mass_error",),
+        check=lambda v: _rig(payload_mass_error=v),
     ),
-    Knob("rope_stiffness", "mass_drop_rig", "rope_stiffness_n_per_m", "float", "rope stiffness, N/m (nominal)"),
-    Knob("drop_height", "mass_drop_rig", "drop_height_m", "float", "free fall before the rope is taut, m (nominal)"),
-    Knob("window", "run", "duration_s", "float", "seconds analysed after the release", ("window_s",)),
+    Knob(
+        "rope_stiffness",
+        RUN,
+        "rope_stiffness_n_per_m",
+        "rope stiffness, N/m (nominal)",
+        check=lambda v: _rig(rope_stiffness_n_per_m=v),
+    ),
+    Knob(
+        "drop_height",
+        RUN,
+        "drop_height_m",
+        "free fall before the rope is taut, m (nominal)",
+        check=lambda v: _rig(drop_height_m=v),
+    ),
+    Knob("window", RUN, "window_s", "seconds analysed after the release", ("window_s",), check=positive),
 )
+
+
+def _rig(**values):
+    """The mass-drop rig's own dataclass validates a nominal value."""
+    from app.scenarios.mass_drop import MassDropParams
+
+    return MassDropParams(**values)
+
+
 SETTLED_FOR_S = 0.1  # "settled": inside the band for at least the last 0.1 s of the window
 RIG_FIELDS = {"payload_mass_error": "payload_mass_error", "rope_stiffness": "rope_stiffness_n_per_m"}
+
+
+def mass_drop_groups() -> dict:
+    """The mass-drop session's parameter groups."""
+    from app.experiments.c_common import qp_session
+    from app.scenarios.mass_drop import MassDropScenario
+
+    return qp_session(MassDropScenario()).params()
 
 
 def mass_drop_cell(values: dict, seed: int) -> dict:
@@ -137,28 +182,55 @@ def mass_drop_cell(values: dict, seed: int) -> dict:
 
 # ---- polish [T] §IV-B ---------------------------------------------------------------------------
 POLISH_KNOBS = (
-    Knob("mu", "scenario.polish", "mu", "float", "Coulomb friction coefficient μ", ("μ",)),
-    Knob("swivel", "scenario.polish", "start_swivel_deg", "float", "start swivel, degrees", ("start_swivel",)),
+    Knob("mu", "contact", "mu", "Coulomb friction coefficient μ", ("μ",)),
+    Knob("swivel", "scenario", "start_swivel_deg", "start swivel, degrees", ("start_swivel",)),
     Knob(
         "hold_swivel",
-        "scenario.polish",
+        RUN,
         "hold_swivel_deg",
-        "float",
         "start at this swivel and hold it (W_j on the start posture: no flow), degrees",
+        check=lambda v: _polish(hold_swivel_deg=v),
     ),
     Knob(
         "objective",
-        "nullspace",
+        RUN,
         "objective",
-        ("j", "f", "a", "d", "planned", "planned_a"),
         "nullspace objective W_j/W_f/W_a/W_d [T15], or track the planned path (directional or W_a cost)",
+        kind=("j", "f", "a", "d", "planned", "planned_a"),
     ),
-    Knob("armature_scale", "scenario.polish", "armature_scale", "float", "armature × this, robot and model alike"),
-    Knob("shaping", "motion_force", "shaping", "bool", "inertia shaping Λ̂x [T9] on/off"),
-    Knob("sensor_cutoff", "sensor", "cutoff_hz", "float", "F/T low-pass cutoff, Hz (0 = none)", ("cutoff_hz",)),
-    Knob("converge_timeout", "scenario.polish", "converge_timeout_s", "float", "posture settle cap, s"),
-    Knob("sander", "scenario.polish", "sander", "bool", "7000 RPM sander disturbance"),
+    Knob(
+        "armature_scale",
+        RUN,
+        "armature_scale",
+        "armature × this, robot and model alike",
+        check=lambda v: _polish(armature_scale=v),
+    ),
+    Knob("shaping", "motion_force", "shaping", "inertia shaping Λ̂x [T9] on/off"),
+    Knob("sensor_cutoff", "sensor", "cutoff_hz", "F/T low-pass cutoff, Hz (0 = none)", ("cutoff_hz",)),
+    Knob(
+        "converge_timeout",
+        RUN,
+        "converge_timeout_s",
+        "posture settle cap, s",
+        check=lambda v: _polish(converge_timeout_s=v),
+    ),
+    Knob("sander", "sander", "enabled", "7000 RPM sander disturbance"),
 )
+
+
+def _polish(**values):
+    """The polish scenario validates its own arguments."""
+    from app.scenarios.polish import PolishScenario
+
+    return PolishScenario(**values)
+
+
+def polish_groups() -> dict:
+    """The polish session's parameter groups (projection executor, contact, sensor, scenario...)."""
+    from app.scenarios.polish import PolishScenario
+    from app.session import Session
+
+    return Session(PolishScenario()).params()
 
 
 def polish_cell(values: dict, seed: int) -> dict:
@@ -196,6 +268,7 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         ("max_violation", "oscillations", "overshoot_beyond_ds", "peak_torque"),
         "joint 4 stays inside its limit (max violation ≤ 0)",
         seeded=False,
+        groups=limit_drop_groups,
     ),
     "mass-drop": SweepExperiment(
         "mass-drop",
@@ -203,6 +276,7 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         mass_drop_cell,
         ("peak_deflection_mm", "stabilization_time_s", "residual_error_mm"),
         "the TCP settles inside the 1 mm band and stays there for at least the last 0.1 s of the window",
+        groups=mass_drop_groups,
     ),
     "polish": SweepExperiment(
         "polish",
@@ -210,6 +284,7 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         polish_cell,
         ("stable", "force_error_ptp", "force_error_ma", "contact_lost_ms", "converged_swivel_deg"),
         "no divergence and no contact loss during the six segments",
+        groups=polish_groups,
         overlay=polish_overlay,
         report_notes=polish_notes,
     ),

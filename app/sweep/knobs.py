@@ -1,9 +1,12 @@
-"""Sweep names → typed parameter fields: what `--grid NAME=…` may vary, typed and validated.
+"""Sweep names → what they set: a typed parameter (group, field) or an argument of the run.
 
-Each `Knob` maps a sweep name (and its aliases) to the (group, field) of a parameter the GUI
-also sets, parses the command-line text to the field's type and validates it with the group's
-own dataclass before anything runs. A name that is not a knob, or a value its group refuses,
-is a `SweepError` with a one-line message.
+A parameter knob names a field of one of the session's parameter groups (`control.params`, the
+groups the GUI's panels set, e.g. ("damper", "lambda_")): its text is typed by the field's
+metadata and validated by the group's dataclass (`control.params.replaced` on the experiment's
+default groups). A run knob is an argument of the experiment's single-run function that is not
+a session parameter (which limit joint 4 falls into, the simulated seconds, a held swivel...):
+it carries its own type and check. Either way a refused value is a `SweepError` with a one-line
+message before anything runs.
 """
 
 from __future__ import annotations
@@ -17,132 +20,62 @@ from app.sweep.grid import Axis, SweepError
 
 TRUE = ("1", "true", "on", "yes")
 FALSE = ("0", "false", "off", "no")
+RUN = "run"  # the group of run knobs
 
 
 @dataclass(frozen=True)
 class Knob:
-    """One sweepable parameter: its sweep name, the (group, field) it sets, its type and help.
+    """One sweepable name.
 
-    kind: "float", "int", "bool" or a tuple of allowed words.
+    group, field: a session parameter group and its field, or RUN and the run argument's name;
+    kind: for run knobs "float", "int", "bool" or a tuple of allowed words (parameter knobs take
+    theirs from the field's metadata); check: a run knob's validator (raises ValueError).
     """
 
     name: str
     group: str
     field: str
-    kind: str | tuple[str, ...]
-    help: str
+    help: str = ""
     aliases: tuple[str, ...] = ()
-
-    def parse(self, text: str):
-        """Command-line text → a value of this knob's type (SweepError if it is not one)."""
-        text = str(text).strip()
-        if isinstance(self.kind, tuple):
-            if text not in self.kind:
-                raise SweepError(f"{self.name}={text}: choose from {', '.join(self.kind)}")
-            return text
-        if self.kind == "bool":
-            low = text.lower()
-            if low in TRUE:
-                return True
-            if low in FALSE:
-                return False
-            raise SweepError(f"{self.name}={text}: must be on/off (true/false, 1/0)")
-        try:
-            x = float(text)
-        except ValueError:
-            raise SweepError(f"{self.name}={text}: must be a number") from None
-        if not math.isfinite(x):
-            raise SweepError(f"{self.name}={text}: must be finite")
-        if self.kind == "int":
-            if x != round(x):
-                raise SweepError(f"{self.name}={text}: must be a whole number")
-            return round(x)
-        return x
+    kind: str | tuple[str, ...] | None = None
+    check: Callable[[Any], object] | None = None
 
 
-def _dataclass_check(cls: type, attr: str) -> Callable[[Any], object]:
-    """A check that builds `cls(attr=value)`: the group's dataclass validates the value."""
-
-    def check(value: Any) -> None:
-        cls(**{attr: value})
-
-    return check
-
-
-def _range_check(lo: float, hi: float, unit: str = "") -> Callable[[Any], object]:
-    def check(value: Any) -> None:
-        if not lo <= float(value) <= hi:
-            raise ValueError(f"must be {lo:g} to {hi:g}{unit}, got {value!r}")
-
-    return check
-
-
-def _positive(value: Any) -> None:
-    if not float(value) > 0:
-        raise ValueError(f"must be positive, got {value!r}")
-
-
-def _non_negative(value: Any) -> None:
-    if not float(value) >= 0:
-        raise ValueError(f"must be non-negative, got {value!r}")
-
-
-def _checks() -> dict[tuple[str, str], Callable[[Any], object]]:
-    """(group, field) → validator, from the groups' own dataclasses and ranges."""
-    from app.experiments.polish import PLAN_COST_OF
-    from app.scenarios.limit_drop import LimitDropScenario
-    from app.scenarios.mass_drop import MassDropParams, MassDropScenario
-    from app.scenarios.polish import PolishScenario
-    from app.sim.world import MAX_TORQUE_DELAY_MS
-    from control.gains import (
-        ComplianceQPSettings,
-        DamperGains,
-        EstimatorGains,
-        MotionForceGains,
-        NullspaceGains,
-    )
-
-    return {
-        ("damper", "lambda_"): _dataclass_check(DamperGains, "lambda_"),
-        ("damper", "M"): _dataclass_check(DamperGains, "M"),
-        ("damper", "form"): _dataclass_check(DamperGains, "form"),
-        ("estimator", "observer_gain"): _dataclass_check(EstimatorGains, "observer_gain"),
-        ("compliance_qp", "feedback"): _dataclass_check(ComplianceQPSettings, "feedback"),
-        ("world", "torque_delay_ms"): _range_check(0.0, MAX_TORQUE_DELAY_MS, " ms"),
-        ("sensor", "cutoff_hz"): _non_negative,
-        ("motion_force", "shaping"): _dataclass_check(MotionForceGains, "shaping"),
-        ("nullspace", "objective"): lambda v: None if v in PLAN_COST_OF else NullspaceGains(objective=v),
-        ("scenario.polish", "armature_scale"): lambda v: PolishScenario(armature_scale=float(v)),
-        ("scenario.limit-drop", "limit"): lambda v: LimitDropScenario(str(v)),
-        ("scenario.mass-drop", "mode"): lambda v: MassDropScenario(str(v)),
-        ("scenario.mass-drop", "case"): lambda v: MassDropScenario(case=str(v)),
-        ("mass_drop_rig", "payload_mass_error"): _dataclass_check(MassDropParams, "payload_mass_error"),
-        ("mass_drop_rig", "rope_stiffness_n_per_m"): _dataclass_check(MassDropParams, "rope_stiffness_n_per_m"),
-        ("mass_drop_rig", "drop_height_m"): _dataclass_check(MassDropParams, "drop_height_m"),
-        ("scenario.mass-drop", "rope_stiffness_n_per_m"): lambda v: MassDropParams(rope_stiffness_n_per_m=float(v)),
-        ("scenario.mass-drop", "drop_height_m"): lambda v: MassDropParams(drop_height_m=float(v)),
-        ("scenario.mass-drop", "payload_mass_error"): lambda v: MassDropParams(payload_mass_error=float(v)),
-        ("scenario.polish", "mu"): lambda v: PolishScenario(mu=float(v)),
-        ("scenario.polish", "start_swivel_deg"): _range_check(-360.0, 360.0, "°"),
-        ("scenario.polish", "hold_swivel_deg"): _range_check(-360.0, 360.0, "°"),
-        ("scenario.polish", "converge_timeout_s"): lambda v: PolishScenario(converge_timeout_s=float(v)),
-        ("scenario.polish", "sander"): lambda v: None,
-        ("run", "duration_s"): _positive,
-    }
+def parse_text(name: str, kind: str | tuple[str, ...], text: str) -> Any:
+    """Command-line text → a value of `kind` (SweepError if it is not one)."""
+    text = str(text).strip()
+    if isinstance(kind, tuple):
+        if text not in kind:
+            raise SweepError(f"{name}={text}: choose from {', '.join(kind)}")
+        return text
+    if kind == "bool":
+        if text.lower() in TRUE:
+            return True
+        if text.lower() in FALSE:
+            return False
+        raise SweepError(f"{name}={text}: must be on/off (true/false, 1/0)")
+    try:
+        x = float(text)
+    except ValueError:
+        raise SweepError(f"{name}={text}: must be a number") from None
+    if not math.isfinite(x):
+        raise SweepError(f"{name}={text}: must be finite")
+    if kind == "int":
+        if x != round(x):
+            raise SweepError(f"{name}={text}: must be a whole number")
+        return round(x)
+    return x
 
 
-_CHECKS: dict[tuple[str, str], Callable[[Any], object]] | None = None
+def _param_kind(group: object, field: str) -> str | tuple[str, ...]:
+    from control.params import spec_of
 
-
-def check_field(group: str, field: str, value: Any) -> None:
-    """Validate one value of (group, field) with its group's rules; ValueError if refused."""
-    global _CHECKS
-    if _CHECKS is None:
-        _CHECKS = _checks()
-    check = _CHECKS.get((group, field))
-    if check is None:
-        raise ValueError(f"no parameter {group}.{field}")
-    check(value)
+    spec = spec_of(group, field)
+    if spec.kind == "choice":
+        return spec.choices
+    if spec.kind in ("float", "int", "bool"):
+        return spec.kind
+    return "float"  # a vector field swept as one number for every element
 
 
 def find(knobs: tuple[Knob, ...], name: str) -> Knob:
@@ -153,20 +86,43 @@ def find(knobs: tuple[Knob, ...], name: str) -> Knob:
     raise SweepError(f"unknown parameter {name!r}; this experiment sweeps {', '.join(k.name for k in knobs)}")
 
 
-def build_axes(knobs: tuple[Knob, ...], items: list[tuple[str, list[str]]]) -> list[Axis]:
-    """Typed, validated axes from parsed grid items (canonical knob names; SweepError if refused)."""
+def build_axes(
+    knobs: tuple[Knob, ...],
+    items: list[tuple[str, list[str]]],
+    groups: Callable[[], dict[str, Any]] | None = None,
+) -> list[Axis]:
+    """Typed, validated axes from parsed grid items (canonical knob names; SweepError if refused).
+
+    groups: the experiment's default parameter groups by name (built only if a parameter knob is
+    swept)."""
+    from control.params import replaced
+
     axes: list[Axis] = []
     seen: set[str] = set()
+    defaults: dict[str, Any] | None = None
     for name, texts in items:
         knob = find(knobs, name)
         if knob.name in seen:
             raise SweepError(f"{knob.name} is given twice in --grid")
         seen.add(knob.name)
+        if knob.group == RUN:
+            kind = knob.kind or "float"
+        else:
+            if defaults is None:
+                defaults = groups() if groups is not None else {}
+            if knob.group not in defaults:
+                raise SweepError(f"{knob.name}: this experiment has no parameter group {knob.group!r}")
+            kind = _param_kind(defaults[knob.group], knob.field)
         values = []
         for text in texts:
-            value = knob.parse(text)
+            value = parse_text(knob.name, kind, text)
             try:
-                check_field(knob.group, knob.field, value)
+                if knob.group == RUN:
+                    if knob.check is not None:
+                        knob.check(value)
+                else:
+                    assert defaults is not None
+                    replaced(defaults[knob.group], knob.field, value)
             except (ValueError, TypeError) as exc:
                 raise SweepError(f"{knob.name}={text}: {_one_line(exc)}") from None
             values.append(value)
@@ -174,6 +130,12 @@ def build_axes(knobs: tuple[Knob, ...], items: list[tuple[str, list[str]]]) -> l
             raise SweepError(f"{knob.name}: a value is given twice")
         axes.append(Axis(knob.name, tuple(values)))
     return axes
+
+
+def positive(value: Any) -> None:
+    """ValueError unless value > 0."""
+    if not float(value) > 0:
+        raise ValueError(f"must be positive, got {value!r}")
 
 
 def _one_line(exc: BaseException) -> str:
