@@ -78,7 +78,7 @@ def test_grid_values_as_linspace_list_or_single():
         (["limit-drop", "--grid", "feedback=maybe"], "on/off"),
         (["polish", "--grid", "mu=-0.5"], "mu must be between 0 and 1.5"),
         (["polish", "--grid", "objective=z"], "choose from j, f, a, d, planned"),
-        (["polish", "--grid", "armature_scale=-1"], "armature_scale must be finite and non-negative"),
+        (["polish", "--grid", "armature_scale=-1"], "armature_scale must be between 0 and 4"),
         (["polish", "--grid", "hold_swivel=0,30", "swivel=10"], "drop swivel"),
         (["mass-drop", "--grid", "payload_mass_error=0.6"], "between -0.5 and 0.5"),
         (["mass-drop", "--grid", "controller=magic"], "choose from position"),

@@ -198,13 +198,7 @@ POLISH_KNOBS = (
         "nullspace objective W_j/W_f/W_a/W_d [T15], or track the planned path (directional or W_a cost)",
         kind=("j", "f", "a", "d", "planned", "planned_a"),
     ),
-    Knob(
-        "armature_scale",
-        RUN,
-        "armature_scale",
-        "armature × this, robot and model alike",
-        check=lambda v: _polish(armature_scale=v),
-    ),
+    Knob("armature_scale", "scenario", "armature_scale", "armature × this, robot and model alike"),
     Knob("shaping", "motion_force", "shaping", "inertia shaping Λ̂x [T9] on/off"),
     Knob("sensor_cutoff", "sensor", "cutoff_hz", "F/T low-pass cutoff, Hz (0 = none)", ("cutoff_hz",)),
     Knob(
