@@ -50,6 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `torquelab experiment polish`."""
     parser.add_argument("--mu", default="0.25,1.0", help="Coulomb friction coefficients, comma separated")
     parser.add_argument("--seeds", type=int, default=DEFAULT_SEEDS, help="noise seeds per cell (0, 1, ...)")
+    parser.add_argument("--first-seed", type=int, default=0, help="first noise seed (to add seeds to an earlier run)")
     parser.add_argument("--sander", action="store_true", help="add the 7000 RPM electric-sander disturbance")
     parser.add_argument(
         "--quick", action="store_true", help="1 seed, the 8 paper cells only (W_j/W_f/W_a/W_d × μ): a few-minute look"
@@ -91,7 +92,12 @@ ROW_KEYS = tuple(ROWS)
 
 
 def table_specs(
-    mus: list[float], seeds: int, quick: bool, sander: bool = False, only: list[str] | None = None
+    mus: list[float],
+    seeds: int,
+    quick: bool,
+    sander: bool = False,
+    only: list[str] | None = None,
+    first_seed: int = 0,
 ) -> list[dict]:
     """Every run of the table: (row, μ, seed); `only` picks rows by key (`ROW_KEYS`)."""
     keys = list(only) if only else (["j", "f", "a", "d"] if quick else list(ROW_KEYS))
@@ -101,7 +107,8 @@ def table_specs(
     rows = [ROWS[k] for k in keys]
     n_seeds = 1 if quick else max(1, int(seeds))
     base = {"sander": bool(sander), "start_swivel_deg": 0.0, "shaping": True, "armature_scale": 1.0, "group": "table"}
-    return [{**base, **row, "mu": mu, "seed": s} for row in rows for mu in mus for s in range(n_seeds)]
+    seeds_used = range(first_seed, first_seed + n_seeds)
+    return [{**base, **row, "mu": mu, "seed": s} for row in rows for mu in mus for s in seeds_used]
 
 
 def armature_specs(mu: float = 1.0) -> list[dict]:
@@ -377,7 +384,9 @@ def run(args: argparse.Namespace) -> int:
     quick = bool(args.quick)
     only = [k.strip() for k in args.rows.split(",") if k.strip()] if getattr(args, "rows", None) else None
     specs = (
-        [] if getattr(args, "only_armature", False) else table_specs(mus, args.seeds, quick, bool(args.sander), only)
+        []
+        if getattr(args, "only_armature", False)
+        else table_specs(mus, args.seeds, quick, bool(args.sander), only, int(getattr(args, "first_seed", 0)))
     )
     if not quick and not args.no_armature:
         specs += armature_specs(max(mus))
