@@ -23,6 +23,7 @@ import sys
 from typing import Any
 
 from app.commands import SetParam
+from app.scenarios.mass_drop import MassDropParams
 from app.scenarios.payload import PayloadParams
 from app.scenarios.polish import PolishParams
 from app.session import Session, TargetParams
@@ -66,18 +67,30 @@ GROUP_TYPES: dict[str, type] = {
     "world": WorldParams,
     "drag": DragParams,
     "target": TargetParams,
-    "scenario": PolishParams,  # the only preset with parameters of its own so far
+    "scenario": PolishParams,  # one class per preset: see SCENARIO_TYPES
 }
+# the "scenario" group is the preset's own: a different dataclass per preset that has one
+SCENARIO_TYPES: tuple[type, ...] = (PolishParams, MassDropParams)
+
+
+def group_types(group: str) -> tuple[type, ...]:
+    """The dataclasses a group of this name may be (several for "scenario"); () if unknown."""
+    if group == "scenario":
+        return SCENARIO_TYPES
+    return (GROUP_TYPES[group],) if group in GROUP_TYPES else ()
 
 
 def field_spec(group: str, field: str) -> ParamSpec:
     """The metadata of `group.field`; ParamError for an unknown group or field."""
-    if group not in GROUP_TYPES:
+    types = group_types(group)
+    if not types:
         raise ParamError(f"unknown parameter group {group!r}")
-    try:
-        return spec_of(GROUP_TYPES[group], field)
-    except ParamError:
-        raise ParamError(f"{group} has no parameter {field!r}") from None
+    for cls in types:
+        try:
+            return spec_of(cls, field)
+        except ParamError:
+            continue
+    raise ParamError(f"{group} has no parameter {field!r}")
 
 
 # ---- TOML ---------------------------------------------------------------------------------------

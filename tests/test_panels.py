@@ -10,7 +10,7 @@ import pytest
 from app.commands import SetParam
 from app.export import to_csv, to_json
 from app.loop import SimLoop
-from app.params import GROUP_TYPES
+from app.params import group_types
 from app.scenarios import SCENARIOS
 from app.session import Session
 from app.ui.panels import ALL_FIELDS
@@ -34,6 +34,8 @@ def test_every_panel_name_has_metadata_and_a_labelled_input():
             assert lo is not None and hi is not None and lo < hi and 0 < k.step <= hi - lo
         if k.spec.tag:
             assert k.spec.tag in (k.hint or "")
+    assert knob("scenario.rope_length_m").spec.unit == "m"  # the "scenario" group differs per preset
+    assert knob("scenario.start_swivel_deg").spec.unit == "deg"
     with pytest.raises(ValueError, match=r"group\.field"):
         knob("lambda_")
     with pytest.raises(ValueError, match="no parameter"):
@@ -47,7 +49,7 @@ def test_every_group_of_every_preset_is_registered_with_its_dataclass(scenario):
     for executor in ("joint-hold", "projection", "compliance-qp"):
         groups = Session(scenario, executor=executor).params()
         for name, group in groups.items():
-            assert type(group) is GROUP_TYPES[name], name
+            assert type(group) in group_types(name), name
             assert specs(group), name  # every group has fields with metadata
 
 

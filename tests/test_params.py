@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from app.params import GROUP_TYPES, dumps, load_settings, parse_settings, save_settings
+from app.params import GROUP_TYPES, SCENARIO_TYPES, dumps, load_settings, parse_settings, save_settings
 from app.session import Session
 from control.gains import MotionForceGains, NullspaceGains, PoseTaskGains, PostureTaskGains
 from control.params import ParamError, replaced, specs
@@ -114,7 +114,7 @@ def test_the_start_swivel_is_a_scenario_parameter_used_at_reset_and_not_shared()
 
 
 def test_every_field_of_every_group_has_sane_metadata():
-    for name, cls in GROUP_TYPES.items():
+    for name, cls in [*GROUP_TYPES.items(), *(("scenario", c) for c in SCENARIO_TYPES)]:
         default = cls()
         for field, spec in specs(cls).items():
             assert spec.label, f"{name}.{field}"

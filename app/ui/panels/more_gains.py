@@ -7,7 +7,7 @@ from __future__ import annotations
 import viser
 
 from app.loop import Settings, SimLoop
-from app.params import GROUP_TYPES
+from app.params import group_types
 from app.ui.panels.base import Knob, KnobPanel, knob
 from control.params import specs
 
@@ -26,10 +26,10 @@ class MoreGainsPanel(KnobPanel):
 
     def refresh(self, settings: Settings) -> None:
         """Add inputs for the unclaimed fields of groups in force; hide those of absent groups."""
-        for group in settings.groups:
-            if group not in GROUP_TYPES:
+        for group, current in settings.groups.items():
+            if not group_types(group):
                 continue
-            for field in specs(GROUP_TYPES[group]):
+            for field in specs(current):
                 path = f"{group}.{field}"
                 if path in self.claimed or path in self._paths:
                     continue
