@@ -81,32 +81,30 @@ def step_matrix(
     kp = np.asarray(gains.motion_kp)[m_idx]
     kd = 2.0 * np.asarray(gains.motion_zeta)[m_idx] * np.sqrt(kp * np.diag(terms.A))
     alpha = 1.0 - math.exp(-2.0 * math.pi * loop.sensor_cutoff_hz * loop.dt) if loop.sensor_cutoff_hz > 0 else 1.0
-    # motion-subspace rows that carry the xy forces (the friction reading the shaping term uses)
-    pos_in_m = {int(a): i for i, a in enumerate(m_idx)}
-
-    def advance(state: np.ndarray) -> np.ndarray:
-        x, dx, y_prev = state[:6], state[6:12], state[12:15]
-        f_env = np.zeros(6)
-        dFn = -loop.stiffness_n_per_m * x[2]
-        f_env[2] = dFn
-        f_env[:2] = dFt_dFn * dFn + dFt_dv @ dx[:2]
-        y = y_prev + alpha * (f_env[:3] - y_prev)
-        u_m = -kp * x[m_idx] - kd * dx[m_idx]
-        u_f = gains.force_kp * y[2] - gains.force_kd * dx[2]
-        F = np.zeros(6)
-        F[m_idx] = u_m
-        if gains.shaping:
-            y_m = np.zeros(len(m_idx))
-            for axis in (0, 1):
-                y_m[pos_in_m[axis]] = y[axis]
-            F[f_idx] = u_f + terms.P_d @ (u_m + y_m)
-        else:
-            F[f_idx] = u_f
-        dx_new = dx + loop.dt * (L_inv @ (F + f_env))
-        x_new = x + loop.dt * dx_new
-        return np.concatenate([x_new, dx_new, y])
-
-    return np.column_stack([advance(e) for e in np.eye(15)])
+    # The map is linear: advance all 15 unit states (the columns of I) at once, column j of each
+    # block below is the state e_j after one step.
+    eye = np.eye(15)
+    x, dx, y_prev = eye[:6], eye[6:12], eye[12:15]
+    f_env = np.zeros((6, 15))
+    dFn = -loop.stiffness_n_per_m * x[2]
+    f_env[2] = dFn
+    f_env[:2] = dFt_dFn[:, None] * dFn + dFt_dv @ dx[:2]
+    y = y_prev + alpha * (f_env[:3] - y_prev)
+    u_m = -kp[:, None] * x[m_idx] - kd[:, None] * dx[m_idx]
+    u_f = gains.force_kp * y[2] - gains.force_kd * dx[2]
+    F = np.zeros((6, 15))
+    F[m_idx] = u_m
+    if gains.shaping:
+        # motion-subspace rows that carry the xy forces (the friction reading the shaping term uses)
+        y_m = np.zeros((len(m_idx), 15))
+        for axis in (0, 1):
+            y_m[int(np.flatnonzero(m_idx == axis)[0])] = y[axis]
+        F[f_idx] = u_f + terms.P_d @ (u_m + y_m)
+    else:
+        F[f_idx] = u_f
+    dx_new = dx + loop.dt * (L_inv @ (F + f_env))
+    x_new = x + loop.dt * dx_new
+    return np.vstack([x_new, dx_new, y])
 
 
 def force_loop_margin(

@@ -42,6 +42,55 @@ def test_without_friction_the_loop_is_the_lagged_force_loop_and_the_sign_of_p_d_
     assert phi.shape == (15, 15) and (np.max(np.abs(np.linalg.eigvals(phi))) < 1.0) == (s.rate_per_s > 0)
 
 
+def _advance_reference(L, gains, loop, f_hat, state):
+    """One closed-loop step of the linearised polish loop for one state (δx, δẋ, y_{k−1}), written
+    out per state: the reference the column-at-once `step_matrix` is checked against."""
+    from control.coupling import coupling_terms
+
+    sub = POLISH_SUBSPACES
+    f_hat = f_hat / np.linalg.norm(f_hat)
+    v0 = -loop.speed_m_s * f_hat
+    s = np.sqrt(v0 @ v0 + loop.v_eps_m_per_s**2)
+    dFt_dv = -loop.mu * loop.normal_force_n * (np.eye(2) / s - np.outer(v0, v0) / s**3)
+    dFt_dFn = -loop.mu * v0 / s
+    L_inv = np.linalg.inv(L)
+    terms = coupling_terms(L, L_inv, sub, exact_inverse=False)
+    m_idx, f_idx = list(sub.motion_axes), list(sub.force_axes)
+    kp = np.asarray(gains.motion_kp)[m_idx]
+    kd = 2.0 * np.asarray(gains.motion_zeta)[m_idx] * np.sqrt(kp * np.diag(terms.A))
+    alpha = 1.0 - np.exp(-2.0 * np.pi * loop.sensor_cutoff_hz * loop.dt)
+    x, dx, y_prev = state[:6], state[6:12], state[12:15]
+    f_env = np.zeros(6)
+    f_env[2] = -loop.stiffness_n_per_m * x[2]
+    f_env[:2] = dFt_dFn * f_env[2] + dFt_dv @ dx[:2]
+    y = y_prev + alpha * (f_env[:3] - y_prev)
+    u_m = -kp * x[m_idx] - kd * dx[m_idx]
+    F = np.zeros(6)
+    F[m_idx] = u_m
+    F[f_idx] = gains.force_kp * y[2] - gains.force_kd * dx[2]
+    if gains.shaping:
+        y_m = np.zeros(len(m_idx))
+        y_m[m_idx.index(0)], y_m[m_idx.index(1)] = y[0], y[1]
+        F[f_idx] += terms.P_d @ (u_m + y_m)
+    dx_new = dx + loop.dt * (L_inv @ (F + f_env))
+    return np.concatenate([x + loop.dt * dx_new, dx_new, y])
+
+
+@pytest.mark.parametrize("shaping", [True, False])
+def test_step_matrix_columns_are_single_state_steps(rizon, shaping):
+    """Φ's column j is one loop step from the unit state e_j (relative 1e-12), at two postures and
+    random states: Φ s equals the step from s."""
+    gains = MotionForceGains(shaping=shaping)
+    loop = ContactLoop(mu=0.7)
+    rng = np.random.default_rng(3)
+    for swivel in (0.0, -60.0):
+        L = _lambda(rizon, swivel)
+        phi = step_matrix(L, POLISH_SUBSPACES, gains, loop, STRETCH)
+        for s in [*np.eye(15)[::4], *rng.normal(size=(3, 15))]:
+            ref = _advance_reference(L, gains, loop, STRETCH, s)
+            assert np.max(np.abs(phi @ s - ref)) <= 1e-12 * np.max(np.abs(ref))
+
+
 def _loses_contact(swivel_deg: float, kd: float) -> bool:
     """Hold the posture (W_j on it), press 20 N at μ = 1, then S1 (retract) and S2 (stretch)."""
     session = Session(P.PolishScenario(mu=1.0, hold_swivel_deg=swivel_deg), seed=0)
