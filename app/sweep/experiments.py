@@ -114,35 +114,15 @@ MASS_DROP_KNOBS = (
     Knob("case", RUN, "case", "the mass falls on a rope, or is let go", kind=("rope-drop", "held-release")),
     Knob(
         "payload_mass_error",
-        RUN,
+        "scenario",
         "payload_mass_error",
         "true mass = 1.25 kg × (1 + error), unknown to every controller (nominal of the seeded rig draw)",
         ("mass_error",),
-        check=lambda v: _rig(payload_mass_error=v),
     ),
-    Knob(
-        "rope_stiffness",
-        RUN,
-        "rope_stiffness_n_per_m",
-        "rope stiffness, N/m (nominal)",
-        check=lambda v: _rig(rope_stiffness_n_per_m=v),
-    ),
-    Knob(
-        "drop_height",
-        RUN,
-        "drop_height_m",
-        "free fall before the rope is taut, m (nominal)",
-        check=lambda v: _rig(drop_height_m=v),
-    ),
+    Knob("rope_stiffness", "scenario", "rope_stiffness_n_per_m", "rope stiffness, N/m (nominal)"),
+    Knob("drop_height", "scenario", "drop_height_m", "free fall before the rope is taut, m (nominal)"),
     Knob("window", RUN, "window_s", "seconds analysed after the release", ("window_s",), check=positive),
 )
-
-
-def _rig(**values):
-    """The mass-drop rig's own dataclass validates a nominal value."""
-    from app.scenarios.mass_drop import MassDropParams
-
-    return MassDropParams(**values)
 
 
 SETTLED_FOR_S = 0.1  # "settled": inside the band for at least the last 0.1 s of the window
