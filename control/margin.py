@@ -9,7 +9,8 @@ Model (perturbations δ about sliding at speed v along the motion direction m̂ 
 - plant: Λx δẍ = F_cmd + δF^e in task space [T6] (the nullspace term Nᵀ F_n [T14] does not
   accelerate the task, and μx cancels h and J̇q̇ to first order);
 - contact: δF_n = −k δz (spring [T] Fig. 4); friction F_t = −μ F_n v/√(‖v‖² + v_ε²), so
-  δF_t = μ δF_n f̂·(‖v‖/s) − μ F̂ (I/s − v vᵀ/s³) δv_t with s = √(‖v‖² + v_ε²) and f̂ = −m̂;
+  δF_t = μ δF_n f̂·(‖v‖/s) − μ F̂ (I/s − v vᵀ/s³) δv_t with s = √(‖v‖² + v_ε²) and f̂ = −m̂,
+  both through the backward-Euler factor (I + Δt C G)⁻¹ of the implicit friction step;
 - sensor: y ← y + α (F − y), α = 1 − exp(−2π f_c Δt) ([T] §IV-A, 25 Hz);
 - law: u_m = −K_m^p δx_m − K_m^d δẋ_m [T11], u_f = K_f^p δy_f − K_f^d δẋ_f [T12],
   F_m = u_m, F_f = u_f + BᵀA⁻¹(u_m + y_m) with shaping [T7, T9, T10] (F_f = u_f without).
@@ -76,6 +77,11 @@ def step_matrix(
     dFt_dv = -loop.mu * loop.normal_force_n * (np.eye(2) / s - np.outer(v0, v0) / s**3)
     dFt_dFn = -loop.mu * v0 / s  # = μ f̂ ‖v‖/s
     L_inv = np.linalg.inv(Lambda)
+    # the simulation steps friction implicitly (app.sim.contact): F_t = −(I + Δt C G)⁻¹ C v with the
+    # damping C = −∂F_t/∂v and G the tangential inverse mass of the TCP (Λx⁻¹, xy block)
+    implicit = np.linalg.inv(np.eye(2) - loop.dt * dFt_dv @ L_inv[:2, :2])
+    dFt_dv = implicit @ dFt_dv
+    dFt_dFn = implicit @ dFt_dFn
     terms = coupling_terms(Lambda, L_inv, sub, exact_inverse=False)
     m_idx, f_idx = np.array(sub.motion_axes), np.array(sub.force_axes)
     kp = np.asarray(gains.motion_kp)[m_idx]
