@@ -27,6 +27,7 @@ Forces are applied at the TCP point with `mj_applyFT` (through `World.apply_forc
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -153,8 +154,11 @@ def implicit_friction(
     point (symmetric positive definite), `dt` the step. With G = 0 this is the explicit law.
     """
     v = np.asarray(v_t, dtype=float)
-    c = coulomb_n / np.sqrt(float(v @ v) + v_eps * v_eps)
-    g = np.asarray(inverse_mass, dtype=float) * (dt * c)
-    a, b, cc, d = 1.0 + g[0, 0], g[0, 1], g[1, 0], 1.0 + g[1, 1]  # I + Δt c G, solved in closed form
+    c = coulomb_n / math.sqrt(float(v @ v) + v_eps * v_eps)
+    s = dt * c
+    (g00, g01), (g10, g11) = np.asarray(inverse_mass, dtype=float).tolist()  # Python floats: same IEEE
+    a, b, cc, d = 1.0 + g00 * s, g01 * s, g10 * s, 1.0 + g11 * s  # I + Δt c G, solved in closed form
+    v0, v1 = v.tolist()
     det = a * d - b * cc
-    return (-c / det) * np.array([d * v[0] - b * v[1], a * v[1] - cc * v[0]])
+    k = -c / det
+    return np.array([k * (d * v0 - b * v1), k * (a * v1 - cc * v0)])
