@@ -25,6 +25,7 @@ leaves the table), and the K_f^d at which it crosses zero.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,6 +69,19 @@ def step_matrix(
     `friction_dir` is the unit friction direction f̂ in world xy (opposite to the sliding motion).
     The force subspace must be a single translational axis along z (the polish task).
     """
+    return _step_map(Lambda, sub, gains, loop, friction_dir)(float(gains.force_kd))
+
+
+def _step_map(
+    Lambda: np.ndarray,
+    sub: Subspaces,
+    gains: MotionForceGains,
+    loop: ContactLoop,
+    friction_dir: np.ndarray,
+) -> Callable[[float], np.ndarray]:
+    """Φ as a function of K_f^d (`step_matrix` with the gains' other values): what does not depend
+    on K_f^d (Λx⁻¹, the coupling terms, the friction linearisation) is computed once, so a search
+    over K_f^d neither recomputes it nor validates a new gains object per trial."""
     if sub.force_axes != (2,):
         raise ValueError("the force-loop margin needs the force subspace pz alone")
     f_hat = np.asarray(friction_dir, dtype=float)
@@ -97,20 +111,26 @@ def step_matrix(
     f_env[:2] = dFt_dFn[:, None] * dFn + dFt_dv @ dx[:2]
     y = y_prev + alpha * (f_env[:3] - y_prev)
     u_m = -kp[:, None] * x[m_idx] - kd[:, None] * dx[m_idx]
-    u_f = gains.force_kp * y[2] - gains.force_kd * dx[2]
-    F = np.zeros((6, 15))
-    F[m_idx] = u_m
+    F_m = np.zeros((6, 15))
+    F_m[m_idx] = u_m
+    shaping_m = None
     if gains.shaping:
         # motion-subspace rows that carry the xy forces (the friction reading the shaping term uses)
         y_m = np.zeros((len(m_idx), 15))
         for axis in (0, 1):
             y_m[int(np.flatnonzero(m_idx == axis)[0])] = y[axis]
-        F[f_idx] = u_f + terms.P_d @ (u_m + y_m)
-    else:
-        F[f_idx] = u_f
-    dx_new = dx + loop.dt * (L_inv @ (F + f_env))
-    x_new = x + loop.dt * dx_new
-    return np.vstack([x_new, dx_new, y])
+        shaping_m = terms.P_d @ (u_m + y_m)
+    force_kp = gains.force_kp
+
+    def phi(force_kd: float) -> np.ndarray:
+        u_f = force_kp * y[2] - force_kd * dx[2]
+        F = F_m.copy()
+        F[f_idx] = u_f if shaping_m is None else u_f + shaping_m
+        dx_new = dx + loop.dt * (L_inv @ (F + f_env))
+        x_new = x + loop.dt * dx_new
+        return np.vstack([x_new, dx_new, y])
+
+    return phi
 
 
 def force_loop_margin(
@@ -144,10 +164,10 @@ def critical_force_kd(
     is unstable, the lowest stable K_f^d above it on a 25 N s/m grid up to kd_max), by bisection;
     0.0 when K_f^d = 0 is already stable, None when no K_f^d up to kd_max is. (Too large a K_f^d
     is unstable again in the 1 ms step, so the stable set is bounded on both sides.)"""
-    from dataclasses import replace
+    phi = _step_map(Lambda, sub, gains, loop, friction_dir)
 
     def stable(kd: float) -> bool:
-        return _radius(Lambda, sub, replace(gains, force_kd=kd), loop, friction_dir) < 1.0
+        return _spectral_radius(phi(float(kd))) < 1.0
 
     hi: float | None = gains.force_kd if stable(gains.force_kd) else None
     if hi is None:
@@ -166,7 +186,11 @@ def critical_force_kd(
 def _radius(
     Lambda: np.ndarray, sub: Subspaces, gains: MotionForceGains, loop: ContactLoop, friction_dir: np.ndarray
 ) -> float:
-    return float(np.max(np.abs(np.linalg.eigvals(step_matrix(Lambda, sub, gains, loop, friction_dir)))))
+    return _spectral_radius(step_matrix(Lambda, sub, gains, loop, friction_dir))
+
+
+def _spectral_radius(phi: np.ndarray) -> float:
+    return float(np.max(np.abs(np.linalg.eigvals(phi))))
 
 
 @dataclass(frozen=True)
