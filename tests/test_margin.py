@@ -54,6 +54,8 @@ def _advance_reference(L, gains, loop, f_hat, state):
     dFt_dv = -loop.mu * loop.normal_force_n * (np.eye(2) / s - np.outer(v0, v0) / s**3)
     dFt_dFn = -loop.mu * v0 / s
     L_inv = np.linalg.inv(L)
+    implicit = np.linalg.inv(np.eye(2) - loop.dt * dFt_dv @ L_inv[:2, :2])  # backward-Euler friction
+    dFt_dv, dFt_dFn = implicit @ dFt_dv, implicit @ dFt_dFn
     terms = coupling_terms(L, L_inv, sub, exact_inverse=False)
     m_idx, f_idx = list(sub.motion_axes), list(sub.force_axes)
     kp = np.asarray(gains.motion_kp)[m_idx]
