@@ -36,6 +36,7 @@ from app.ui.panels.nullspace import NullspacePanel
 from app.ui.panels.record import RecordPanel
 from app.ui.panels.safety import SafetyPanel
 from app.ui.panels.scenario import ScenarioPanel
+from app.ui.phase import SHORT_PRESETS
 from app.ui.plots import Plots
 from app.ui.publisher import Publisher
 from app.ui.scene import SceneView
@@ -126,12 +127,12 @@ def start_app(
     publisher = Publisher(server, loop, panels, plots, make_scene)
     scenario_panel = panels[0]
     scenario_panel.on_frame = publisher.frame_view
-    add_hotkeys(server, loop, scenario_panel.toggle_run, publisher.frame_view)
+    add_hotkeys(server, loop, scenario_panel.toggle_run, scenario_panel.reset_preset, publisher.frame_view)
     # Everything built so far lives as long as the app: keep it out of the garbage collector's
     # full passes, which otherwise stop every thread for ~50 ms now and then.
     gc.collect()
     gc.freeze()
-    loop.start(running=running)
+    loop.start(running=running and scenario not in SHORT_PRESETS)  # a drop over in seconds waits for Play
     publisher.start()
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
     app = App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)

@@ -355,6 +355,7 @@ def test_mouse_drag_on_a_link_pulls_it_with_the_spring_and_mouse_up_releases(app
     assert peak > 5.0, f"spring force only {peak:.1f} N"
     ARTIFACTS.mkdir(exist_ok=True)
     pg.screenshot(path=str(ARTIFACTS / "browser-drag.png"))
+    save_tour_shot(pg, "tour-1-drag.png")
     pg.mouse.up()
     wait_for(lambda: drag_state(app).body is None, 20, "mouse-up to release the drag")
     assert moved > 0.01
@@ -410,6 +411,100 @@ def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page):
     finally:
         app.loop.submit(SwitchSession(executor="projection"))
         wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "projection", 30, "the switch back")
+
+
+_FORCE_PLOT_JS = """() => {
+    for (const v of Object.values((window.__viserTestpoints || {}).uplots || {})) {
+        const c = v.chart, title = c.root.querySelector('.u-title')?.textContent || '';
+        if (!title.startsWith('Force error') && !title.startsWith('F̂_z')) continue;
+        const r = c.root.getBoundingClientRect();
+        return {ymin: c.scales.y.min, ymax: c.scales.y.max, n: c.data[0].length,
+                box: {x: r.x, y: r.y, width: r.width, height: r.height}};
+    }
+    return null;
+}"""
+
+
+def save_tour_shot(pg: Any, name: str) -> None:
+    """A screenshot for the README's tour: test-artifacts/NAME, copied to static/ with
+    TORQUELAB_UPDATE_SCREENSHOT=1."""
+    ARTIFACTS.mkdir(exist_ok=True)
+    pg.screenshot(path=str(ARTIFACTS / name))
+    if os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") == "1":
+        shutil.copyfile(ARTIFACTS / name, README_SCREENSHOT.parent / name)
+
+
+def force_plot(pg: Any) -> dict[str, Any] | None:
+    """The force-error chart's y range, sample count and box in the page (None if not drawn)."""
+    return pg.evaluate(_FORCE_PLOT_JS)
+
+
+def red_pixels(pg: Any, box: dict[str, float]) -> int:
+    """Pixels of the main arm's force-error colour (#d62728) inside a page box."""
+    from io import BytesIO
+
+    from PIL import Image
+
+    image = np.asarray(Image.open(BytesIO(pg.screenshot(clip=box, timeout=90_000))).convert("RGB")).astype(int)
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    return int(np.count_nonzero((r > 150) & (g < 90) & (b < 90)))
+
+
+def test_force_plot_has_a_finite_range_and_a_drawn_trace_in_every_preset(app, page):
+    """With the twin off (its series all NaN) the force error is drawn in each preset's default state;
+    the limit drop shows its peak-torque readout."""
+    from app.commands import Play, SwitchSession
+    from app.scenarios import SCENARIOS
+
+    pg, _ = page
+    try:
+        for name in SCENARIOS:
+            app.loop.submit(SwitchSession(scenario=name, robot=""))
+            app.loop.submit(Play())
+            wait_for(lambda n=name: app.loop.status.scenario == n and app.loop.status.t > 0.5, 60, f"{name} to run")
+
+            def drawn() -> dict[str, Any] | None:
+                plot = force_plot(pg)
+                if not plot or plot["n"] < 5 or not red_pixels(pg, plot["box"]) > 30:
+                    return None
+                return plot
+
+            plot = wait_for(drawn, 60, f"a drawn force-error trace in {name}", period=0.5)
+            assert np.isfinite(plot["ymin"]) and np.isfinite(plot["ymax"]) and plot["ymax"] > plot["ymin"], name
+            if name == "limit-drop":
+                wait_for(lambda: pg.get_by_text("peak |τ|", exact=False).first.is_visible(), 30, "the peak readout")
+                assert app.publisher.plots.readouts["peak_torque_nm"] > 0.0
+                save_tour_shot(pg, "tour-3-limit-drop.png")
+    finally:
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
+def test_space_pauses_and_plays_arrow_steps_and_r_resets(app, page):
+    from app.commands import Play
+    from app.ui.panels.scenario import ScenarioPanel
+
+    pg, _ = page
+    pg.evaluate("() => document.activeElement && document.activeElement.blur()")
+    wait_for(lambda: app.loop.status.running and app.loop.status.t > 0.3, 30, "the simulation to run")
+    try:
+        pg.keyboard.press("Space")
+        wait_for(lambda: not app.loop.sync().running, 20, "Space to pause")
+        panel = next(p for p in app.panels if isinstance(p, ScenarioPanel))
+        wait_for(lambda: panel.run.label == "Play", 20, "the run button to offer Play")
+        wait_for(lambda: pg.locator("button:has-text('Play')").count() > 0, 20, "the page to show Play")
+        t = app.loop.sync().t
+        pg.keyboard.press("ArrowRight")
+        wait_for(lambda: abs(app.loop.sync().t - (t + 0.001)) < 1e-9, 20, "→ to step 1 ms")
+        pg.keyboard.press("Space")
+        wait_for(lambda: app.loop.sync().running, 20, "Space to play")
+        wait_for(lambda: app.loop.status.t > t + 0.3, 30, "time to advance")
+        before = app.loop.status.t
+        pg.keyboard.press("r")
+        wait_for(lambda: app.loop.sync().t < before - 0.2, 20, "R to reset (time starts again)")
+    finally:
+        app.loop.submit(Play())
 
 
 def test_disconnect_during_a_drag_releases_the_force_within_a_second(app, page):

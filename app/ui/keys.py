@@ -11,7 +11,7 @@ from typing import Any
 
 import viser
 
-from app.commands import Reset, StepOnce
+from app.commands import StepOnce
 from app.loop import SimLoop
 
 
@@ -19,6 +19,7 @@ def add_hotkeys(
     server: viser.ViserServer,
     loop: SimLoop,
     toggle_run: Callable[[], None],
+    reset: Callable[[], None],
     frame_view: Callable[[viser.ClientHandle | None], Any],
 ) -> dict[str, viser.CommandHandle]:
     """Register the shortcuts; returns their handles by name (tests trigger them through the page)."""
@@ -39,6 +40,6 @@ def add_hotkeys(
     handles["play_pause"].on_trigger(lambda _: toggle_run())
     handles["step_1ms"].on_trigger(lambda _: loop.submit(StepOnce(1)))
     handles["step_10ms"].on_trigger(lambda _: loop.submit(StepOnce(10)))
-    handles["reset"].on_trigger(lambda _: loop.submit(Reset()))
+    handles["reset"].on_trigger(lambda _: reset())
     handles["frame"].on_trigger(lambda event: frame_view(event.client))
     return handles

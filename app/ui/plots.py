@@ -113,7 +113,8 @@ class Marker:
 
 def phase_markers(columns: dict[str, np.ndarray]) -> list[Marker]:
     """Where the scenario's phase changes in these samples: polish segments S1…S6 and their end
-    (signal "segment"), a payload release (signal "payload_attached" going to 0)."""
+    (signal "segment"), the mass drop's release (signal "mass_released" going to 1), a payload release
+    (signal "payload_attached" going to 0)."""
     t = columns.get("t", np.zeros(0))
     out: list[Marker] = []
     seg = columns.get("segment")
@@ -125,6 +126,10 @@ def phase_markers(columns: dict[str, np.ndarray]) -> list[Marker]:
                 out.append(Marker(float(t[i]), f"S{int(k)}"))
             elif np.isfinite(k) and k > SEGMENTS:
                 out.append(Marker(float(t[i]), "end"))
+    released = columns.get("mass_released")
+    if released is not None and len(released) == len(t):
+        idx = np.flatnonzero((released[:-1] < 0.5) & (released[1:] > 0.5)) + 1
+        out.extend(Marker(float(t[i]), "drop") for i in idx)
     attached = columns.get("payload_attached")
     if attached is not None and len(attached) == len(t):
         idx = np.flatnonzero((attached[:-1] > 0.5) & (attached[1:] < 0.5)) + 1

@@ -16,6 +16,7 @@ from app.lab import UNPACED_SPEED
 from app.loop import Frame, LoopStatus, SimLoop
 from app.scenarios import SCENARIOS
 from app.ui.panels.base import KnobPanel, notify
+from app.ui.phase import SHORT_PRESETS, PhaseReader
 
 DEFAULT_ROBOT = "scenario default"
 NO_CASE = "–"
@@ -43,6 +44,7 @@ class ScenarioPanel(KnobPanel):
         self._last_fallback_wall = -1e9
         self._seen_fallback_steps = 0
         self._rtf = AveragedRate()
+        self._phase = PhaseReader()
         super().__init__(server, loop, "Scenario", INTRO, FIELDS, order=order)
 
     def build_extra_top(self) -> None:
@@ -86,7 +88,7 @@ class ScenarioPanel(KnobPanel):
         self.robot.on_update(self._on_robot)
         self.executor.on_update(self._on_executor)
         self.run.on_click(lambda e: self.toggle_run())
-        self.reset.on_click(lambda e: self.loop.submit(Reset()))
+        self.reset.on_click(lambda e: self.reset_preset())
         self.step.on_click(self._on_step)
         self.speed.on_update(self._on_speed)
 
@@ -99,6 +101,14 @@ class ScenarioPanel(KnobPanel):
             notify(self.server, event.client_id, "Refused", f"unknown preset {name!r}")
             return
         self.loop.submit(SwitchSession(scenario=name))
+        if name in SHORT_PRESETS:
+            self.loop.submit(Pause())  # over in seconds: wait for Play
+
+    def reset_preset(self) -> None:
+        """Reset (the button and R); a preset that is over in seconds waits for Play after it."""
+        self.loop.submit(Reset())
+        if self.loop.status.scenario in SHORT_PRESETS:
+            self.loop.submit(Pause())
 
     def _on_case(self, event: viser.GuiEvent) -> None:
         if event.client_id is None:
@@ -178,6 +188,11 @@ class ScenarioPanel(KnobPanel):
         step = getattr(frame.scene, "step", None)  # the controller's view of its latest step
         if step is not None and step.qp_status is not None:
             status += f" · QP {step.qp_backend} {step.qp_solve_us:.0f} µs"
+        phase = self._phase.text(st, frame.scene)
+        if phase:
+            status += f"  \n**Phase:** {phase}"
+        if not st.running and st.scenario in SHORT_PRESETS and st.t < 1e-6 and not st.halted:
+            status += "  \n**Press Play** (or Space) to start."
         if st.drag_client is not None:
             status += f" · dragging ({st.signals.get('drag_force_n', 0.0):.0f} N)"
         if st.overpowered:
