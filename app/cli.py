@@ -142,6 +142,16 @@ def _add_sweep(sub) -> None:
     add_parser(sub)
 
 
+def error_reason(exc: BaseException) -> str:
+    """One non-empty line saying why a command failed (an empty message falls back to the type)."""
+    text = " ".join(str(exc).split())
+    if text:
+        return text
+    if isinstance(exc, TimeoutError):
+        return "timed out waiting for the simulation loop"
+    return type(exc).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -157,11 +167,8 @@ def main(argv: list[str] | None = None) -> int:
         os.environ[BACKEND_ENV] = args.qp_backend  # every executor built from now on, workers included
     try:
         return int(args.func(args) or 0)
-    except robots.RobotLoadError as exc:
-        print(f"torquelab: error: {exc}", file=sys.stderr)
-        return 2
-    except (ValueError, FileNotFoundError, OSError) as exc:
-        print(f"torquelab: error: {exc}", file=sys.stderr)
+    except (robots.RobotLoadError, ValueError, OSError) as exc:
+        print(f"torquelab: error: {error_reason(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

@@ -111,3 +111,27 @@ def test_port_zero_serves_on_a_free_port_and_says_which():
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+@pytest.mark.parametrize(
+    "exc, needle",
+    [
+        (TimeoutError(), "timed out waiting for the simulation loop"),
+        (OSError(), "OSError"),
+        (FileNotFoundError(), "FileNotFoundError"),
+        (ValueError(""), "ValueError"),
+        (ValueError("bad\nvalue"), "bad value"),
+        (robots.RobotLoadError("unknown robot 'x'"), "unknown robot 'x'"),
+    ],
+)
+def test_every_caught_error_prints_one_non_empty_line(exc, needle, monkeypatch, capsys):
+    from app import cli
+
+    def fail(args):
+        raise exc
+
+    monkeypatch.setattr(cli, "cmd_check", fail)
+    assert cli.main(["check"]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1
+    assert lines[0] == f"torquelab: error: {needle}"
