@@ -403,6 +403,9 @@ def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page):
     from app.commands import SwitchSession
 
     pg, _ = page
+    wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "projection", 30, "the projection executor")
+    # the projection executor has no task compliance: its slider is hidden, not greyed out
+    wait_for(lambda: not has_control(pg, r"^Γ task", "slider"), 30, "the Γ task slider to be hidden")
     app.loop.submit(SwitchSession(executor="compliance-qp"))
     try:
         wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "compliance-qp", 30, "the executor switch")

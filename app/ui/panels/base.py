@@ -173,9 +173,9 @@ def notify(server: viser.ViserServer, client_id: int | None, title: str, body: s
 
 class KnobPanel:
     """A folder of generated knobs (see the module docstring). Knobs whose group the running
-    session lacks are greyed out (or hidden when `hide_missing`)."""
+    session lacks are hidden (greyed out instead when `hide_missing` is False)."""
 
-    hide_missing = False
+    hide_missing = True  # a knob the running session lacks is hidden, not shown greyed with a stale value
 
     def __init__(
         self,
