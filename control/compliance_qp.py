@@ -425,7 +425,7 @@ class ComplianceQPExecutor:
             tau = np.clip(tau, -self.tau_max, self.tau_max)  # [C10] stays hard for approximate solutions too
         self.tau_desired = tau
         tau_cmd = np.clip(tau, -self.tau_max, self.tau_max)
-        saturated = bool(np.any(np.abs(tau) > self.tau_max + 1e-9))
+        saturated = bool((np.abs(tau) > self.tau_max + 1e-9).any())
         self.tau_prev = tau_cmd
         info = {
             "qp_status": res.status_code,

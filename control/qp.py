@@ -203,7 +203,7 @@ class DenseBackend:
             _clip_inf(self._bounds, self._bounds)
             if not math.isfinite(float(d @ d)):
                 return QPResult(np.full(n, np.nan), NON_FINITE, 0, _us(t0), self.backend)
-        if np.any(self._lo > self._hi):  # DAQP would pick one side of a crossed row silently
+        if (self._lo > self._hi).any():  # DAQP would pick one side of a crossed row silently
             return QPResult(np.full(n, np.nan), INFEASIBLE, 0, _us(t0), self.backend)
         try:
             if self._model is None:
@@ -329,7 +329,7 @@ class OSQPBackend:
         _clip_inf(u, self._hi[n:])
         if not _finite(P, q, A, self._lo, self._hi):  # never hand NaN to the warm start
             return QPResult(np.full(n, np.nan), NON_FINITE, 0, _us(t0), self.backend)
-        if np.any(self._lo > self._hi):  # OSQP would refuse the update and solve the old data
+        if (self._lo > self._hi).any():  # OSQP would refuse the update and solve the old data
             return QPResult(np.full(n, np.nan), INFEASIBLE, 0, _us(t0), self.backend)
         Px = None if P is None else np.asarray(P, dtype=float)[self._P_rows, self._P_cols]
         Ax = None
