@@ -25,8 +25,9 @@ import viser
 import robots
 from app.commands import DragCommand
 from app.loop import SimLoop
-from app.params import parse_settings, save_settings, settings_commands
+from app.params import parse_settings
 from app.scenarios import SCENARIOS
+from app.settings_io import load_settings_text
 from app.ui.keys import add_hotkeys
 from app.ui.panels import ALL_FIELDS
 from app.ui.panels.compliance import CompliancePanel
@@ -151,21 +152,6 @@ def _read_settings_file(path: str) -> str:
     if problems and problems[0].startswith("not a TOML"):
         raise ValueError(f"{path}: {problems[0]}")
     return text
-
-
-def save_settings_text(loop: SimLoop, timeout: float = 60.0) -> str:
-    """The running session's parameter overrides as TOML (for the page's "save settings")."""
-    return loop.call(save_settings, timeout)
-
-
-def load_settings_text(loop: SimLoop, text: str, timeout: float = 60.0) -> list[str]:
-    """Apply a TOML settings text to the running session through the loop (each value validated by
-    its group, remembered like any change); returns one line per refused entry."""
-    commands, refused = loop.call(lambda s: settings_commands(s.params(), text), timeout)
-    for cmd in commands:
-        loop.submit(cmd)
-    loop.sync(timeout)
-    return refused
 
 
 def serve(args: argparse.Namespace) -> int:

@@ -147,7 +147,7 @@ def test_settings_round_trip_through_toml_and_refusals_are_listed():
 
 def test_a_settings_file_reaches_the_running_loop_in_order_and_refusals_are_listed():
     from app.loop import SimLoop
-    from app.server import load_settings_text, save_settings_text
+    from app.settings_io import load_settings_text, save_settings_text
 
     loop = SimLoop("polish", capture=lambda s: None)
     loop.start(running=False)

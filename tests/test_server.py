@@ -284,3 +284,29 @@ def test_serve_exits_non_zero_with_the_reason_when_the_loop_thread_dies(monkeypa
     args = argparse.Namespace(scenario="free", host="127.0.0.1", port=0, robot=None, urdf=None)
     assert serve(args) == 1
     assert "the simulation loop stopped: RuntimeError: the loop broke" in capsys.readouterr().err
+
+
+def test_page_settings_load_applies_good_entries_lists_bad_ones_and_restore_defaults_undoes_them(app):
+    from viser._gui_handles import UploadedFile
+
+    from app.session import Session
+
+    buttons = app.panels[0].settings
+    defaults = Session("free", executor=app.loop.status.executor).params()  # the preset's own defaults
+    default_force = defaults["drag"].max_force_n
+    good = 0.5 * default_force
+    text = f"[drag]\nmax_force_n = {good}\n[world]\ntorque_delay_ms = 1e9\n"
+    _browser_update(buttons.load_button, UploadedFile("s.toml", text.encode()), client_id=12345)
+    assert app.loop.sync().t >= 0.0
+    assert app.loop.session.drag.max_force_n == pytest.approx(good)
+    assert app.loop.session.params()["world"].torque_delay_ms == defaults["world"].torque_delay_ms
+    refused = buttons.load(None, text.encode())  # the same file again: the bad entry is reported, one line
+    assert len(refused) == 1 and "torque_delay_ms" in refused[0] and "\n" not in refused[0]
+    assert buttons.load(None, b"\xff\xfe") and app.loop.session.drag.max_force_n == pytest.approx(good)
+    saved = buttons.save(None)
+    assert "max_force_n" in saved and "torque_delay_ms" not in saved
+    buttons.restore(None)
+    app.loop.sync()
+    assert app.loop.call(lambda s: s.params()) == defaults
+    assert app.loop.session.drag.max_force_n == pytest.approx(default_force)
+    assert "max_force_n" not in buttons.save(None)

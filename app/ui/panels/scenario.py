@@ -16,6 +16,7 @@ from app.lab import UNPACED_SPEED
 from app.loop import Frame, LoopStatus, SimLoop
 from app.scenarios import SCENARIOS
 from app.ui.panels.base import KnobPanel, notify
+from app.ui.panels.settings import SettingsButtons
 from app.ui.phase import SHORT_PRESETS, PhaseReader
 
 DEFAULT_ROBOT = "scenario default"
@@ -77,6 +78,7 @@ class ScenarioPanel(KnobPanel):
         self.speed = gui.add_dropdown(
             "Speed", tuple(SPEEDS), initial_value="1×", hint="Simulated time per wall second; the last runs unpaced"
         )
+        self.settings = SettingsButtons(self.server, self.loop)
         self.status_md = gui.add_markdown("")
         self.fallback_md = gui.add_markdown(
             "**QP fallback!** A QP failed in the last seconds; a fallback torque was used.", visible=False
