@@ -510,6 +510,23 @@ def test_space_pauses_and_plays_arrow_steps_and_r_resets(app, page):
         app.loop.submit(Play())
 
 
+def test_restore_defaults_button_in_the_page_returns_the_parameters_to_the_presets_defaults(app, page):
+    from app.commands import SetParam
+    from app.session import Session
+
+    pg, _ = page
+    default = Session("polish", robot="rizon4s", executor="projection").params()["drag"].max_force_n
+    app.loop.submit(SetParam("drag", "max_force_n", 0.5 * default))
+    app.loop.sync()
+    assert app.loop.session.drag.max_force_n == pytest.approx(0.5 * default) and app.loop.lab.overrides
+    button = pg.get_by_role("button", name="Restore defaults")
+    button.scroll_into_view_if_needed()
+    button.click()
+    wait_for(lambda: app.loop.sync() and not app.loop.lab.overrides, 20, "Restore defaults to forget the overrides")
+    assert app.loop.session.drag.max_force_n == pytest.approx(default)
+    assert pg.get_by_role("button", name="Save settings").count() == 1
+
+
 def test_disconnect_during_a_drag_releases_the_force_within_a_second(app, page):
     """Closing the tab mid-drag (no mouse-up) releases the spring within 1 s, even behind ten seconds
     of queued single steps; runs last: it closes the page."""
