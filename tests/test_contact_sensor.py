@@ -168,3 +168,23 @@ def test_friction_at_1_mm_per_s_is_stable_at_the_heaviest_tangential_mass():
         assert min(fn[700:]) > 10.0  # on the table throughout
     assert flips[True] < 0.15 and vmax[True] < 2e-3
     assert flips[False] > 0.5
+
+
+@pytest.mark.parametrize("scenario", ["polish", "mass-drop"])
+def test_the_presets_sensor_is_the_ft_model_and_reads_as_a_fresh_one(scenario):
+    """The scenario hands out the F/T model itself (it implements `Sensor`): the same readings as an
+    FTSensor built with its settings and the same seed, and its "sensor" group is set through it."""
+    from app.scenarios import Sensor, get_scenario
+
+    sensor = get_scenario(scenario).make_sensor(np.random.default_rng(3))
+    assert isinstance(sensor, FTSensor) and isinstance(sensor, Sensor)
+    p = sensor.params()["sensor"]
+    twin = FTSensor(np.random.default_rng(3), dt=sensor.dt)
+    twin.set_params("sensor", p)
+    wrench = np.array([1.0, -2.0, 3.0, 0.1, -0.2, 0.3])
+    for k in range(50):
+        assert np.array_equal(sensor.measure(wrench, 1e-3 * k), twin.measure(wrench, 1e-3 * k))
+    sensor.set_params("sensor", replaced(p, "cutoff_hz", 10.0))
+    assert sensor.params()["sensor"].cutoff_hz == 10.0 and sensor.cutoff_hz == 10.0
+    with pytest.raises(ParamError):
+        sensor.set_params("contact", p)

@@ -261,7 +261,7 @@ def posture_figures(session, q: np.ndarray, mu: float, shaping: bool) -> dict:
         normal_force_n=scenario_module.DESIRED_FORCE_N,
         speed_m_s=peak_speed(),
         v_eps_m_per_s=session.environment.contact.v_eps_m_per_s,
-        sensor_cutoff_hz=session.sensor.ft.cutoff_hz,
+        sensor_cutoff_hz=session.sensor.cutoff_hz,
     )
     pm = posture_margin(dyn.Lambda, POLISH_SUBSPACES, gains, loop, [dirs["stretch"], dirs["retract"]])
     return {

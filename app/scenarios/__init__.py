@@ -18,6 +18,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from app.sim.sensor import Sensor
 from app.sim.world import World
 from control.executor import TaskTarget
 from control.model import Dynamics, RobotModel
@@ -58,24 +59,6 @@ class Environment:
     def overlay(self) -> dict[str, np.ndarray]:
         """Vectors the UI may draw (e.g. 'contact_force' at 'contact_point'), world frame."""
         return {}
-
-
-class Sensor:
-    """F/T sensor model: maps the true wrench at the sensor to what the controller reads."""
-
-    def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
-        return np.array(true_wrench, dtype=float)
-
-    def params(self) -> dict[str, ParamGroup]:
-        """Its parameter groups by name; the ideal sensor has none."""
-        return {}
-
-    def set_params(self, name: str, group: Any) -> None:
-        """Take a new validated group; ParamError for a group it lacks."""
-        expect(name, group, None)
-
-    def reset(self) -> None:
-        """Clear filter states."""
 
 
 class Scenario:

@@ -127,14 +127,12 @@ class MassDropParams(ParamGroup):
 
 def wrist_ft_sensor(rng: np.random.Generator) -> Sensor:
     """The [C] scenarios' wrist F/T sensor: white noise of the stds above, no sine, no filter."""
-    return SensorAdapter(
-        FTSensor(
-            rng,
-            force_noise_var=FORCE_NOISE_STD**2,
-            torque_noise_var=TORQUE_NOISE_STD**2,
-            sine_amplitude_n=0.0,
-            cutoff_hz=0.0,
-        )
+    return FTSensor(
+        rng,
+        force_noise_var=FORCE_NOISE_STD**2,
+        torque_noise_var=TORQUE_NOISE_STD**2,
+        sine_amplitude_n=0.0,
+        cutoff_hz=0.0,
     )
 
 
@@ -231,25 +229,6 @@ class RopeDrop(Environment):
     def overlay(self) -> dict[str, np.ndarray]:
         end, _ = self.mass_state()
         return {"rope_end": end}
-
-
-class SensorAdapter(Sensor):
-    """The F/T sensor model behind the scenario's `Sensor` interface."""
-
-    def __init__(self, sensor: FTSensor):
-        self.sensor = sensor
-
-    def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
-        return self.sensor.measure(true_wrench, t)
-
-    def params(self) -> dict[str, Any]:
-        return self.sensor.params()
-
-    def set_params(self, name: str, group: Any) -> None:
-        self.sensor.set_params(name, group)
-
-    def reset(self) -> None:
-        self.sensor.reset()
 
 
 class MassDropScenario(Scenario):

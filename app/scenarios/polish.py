@@ -320,29 +320,6 @@ class PolishEnvironment(Environment):
         }
 
 
-class SensorAdapter(Sensor):
-    """The scenario's `Sensor` over the F/T sensor model."""
-
-    def __init__(self, sensor: FTSensor):
-        self.ft = sensor
-
-    def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
-        """Noisy, filtered reading (world axes, at the sensor)."""
-        return self.ft.measure(true_wrench, t)
-
-    def params(self) -> dict[str, Any]:
-        """The F/T model's "sensor" group."""
-        return self.ft.params()
-
-    def set_params(self, name: str, group: Any) -> None:
-        """Noise and filter settings of `FTSensor`."""
-        self.ft.set_params(name, group)
-
-    def reset(self) -> None:
-        """Clear the filter state."""
-        self.ft.reset()
-
-
 @dataclass(frozen=True)
 class PolishParams(ParamGroup):
     """The polish preset's own parameters (in force from the next reset)."""
@@ -514,7 +491,7 @@ class PolishScenario(Scenario):
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         """F/T sensor of [T] §IV-A (noise off when sensor_noise is False; the filter stays)."""
-        return SensorAdapter(FTSensor(rng, cutoff_hz=SENSOR_CUTOFF_HZ, noise=self.sensor_noise))
+        return FTSensor(rng, cutoff_hz=SENSOR_CUTOFF_HZ, noise=self.sensor_noise)
 
     def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
         """Hold the start XY with 20 N, then the zig-zag once the clock starts it."""

@@ -13,10 +13,31 @@ The random generator is passed in (seeded by the caller), so runs reproduce exac
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from control.params import ParamGroup, expect, param
+
+
+class Sensor:
+    """The scenario's sensor interface, and the ideal sensor: the true wrench at the sensor is what the
+    controller reads. `FTSensor` implements it with noise and a filter."""
+
+    def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
+        """The reading for this step's true wrench [f; m] at time t (ideal: a copy of it)."""
+        return np.array(true_wrench, dtype=float)
+
+    def params(self) -> dict[str, ParamGroup]:
+        """Its parameter groups by name; the ideal sensor has none."""
+        return {}
+
+    def set_params(self, name: str, group: Any) -> None:
+        """Take a new validated group; ParamError for a group it lacks."""
+        expect(name, group, None)
+
+    def reset(self) -> None:
+        """Clear filter states."""
 
 
 @dataclass(frozen=True)
@@ -45,7 +66,7 @@ class SensorParams(ParamGroup):
     )
 
 
-class FTSensor:
+class FTSensor(Sensor):
     """Noisy, filtered 6-axis force/torque sensor."""
 
     def __init__(
@@ -74,7 +95,7 @@ class FTSensor:
         )
         self.reset()
 
-    def params(self) -> dict[str, SensorParams]:
+    def params(self) -> dict[str, ParamGroup]:
         """Its one group, "sensor"."""
         return {"sensor": self._params}
 
