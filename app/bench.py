@@ -76,6 +76,7 @@ BENCHES: dict[str, Callable] = {
     "tang_step_W_a": lambda robot: _tang_step(robot, "a"),
     "tang_step_W_j": lambda robot: _tang_step(robot, "j"),
     "tang_session_step_W_a": lambda robot: _tang_session_step(robot),
+    "polish_live_margin": lambda robot: _polish_live_margin(robot),
 }
 
 
@@ -190,6 +191,20 @@ def _tang_session_step(robot):
     session.set_param("nullspace", "objective", "a")
     session.run(0.3)
     return session.step
+
+
+def _polish_live_margin(robot):
+    """The polish scenario's live force-loop margin signal (`live_margin`: Λx of the posture, the
+    K_f^d search over two friction directions and three speeds), which runs once per simulated
+    second, not every step; always the Rizon 4s, at the posture of `tang_session_step_W_a`."""
+    from app.scenarios.polish import PolishScenario
+    from app.session import Session
+
+    session = Session(PolishScenario(mu=0.25))
+    session.set_param("nullspace", "objective", "a")
+    session.run(0.3)
+    env, t = session.environment, session.world.time
+    return lambda: env.live_margin(t)  # type: ignore[attr-defined]
 
 
 # ---- the QP solve alone (control/qp.py), per backend, on problems the executors built ----------
