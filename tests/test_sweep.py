@@ -80,6 +80,8 @@ def test_grid_values_as_linspace_list_or_single():
         (["polish", "--grid", "objective=z"], "choose from j, f, a, d, planned"),
         (["polish", "--grid", "armature_scale=-1"], "armature_scale must be between 0 and 4"),
         (["polish", "--grid", "hold_swivel=0,30", "swivel=10"], "drop swivel"),
+        (["polish", "--grid", "swivel=200"], "start_swivel_deg must be between -180 and 180"),
+        (["polish", "--grid", "hold_swivel=0,200"], "hold_swivel=200: start_swivel_deg must be between -180 and 180"),
         (["mass-drop", "--grid", "payload_mass_error=0.6"], "between -0.5 and 0.5"),
         (["mass-drop", "--grid", "controller=magic"], "choose from position"),
         (["juggle", "--grid", "x=1"], "unknown experiment 'juggle'"),

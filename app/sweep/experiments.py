@@ -169,7 +169,7 @@ POLISH_KNOBS = (
         RUN,
         "hold_swivel_deg",
         "start at this swivel and hold it (W_j on the start posture: no flow), degrees",
-        check=lambda v: _polish(hold_swivel_deg=v),
+        check=lambda v: _held_swivel(v),
     ),
     Knob(
         "objective",
@@ -197,6 +197,15 @@ def _polish(**values):
     from app.scenarios.polish import PolishScenario
 
     return PolishScenario(**values)
+
+
+def _held_swivel(value: float) -> None:
+    """A held swivel becomes the start swivel: the scenario group's `start_swivel_deg` range applies."""
+    from app.scenarios.polish import PolishParams
+    from control.params import replaced
+
+    replaced(PolishParams(), "start_swivel_deg", value)
+    _polish(hold_swivel_deg=value)
 
 
 def polish_groups() -> dict:
