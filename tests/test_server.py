@@ -310,3 +310,30 @@ def test_page_settings_load_applies_good_entries_lists_bad_ones_and_restore_defa
     assert app.loop.call(lambda s: s.params()) == defaults
     assert app.loop.session.drag.max_force_n == pytest.approx(default_force)
     assert "max_force_n" not in buttons.save(None)
+
+
+def test_a_refused_or_adjusted_number_is_replaced_in_the_input_by_the_value_in_force_at_once(app, monkeypatch):
+    import app.ui.panels.base as base
+
+    panel, knob, handle = _knob_handle(app, "max_force_n")
+    _browser_update(handle, 60.0, client_id=12345)
+    assert handle.value == pytest.approx(60.0) and app.loop.session.drag.max_force_n == pytest.approx(60.0)
+    notices: list[tuple[str, str]] = []
+    monkeypatch.setattr(base, "notify", lambda server, cid, title, body, error=True: notices.append((title, body)))
+    log = app.loop.lab.notice_log
+    refused_before = sum(n.title == "Value refused" for n in log)
+    _browser_update(handle, 1e9, client_id=12345)  # out of range: refused by the group
+    assert handle.value == pytest.approx(60.0)  # back in the input when the callback returns
+    assert sum(n.title == "Value refused" for n in log) == refused_before + 1
+    assert notices == []  # the refusal's own notice says why; no second one
+    _browser_update(handle, 19.0, client_id=12345)  # e.g. "1e9" parsed by the browser: applied as is
+    assert handle.value == pytest.approx(19.0) and app.loop.session.drag.max_force_n == pytest.approx(19.0)
+    assert notices == []
+
+    class FakeHandle:
+        value = 0.0
+
+    fake = FakeHandle()
+    assert panel.echo(knob, fake, 25.0, 12345, before=log[-1] if log else None) == pytest.approx(19.0)
+    assert fake.value == pytest.approx(19.0)  # differs from what arrived: the value in force is shown
+    assert len(notices) == 1 and notices[0][0] == "Value adjusted" and "19" in notices[0][1]

@@ -227,13 +227,45 @@ class KnobPanel:
         def on_update(event: viser.GuiEvent, k: Knob = k) -> None:
             if event.client_id is None:  # our own refresh, not a person
                 return
+            log = self.loop.lab.notice_log
+            before = log[-1] if log else None
             for cmd in k.commands(event.target.value, event.client_id):
                 self.loop.submit(cmd)
+            if k.kind in ("slider", "number"):
+                self.echo(k, event.target, event.target.value, event.client_id, before)
 
         handle.on_update(on_update)
         self.knobs.append(k)
         self.handles.append(handle)
         return handle
+
+    def echo(self, k: Knob, handle: Any, typed: Any, client_id: int | None, before: Any = None) -> Any:
+        """After a person's change is applied, put the value in force back into the input at once when
+        it differs from what arrived (refused, clamped or coerced; a number box sends only what the
+        browser parsed) and say so (a refusal already has its notice). Returns the value in force."""
+        self.loop.sync()
+        try:
+            in_force = self.shown_value(k, self.loop.settings)
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError):
+            return None
+        number = typed if isinstance(typed, (int, float)) and not isinstance(typed, bool) else None
+        if number is not None and math.isfinite(number) and math.isclose(number, in_force, rel_tol=1e-9, abs_tol=1e-12):
+            return in_force
+        try:
+            handle.value = in_force
+        except (TypeError, ValueError):  # an input holding something that is not a number
+            return in_force
+        if not _refused_since(self.loop.lab.notice_log, before, client_id):
+            notify(self.server, client_id, "Value adjusted", f"{k.label}: {typed!r} arrived, {in_force:g} is in force")
+        return in_force
+
+    def shown_value(self, k: Knob, settings: Settings) -> Any:
+        """The input value of a knob for the values in force (numbers clamped to the input's range)."""
+        shown = k.shown(getattr(settings.groups[k.group], k.field))
+        if k.kind in ("slider", "number"):
+            lo, hi = k.bounds
+            shown = min(max(float(shown), lo if lo is not None else -1e9), hi if hi is not None else 1e9)
+        return shown
 
     def wanted(self, k: Knob, settings: Settings) -> bool:
         """Whether a knob applies now (its group exists); subclasses may narrow it."""
@@ -251,10 +283,7 @@ class KnobPanel:
             if not present or now - handle.update_timestamp < TOUCH_HOLD_S:
                 continue
             try:
-                shown = k.shown(getattr(settings.groups[k.group], k.field))
-                if k.kind in ("slider", "number"):
-                    lo, hi = k.bounds
-                    shown = min(max(float(shown), lo if lo is not None else -1e9), hi if hi is not None else 1e9)
+                shown = self.shown_value(k, settings)
                 if handle.value != shown:
                     handle.value = shown
             except (TypeError, ValueError, IndexError, AttributeError):
@@ -262,3 +291,17 @@ class KnobPanel:
 
     def live(self, frame: Any) -> None:
         """Hook for subclasses: live numbers from a frame (called a few times a second)."""
+
+
+def _refused_since(log: Any, before: Any, client_id: int | None) -> bool:
+    """Whether the lab's notice log has a "Value refused" for `client_id` after the notice `before`."""
+    try:
+        notices = list(log)
+    except RuntimeError:  # appended to meanwhile
+        return False
+    start = 0
+    for i in range(len(notices) - 1, -1, -1):
+        if notices[i] is before:
+            start = i + 1
+            break
+    return any(n.title == "Value refused" and n.client_id == client_id for n in notices[start:])
