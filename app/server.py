@@ -104,22 +104,29 @@ def start_app(
     actual = server.get_port()
 
     extra = (robot,) if robot and robot not in ("rizon4s", "gen3") else ()
-    panels: list[Any] = [
-        ScenarioPanel(server, loop, extra_robots=extra, order=0),
-        MotionForcePanel(server, loop, order=1),
-        NullspacePanel(server, loop, order=2),
-        CompliancePanel(server, loop, order=3),
-        SafetyPanel(server, loop, order=4),
-        MoreGainsPanel(server, loop, claimed=claimed_fields(ALL_FIELDS), order=4.5),
-    ]
+    # The control panel as tabs: Run (preset, play, settings, status) · Tune (the controllers' knobs)
+    # · Visuals · Record.
+    tabs = server.gui.add_tab_group(order=0)
+    with tabs.add_tab("Run", viser.Icon.PLAYER_PLAY):
+        panels: list[Any] = [ScenarioPanel(server, loop, extra_robots=extra, order=0)]
+    with tabs.add_tab("Tune", viser.Icon.ADJUSTMENTS):
+        panels += [
+            MotionForcePanel(server, loop, order=1),
+            NullspacePanel(server, loop, order=2),
+            CompliancePanel(server, loop, order=3),
+            SafetyPanel(server, loop, order=4),
+            MoreGainsPanel(server, loop, claimed=claimed_fields(ALL_FIELDS), order=4.5),
+        ]
     visual_settings = VisualSettings()
-    VisualsPanel(server.gui, visual_settings, order=5)
+    with tabs.add_tab("Visuals", viser.Icon.EYE):
+        VisualsPanel(server.gui, visual_settings, order=5)
+    with tabs.add_tab("Record", viser.Icon.DOWNLOAD):
+        RecordPanel(server, loop, order=7)
 
     def make_scene(robot_desc: Any) -> Any:
         return SceneView(server, robot_desc, loop.submit, settings=visual_settings)
 
     plots = Plots(server, n_joints=loop.session.robot.nq, order=6)
-    RecordPanel(server, loop, order=7)
 
     @server.on_client_disconnect
     def _release_drag(client: viser.ClientHandle) -> None:

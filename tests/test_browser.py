@@ -222,6 +222,11 @@ def has_control(pg: Any, label_pattern: str, role: str) -> bool:
     return bool(pg.evaluate(_CONTROL_JS, [label_pattern, role]))
 
 
+def open_tab(pg: Any, name: str) -> None:
+    """Show the control panel's tab `name` (Run, Tune, Visuals, Record)."""
+    pg.get_by_role("tab", name=name).click()
+
+
 def choose(pg: Any, label: str, option: str) -> list[str]:
     """Open the dropdown labelled `label`, pick `option`; returns all the options it offered."""
     box = pg.get_by_label(label, exact=True)
@@ -286,6 +291,7 @@ def _robot_is_drawn_where_projected(app: Any, pg: Any, client: Any) -> None:
 
 def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page):
     pg, _ = page
+    open_tab(pg, "Tune")
     wait_for(lambda: has_control(pg, r"^Objective$", "combobox"), 30, "the Objective dropdown")
     wait_for(lambda: has_control(pg, r"^k0\b", "slider"), 30, "the k0 slider")
     offered = choose(pg, "Objective", "W_d")
@@ -304,6 +310,7 @@ def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page)
 
     pg, _ = page
     preview = next(p for p in app.panels if isinstance(p, NullspacePanel)).preview
+    open_tab(pg, "Tune")
     scans = preview.scans
     box = pg.get_by_label("Self-motion preview", exact=True)
     box.wait_for(timeout=20_000)
@@ -319,6 +326,7 @@ def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page)
     from app.commands import SetTwin
 
     pg, _ = page
+    open_tab(pg, "Tune")
     offered = choose(pg, "Twin arm", "W_j")
     assert {"off", "W_j", "W_f", "W_a", "W_d"} <= set(offered)
     try:
@@ -404,6 +412,7 @@ def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page):
 
     pg, _ = page
     wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "projection", 30, "the projection executor")
+    open_tab(pg, "Tune")
     # the projection executor has no task compliance: its slider is hidden, not greyed out
     wait_for(lambda: not has_control(pg, r"^Γ task", "slider"), 30, "the Γ task slider to be hidden")
     app.loop.submit(SwitchSession(executor="compliance-qp"))
@@ -489,6 +498,7 @@ def test_space_pauses_and_plays_arrow_steps_and_r_resets(app, page):
     from app.ui.panels.scenario import ScenarioPanel
 
     pg, _ = page
+    open_tab(pg, "Run")
     pg.evaluate("() => document.activeElement && document.activeElement.blur()")
     wait_for(lambda: app.loop.status.running and app.loop.status.t > 0.3, 30, "the simulation to run")
     try:
@@ -515,6 +525,7 @@ def test_restore_defaults_button_in_the_page_returns_the_parameters_to_the_prese
     from app.session import Session
 
     pg, _ = page
+    open_tab(pg, "Run")
     default = Session("polish", robot="rizon4s", executor="projection").params()["drag"].max_force_n
     app.loop.submit(SetParam("drag", "max_force_n", 0.5 * default))
     app.loop.sync()
