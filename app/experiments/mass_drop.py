@@ -86,13 +86,17 @@ def run_mass_drop(
     case: str = "rope-drop",
     params: MassDropParams | None = None,
     window_s: float = WINDOW_S,
+    observer_gain: float | None = None,
 ) -> dict:
     """One release (noise seed `seed`, rig `params`, default: `draw_rig(seed)`); the metrics, the rig
-    and a down-sampled deviation trace (mm). Ends early, with `stop` saying why, if the run diverges."""
+    and a down-sampled deviation trace (mm). Ends early, with `stop` saying why, if the run diverges.
+    observer_gain: the momentum observer's K_I [C25] (default: the scenario's, `OBSERVER_GAIN`)."""
     rig = params if params is not None else draw_rig(seed)
     scenario = MassDropScenario(mode, case, rig)
     session = qp_session(scenario, seed=seed)
     scenario.configure_executor(session.executor, session.robot)
+    if observer_gain is not None:  # after the mode's own estimator settings
+        session.set_param("estimator", "observer_gain", float(observer_gain))
     session.reset()
     target = session.target_fn(0.0).position
     tau_max = session.robot.tau_max - 1e-9

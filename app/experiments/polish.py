@@ -137,7 +137,7 @@ def simulate(spec: dict) -> dict:
 
     spec: objective ("j", "f", "a", "d", "planned", "planned_a"), mu, seed, start_swivel_deg,
     optional shaping, armature_scale, sander, sensor_cutoff_hz, converge_timeout_s (settle cap),
-    hold_swivel_deg, row, group."""
+    hold_swivel_deg, row, group, session_params ((group, field, value) set on the session)."""
     from app.session import Session
     from control.coupling import swivel_angle
 
@@ -159,6 +159,8 @@ def simulate(spec: dict) -> dict:
         session.set_param("nullspace", "objective", objective)
     if spec.get("sensor_cutoff_hz") is not None:
         session.set_param("sensor", "cutoff_hz", float(spec["sensor_cutoff_hz"]))
+    for group, name, value in spec.get("session_params", ()):  # e.g. ("nullspace", "k0_a", 0.5) from a sweep
+        session.set_param(group, name, value)
     clock = session.environment.clock  # type: ignore[attr-defined]
     target = session.target_fn
     q_start = session.world.q.copy()

@@ -121,6 +121,7 @@ MASS_DROP_KNOBS = (
     ),
     Knob("rope_stiffness", "scenario", "rope_stiffness_n_per_m", "rope stiffness, N/m (nominal)"),
     Knob("drop_height", "scenario", "drop_height_m", "free fall before the rope is taut, m (nominal)"),
+    Knob("K_I", "estimator", "observer_gain", "momentum-observer gain K_I (1/s) [C25]", ("observer_gain",)),
     Knob("window", RUN, "window_s", "seconds analysed after the release", ("window_s",), check=positive),
 )
 
@@ -154,6 +155,7 @@ def mass_drop_cell(values: dict, seed: int) -> dict:
         case=str(values.get("case", "rope-drop")),
         params=draw_rig(seed, MassDropParams(**nominal)),
         window_s=window,
+        observer_gain=values.get("K_I"),
     )
     metrics = _scalars({k: v for k, v in r.items() if not k.startswith("trace")})
     stable = r.get("stop", "done") == "done" and r["stabilization_time_s"] < window - SETTLED_FOR_S
@@ -189,7 +191,17 @@ POLISH_KNOBS = (
         check=lambda v: _polish(converge_timeout_s=v),
     ),
     Knob("sander", "sander", "enabled", "7000 RPM sander disturbance"),
+    *(
+        Knob(
+            f"k0_{o}",
+            "nullspace",
+            f"k0_{o}",
+            f"nullspace gain k0 of W_{o} [T15]" + (" (held/planned posture)" if o == "j" else ""),
+        )
+        for o in ("j", "f", "a", "d")
+    ),
 )
+POLISH_SESSION_KNOBS = ("k0_j", "k0_f", "k0_a", "k0_d")  # set on the session as they are (group, field)
 
 
 def _polish(**values):
@@ -237,6 +249,10 @@ def polish_cell(values: dict, seed: int) -> dict:
         spec["sensor_cutoff_hz"] = float(values["sensor_cutoff"])
     if "converge_timeout" in values:
         spec["converge_timeout_s"] = float(values["converge_timeout"])
+    knobs = {k.name: k for k in POLISH_KNOBS}
+    spec["session_params"] = [
+        (knobs[name].group, knobs[name].field, float(values[name])) for name in POLISH_SESSION_KNOBS if name in values
+    ]
     r = simulate(spec)["result"]
     drop = ("per_segment", "q_start", "q_converged", "posture_change_deg", "plan")
     keep = {k: v for k, v in r.items() if k not in drop}
