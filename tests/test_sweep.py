@@ -265,3 +265,31 @@ def test_polish_k0_reaches_the_session_a_larger_k0_a_moves_the_posture_further_i
     # in a 2 s settle cap k0_a = 0.5 must move the swivel at least 5× as far as k0_a = 0.01 (measured
     # +20.2° vs +2.6°)
     assert abs(fast["converged_swivel_deg"]) > 5.0 * abs(slow["converged_swivel_deg"]) + 1.0
+
+
+def test_polish_map_marks_the_planned_paths_over_the_swivels_they_visit():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from app.sweep.grid import Axis
+    from app.sweep.overlays import PLAN_STYLES, planned_swivels, polish_notes, polish_overlay
+
+    swivels = tuple(float(x) for x in np.linspace(-180.0, 180.0, 13))
+    axes = [Axis("swivel", swivels), Axis("mu", (0.25, 1.0))]
+    fig, ax = plt.subplots()
+    polish_overlay(ax, axes, [])
+    plans = planned_swivels()
+    labels = ax.get_legend_handles_labels()[1]
+    for cost, p in plans.items():
+        assert f"planned path, cost {PLAN_STYLES[cost][0]}" in labels
+        # the band spans the plan's swivels, in map units (index along the swivel axis)
+        band = next(h for h in ax.patches if h.get_label() == f"planned path, cost {PLAN_STYLES[cost][0]}")
+        x0, x1 = band.get_x(), band.get_x() + band.get_width()  # axvspan: a Rectangle in data x
+        lo = np.interp(p["lo"], swivels, np.arange(len(swivels)))
+        hi = np.interp(p["hi"], swivels, np.arange(len(swivels)))
+        assert x0 <= lo + 1e-9 and x1 >= hi - 1e-9 and x1 - x0 <= hi - lo + 0.2 + 1e-9
+        assert np.all((p["swivel_deg"] >= p["lo"]) & (p["swivel_deg"] <= p["hi"]))
+    assert "Planned nullspace paths" in polish_notes(axes, [])
+    plt.close(fig)

@@ -6,7 +6,9 @@ Polish, along a swivel axis: the W_a basins of the self-motion loop at the start
 basin border) and grey where the loop leaves the joint limits. With a μ axis: the linearised
 force-loop margin (`control.margin.posture_margin`, as each run reports it at its converged
 posture): a circle where the margin predicts contact loss (K_f^d below the critical damping),
-and for a held swivel its zero line over (swivel, μ) along the start-pose loop.
+and for a held swivel its zero line over (swivel, μ) along the start-pose loop. The planned
+nullspace paths (`control.planner`, [T] §IV-B) over the zig-zag from the Fig. 6a start (the
+table's): a hatched band over the swivels each plan visits during the six segments.
 """
 
 from __future__ import annotations
@@ -38,6 +40,39 @@ def wa_basins() -> dict:
     step = float(np.median(np.diff(psi))) if n > 1 else 0.0
     infeasible = [(float(p) - step / 2, float(p) + step / 2) for p, ok in zip(psi, feas, strict=True) if not ok]
     return {"minima": minima, "ridges": ridges, "infeasible": infeasible}
+
+
+PLAN_STYLES = {"directional": ("(P_d·f̂)²", "tab:green", "////"), "a": ("W_a", "tab:orange", "\\\\")}
+
+
+@lru_cache(maxsize=1)
+def planned_swivels() -> dict[str, dict]:
+    """Per plan cost: the swivel (deg, wrapped to (−180, 180]) planned from the Fig. 6a start over the six
+    segments, and its span."""
+    import robots
+    from app.scenarios.polish import PolishScenario, planned_path
+    from control.model import RobotModel
+
+    robot = robots.load("rizon4s")
+    PolishScenario().prepare_robot(robot)
+    model = RobotModel(robot.model)
+    out: dict[str, dict] = {}
+    for cost in PLAN_STYLES:
+        plan = planned_path(robot, model, 0.0, cost)
+        psi = (np.rad2deg(plan.swivel_rad[plan.t >= 0.0]) + 180.0) % 360.0 - 180.0
+        out[cost] = {"swivel_deg": psi, "lo": float(psi.min()), "hi": float(psi.max()), "cost": plan.total_cost}
+    return out
+
+
+def _plan_layer(ax, to_x) -> None:
+    for cost, p in planned_swivels().items():
+        name, color, hatch = PLAN_STYLES[cost]
+        a, b = to_x(p["lo"]), to_x(p["hi"])
+        if a is None or b is None:
+            continue
+        if b - a < 0.2:  # a plan that barely moves: a visible band around it
+            a, b = a - 0.1, b + 0.1
+        ax.axvspan(a, b, facecolor="none", edgecolor=color, hatch=hatch, lw=1.0, label=f"planned path, cost {name}")
 
 
 MARGIN_SWIVEL_STEP_DEG = 4.0  # posture spacing along the loop for the margin
@@ -163,6 +198,7 @@ def polish_overlay(ax, axes: list[Axis], records: list[dict]) -> None:
         x = to_x(deg)
         if x is not None:
             ax.axvline(x, color="magenta", lw=1.2, ls="--", label="W_a ridge (basin border)" if k == 0 else None)
+    _plan_layer(ax, to_x)
     _margin_layer(ax, axes, records)
     if basins["minima"] or basins["ridges"]:
         ax.legend(fontsize=6, loc="upper right", framealpha=0.6)
@@ -176,8 +212,18 @@ def polish_notes(axes: list[Axis], records: list[dict]) -> str:
         "<p>Self-motion loop at the polish start pose (swivel scan, 2° steps): W_a has feasible local minima "
         f"at {fmt(f'{d:+.0f}°' for d in basins['minima']) or 'none'} (solid lines: the basins the W_a flow "
         f"ends in) and ridges at {fmt(f'{d:+.0f}°' for d in basins['ridges']) or 'none'} (dashed: basin "
-        "borders); grey: outside the joint limits. The planned nullspace path is not drawn: it belongs to "
-        "one start swivel and a trajectory, not to a point of this map.</p>"
+        "borders); grey: outside the joint limits.</p>"
+    )
+    plans = planned_swivels()
+    text += (
+        "<p>Planned nullspace paths over the zig-zag (dynamic programming over the swivel grid, "
+        "`control.planner`) from the Fig. 6a start, as the polish table runs them (hatched bands: the "
+        "swivels each plan visits during the six segments): "
+        + fmt(
+            f"cost {PLAN_STYLES[c][0]} {p['lo']:+.0f}°…{p['hi']:+.0f}° (plan cost {p['cost']:.3g})"
+            for c, p in plans.items()
+        )
+        + ".</p>"
     )
     if len(axes) >= 2 and axes[1].name == "mu":
         pred = _cell_predictions(axes, records)
