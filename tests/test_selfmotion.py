@@ -125,3 +125,48 @@ def test_scan_in_the_worker_process_equals_the_scan_here(rizon):
     np.testing.assert_array_equal(there.W, here.W)
     np.testing.assert_array_equal(there.q, here.q)
     assert (there.flow, there.best) == (here.flow, here.best)
+
+
+def test_the_ghost_follows_the_planned_posture_while_a_plan_runs(server):
+    """With the preview on and the first ghost choice, each frame of a planned case poses the ghost
+    at the planned posture of that frame (to 1e-12); another choice leaves it to the scan."""
+    from types import SimpleNamespace
+
+    import robots
+    from app.ui.selfmotion import GHOST_CHOICES, SelfMotionPreview
+
+    robot = robots.load("rizon4s")
+    preview = SelfMotionPreview(server)
+    preview.stop()  # no scans: only what the frames say
+    preview.set_enabled(True, ghost_at=GHOST_CHOICES[0])
+    q0 = get_scenario("polish").initial_q(robot)
+
+    def frame(planned: np.ndarray | None) -> SimpleNamespace:
+        scene = SimpleNamespace(
+            q=q0, near_singular=False, subspaces=c.POLISH_SUBSPACES, objective="j", planned_q=planned
+        )
+        signals = {"swivel_plan_deg": 10.0} if planned is not None else {}
+        return SimpleNamespace(scene=scene, status=SimpleNamespace(signals=signals), robot=robot)
+
+    for k in range(3):
+        planned = q0 + 0.05 * (k + 1) * np.array([1.0, -1.0, 1.0, 0.5, -0.5, 0.3, 0.0])
+        preview.feed(frame(planned))
+        assert preview.ghost_visible and preview.ghost_q is not None
+        np.testing.assert_allclose(preview.ghost_q, planned, atol=1e-12)
+    drawn = preview.ghost_q
+    preview.set_enabled(True, ghost_at=GHOST_CHOICES[1])
+    preview.feed(frame(q0 + 0.3))
+    np.testing.assert_array_equal(preview.ghost_q, drawn)  # "best inside the limits": not the plan
+
+
+def test_the_scene_carries_the_planned_posture_only_while_a_plan_runs():
+    from types import SimpleNamespace
+
+    from app.ui.snapshot import _planned_posture
+
+    q = np.arange(7.0)
+    step = lambda sig: SimpleNamespace(target=SimpleNamespace(q_posture=q), signals=sig)  # noqa: E731
+    np.testing.assert_array_equal(_planned_posture(step({"swivel_plan_deg": 12.0})), q)
+    assert _planned_posture(step({"swivel_plan_deg": float("nan")})) is None
+    assert _planned_posture(step({})) is None
+    assert _planned_posture(None) is None

@@ -38,11 +38,12 @@ GHOST_COLOR = (110, 130, 255)
 GHOST_OPACITY = 0.35
 AS_CONTROLLER = "as the controller"
 OBJECTIVE_CHOICES = (AS_CONTROLLER, "W_f", "W_a", "W_d")
-GHOST_CHOICES = ("where the flow settles", "best inside the limits", "hidden")
+GHOST_CHOICES = ("where the flow settles (on the plan when one runs)", "best inside the limits", "hidden")
 INTRO = (
     "The elbow's self-motion at the current TCP pose is a loop (swivel angle, 0° = elbow up). "
     "The scan shows W along it: the flow of [T15] only reaches the nearest minimum downhill; "
-    "the ghost arm shows where it settles or the best posture inside the joint limits."
+    "the ghost arm shows where it settles (or, in a planned case, the planned posture now, as it moves) or "
+    "the best posture inside the joint limits."
 )
 
 
@@ -84,7 +85,8 @@ class SelfMotionPreview:
         )
         self.folder = gui.add_folder("Self-motion loop", expand_by_default=True, visible=False)
         with self.folder:
-            gui.add_markdown(INTRO)
+            with gui.add_folder("?", expand_by_default=False):
+                gui.add_markdown(INTRO)
             self.objective = gui.add_dropdown("Scan W", OBJECTIVE_CHOICES, initial_value=AS_CONTROLLER)
             self.ghost_at: Any = gui.add_dropdown("Ghost arm", GHOST_CHOICES, initial_value=GHOST_CHOICES[0])
             self.text = gui.add_markdown("")
@@ -115,7 +117,10 @@ class SelfMotionPreview:
         self._in_process = True  # off after the scan process failed once: scans then run in this thread
         self._ghost: dict[str, viser.MeshHandle] = {}
         self._ghost_robot: str | None = None
+        self.ghost_q: np.ndarray | None = None  # the posture the ghost was last drawn at (tests read it)
         self._planned_deg: float | None = None  # swivel the planned path heads for, if the scenario plans one
+        self._planned_q: np.ndarray | None = None  # the planned posture now, if the scenario tracks a plan
+        self._ghost_lock = threading.Lock()  # the ghost is posed from the publisher and the scan thread
         for handle in (self.objective, self.ghost_at):
             handle.on_update(lambda _: self._wake.set())
         self.enabled.on_update(lambda _: self._on_enabled())
@@ -132,8 +137,16 @@ class SelfMotionPreview:
         planned = getattr(frame, "status", None)
         planned = planned.signals.get(PLANNED_SIGNAL) if planned is not None else None
         self._planned_deg = float(planned) if planned is not None and np.isfinite(planned) else None
+        planned_q = getattr(scene, "planned_q", None)
+        self._planned_q = None if planned_q is None else np.array(planned_q, dtype=float)
         with self._lock:
             self._input = (frame.robot, np.array(q, dtype=float), scene.subspaces, scene.objective)
+        if self._planned_q is not None and self._on_plan():
+            self._show_ghost(frame.robot, self._planned_q)  # follows the plan at the panels' rate
+
+    def _on_plan(self) -> bool:
+        """True when the ghost stands on the planned posture: preview on, first ghost choice, a plan runs."""
+        return bool(self.enabled.value) and str(self.ghost_at.value) == GHOST_CHOICES[0] and self._planned_q is not None
 
     def set_enabled(self, on: bool, ghost_at: str | None = None) -> None:
         """Switch the preview on or off from the server side (benchmarks, tests); `ghost_at` is one
@@ -185,6 +198,9 @@ class SelfMotionPreview:
         self.latest = result
         self.scans += 1
         self._show_plot(result)
+        if self._on_plan():
+            self._show_ghost(robot, self._planned_q)
+            return
         index = {GHOST_CHOICES[0]: result.flow, GHOST_CHOICES[1]: result.best}.get(str(self.ghost_at.value))
         self._show_ghost(robot, None if index is None else result.q[index])
 
@@ -238,14 +254,16 @@ class SelfMotionPreview:
             self.text.content = text
 
     def _show_ghost(self, robot: RobotDescription | None, q: np.ndarray | None) -> None:
-        if robot is None or q is None:
-            hide_ghost_arm(self._ghost)
-            return
-        if self._ghost_robot != str(robot.urdf_path):
-            self._build_ghost(robot)
-        positions, wxyz = link_poses(self._model_for(robot), robot, q)
-        with self.server.atomic():
-            pose_ghost_arm(self._ghost, robot.link_names, positions, wxyz)
+        with self._ghost_lock:
+            if robot is None or q is None:
+                hide_ghost_arm(self._ghost)
+                return
+            if self._ghost_robot != str(robot.urdf_path):
+                self._build_ghost(robot)
+            positions, wxyz = link_poses(self._model_for(robot), robot, q)
+            with self.server.atomic():
+                pose_ghost_arm(self._ghost, robot.link_names, positions, wxyz)
+            self.ghost_q = np.array(q, dtype=float)
 
     def _build_ghost(self, robot: RobotDescription) -> None:
         for handle in self._ghost.values():

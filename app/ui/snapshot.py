@@ -59,6 +59,7 @@ class SceneSnapshot:
     gamma_x_sym_eigs: np.ndarray | None = None  # (6,) real eigenvalues of ½(Γ_x + Γ_xᵀ), projection executor only
     gamma_x_skew: float | None = None  # ‖½(Γ_x − Γ_xᵀ)‖₂ of Γ_x = Λ̂x⁻¹Λx (control.bridge)
     q: np.ndarray | None = None  # (7,) rad, joint positions (the self-motion preview starts from them)
+    planned_q: np.ndarray | None = None  # (7,) rad: the planned posture now, when the scenario tracks a plan
     twin_link_positions: np.ndarray | None = None  # (L, 3) m: the twin arm's bodies (app.twin), if one runs
     twin_link_wxyz: np.ndarray | None = None  # (L, 4)
     twin_objective: str | None = None  # "j", "f", "a" or "d"
@@ -152,9 +153,21 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         step=view,
         near_singular=bool(dyn.near_singular or dyn.min_eig_Lambda_inv < NEAR_SINGULAR_EIG),
         q=q,
+        planned_q=_planned_posture(last),
         **_payload(session),
         **_gamma_x(session, view, dyn.Lambda),
     )
+
+
+def _planned_posture(last) -> np.ndarray | None:
+    """The posture the nullspace tracks when the scenario follows a planned path (its signal
+    "swivel_plan_deg" is finite): the step target's q_posture; None otherwise."""
+    if last is None or last.target.q_posture is None:
+        return None
+    plan = last.signals.get("swivel_plan_deg")
+    if plan is None or not np.isfinite(plan):
+        return None
+    return np.array(last.target.q_posture, dtype=float)
 
 
 def _gamma_x(session, view, Lambda: np.ndarray) -> dict:
