@@ -50,6 +50,15 @@ class StepOnce:
 
 
 @dataclass(frozen=True)
+class SettleNow:
+    """Run the preset's settle phase unpaced (as fast as the machine allows) until the posture has
+    converged, then go on paced. Pause, Reset or a single step stop it; a preset with nothing left to
+    settle refuses it (a notice to `client_id`)."""
+
+    client_id: int | None = None
+
+
+@dataclass(frozen=True)
 class Reset:
     """Back to t = 0 of the current scenario (drag released, settings kept)."""
 
@@ -103,5 +112,15 @@ class SetTwin:
 
 
 Command = (
-    DragCommand | Play | Pause | StepOnce | Reset | SetSpeed | SwitchSession | SetParam | RestoreDefaults | SetTwin
+    DragCommand
+    | Play
+    | Pause
+    | StepOnce
+    | SettleNow
+    | Reset
+    | SetSpeed
+    | SwitchSession
+    | SetParam
+    | RestoreDefaults
+    | SetTwin
 )

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from app.lab import Lab, Settings
+from app.scenarios.polish import settle_pending
 from app.session import Session
 from app.variants import variant_of
 
@@ -31,6 +32,8 @@ class LoopStatus:
     """What the loop is doing, for the status line and the tests."""
 
     running: bool = False
+    settling: bool = False  # "Settle now" runs the settle phase unpaced
+    can_settle: bool = False  # the preset is in a settle phase that "Settle now" can run
     t: float = 0.0  # s, simulated time of the session
     steps: int = 0  # steps since the last reset
     speed: float = 1.0  # requested simulated seconds per wall second
@@ -64,6 +67,8 @@ class PlotData:
     q_upper: np.ndarray
     dq_max: np.ndarray
     tau_max: np.ndarray
+    peak_abs_tau: np.ndarray | None = None  # max |τ_i| per joint over every step since the reset
+    peak_q: np.ndarray | None = None  # max q_i per joint over every step since the reset
 
 
 @dataclass(frozen=True)
@@ -87,6 +92,8 @@ def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0) -> LoopStatus:
     variant = variant_of(s.scenario)
     return LoopStatus(
         running=lab.running,
+        settling=lab.settling,
+        can_settle=settle_pending(s),
         t=s.world.time,
         steps=s.steps,
         speed=lab.speed,
@@ -178,11 +185,19 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
     every = max(1, round(PLOT_WINDOW_S / lab.dt / PLOT_POINTS))
     columns = lab.log.window(PLOT_WINDOW_S, lab.dt, every)
     if lab.twin is not None and "t" in columns:
-        columns["twin_force_error_n"] = lab.twin.force_error_at(columns["t"])
+        # the twin's own segment column: with another objective its zig-zag starts at another time
+        twin = lab.twin.columns_at(columns["t"])
+        missing = np.full(len(columns["t"]), np.nan)
+        columns["twin_force_error_n"] = twin["Fd_z"] - twin["F_z"] if "Fd_z" in twin else missing
+        if "segment" in twin:
+            columns["twin_segment"] = twin["segment"]
+    peak_abs_tau, peak_q = lab.log.extremes()
     mon = np.array(monitor) if monitor else np.zeros((0, 5))
     series = {k: mon[:, i].copy() for i, k in enumerate(("t", "rtf", "W_f", "W_a", "W_d"))}
     r = lab.session.robot
-    return PlotData(columns, series, r.q_lower.copy(), r.q_upper.copy(), r.dq_max.copy(), r.tau_max.copy())
+    return PlotData(
+        columns, series, r.q_lower.copy(), r.q_upper.copy(), r.dq_max.copy(), r.tau_max.copy(), peak_abs_tau, peak_q
+    )
 
 
 def _with_posture_objective(session: Session, signals: dict[str, float]) -> dict[str, float]:

@@ -31,12 +31,14 @@ from app.commands import (
     RestoreDefaults,
     SetParam,
     SetSpeed,
+    SettleNow,
     SetTwin,
     StepOnce,
     SwitchSession,
 )
 from app.executors import EXECUTORS
 from app.scenarios import Scenario
+from app.scenarios.polish import settle_pending
 from app.session import RunResult, Session, StepRecord
 from app.settings import finite_number, plain
 from app.steplog import StepLog
@@ -106,6 +108,7 @@ class Lab:
         self.halted = ""  # why the simulation auto-paused, "" otherwise
         self._resume_after_reset = False
         self.pending_steps = 0  # steps of a single-step request not yet run (run in chunks)
+        self.settling = False  # "Settle now": the settle phase runs unpaced, in chunks, then paced again
         self.speed = 1.0
         self.pacing_epoch = 0  # grows when the pacing must restart (play, reset, switch, speed)
         self.session_id = 0  # grows when the session (robot, scenario) is rebuilt
@@ -144,9 +147,11 @@ class Lab:
                 self.pacing_epoch += 1
         elif isinstance(cmd, Pause):
             self.running = False
+            self.settling = False
             self.pending_steps = 0
         elif isinstance(cmd, StepOnce):
             self.running = False
+            self.settling = False
             if self.halted:
                 self.notify("warning", "Cannot step", "The simulation diverged: press Reset first.")
                 return
@@ -154,6 +159,8 @@ class Lab:
             if steps is None or steps != int(steps) or not 1 <= steps <= MAX_SINGLE_STEP:
                 raise ValueError(f"step count must be a whole number 1…{MAX_SINGLE_STEP}, got {cmd.steps!r}")
             self.pending_steps += int(steps)
+        elif isinstance(cmd, SettleNow):
+            self._settle_now()
         elif isinstance(cmd, Reset):
             self.reset()
         elif isinstance(cmd, SetSpeed):
@@ -224,9 +231,35 @@ class Lab:
             self.pending_steps = 0
         return result
 
+    def _settle_now(self) -> None:
+        """Start "Settle now" (see `SettleNow`); ValueError (a notice) when there is nothing to settle."""
+        if self.halted:
+            self.notify("warning", "Cannot settle", "The simulation diverged: press Reset first.")
+            return
+        if not settle_pending(self.session):
+            raise ValueError("nothing to settle: the preset has no settle phase, or it has ended (Reset starts again)")
+        self.settling = True
+        self.running = True
+        self.pending_steps = 0
+
+    def settle_chunk(self, chunk: int) -> RunResult | None:
+        """Run up to `chunk` steps of "Settle now" (None if it is not on). When the settle phase has
+        ended (converged, or at its cap) the run goes on paced from here: the pacing restarts."""
+        if not self.settling:
+            return None
+        result = self.advance(int(chunk))
+        if result.halted:
+            self.settling = False
+        elif not settle_pending(self.session):
+            self.settling = False
+            self.pacing_epoch += 1
+            self.notify("info", "Settled", f"the trajectory starts at t = {self.session.world.time:.3f} s; paced again")
+        return result
+
     def _halt(self, reason: str) -> None:
         self._resume_after_reset = self.running
         self.running = False
+        self.settling = False
         self.pending_steps = 0
         self.halted = reason
         self.notify("error", "Simulation paused", f"{reason}. Press Reset to start again.")
@@ -287,6 +320,7 @@ class Lab:
         if replay:
             self._replay()
         self.drag_client = None
+        self.settling = False
         self.overpowered = ""
         self._overpowered_notice_t = -math.inf
         self.fallback_steps = 0

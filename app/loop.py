@@ -4,7 +4,8 @@ It applies the commands other threads queue (`app.commands`) between two steps, 
 1 kHz simulated time paced to wall time (`app.pacing`), and at 30 Hz publishes a `Frame`
 (`app.frames`) that the server's publisher thread shows in the browser. Drag commands and Pause
 jump the queue, and a single step runs in chunks of `STEP_CHUNK` steps with them applied between
-chunks, so a release waits for at most one chunk. A failure while publishing is reported once and
+chunks, so a release waits for at most one chunk. "Settle now" runs unpaced in chunks too, with
+every command (Pause, Reset, a switch) applied between them. A failure while publishing is reported once and
 the loop goes on. Nothing outside this thread touches the Lab, except through `call()`, which runs
 a function here between two steps.
 """
@@ -223,6 +224,10 @@ class SimLoop:
             self._follow_pacing()
             if lab.pending_steps:
                 self._timed(lab.step_pending, STEP_CHUNK)
+            elif lab.settling:  # "Settle now": unpaced chunks, every command applied between them
+                self._timed(lab.settle_chunk, STEP_CHUNK)
+                if self._meter.sample(self._clock(), lab.session.world.time):
+                    lab.dirty = True
             elif lab.running:
                 n = self._pacer.due(self._clock(), lab.total_steps)
                 if n:
@@ -234,7 +239,7 @@ class SimLoop:
                 if lab.dirty or lab.running:
                     self._publish(now)
                 next_publish = now + self.publish_period
-            if lab.pending_steps:
+            if lab.pending_steps or lab.settling:
                 continue
             wake_at = next_publish
             if lab.running:

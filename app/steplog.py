@@ -47,11 +47,31 @@ class StepLog:
         self._sl_f = slice(1 + 3 * n, 7 + 3 * n)
         self._sl_fd = slice(7 + 3 * n, 13 + 3 * n)
         self._i_fallback = 13 + 3 * n
+        self._scanned = 0  # rows already folded into the extremes
+        self._abs_tau_max = np.full(n, np.nan)
+        self._q_max = np.full(n, np.nan)
 
     def clear(self) -> None:
         """Forget every row (columns are kept)."""
         self._data.fill(np.nan)
         self.count = 0
+        self._scanned = 0
+        self._abs_tau_max.fill(np.nan)
+        self._q_max.fill(np.nan)
+
+    def extremes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(max |τ_i|, max q_i) per joint over every row since the last clear — every 1 ms step, not a
+        decimated window (NaN before the first row). Each call folds in only the rows appended since
+        the previous one; rows overwritten before a call (more than `capacity` in between) are missed."""
+        new = self.count - self._scanned
+        if new > 0:
+            rows = min(new, self.capacity)
+            idx = np.arange(self.count - rows, self.count) % self.capacity
+            block = self._data[idx]
+            np.fmax(self._abs_tau_max, np.max(np.abs(block[:, self._sl_tau]), axis=0), out=self._abs_tau_max)
+            np.fmax(self._q_max, np.max(block[:, self._sl_q], axis=0), out=self._q_max)
+            self._scanned = self.count
+        return self._abs_tau_max.copy(), self._q_max.copy()
 
     def append(self, rec: StepRecord) -> None:
         """Store one step (called by the loop thread after every step)."""

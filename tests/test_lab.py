@@ -8,10 +8,11 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from app.commands import DragCommand, Pause, Play, Reset, SetParam, StepOnce, SwitchSession
+from app.commands import DragCommand, Pause, Play, Reset, SetParam, SettleNow, StepOnce, SwitchSession
 from app.lab import RECOVERY_STEPS, Lab
 from app.scenarios import Environment, Scenario
 from app.scenarios.free import FreeScenario
+from app.scenarios.polish import settle_pending
 from control.params import ParamGroup, expect, param
 
 
@@ -72,6 +73,47 @@ def test_a_single_step_runs_in_chunks_and_pause_cancels_the_rest():
         n = len(lab.notice_log)
         lab.apply(StepOnce(bad))  # type: ignore[arg-type]
         assert len(lab.notice_log) == n + 1 and lab.pending_steps == 0
+
+
+def test_settle_now_runs_the_settle_phase_in_chunks_then_goes_on_paced_and_pause_or_reset_stop_it():
+    """Polish with W_j (it converges about a second after contact): "Settle now" runs chunks until
+    the trajectory starts, within one chunk of it, then the lab runs on paced (a pacing restart);
+    with nothing left to settle, or in a preset without a settle phase, it is refused."""
+    chunk = 100
+    lab = Lab("polish", robot="rizon4s", executor="projection")
+    lab.apply(SetParam("nullspace", "objective", "j"))
+    lab.apply(SettleNow())
+    assert lab.settling and lab.running
+    epoch = lab.pacing_epoch
+    chunks = 0
+    while lab.settling and chunks < 200:  # 20 s simulated at most
+        lab.settle_chunk(chunk)
+        chunks += 1
+    assert not lab.settling and lab.running and not settle_pending(lab.session)
+    assert lab.pacing_epoch == epoch + 1
+    start = lab.session.environment.clock.trajectory_start
+    assert start is not None and 1.0 < start and 0.0 <= lab.session.world.time - start < chunk * lab.dt + 1e-9
+    assert lab.notice_log[-1].title == "Settled"
+    assert lab.settle_chunk(chunk) is None  # over: the loop steps paced again
+    n = len(lab.notice_log)
+    lab.apply(SettleNow())
+    assert not lab.settling and len(lab.notice_log) == n + 1 and lab.notice_log[-1].title == "Refused"
+
+    lab.apply(Reset())
+    assert settle_pending(lab.session)
+    lab.apply(SettleNow())
+    lab.settle_chunk(chunk)
+    lab.apply(Pause())
+    t = lab.session.world.time
+    assert not lab.settling and not lab.running and lab.settle_chunk(chunk) is None and lab.session.world.time == t
+    lab.apply(SettleNow())
+    lab.settle_chunk(chunk)
+    lab.apply(Reset())
+    assert not lab.settling and lab.session.world.time == 0.0
+
+    free = _lab()
+    free.apply(SettleNow())
+    assert not free.settling and free.notice_log[-1].title == "Refused"
 
 
 def test_a_halt_pauses_with_its_reason_and_reset_resumes_what_ran():

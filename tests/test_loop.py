@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from app.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, StepOnce, SwitchSession
+from app.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, SettleNow, StepOnce, SwitchSession
 from app.loop import SimLoop
 from app.pacing import Pacer, RateMeter
 from app.scenarios import SCENARIOS
@@ -112,6 +112,57 @@ def test_pause_single_step_and_reset(loop):
     status = loop.sync()
     assert status.steps == 0 and status.t == 0.0 and not status.running
     np.testing.assert_allclose(loop.session.world.q, loop.session.scenario.initial_q(loop.session.robot))
+
+
+def _wait(condition, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while not (value := condition()):
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+    return value
+
+
+def test_settle_now_runs_unpaced_on_the_loop_then_paced_and_pause_and_reset_act_during_it():
+    """At a requested 0.01×, "Settle now" runs the W_j settle phase (≈ 2 s simulated) more than 5×
+    faster than that pace, then the run goes on at 0.01× (under 0.05 s simulated per wall second);
+    during a long W_a settle, Pause stops it at once and Reset starts the preset again."""
+    lp = SimLoop("polish", robot="rizon4s", executor="projection", capture=lambda s: None)
+    lp.start(running=False)
+    try:
+        lp.submit(SetSpeed(0.01))
+        lp.submit(SetParam("nullspace", "objective", "j"))
+        assert lp.sync().can_settle
+        wall0 = time.monotonic()
+        lp.submit(SettleNow())
+
+        def settled():
+            st = lp.sync()
+            return st if not st.settling and not st.can_settle else None
+
+        status = _wait(settled, 120, "the settle")
+        wall = time.monotonic() - wall0
+        assert status.running and status.t > 1.0
+        assert status.t / wall > 5 * 0.01, f"{status.t:.2f} s simulated in {wall:.1f} s wall"
+        t1, w1 = lp.sync().t, time.monotonic()
+        time.sleep(1.0)
+        t2, w2 = lp.sync().t, time.monotonic()
+        assert 0.0 < (t2 - t1) / (w2 - w1) < 0.05  # paced again at the requested speed
+
+        lp.submit(Reset())
+        lp.submit(SetParam("nullspace", "objective", "a"))  # about a minute of settling
+        lp.submit(SettleNow())
+        _wait(lambda: lp.sync().t > 1.2, 120, "the settle to run")
+        lp.submit(Pause())
+        status = lp.sync()
+        assert not status.running and not status.settling and status.can_settle
+        assert lp.sync().t == status.t  # paused: time stands still
+        lp.submit(SettleNow())
+        _wait(lambda: lp.sync().t > status.t + 0.2, 120, "the settle to run again")
+        lp.submit(Reset())
+        status = lp.sync()
+        assert not status.settling and status.t == 0.0 and status.can_settle
+    finally:
+        lp.stop()
 
 
 def test_divergence_pauses_with_a_message_and_reset_recovers(loop):

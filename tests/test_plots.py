@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections import deque
 
 import numpy as np
 import pytest
@@ -155,6 +156,42 @@ def test_limit_drop_readout_names_the_peak_torque_of_the_falling_joint(server, d
     plots = Plots(server)
     plots.focus(3)
     plots.update(drop, session=1)
-    tau4 = np.abs(drop.columns["tau_4"])
-    assert plots.readouts["peak_torque_nm"] == pytest.approx(float(np.nanmax(tau4)))
+    assert drop.peak_abs_tau is not None
+    assert plots.readouts["peak_torque_nm"] == pytest.approx(float(drop.peak_abs_tau[3]))
+    assert plots.readouts["peak_torque_nm"] >= float(np.nanmax(np.abs(drop.columns["tau_4"])))  # ≥ the plotted samples
     assert "peak |τ|" in plots.readout.content
+
+
+def test_peak_torque_comes_from_every_step_not_the_plotted_samples():
+    """The limit drop's peak |τ₄| and max q₄, folded in 100 steps at a time, equal those of every
+    logged 1 ms step; the ≈ 50 samples per second the plots get miss the peak's exact step."""
+    from app.frames import plot_data
+    from app.lab import Lab
+
+    lab = Lab("limit-drop")
+    for _ in range(20):
+        lab.advance(100)
+        peak_tau, peak_q = lab.log.extremes()
+    every = lab.log.window(60.0, lab.dt)
+    assert peak_tau[3] == np.max(np.abs(every["tau_4"])) and peak_q[3] == np.max(every["q_4"])
+    plot = plot_data(lab, deque())
+    assert plot.peak_abs_tau is not None and plot.peak_abs_tau[3] == peak_tau[3]
+    assert np.max(np.abs(plot.columns["tau_4"])) <= peak_tau[3]
+    lab.reset()
+    assert np.all(np.isnan(lab.log.extremes()[0]))  # a reset starts the peak again
+
+
+def test_twin_force_error_std_is_taken_over_the_twins_own_segments(server, polish):
+    """A W_j twin starts its zig-zag ~20 s before a W_d main arm: its per-segment STD uses its own
+    segment signal, so a ±3 N square wave in the twin's S2 reads 3.0 N there and 0 in its S1."""
+    t = np.arange(0.0, 40.0, 0.02)
+    main_seg = np.clip(np.floor((t - 22.0) / 2.5) + 1, 0, 7)
+    twin_seg = np.clip(np.floor((t - 2.0) / 2.5) + 1, 0, 7)
+    err = np.where(twin_seg == 2, np.where(np.arange(len(t)) % 2 == 0, 3.0, -3.0), 0.0)
+    base = {k: np.zeros(len(t)) for k in polish.columns}
+    columns = base | {"t": t, "segment": main_seg, "twin_segment": twin_seg, "twin_force_error_n": err}
+    plots = Plots(server)
+    plots.update(dataclasses.replace(polish, columns=columns), session=1)
+    assert plots.readouts["twin_force_error_std_S2"] == pytest.approx(3.0, abs=1e-3)
+    assert plots.readouts["twin_force_error_std_S1"] == pytest.approx(0.0)
+    assert plots.readouts["force_error_std_S2"] == pytest.approx(0.0)

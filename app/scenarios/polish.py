@@ -639,14 +639,23 @@ class PolishTarget:
         return float(np.rad2deg(np.interp(self.plan_time(t), self.plan.t, psi)))
 
 
+def settle_pending(session) -> bool:
+    """True while a polish session's settle phase (contact, then the posture converging) has not
+    ended; False for any other scenario. The app's "Settle now" runs while this holds."""
+    clock = getattr(session.environment, "clock", None)
+    return isinstance(clock, PhaseClock) and clock.trajectory_start is None
+
+
 def settle_now(session) -> object:
     """Run the settle phase of a polish session unpaced (as fast as the machine allows) until the
     posture has converged or the cap is reached: `Session.run` with the settle criterion as its
     `until`. Returns the `RunResult` (stop "until" when the settle phase ended; "done" when it
-    had already ended or there is nothing to settle). For the app's "settle now" action."""
+    had already ended or there is nothing to settle). The app runs the same phase in chunks on its
+    loop (`Lab.settle_chunk`) so Pause and Reset act during it."""
     clock = getattr(session.environment, "clock", None)
-    if not isinstance(clock, PhaseClock) or clock.trajectory_start is not None:
+    if not settle_pending(session):
         return session.run(steps=0)
+    assert isinstance(clock, PhaseClock)
     remaining = CONTACT_TIME_S + clock.timeout_s - session.world.time + 2 * session.world.model.opt.timestep
     return session.run(max(remaining, 0.0), until=lambda r: clock.trajectory_start is not None)
 

@@ -11,7 +11,8 @@ STD per polish segment (main and twin), peak joint torque and overshoot in the l
 Every y range is fixed per signal and widens in 1-2-5 steps when the data leave it; x is the time
 before now, so neither axis depends on uPlot's auto-ranging (which a series that is all NaN — the
 twin's error with no twin — turns into a blank plot). The data come from the loop's `PlotData`
-(the last 10 s, ≈ 50 samples per second); `SignalHistory` keeps the last 60 s of them here.
+(the last 10 s, ≈ 50 samples per second); `SignalHistory` keeps the last 60 s of them here. The
+peak-torque readout uses the loop's running extremes over every 1 ms step instead.
 """
 
 from __future__ import annotations
@@ -411,7 +412,10 @@ class Plots:
         lines: list[str] = []
         if "segment" in c and np.any(np.isfinite(c["segment"])):
             main = _std_by_segment(c, force_error(c))
-            twin = _std_by_segment(c, c["twin_force_error_n"]) if "twin_force_error_n" in c else {}
+            twin = {}
+            if "twin_force_error_n" in c:  # on the twin's own segments (its zig-zag may run at other times)
+                twin_seg = c["twin_segment"] if "twin_segment" in c else c["segment"]
+                twin = segment_std({"segment": twin_seg, "v": c["twin_force_error_n"]}, "v")
             for k, v in main.items():
                 out[f"force_error_std_S{k}"] = v
             for k, v in twin.items():
@@ -423,14 +427,15 @@ class Plots:
                     lines.append("twin: " + " · ".join(f"S{k} {v:.1f}" for k, v in twin.items()))
         joint = self._focus_joint
         if "payload_attached" in c and joint is not None:
-            tau = np.abs(c.get(f"tau_{joint + 1}", np.zeros(0)))
-            q = c.get(f"q_{joint + 1}", np.zeros(0))
-            if tau.size and np.any(np.isfinite(tau)):
-                peak = float(np.nanmax(tau))
+            # from every 1 ms step since the reset (the loop's step log), not from the plotted samples
+            tau = plot.peak_abs_tau[joint] if plot.peak_abs_tau is not None else np.nan
+            q_max = plot.peak_q[joint] if plot.peak_q is not None else np.nan
+            if np.isfinite(tau):
+                peak = float(tau)
                 out["peak_torque_nm"] = peak
                 hi, lo = float(plot.q_upper[joint]), float(plot.q_lower[joint])
                 d_s = 0.01 * (hi - lo) if np.isfinite(hi - lo) else math.nan
-                over = float(np.nanmax(q)) - (hi - d_s) if q.size and math.isfinite(d_s) else math.nan
+                over = float(q_max) - (hi - d_s) if np.isfinite(q_max) and math.isfinite(d_s) else math.nan
                 if math.isfinite(over):
                     out["overshoot_beyond_ds_rad"] = over
                 text = f"Joint {joint + 1}: peak |τ| {peak:.1f} N m"
