@@ -37,6 +37,7 @@ from app.ui.panels.nullspace import NullspacePanel
 from app.ui.panels.record import RecordPanel
 from app.ui.panels.safety import SafetyPanel
 from app.ui.panels.scenario import ScenarioPanel
+from app.ui.panels.tune import TuneOrder
 from app.ui.phase import SHORT_PRESETS
 from app.ui.plots import Plots
 from app.ui.publisher import Publisher
@@ -110,13 +111,14 @@ def start_app(
     with tabs.add_tab("Run", viser.Icon.PLAYER_PLAY):
         panels: list[Any] = [ScenarioPanel(server, loop, extra_robots=extra, order=0)]
     with tabs.add_tab("Tune", viser.Icon.ADJUSTMENTS):
-        panels += [
+        tune = [
             MotionForcePanel(server, loop, order=1),
             NullspacePanel(server, loop, order=2),
             CompliancePanel(server, loop, order=3),
             SafetyPanel(server, loop, order=4),
-            MoreGainsPanel(server, loop, claimed=claimed_fields(ALL_FIELDS), order=4.5),
         ]
+        panels += [*tune, MoreGainsPanel(server, loop, claimed=claimed_fields(ALL_FIELDS), order=4.5)]
+        panels.append(TuneOrder(tune, base_order=1.0))  # the running preset's folders first
     visual_settings = VisualSettings()
     with tabs.add_tab("Visuals", viser.Icon.EYE):
         VisualsPanel(server.gui, visual_settings, order=5)

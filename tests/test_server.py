@@ -337,3 +337,72 @@ def test_a_refused_or_adjusted_number_is_replaced_in_the_input_by_the_value_in_f
     assert panel.echo(knob, fake, 25.0, 12345, before=log[-1] if log else None) == pytest.approx(19.0)
     assert fake.value == pytest.approx(19.0)  # differs from what arrived: the value in force is shown
     assert len(notices) == 1 and notices[0][0] == "Value adjusted" and "19" in notices[0][1]
+
+
+def test_tune_tab_puts_the_presets_folders_first_and_hides_what_the_executor_lacks(app):
+    """polish: Motion–force and Nullspace on top; limit-drop: Safety on top. With the [C] QP executor
+    the Nullspace folder (prose, live lines, twin, preview) is hidden and Motion–force's [T] prose
+    gives way to one line; with the [T] executor Compliance shows only its Γ_x line."""
+    from app.commands import SwitchSession
+    from app.ui.panels.compliance import CompliancePanel
+    from app.ui.panels.motion_force import MotionForcePanel
+    from app.ui.panels.nullspace import NullspacePanel
+    from app.ui.panels.tune import TuneOrder
+
+    tune = next(p for p in app.panels if isinstance(p, TuneOrder))
+    mf = next(p for p in app.panels if isinstance(p, MotionForcePanel))
+    ns = next(p for p in app.panels if isinstance(p, NullspacePanel))
+    co = next(p for p in app.panels if isinstance(p, CompliancePanel))
+
+    def orders() -> list[str]:
+        return sorted(tune.panels, key=lambda t: tune.panels[t].folder.order)
+
+    try:
+        app.loop.submit(SwitchSession(scenario="polish", executor="projection"))
+        assert _wait(lambda: orders()[:2] == ["Motion–force", "Nullspace"], 20), orders()
+        assert _wait(lambda: ns.folder.visible and mf.intro.visible and not mf.other.visible, 20)
+        assert co.folder.visible and not co.intro.visible and co.gamma_x.visible
+        app.loop.submit(SwitchSession(executor="compliance-qp"))
+        assert _wait(lambda: not ns.folder.visible and not mf.intro.visible and mf.other.visible, 20)
+        assert not mf.help.visible and co.intro.visible and not co.gamma_x.visible
+        app.loop.submit(SwitchSession(scenario="limit-drop"))
+        assert _wait(lambda: orders()[0] == "Safety", 20), orders()
+    finally:
+        app.loop.submit(SwitchSession(scenario="free", robot=""))
+        app.loop.sync()
+        assert _wait(lambda: orders()[0] == "Nullspace", 20)
+
+
+def test_tune_order_and_the_live_w_line_near_a_singularity():
+    from app.ui.panels.nullspace import w_text
+    from app.ui.panels.tune import tune_order
+
+    titles = ["Motion–force", "Nullspace", "Compliance", "Safety"]
+    assert tune_order("limit-drop", titles) == ["Safety", "Compliance", "Motion–force", "Nullspace"]
+    assert tune_order("unknown", titles) == titles
+    assert w_text("W_a", 1.3e11, singular=True) == "W_a: singular"
+    assert w_text("W_j", 0.25, singular=True) == "W_j = 0.25"
+    assert w_text("W_d", 0.713, singular=False) == "W_d = 0.713"
+    assert w_text("W_f", None, singular=False) == "W_f = –"
+
+
+def test_settle_now_button_shows_in_polishs_settle_phase_and_runs_it(app):
+    """The button is shown while polish settles; a click runs the settle phase on the loop until the
+    trajectory starts, then hides it."""
+    from app.commands import Pause, SetParam, SwitchSession
+    from app.ui.panels.scenario import ScenarioPanel
+
+    panel = next(p for p in app.panels if isinstance(p, ScenarioPanel))
+    try:
+        app.loop.submit(SwitchSession(scenario="polish", executor="projection"))
+        app.loop.submit(SetParam("nullspace", "objective", "j"))
+        assert _wait(lambda: app.loop.status.scenario == "polish" and panel.settle.visible, 20)
+        _browser_update(panel.settle, True, client_id=1)
+        assert _wait(lambda: not app.loop.sync().can_settle, 120)
+        status = app.loop.sync()
+        assert status.running and not status.settling and status.t > 1.0
+        assert _wait(lambda: not panel.settle.visible, 20)
+    finally:
+        app.loop.submit(Pause())
+        app.loop.submit(SwitchSession(scenario="free", robot=""))
+        app.loop.sync()

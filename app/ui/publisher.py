@@ -50,7 +50,7 @@ class Publisher:
         self._settings_version = -1
         self._plot_seq = -1
         self._next_live = 0.0
-        self._live_state: tuple[bool, str, float] | None = None
+        self._live_state: tuple[bool, str, float, int, int] | None = None
         self._frame_pending = True  # frame the robot once a new scene has a snapshot
         # pages whose camera was framed on connect (client ids)
         self.framed_clients = frame_on_connect(
@@ -111,7 +111,8 @@ class Publisher:
                 panel.refresh(frame.settings)
             self._settings_version = frame.settings.version
         # a paused loop publishes one last frame: show it at once, or the page keeps saying "running"
-        state = (frame.status.running, frame.status.halted, frame.status.t)
+        # (or shows the preset before a switch made while paused)
+        state = (frame.status.running, frame.status.halted, frame.status.t, frame.session_id, frame.settings.version)
         if now >= self._next_live or (not frame.status.running and state != self._live_state):
             self._next_live = now + LIVE_PERIOD_S
             self._live_state = state

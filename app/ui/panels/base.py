@@ -173,9 +173,15 @@ def notify(server: viser.ViserServer, client_id: int | None, title: str, body: s
 
 class KnobPanel:
     """A folder of generated knobs (see the module docstring). Knobs whose group the running
-    session lacks are hidden (greyed out instead when `hide_missing` is False)."""
+    session lacks are hidden (greyed out instead when `hide_missing` is False).
+
+    With a `summary`, the panel shows that one line and folds the longer `intro` (and whatever
+    `build_help` adds) behind a "?"; each knob keeps its one-line hint with the paper tag. The prose
+    belongs to `OWNER_GROUPS` (e.g. the [T] gains' group): without any of them in the running session
+    it is hidden, and the whole folder is hidden when no knob applies and `has_content` says so."""
 
     hide_missing = True  # a knob the running session lacks is hidden, not shown greyed with a stale value
+    OWNER_GROUPS: tuple[str, ...] = ()  # the prose applies when one of these groups runs (() = always)
 
     def __init__(
         self,
@@ -186,18 +192,39 @@ class KnobPanel:
         fields: Sequence[str],
         order: float | None = None,
         expand: bool = True,
+        summary: str = "",
     ):
         self.server = server
         self.loop = loop
+        self.title = title
         self.knobs: list[Knob] = []
         self.handles: list[Any] = []
         self.folder = server.gui.add_folder(title, order=order, expand_by_default=expand)
+        self.help: Any = None  # the "?" fold, when there is a summary
         with self.folder:
-            self.intro = server.gui.add_markdown(intro)
+            if summary:
+                self.intro = server.gui.add_markdown(summary)
+                self.help = server.gui.add_folder("?", expand_by_default=False)
+                with self.help:
+                    server.gui.add_markdown(intro)
+                    self.build_help()
+            else:
+                self.intro = server.gui.add_markdown(intro)
             self.build_extra_top()
             for path in fields:
                 self.add(knob(path))
             self.build_extra_bottom()
+
+    def build_help(self) -> None:
+        """Hook for subclasses: more text inside the "?" fold."""
+
+    def prose_applies(self, settings: Settings) -> bool:
+        """Whether the panel's summary and help speak of the running session (an owner group runs)."""
+        return not self.OWNER_GROUPS or any(g in settings.groups for g in self.OWNER_GROUPS)
+
+    def has_content(self, settings: Settings) -> bool:
+        """Whether the folder shows something besides its knobs for the running session (live lines)."""
+        return False
 
     def build_extra_top(self) -> None:
         """Hook for subclasses: inputs above the knobs."""
@@ -272,8 +299,17 @@ class KnobPanel:
         return k.group in settings.groups
 
     def refresh(self, settings: Settings) -> None:
-        """Show the values in force; grey out (or hide) knobs the session lacks. Called every frame."""
+        """Show the values in force; grey out (or hide) knobs the session lacks, and the prose or the
+        whole folder when they do not apply. Called every frame."""
         now = time.time()
+        prose = self.prose_applies(settings)
+        for handle in (self.intro, self.help):
+            if handle is not None and handle.visible != prose:
+                handle.visible = prose
+        if self.hide_missing:
+            shown = self.has_content(settings) or any(self.wanted(k, settings) for k in self.knobs)
+            if self.folder.visible != shown:
+                self.folder.visible = shown
         for k, handle in zip(self.knobs, self.handles, strict=True):
             present = self.wanted(k, settings)
             if self.hide_missing and handle.visible != present:

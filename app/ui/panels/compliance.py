@@ -7,9 +7,10 @@ from typing import Any
 import numpy as np
 import viser
 
-from app.loop import SimLoop
+from app.loop import Settings, SimLoop
 from app.ui.panels.base import KnobPanel, knob
 
+SUMMARY = "[C9, C25–26] How much of a push each task lets through (Γ) and where τ̂_e comes from."
 INTRO = (
     "Γ scales how much of the estimated external acceleration q̈_e = M⁻¹τ̂_e each task lets through "
     "(0 stiff, 1 compliant) [C9]; τ̂_e comes from the momentum observer [C25], its fusion with the F/T "
@@ -33,15 +34,32 @@ JOINT_FIELDS: tuple[str, ...] = tuple(f"posture_task.compliance[{i}]" for i in r
 
 
 class CompliancePanel(KnobPanel):
-    """The Compliance folder with per-joint Γ₀ in an advanced fold."""
+    """The Compliance folder with per-joint Γ₀ in an advanced fold. Its knobs and prose belong to the
+    [C] QP executor; with the [T] projection executor only the read-only Γ_x line (and its help) shows."""
+
+    OWNER_GROUPS = ("pose_task", "posture_task", "estimator", "compliance_qp")
 
     def __init__(self, server: viser.ViserServer, loop: SimLoop, order: float | None = None):
-        super().__init__(server, loop, "Compliance", INTRO, FIELDS, order=order)
+        super().__init__(server, loop, "Compliance", INTRO, FIELDS, order=order, summary=SUMMARY)
+
+    def has_content(self, settings: Settings) -> bool:
+        """The Γ_x line, with the [T] projection executor."""
+        return "motion_force" in settings.groups
+
+    def refresh(self, settings: Settings) -> None:
+        """As every panel; the Γ_x lines only with the projection executor."""
+        super().refresh(settings)
+        projection = self.has_content(settings)
+        for handle in (self.gamma_x_help, self.gamma_x):
+            if handle.visible != projection:
+                handle.visible = projection
 
     def build_extra_bottom(self) -> None:
         """The read-only Γ_x line and the per-joint Γ₀ fold (each slider changes one element, on the loop thread)."""
-        self.gamma_x_help = self.server.gui.add_markdown(GAMMA_X_HELP)
         self.gamma_x = self.server.gui.add_markdown(GAMMA_X_OFF)
+        with self.server.gui.add_folder("Γ_x ?", expand_by_default=False) as fold:
+            self.server.gui.add_markdown(GAMMA_X_HELP)
+        self.gamma_x_help = fold
         with self.server.gui.add_folder("Per-joint Γ₀", expand_by_default=False):
             for path in JOINT_FIELDS:
                 self.add(knob(path))

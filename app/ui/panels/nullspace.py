@@ -13,6 +13,7 @@ from app.ui.panels.base import TOUCH_HOLD_S, Knob, KnobPanel, notify
 from app.ui.selfmotion import SelfMotionPreview
 from control.gains import TANG_OBJECTIVES, NullspaceGains
 
+SUMMARY = "[T15–22] What the elbow does while the tool is held: the objective W and its gain k0."
 INTRO = (
     "The nullspace QP moves the elbow at q̂̇ = argmin ½‖q̂̇‖² + k0 ∇Wᵀq̂̇ with J q̂̇ = 0 [T15–17]. "
     "W_j keeps the start posture [T18]; W_f, W_a, W_d = ‖P‖²_F reduce the motion/force coupling [T22]."
@@ -27,10 +28,14 @@ FIELDS: tuple[str, ...] = ("nullspace.objective", *(f"nullspace.{k0}" for k0 in 
 
 
 class NullspacePanel(KnobPanel):
-    """The Nullspace folder; only the selected objective's k0 slider is shown."""
+    """The Nullspace folder; only the selected objective's k0 slider is shown. The whole folder (its
+    prose, live lines, twin arm and self-motion preview) belongs to the [T] executor's nullspace QP:
+    with another executor it is hidden and the preview switched off."""
+
+    OWNER_GROUPS = ("nullspace",)
 
     def __init__(self, server: viser.ViserServer, loop: SimLoop, order: float | None = None):
-        super().__init__(server, loop, "Nullspace", INTRO, FIELDS, order=order)
+        super().__init__(server, loop, "Nullspace", INTRO, FIELDS, order=order, summary=SUMMARY)
 
     def build_extra_bottom(self) -> None:
         """The live W line, the twin arm and the self-motion preview."""
@@ -56,14 +61,10 @@ class NullspacePanel(KnobPanel):
         return True
 
     def refresh(self, settings: Settings) -> None:
-        """Values in force; only the selected objective's k0 is visible."""
-        for k, handle in zip(self.knobs, self.handles, strict=True):
-            if k.field in K0_FIELDS:  # greyed k0 of the default objective when there is no nullspace QP
-                placeholder = "nullspace" not in settings.groups and k.field == NullspaceGains.k0_field("a")
-                visible = self.wanted(k, settings) or placeholder
-                if handle.visible != visible:
-                    handle.visible = visible
+        """Values in force; only the selected objective's k0 is visible; no nullspace QP: no preview."""
         super().refresh(settings)
+        if "nullspace" not in settings.groups and self.preview.enabled.value:
+            self.preview.set_enabled(False)
 
     def _on_twin(self, event: viser.GuiEvent) -> None:
         if event.client_id is None:  # our own refresh, not a person
@@ -93,13 +94,24 @@ class NullspacePanel(KnobPanel):
             self.twin.disabled = not has_objective
         sig = frame.status.signals
         scene_W = getattr(frame.scene, "W", None) or {}
+        singular = bool(getattr(frame.scene, "near_singular", False))
         parts = []
         for name in ("W_j", "W_f", "W_a", "W_d"):
             value = sig.get(name, scene_W.get(name))
-            parts.append(f"{name} = {value:.4g}" if value is not None else f"{name} = –")
+            parts.append(w_text(name, value, singular))
         text = "**Live:** " + " · ".join(parts) + _polish_lines(sig)
         if self.values.content != text:
             self.values.content = text
+
+
+def w_text(name: str, value: float | None, singular: bool) -> str:
+    """One entry of the live W line: W_f, W_a, W_d read "singular" near a singularity (Λx there is
+    ill-conditioned and they run into the 1e8s and beyond); W_j = ½‖q − q_d‖² has no such problem."""
+    if value is None or value != value:
+        return f"{name} = –"
+    if singular and name != "W_j":
+        return f"{name}: singular"
+    return f"{name} = {value:.4g}"
 
 
 def _polish_lines(sig: dict) -> str:

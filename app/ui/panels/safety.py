@@ -7,6 +7,7 @@ import viser
 from app.loop import SimLoop
 from app.ui.panels.base import KnobPanel
 
+SUMMARY = "[C17–24] Joint-limit dampers, velocity and torque limits, the simulated actuator latency."
 INTRO = (
     "Near a joint limit the damper bounds the acceleration: proposed ë_p = −λė − λ²/(4M²)(e − d_s) "
     "[C24] or classic δt form [C17–19]; it acts inside d_i and stops at d_s. Torque limits add [C10]. "
@@ -34,4 +35,4 @@ class SafetyPanel(KnobPanel):
     """The Safety folder."""
 
     def __init__(self, server: viser.ViserServer, loop: SimLoop, order: float | None = None):
-        super().__init__(server, loop, "Safety", INTRO, FIELDS, order=order)
+        super().__init__(server, loop, "Safety", INTRO, FIELDS, order=order, summary=SUMMARY)

@@ -10,7 +10,7 @@ from typing import Any
 import viser
 
 import robots
-from app.commands import Pause, Play, Reset, SetSpeed, StepOnce, SwitchSession
+from app.commands import Pause, Play, Reset, SetSpeed, SettleNow, StepOnce, SwitchSession
 from app.executors import EXECUTORS
 from app.lab import UNPACED_SPEED
 from app.loop import Frame, LoopStatus, SimLoop
@@ -21,6 +21,8 @@ from app.ui.phase import SHORT_PRESETS, PhaseReader
 
 DEFAULT_ROBOT = "scenario default"
 NO_CASE = "–"
+SETTLE_LABEL = "Settle now"
+SETTLING_LABEL = "Settling unpaced…"
 STEPS = {"1 ms": 1, "10 ms": 10, "100 ms": 100}
 UNPACED = "as fast as possible"
 SPEEDS = {"0.01×": 0.01, "0.03×": 0.03, "0.1×": 0.1, "0.3×": 0.3, "0.5×": 0.5, "1×": 1.0, "2×": 2.0, "5×": 5.0}
@@ -29,6 +31,7 @@ RTF_WINDOW_S = 2.0  # the status line's real-time factor: simulated over wall ti
 SLOW_WARNING = 0.95  # say so when the real-time factor stays below this share of the requested speed
 FALLBACK_SHOW_S = 2.0  # keep the fallback badge up this long after the last fallback step
 
+SUMMARY = "Preset, case, arm and controller; run, step, reset, speed. Drag any link to push it."
 INTRO = (
     "Pick a preset and its case, the arm and the controller. The simulation runs at 1 kHz paced to wall "
     "time; drag any link with the mouse to push it (spring force, clamped to the limit below)."
@@ -46,7 +49,11 @@ class ScenarioPanel(KnobPanel):
         self._seen_fallback_steps = 0
         self._rtf = AveragedRate()
         self._phase = PhaseReader()
-        super().__init__(server, loop, "Scenario", INTRO, FIELDS, order=order)
+        super().__init__(server, loop, "Scenario", INTRO, FIELDS, order=order, summary=SUMMARY)
+
+    def has_content(self, settings: Any) -> bool:
+        """Always shown: the preset, the run buttons and the status."""
+        return True
 
     def build_extra_top(self) -> None:
         """Preset, robot, executor, run buttons, speed and status lines."""
@@ -70,6 +77,13 @@ class ScenarioPanel(KnobPanel):
         self._shown_running: bool | None = None
         self.step = gui.add_button_group("Single step", tuple(STEPS), hint="→: 1 ms, Shift+→: 10 ms")
         self.reset = gui.add_button("Reset", icon=viser.Icon.REFRESH, hint="Start the preset again (R)")
+        self.settle = gui.add_button(
+            SETTLE_LABEL,
+            icon=viser.Icon.PLAYER_TRACK_NEXT,
+            hint="Run the settle phase as fast as this machine allows until the posture has converged, "
+            "then go on at the chosen speed (Pause or Reset stop it)",
+            visible=False,
+        )
         self.frame_button = gui.add_button(
             "Frame the robot", icon=viser.Icon.FOCUS_CENTERED, hint="Point the camera at the arm (F)"
         )
@@ -92,6 +106,7 @@ class ScenarioPanel(KnobPanel):
         self.run.on_click(lambda e: self.toggle_run())
         self.reset.on_click(lambda e: self.reset_preset())
         self.step.on_click(self._on_step)
+        self.settle.on_click(lambda e: self.loop.submit(SettleNow(e.client_id)))
         self.speed.on_update(self._on_speed)
 
     # ---- callbacks: only commands -----------------------------------------------------------------
@@ -179,11 +194,15 @@ class ScenarioPanel(KnobPanel):
         if self.description.content != text:
             self.description.content = text
         self._show_running(st.running)
+        self._show_settle(st)
         rtf = self._rtf.update(time.monotonic(), st.t, st.running)
         unpaced = st.speed >= UNPACED_SPEED
         state = "▶ running" if st.running else "❚❚ paused"
         rate = f"real-time factor **{rtf:.2f}×**" if st.running and rtf is not None else "real-time factor –"
-        pace = "unpaced: as fast as possible" if unpaced else f"speed {st.speed:g}×"
+        if st.settling:
+            pace = "Settle now: unpaced until the posture has converged"
+        else:
+            pace = "unpaced: as fast as possible" if unpaced else f"speed {st.speed:g}×"
         status = (
             f"t = {st.t:.3f} s · {state} · {rate} ({pace}, compute {100 * st.load:.0f} %)  \n{st.robot} · {st.executor}"
         )
@@ -199,7 +218,9 @@ class ScenarioPanel(KnobPanel):
             status += f" · dragging ({st.signals.get('drag_force_n', 0.0):.0f} N)"
         if st.overpowered:
             status += f"  \n**Overpowered:** {st.overpowered}."
-        if st.running and not unpaced and rtf is not None and 0.0 < rtf < SLOW_WARNING * st.speed:
+        paced = st.running and not unpaced and not st.settling
+        slow = paced and rtf is not None and 0.0 < rtf < SLOW_WARNING * st.speed
+        if slow:
             status += "  \n**Slower than requested:** this machine cannot keep up right now."
         if self.status_md.content != status:
             self.status_md.content = status
@@ -219,6 +240,18 @@ class ScenarioPanel(KnobPanel):
             self.halted_md.content = halted
         if self.halted_md.visible != bool(halted):
             self.halted_md.visible = bool(halted)
+
+    def _show_settle(self, st: LoopStatus) -> None:
+        """ "Settle now" shows while the preset has a settle phase to run; it reads "Settling unpaced…"
+        (and waits) while it runs."""
+        visible = st.can_settle or st.settling
+        label = SETTLING_LABEL if st.settling else SETTLE_LABEL
+        if self.settle.visible != visible:
+            self.settle.visible = visible
+        if self.settle.label != label:
+            self.settle.label = label
+        if self.settle.disabled != st.settling:
+            self.settle.disabled = st.settling
 
     def _show_running(self, running: bool) -> None:
         """The run button offers what a click does: Pause while running, Play while paused."""
