@@ -188,3 +188,49 @@ def test_polish_cases_pick_the_mirror_start_or_a_planned_path():
     assert make_variant("polish", "planned (P_d·f̂)²").plan_cost == "directional"
     with pytest.raises(ValueError, match="unknown polish case"):
         P.PolishScenario(mode="x")
+
+
+def _toy_run(spec: dict) -> dict:
+    """A stand-in for `simulate` with the result fields the progress line reads; margin None as a
+    posture no K_f^d stabilises reports it."""
+    result = {
+        "objective": spec["objective"],
+        "mu": spec["mu"],
+        "seed": spec["seed"],
+        "start_swivel_deg": 0.0,
+        "shaping": True,
+        "armature_scale": 1.0,
+        "converged": False,
+        "convergence_time_s": None,
+        "converged_swivel_deg": None,
+        "margin": None,
+        "stable": False,
+        "force_error": {"ma": None, "ptp": None, "std": None},
+        "wall_s": 0.0,
+    }
+    return {"result": result, "series": {"t": np.arange(3.0) * spec["seed"]}}
+
+
+def test_finished_runs_are_kept_as_they_finish_and_resume_reuses_only_matching_ones(tmp_path, capsys):
+    from app.experiments.polish import _map, load_run
+
+    specs = [{"objective": "j", "mu": 1.0, "seed": s, "session_params": [("nullspace", "k0_j", 2.0)]} for s in (1, 2)]
+    runs = tmp_path / "runs"
+    first = _map(_toy_run, specs, 1, 0.0, runs)  # None swivel and margin print without an error
+    assert "margin none" in capsys.readouterr().err
+    assert [o["result"]["seed"] for o in first] == [1, 2]
+    again = load_run(runs, specs[1])
+    assert again is not None and np.array_equal(again["series"]["t"], [0.0, 2.0, 4.0])
+    assert load_run(runs, {**specs[1], "mu": 0.25}) is None  # another spec is not a saved run
+
+    ran: list[int] = []
+
+    def counting(spec: dict) -> dict:
+        ran.append(spec["seed"])
+        return _toy_run(spec)
+
+    more = [*specs, {**specs[0], "seed": 3}]
+    out = _map(counting, more, 1, 0.0, runs, resume=True)
+    assert ran == [3] and [o["result"]["seed"] for o in out] == [1, 2, 3]
+    _map(counting, more, 1, 0.0, runs)  # without --resume every run runs again
+    assert ran == [3, 1, 2, 3]

@@ -6,12 +6,13 @@ noise seed; rows add the W_a start across the ridge, W_j without inertia shaping
 planned-path rows ([T] §IV-B future work, `control.planner`). Every run carries the force-loop
 margin of its converged posture (`control.margin`). Runs go to worker processes (`--jobs`).
 Outputs in --out: polish.json (every run and the mean ± sd per row), polish_series.npz,
-figures and report.html.
+figures and report.html; runs/ keeps each run as it finishes (`--resume` reuses them).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import time
@@ -61,6 +62,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--combine",
         default=None,
         help="write one report from the runs of earlier output directories (comma separated), running nothing",
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="reuse the runs an earlier (interrupted) invocation with the same --out already finished "
+        "(runs/ in --out: each run is saved as it finishes); only for the same code version",
     )
     parser.add_argument(
         "--rows", default=None, help=f"only these rows of the table, comma separated ({', '.join(ROW_KEYS)})"
@@ -394,7 +401,7 @@ def run(args: argparse.Namespace) -> int:
         specs += armature_specs(max(mus))
     t0 = time.perf_counter()
     print(f"polish: {len(specs)} runs on {jobs} process(es)", file=sys.stderr, flush=True)
-    outputs = _map(simulate, specs, jobs, t0)
+    outputs = _map(simulate, specs, jobs, t0, out / RUNS_DIR, bool(getattr(args, "resume", False)))
     results = [o["result"] for o in outputs]
     series = [o["series"] for o in outputs]
     v_eps = [] if quick else [v_eps_check(v) for v in V_EPS_CHECK_M_PER_S]
@@ -520,18 +527,64 @@ def _is_fig6a_start(r: dict, mus: list[float]) -> bool:
     )
 
 
-def _map(fn, specs: list[dict], jobs: int, t0: float) -> list[dict]:
+RUNS_DIR = "runs"  # one file pair per finished run: <key>.json (spec and result) and <key>.npz (series)
+
+
+def run_key(spec: dict) -> str:
+    """A run's file name in runs/: a hash of its spec."""
+    return hashlib.sha1(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def save_run(runs_dir: Path, spec: dict, output: dict) -> None:
+    """Keep one finished run (written to a temporary name first, so a half-written run is never read)."""
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    key = run_key(spec)
+    with open(runs_dir / f"{key}.tmp.npz", "wb") as f:
+        np.savez_compressed(f, **output["series"])
+    (runs_dir / f"{key}.tmp.npz").replace(runs_dir / f"{key}.npz")
+    (runs_dir / f"{key}.tmp.json").write_text(json.dumps({"spec": spec, "result": output["result"]}))
+    (runs_dir / f"{key}.tmp.json").replace(runs_dir / f"{key}.json")
+
+
+def load_run(runs_dir: Path, spec: dict) -> dict | None:
+    """A run of exactly this spec saved earlier, or None."""
+    key = run_key(spec)
+    meta, arrays = runs_dir / f"{key}.json", runs_dir / f"{key}.npz"
+    if not (meta.exists() and arrays.exists()):
+        return None
+    doc = json.loads(meta.read_text())
+    if doc.get("spec") != json.loads(json.dumps(spec)):
+        return None
+    with np.load(arrays) as z:
+        series = {k: z[k] for k in z.files}
+    return {"result": doc["result"], "series": series}
+
+
+def _map(fn, specs: list[dict], jobs: int, t0: float, runs_dir: Path | None = None, resume: bool = False) -> list[dict]:
+    """fn over specs on `jobs` processes; each finished run is saved in runs_dir at once, and with
+    `resume` a run saved there earlier is reused instead of run again."""
     outputs: list[dict | None] = [None] * len(specs)
-    if jobs == 1:
+    if runs_dir is not None and resume:
         for i, spec in enumerate(specs):
-            outputs[i] = fn(spec)
-            _progress(i, len(specs), outputs[i], t0)
+            outputs[i] = load_run(runs_dir, spec)
+        reused = sum(o is not None for o in outputs)
+        print(f"polish: reusing {reused} finished run(s) from {runs_dir}", file=sys.stderr, flush=True)
+    todo = [i for i, o in enumerate(outputs) if o is None]
+
+    def finished(done: int, i: int, output: dict) -> None:
+        outputs[i] = output
+        if runs_dir is not None:
+            save_run(runs_dir, specs[i], output)
+        _progress(done, len(todo), output, t0)
+
+    if jobs == 1:
+        for done, i in enumerate(todo):
+            finished(done, i, fn(specs[i]))
     else:
         with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = {pool.submit(fn, spec): i for i, spec in enumerate(specs)}
+            futures = {pool.submit(fn, specs[i]): i for i in todo}
             for done, fut in enumerate(as_completed(futures)):
-                outputs[futures[fut]] = fut.result()
-                _progress(done, len(specs), outputs[futures[fut]], t0)
+                finished(done, futures[fut], fut.result())
     return [o for o in outputs if o is not None]
 
 
@@ -552,9 +605,12 @@ def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
     fe = r["force_error"]
     ma = "-" if fe["ma"] is None else f"{fe['ma']:.1f}/{fe['ptp']:.1f}/{fe['std']:.1f}"
     conv = f"converged in {r['convergence_time_s']:.1f} s" if r["converged"] else "NOT converged"
+    swivel = "-" if r.get("converged_swivel_deg") is None else f"{r['converged_swivel_deg']:+.0f}°"
+    # margin None: no K_f^d stabilises the linearised loop
+    margin = "none (no K_f^d stabilises)" if r.get("margin") is None else f"{r['margin']:+.0f} N s/m"
     print(
-        f"[{i + 1}/{total}] {_label(r)}: {conv} at {r['converged_swivel_deg']:+.0f}°, "
-        f"MA/PTP/STD {ma} N, margin {r['margin']:+.0f} N s/m, {'stable' if r['stable'] else 'UNSTABLE'} "
+        f"[{i + 1}/{total}] {_label(r)}: {conv} at {swivel}, "
+        f"MA/PTP/STD {ma} N, margin {margin}, {'stable' if r['stable'] else 'UNSTABLE'} "
         f"({r['wall_s']:.0f} s, total {time.perf_counter() - t0:.0f} s)",
         file=sys.stderr,
         flush=True,
