@@ -8,7 +8,11 @@ d the distance to the lower limit, x ≥ −ξ (d − d_s)/(d_i − d_s) when d 
 bound at the upper limit. Endless joints get no damper.
 
 The QP is set up once through `control.qp` (dense active-set backend by default, OSQP with a
-fixed sparsity pattern as the reference) and updated in place each step (warm-started). When the
+fixed sparsity pattern as the reference) and updated in place each step (warm-started). For a
+7-joint arm the kernel of J is a line, and the dense backend solves the QP in closed form on it
+(`control.kernels.nullspace_line_qp_fused`: the same optimum, without a solver call); where that
+does not apply (J rank deficient, no point of the line meets the box) the active-set solver
+decides as for any other arm. When the
 solver does not return a solution or the bounds are inconsistent, the step falls back to the
 bounded minimum-norm solution: the gradient step projected on the kernel of J, scaled into the
 bounds. It never raises.
@@ -17,11 +21,13 @@ bounds. It never raises.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
 from control import qp
 from control.gains import NullspaceGains
+from control.kernels import nullspace_line_qp_fused
 
 N_TASK = 6
 
@@ -89,9 +95,12 @@ class NullspaceQP:
         max_iter: int = 400,
         backend: str | None = None,
         polish: bool = False,
+        closed_form: bool = True,
     ):
         self.n = n
         self.backend = qp.check_backend(backend or qp.default_backend())
+        # dense backend, 7 joints: the one-dimensional kernel's closed form first (module docstring)
+        self.closed_form = bool(closed_form) and self.backend == "dense" and n == N_TASK + 1
         self._qp = qp.make_qp(
             self.backend,
             n,
@@ -105,6 +114,13 @@ class NullspaceQP:
 
     def solve(self, J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> NullspaceResult:
         """Goal nullspace velocity for q = k0 ∇W (`gradient_step`), J x = 0 and l ≤ x ≤ u."""
+        if self.closed_form:
+            t0 = time.perf_counter()
+            x = np.empty(self.n)
+            active = nullspace_line_qp_fused(J, gradient_step, lower, upper, x)
+            if active >= 0:  # iterations: the active bounds (0 or 1)
+                self.last = NullspaceResult(x, qp.SOLVED, active, (time.perf_counter() - t0) * 1e6, self.backend)
+                return self.last
         res = self._qp.solve(None, gradient_step, J, self._zero, self._zero, lower, upper)
         if res.solved:
             self.last = res

@@ -11,7 +11,8 @@ from the previous solution. Both executors call only this module: the [T] nullsp
 Backends (`BACKENDS`):
 - "dense": DAQP's dual active-set solver (`daqp.Model`, workspace allocated once): exact to its
   tolerances, ~5 µs for these 7-variable problems on the bench machine. The box is passed as
-  DAQP's simple bounds, equalities with its "equality" sense.
+  DAQP's simple bounds, equalities with its "equality" sense. (The 7-joint nullspace QP is
+  solved in closed form before it reaches this backend: `control.nullspace`.)
 - "osqp": OSQP with an explicit fixed sparsity pattern (zeros kept, so updates may fill them;
   DESIGN §9), updated with Px/Ax in that CSC order: the reference backend.
 

@@ -243,3 +243,37 @@ def test_acceleration_bounds_kernel_equals_numpy_reference(robot, form):
         assert fused.crossed == ref.crossed
         crossed += ref.crossed
     assert 0 < crossed < 300  # both branches exercised
+
+
+def test_nullspace_line_qp_kernel_equals_numpy_reference(robot):
+    """[T15-17] closed form on the kernel line: random and near-singular states, gradients small and
+    large (bounds active), boxes that exclude zero (no solution: both say so), a rank-deficient J.
+    The kernel direction of J is known to about eps·cond(J) (QR against SVD): held to
+    max(1e-10, 100·eps·cond(J))."""
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(31)
+    solved = active = 0
+    for q in _states(robot, seed=32) * 8:
+        J = model.compute(q, np.zeros(7)).J
+        g = rng.standard_normal(7) * rng.choice([0.01, 1.0, 30.0])
+        lower, upper = -rng.uniform(0.1, 2.0, 7), rng.uniform(0.1, 2.0, 7)
+        if rng.random() < 0.2:  # a damper pushing one joint out: 0 not in its box
+            k = rng.integers(7)
+            lower[k], upper[k] = 0.05, 1.0
+        x = np.full(7, np.nan)
+        code = K.nullspace_line_qp_fused(J, g, lower, upper, x)
+        ref = K.nullspace_line_qp_reference(J, g, lower, upper)
+        if ref is None:
+            assert code == -1
+            continue
+        solved += 1
+        active += ref[1]
+        assert code == ref[1]
+        sv = np.linalg.svd(J, compute_uv=False)
+        tol = max(RTOL, 100 * np.finfo(float).eps * sv[0] / sv[-1])
+        assert float(np.max(np.abs(x - ref[0]))) <= tol * max(1.0, float(np.max(np.abs(ref[0]))))
+    assert solved >= 40 and active >= 10
+    J = model.compute(robot.home, np.zeros(7)).J.copy()
+    J[5] = J[4]  # rank 5: a two-dimensional kernel, not a line
+    assert K.nullspace_line_qp_reference(J, np.ones(7), -np.ones(7), np.ones(7)) is None
+    assert K.nullspace_line_qp_fused(J, np.ones(7), -np.ones(7), np.ones(7), np.empty(7)) == -1

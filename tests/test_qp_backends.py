@@ -91,6 +91,27 @@ def test_nullspace_qp_backends_agree_with_each_other_and_the_exact_optimum(robot
     assert n_osqp_stalled <= 0.1 * n_solved
 
 
+def test_nullspace_closed_form_equals_the_active_set_solver(robot):
+    """The dense backend's closed form on the kernel line (7 joints) and DAQP's active-set solve of
+    the same problems agree to 1e-9, active bounds and infeasible boxes (both fall back) included."""
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(7)
+    gains = NullspaceGains()
+    line, daqp = NullspaceQP(backend="dense"), NullspaceQP(backend="dense", closed_form=False)
+    n_active = n_solved = 0
+    for q in [*_near_limits(robot, rng, 40), *random_configurations(robot, 20, seed=8)]:
+        dyn = model.compute(q, np.zeros(7))
+        _, grad = c.objective_gradient(str(rng.choice(["a", "d", "f"])), dyn, c.POLISH_SUBSPACES, model)
+        step = rng.uniform(0.05, 20.0) * grad / np.linalg.norm(grad)
+        lower, upper = damper_bounds(q, robot.q_lower, robot.q_upper, 0.5 * robot.dq_max, robot.endless, gains)
+        a, b = line.solve(dyn.J, step, lower, upper), daqp.solve(dyn.J, step, lower, upper)
+        assert a.fallback == b.fallback and a.status == b.status
+        np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-9)
+        n_solved += not a.fallback
+        n_active += a.iterations if not a.fallback else 0
+    assert n_solved >= 40 and n_active >= 10
+
+
 def _compliance_problems(robot, rng, count, tau_scale):
     """(P, q, A, l, u, lb, ub) of the [C] QP at random states with large pose errors and velocities
     towards the limits (torque limits scaled by tau_scale so they bind)."""
