@@ -874,3 +874,83 @@ def nullspace_line_qp_fused(J, g, lower, upper, x):
     for i in range(n):
         x[i] = t * z[i]
     return 0 if t == t_free else 1
+
+
+# ==== the [T] law around the nullspace QP in one call [T7, T9, T11-12, T17, T18, T22-27] ==========
+OBJECTIVE_J = 3  # `projection_law_fused`'s code for W_j [T18] (0/1/2: f/a/d, `OBJECTIVE_CODES`)
+
+
+@njit(cache=True)
+def projection_law_fused(
+    objective,
+    q,
+    dq,
+    J,
+    M_inv,
+    Lambda,
+    Lambda_inv,
+    dJ_dq,
+    exact,
+    perm,
+    n_m,
+    m_idx,
+    f_idx,
+    chain,
+    e,
+    target_velocity,
+    target_acceleration,
+    F_e,
+    F_hat,
+    u_f_extra,
+    kp_m,
+    kd_scale_m,
+    force_kp,
+    force_kd,
+    shaping,
+    q_d,
+    k0,
+    q_lower,
+    q_upper,
+    dq_limit,
+    endless,
+    damper,
+):
+    """Everything the [T] executor computes before its nullspace QP, in one compiled call of the
+    kernels above (the same arithmetic as calling them one by one, as the executor's reference
+    path `ProjectionExecutor._step_reference` does):
+
+    `coupling_fused` (A, B, D, P, W [T6, T9, T22]); the QP's linear term k0 ∇W with ∇W from
+    `gradient_contraction_fused` and `inertia_contraction_fused` [T24-27] (objective 0/1/2:
+    f/a/d), or ∇W_j = q − q_d [T18] (objective `OBJECTIVE_J`); `task_wrench_fused` [T7, T11-12];
+    `damper_bounds_fused` [T17]. `chain` is `chain_constants(model)` (a serial revolute chain),
+    `damper` (influence, safety, speed).
+
+    Returns (F, F − Λx J̇q̇, k0 ∇W, lower, upper, W, W_f, W_a, W_d, P_f F_m^e).
+    """
+    A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_fused(Lambda, Lambda_inv, perm, n_m, exact)
+    n = q.shape[0]
+    grad = np.empty(n)
+    if objective == OBJECTIVE_J:  # [T18] W_j = ½‖q − q_d‖²
+        W = 0.0
+        for i in range(n):
+            grad[i] = q[i] - q_d[i]
+            W += grad[i] * grad[i]
+        W *= 0.5
+    else:  # [T24-27] as `control.coupling.coupling_gradient_direct`
+        P = P_f if objective == 0 else (P_a if objective == 1 else P_d)
+        term_J, a_, b_ = gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m)
+        R_place, p_place, axes, mass, lever, inertia = chain
+        term_M = np.zeros(n)
+        for c in range(a_.shape[1]):
+            term_M += inertia_contraction_fused(q, R_place, p_place, axes, mass, lever, inertia, a_[:, c], b_[:, c])
+        W = W_f if objective == 0 else (W_a if objective == 1 else W_d)
+        for i in range(n):
+            grad[i] = -2.0 * (term_J[i] - term_M[i])
+    for i in range(n):
+        grad[i] = k0 * grad[i]
+    F, F_mu, coupled = task_wrench_fused(
+        J, dq, e, target_velocity, target_acceleration, A, P_d, P_f, Lambda, dJ_dq, F_e, F_hat, u_f_extra,
+        m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, shaping,
+    )  # fmt: skip
+    lower, upper = damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, damper[0], damper[1], damper[2])
+    return F, F_mu, grad, lower, upper, W, W_f, W_a, W_d, coupled

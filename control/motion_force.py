@@ -33,7 +33,14 @@ from control.coupling import (
 )
 from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
 from control.gains import MotionForceGains, NullspaceGains, SolverParams
-from control.kernels import damper_bounds_fused, joint_torque_fused, task_wrench_fused
+from control.kernels import (
+    OBJECTIVE_CODES,
+    OBJECTIVE_J,
+    damper_bounds_fused,
+    joint_torque_fused,
+    projection_law_fused,
+    task_wrench_fused,
+)
 from control.model import Dynamics, RobotModel
 from control.nullspace import NullspaceQP, NullspaceResult
 from control.params import ParamGroup, expect
@@ -54,8 +61,12 @@ class ProjectionExecutor:
         gains: MotionForceGains | None = None,
         nullspace: NullspaceGains | None = None,
         qp_backend: str | None = None,
+        fused: bool = True,
     ):
         self.model = model
+        # the law in one compiled call (`_step_fused`) on a serial revolute chain; else, or with
+        # fused=False, the same law kernel by kernel (`_step_reference`)
+        self.fused = bool(fused) and model.revolute_chain
         self.n = model.nv
         self.q_lower = np.asarray(q_lower, dtype=float)
         self.q_upper = np.asarray(q_upper, dtype=float)
@@ -69,7 +80,8 @@ class ProjectionExecutor:
         self._cache_gains()
         self.force_integral = np.zeros(self.sub.n_f)
         self.q_posture: np.ndarray | None = None
-        self.last_terms: CouplingTerms | None = None
+        self._last_terms: CouplingTerms | None = None
+        self._last_dyn: Dynamics | None = None  # the fused step's terms are computed for the view only
         self.last_qp: NullspaceResult | None = None
         self._last_W: dict[str, float] = {}
         self._last_sub: Subspaces = self.sub
@@ -131,7 +143,7 @@ class ProjectionExecutor:
             if wrench is not inputs.wrench_tcp:
                 inputs = replace(inputs, wrench_tcp=wrench)
         try:
-            out = self._step(dyn, inputs)
+            out = self._step_fused(dyn, inputs) if self.fused else self._step_reference(dyn, inputs)
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
             return ControlOutput(tau=dyn.h.copy(), fallback=True, info={"executor_error": 1.0})
         if not math.isfinite(float(out.tau @ out.tau)):
@@ -140,6 +152,13 @@ class ProjectionExecutor:
             out.fallback = True
             out.info["sensor_invalid"] = 1.0
         return out
+
+    @property
+    def last_terms(self) -> CouplingTerms | None:
+        """The latest step's coupling blocks and projections [T6, T9, T20, Table I]."""
+        if self._last_terms is None and self._last_dyn is not None:
+            self._last_terms = terms_and_values(self._last_dyn, self._last_sub)[0]
+        return self._last_terms
 
     def view(self) -> StepView:
         """The latest step's objective, W values (W_j [T18] included), split, P_f/P_a/P_d, damper zone
@@ -177,13 +196,75 @@ class ProjectionExecutor:
         self._kp_m = np.asarray(kp[self._m], dtype=float)
         self._kd_scale_m = np.asarray(two_zeta_sqrt_kp[self._m], dtype=float)
         self._zeros_f = np.zeros(self.sub.n_f)
+        ns = self.nullspace
+        self._objective_code = OBJECTIVE_J if ns.objective == "j" else OBJECTIVE_CODES[ns.objective]
+        self._damper = np.array([ns.damper_influence, ns.damper_safety, ns.damper_speed], dtype=float)
 
-    def _step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
+    def _step_fused(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
+        """`_step_reference` with everything before the QP in one compiled call (`projection_law_fused`)."""
+        g, ns, sub = self.gains, self.nullspace, self.sub
+        target = inputs.target
+        F_e = inputs.wrench_tcp
+        self._last_terms, self._last_dyn, self._last_sub = None, dyn, sub
+
+        # task errors, world-aligned [px py pz rx ry rz]
+        e = np.empty(6)
+        e[:3] = target.position - dyn.tcp_position_world
+        e[3:] = pin.log3(target.rotation @ dyn.tcp_rotation_world.T)
+
+        # [T12] clamped force integral (anti-windup), kept once the law has run
+        F_hat = target.wrench[self._f]
+        integral = self.force_integral
+        if g.force_ki > 0:
+            integral = integral + (F_e[self._f] - F_hat) * 1e-3
+            lim = g.force_integral_limit_n / g.force_ki
+            np.clip(integral, -lim, lim, out=integral)
+            u_f_extra = g.force_ki * integral
+        else:
+            u_f_extra = self._zeros_f
+
+        q_d = target.q_posture if target.q_posture is not None else self.q_posture
+        try:
+            F, F_mu, grad_step, lower, upper, W_obj, W_f, W_a, W_d, coupled = projection_law_fused(
+                self._objective_code, dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq,
+                not dyn.near_singular, sub.perm, sub.n_m, self._m, self._f, self.model.chain, e,
+                target.velocity, target.acceleration, F_e, F_hat, u_f_extra, self._kp_m, self._kd_scale_m,
+                float(g.force_kp), float(g.force_kd), bool(g.shaping), dyn.q if q_d is None else q_d,
+                float(ns.k0), self.q_lower, self.q_upper, self._dq_limit, self.endless, self._damper,
+            )  # fmt: skip
+        except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
+            return self._step_reference(dyn, inputs)
+        self.force_integral = integral
+        self._last_q, self._last_q_d = dyn.q, q_d  # for W_j in the view
+        self.last_wrench = F
+        res = self.qp.solve(dyn.J, grad_step, lower, upper)  # [T15-17]
+        self.last_qp = res
+        # [T13] nullspace velocity tracking, [T14] torque
+        tau = joint_torque_fused(dyn.J, F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
+        return self._output(tau, res, F_hat, F_e, W_obj, W_f, W_a, W_d, coupled)
+
+    def _output(self, tau, res, F_hat, F_e, W_obj, W_f, W_a, W_d, coupled) -> ControlOutput:
+        self._last_W = {"W": W_obj, "W_f": W_f, "W_a": W_a, "W_d": W_d}
+        info = {
+            "W": W_obj,
+            "W_f": W_f,
+            "W_a": W_a,
+            "W_d": W_d,
+            "force_error_n": float(F_hat[0] - F_e[self._f[0]]),
+            "qp_iterations": float(res.iterations),
+            "qp_fallback": float(res.fallback),
+            "nullspace_speed": math.sqrt(float(res.x @ res.x)),
+            "coupled_accel": coupled,
+        }
+        return ControlOutput(tau=tau, fallback=res.fallback, info=info)
+
+    def _step_reference(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
+        """The law kernel by kernel (any chain; the statement `_step_fused` is tested against)."""
         g, ns = self.gains, self.nullspace
         target = inputs.target
         F_e = inputs.wrench_tcp
         terms, (W_f, W_a, W_d) = terms_and_values(dyn, self.sub)
-        self.last_terms = terms
+        self._last_terms, self._last_dyn = terms, dyn
         self._last_sub = self.sub
 
         # task errors, world-aligned [px py pz rx ry rz]
@@ -227,20 +308,7 @@ class ProjectionExecutor:
 
         # [T13] nullspace velocity tracking, [T14] torque
         tau = joint_torque_fused(dyn.J, F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
-
-        self._last_W = {"W": W_obj, "W_f": W_f, "W_a": W_a, "W_d": W_d}
-        info = {
-            "W": W_obj,
-            "W_f": W_f,
-            "W_a": W_a,
-            "W_d": W_d,
-            "force_error_n": float(F_hat[0] - F_e[self._f[0]]),
-            "qp_iterations": float(res.iterations),
-            "qp_fallback": float(res.fallback),
-            "nullspace_speed": math.sqrt(float(res.x @ res.x)),
-            "coupled_accel": coupled,
-        }
-        return ControlOutput(tau=tau, fallback=res.fallback, info=info)
+        return self._output(tau, res, F_hat, F_e, W_obj, W_f, W_a, W_d, coupled)
 
 
 def make_projection_executor(robot, model: RobotModel, **kwargs) -> ProjectionExecutor:

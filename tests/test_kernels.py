@@ -277,3 +277,47 @@ def test_nullspace_line_qp_kernel_equals_numpy_reference(robot):
     J[5] = J[4]  # rank 5: a two-dimensional kernel, not a line
     assert K.nullspace_line_qp_reference(J, np.ones(7), -np.ones(7), np.ones(7)) is None
     assert K.nullspace_line_qp_fused(J, np.ones(7), -np.ones(7), np.ones(7), np.empty(7)) == -1
+
+
+@pytest.mark.parametrize("objective", ["j", "f", "a", "d"])
+@pytest.mark.parametrize("axes", ["pz", "pz rz", "px py pz"])
+def test_fused_projection_step_equals_the_step_kernel_by_kernel(robot, objective, axes):
+    """[T7-17] `projection_law_fused`: the executor's fused step gives the torque, W values, QP
+    result and task wrench of its reference step (the kernels called one by one), at random and
+    near-singular states, with and without shaping, force integral on, some joints near limits."""
+    from dataclasses import replace
+
+    from control.executor import ControlInputs, TaskTarget
+    from control.gains import MotionForceGains, NullspaceGains
+    from control.motion_force import make_projection_executor
+
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(33)
+    gains = replace(MotionForceGains(), force_axes=axes, force_ki=5.0)
+    for shaping in (True, False):
+        kw = {"gains": replace(gains, shaping=shaping), "nullspace": NullspaceGains(objective=objective)}
+        fused = make_projection_executor(robot, model, **kw)
+        ref = make_projection_executor(robot, model, fused=False, **kw)
+        assert fused.fused and not ref.fused
+        for k, q in enumerate(_states(robot, seed=34)):
+            dyn = model.compute(q, rng.uniform(-1, 1, 7))
+            target = TaskTarget(
+                dyn.tcp_position_world + 0.02 * rng.standard_normal(3), dyn.tcp_rotation_world,
+                velocity=rng.standard_normal(6), acceleration=rng.standard_normal(6),
+                wrench=np.r_[rng.standard_normal(3) * 5, 0, 0, 0], q_posture=q + 0.1 * rng.standard_normal(7),
+            )  # fmt: skip
+            if k == 0:
+                fused.reset(dyn, target)
+                ref.reset(dyn, target)
+            inputs = ControlInputs(0.0, target, rng.standard_normal(6) * 10)
+            a, b = fused.step(dyn, inputs), ref.step(dyn, inputs)
+            tol = _tolerance(dyn.Lambda_inv)
+            assert a.fallback == b.fallback
+            assert _rel(a.tau, b.tau) < tol
+            assert _rel(fused.last_wrench, ref.last_wrench) < tol
+            assert _rel(fused.last_qp.x, ref.last_qp.x, scale=1.0) < tol
+            assert _rel(fused.force_integral, ref.force_integral) < RTOL
+            for key in ("W", "W_f", "W_a", "W_d", "coupled_accel", "nullspace_speed"):
+                assert _rel(a.info[key], b.info[key], scale=1e-12) < tol, key
+            for name in ("P_f", "P_a", "P_d"):
+                assert _rel(getattr(fused.last_terms, name), getattr(ref.last_terms, name)) < tol
