@@ -131,16 +131,16 @@ class TableContact:
 
     def apply(self, world: World) -> ContactState:
         """Apply this step's contact force on the body carrying the TCP (implicit friction)."""
-        point, _ = world.site_pose(world.tcp_site)
-        velocity = world.site_velocity(world.tcp_site)[:3]
+        touching = self.height - float(world.data.site_xpos[world.tcp_site, 2]) > 0.0
+        point, velocity, G = world.site_point_state(world.tcp_site, inverse_mass=touching and self.implicit)
         f_n, friction = 0.0, np.zeros(3)
-        if self.height - float(point[2]) > 0.0:
-            G = world.site_inverse_mass(world.tcp_site) if self.implicit else np.zeros((3, 3))
+        if touching:
+            G = np.zeros((3, 3)) if G is None else G
             f_n, friction = self.implicit_forces(point, velocity, G, world.model.opt.timestep)
         if f_n > 0.0:
             force = friction + np.array([0.0, 0.0, f_n])
             world.apply_force(world.wrist_body, point, force)
-        speed = float(np.hypot(velocity[0], velocity[1]))
+        speed = math.hypot(velocity[0], velocity[1])
         self.state = ContactState(f_n, friction, point, speed)
         return self.state
 

@@ -30,10 +30,20 @@ HARD_STOP_BEYOND_RAD = 0.01  # the mechanical stop sits this far beyond the URDF
 HARD_STOP_SOLREF = (2 * TIMESTEP_S, 1.0)  # (time constant s, damping ratio)
 HARD_STOP_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)  # (d_min, d_max, width rad, midpoint, power)
 HARD_STOP_GIVE_RAD = 0.02
+
+
+def _contiguous(index: np.ndarray) -> slice | np.ndarray:
+    """A slice equal to an ascending run of indices (a cheaper copy than fancy indexing), else the index."""
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index
+
+
 _BAD_STATE_WARNINGS = tuple(  # MuJoCo resets such a state and counts the warning; we halt instead
     int(w)
     for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
 )
+_BAD_QPOS, _BAD_QVEL, _BAD_QACC = _BAD_STATE_WARNINGS
 
 
 @dataclass(frozen=True)
@@ -158,6 +168,8 @@ class World:
         self.table_height = table_height
         self.qpos_adr = np.array([self.model.joint(n).qposadr[0] for n in robot.joint_names])
         self.dof_adr = np.array([self.model.joint(n).dofadr[0] for n in robot.joint_names])
+        # the arm's entries as slices when contiguous (as they are: the arm comes first), else the index
+        self._qpos_at, self._qvel_at = _contiguous(self.qpos_adr), _contiguous(self.dof_adr)
         self.actuator_ids = np.array([self.model.actuator(f"motor_{n}").id for n in robot.joint_names])
         self.tcp_site = self.model.site(TCP_FRAME).id
         self.sensor_site = self.model.site(SENSOR_FRAME).id
@@ -167,6 +179,7 @@ class World:
         self._jacp = np.zeros((3, self.model.nv))  # Jacobian buffers (mj_jac* overwrite them)
         self._jacr = np.zeros((3, self.model.nv))
         self._solve_buf = np.zeros((3, self.model.nv))
+        self._tau_min = -np.asarray(robot.tau_max, dtype=float)
         self._warning_counts = self.data.warning.number  # a live view of MjData's warning counters
         self.applied: list[AppliedForce] = []
         self.carried: set[int] = set()  # payload bodies distal to the F/T sensor (their inertia loads it)
@@ -185,11 +198,11 @@ class World:
 
     @property
     def q(self) -> np.ndarray:
-        return self.data.qpos[self.qpos_adr].copy()
+        return self.data.qpos[self._qpos_at].copy()
 
     @property
     def dq(self) -> np.ndarray:
-        return self.data.qvel[self.dof_adr].copy()
+        return self.data.qvel[self._qvel_at].copy()
 
     def reset(self, q: np.ndarray, dq: np.ndarray | None = None) -> None:
         """Put the arm at (q, q̇), time 0, no forces."""
@@ -239,6 +252,21 @@ class World:
         mujoco.mj_solveM(self.model, self.data, x, jacp)
         return jacp @ x.T
 
+    def site_point_state(
+        self, site_id: int, inverse_mass: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(position, linear velocity, inverse mass J_p M⁻¹ J_pᵀ or None) of a site point, world axes:
+        `site_pose`, `site_velocity`[:3] and `site_inverse_mass` from one translational Jacobian."""
+        jacp, data = self._jacp, self.data
+        mujoco.mj_jacSite(self.model, data, jacp, None, site_id)
+        velocity = jacp @ data.qvel
+        G = None
+        if inverse_mass:
+            x = self._solve_buf
+            mujoco.mj_solveM(self.model, data, x, jacp)
+            G = jacp @ x.T
+        return data.site_xpos[site_id].copy(), velocity, G
+
     def body_point_velocity(self, body_id: int, point_world: np.ndarray) -> np.ndarray:
         """Linear velocity of a world point rigidly attached to a body."""
         jacp = np.zeros((3, self.model.nv))
@@ -261,20 +289,24 @@ class World:
         applied this step on the bodies distal to it (the sensor's body and its subtree: payload
         weights, a rope, drag, contact) plus the inertial load of the carried payloads
         (`inertial_wrench_at_sensor`), so a payload reads m(g − a), not only its weight."""
-        p_sensor = self.data.site_xpos[self.sensor_site]
-        wrench = np.zeros(6)
+        s0, s1, s2 = self.data.site_xpos[self.sensor_site].tolist()
+        fx = fy = fz = mx = my = mz = 0.0  # Python floats: the same IEEE arithmetic, no array per term
         distal = self._distal_to_sensor
         for a in self.applied:
             inside = distal.get(a.body_id)
             if inside is None:
                 inside = distal[a.body_id] = self._is_in_subtree(a.body_id, self._sensor_body)
             if inside:
-                f = a.force_world
-                r = a.point_world - p_sensor
-                wrench[:3] += f
-                # torque + r × f, the cross product written out (np.cross costs ~15 µs a call)
-                r_x_f = (r[1] * f[2] - r[2] * f[1], r[2] * f[0] - r[0] * f[2], r[0] * f[1] - r[1] * f[0])
-                wrench[3:] += np.add(a.torque_world, r_x_f)
+                f0, f1, f2 = a.force_world.tolist()
+                p0, p1, p2 = a.point_world.tolist()
+                t0, t1, t2 = a.torque_world.tolist()
+                r0, r1, r2 = p0 - s0, p1 - s1, p2 - s2
+                fx, fy, fz = fx + f0, fy + f1, fz + f2
+                # torque + r × f
+                mx += t0 + (r1 * f2 - r2 * f1)
+                my += t1 + (r2 * f0 - r0 * f2)
+                mz += t2 + (r0 * f1 - r1 * f0)
+        wrench = np.array([fx, fy, fz, mx, my, mz])
         if self.carried:
             wrench += self.inertial_wrench_at_sensor()
         return wrench
@@ -326,7 +358,7 @@ class World:
         """Advance one timestep with joint torques τ (clipped to the motor limits), then clear forces.
         With a torque delay of d steps the motors apply the command of d steps ago (the first
         command is held until the pipeline has filled)."""
-        ctrl = np.clip(tau, -self.robot.tau_max, self.robot.tau_max)
+        ctrl = np.minimum(np.maximum(tau, self._tau_min), self.robot.tau_max)  # np.clip's result, less overhead
         if self.torque_delay_steps > 0:
             self._tau_pipeline.append(ctrl)
             ctrl = self._tau_pipeline[0]
@@ -371,8 +403,8 @@ class World:
         # a dot product is NaN/inf when any element is, and `not <=` is True for NaN: one cheap test
         if not float(qvel @ qvel) <= 1e6 or not math.isfinite(float(qpos @ qpos)):
             return True
-        counts = self._warning_counts
-        return any(counts[w] > 0 for w in _BAD_STATE_WARNINGS)
+        counts = self._warning_counts.tolist()
+        return counts[_BAD_QPOS] > 0 or counts[_BAD_QVEL] > 0 or counts[_BAD_QACC] > 0
 
     # ---- model quantities for cross-checks --------------------------------------------------
     def mass_matrix(self) -> np.ndarray:
