@@ -876,6 +876,34 @@ def nullspace_line_qp_fused(J, g, lower, upper, x):
     return 0 if t == t_free else 1
 
 
+# ==== SO(3) log of the orientation error [T11] ==================================================
+@njit(cache=True)
+def log3_fused(R):
+    """log(R) ∈ so(3) as a rotation vector θ·axis, θ ∈ [0, π], from the unit quaternion of R
+    (Shepperd's method: accurate at small angles and near π); `pinocchio.log3`'s result, to
+    rounding away from θ = π (where the axis' sign is a choice). Tested against it."""
+    t = R[0, 0] + R[1, 1] + R[2, 2]
+    if t > 0.0:
+        S = 2.0 * np.sqrt(t + 1.0)
+        w, x, y, z = 0.25 * S, (R[2, 1] - R[1, 2]) / S, (R[0, 2] - R[2, 0]) / S, (R[1, 0] - R[0, 1]) / S
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        S = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        w, x, y, z = (R[2, 1] - R[1, 2]) / S, 0.25 * S, (R[0, 1] + R[1, 0]) / S, (R[0, 2] + R[2, 0]) / S
+    elif R[1, 1] > R[2, 2]:
+        S = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        w, x, y, z = (R[0, 2] - R[2, 0]) / S, (R[0, 1] + R[1, 0]) / S, 0.25 * S, (R[1, 2] + R[2, 1]) / S
+    else:
+        S = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        w, x, y, z = (R[1, 0] - R[0, 1]) / S, (R[0, 2] + R[2, 0]) / S, (R[1, 2] + R[2, 1]) / S, 0.25 * S
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = np.sqrt(x * x + y * y + z * z)
+    k = 2.0 * np.arctan2(s, w) / s if s > 0.0 else 2.0 / w  # θ / sin(θ/2)
+    out = np.empty(3)
+    out[0], out[1], out[2] = k * x, k * y, k * z
+    return out
+
+
 # ==== the [T] law around the nullspace QP in one call [T7, T9, T11-12, T17, T18, T22-27] ==========
 OBJECTIVE_J = 3  # `projection_law_fused`'s code for W_j [T18] (0/1/2: f/a/d, `OBJECTIVE_CODES`)
 
@@ -896,16 +924,21 @@ def projection_law_fused(
     m_idx,
     f_idx,
     chain,
-    e,
+    tcp_position,
+    tcp_rotation,
+    target_position,
+    target_rotation,
     target_velocity,
     target_acceleration,
+    target_wrench,
     F_e,
-    F_hat,
-    u_f_extra,
+    force_integral,
     kp_m,
     kd_scale_m,
     force_kp,
     force_kd,
+    force_ki,
+    force_integral_limit,
     shaping,
     q_d,
     k0,
@@ -919,14 +952,38 @@ def projection_law_fused(
     kernels above (the same arithmetic as calling them one by one, as the executor's reference
     path `ProjectionExecutor._step_reference` does):
 
-    `coupling_fused` (A, B, D, P, W [T6, T9, T22]); the QP's linear term k0 ∇W with ∇W from
-    `gradient_contraction_fused` and `inertia_contraction_fused` [T24-27] (objective 0/1/2:
-    f/a/d), or ∇W_j = q − q_d [T18] (objective `OBJECTIVE_J`); `task_wrench_fused` [T7, T11-12];
-    `damper_bounds_fused` [T17]. `chain` is `chain_constants(model)` (a serial revolute chain),
-    `damper` (influence, safety, speed).
+    the pose error e = [p° − p; log(R° Rᵀ)] (`log3_fused`); the force integral ∫e_f clamped to
+    ±limit/K_f^i (anti-windup, when K_f^i > 0) [T12]; `coupling_fused` (A, B, D, P, W [T6, T9,
+    T22]); the QP's linear term k0 ∇W with ∇W from `gradient_contraction_fused` and
+    `inertia_contraction_fused` [T24-27] (objective 0/1/2: f/a/d), or ∇W_j = q − q_d [T18]
+    (objective `OBJECTIVE_J`); `task_wrench_fused` [T7, T11-12]; `damper_bounds_fused` [T17].
+    `chain` is `chain_constants(model)` (a serial revolute chain), `damper` (influence, safety,
+    speed).
 
-    Returns (F, F − Λx J̇q̇, k0 ∇W, lower, upper, W, W_f, W_a, W_d, P_f F_m^e).
+    Returns (F, F − Λx J̇q̇, k0 ∇W, lower, upper, new force integral, W, W_f, W_a, W_d,
+    P_f F_m^e, F̂_f[0] − F_f^e[0]).
     """
+    e = np.empty(6)  # [px py pz rx ry rz], world-aligned
+    R_err = np.empty((3, 3))
+    for i in range(3):
+        e[i] = target_position[i] - tcp_position[i]
+        for j in range(3):
+            R_err[i, j] = (
+                target_rotation[i, 0] * tcp_rotation[j, 0]
+                + target_rotation[i, 1] * tcp_rotation[j, 1]
+                + target_rotation[i, 2] * tcp_rotation[j, 2]
+            )
+    e[3:] = log3_fused(R_err)
+    nf = f_idx.shape[0]
+    F_hat = np.empty(nf)
+    integral = force_integral.copy()
+    u_f_extra = np.zeros(nf)
+    for r in range(nf):
+        F_hat[r] = target_wrench[f_idx[r]]
+        if force_ki > 0:
+            lim = force_integral_limit / force_ki
+            integral[r] = min(max(integral[r] + (F_e[f_idx[r]] - F_hat[r]) * 1e-3, -lim), lim)
+            u_f_extra[r] = force_ki * integral[r]
     A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_fused(Lambda, Lambda_inv, perm, n_m, exact)
     n = q.shape[0]
     grad = np.empty(n)
@@ -953,4 +1010,4 @@ def projection_law_fused(
         m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, shaping,
     )  # fmt: skip
     lower, upper = damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, damper[0], damper[1], damper[2])
-    return F, F_mu, grad, lower, upper, W, W_f, W_a, W_d, coupled
+    return F, F_mu, grad, lower, upper, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]

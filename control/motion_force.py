@@ -199,38 +199,27 @@ class ProjectionExecutor:
         ns = self.nullspace
         self._objective_code = OBJECTIVE_J if ns.objective == "j" else OBJECTIVE_CODES[ns.objective]
         self._damper = np.array([ns.damper_influence, ns.damper_safety, ns.damper_speed], dtype=float)
+        self._k0, self._shaping = float(ns.k0), bool(g.shaping)
+        self._force_gains = (float(g.force_kp), float(g.force_kd), float(g.force_ki), float(g.force_integral_limit_n))
 
     def _step_fused(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
-        """`_step_reference` with everything before the QP in one compiled call (`projection_law_fused`)."""
-        g, ns, sub = self.gains, self.nullspace, self.sub
-        target = inputs.target
+        """`_step_reference` with everything before the QP in one compiled call (`projection_law_fused`:
+        pose error, force integral, coupling blocks, k0 ∇W, task wrench, damper bounds)."""
+        sub, target = self.sub, inputs.target
         F_e = inputs.wrench_tcp
         self._last_terms, self._last_dyn, self._last_sub = None, dyn, sub
-
-        # task errors, world-aligned [px py pz rx ry rz]
-        e = np.empty(6)
-        e[:3] = target.position - dyn.tcp_position_world
-        e[3:] = pin.log3(target.rotation @ dyn.tcp_rotation_world.T)
-
-        # [T12] clamped force integral (anti-windup), kept once the law has run
-        F_hat = target.wrench[self._f]
-        integral = self.force_integral
-        if g.force_ki > 0:
-            integral = integral + (F_e[self._f] - F_hat) * 1e-3
-            lim = g.force_integral_limit_n / g.force_ki
-            np.clip(integral, -lim, lim, out=integral)
-            u_f_extra = g.force_ki * integral
-        else:
-            u_f_extra = self._zeros_f
-
         q_d = target.q_posture if target.q_posture is not None else self.q_posture
         try:
-            F, F_mu, grad_step, lower, upper, W_obj, W_f, W_a, W_d, coupled = projection_law_fused(
-                self._objective_code, dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq,
-                not dyn.near_singular, sub.perm, sub.n_m, self._m, self._f, self.model.chain, e,
-                target.velocity, target.acceleration, F_e, F_hat, u_f_extra, self._kp_m, self._kd_scale_m,
-                float(g.force_kp), float(g.force_kd), bool(g.shaping), dyn.q if q_d is None else q_d,
-                float(ns.k0), self.q_lower, self.q_upper, self._dq_limit, self.endless, self._damper,
+            F, F_mu, grad_step, lower, upper, integral, W_obj, W_f, W_a, W_d, coupled, force_error = (
+                projection_law_fused(
+                    self._objective_code, dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq,
+                    not dyn.near_singular, sub.perm, sub.n_m, self._m, self._f, self.model.chain,
+                    dyn.tcp_position_world, dyn.tcp_rotation_world, target.position, target.rotation,
+                    target.velocity, target.acceleration, target.wrench, F_e, self.force_integral,
+                    self._kp_m, self._kd_scale_m, self._force_gains[0], self._force_gains[1],
+                    self._force_gains[2], self._force_gains[3], self._shaping, dyn.q if q_d is None else q_d,
+                    self._k0, self.q_lower, self.q_upper, self._dq_limit, self.endless, self._damper,
+                )
             )  # fmt: skip
         except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
             return self._step_reference(dyn, inputs)
@@ -241,16 +230,16 @@ class ProjectionExecutor:
         self.last_qp = res
         # [T13] nullspace velocity tracking, [T14] torque
         tau = joint_torque_fused(dyn.J, F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
-        return self._output(tau, res, F_hat, F_e, W_obj, W_f, W_a, W_d, coupled)
+        return self._output(tau, res, float(force_error), W_obj, W_f, W_a, W_d, coupled)
 
-    def _output(self, tau, res, F_hat, F_e, W_obj, W_f, W_a, W_d, coupled) -> ControlOutput:
+    def _output(self, tau, res, force_error, W_obj, W_f, W_a, W_d, coupled) -> ControlOutput:
         self._last_W = {"W": W_obj, "W_f": W_f, "W_a": W_a, "W_d": W_d}
         info = {
             "W": W_obj,
             "W_f": W_f,
             "W_a": W_a,
             "W_d": W_d,
-            "force_error_n": float(F_hat[0] - F_e[self._f[0]]),
+            "force_error_n": force_error,
             "qp_iterations": float(res.iterations),
             "qp_fallback": float(res.fallback),
             "nullspace_speed": math.sqrt(float(res.x @ res.x)),
@@ -308,7 +297,7 @@ class ProjectionExecutor:
 
         # [T13] nullspace velocity tracking, [T14] torque
         tau = joint_torque_fused(dyn.J, F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
-        return self._output(tau, res, F_hat, F_e, W_obj, W_f, W_a, W_d, coupled)
+        return self._output(tau, res, float(F_hat[0] - F_e[self._f[0]]), W_obj, W_f, W_a, W_d, coupled)
 
 
 def make_projection_executor(robot, model: RobotModel, **kwargs) -> ProjectionExecutor:
