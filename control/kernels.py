@@ -142,14 +142,24 @@ def _sym_from_eig(V, f):
 def snapshot_fused(M_upper, J, singular_eig):
     """Compiled `snapshot_reference` (same outputs, same order)."""
     n = J.shape[1]
-    M = np.empty((n, n))
+    M, M_inv, N, Lambda_n = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))
+    min_eig, near_singular = snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n)
+    return M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular
+
+
+@njit(cache=True)
+def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n):
+    """`snapshot_fused` writing into arrays the caller allocated (handing arrays back from compiled
+    code costs more than the caller's allocation); returns (min eig Λx⁻¹, near_singular)."""
+    n = J.shape[1]
     for i in range(n):
         for j in range(i, n):
             M[i, j] = M_upper[i, j]
             M[j, i] = M_upper[i, j]
-    M_inv = _spd_inverse(M)
+    M_inv[:, :] = _spd_inverse(M)
     X = _matmul_bt(M_inv, J)  # M⁻¹ Jᵀ
-    Lambda_inv = _matmul(J, X)
+    Lambda_inv[:, :] = _matmul(J, X)
     for i in range(6):
         for j in range(i + 1, 6):
             s = 0.5 * (Lambda_inv[i, j] + Lambda_inv[j, i])
@@ -161,9 +171,9 @@ def snapshot_fused(M_upper, J, singular_eig):
     f = np.empty(6)
     for i in range(6):
         f[i] = w[i] / (w[i] * w[i] + singular_eig * singular_eig) if near_singular else 1.0 / w[i]
-    Lambda = _sym_from_eig(V, f)  # [T3]
-    J_bar = _matmul(X, Lambda)  # [T2]
-    N = -_matmul(J_bar, J)  # [T4]
+    Lambda[:, :] = _sym_from_eig(V, f)  # [T3]
+    J_bar[:, :] = _matmul(X, Lambda)  # [T2]
+    N[:, :] = -_matmul(J_bar, J)  # [T4]
     for i in range(n):
         N[i, i] += 1.0
     S = _matmul_bt(_matmul(N, M_inv), N)
@@ -177,7 +187,7 @@ def snapshot_fused(M_upper, J, singular_eig):
         for i in range(n):
             for j in range(n):
                 ss += S[i, j] * S[i, j]
-        Lambda_n = S / max(ss, 1e-300)
+        Lambda_n[:, :] = S / max(ss, 1e-300)
     else:
         ws, Vs = np.linalg.eigh(S)
         cutoff = 1e-8 * max(np.max(np.abs(ws)), 1e-300)
@@ -185,8 +195,8 @@ def snapshot_fused(M_upper, J, singular_eig):
         for i in range(n):
             if abs(ws[i]) > cutoff:
                 g[i] = 1.0 / ws[i]
-        Lambda_n = _sym_from_eig(Vs, g)
-    return M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular
+        Lambda_n[:, :] = _sym_from_eig(Vs, g)
+    return min_eig, near_singular
 
 
 # ==== coupling blocks [T6, T9, T10, T20, T22, Table I] =============================================

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from control.kernels import chain_constants, snapshot_fused, snapshot_reference
+from control.kernels import chain_constants, snapshot_into, snapshot_reference
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -79,37 +79,26 @@ class RobotModel:
         """Fill one `Dynamics` snapshot at (q, q̇).
 
         Pinocchio gives M (CRBA), h, J and J̇q̇ in one `computeAllTerms`; the algebra of [T2-5] runs in
-        one compiled kernel (`control.kernels.snapshot_fused`, tested against its numpy reference).
+        one compiled kernel (`control.kernels.snapshot_into`, tested against its numpy reference).
         """
-        model, data, fid = self.model, self.data, self.tcp_frame_id
+        model, data, fid, n = self.model, self.data, self.tcp_frame_id, self.nv
         q = np.array(q, dtype=float)
         dq = np.array(dq, dtype=float)
         pin.computeAllTerms(model, data, q, dq)  # M (upper), h, joint Jacobians, data.a at q̈ = 0
         pin.updateFramePlacements(model, data)
         J = pin.getFrameJacobian(model, data, fid, LWA)
         dJ_dq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector.copy()
-        M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular = snapshot_fused(
-            data.M, J, SINGULAR_EIGENVALUE
-        )
+        M, M_inv, N, Lambda_n = np.empty((4, n, n))  # the kernel fills them (one allocation each size)
+        Lambda_inv, Lambda = np.empty((2, 6, 6))
+        J_bar = np.empty((n, 6))
+        min_eig, near_singular = snapshot_into(
+            data.M, J, SINGULAR_EIGENVALUE, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n
+        )  # compiled `snapshot_reference`
         oMf = data.oMf[fid]
         return Dynamics(
-            q=q,
-            dq=dq,
-            M=M,
-            M_inv=M_inv,
-            h=data.nle.copy(),
-            tcp_rotation_world=oMf.rotation.copy(),
-            tcp_position_world=oMf.translation.copy(),
-            J=J,
-            dJ_dq=dJ_dq,
-            Lambda_inv=Lambda_inv,
-            Lambda=Lambda,
-            J_bar=J_bar,
-            N=N,
-            Lambda_n=Lambda_n,
-            near_singular=bool(near_singular),
-            min_eig_Lambda_inv=float(min_eig),
-        )
+            q, dq, M, M_inv, data.nle.copy(), oMf.rotation.copy(), oMf.translation.copy(), J, dJ_dq,
+            Lambda_inv, Lambda, J_bar, N, Lambda_n, bool(near_singular), float(min_eig),
+        )  # fmt: skip
 
     def compute_reference(self, q: np.ndarray, dq: np.ndarray) -> Dynamics:
         """`compute` with the plain-numpy algebra (`control.kernels.snapshot_reference`): the readable

@@ -230,11 +230,12 @@ class PolishEnvironment(Environment):
         state = self.contact.apply(world)
         self._sander_force = self.sander.apply(world, t)
         friction = state.friction_force if state.friction_force is not None else np.zeros(3)
+        friction_x, friction_y, _ = friction.tolist()
         segment, _ = self.clock.segment(t)
         return {
             "contact_force_n": state.normal_force_n,
-            "friction_x_n": float(friction[0]),
-            "friction_y_n": float(friction[1]),
+            "friction_x_n": friction_x,
+            "friction_y_n": friction_y,
             "tcp_speed_m_s": state.tangential_speed,
             "segment": float(segment),
             **self.settle_signals(t),
@@ -246,7 +247,7 @@ class PolishEnvironment(Environment):
         clock = self.clock
         settling = clock.trajectory_start is None
         quiet, dw = clock.criterion.progress()
-        anchors = self._world.data.xanchor if self._world is not None else None
+        anchors = self._world.data.xanchor.tolist() if self._world is not None else None  # Python floats
         swivel = (
             math.degrees(swivel_of_points(anchors[self._joints[1]], anchors[self._joints[3]], anchors[self._joints[5]]))
             if anchors is not None

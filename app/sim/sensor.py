@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from control.params import ParamGroup, expect, param
 
@@ -114,14 +115,26 @@ class FTSensor(Sensor):
 
     def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
         """The filtered reading for this step's true wrench [f; m] at time t."""
-        x = self.rng.standard_normal(6)  # the same arithmetic as true + std·noise, y + α(x − y), in place
-        x *= self._std
-        x += true_wrench
-        if self.sine_amplitude_n > 0:
-            x[:3] += self.sine_amplitude_n * np.sin(2.0 * np.pi * self.sine_hz * t)
-        if self._y is not None:
-            x -= self._y
-            x *= self.alpha
-            x += self._y
-        self._y = x
-        return x.copy()
+        noise = self.rng.standard_normal(6)
+        sine = self.sine_amplitude_n * np.sin(2.0 * np.pi * self.sine_hz * t) if self.sine_amplitude_n > 0 else None
+        if self._y is None:
+            self._y = np.empty(6)
+            return _reading(noise, self._std, true_wrench, sine is not None, sine or 0.0, False, self.alpha, self._y)
+        return _reading(noise, self._std, true_wrench, sine is not None, sine or 0.0, True, self.alpha, self._y)
+
+
+@njit(cache=True)
+def _reading(noise, std, true_wrench, add_sine, sine, filtered, alpha, y):
+    """One reading: x = true + std·noise (+ the sinusoid on the forces), then the first-order
+    low-pass y ← y + α(x − y) when `filtered` (else y ← x); y is updated in place, a copy returned.
+    The arithmetic of the numpy version, element by element ((x − y)·α + y), so bit for bit the same."""
+    out = np.empty(6)
+    for i in range(6):
+        x = noise[i] * std[i] + true_wrench[i]
+        if add_sine and i < 3:
+            x += sine
+        if filtered:
+            x = (x - y[i]) * alpha + y[i]
+        y[i] = x
+        out[i] = x
+    return out
