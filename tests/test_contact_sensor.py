@@ -137,6 +137,23 @@ def test_implicit_friction_is_the_backward_euler_damper_and_bounded():
     np.testing.assert_allclose(explicit, -20.0 * v / np.sqrt(v @ v + 1e-4))
 
 
+def test_compiled_contact_step_equals_implicit_forces_bit_for_bit():
+    """The contact's compiled step gives `TableContact.implicit_forces` exactly (same arithmetic),
+    with and without the inverse mass (G = 0: the explicit law), at random depths and velocities."""
+    from app.sim.contact import TableContact, implicit_contact
+
+    rng = np.random.default_rng(3)
+    contact = TableContact(0.2, mu=0.8, v_eps_m_per_s=0.004)
+    for k in range(300):
+        L = rng.normal(size=(3, 3))
+        G = L @ L.T if k % 3 else np.zeros((3, 3))
+        v = rng.normal(size=3) * 10.0 ** rng.uniform(-5, 0)
+        point = np.array([0.5, 0.0, 0.2 - rng.uniform(1e-6, 2e-3)])
+        f_n, friction = contact.implicit_forces(point, v, G, 1e-3)
+        got = implicit_contact(0.2 - float(point[2]), v, G, contact.stiffness_n_per_m, contact.mu, 0.004, 1e-3)
+        assert got == (f_n, friction[0], friction[1])
+
+
 def test_friction_at_1_mm_per_s_is_stable_at_the_heaviest_tangential_mass():
     """Polish hold at μ = 1, v_ε = 1 mm/s, from the +75° posture, whose heaviest tangential TCP mass
     (2.35 kg) is the largest of the postures the table reaches; explicit stepping there has

@@ -31,6 +31,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from app.sim.world import World
 from control.params import ParamGroup, expect, param
@@ -131,15 +132,17 @@ class TableContact:
 
     def apply(self, world: World) -> ContactState:
         """Apply this step's contact force on the body carrying the TCP (implicit friction)."""
-        touching = self.height - float(world.data.site_xpos[world.tcp_site, 2]) > 0.0
-        point, velocity, G = world.site_point_state(world.tcp_site, inverse_mass=touching and self.implicit)
+        depth = self.height - float(world.data.site_xpos[world.tcp_site, 2])
+        point, velocity, G = world.site_point_state(world.tcp_site, inverse_mass=depth > 0.0 and self.implicit)
         f_n, friction = 0.0, np.zeros(3)
-        if touching:
-            G = np.zeros((3, 3)) if G is None else G
-            f_n, friction = self.implicit_forces(point, velocity, G, world.model.opt.timestep)
+        if depth > 0.0:  # `implicit_forces`, compiled
+            f_n, fx, fy = implicit_contact(
+                depth, velocity, _NO_INVERSE_MASS if G is None else G, self.stiffness_n_per_m, self.mu,
+                self.v_eps_m_per_s, world.model.opt.timestep,
+            )  # fmt: skip
+            friction = np.array([fx, fy, 0.0])
         if f_n > 0.0:
-            force = friction + np.array([0.0, 0.0, f_n])
-            world.apply_force(world.wrist_body, point, force)
+            world.apply_force(world.wrist_body, point, np.array([fx, fy, f_n]))
         speed = math.hypot(velocity[0], velocity[1])
         self.state = ContactState(f_n, friction, point, speed)
         return self.state
@@ -162,3 +165,20 @@ def implicit_friction(
     det = a * d - b * cc
     k = -c / det
     return np.array([k * (d * v0 - b * v1), k * (a * v1 - cc * v0)])
+
+
+_NO_INVERSE_MASS = np.zeros((3, 3))  # G = 0: the explicit law
+
+
+@njit(cache=True)
+def implicit_contact(depth, velocity, inverse_mass, stiffness, mu, v_eps, dt):
+    """Compiled `TableContact.implicit_forces` at a penetration depth > 0: (F_n, F_t x, F_t y), the
+    arithmetic of `implicit_friction` term by term."""
+    f_n = stiffness * depth
+    v0, v1 = velocity[0], velocity[1]
+    c = (mu * f_n) / np.sqrt((v0 * v0 + v1 * v1) + v_eps * v_eps)
+    s = dt * c
+    a, b = 1.0 + inverse_mass[0, 0] * s, inverse_mass[0, 1] * s
+    cc, d = inverse_mass[1, 0] * s, 1.0 + inverse_mass[1, 1] * s
+    k = -c / (a * d - b * cc)
+    return f_n, k * (d * v0 - b * v1), k * (a * v1 - cc * v0)

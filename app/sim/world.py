@@ -171,6 +171,7 @@ class World:
         # the arm's entries as slices when contiguous (as they are: the arm comes first), else the index
         self._qpos_at, self._qvel_at = _contiguous(self.qpos_adr), _contiguous(self.dof_adr)
         self.actuator_ids = np.array([self.model.actuator(f"motor_{n}").id for n in robot.joint_names])
+        self._ctrl_at = _contiguous(self.actuator_ids)
         self.tcp_site = self.model.site(TCP_FRAME).id
         self.sensor_site = self.model.site(SENSOR_FRAME).id
         self.wrist_body = int(self.model.site_bodyid[self.tcp_site])
@@ -343,7 +344,7 @@ class World:
 
     def external_joint_torque(self) -> np.ndarray:
         """True external joint torque τ^e of the forces applied this step (sim truth)."""
-        return self.data.qfrc_applied[self.dof_adr].copy()
+        return self.data.qfrc_applied[self._qvel_at].copy()
 
     def _is_in_subtree(self, body_id: int, root_id: int) -> bool:
         b = body_id
@@ -365,7 +366,7 @@ class World:
             if len(self._tau_pipeline) > self.torque_delay_steps:
                 self._tau_pipeline.popleft()
         self.tau_applied = ctrl
-        self.data.ctrl[self.actuator_ids] = ctrl
+        self.data.ctrl[self._ctrl_at] = ctrl
         # mj_step2 integrates with the forces and controls set on the kinematics of this state;
         # mj_step1 then computes the kinematics (site poses, Jacobians, M) of the new state, so
         # the next step's contact and drag forces see the current position, not the previous
