@@ -277,7 +277,7 @@ class Session:
         self.steps += 1
         signals = dict(out.info)
         signals.update(env_signals)
-        signals["drag_force_n"] = math.sqrt(float(drag_force @ drag_force))  # ‖F‖ as np.linalg.norm computes it
+        signals["drag_force_n"] = math.sqrt(float(drag_force.dot(drag_force)))  # ‖F‖ as np.linalg.norm computes it
         self.environment.observe(signals, t)
         self.last = StepRecord(
             t=t,
@@ -339,7 +339,7 @@ class Session:
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
             out = ControlOutput(tau=dyn.h.copy(), fallback=True, info={"executor_error": 1.0})
         tau = np.asarray(out.tau, dtype=float)
-        if not math.isfinite(float(tau @ tau)):  # NaN/inf anywhere (one dot product)
+        if not math.isfinite(float(tau.dot(tau))):  # NaN/inf anywhere (one dot product)
             out = ControlOutput(tau=dyn.h.copy(), fallback=True, info={**out.info, "executor_error": 1.0})
         return out
 

@@ -918,9 +918,49 @@ def log3_fused(R):
 OBJECTIVE_J = 3  # `projection_law_fused`'s code for W_j [T18] (0/1/2: f/a/d, `OBJECTIVE_CODES`)
 
 
+def law_constants(
+    objective: int,
+    perm: np.ndarray,
+    n_m: int,
+    kp_m: np.ndarray,
+    kd_scale_m: np.ndarray,
+    force_gains: tuple[float, float, float, float],
+    shaping: bool,
+    k0: float,
+    q_lower: np.ndarray,
+    q_upper: np.ndarray,
+    dq_limit: np.ndarray,
+    endless: np.ndarray,
+    damper: tuple[float, float, float],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What `projection_law_fused` reads that changes only with the gains, in three arrays (one
+    compiled call's argument checks cost per argument): (axes, gains, limits) =
+    ([objective, n_m, perm…] int64; [K_f^p, K_f^d, K_f^i, integral limit, shaping, k0, d_i, d_s, ξ,
+    K_m^p…, 2ζ√K_m^p…]; rows q⁻, q⁺, q̇ limit, endless (1/0)). `law_constants_unpacked` reads them back."""
+    axes = np.array([objective, n_m, *np.asarray(perm, dtype=np.int64)], dtype=np.int64)
+    gains = np.array([*force_gains, float(shaping), k0, *damper, *kp_m, *kd_scale_m], dtype=float)
+    limits = np.array([q_lower, q_upper, dq_limit, np.asarray(endless, dtype=float)], dtype=float)
+    return axes, gains, limits
+
+
+def pack_chain(chain: tuple) -> np.ndarray:
+    """`chain_constants` as one (n, 28) array (rotation 9, translation 3, axis 3, mass 1, lever 3,
+    inertia 9 per joint) for `projection_law_fused`."""
+    R, p, axes, mass, lever, inertia = chain
+    n = len(mass)
+    return np.hstack([R.reshape(n, 9), p, axes, mass[:, None], lever, inertia.reshape(n, 9)])
+
+
+@njit(cache=True)
+def _unpack_chain(packed):
+    n = packed.shape[0]
+    R = np.ascontiguousarray(packed[:, 0:9]).reshape((n, 3, 3))
+    inertia = np.ascontiguousarray(packed[:, 19:28]).reshape((n, 3, 3))
+    return R, packed[:, 9:12], packed[:, 12:15], packed[:, 15], packed[:, 16:19], inertia
+
+
 @njit(cache=True)
 def projection_law_fused(
-    objective,
     q,
     dq,
     J,
@@ -929,11 +969,6 @@ def projection_law_fused(
     Lambda_inv,
     dJ_dq,
     exact,
-    perm,
-    n_m,
-    m_idx,
-    f_idx,
-    chain,
     tcp_position,
     tcp_rotation,
     target_position,
@@ -943,20 +978,13 @@ def projection_law_fused(
     target_wrench,
     F_e,
     force_integral,
-    kp_m,
-    kd_scale_m,
-    force_kp,
-    force_kd,
-    force_ki,
-    force_integral_limit,
-    shaping,
     q_d,
-    k0,
-    q_lower,
-    q_upper,
-    dq_limit,
-    endless,
-    damper,
+    axes,
+    gains,
+    limits,
+    chain,
+    F_mu,
+    qp_data,
 ):
     """Everything the [T] executor computes before its nullspace QP, in one compiled call of the
     kernels above (the same arithmetic as calling them one by one, as the executor's reference
@@ -967,12 +995,20 @@ def projection_law_fused(
     T22]); the QP's linear term k0 ∇W with ∇W from `gradient_contraction_fused` and
     `inertia_contraction_fused` [T24-27] (objective 0/1/2: f/a/d), or ∇W_j = q − q_d [T18]
     (objective `OBJECTIVE_J`); `task_wrench_fused` [T7, T11-12]; `damper_bounds_fused` [T17].
-    `chain` is `chain_constants(model)` (a serial revolute chain), `damper` (influence, safety,
-    speed).
+    `axes`, `gains`, `limits` are `law_constants(…)`, `chain` is `pack_chain(chain_constants(model))`
+    (a serial revolute chain).
 
-    Returns (F, F − Λx J̇q̇, k0 ∇W, lower, upper, new force integral, W, W_f, W_a, W_d,
-    P_f F_m^e, F̂_f[0] − F_f^e[0]).
+    Writes F − Λx J̇q̇ into `F_mu` (6,) and the QP's k0 ∇W, lower and upper bounds into the rows of
+    `qp_data` (3, n) (the caller's buffers: handing arrays back costs more); returns (F, new force
+    integral, W, W_f, W_a, W_d, P_f F_m^e, F̂_f[0] − F_f^e[0]).
     """
+    objective, n_m = axes[0], axes[1]
+    perm = axes[2:]
+    m_idx, f_idx = perm[:n_m], perm[n_m:]
+    force_kp, force_kd, force_ki, force_integral_limit = gains[0], gains[1], gains[2], gains[3]
+    shaping, k0 = gains[4] != 0.0, gains[5]
+    kp_m, kd_scale_m = gains[9 : 9 + n_m], gains[9 + n_m : 9 + 2 * n_m]
+    q_lower, q_upper, dq_limit, endless = limits[0], limits[1], limits[2], limits[3] != 0.0
     e = np.empty(6)  # [px py pz rx ry rz], world-aligned
     R_err = np.empty((3, 3))
     for i in range(3):
@@ -1006,18 +1042,24 @@ def projection_law_fused(
     else:  # [T24-27] as `control.coupling.coupling_gradient_direct`
         P = P_f if objective == 0 else (P_a if objective == 1 else P_d)
         term_J, a_, b_ = gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m)
-        R_place, p_place, axes, mass, lever, inertia = chain
+        R_place, p_place, joint_axes, mass, lever, inertia = _unpack_chain(chain)
         term_M = np.zeros(n)
         for c in range(a_.shape[1]):
-            term_M += inertia_contraction_fused(q, R_place, p_place, axes, mass, lever, inertia, a_[:, c], b_[:, c])
+            term_M += inertia_contraction_fused(
+                q, R_place, p_place, joint_axes, mass, lever, inertia, a_[:, c], b_[:, c]
+            )
         W = W_f if objective == 0 else (W_a if objective == 1 else W_d)
         for i in range(n):
             grad[i] = -2.0 * (term_J[i] - term_M[i])
     for i in range(n):
         grad[i] = k0 * grad[i]
-    F, F_mu, coupled = task_wrench_fused(
+    F, F_mu_, coupled = task_wrench_fused(
         J, dq, e, target_velocity, target_acceleration, A, P_d, P_f, Lambda, dJ_dq, F_e, F_hat, u_f_extra,
         m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, shaping,
     )  # fmt: skip
-    lower, upper = damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, damper[0], damper[1], damper[2])
-    return F, F_mu, grad, lower, upper, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]
+    lower, upper = damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, gains[6], gains[7], gains[8])
+    F_mu[:] = F_mu_
+    qp_data[0] = grad
+    qp_data[1] = lower
+    qp_data[2] = upper
+    return F, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]

@@ -88,9 +88,8 @@ class RobotModel:
         pin.updateFramePlacements(model, data)
         J = pin.getFrameJacobian(model, data, fid, LWA)
         dJ_dq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector.copy()
-        M, M_inv, N, Lambda_n = np.empty((4, n, n))  # the kernel fills them (one allocation each size)
-        Lambda_inv, Lambda = np.empty((2, 6, 6))
-        J_bar = np.empty((n, 6))
+        M, M_inv, N, Lambda_n = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+        Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))  # the kernel fills them
         min_eig, near_singular = snapshot_into(
             data.M, J, SINGULAR_EIGENVALUE, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n
         )  # compiled `snapshot_reference`

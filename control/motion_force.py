@@ -38,6 +38,8 @@ from control.kernels import (
     OBJECTIVE_J,
     damper_bounds_fused,
     joint_torque_fused,
+    law_constants,
+    pack_chain,
     projection_law_fused,
     task_wrench_fused,
 )
@@ -67,6 +69,8 @@ class ProjectionExecutor:
         # the law in one compiled call (`_step_fused`) on a serial revolute chain; else, or with
         # fused=False, the same law kernel by kernel (`_step_reference`)
         self.fused = bool(fused) and model.revolute_chain
+        self._chain = pack_chain(model.chain) if self.fused else None
+        self._F_mu, self._qp_data = np.empty(6), np.empty((3, model.nv))  # the fused law's work buffers
         self.n = model.nv
         self.q_lower = np.asarray(q_lower, dtype=float)
         self.q_upper = np.asarray(q_upper, dtype=float)
@@ -135,7 +139,7 @@ class ProjectionExecutor:
         the step returns gravity/Coriolis compensation only, flagged as a fallback.
         """
         wrench = np.asarray(inputs.wrench_tcp, dtype=float)
-        sensor_invalid = not math.isfinite(float(wrench @ wrench))  # NaN/inf anywhere (one dot product)
+        sensor_invalid = not math.isfinite(float(wrench.dot(wrench)))  # NaN/inf anywhere (one dot product)
         if sensor_invalid:
             inputs = replace(inputs, wrench_tcp=self._last_valid_wrench.copy())
         else:
@@ -146,7 +150,7 @@ class ProjectionExecutor:
             out = self._step_fused(dyn, inputs) if self.fused else self._step_reference(dyn, inputs)
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
             return ControlOutput(tau=dyn.h.copy(), fallback=True, info={"executor_error": 1.0})
-        if not math.isfinite(float(out.tau @ out.tau)):
+        if not math.isfinite(float(out.tau.dot(out.tau))):
             return ControlOutput(tau=dyn.h.copy(), fallback=True, info={**out.info, "executor_error": 1.0})
         if sensor_invalid:
             out.fallback = True
@@ -198,9 +202,13 @@ class ProjectionExecutor:
         self._zeros_f = np.zeros(self.sub.n_f)
         ns = self.nullspace
         self._objective_code = OBJECTIVE_J if ns.objective == "j" else OBJECTIVE_CODES[ns.objective]
-        self._damper = np.array([ns.damper_influence, ns.damper_safety, ns.damper_speed], dtype=float)
-        self._k0, self._shaping = float(ns.k0), bool(g.shaping)
-        self._force_gains = (float(g.force_kp), float(g.force_kd), float(g.force_ki), float(g.force_integral_limit_n))
+        if self.fused:  # what the fused law reads that changes only here (`law_constants`)
+            self._law_constants = law_constants(
+                self._objective_code, self.sub.perm, self.sub.n_m, self._kp_m, self._kd_scale_m,
+                (float(g.force_kp), float(g.force_kd), float(g.force_ki), float(g.force_integral_limit_n)),
+                bool(g.shaping), float(ns.k0), self.q_lower, self.q_upper, self._dq_limit, self.endless,
+                (float(ns.damper_influence), float(ns.damper_safety), float(ns.damper_speed)),
+            )  # fmt: skip
 
     def _step_fused(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
         """`_step_reference` with everything before the QP in one compiled call (`projection_law_fused`:
@@ -210,22 +218,19 @@ class ProjectionExecutor:
         self._last_terms, self._last_dyn, self._last_sub = None, dyn, sub
         q_d = target.q_posture if target.q_posture is not None else self.q_posture
         try:
-            F, F_mu, grad_step, lower, upper, integral, W_obj, W_f, W_a, W_d, coupled, force_error = (
-                projection_law_fused(
-                    self._objective_code, dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq,
-                    not dyn.near_singular, sub.perm, sub.n_m, self._m, self._f, self.model.chain,
-                    dyn.tcp_position_world, dyn.tcp_rotation_world, target.position, target.rotation,
-                    target.velocity, target.acceleration, target.wrench, F_e, self.force_integral,
-                    self._kp_m, self._kd_scale_m, self._force_gains[0], self._force_gains[1],
-                    self._force_gains[2], self._force_gains[3], self._shaping, dyn.q if q_d is None else q_d,
-                    self._k0, self.q_lower, self.q_upper, self._dq_limit, self.endless, self._damper,
-                )
+            F_mu, qp_data = self._F_mu, self._qp_data  # filled by the kernel, read in this step only
+            F, integral, W_obj, W_f, W_a, W_d, coupled, force_error = projection_law_fused(
+                dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq, not dyn.near_singular,
+                dyn.tcp_position_world, dyn.tcp_rotation_world, target.position, target.rotation,
+                target.velocity, target.acceleration, target.wrench, F_e, self.force_integral,
+                dyn.q if q_d is None else q_d, *self._law_constants, self._chain, F_mu, qp_data,
             )  # fmt: skip
         except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
             return self._step_reference(dyn, inputs)
         self.force_integral = integral
         self._last_q, self._last_q_d = dyn.q, q_d  # for W_j in the view
         self.last_wrench = F
+        grad_step, lower, upper = qp_data
         res = self.qp.solve(dyn.J, grad_step, lower, upper)  # [T15-17]
         self.last_qp = res
         # [T13] nullspace velocity tracking, [T14] torque
@@ -242,7 +247,7 @@ class ProjectionExecutor:
             "force_error_n": force_error,
             "qp_iterations": float(res.iterations),
             "qp_fallback": float(res.fallback),
-            "nullspace_speed": math.sqrt(float(res.x @ res.x)),
+            "nullspace_speed": math.sqrt(float(res.x.dot(res.x))),
             "coupled_accel": coupled,
         }
         return ControlOutput(tau=tau, fallback=res.fallback, info=info)

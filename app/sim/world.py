@@ -260,12 +260,12 @@ class World:
         `site_pose`, `site_velocity`[:3] and `site_inverse_mass` from one translational Jacobian."""
         jacp, data = self._jacp, self.data
         mujoco.mj_jacSite(self.model, data, jacp, None, site_id)
-        velocity = jacp @ data.qvel
+        velocity = jacp.dot(data.qvel)  # ndarray.dot: less call overhead than @
         G = None
         if inverse_mass:
             x = self._solve_buf
             mujoco.mj_solveM(self.model, data, x, jacp)
-            G = jacp @ x.T
+            G = jacp.dot(x.T)
         return data.site_xpos[site_id].copy(), velocity, G
 
     def body_point_velocity(self, body_id: int, point_world: np.ndarray) -> np.ndarray:
@@ -402,7 +402,7 @@ class World:
         data = self.data
         qvel, qpos = data.qvel, data.qpos
         # a dot product is NaN/inf when any element is, and `not <=` is True for NaN: one cheap test
-        if not float(qvel @ qvel) <= 1e6 or not math.isfinite(float(qpos @ qpos)):
+        if not float(qvel.dot(qvel)) <= 1e6 or not math.isfinite(float(qpos.dot(qpos))):
             return True
         counts = self._warning_counts.tolist()
         return counts[_BAD_QPOS] > 0 or counts[_BAD_QVEL] > 0 or counts[_BAD_QACC] > 0
