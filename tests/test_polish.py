@@ -216,7 +216,7 @@ def test_finished_runs_are_kept_as_they_finish_and_resume_reuses_only_matching_o
 
     specs = [{"objective": "j", "mu": 1.0, "seed": s, "session_params": [("nullspace", "k0_j", 2.0)]} for s in (1, 2)]
     runs = tmp_path / "runs"
-    first = _map(_toy_run, specs, 1, 0.0, runs)  # None swivel and margin print without an error
+    first, _ = _map(_toy_run, specs, 1, 0.0, runs)  # None swivel and margin print without an error
     assert "margin none" in capsys.readouterr().err
     assert [o["result"]["seed"] for o in first] == [1, 2]
     again = load_run(runs, specs[1])
@@ -230,7 +230,26 @@ def test_finished_runs_are_kept_as_they_finish_and_resume_reuses_only_matching_o
         return _toy_run(spec)
 
     more = [*specs, {**specs[0], "seed": 3}]
-    out = _map(counting, more, 1, 0.0, runs, resume=True)
-    assert ran == [3] and [o["result"]["seed"] for o in out] == [1, 2, 3]
+    out, reused = _map(counting, more, 1, 0.0, runs, resume=True)
+    assert ran == [3] and reused == 2 and [o["result"]["seed"] for o in out] == [1, 2, 3]
     _map(counting, more, 1, 0.0, runs)  # without --resume every run runs again
     assert ran == [3, 1, 2, 3]
+
+
+def test_a_quick_one_row_experiment_writes_a_report_from_its_own_runs(tmp_path):
+    import json
+
+    from app.cli import main
+
+    out = tmp_path / "polish"
+    assert main(["experiment", "polish", "--quick", "--rows", "j", "--mu", "1", "--out", str(out)]) == 0
+    doc = json.loads((out / "polish.json").read_text())
+    (run,) = doc["runs"]
+    assert run["objective"] == "j" and run["mu"] == 1.0 and run["converged"]
+    assert doc["settings"]["code"] and doc["settings"]["reused_runs"] == 0
+    page = (out / "report.html").read_text()
+    fe = run["force_error"]
+    # the table row and the findings carry this run's numbers, and the run is kept in runs/
+    assert f"<td>{fe['ma']:.1f}</td><td>{fe['ptp']:.1f}</td><td>{fe['std']:.1f}</td>" in page
+    assert f"MA {fe['ma']:.1f} vs 5.9" in page
+    assert len(list((out / "runs").glob("*.json"))) == 1

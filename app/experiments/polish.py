@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from app.provenance import code_version
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
 
@@ -67,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--resume",
         action="store_true",
         help="reuse the runs an earlier (interrupted) invocation with the same --out already finished "
-        "(runs/ in --out: each run is saved as it finishes); only for the same code version",
+        "(runs/ in --out: each run is saved as it finishes) with the same code version",
     )
     parser.add_argument(
         "--rows", default=None, help=f"only these rows of the table, comma separated ({', '.join(ROW_KEYS)})"
@@ -401,7 +402,7 @@ def run(args: argparse.Namespace) -> int:
         specs += armature_specs(max(mus))
     t0 = time.perf_counter()
     print(f"polish: {len(specs)} runs on {jobs} process(es)", file=sys.stderr, flush=True)
-    outputs = _map(simulate, specs, jobs, t0, out / RUNS_DIR, bool(getattr(args, "resume", False)))
+    outputs, reused = _map(simulate, specs, jobs, t0, out / RUNS_DIR, bool(getattr(args, "resume", False)))
     results = [o["result"] for o in outputs]
     series = [o["series"] for o in outputs]
     v_eps = [] if quick else [v_eps_check(v) for v in V_EPS_CHECK_M_PER_S]
@@ -412,7 +413,7 @@ def run(args: argparse.Namespace) -> int:
     table = [r for r in results if r["group"] == "table"]
     doc = {
         "experiment": "polish",
-        "settings": _settings(args, mus, quick),
+        "settings": {**_settings(args, mus, quick), "reused_runs": reused},
         "paper_table_iii": {
             str(mu): {OBJECTIVE_NAMES[k]: v for k, v in row.items()} for mu, row in PAPER_TABLE_III.items()
         },
@@ -542,28 +543,32 @@ def save_run(runs_dir: Path, spec: dict, output: dict) -> None:
     with open(runs_dir / f"{key}.tmp.npz", "wb") as f:
         np.savez_compressed(f, **output["series"])
     (runs_dir / f"{key}.tmp.npz").replace(runs_dir / f"{key}.npz")
-    (runs_dir / f"{key}.tmp.json").write_text(json.dumps({"spec": spec, "result": output["result"]}))
+    doc = {"spec": spec, "code": code_version(), "result": output["result"]}
+    (runs_dir / f"{key}.tmp.json").write_text(json.dumps(doc))
     (runs_dir / f"{key}.tmp.json").replace(runs_dir / f"{key}.json")
 
 
 def load_run(runs_dir: Path, spec: dict) -> dict | None:
-    """A run of exactly this spec saved earlier, or None."""
+    """A run of exactly this spec saved earlier by this code version, or None."""
     key = run_key(spec)
     meta, arrays = runs_dir / f"{key}.json", runs_dir / f"{key}.npz"
     if not (meta.exists() and arrays.exists()):
         return None
     doc = json.loads(meta.read_text())
-    if doc.get("spec") != json.loads(json.dumps(spec)):
+    if doc.get("spec") != json.loads(json.dumps(spec)) or doc.get("code") != code_version():
         return None
     with np.load(arrays) as z:
         series = {k: z[k] for k in z.files}
     return {"result": doc["result"], "series": series}
 
 
-def _map(fn, specs: list[dict], jobs: int, t0: float, runs_dir: Path | None = None, resume: bool = False) -> list[dict]:
+def _map(
+    fn, specs: list[dict], jobs: int, t0: float, runs_dir: Path | None = None, resume: bool = False
+) -> tuple[list[dict], int]:
     """fn over specs on `jobs` processes; each finished run is saved in runs_dir at once, and with
-    `resume` a run saved there earlier is reused instead of run again."""
+    `resume` a run saved there earlier is reused instead of run again. Returns (outputs, reused)."""
     outputs: list[dict | None] = [None] * len(specs)
+    reused = 0
     if runs_dir is not None and resume:
         for i, spec in enumerate(specs):
             outputs[i] = load_run(runs_dir, spec)
@@ -585,7 +590,7 @@ def _map(fn, specs: list[dict], jobs: int, t0: float, runs_dir: Path | None = No
             futures = {pool.submit(fn, specs[i]): i for i in todo}
             for done, fut in enumerate(as_completed(futures)):
                 finished(done, futures[fut], fut.result())
-    return [o for o in outputs if o is not None]
+    return [o for o in outputs if o is not None], reused
 
 
 def _label(r: dict) -> str:
@@ -624,6 +629,7 @@ def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
         + (" --quick" if quick else f" --seeds {args.seeds}")
         + (f" --rows {args.rows}" if getattr(args, "rows", None) else "")
         + f" --mu {','.join(f'{m:g}' for m in mus)}",
+        "code": code_version(),
         "quick": quick,
         "seeds": 1 if quick else int(args.seeds),
         "jobs": int(args.jobs),

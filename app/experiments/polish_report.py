@@ -296,6 +296,11 @@ def _pm(x: dict | None, digits: int = 1) -> str:
     return f"{x['mean']:.{digits}f} ± {x['sd']:.{digits}f}"
 
 
+def _reused(settings: dict) -> str:
+    n = settings.get("reused_runs")
+    return f", {n} run(s) reused from an interrupted invocation" if n else ""
+
+
 def _fmt(x, digits: int = 2) -> str:
     return "-" if x is None else f"{x:.{digits}f}"
 
@@ -347,7 +352,8 @@ td,th{{border:1px solid #bbb;padding:3px 6px;text-align:right}}
 th{{background:#eee}}img{{max-width:100%}}</style></head><body>
 <h1>Polishing with nullspace coupling optimization — simulation study of [T] §IV-B</h1>
 <p>Run: <code>{html.escape(s["command"])}</code> ({s["seeds"]} seed(s) per cell, {s["jobs"]} process(es), wall time
-{doc["wall_s"]:.0f} s). Rizon 4s model, 1 kHz, table contact 30 000 N/m with Coulomb friction regularised at
+{doc["wall_s"]:.0f} s{_reused(s)}, code version {html.escape(str(s.get("code", "not recorded")))}).
+Rizon 4s model, 1 kHz, table contact 30 000 N/m with Coulomb friction regularised at
 v_ε = {s["friction_v_eps_m_per_s"] * 1000:g} mm/s and integrated implicitly, F/T noise 5 N² + 2 N at 1 Hz,
 25 Hz low-pass; Table II gains; start elbow up (swivel 0°); six segments of {s["segment_dx_m"]:.2f} m in X and
 {s["segment_dy_m"]:.2f} m in Y, {s["segment_duration_s"]:.1f} s each. The settle phase ends when the QP's goal

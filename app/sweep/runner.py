@@ -20,7 +20,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from app.sweep.store import CellStore, cell_key, code_version, write_csv
+from app.provenance import code_version
+from app.sweep.store import CellStore, cell_key, write_csv
 
 
 def spread_order(n: int) -> list[int]:

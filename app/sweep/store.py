@@ -13,25 +13,11 @@ import json
 import os
 from pathlib import Path
 
-import app
-
 
 def cell_key(experiment: str, params: dict, seed: int) -> str:
     """Hash of the experiment, the cell's parameters and its seed: the identity used for resume."""
     text = json.dumps({"experiment": experiment, "params": params, "seed": int(seed)}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def code_version() -> str:
-    """Hash of the installed torquelab sources (app/, control/, robots/): which code made a cell."""
-    root = Path(app.__file__).resolve().parent.parent
-    h = hashlib.sha256()
-    for package in ("app", "control", "robots"):
-        for path in sorted((root / package).rglob("*")):
-            if path.suffix in (".py", ".toml", ".urdf") and path.is_file():
-                h.update(str(path.relative_to(root)).encode())
-                h.update(path.read_bytes())
-    return h.hexdigest()[:12]
 
 
 class CellStore:
