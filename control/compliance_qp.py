@@ -40,6 +40,13 @@ from control.gains import (
     SolverParams,
     compliance_matrix,
 )
+from control.kernels import (
+    add_task_rows_fused,
+    inverse_dynamics_fused,
+    pose_task_target_fused,
+    posture_target_fused,
+    torque_rows_fused,
+)
 from control.model import Dynamics
 from control.params import expect
 
@@ -90,6 +97,7 @@ class PoseTask:
         self.kp = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (6,)).copy()
         self.kd = np.broadcast_to(np.asarray(gains.damping, dtype=float), (6,)).copy()
         self.gamma = compliance_matrix(gains.compliance, 6)
+        self._use_gamma = bool(self.gamma.any())
 
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
         """No internal state."""
@@ -101,6 +109,18 @@ class PoseTask:
         return -self.kd * de - self.kp * e
 
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
+        """`rows_reference` in one compiled call (`control.kernels.pose_task_target_fused`)."""
+        try:
+            b = pose_task_target_fused(
+                dyn.J, dyn.dq, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world, target.position,
+                target.rotation, target.velocity, target.acceleration, self.kp, self.kd, self.gamma,
+                self._use_gamma, ddq_e,
+            )  # fmt: skip
+        except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
+            return self.rows_reference(dyn, target, ddq_e)
+        return TaskRows(dyn.J, b, self.gains.weight, None)
+
+    def rows_reference(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
         """J q̈ = ẍ° + ë* + Γ J q̈_e − J̇ q̇ [C4, C9]."""
         b = target.acceleration + self.reference(dyn, target) - dyn.dJ_dq
         if self.gamma.any():
@@ -133,6 +153,8 @@ class PostureTask:
         self.kd = np.broadcast_to(np.asarray(gains.damping, dtype=float), (n,)).copy()
         self.ki = np.broadcast_to(np.asarray(gains.integral, dtype=float), (n,)).copy()
         self.gamma = compliance_matrix(gains.compliance, n)
+        self._use_ki, self._use_gamma = bool(self.ki.any()), bool(self.gamma.any())
+        self._zeros = np.zeros(n)
 
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
         """Hold the current posture unless the target gives one; clear the integral."""
@@ -149,6 +171,20 @@ class PostureTask:
         return -self.kd * (dyn.dq - dq_ref) - self.kp * e - self.ki * self.integral
 
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
+        """`rows_reference` in one compiled call (`control.kernels.posture_target_fused`)."""
+        q_ref = self.q_hold if target.q_posture is None else target.q_posture
+        dq_ref = self._zeros if self.dq_ref is None else self.dq_ref
+        try:
+            b = posture_target_fused(
+                dyn.q, q_ref, dyn.dq, dq_ref, self.kp, self.kd, self.ki, self._use_ki, self.integral, self.dt,
+                self.gamma, self._use_gamma, ddq_e,
+            )  # fmt: skip
+        except TypeError:  # a posture of other types than float arrays (the kernel's dispatch refuses)
+            return self.rows_reference(dyn, target, ddq_e)
+        metric = dyn.M if self.gains.metric == "inertia" else None
+        return TaskRows(self._eye, b, self.gains.weight, metric)
+
+    def rows_reference(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
         """q̈ = q̈*₀ + Γ₀ q̈_e [C9]."""
         b = self.reference(dyn, target)
         if self.gamma.any():
@@ -284,6 +320,7 @@ class ComplianceQPExecutor:
         self.tau_prev = np.zeros(n)
         self.tau_hat = np.zeros(n)
         self.tau_desired = np.zeros(n)  # τ_d of [C8] before the motors' saturation
+        self._zeros = np.zeros(n)  # τ_fb without external-force feedback
         self._diag = np.diag_indices(n)
         self.ddq = np.zeros(n)
         self.last_qp: qp.QPResult | None = None
@@ -392,7 +429,10 @@ class ComplianceQPExecutor:
                 P[self._diag] += w
                 q -= w * b
                 continue
-            JtW = J.T * w if W is None else (J.T @ W) * w
+            if W is None:  # P += w JᵀJ, q −= w Jᵀb, compiled
+                add_task_rows_fused(P, q, J, b, float(w))
+                continue
+            JtW = (J.T @ W) * w
             P += JtW @ J
             q -= JtW @ b
         aqp = self.qp
@@ -408,24 +448,17 @@ class ComplianceQPExecutor:
         bounds = self.damper.bounds(dyn.q, dyn.dq)
         aqp.lb[:] = bounds.lower
         aqp.ub[:] = bounds.upper
-        # torque limits [C10] on τ_d of [C8]
-        tau_fb = tau_hat if self.settings.feedback else 0.0
-        aqp.A[:n] = dyn.M
-        if self.settings.torque_limits:
-            aqp.l[:n] = -self.tau_max - dyn.h + tau_fb
-            aqp.u[:n] = self.tau_max - dyn.h + tau_fb
-        else:
-            aqp.l[:n] = -qp.INF
-            aqp.u[:n] = qp.INF
+        # torque limits [C10] on τ_d of [C8] (compiled: rows of A, l, u in place)
+        tau_fb = tau_hat if self.settings.feedback else self._zeros
+        torque_rows_fused(dyn.M, dyn.h, tau_fb, self.tau_max, aqp.A, aqp.l, aqp.u, self.settings.torque_limits, qp.INF)
         res = aqp.solve(P, q)
         self.ddq = res.x
         self.last_qp = res
-        tau = dyn.M @ res.x + dyn.h - tau_fb  # [C8]
-        if (res.fallback or not res.solved) and self.settings.torque_limits:
-            tau = np.clip(tau, -self.tau_max, self.tau_max)  # [C10] stays hard for approximate solutions too
+        # [C8] τ_d = M q̈ + h − τ_fb; [C10] stays hard for approximate solutions too; the motors clip
+        tau, tau_cmd, saturated = inverse_dynamics_fused(
+            dyn.M, res.x, dyn.h, tau_fb, self.tau_max, (res.fallback or not res.solved) and self.settings.torque_limits
+        )
         self.tau_desired = tau
-        tau_cmd = np.clip(tau, -self.tau_max, self.tau_max)
-        saturated = bool((np.abs(tau) > self.tau_max + 1e-9).any())
         self.tau_prev = tau_cmd
         info = {
             "qp_status": res.status_code,

@@ -337,3 +337,66 @@ def test_log3_kernel_equals_pinocchio_log3():
         ours = K.log3_fused(R)
         assert float(np.max(np.abs(ours - angle * axis))) < 1e-14
         assert float(np.max(np.abs(ours - pin.log3(R)))) < (1e-12 if angle < 3.0 else 1e-10)
+
+
+def test_pose_task_rows_and_objective_kernels_equal_numpy_reference(robot):
+    """[C3-9] the pose task's right-hand side (with and without Γ) and a soft task's share of the
+    QP objective, at random states and targets."""
+    from control.compliance_qp import PoseTask
+    from control.executor import TaskTarget
+    from control.gains import PoseTaskGains
+
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(36)
+    for k, q in enumerate(_states(robot, seed=37)):
+        dyn = model.compute(q, rng.uniform(-1, 1, 7))
+        task = PoseTask(PoseTaskGains(stiffness=400.0, damping=40.0, compliance=0.5 if k % 2 else 0.0))
+        R = pin.exp3(0.3 * rng.standard_normal(3)) @ dyn.tcp_rotation_world
+        target = TaskTarget(
+            dyn.tcp_position_world + 0.05 * rng.standard_normal(3), R,
+            velocity=rng.standard_normal(6), acceleration=rng.standard_normal(6),
+        )  # fmt: skip
+        ddq_e = rng.standard_normal(7)
+        fused, ref = task.rows(dyn, target, ddq_e), task.rows_reference(dyn, target, ddq_e)
+        assert _rel(fused.b, ref.b) < RTOL
+        P, qv = rng.standard_normal((7, 7)), rng.standard_normal(7)
+        P_ref, q_ref = P + (ref.J.T * 3.0) @ ref.J, qv - (ref.J.T * 3.0) @ ref.b
+        K.add_task_rows_fused(P, qv, ref.J, ref.b, 3.0)
+        assert _rel(P, P_ref) < RTOL and _rel(qv, q_ref) < RTOL
+
+
+def test_posture_torque_rows_and_inverse_dynamics_kernels_equal_numpy_reference(robot):
+    """[C7-10] the posture task's right-hand side (integral, Γ₀, a velocity reference), the torque
+    rows of the QP and τ_d = M q̈ + h − τ_fb with its clipping, at random states."""
+    from control.compliance_qp import PostureTask
+    from control.executor import TaskTarget
+    from control.gains import PostureTaskGains
+
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(38)
+    tau_max = np.asarray(robot.tau_max, dtype=float)
+    for k, q in enumerate(_states(robot, seed=39)):
+        dyn = model.compute(q, rng.uniform(-1, 1, 7))
+        gains = PostureTaskGains(stiffness=30.0, damping=8.0, integral=2.0 if k % 2 else 0.0)
+        fused, ref = PostureTask(7, gains), PostureTask(7, gains)
+        target = TaskTarget(dyn.tcp_position_world, dyn.tcp_rotation_world, q_posture=q + 0.1 * rng.standard_normal(7))
+        for task in (fused, ref):
+            task.reset(dyn, target)
+            task.dq_ref = rng.standard_normal(7) if k % 3 else None
+        fused.dq_ref = ref.dq_ref
+        ddq_e = rng.standard_normal(7)
+        for _ in range(3):  # the integral advances alike
+            assert _rel(fused.rows(dyn, target, ddq_e).b, ref.rows_reference(dyn, target, ddq_e).b) < RTOL
+        tau_fb = rng.standard_normal(7) * 5
+        A, lo, up = np.zeros((7, 7)), np.zeros(7), np.zeros(7)
+        K.torque_rows_fused(dyn.M, dyn.h, tau_fb, tau_max, A, lo, up, True, 1e30)
+        assert np.array_equal(A, dyn.M)
+        assert np.array_equal(lo, -tau_max - dyn.h + tau_fb) and np.array_equal(up, tau_max - dyn.h + tau_fb)
+        ddq = rng.standard_normal(7) * 50
+        for clip in (False, True):
+            tau, cmd, saturated = K.inverse_dynamics_fused(dyn.M, ddq, dyn.h, tau_fb, tau_max, clip)
+            tau_ref = dyn.M @ ddq + dyn.h - tau_fb
+            tau_ref = np.clip(tau_ref, -tau_max, tau_max) if clip else tau_ref
+            assert _rel(tau, tau_ref) < RTOL
+            assert np.array_equal(cmd, np.clip(tau, -tau_max, tau_max))
+            assert saturated == bool((np.abs(tau) > tau_max + 1e-9).any())
