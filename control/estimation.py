@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from control.gains import EstimatorGains
+from control.kernels import momentum_observer_fused, sensor_high_pass_fused
 from control.model import Dynamics
 
 
@@ -51,6 +52,17 @@ class MomentumObserver:
         self._h_prev = dyn.h
 
     def update(self, dyn: Dynamics, tau_prev: np.ndarray) -> np.ndarray:
+        """`update_reference` in one compiled call (`control.kernels.momentum_observer_fused`)."""
+        if self._M_prev is None:
+            self._store(dyn)
+            return self.r
+        tau_prev = np.asarray(tau_prev, dtype=float)
+        M_prev, dq_prev, h_prev = self._M_prev, self._dq_prev, self._h_prev
+        self.r = momentum_observer_fused(M_prev, dyn.dq, dq_prev, tau_prev, h_prev, self.dt, self.a, self.r)
+        self._store(dyn)
+        return self.r
+
+    def update_reference(self, dyn: Dynamics, tau_prev: np.ndarray) -> np.ndarray:
         """Advance to the state in `dyn`, given the torque applied over the last period; return r."""
         if self._M_prev is None:
             self._store(dyn)
@@ -133,9 +145,14 @@ class ExternalTorqueEstimator:
         """One estimation step; the observer always runs so switching sources is bumpless."""
         r = self.observer.update(dyn, tau_prev)
         source = self.gains.source
-        if wrench_tcp is not None:
-            self.tau_s = sensor_joint_torque(dyn.J, wrench_tcp)  # τ_s = J_sᵀ F_s, wrench moved to the TCP
-        hp = self.high_pass.update(self.tau_s)
+        high_pass = self.high_pass
+        if wrench_tcp is not None and high_pass.lp is not None:  # τ_s = J_sᵀ F_s (wrench at the TCP), high-passed
+            wrench = np.asarray(wrench_tcp, dtype=float)
+            self.tau_s, hp = sensor_high_pass_fused(dyn.J, wrench, high_pass.lp, high_pass.a)
+        else:
+            if wrench_tcp is not None:
+                self.tau_s = sensor_joint_torque(dyn.J, wrench_tcp)
+            hp = high_pass.update(self.tau_s)
         if source == "residual":
             self.estimate = r.copy()
         elif source == "fusion":

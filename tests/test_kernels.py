@@ -400,3 +400,25 @@ def test_posture_torque_rows_and_inverse_dynamics_kernels_equal_numpy_reference(
             assert _rel(tau, tau_ref) < RTOL
             assert np.array_equal(cmd, np.clip(tau, -tau_max, tau_max))
             assert saturated == bool((np.abs(tau) > tau_max + 1e-9).any())
+
+
+def test_estimation_kernels_equal_numpy_reference(robot):
+    """[C25-26] the momentum observer's step and the sensor torque's high-pass, over a random
+    sequence of states, torques and readings, against `update_reference` and `HighPass.update`."""
+    from control.estimation import HighPass, MomentumObserver
+
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(40)
+    fused, ref = MomentumObserver(7, 50.0, 1e-3), MomentumObserver(7, 50.0, 1e-3)
+    hp_fused, hp_ref = HighPass(7, 50.0, 1e-3), HighPass(7, 50.0, 1e-3)
+    for q in _states(robot, seed=41):
+        dyn = model.compute(q, rng.uniform(-1, 1, 7))
+        tau, wrench = rng.standard_normal(7) * 10, rng.standard_normal(6) * 10
+        assert _rel(fused.update(dyn, tau), ref.update_reference(dyn, tau), scale=1.0) < RTOL
+        if hp_fused.lp is None:
+            hp_fused.update(dyn.J.T @ wrench)
+            hp_ref.update(dyn.J.T @ wrench)
+            continue
+        tau_s, hp = K.sensor_high_pass_fused(dyn.J, wrench, hp_fused.lp, hp_fused.a)
+        assert _rel(tau_s, dyn.J.T @ wrench) < RTOL
+        assert _rel(hp, hp_ref.update(dyn.J.T @ wrench), scale=float(np.abs(tau_s).max())) < RTOL
