@@ -165,13 +165,16 @@ def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar,
             s = 0.5 * (Lambda_inv[i, j] + Lambda_inv[j, i])
             Lambda_inv[i, j] = s
             Lambda_inv[j, i] = s
-    w, V = np.linalg.eigh(Lambda_inv)
-    min_eig = w[0]
+    min_eig = np.linalg.eigvalsh(Lambda_inv)[0]  # eigenvalues alone: cheaper than with vectors
     near_singular = min_eig < singular_eig
-    f = np.empty(6)
-    for i in range(6):
-        f[i] = w[i] / (w[i] * w[i] + singular_eig * singular_eig) if near_singular else 1.0 / w[i]
-    Lambda[:, :] = _sym_from_eig(V, f)  # [T3]
+    if near_singular:  # damped inverse w / (w² + ρ²) from the eigen-decomposition
+        w, V = np.linalg.eigh(Lambda_inv)
+        f = np.empty(6)
+        for i in range(6):
+            f[i] = w[i] / (w[i] * w[i] + singular_eig * singular_eig)
+        Lambda[:, :] = _sym_from_eig(V, f)
+    else:  # [T3] Λx = (J M⁻¹ Jᵀ)⁻¹, positive definite here: by Cholesky, as M⁻¹
+        Lambda[:, :] = _spd_inverse(Lambda_inv)
     J_bar[:, :] = _matmul(X, Lambda)  # [T2]
     N[:, :] = -_matmul(J_bar, J)  # [T4]
     for i in range(n):
