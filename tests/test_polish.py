@@ -253,3 +253,23 @@ def test_a_quick_one_row_experiment_writes_a_report_from_its_own_runs(tmp_path):
     assert f"<td>{fe['ma']:.1f}</td><td>{fe['ptp']:.1f}</td><td>{fe['std']:.1f}</td>" in page
     assert f"MA {fe['ma']:.1f} vs 5.9" in page
     assert len(list((out / "runs").glob("*.json"))) == 1
+
+
+def test_armature_table_flags_runs_that_did_not_converge_or_lost_contact():
+    from app.experiments.polish_report import _arm_ptp
+
+    def run(objective, converged, stable):
+        return {
+            "armature_scale": 0.0,
+            "objective": objective,
+            "force_error": {"ptp": 10.64},
+            "converged_swivel_deg": -86.2,
+            "converged": converged,
+            "stable": stable,
+        }
+
+    doc = {"armature": {"runs": [run("d", False, True), run("f", True, False), run("a", True, True)]}}
+    assert _arm_ptp(doc, 0.0, "d") == "10.6 (-86°, not converged)"
+    assert _arm_ptp(doc, 0.0, "f") == "10.6 (-86°, contact lost)"
+    assert _arm_ptp(doc, 0.0, "a") == "10.6 (-86°)"
+    assert _arm_ptp(doc, 1.0, "a") == "-"

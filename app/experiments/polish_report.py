@@ -390,9 +390,13 @@ ends along the swivel scan with the armature scaled (model and simulation alike)
 
 
 def _arm_ptp(doc: dict, scale: float, objective: str) -> str:
+    """PTP (swivel reached) of the armature run, flagged where it did not converge or lost contact."""
     for r in doc["armature"]["runs"]:
         if r["armature_scale"] == scale and r["objective"] == objective and r["force_error"]["ptp"] is not None:
-            return f"{r['force_error']['ptp']:.1f} ({r['converged_swivel_deg']:+.0f}°)"
+            flags = [w for w, bad in (("not converged", not r["converged"]), ("contact lost", not r["stable"])) if bad]
+            return (
+                f"{r['force_error']['ptp']:.1f} ({r['converged_swivel_deg']:+.0f}°{''.join(', ' + f for f in flags)})"
+            )
     return "-"
 
 
