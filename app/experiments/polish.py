@@ -170,6 +170,7 @@ def simulate(spec: dict) -> dict:
     for group, name, value in spec.get("session_params", ()):  # e.g. ("nullspace", "k0_a", 0.5) from a sweep
         session.set_param(group, name, value)
     clock = session.environment.clock  # type: ignore[attr-defined]
+    session.environment.live_margin_every_s = float("inf")  # type: ignore[attr-defined]  # a page signal only
     target = session.target_fn
     q_start = session.world.q.copy()
     cols = ("t", "force_error", "force_error_true", "W_f", "W_a", "W_d", "segment", "swivel", "swivel_plan")

@@ -221,6 +221,9 @@ class PolishEnvironment(Environment):
         self.executor: object | None = None  # the executor whose gains the live margin uses
         self._margin = float("nan")
         self._margin_at = -np.inf
+        # seconds between live margin signals (the page's Nullspace panel reads them); inf: none, for
+        # headless runs that do not read them (each costs about as much as a thousand steps)
+        self.live_margin_every_s = LIVE_MARGIN_EVERY_S
 
     def apply(self, world: World, t: float) -> dict[str, float]:
         """Contact and sander forces for this step, and the settle progress."""
@@ -253,7 +256,7 @@ class PolishEnvironment(Environment):
             if anchors is not None
             else float("nan")
         )
-        if self._world is not None and t - self._margin_at >= LIVE_MARGIN_EVERY_S:
+        if self._world is not None and t - self._margin_at >= self.live_margin_every_s:
             self._margin_at = t
             self._margin = self.live_margin(t)
         target = self.target
