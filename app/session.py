@@ -275,9 +275,8 @@ class Session:
         out = self._safe_step(dyn, inputs)  # [4]
         world.step(out.tau)  # [5]
         self.steps += 1
-        signals = dict(out.info)
-        signals.update(env_signals)
-        signals["drag_force_n"] = math.sqrt(float(drag_force.dot(drag_force)))  # ‖F‖ as np.linalg.norm computes it
+        # ‖F‖ as np.linalg.norm computes it
+        signals = {**out.info, **env_signals, "drag_force_n": math.sqrt(float(drag_force.dot(drag_force)))}
         self.environment.observe(signals, t)
         self.last = StepRecord(
             t=t,

@@ -249,7 +249,7 @@ class PolishEnvironment(Environment):
         settling), seconds the nullspace speed has been quiet, relative W change over the last second."""
         clock = self.clock
         settling = clock.trajectory_start is None
-        quiet, dw = clock.criterion.progress()
+        quiet, dw = clock.criterion.progress() if settling else (float("nan"), float("nan"))
         anchors = self._world.data.xanchor.tolist() if self._world is not None else None  # Python floats
         swivel = (
             math.degrees(swivel_of_points(anchors[self._joints[1]], anchors[self._joints[3]], anchors[self._joints[5]]))

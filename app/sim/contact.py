@@ -142,7 +142,7 @@ class TableContact:
             )  # fmt: skip
             friction = np.array([fx, fy, 0.0])
         if f_n > 0.0:
-            world.apply_force(world.wrist_body, point, np.array([fx, fy, f_n]))
+            world.apply_force(world.wrist_body, point, np.array([fx, fy, f_n]), copy=False)  # fresh arrays
         speed = math.hypot(velocity[0], velocity[1])
         self.state = ContactState(f_n, friction, point, speed)
         return self.state

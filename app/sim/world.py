@@ -276,14 +276,22 @@ class World:
 
     # ---- forces -----------------------------------------------------------------------------
     def apply_force(
-        self, body_id: int, point_world: np.ndarray, force_world: np.ndarray, torque_world: np.ndarray | None = None
+        self,
+        body_id: int,
+        point_world: np.ndarray,
+        force_world: np.ndarray,
+        torque_world: np.ndarray | None = None,
+        copy: bool = True,
     ) -> None:
-        """Apply an external force (and torque) at a world point on a body for the next step."""
-        f = np.asarray(force_world, dtype=float)
+        """Apply an external force (and torque) at a world point on a body for the next step.
+        `copy=False`: the caller hands over float arrays it will not change (they are kept as given)."""
         t = np.zeros(3) if torque_world is None else np.asarray(torque_world, dtype=float)
-        p = np.asarray(point_world, dtype=float)
+        if copy:
+            p, f, t = np.array(point_world, dtype=float), np.array(force_world, dtype=float), t.copy()
+        else:
+            p, f = point_world, force_world
         mujoco.mj_applyFT(self.model, self.data, f, t, p, body_id, self.data.qfrc_applied)
-        self.applied.append(AppliedForce(body_id, p.copy(), f.copy(), t.copy()))
+        self.applied.append(AppliedForce(body_id, p, f, t))
 
     def external_wrench_at_sensor(self) -> np.ndarray:
         """True wrench [f; m] (world axes, about the sensor origin) the F/T sensor carries: the forces
