@@ -69,6 +69,8 @@ class PlotData:
     tau_max: np.ndarray
     peak_abs_tau: np.ndarray | None = None  # max |τ_i| per joint over every step since the reset
     peak_q: np.ndarray | None = None  # max q_i per joint over every step since the reset
+    segment_std: dict[int, float] | None = None  # force-error STD per polish segment, every step since the reset
+    twin_segment_std: dict[int, float] | None = None  # the same for the twin arm, over its own segments
 
 
 @dataclass(frozen=True)
@@ -192,11 +194,22 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
         if "segment" in twin:
             columns["twin_segment"] = twin["segment"]
     peak_abs_tau, peak_q = lab.log.extremes()
+    segment_std = lab.log.segment_force_error_std()
+    twin_segment_std = lab.twin.log.segment_force_error_std() if lab.twin is not None else None
     mon = np.array(monitor) if monitor else np.zeros((0, 5))
     series = {k: mon[:, i].copy() for i, k in enumerate(("t", "rtf", "W_f", "W_a", "W_d"))}
     r = lab.session.robot
     return PlotData(
-        columns, series, r.q_lower.copy(), r.q_upper.copy(), r.dq_max.copy(), r.tau_max.copy(), peak_abs_tau, peak_q
+        columns,
+        series,
+        r.q_lower.copy(),
+        r.q_upper.copy(),
+        r.dq_max.copy(),
+        r.tau_max.copy(),
+        peak_abs_tau,
+        peak_q,
+        segment_std,
+        twin_segment_std,
     )
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from app.session import StepRecord
 
 WRENCH = ("x", "y", "z", "rx", "ry", "rz")
+N_SEGMENTS = 6  # polish zig-zag S1…S6 (signal "segment")
 
 
 def base_columns(n_joints: int) -> list[str]:
@@ -50,6 +51,8 @@ class StepLog:
         self._scanned = 0  # rows already folded into the extremes
         self._abs_tau_max = np.full(n, np.nan)
         self._q_max = np.full(n, np.nan)
+        self._seg_scanned = 0  # rows already folded into the per-segment force-error moments
+        self._seg_moments = np.zeros((N_SEGMENTS + 1, 3))  # per segment: count, mean, sum of squared deviations
 
     def clear(self) -> None:
         """Forget every row (columns are kept)."""
@@ -58,6 +61,8 @@ class StepLog:
         self._scanned = 0
         self._abs_tau_max.fill(np.nan)
         self._q_max.fill(np.nan)
+        self._seg_scanned = 0
+        self._seg_moments.fill(0.0)
 
     def extremes(self) -> tuple[np.ndarray, np.ndarray]:
         """(max |τ_i|, max q_i) per joint over every row since the last clear — every 1 ms step, not a
@@ -93,6 +98,39 @@ class StepLog:
                     continue
             row[idx] = value
         self.count += 1
+
+    def segment_force_error_std(self) -> dict[int, float]:
+        """STD (N) of the force error over each polish segment S1…S6 (signal "segment") from every row
+        since the last clear — the executor's own "force_error_n" when it reports one, else F̂_z − F_z.
+        Incremental like `extremes()`; a segment with fewer than 5 rows is left out."""
+        new = self.count - self._seg_scanned
+        seg_col = self._signal_col.get("segment")
+        if new > 0 and seg_col is not None:
+            rows = min(new, self.capacity)
+            idx = np.arange(self.count - rows, self.count) % self.capacity
+            block = self._data[idx]
+            err_col = self._signal_col.get("force_error_n")
+            err = block[:, err_col] if err_col is not None else np.full(rows, np.nan)
+            fd_z, f_z = block[:, self._sl_fd.start + 2], block[:, self._sl_f.start + 2]
+            err = np.where(np.isfinite(err), err, fd_z - f_z)
+            seg = block[:, seg_col]
+            for k in range(1, N_SEGMENTS + 1):
+                values = err[(seg == k) & np.isfinite(err)]
+                if values.size:
+                    self._merge_moments(k, values)
+        if new > 0:
+            self._seg_scanned = self.count
+        m = self._seg_moments
+        return {k: float(np.sqrt(m[k, 2] / m[k, 0])) for k in range(1, N_SEGMENTS + 1) if m[k, 0] >= 5}
+
+    def _merge_moments(self, k: int, values: np.ndarray) -> None:
+        """Fold a batch into segment k's (count, mean, M2) (Chan et al.'s parallel update)."""
+        n_a, mean_a, m2_a = self._seg_moments[k]
+        n_b, mean_b = float(values.size), float(values.mean())
+        m2_b = float(((values - mean_b) ** 2).sum())
+        n = n_a + n_b
+        delta = mean_b - mean_a
+        self._seg_moments[k] = (n, mean_a + delta * n_b / n, m2_a + m2_b + delta**2 * n_a * n_b / n)
 
     def _add_signal(self, key: str) -> int | None:
         idx = self._n_base + len(self._signal_col)

@@ -191,7 +191,33 @@ def test_twin_force_error_std_is_taken_over_the_twins_own_segments(server, polis
     base = {k: np.zeros(len(t)) for k in polish.columns}
     columns = base | {"t": t, "segment": main_seg, "twin_segment": twin_seg, "twin_force_error_n": err}
     plots = Plots(server)
-    plots.update(dataclasses.replace(polish, columns=columns), session=1)
+    plots.update(dataclasses.replace(polish, columns=columns, segment_std=None, twin_segment_std=None), session=1)
     assert plots.readouts["twin_force_error_std_S2"] == pytest.approx(3.0, abs=1e-3)
     assert plots.readouts["twin_force_error_std_S1"] == pytest.approx(0.0)
     assert plots.readouts["force_error_std_S2"] == pytest.approx(0.0)
+
+
+def test_segment_std_comes_from_every_step_for_the_main_arm_and_the_twin():
+    """Polish with a W_j arm and a W_j twin (both settle within about a second): the per-segment
+    force-error STD the loop folds in 100 steps at a time equals that of every logged step (1e-9 N),
+    for each arm from its own log and segments."""
+    from app.commands import SetParam, SetTwin
+    from app.frames import plot_data
+    from app.lab import Lab
+
+    lab = Lab("polish", robot="rizon4s", executor="projection")
+    lab.apply(SetParam("nullspace", "objective", "j"))
+    lab.apply(SetTwin("j"))
+    while lab.session.last is None or lab.session.last.signals.get("segment", 0.0) < 3:
+        lab.advance(100)
+        main, twin = lab.log.segment_force_error_std(), lab.twin.log.segment_force_error_std()
+        assert lab.session.world.time < 30.0
+    for log, got in ((lab.log, main), (lab.twin.log, twin)):
+        every = log.window(60.0, lab.dt)
+        want = segment_std({"segment": every["segment"], "e": every["force_error_n"]}, "e")
+        assert set(got) == set(want)
+        for k in want:
+            assert got[k] == pytest.approx(want[k], abs=1e-9)
+    assert {1, 2} <= set(main) and {1, 2} <= set(twin)
+    plot = plot_data(lab, deque())
+    assert plot.segment_std == main and plot.twin_segment_std == twin

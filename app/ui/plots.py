@@ -12,7 +12,7 @@ Every y range is fixed per signal and widens in 1-2-5 steps when the data leave 
 before now, so neither axis depends on uPlot's auto-ranging (which a series that is all NaN — the
 twin's error with no twin — turns into a blank plot). The data come from the loop's `PlotData`
 (the last 10 s, ≈ 50 samples per second); `SignalHistory` keeps the last 60 s of them here. The
-peak-torque readout uses the loop's running extremes over every 1 ms step instead.
+peak-torque and per-segment STD readouts use the loop's running figures over every 1 ms step instead.
 """
 
 from __future__ import annotations
@@ -411,9 +411,12 @@ class Plots:
         out: dict[str, float] = {}
         lines: list[str] = []
         if "segment" in c and np.any(np.isfinite(c["segment"])):
-            main = _std_by_segment(c, force_error(c))
-            twin = {}
-            if "twin_force_error_n" in c:  # on the twin's own segments (its zig-zag may run at other times)
+            # every 1 ms step since the reset when the loop counted them, else the plotted samples
+            main = plot.segment_std if plot.segment_std is not None else _std_by_segment(c, force_error(c))
+            twin: dict[int, float] = {}
+            if plot.twin_segment_std is not None:
+                twin = plot.twin_segment_std
+            elif "twin_force_error_n" in c:  # on the twin's own segments (its zig-zag may run at other times)
                 twin_seg = c["twin_segment"] if "twin_segment" in c else c["segment"]
                 twin = segment_std({"segment": twin_seg, "v": c["twin_force_error_n"]}, "v")
             for k, v in main.items():
