@@ -406,3 +406,17 @@ def test_settle_now_button_shows_in_polishs_settle_phase_and_runs_it(app):
         app.loop.submit(Pause())
         app.loop.submit(SwitchSession(scenario="free", robot=""))
         app.loop.sync()
+
+
+def test_a_paused_page_shows_the_value_in_force_once_the_touched_inputs_hold_has_passed(app):
+    """Paused, no frames come; a value set on the server right after a person touched the input (within
+    its 0.6 s hold) still reaches the input within a few seconds."""
+    from app.commands import Pause, SetParam
+
+    app.loop.submit(Pause())
+    _, _, handle = _knob_handle(app, "max_force_n")
+    _browser_update(handle, 100.0, client_id=1)
+    app.loop.submit(SetParam("drag", "max_force_n", 120.0))
+    app.loop.sync()
+    assert app.loop.session.drag.max_force_n == 120.0 and not app.loop.status.running
+    assert _wait(lambda: handle.value == 120.0, 5.0), handle.value

@@ -73,12 +73,28 @@ class Publisher:
                 notify(self.server, notice.client_id, notice.title, notice.body, error=notice.level == "error")
             frame = self.loop.wait_frame(seq, timeout=0.2)
             if frame is None:
+                self._refresh_idle()
                 continue
             seq = frame.seq
             try:
                 self.show(frame)
             except Exception:  # keep publishing whatever one widget does
                 traceback.print_exc()
+
+    def _refresh_idle(self) -> None:
+        """While no frames come (a paused loop publishes only when something changes), refresh the panels
+        from the last frame now and then, so an input a person touched shows the value in force once
+        its hold has passed."""
+        frame = self.last_frame
+        now = time.monotonic()
+        if frame is None or now < self._next_live:
+            return
+        self._next_live = now + LIVE_PERIOD_S
+        try:
+            for panel in self.panels:
+                panel.refresh(frame.settings)
+        except Exception:
+            traceback.print_exc()
 
     def frame_view(self, client: viser.ClientHandle | None = None) -> bool:
         """Point one client's camera (every client's when None) at the arm of the newest frame."""
