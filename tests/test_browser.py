@@ -119,6 +119,20 @@ def page(app: Any, browser: Any) -> Iterator[tuple[Any, Any]]:
             page.close()
 
 
+@pytest.fixture
+def paused(app: Any) -> Iterator[None]:
+    """The simulation paused for a test that only clicks and reads (a running simulation keeps a
+    software-rendered page busy, so each click waits seconds); it plays again afterwards."""
+    from app.commands import Pause, Play
+
+    app.loop.submit(Pause())
+    app.loop.sync()
+    try:
+        yield
+    finally:
+        app.loop.submit(Play())
+
+
 # ---- camera and projection ------------------------------------------------------------------------
 def set_camera(client: Any, position: np.ndarray, look_at: np.ndarray) -> None:
     """Put the page's camera at a known pose (position first, then look_at) and wait until it is in force."""
@@ -289,7 +303,7 @@ def _robot_is_drawn_where_projected(app: Any, pg: Any, client: Any) -> None:
     pg.screenshot(path=str(ARTIFACTS / "browser-robot.png"))
 
 
-def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page):
+def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page, paused):
     pg, _ = page
     open_tab(pg, "Tune")
     wait_for(lambda: has_control(pg, r"^Objective$", "combobox"), 30, "the Objective dropdown")
@@ -305,7 +319,7 @@ def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page
     wait_for(lambda: pg.get_by_label("Objective", exact=True).input_value() == "W_a", 20, "the page to show W_a")
 
 
-def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page):
+def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page, paused):
     from app.ui.panels.nullspace import NullspacePanel
 
     pg, _ = page
@@ -322,7 +336,7 @@ def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page)
     wait_for(lambda: not preview.ghost_visible, 30, "the ghost arm to hide")
 
 
-def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page):
+def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page, paused):
     from app.commands import SetTwin
 
     pg, _ = page
@@ -336,37 +350,6 @@ def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page)
     finally:
         app.loop.submit(SetTwin(None))
         wait_for(lambda: app.loop.status.twin == "", 20, "the twin to stop")
-
-
-def test_mouse_drag_on_a_link_pulls_it_with_the_spring_and_mouse_up_releases(app, page):
-    pg, client = page
-    assert drag_state(app).body is None
-    x, y = start_drag(pg, client, app, DRAG_LINK)
-    start = drag_state(app).point
-    assert start is not None
-    peak = 0.0
-    for k in range(1, 6):  # 5 moves up and to the left, ~25 px each
-        pg.mouse.move(x - 15 * k, y - 20 * k)
-        peak = max(peak, drag_state(app).force_n)
-
-    def pulled_along_the_spring() -> float:
-        """Displacement (m) of the grabbed point along the spring's pull direction since the grab."""
-        view = drag_state(app)
-        if view.point is None or view.target is None or np.linalg.norm(view.target - start) < 0.02:
-            return 0.0
-        pull = (view.target - start) / np.linalg.norm(view.target - start)
-        along = float((view.point - start) @ pull)
-        return along if along > 0.01 else 0.0
-
-    moved = wait_for(pulled_along_the_spring, 20, "the grabbed point to follow the spring by 1 cm")
-    peak = max(peak, drag_state(app).force_n)
-    assert peak > 5.0, f"spring force only {peak:.1f} N"
-    ARTIFACTS.mkdir(exist_ok=True)
-    pg.screenshot(path=str(ARTIFACTS / "browser-drag.png"))
-    save_tour_shot(pg, "tour-1-drag.png")
-    pg.mouse.up()
-    wait_for(lambda: drag_state(app).body is None, 20, "mouse-up to release the drag")
-    assert moved > 0.01
 
 
 def test_screenshot_of_the_running_app_is_saved(app, page):
@@ -406,7 +389,7 @@ def test_screenshot_of_the_running_app_is_saved(app, page):
         shutil.copyfile(shot, README_SCREENSHOT)
 
 
-def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page):
+def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page, paused):
     """Γ (task compliance), λ and M belong to the [C] QP executor: with it running they are in the page."""
     from app.commands import SwitchSession
 
@@ -441,6 +424,12 @@ def save_tour_shot(pg: Any, name: str) -> None:
     """A screenshot for the README's tour: test-artifacts/NAME, copied to static/ with
     TORQUELAB_UPDATE_SCREENSHOT=1."""
     ARTIFACTS.mkdir(exist_ok=True)
+    close = pg.locator(".mantine-Notification-closeButton")  # notices would cover the 3D view
+    for _ in range(close.count()):
+        try:
+            close.first.click(timeout=5_000)
+        except Exception:  # closed on its own meanwhile
+            pass
     pg.screenshot(path=str(ARTIFACTS / name))
     if os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") == "1":
         shutil.copyfile(ARTIFACTS / name, README_SCREENSHOT.parent / name)
@@ -486,7 +475,6 @@ def test_force_plot_has_a_finite_range_and_a_drawn_trace_in_every_preset(app, pa
             if name == "limit-drop":
                 wait_for(lambda: pg.get_by_text("peak |τ|", exact=False).first.is_visible(), 30, "the peak readout")
                 assert app.publisher.plots.readouts["peak_torque_nm"] > 0.0
-                save_tour_shot(pg, "tour-3-limit-drop.png")
     finally:
         app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
         app.loop.submit(Play())
@@ -520,7 +508,7 @@ def test_space_pauses_and_plays_arrow_steps_and_r_resets(app, page):
         app.loop.submit(Play())
 
 
-def test_restore_defaults_button_in_the_page_returns_the_parameters_to_the_presets_defaults(app, page):
+def test_restore_defaults_button_in_the_page_returns_the_parameters_to_the_presets_defaults(app, page, paused):
     from app.commands import SetParam
     from app.session import Session
 
@@ -536,6 +524,188 @@ def test_restore_defaults_button_in_the_page_returns_the_parameters_to_the_prese
     wait_for(lambda: app.loop.sync() and not app.loop.lab.overrides, 20, "Restore defaults to forget the overrides")
     assert app.loop.session.drag.max_force_n == pytest.approx(default)
     assert pg.get_by_role("button", name="Save settings").count() == 1
+
+
+_NUMBER_BOX_JS = """([pattern, mark]) => {
+    const re = new RegExp(pattern);
+    for (const label of document.querySelectorAll('label')) {
+        if (!re.test(label.textContent.trim())) continue;
+        let el = document.getElementById(label.htmlFor);
+        for (let up = 0; el && up < 5; up++, el = el.parentElement) {
+            const box = el.querySelector('input:not([type=hidden])');
+            if (box) { box.setAttribute('data-tour-box', mark); return true; }
+        }
+    }
+    return false;
+}"""
+
+
+def type_number(pg: Any, label_pattern: str, text: str) -> None:
+    """Type `text` into the number box of the input labelled `label_pattern` (a slider's box too)."""
+    mark = f"box{time.monotonic_ns()}"
+    wait_for(lambda: pg.evaluate(_NUMBER_BOX_JS, [label_pattern, mark]), 30, f"the number box of {label_pattern}")
+    box = pg.locator(f"[data-tour-box={mark}]")
+    box.scroll_into_view_if_needed()
+    box.fill(text)
+    box.press("Enter")
+
+
+def param(app: Any, group: str, field: str) -> Any:
+    """A parameter in force, read on the loop thread."""
+    return app.loop.call(lambda s: getattr(s.params()[group], field))
+
+
+TOUR_STD_RATIO = 1.58  # README tour step 2: twin W_j over main W_d, force-error STD over S2 and S4, μ = 1
+TOUR_STD_TOLERANCE = 0.15
+TOUR_PEAK_NM = {100.0: 14.5, 500.0: 36.9}  # README tour step 3: peak |τ₄| of the limit drop per λ
+TOUR_PEAK_TOLERANCE_NM = 1.0
+
+
+def press(pg: Any, key: str) -> None:
+    """A key for the page's hotkeys (Space, r, …), with no input focused."""
+    pg.evaluate("() => document.activeElement && document.activeElement.blur()")
+    pg.keyboard.press(key)
+
+
+def set_running(app: Any, pg: Any, running: bool) -> None:
+    """Play or pause with Space (the tour's key) until the loop is in that state."""
+    if app.loop.sync().running != running:
+        press(pg, "Space")
+    wait_for(lambda: app.loop.sync().running == running, 30, "Space to " + ("play" if running else "pause"))
+
+
+def choose_preset(app: Any, pg: Any, name: str) -> None:
+    """Pick a preset in the Run tab's dropdown (again if a busy page lost the first pick)."""
+    open_tab(pg, "Run")
+    for _ in range(3):
+        choose(pg, "Preset", name)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            if app.loop.status.scenario == name and app.publisher.scene_session_id == app.loop.lab.session_id:
+                return
+            time.sleep(0.1)
+    pytest.fail(f"the preset {name} did not start", pytrace=False)
+
+
+def test_the_readme_tour_step_by_step(app, page):
+    """README "A five-minute tour", each step as a person takes it in the page (paused with Space while
+    choosing settings: a running simulation makes a software-rendered page slow to answer).
+    1. free: a drag on the elbow moves the grabbed point ≥ 1 cm along the spring's pull with > 5 N;
+       mouse-up releases it.
+    2. polish, Objective W_d, Friction μ 1, Twin arm W_j, Speed as fast as possible, Settle now
+       (unpaced until the W_d elbow has converged), on through S1…S4: the readout's force-error STD
+       over S2 and S4 (each arm over its own segments, every step), twin over main, is 1.58 ± 0.15.
+    3. limit-drop waits paused ("Press Play"); Play (Space): the peak |τ₄| readout reads 14.5 ± 1 N m;
+       λ = 500, Reset (R), Play: 36.9 ± 1 N m."""
+    from app.commands import Play, SetSpeed, SwitchSession
+
+    pg, client = page
+    plots = app.publisher.plots
+    t0 = time.monotonic()
+
+    def lap(what: str) -> None:
+        print(f"tour: {what} at {time.monotonic() - t0:.1f} s wall")
+
+    try:
+        # ---- 1. free: drag the elbow --------------------------------------------------------------
+        set_running(app, pg, False)
+        choose_preset(app, pg, "free")
+        set_running(app, pg, True)
+        assert drag_state(app).body is None
+        x, y = start_drag(pg, client, app, DRAG_LINK)
+        start = drag_state(app).point
+        assert start is not None
+        peak = 0.0
+        for k in range(1, 6):  # 5 moves up and to the left, ~25 px each
+            pg.mouse.move(x - 15 * k, y - 20 * k)
+            peak = max(peak, drag_state(app).force_n)
+
+        def pulled_along_the_spring() -> float:
+            """Displacement (m) of the grabbed point along the spring's pull direction since the grab."""
+            view = drag_state(app)
+            if view.point is None or view.target is None or np.linalg.norm(view.target - start) < 0.02:
+                return 0.0
+            pull = (view.target - start) / np.linalg.norm(view.target - start)
+            along = float((view.point - start) @ pull)
+            return along if along > 0.01 else 0.0
+
+        moved = wait_for(pulled_along_the_spring, 30, "the grabbed point to follow the spring by 1 cm")
+        peak = max(peak, drag_state(app).force_n)
+        assert moved > 0.01 and peak > 5.0, f"moved {moved * 1e3:.1f} mm with at most {peak:.1f} N"
+        save_tour_shot(pg, "tour-1-drag.png")
+        pg.mouse.up()
+        wait_for(lambda: drag_state(app).body is None, 20, "mouse-up to release the drag")
+        set_running(app, pg, False)
+        lap("step 1 done")
+
+        # ---- 2. polish at μ = 1: W_d arm, W_j twin, Settle now ---------------------------------------
+        choose_preset(app, pg, "polish")
+        choose(pg, "Speed", "as fast as possible")
+        open_tab(pg, "Tune")
+        choose(pg, "Objective", "W_d")
+        wait_for(lambda: param(app, "nullspace", "objective") == "d", 20, "the objective W_d")
+        type_number(pg, r"^Friction μ", "1")
+        wait_for(lambda: param(app, "contact", "mu") == 1.0, 20, "μ = 1")
+        choose(pg, "Twin arm", "W_j")
+        wait_for(lambda: app.loop.status.twin == "j", 30, "the W_j twin (switching it on restarts both arms)")
+        assert app.loop.sync().t == 0.0 and app.loop.status.speed > 100
+        open_tab(pg, "Run")
+        settle = pg.get_by_role("button", name="Settle now", exact=True)
+        settle.wait_for(timeout=30_000)
+        lap("settings of step 2 made")
+        settle.click()
+        wait_for(lambda: app.loop.status.settling or not app.loop.status.can_settle, 30, "Settle now to start")
+        wait_for(lambda: not app.loop.sync().can_settle, 240, "the W_d elbow to converge")
+        assert app.loop.status.running and not app.loop.status.settling
+        lap(f"settled at t = {app.loop.status.t:.1f} s")
+        wait_for(lambda: app.loop.status.signals.get("segment", 0.0) > 4, 240, "S4 to end")
+        set_running(app, pg, False)
+        keys = ("force_error_std_S2", "force_error_std_S4", "twin_force_error_std_S2", "twin_force_error_std_S4")
+        try:
+            wait_for(lambda: all(k in plots.readouts for k in keys), 30, "the S2/S4 readouts of both arms")
+        finally:
+            print("tour: readouts", {k: round(v, 3) for k, v in plots.readouts.items()})
+        r = plots.readouts
+        ratio = (r["twin_force_error_std_S2"] + r["twin_force_error_std_S4"]) / (
+            r["force_error_std_S2"] + r["force_error_std_S4"]
+        )
+        main = f"{r['force_error_std_S2']:.2f}/{r['force_error_std_S4']:.2f}"
+        twin = f"{r['twin_force_error_std_S2']:.2f}/{r['twin_force_error_std_S4']:.2f}"
+        print(f"tour step 2: S2/S4 force-error STD main {main} N, twin {twin} N, ratio {ratio:.3f}")
+        assert abs(ratio - TOUR_STD_RATIO) <= TOUR_STD_TOLERANCE, f"ratio {ratio:.3f}"
+        wait_for(lambda: pg.get_by_text("Force-error STD", exact=False).first.is_visible(), 30, "the STD readout")
+        save_tour_shot(pg, "tour-2-polish.png")
+        lap("step 2 done")
+
+        # ---- 3. limit-drop: Play, then λ = 500, Reset, Play --------------------------------------------
+        choose_preset(app, pg, "limit-drop")
+        assert not app.loop.status.running
+        wait_for(lambda: pg.get_by_text("Press Play", exact=False).first.is_visible(), 30, "Press Play")
+        for lam in (100.0, 500.0):
+            if lam != 100.0:
+                open_tab(pg, "Tune")
+                type_number(pg, r"^λ", f"{lam:g}")
+                wait_for(lambda l=lam: param(app, "damper", "lambda_") == l, 20, f"λ = {lam:g}")
+                press(pg, "r")
+                wait_for(lambda: app.loop.sync().t == 0.0 and not app.loop.status.running, 20, "R: reset, paused")
+            assert param(app, "damper", "lambda_") == lam
+            set_running(app, pg, True)
+            wait_for(lambda: app.loop.status.t > 3.0, 120, "three seconds of the drop")
+            set_running(app, pg, False)
+            wait_for(lambda: pg.get_by_text("peak |τ|", exact=False).first.is_visible(), 30, "the peak readout")
+            peak_nm = wait_for(lambda: plots.readouts.get("peak_torque_nm"), 30, "the peak torque")
+            print(f"tour step 3: λ = {lam:g}: peak |τ4| {peak_nm:.2f} N m")
+            assert abs(peak_nm - TOUR_PEAK_NM[lam]) <= TOUR_PEAK_TOLERANCE_NM, f"λ = {lam:g}: {peak_nm:.2f} N m"
+            if lam == 100.0:
+                open_tab(pg, "Run")
+                save_tour_shot(pg, "tour-3-limit-drop.png")
+        lap("step 3 done")
+    finally:
+        pg.mouse.up()
+        app.loop.submit(SetSpeed(1.0))
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
 
 
 def test_disconnect_during_a_drag_releases_the_force_within_a_second(app, page):
