@@ -396,12 +396,12 @@ def test_settle_now_button_shows_in_polishs_settle_phase_and_runs_it(app):
     try:
         app.loop.submit(SwitchSession(scenario="polish", executor="projection"))
         app.loop.submit(SetParam("nullspace", "objective", "j"))
-        assert _wait(lambda: app.loop.status.scenario == "polish" and panel.settle.visible, 20)
+        assert _wait(lambda: app.loop.sync().scenario == "polish" and panel.settle.visible, 60), app.loop.status
         _browser_update(panel.settle, True, client_id=1)
-        assert _wait(lambda: not app.loop.sync().can_settle, 120)
+        assert _wait(lambda: not app.loop.sync().can_settle, 120), app.loop.status
         status = app.loop.sync()
-        assert status.running and not status.settling and status.t > 1.0
-        assert _wait(lambda: not panel.settle.visible, 20)
+        assert status.running and not status.settling and status.t > 1.0, status
+        assert _wait(lambda: not panel.settle.visible, 60)
     finally:
         app.loop.submit(Pause())
         app.loop.submit(SwitchSession(scenario="free", robot=""))
