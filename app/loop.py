@@ -5,9 +5,9 @@ It applies the commands other threads queue (`app.commands`) between two steps, 
 (`app.frames`) that the server's publisher thread shows in the browser. Drag commands and Pause
 jump the queue, and a single step runs in chunks of `STEP_CHUNK` steps with them applied between
 chunks, so a release waits for at most one chunk. "Settle now" runs unpaced in chunks too, with
-every command (Pause, Reset, a switch) applied between them. A failure while publishing is reported once and
-the loop goes on. Nothing outside this thread touches the Lab, except through `call()`, which runs
-a function here between two steps.
+every command (Pause, Reset, a switch) applied between them. Unpaced, frames go out at 10 Hz. A
+failure while publishing is reported once and the loop goes on. Nothing outside this thread
+touches the Lab, except through `call()`, which runs a function here between two steps.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any, TypeVar
 
 from app.commands import Command, DragCommand, Pause, Play, StepOnce
 from app.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
-from app.lab import SPEED_RANGE, Lab, Notice, Settings
+from app.lab import SPEED_RANGE, UNPACED_SPEED, Lab, Notice, Settings
 from app.pacing import Pacer, RateMeter
 from app.session import Session
 from app.steplog import StepLog
@@ -35,6 +35,7 @@ T = TypeVar("T")
 WAKE_STEPS = 2  # the loop sleeps until this many steps are due, then runs them in one burst
 STEP_CHUNK = 100  # a single step runs in chunks this long; urgent commands are applied between them
 URGENT = (DragCommand, Pause)  # commands that jump the queue
+UNPACED_PUBLISH_S = 0.1  # frame period while running unpaced (10 Hz instead of 30)
 
 
 @dataclass(frozen=True)
@@ -238,7 +239,7 @@ class SimLoop:
             if now >= next_publish:
                 if lab.dirty or lab.running:
                     self._publish(now)
-                next_publish = now + self.publish_period
+                next_publish = now + self._publish_period()
             if lab.pending_steps or lab.settling:
                 continue
             wake_at = next_publish
@@ -249,6 +250,15 @@ class SimLoop:
             if timeout > 2e-4 and self._queue.empty():
                 self._wake.wait(timeout)
                 self._wake.clear()
+
+    def _publish_period(self) -> float:
+        """Seconds to the next frame: `publish_period`, or UNPACED_PUBLISH_S while running unpaced
+        ("Settle now", or the speed "as fast as possible"), so the page's drawing takes less of the
+        machine the simulation is asked to use."""
+        lab = self.lab
+        if lab.settling or (lab.running and lab.speed >= UNPACED_SPEED):
+            return max(self.publish_period, UNPACED_PUBLISH_S)
+        return self.publish_period
 
     def _timed(self, work: Callable[[int], Any], n: int) -> None:
         t0 = self._clock()

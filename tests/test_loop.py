@@ -165,6 +165,35 @@ def test_settle_now_runs_unpaced_on_the_loop_then_paced_and_pause_and_reset_act_
         lp.stop()
 
 
+def test_frames_go_out_at_10_hz_unpaced_and_30_hz_paced():
+    """Unpaced (the speed "as fast as possible") the loop publishes ≤ 12 frames per wall second, so the
+    page's drawing leaves the machine to the simulation; paced at 1× it publishes ≥ 20."""
+    from app.lab import UNPACED_SPEED
+
+    lp = SimLoop("free", capture=lambda s: None)
+    lp.start(running=True)
+
+    def rate(seconds: float = 1.5) -> float:
+        first = lp.wait_frame(0, 5.0)
+        assert first is not None
+        t0, seq0 = time.monotonic(), first.seq
+        time.sleep(seconds)
+        last = lp.wait_frame(0, 5.0)
+        assert last is not None
+        return (last.seq - seq0) / (time.monotonic() - t0)
+
+    try:
+        lp.submit(SetSpeed(UNPACED_SPEED))
+        lp.sync()
+        unpaced = rate()
+        lp.submit(SetSpeed(1.0))
+        lp.sync()
+        paced = rate()
+    finally:
+        lp.stop()
+    assert unpaced <= 12.0 and paced >= 20.0, (unpaced, paced)
+
+
 def test_divergence_pauses_with_a_message_and_reset_recovers(loop):
     loop.submit(Play())
     loop.call(lambda s: s.world.data.qvel.__setitem__(0, np.nan))
