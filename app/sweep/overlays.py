@@ -201,7 +201,7 @@ def polish_overlay(ax, axes: list[Axis], records: list[dict]) -> None:
     _plan_layer(ax, to_x)
     _margin_layer(ax, axes, records)
     if basins["minima"] or basins["ridges"]:
-        ax.legend(fontsize=6, loc="upper right", framealpha=0.6)
+        ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=3, frameon=False)  # below the map
 
 
 def polish_notes(axes: list[Axis], records: list[dict]) -> str:
