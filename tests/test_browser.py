@@ -390,7 +390,8 @@ def test_screenshot_of_the_running_app_is_saved(app, page):
 
 
 def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page, paused):
-    """Γ (task compliance), λ and M belong to the [C] QP executor: with it running they are in the page."""
+    """Γ (task compliance), λ and M belong to the [C] QP executor: with it running they are in the page,
+    and the Nullspace folder of the [T] executor (its Twin arm input, its live W line) is not."""
     from app.commands import SwitchSession
 
     pg, _ = page
@@ -398,11 +399,15 @@ def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page, pa
     open_tab(pg, "Tune")
     # the projection executor has no task compliance: its slider is hidden, not greyed out
     wait_for(lambda: not has_control(pg, r"^Γ task", "slider"), 30, "the Γ task slider to be hidden")
+    wait_for(lambda: pg.get_by_text("Twin arm", exact=True).count() > 0, 30, "the Nullspace folder")
     app.loop.submit(SwitchSession(executor="compliance-qp"))
     try:
         wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "compliance-qp", 30, "the executor switch")
         for pattern in (r"^Γ task", r"^λ", r"^M\b"):
             wait_for(lambda p=pattern: has_control(pg, p, "slider"), 30, f"a slider labelled {pattern}")
+        # the whole Nullspace folder (its prose, live W line, twin arm, preview) belongs to the [T] executor
+        wait_for(lambda: not pg.get_by_text("Twin arm", exact=True).count(), 30, "the Nullspace folder to hide")
+        assert not pg.get_by_text("Live:", exact=False).count()
     finally:
         app.loop.submit(SwitchSession(executor="projection"))
         wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "projection", 30, "the switch back")
@@ -559,6 +564,14 @@ TOUR_STD_RATIO = 1.58  # README tour step 2: twin W_j over main W_d, force-error
 TOUR_STD_TOLERANCE = 0.15
 TOUR_PEAK_NM = {100.0: 14.5, 500.0: 36.9}  # README tour step 3: peak |τ₄| of the limit drop per λ
 TOUR_PEAK_TOLERANCE_NM = 1.0
+TOUR_TORQUE_LIMIT_NM = 39.0  # Gen3 joint 4: "chatters against the limit at the torque limit"
+TOUR_CHATTER_REVERSALS = 20  # λ = 500 with 5 ms of delay: 74 velocity reversals in the first 3 s
+
+
+def velocity_reversals(dq: np.ndarray, floor: float = 1e-3) -> int:
+    """Sign changes of a joint velocity, ignoring |q̇| ≤ `floor` rad/s (at rest)."""
+    signs = np.sign(dq[np.abs(dq) > floor])
+    return int(np.count_nonzero(np.diff(signs) != 0))
 
 
 def press(pg: Any, key: str) -> None:
@@ -596,7 +609,8 @@ def test_the_readme_tour_step_by_step(app, page):
        (unpaced until the W_d elbow has converged), on through S1…S4: the readout's force-error STD
        over S2 and S4 (each arm over its own segments, every step), twin over main, is 1.58 ± 0.15.
     3. limit-drop waits paused ("Press Play"); Play (Space): the peak |τ₄| readout reads 14.5 ± 1 N m;
-       λ = 500, Reset (R), Play: 36.9 ± 1 N m."""
+       λ = 500, Reset (R), Play: 36.9 ± 1 N m; Torque delay 5 ms: λ = 500 chatters (≥ 20 reversals of
+       q̇₄ in 3 s) at the torque limit (peak ≥ 38.5 N m), λ = 100 stops without a bounce (0 reversals)."""
     from app.commands import Play, SetSpeed, SwitchSession
 
     pg, client = page
@@ -699,6 +713,27 @@ def test_the_readme_tour_step_by_step(app, page):
             if lam == 100.0:
                 open_tab(pg, "Run")
                 save_tour_shot(pg, "tour-3-limit-drop.png")
+        # 5 ms of torque delay: λ = 500 chatters at the torque limit, λ = 100 still stops without a bounce
+        for lam in (500.0, 100.0):
+            open_tab(pg, "Tune")
+            if lam == 500.0:
+                type_number(pg, r"^Torque delay", "5")
+                wait_for(lambda: param(app, "world", "torque_delay_ms") == 5.0, 20, "a torque delay of 5 ms")
+            else:
+                type_number(pg, r"^λ", "100")
+                wait_for(lambda: param(app, "damper", "lambda_") == 100.0, 20, "λ = 100")
+            press(pg, "r")
+            wait_for(lambda: app.loop.sync().t == 0.0 and not app.loop.status.running, 20, "R: reset, paused")
+            set_running(app, pg, True)
+            wait_for(lambda: app.loop.status.t > 3.0, 120, "three seconds of the drop")
+            set_running(app, pg, False)
+            reversals = app.loop.call(lambda s: velocity_reversals(app.loop.log.window(3.0, app.loop.dt)["dq_4"]))
+            peak_nm = wait_for(lambda: plots.readouts.get("peak_torque_nm"), 30, "the peak torque")
+            print(f"tour step 3: 5 ms delay, λ = {lam:g}: {reversals} reversals of q̇4, peak |τ4| {peak_nm:.2f} N m")
+            if lam == 500.0:
+                assert reversals >= TOUR_CHATTER_REVERSALS and peak_nm >= TOUR_TORQUE_LIMIT_NM - 0.5
+            else:
+                assert reversals == 0 and peak_nm < TOUR_TORQUE_LIMIT_NM - 10.0
         lap("step 3 done")
     finally:
         pg.mouse.up()
