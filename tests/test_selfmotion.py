@@ -170,3 +170,32 @@ def test_the_scene_carries_the_planned_posture_only_while_a_plan_runs():
     assert _planned_posture(step({"swivel_plan_deg": float("nan")})) is None
     assert _planned_posture(step({})) is None
     assert _planned_posture(None) is None
+
+
+def test_in_the_planned_case_the_scene_and_the_ghost_follow_the_sessions_plan(server):
+    """The polish case "planned W_a": during the transfer the snapshot's planned posture is the one the
+    nullspace tracks (the step's q_posture, exactly) and the ghost stands on it; the flow case has none."""
+    from types import SimpleNamespace
+
+    from app.session import Session
+    from app.ui.selfmotion import GHOST_CHOICES, SelfMotionPreview
+    from app.ui.snapshot import capture
+    from app.variants import make_variant
+
+    planned = Session(make_variant("polish", "planned W_a"), robot="rizon4s", executor="projection")
+    flow = Session("polish", robot="rizon4s", executor="projection")
+    preview = SelfMotionPreview(server)
+    preview.stop()  # no scans: only what the frames say
+    preview.set_enabled(True, ghost_at=GHOST_CHOICES[0])
+    drawn = []
+    for _ in range(3):
+        planned.run(steps=500)
+        flow.run(steps=500)
+        snap = capture(planned)
+        assert snap.planned_q is not None and capture(flow).planned_q is None
+        np.testing.assert_array_equal(snap.planned_q, planned.last.target.q_posture)
+        status = SimpleNamespace(signals=dict(planned.last.signals))
+        preview.feed(SimpleNamespace(scene=snap, status=status, robot=planned.robot))
+        np.testing.assert_allclose(preview.ghost_q, snap.planned_q, atol=1e-12)
+        drawn.append(preview.ghost_q.copy())
+    assert np.max(np.abs(drawn[-1] - drawn[0])) > 1e-3  # the ghost moves with the plan's transfer
