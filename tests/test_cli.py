@@ -107,7 +107,7 @@ def test_port_zero_serves_on_a_free_port_and_says_which():
         with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=10) as resp:
             assert resp.status == 200
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=20) == 0
+        assert proc.wait(timeout=60) == 0  # a clean exit on Ctrl-C; a loaded machine may take a while
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -155,7 +155,7 @@ def test_serve_prints_the_url_says_when_the_port_is_busy_and_stops_on_ctrl_c():
             with urllib.request.urlopen(url, timeout=10) as resp:
                 assert resp.status == 200
             proc.send_signal(signal.SIGINT)
-            assert proc.wait(timeout=20) == 0
+            assert proc.wait(timeout=60) == 0  # a clean exit on Ctrl-C; a loaded machine may take a while
         finally:
             if proc.poll() is None:
                 proc.kill()
