@@ -572,6 +572,8 @@ TOUR_PEAK_NM = {100.0: 14.5, 500.0: 36.9}  # README tour step 3: peak |τ₄| of
 TOUR_PEAK_TOLERANCE_NM = 1.0
 TOUR_TORQUE_LIMIT_NM = 39.0  # Gen3 joint 4: "chatters against the limit at the torque limit"
 TOUR_CHATTER_REVERSALS = 20  # λ = 500 with 5 ms of delay: 74 velocity reversals in the first 3 s
+TOUR_MIRROR_SWIVEL = -82.0  # README tour step 2: the mirror start's W_a flow reaches the −82° minimum
+TOUR_LATE_BRAKE_MRAD = 2.0  # M = 0.5, λ = 100, no delay: run_drop measures 8.1 mrad into d_s, 3 reversals
 
 
 def first_seconds_reversals(columns: dict[str, np.ndarray], seconds: float) -> int:
@@ -636,7 +638,8 @@ def test_the_readme_tour_step_by_step(app, page):
     """README "A five-minute tour", each step as a person takes it in the page (paused with Space while
     choosing settings: a running simulation makes a software-rendered page slow to answer).
     1. free: a drag on the elbow moves the grabbed point ≥ 1 cm along the spring's pull with > 5 N;
-       mouse-up releases it.
+       mouse-up releases it. Executor → projection, the same drag: the elbow follows ≥ 1 cm (the TCP's
+       shift is printed: the README says a hard pull moves it as well).
     2. polish, Friction μ 1, Objective W_j, Settle now: the force-loop margin at rest is +5 ± 5 N s/m;
        W_a, Reset, Settle now: the elbow converges at +75 ± 3° after 54.7 ± 3 s. Then Speed as fast as
        possible, Objective W_d, μ 1, Twin arm W_j, Settle now,
@@ -645,7 +648,9 @@ def test_the_readme_tour_step_by_step(app, page):
        read 1.84/3.58/2.42 ± 0.15 N.
     3. limit-drop waits paused ("Press Play"); Play (Space): the peak |τ₄| readout reads 14.5 ± 1 N m;
        λ = 500, Reset (R), Play: 36.9 ± 1 N m; Torque delay 5 ms: λ = 500 chatters (≥ 20 reversals of
-       q̇₄ in 3 s) at the torque limit (peak ≥ 38.5 N m), λ = 100 stops without a bounce (0 reversals)."""
+       q̇₄ in 3 s) at the torque limit (peak ≥ 38.5 N m), λ = 100 stops without a bounce (0 reversals);
+       no delay and M = 0.5: at the torque limit, more than 2 mrad into d_s, at least 2 reversals.
+    (Step 2 also: Case → mirror start, Settle now: the W_a flow ends at −82 ± 3°.)"""
     from app.commands import Play, SetSpeed, SwitchSession
 
     pg, client = page
@@ -684,6 +689,28 @@ def test_the_readme_tour_step_by_step(app, page):
         save_tour_shot(pg, "tour-1-drag.png")
         pg.mouse.up()
         wait_for(lambda: drag_state(app).body is None, 20, "mouse-up to release the drag")
+        # Executor → projection: only the TCP pose is held, so the dragged elbow moves in the nullspace
+        set_running(app, pg, False)
+        open_tab(pg, "Run")
+        choose(pg, "Executor", "projection")
+        wait_for(lambda: app.loop.sync().executor == "projection", 30, "the projection executor")
+        set_running(app, pg, True)
+        tcp_before = app.loop.call(lambda s: s.dyn.tcp_position_world.copy())
+        x, y = start_drag(pg, client, app, DRAG_LINK)
+        start = drag_state(app).point
+        assert start is not None
+        for k in range(1, 6):
+            pg.mouse.move(x - 15 * k, y - 20 * k)
+        moved = wait_for(pulled_along_the_spring, 30, "the elbow to follow the spring by 1 cm (projection)")
+        tcp_now = app.loop.call(lambda s: s.dyn.tcp_position_world.copy())
+        tcp_shift = float(np.linalg.norm((tcp_now - tcp_before)[:2]))  # x, y: motion axes (z: the force axis)
+        print(
+            f"tour step 1: projection: elbow {moved * 1e3:.1f} mm along the pull, TCP {tcp_shift * 1e3:.1f} mm in x, y "
+            f"and {(tcp_now - tcp_before)[2] * 1e3:+.1f} mm in z"
+        )
+        assert moved > 0.01 and app.loop.status.executor == "projection"
+        pg.mouse.up()
+        wait_for(lambda: drag_state(app).body is None, 20, "mouse-up to release the drag")
         set_running(app, pg, False)
         lap("step 1 done")
 
@@ -707,7 +734,17 @@ def test_the_readme_tour_step_by_step(app, page):
         print(f"tour step 2: W_a settled: {flowed}")
         assert abs(flowed["swivel_deg"] - TOUR_WA_SWIVEL) <= TOUR_SWIVEL_TOLERANCE
         assert abs(flowed["settle_s"] - TOUR_WA_SETTLE_S) <= TOUR_SETTLE_TOLERANCE_S
-        lap("W_j and W_a checked")
+        # Scenario → Case → mirror start: from −30°, across the W_a ridge, the flow reaches the −82° minimum
+        open_tab(pg, "Run")
+        choose(pg, "Case", "mirror start")
+        wait_for(lambda: app.loop.sync().variant == "mirror start" and app.loop.status.t < 0.1, 30, "the mirror start")
+        mirrored = settle_now(app, pg)
+        print(f"tour step 2: mirror start settled: {mirrored}")
+        assert abs(mirrored["swivel_deg"] - TOUR_MIRROR_SWIVEL) <= TOUR_SWIVEL_TOLERANCE
+        open_tab(pg, "Run")
+        choose(pg, "Case", "flow")
+        wait_for(lambda: app.loop.sync().variant == "flow", 30, "the flow case again")
+        lap("W_j, W_a and the mirror start checked")
 
         # ---- 2. (cont.) W_d arm against a W_j twin at μ = 1, Settle now --------------------------------
         choose(pg, "Speed", "as fast as possible")
@@ -787,6 +824,24 @@ def test_the_readme_tour_step_by_step(app, page):
                 assert reversals >= TOUR_CHATTER_REVERSALS and peak_nm >= TOUR_TORQUE_LIMIT_NM - 0.5
             else:
                 assert reversals == 0 and peak_nm < TOUR_TORQUE_LIMIT_NM - 10.0
+        # no delay, M = 0.5: the damper brakes too late, saturates the motor, enters d_s and rings
+        open_tab(pg, "Tune")
+        type_number(pg, r"^Torque delay", "0")
+        wait_for(lambda: param(app, "world", "torque_delay_ms") == 0.0, 20, "no torque delay")
+        type_number(pg, r"^M\b", "0.5")
+        wait_for(lambda: param(app, "damper", "M") == 0.5, 20, "M = 0.5")
+        press(pg, "r")
+        wait_for(lambda: app.loop.sync().t == 0.0 and not app.loop.status.running, 20, "R: reset, paused")
+        set_running(app, pg, True)
+        wait_for(lambda: app.loop.status.t > 3.0, 120, "three seconds of the drop")
+        set_running(app, pg, False)
+        reversals = app.loop.call(lambda s: first_seconds_reversals(app.loop.log.window(60.0, app.loop.dt), 3.0))
+        peak_nm = wait_for(lambda: plots.readouts.get("peak_torque_nm"), 30, "the peak torque")
+        beyond = plots.readouts.get("overshoot_beyond_ds_rad", math.nan)
+        print(
+            f"tour step 3: M = 0.5: {reversals} reversals, peak |τ4| {peak_nm:.2f} N m, {beyond * 1e3:.1f} mrad in d_s"
+        )
+        assert peak_nm >= TOUR_TORQUE_LIMIT_NM - 0.5 and beyond > TOUR_LATE_BRAKE_MRAD * 1e-3 and reversals >= 2
         lap("step 3 done")
     finally:
         pg.mouse.up()

@@ -11,7 +11,8 @@ class FreeScenario(Scenario):
     description = (
         "Drag any link: the coupling overlay shows how the posture changes the motion/force coupling. "
         "It starts with a stiff joint hold, so every joint springs back; pick Executor → projection to "
-        "hold only the TCP pose and let the elbow move in the nullspace."
+        "hold the TCP with the task-space spring of [T] and only damp the nullspace: the elbow follows a pull "
+        "(and a hard pull moves the TCP too)."
     )
     default_robot = "rizon4s"
     default_executor = "joint-hold"
