@@ -573,6 +573,7 @@ TOUR_PEAK_TOLERANCE_NM = 1.0
 TOUR_TORQUE_LIMIT_NM = 39.0  # Gen3 joint 4: "chatters against the limit at the torque limit"
 TOUR_CHATTER_REVERSALS = 20  # λ = 500 with 5 ms of delay: 74 velocity reversals in the first 3 s
 TOUR_MIRROR_SWIVEL = -82.0  # README tour step 2: the mirror start's W_a flow reaches the −82° minimum
+TOUR_PLANNED_SWIVEL = -84.0  # README tour step 2: the planned W_a path holds −84° (polish experiment's planned row)
 TOUR_LATE_BRAKE_MRAD = 2.0  # M = 0.5, λ = 100, no delay: run_drop measures 8.1 mrad into d_s, 3 reversals
 
 
@@ -650,7 +651,8 @@ def test_the_readme_tour_step_by_step(app, page):
        λ = 500, Reset (R), Play: 36.9 ± 1 N m; Torque delay 5 ms: λ = 500 chatters (≥ 20 reversals of
        q̇₄ in 3 s) at the torque limit (peak ≥ 38.5 N m), λ = 100 stops without a bounce (0 reversals);
        no delay and M = 0.5: at the torque limit, more than 2 mrad into d_s, at least 2 reversals.
-    (Step 2 also: Case → mirror start, Settle now: the W_a flow ends at −82 ± 3°.)"""
+    (Step 2 also: Case → mirror start, Settle now: the W_a flow ends at −82 ± 3°; Case → planned W_a,
+    Settle now: the posture is at the plan's −84 ± 3° and within 3° of the planned swivel the page shows.)"""
     from app.commands import Play, SetSpeed, SwitchSession
 
     pg, client = page
@@ -741,6 +743,15 @@ def test_the_readme_tour_step_by_step(app, page):
         mirrored = settle_now(app, pg)
         print(f"tour step 2: mirror start settled: {mirrored}")
         assert abs(mirrored["swivel_deg"] - TOUR_MIRROR_SWIVEL) <= TOUR_SWIVEL_TOLERANCE
+        # Case → planned W_a: the nullspace tracks the planned swivel path, the transfer across the ridge first
+        open_tab(pg, "Run")
+        choose(pg, "Case", "planned W_a")
+        wait_for(lambda: app.loop.sync().variant == "planned W_a" and app.loop.status.t < 0.1, 60, "the planned case")
+        planned = settle_now(app, pg)
+        plan_now = app.loop.sync().signals.get("swivel_plan_deg", math.nan)
+        print(f"tour step 2: planned W_a settled: {planned}, planned swivel {plan_now:+.1f}°")
+        assert abs(planned["swivel_deg"] - TOUR_PLANNED_SWIVEL) <= TOUR_SWIVEL_TOLERANCE
+        assert abs(planned["swivel_deg"] - plan_now) <= TOUR_SWIVEL_TOLERANCE
         open_tab(pg, "Run")
         choose(pg, "Case", "flow")
         wait_for(lambda: app.loop.sync().variant == "flow", 30, "the flow case again")
