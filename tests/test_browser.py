@@ -662,6 +662,16 @@ def test_the_readme_tour_step_by_step(app, page):
     def lap(what: str) -> None:
         print(f"tour: {what} at {time.monotonic() - t0:.1f} s wall")
 
+    def drop_again() -> tuple[int, float]:
+        """R, Play for three seconds of the limit drop, Pause: (reversals of q̇₄ in its first 3 s, peak |τ₄|)."""
+        press(pg, "r")
+        wait_for(lambda: app.loop.sync().t == 0.0 and not app.loop.status.running, 20, "R: reset, paused")
+        set_running(app, pg, True)
+        wait_for(lambda: app.loop.status.t > 3.0, 120, "three seconds of the drop")
+        set_running(app, pg, False)
+        reversals = app.loop.call(lambda s: first_seconds_reversals(app.loop.log.window(60.0, app.loop.dt), 3.0))
+        return reversals, wait_for(lambda: plots.readouts.get("peak_torque_nm"), 30, "the peak torque")
+
     try:
         # ---- 1. free: drag the elbow --------------------------------------------------------------
         set_running(app, pg, False)
@@ -823,13 +833,7 @@ def test_the_readme_tour_step_by_step(app, page):
             else:
                 type_number(pg, r"^λ", "100")
                 wait_for(lambda: param(app, "damper", "lambda_") == 100.0, 20, "λ = 100")
-            press(pg, "r")
-            wait_for(lambda: app.loop.sync().t == 0.0 and not app.loop.status.running, 20, "R: reset, paused")
-            set_running(app, pg, True)
-            wait_for(lambda: app.loop.status.t > 3.0, 120, "three seconds of the drop")
-            set_running(app, pg, False)
-            reversals = app.loop.call(lambda s: first_seconds_reversals(app.loop.log.window(60.0, app.loop.dt), 3.0))
-            peak_nm = wait_for(lambda: plots.readouts.get("peak_torque_nm"), 30, "the peak torque")
+            reversals, peak_nm = drop_again()
             print(f"tour step 3: 5 ms delay, λ = {lam:g}: {reversals} reversals of q̇4, peak |τ4| {peak_nm:.2f} N m")
             if lam == 500.0:
                 assert reversals >= TOUR_CHATTER_REVERSALS and peak_nm >= TOUR_TORQUE_LIMIT_NM - 0.5
@@ -841,13 +845,7 @@ def test_the_readme_tour_step_by_step(app, page):
         wait_for(lambda: param(app, "world", "torque_delay_ms") == 0.0, 20, "no torque delay")
         type_number(pg, r"^M\b", "0.5")
         wait_for(lambda: param(app, "damper", "M") == 0.5, 20, "M = 0.5")
-        press(pg, "r")
-        wait_for(lambda: app.loop.sync().t == 0.0 and not app.loop.status.running, 20, "R: reset, paused")
-        set_running(app, pg, True)
-        wait_for(lambda: app.loop.status.t > 3.0, 120, "three seconds of the drop")
-        set_running(app, pg, False)
-        reversals = app.loop.call(lambda s: first_seconds_reversals(app.loop.log.window(60.0, app.loop.dt), 3.0))
-        peak_nm = wait_for(lambda: plots.readouts.get("peak_torque_nm"), 30, "the peak torque")
+        reversals, peak_nm = drop_again()
         beyond = plots.readouts.get("overshoot_beyond_ds_rad", math.nan)
         print(
             f"tour step 3: M = 0.5: {reversals} reversals, peak |τ4| {peak_nm:.2f} N m, {beyond * 1e3:.1f} mrad in d_s"
