@@ -456,7 +456,7 @@ def findings_in_words(doc: dict) -> list[str]:
             + ", ".join(f"{e['row']} μ = {e['mu']:g} ({e['margin']['mean']:+.0f} N s/m)" for e in close)
             + f" have a margin below k·Δt = {late_spring:.0f} N s/m, the negative damping a contact spring one "
             "step late would add: a simulation detail of that size decides whether these rows lose contact (this "
-            "simulation computes the contact from the current position; until issue 12 it used the previous step's)."
+            "simulation computes the contact from the current position, not from the previous step's)."
         )
     scan = doc.get("swivel_scan", {})
     wa = scan.get("W_a", {})
