@@ -76,3 +76,25 @@ def test_armature_scale_changes_the_simulated_arm_only(rizon):
     world.set_params("world", replaced(world.params()["world"], "armature_scale", 2.0))
     np.testing.assert_allclose(world.model.dof_armature[world.dof_adr], 2.0 * nominal, rtol=1e-12)
     np.testing.assert_allclose(rizon.armature, nominal, rtol=1e-12)  # the controller's model keeps the nominal
+
+
+def test_site_point_state_is_the_site_pose_velocity_and_inverse_mass_in_one(rizon):
+    """The contact's one-Jacobian read (`site_point_state`) against the three single-purpose reads,
+    and its inverse mass against J_p M⁻¹ J_pᵀ from MuJoCo's dense M."""
+    import mujoco
+
+    world = World(rizon)
+    rng = np.random.default_rng(3)
+    q = 0.5 * (rizon.q_lower + rizon.q_upper) + 0.3 * rng.standard_normal(7)
+    world.reset(q, rng.standard_normal(7))
+    point, velocity, G = world.site_point_state(world.tcp_site, inverse_mass=True)
+    assert G is not None
+    np.testing.assert_array_equal(point, world.site_pose(world.tcp_site)[0])
+    np.testing.assert_allclose(velocity, world.site_velocity(world.tcp_site)[:3], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(G, world.site_inverse_mass(world.tcp_site), rtol=1e-12, atol=0)
+    nv = world.model.nv
+    jacp, M = np.zeros((3, nv)), np.zeros((nv, nv))
+    mujoco.mj_jacSite(world.model, world.data, jacp, None, world.tcp_site)
+    mujoco.mj_fullM(world.model, world.data, M)
+    np.testing.assert_allclose(G, jacp @ np.linalg.solve(M, jacp.T), rtol=1e-9, atol=1e-12)
+    assert world.site_point_state(world.tcp_site)[2] is None  # the inverse mass only when asked
