@@ -144,42 +144,136 @@ def snapshot_fused(M_upper, J, singular_eig):
     n = J.shape[1]
     M, M_inv, N, Lambda_n = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
     Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))
-    min_eig, near_singular = snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n)
+    work = snapshot_work(n)
+    near_singular, min_eig = snapshot_into(
+        M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work
+    )
+    if not near_singular:  # `snapshot_into` leaves it to the caller away from a singularity
+        min_eig = np.linalg.eigvalsh(Lambda_inv)[0]
     return M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular
 
 
 @njit(cache=True)
-def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n):
-    """`snapshot_fused` writing into arrays the caller allocated (handing arrays back from compiled
-    code costs more than the caller's allocation); returns (min eig Λx⁻¹, near_singular)."""
+def snapshot_work(n):
+    """Scratch space of `snapshot_into` for an n-joint arm (allocated once by its caller)."""
+    return np.empty((4, n, n))
+
+
+@njit(cache=True)
+def _cholesky_into(A, shift, L):
+    """Lower Cholesky factor of A − shift·I into L (A symmetric; only its lower triangle is read).
+    False (L unusable) when A − shift·I is not positive definite, NaN included."""
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j] - shift
+        for p in range(j):
+            s -= L[j, p] * L[j, p]
+        if not s > 0.0:
+            return False
+        d = np.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            t = A[i, j]
+            for p in range(j):
+                t -= L[i, p] * L[j, p]
+            L[i, j] = t / d
+    return True
+
+
+@njit(cache=True)
+def _spd_inverse_into(A, L, Li, out):
+    """out = A⁻¹ for symmetric positive definite A (L, Li: n×n scratch): A = L Lᵀ, A⁻¹ = L⁻ᵀ L⁻¹.
+    The same operations as `_spd_inverse`. False (out untouched) when A is not positive definite."""
+    n = A.shape[0]
+    if not _cholesky_into(A, 0.0, L):
+        return False
+    for j in range(n):  # L⁻¹, lower triangular
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, n):
+            t = 0.0
+            for p in range(j, i):
+                t -= L[i, p] * Li[p, j]
+            Li[i, j] = t / L[i, i]
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for p in range(j, n):
+                s += Li[p, i] * Li[p, j]
+            out[i, j] = s
+            out[j, i] = s
+    return True
+
+
+@njit(cache=True)
+def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work):
+    """`snapshot_fused` writing into arrays the caller allocated, with scratch `work`
+    (`snapshot_work(n)`), allocating nothing away from a singularity. Returns (near_singular,
+    min eig Λx⁻¹); the eigenvalue is computed only near a singularity, where the damping needs the
+    eigen-decomposition, and is NaN elsewhere: there positive definiteness of Λx⁻¹ − ρI, tested by
+    its Cholesky factorisation, decides that the smallest eigenvalue exceeds ρ."""
     n = J.shape[1]
+    L, Li, X, S = work[0], work[1], work[2, :, :6], work[3]
     for i in range(n):
         for j in range(i, n):
             M[i, j] = M_upper[i, j]
             M[j, i] = M_upper[i, j]
-    M_inv[:, :] = _spd_inverse(M)
-    X = _matmul_bt(M_inv, J)  # M⁻¹ Jᵀ
-    Lambda_inv[:, :] = _matmul(J, X)
+    if not _spd_inverse_into(M, L, Li, M_inv):
+        M_inv[:, :] = np.nan
+    for i in range(n):  # X = M⁻¹ Jᵀ
+        for j in range(6):
+            s = 0.0
+            for p in range(n):
+                s += M_inv[i, p] * J[j, p]
+            X[i, j] = s
+    for i in range(6):  # Λx⁻¹ = J M⁻¹ Jᵀ, symmetrised
+        for j in range(6):
+            s = 0.0
+            for p in range(n):
+                s += J[i, p] * X[p, j]
+            Lambda_inv[i, j] = s
     for i in range(6):
         for j in range(i + 1, 6):
             s = 0.5 * (Lambda_inv[i, j] + Lambda_inv[j, i])
             Lambda_inv[i, j] = s
             Lambda_inv[j, i] = s
-    min_eig = np.linalg.eigvalsh(Lambda_inv)[0]  # eigenvalues alone: cheaper than with vectors
-    near_singular = min_eig < singular_eig
+    L6, Li6 = L[:6, :6], Li[:6, :6]
+    near_singular = not _cholesky_into(Lambda_inv, singular_eig, L6)  # min eig ≤ ρ (or NaN)
+    min_eig = np.nan
+    if not near_singular:  # [T3] Λx = (J M⁻¹ Jᵀ)⁻¹, positive definite here: by Cholesky, as M⁻¹
+        near_singular = not _spd_inverse_into(Lambda_inv, L6, Li6, Lambda)
     if near_singular:  # damped inverse w / (w² + ρ²) from the eigen-decomposition
         w, V = np.linalg.eigh(Lambda_inv)
+        min_eig = w[0]
         f = np.empty(6)
         for i in range(6):
             f[i] = w[i] / (w[i] * w[i] + singular_eig * singular_eig)
         Lambda[:, :] = _sym_from_eig(V, f)
-    else:  # [T3] Λx = (J M⁻¹ Jᵀ)⁻¹, positive definite here: by Cholesky, as M⁻¹
-        Lambda[:, :] = _spd_inverse(Lambda_inv)
-    J_bar[:, :] = _matmul(X, Lambda)  # [T2]
-    N[:, :] = -_matmul(J_bar, J)  # [T4]
-    for i in range(n):
+    for i in range(n):  # [T2] J̄ = M⁻¹ Jᵀ Λx
+        for j in range(6):
+            s = 0.0
+            for p in range(6):
+                s += X[i, p] * Lambda[p, j]
+            J_bar[i, j] = s
+    for i in range(n):  # [T4] N = I − J̄ J
+        for j in range(n):
+            s = 0.0
+            for p in range(6):
+                s -= J_bar[i, p] * J[p, j]
+            N[i, j] = s
         N[i, i] += 1.0
-    S = _matmul_bt(_matmul(N, M_inv), N)
+    T = L  # N M⁻¹ (L is free again)
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for p in range(n):
+                s += N[i, p] * M_inv[p, j]
+            T[i, j] = s
+    for i in range(n):  # S = N M⁻¹ Nᵀ, symmetrised
+        for j in range(n):
+            s = 0.0
+            for p in range(n):
+                s += T[i, p] * N[j, p]
+            S[i, j] = s
     for i in range(n):
         for j in range(i + 1, n):
             s = 0.5 * (S[i, j] + S[j, i])
@@ -190,7 +284,10 @@ def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar,
         for i in range(n):
             for j in range(n):
                 ss += S[i, j] * S[i, j]
-        Lambda_n[:, :] = S / max(ss, 1e-300)
+        inv = 1.0 / max(ss, 1e-300)
+        for i in range(n):
+            for j in range(n):
+                Lambda_n[i, j] = S[i, j] * inv
     else:
         ws, Vs = np.linalg.eigh(S)
         cutoff = 1e-8 * max(np.max(np.abs(ws)), 1e-300)
@@ -199,7 +296,7 @@ def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar,
             if abs(ws[i]) > cutoff:
                 g[i] = 1.0 / ws[i]
         Lambda_n[:, :] = _sym_from_eig(Vs, g)
-    return min_eig, near_singular
+    return near_singular, min_eig
 
 
 # ==== coupling blocks [T6, T9, T10, T20, T22, Table I] =============================================

@@ -7,12 +7,13 @@ J̄ = M⁻¹ Jᵀ Λx, N = I − J̄ J, Λn = (N M⁻¹ Nᵀ)#.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
-from control.kernels import chain_constants, snapshot_into, snapshot_reference
+from control.kernels import chain_constants, snapshot_into, snapshot_reference, snapshot_work
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -39,7 +40,17 @@ class Dynamics:
     N: np.ndarray  # (n, n) nullspace projector I − J̄ J [T4]
     Lambda_n: np.ndarray  # (n, n) nullspace inertia (N M⁻¹ Nᵀ)# [T5]
     near_singular: bool  # Λx was damped
-    min_eig_Lambda_inv: float  # smallest eigenvalue of J M⁻¹ Jᵀ
+    # smallest eigenvalue of J M⁻¹ Jᵀ when the snapshot computed it (near a singularity), else NaN:
+    # read `min_eig_Lambda_inv`, which computes it on first use
+    min_eig_known: float = math.nan
+
+    @property
+    def min_eig_Lambda_inv(self) -> float:
+        """Smallest eigenvalue of Λx⁻¹ = J M⁻¹ Jᵀ (computed on first use away from a singularity:
+        the control step needs only whether it lies below SINGULAR_EIGENVALUE)."""
+        if math.isnan(self.min_eig_known):
+            self.min_eig_known = float(np.linalg.eigvalsh(self.Lambda_inv)[0])
+        return self.min_eig_known
 
     @property
     def tcp_velocity(self) -> np.ndarray:
@@ -63,6 +74,7 @@ class RobotModel:
         self._data_no_gravity = self._model_no_gravity.createData()
         self._data_hessian = model.createData()
         self._zeros = np.zeros(self.nv)
+        self._work = snapshot_work(self.nv)  # scratch of the snapshot kernel
         self._lower = np.tril_indices(self.nv, -1)
         # ∂J/∂q from J alone (control.kernels) holds for a serial chain of 1-DoF revolute joints
         self.revolute_chain = all(
@@ -85,18 +97,17 @@ class RobotModel:
         q = np.array(q, dtype=float)
         dq = np.array(dq, dtype=float)
         pin.computeAllTerms(model, data, q, dq)  # M (upper), h, joint Jacobians, data.a at q̈ = 0
-        pin.updateFramePlacements(model, data)
+        oMf = pin.updateFramePlacement(model, data, fid)
         J = pin.getFrameJacobian(model, data, fid, LWA)
         dJ_dq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector.copy()
         M, M_inv, N, Lambda_n = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
         Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))  # the kernel fills them
-        min_eig, near_singular = snapshot_into(
-            data.M, J, SINGULAR_EIGENVALUE, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n
+        near_singular, min_eig = snapshot_into(
+            data.M, J, SINGULAR_EIGENVALUE, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, self._work
         )  # compiled `snapshot_reference`
-        oMf = data.oMf[fid]
         return Dynamics(
             q, dq, M, M_inv, data.nle.copy(), oMf.rotation.copy(), oMf.translation.copy(), J, dJ_dq,
-            Lambda_inv, Lambda, J_bar, N, Lambda_n, bool(near_singular), float(min_eig),
+            Lambda_inv, Lambda, J_bar, N, Lambda_n, near_singular, min_eig,
         )  # fmt: skip
 
     def compute_reference(self, q: np.ndarray, dq: np.ndarray) -> Dynamics:
