@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 import robots
 from app.executors import make_executor
@@ -353,8 +354,8 @@ class Session:
         return np.array([f0, f1, f2, m0 + (r1 * f2 - r2 * f1), m1 + (r2 * f0 - r0 * f2), m2 + (r0 * f1 - r1 * f0)])
 
     def _sensor_position(self, dyn: Dynamics) -> np.ndarray:
-        data = self.model.data  # frames were updated by this step's compute()
-        return data.oMf[self._sensor_frame_id].translation
+        # the joint placements are this step's (compute()); the snapshot updates the TCP frame only
+        return pin.updateFramePlacement(self.model.model, self.model.data, self._sensor_frame_id).translation
 
     @functools.cached_property
     def _sensor_frame_id(self) -> int:
