@@ -30,6 +30,7 @@ from app.scenarios import Environment, Scenario, Sensor, get_scenario
 from app.sim.drag import DragSpring
 from app.sim.world import World, WorldParams
 from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
+from control.kernels import move_wrench_fused
 from control.model import Dynamics, RobotModel
 from control.params import ParamError, ParamGroup, expect, param, replaced, spec_of
 
@@ -345,13 +346,8 @@ class Session:
 
     def _sensor_to_tcp(self, wrench_sensor: np.ndarray, dyn: Dynamics) -> np.ndarray:
         """Move a wrench [f; m] (world axes) from the sensor origin to the TCP with the controller's
-        own kinematics: f is unchanged, m_tcp = m_sensor + (p_sensor − p_tcp) × f."""
-        s0, s1, s2 = self._sensor_position(dyn).tolist()
-        c0, c1, c2 = dyn.tcp_position_world.tolist()
-        f0, f1, f2, m0, m1, m2 = np.asarray(wrench_sensor, dtype=float).tolist()
-        r0, r1, r2 = s0 - c0, s1 - c1, s2 - c2
-        # r × f in Python floats (the same IEEE arithmetic as arrays, without an array per term)
-        return np.array([f0, f1, f2, m0 + (r1 * f2 - r2 * f1), m1 + (r2 * f0 - r0 * f2), m2 + (r0 * f1 - r1 * f0)])
+        own kinematics: f is unchanged, m_tcp = m_sensor + (p_sensor − p_tcp) × f (compiled)."""
+        return move_wrench_fused(wrench_sensor, self._sensor_position(dyn), dyn.tcp_position_world)
 
     def _sensor_position(self, dyn: Dynamics) -> np.ndarray:
         # the joint placements are this step's (compute()); the snapshot updates the TCP frame only

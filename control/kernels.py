@@ -146,7 +146,7 @@ def snapshot_fused(M_upper, J, singular_eig):
     Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))
     work = snapshot_work(n)
     near_singular, min_eig = snapshot_into(
-        M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work
+        M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work, None, np.empty(6)
     )
     if not near_singular:  # `snapshot_into` leaves it to the caller away from a singularity
         min_eig = np.linalg.eigvalsh(Lambda_inv)[0]
@@ -205,13 +205,43 @@ def _spd_inverse_into(A, L, Li, out):
 
 
 @njit(cache=True)
-def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work):
+def tcp_bias_acceleration_into(J, dq, out):
+    """Compiled `tcp_bias_acceleration_reference` in O(n) with running sums: with ω̄_i = Σ_{k<i} q̇_k ω_k
+    and v̄_i = Σ_{k≥i} q̇_k v_k, J̇q̇ = Σ_i q̇_i [ω̄_i × v_i + ω_i × v̄_i ; ω̄_i × ω_i]."""
+    n = J.shape[1]
+    for r in range(6):
+        out[r] = 0.0
+    w0 = w1 = w2 = 0.0  # ω̄_i
+    t0 = t1 = t2 = 0.0  # v̄_i, built from the far end
+    for k in range(n):
+        t0 += dq[k] * J[0, k]
+        t1 += dq[k] * J[1, k]
+        t2 += dq[k] * J[2, k]
+    for i in range(n):
+        d = dq[i]
+        v0, v1, v2 = J[0, i], J[1, i], J[2, i]
+        o0, o1, o2 = J[3, i], J[4, i], J[5, i]
+        out[0] += d * ((w1 * v2 - w2 * v1) + (o1 * t2 - o2 * t1))
+        out[1] += d * ((w2 * v0 - w0 * v2) + (o2 * t0 - o0 * t2))
+        out[2] += d * ((w0 * v1 - w1 * v0) + (o0 * t1 - o1 * t0))
+        out[3] += d * (w1 * o2 - w2 * o1)
+        out[4] += d * (w2 * o0 - w0 * o2)
+        out[5] += d * (w0 * o1 - w1 * o0)
+        w0, w1, w2 = w0 + d * o0, w1 + d * o1, w2 + d * o2
+        t0, t1, t2 = t0 - d * v0, t1 - d * v1, t2 - d * v2
+
+
+@njit(cache=True)
+def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work, dq, dJ_dq):
     """`snapshot_fused` writing into arrays the caller allocated, with scratch `work`
-    (`snapshot_work(n)`), allocating nothing away from a singularity. Returns (near_singular,
+    (`snapshot_work(n)`), allocating nothing away from a singularity; with `dq` (a serial revolute
+    chain; None: the caller fills `dJ_dq`) also J̇q̇ into `dJ_dq` (`tcp_bias_acceleration_into`). Returns (near_singular,
     min eig Λx⁻¹); the eigenvalue is computed only near a singularity, where the damping needs the
     eigen-decomposition, and is NaN elsewhere: there positive definiteness of Λx⁻¹ − ρI, tested by
     its Cholesky factorisation, decides that the smallest eigenvalue exceeds ρ."""
     n = J.shape[1]
+    if dq is not None:
+        tcp_bias_acceleration_into(J, dq, dJ_dq)
     L, Li, X, S = work[0], work[1], work[2, :, :6], work[3]
     for i in range(n):
         for j in range(i, n):
@@ -411,6 +441,12 @@ def kinematic_hessian_reference(J: np.ndarray) -> np.ndarray:
             else:
                 H[k, :3, i] = np.cross(w[i], v[k])
     return H
+
+
+def tcp_bias_acceleration_reference(J: np.ndarray, dq: np.ndarray) -> np.ndarray:
+    """J̇ q̇ (6,) of a serial revolute chain from J and q̇: Σ_k (∂J/∂q_k) q̇_k q̇, the classical
+    acceleration [a; α] of the TCP at q̈ = 0, with ∂J/∂q_k from `kinematic_hessian_reference`."""
+    return np.einsum("kai,k,i->a", kinematic_hessian_reference(J), dq, dq)
 
 
 def _objective_sides(objective, Lambda_inv, P, A_inv, S_f, S_m, perm, n_m):
@@ -1310,3 +1346,24 @@ def sensor_high_pass_fused(J, wrench, lp, a):
         lp[i] = a * lp[i] + (1.0 - a) * s
         hp[i] = s - lp[i]
     return tau_s, hp
+
+
+# ==== wrench transport (the F/T reading moved to the TCP) =========================================
+def move_wrench_reference(wrench: np.ndarray, p_from: np.ndarray, p_to: np.ndarray) -> np.ndarray:
+    """A wrench [f; m] (world axes) about `p_from` as the same wrench about `p_to`: f is unchanged,
+    m_to = m_from + (p_from − p_to) × f."""
+    f, m = wrench[:3], wrench[3:]
+    return np.concatenate([f, m + np.cross(p_from - p_to, f)])
+
+
+@njit(cache=True)
+def move_wrench_fused(wrench, p_from, p_to):
+    """Compiled `move_wrench_reference` (a new array)."""
+    r0, r1, r2 = p_from[0] - p_to[0], p_from[1] - p_to[1], p_from[2] - p_to[2]
+    f0, f1, f2 = wrench[0], wrench[1], wrench[2]
+    out = np.empty(6)
+    out[0], out[1], out[2] = f0, f1, f2
+    out[3] = wrench[3] + (r1 * f2 - r2 * f1)
+    out[4] = wrench[4] + (r2 * f0 - r0 * f2)
+    out[5] = wrench[5] + (r0 * f1 - r1 * f0)
+    return out

@@ -90,8 +90,9 @@ class RobotModel:
     def compute(self, q: np.ndarray, dq: np.ndarray) -> Dynamics:
         """Fill one `Dynamics` snapshot at (q, q̇).
 
-        Pinocchio gives M (CRBA), h, J and J̇q̇ in one `computeAllTerms`; the algebra of [T2-5] runs in
-        one compiled kernel (`control.kernels.snapshot_into`, tested against its numpy reference).
+        Pinocchio gives M (CRBA), h and J in one `computeAllTerms`; the algebra of [T2-5] runs in one
+        compiled kernel (`control.kernels.snapshot_into`, tested against its numpy reference), which
+        also forms J̇q̇ from J and q̇ on a serial revolute chain (else Pinocchio's classical acceleration).
         """
         model, data, fid, n = self.model, self.data, self.tcp_frame_id, self.nv
         q = np.array(q, dtype=float)
@@ -99,12 +100,16 @@ class RobotModel:
         pin.computeAllTerms(model, data, q, dq)  # M (upper), h, joint Jacobians, data.a at q̈ = 0
         oMf = pin.updateFramePlacement(model, data, fid)
         J = pin.getFrameJacobian(model, data, fid, LWA)
-        dJ_dq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector.copy()
+        if self.revolute_chain:  # J̇q̇ from J in the kernel (`tcp_bias_acceleration_reference`)
+            dJ_dq, dq_chain = np.empty(6), dq
+        else:
+            dJ_dq, dq_chain = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector.copy(), None
         M, M_inv, N, Lambda_n = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
         Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))  # the kernel fills them
         near_singular, min_eig = snapshot_into(
-            data.M, J, SINGULAR_EIGENVALUE, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, self._work
-        )  # compiled `snapshot_reference`
+            data.M, J, SINGULAR_EIGENVALUE, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, self._work,
+            dq_chain, dJ_dq,
+        )  # compiled `snapshot_reference` (+ J̇q̇)  # fmt: skip
         return Dynamics(
             q, dq, M, M_inv, data.nle.copy(), oMf.rotation.copy(), oMf.translation.copy(), J, dJ_dq,
             Lambda_inv, Lambda, J_bar, N, Lambda_n, near_singular, min_eig,

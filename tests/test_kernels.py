@@ -112,6 +112,26 @@ def test_kinematic_hessian_from_J_equals_pinocchio(robot):
         assert np.max(np.abs(H - H_pin)) < 1e-12 * max(1.0, np.abs(H_pin).max())
 
 
+def test_tcp_bias_acceleration_from_J_equals_pinocchio(robot):
+    """J̇q̇ from J and q̇ (serial revolute chain) against Pinocchio's classical TCP acceleration at
+    q̈ = 0; the compiled O(n) form against the Hessian-sum reference."""
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(21)
+    for q in _states(robot, seed=15):
+        dq = rng.uniform(-2, 2, 7)
+        pin.computeAllTerms(model.model, model.data, q, dq)
+        J = pin.getFrameJacobian(model.model, model.data, model.tcp_frame_id, pin.LOCAL_WORLD_ALIGNED)
+        expected = pin.getFrameClassicalAcceleration(
+            model.model, model.data, model.tcp_frame_id, pin.LOCAL_WORLD_ALIGNED
+        ).vector.copy()
+        ref = K.tcp_bias_acceleration_reference(J, dq)
+        fused = np.empty(6)
+        K.tcp_bias_acceleration_into(J, dq, fused)
+        assert _rel(ref, expected) < 1e-12
+        assert _rel(fused, ref) < 1e-13
+        assert _rel(model.compute(q, dq).dJ_dq, expected) < 1e-12
+
+
 @pytest.mark.parametrize("sub", SUBSPACES, ids=lambda s: "+".join(s.names()[1]))
 @pytest.mark.parametrize("objective", ["f", "a", "d"])
 def test_gradient_contraction_kernel_equals_numpy_reference(robot, sub, objective):
@@ -422,3 +442,11 @@ def test_estimation_kernels_equal_numpy_reference(robot):
         tau_s, hp = K.sensor_high_pass_fused(dyn.J, wrench, hp_fused.lp, hp_fused.a)
         assert _rel(tau_s, dyn.J.T @ wrench) < RTOL
         assert _rel(hp, hp_ref.update(dyn.J.T @ wrench), scale=float(np.abs(tau_s).max())) < RTOL
+
+
+def test_moved_wrench_equals_numpy_reference():
+    """The F/T reading moved from the sensor to the TCP: the compiled transport against np.cross."""
+    rng = np.random.default_rng(8)
+    for _ in range(50):
+        w, a, b = rng.normal(size=6) * 30, rng.normal(size=3), rng.normal(size=3)
+        assert _rel(K.move_wrench_fused(w, a, b), K.move_wrench_reference(w, a, b)) < 1e-14
