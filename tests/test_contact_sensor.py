@@ -154,6 +154,34 @@ def test_compiled_contact_step_equals_implicit_forces_bit_for_bit():
         assert got == (f_n, friction[0], friction[1])
 
 
+def test_contact_step_from_the_jacobian_equals_the_point_state_path(rizon):
+    """`contact_step` (velocity and inverse mass formed in the kernel from J_p) against
+    `implicit_forces` on `World.site_point_state`, at random arm states pressed into the table,
+    implicit and explicit, and out of contact (only the speed)."""
+    from app.sim.contact import _NO_SOLVE, contact_step
+
+    world = World(rizon, table_height=None)
+    rng = np.random.default_rng(4)
+    contact = TableContact(0.0, mu=0.7, v_eps_m_per_s=0.003)
+    for k in range(40):
+        world.reset(rizon.home + rng.uniform(-0.4, 0.4, 7), rng.uniform(-1, 1, 7))
+        site = world.tcp_site
+        point, velocity, G = world.site_point_state(site, inverse_mass=True)
+        contact.height = float(point[2]) + (rng.uniform(1e-5, 2e-3) if k % 4 else -1e-3)
+        depth = contact.height - float(point[2])
+        implicit = bool(k % 3)
+        f_n, friction = contact.implicit_forces(point, velocity, G if implicit else np.zeros((3, 3)), 1e-3)
+        jacp, x = world.site_point_jacobian(site, solve=implicit)
+        got = contact_step(
+            depth, jacp, world.data.qvel, _NO_SOLVE if x is None else x, implicit, contact.stiffness_n_per_m,
+            contact.mu, contact.v_eps_m_per_s, 1e-3,
+        )  # fmt: skip
+        scale = max(f_n, 1e-9)
+        assert abs(got[0] - f_n) <= 1e-12 * scale
+        assert max(abs(got[1] - friction[0]), abs(got[2] - friction[1])) <= 1e-10 * scale
+        assert abs(got[3] - np.hypot(velocity[0], velocity[1])) <= 1e-12 * max(1.0, np.linalg.norm(velocity))
+
+
 def test_friction_at_1_mm_per_s_is_stable_at_the_heaviest_tangential_mass():
     """Polish hold at μ = 1, v_ε = 1 mm/s, from the +75° posture, whose heaviest tangential TCP mass
     (2.35 kg) is the largest of the postures the table reaches; explicit stepping there has

@@ -132,19 +132,18 @@ class TableContact:
 
     def apply(self, world: World) -> ContactState:
         """Apply this step's contact force on the body carrying the TCP (implicit friction)."""
-        depth = self.height - float(world.data.site_xpos[world.tcp_site, 2])
-        point, velocity, G = world.site_point_state(world.tcp_site, inverse_mass=depth > 0.0 and self.implicit)
-        f_n, friction = 0.0, np.zeros(3)
-        if depth > 0.0:  # `implicit_forces`, compiled
-            f_n, fx, fy = implicit_contact(
-                depth, velocity, _NO_INVERSE_MASS if G is None else G, self.stiffness_n_per_m, self.mu,
-                self.v_eps_m_per_s, world.model.opt.timestep,
-            )  # fmt: skip
-            friction = np.array([fx, fy, 0.0])
+        data, site = world.data, world.tcp_site
+        depth = self.height - float(data.site_xpos[site, 2])
+        implicit = depth > 0.0 and self.implicit
+        jacp, x = world.site_point_jacobian(site, solve=implicit)
+        f_n, fx, fy, speed = contact_step(
+            depth, jacp, data.qvel, _NO_SOLVE if x is None else x, implicit, self.stiffness_n_per_m, self.mu,
+            self.v_eps_m_per_s, world.model.opt.timestep,
+        )  # fmt: skip
+        point = data.site_xpos[site].copy()
         if f_n > 0.0:
             world.apply_force(world.wrist_body, point, np.array([fx, fy, f_n]), copy=False)  # fresh arrays
-        speed = math.hypot(velocity[0], velocity[1])
-        self.state = ContactState(f_n, friction, point, speed)
+        self.state = ContactState(f_n, np.array([fx, fy, 0.0]), point, speed)
         return self.state
 
 
@@ -167,9 +166,6 @@ def implicit_friction(
     return np.array([k * (d * v0 - b * v1), k * (a * v1 - cc * v0)])
 
 
-_NO_INVERSE_MASS = np.zeros((3, 3))  # G = 0: the explicit law
-
-
 @njit(cache=True)
 def implicit_contact(depth, velocity, inverse_mass, stiffness, mu, v_eps, dt):
     """Compiled `TableContact.implicit_forces` at a penetration depth > 0: (F_n, F_t x, F_t y), the
@@ -182,3 +178,35 @@ def implicit_contact(depth, velocity, inverse_mass, stiffness, mu, v_eps, dt):
     cc, d = inverse_mass[1, 0] * s, 1.0 + inverse_mass[1, 1] * s
     k = -c / (a * d - b * cc)
     return f_n, k * (d * v0 - b * v1), k * (a * v1 - cc * v0)
+
+
+_NO_SOLVE = np.zeros((3, 1))  # no M⁻¹ J_pᵀ: out of contact, or the explicit law
+
+
+@njit(cache=True)
+def contact_step(depth, jacp, qvel, solved, implicit, stiffness, mu, v_eps, dt):
+    """One step of `TableContact.apply` from the site's translational Jacobian J_p and q̇: the point's
+    velocity v = J_p q̇, with `implicit` its tangential inverse mass G = J_p M⁻¹ J_pᵀ from `solved`
+    (M⁻¹ J_pᵀ as rows), and `implicit_contact` at a positive depth (G = 0 without `implicit`: the
+    explicit law). Returns (F_n, F_t x, F_t y, tangential speed ‖v_t‖)."""
+    nv = jacp.shape[1]
+    v0 = 0.0
+    v1 = 0.0
+    for k in range(nv):
+        v0 += jacp[0, k] * qvel[k]
+        v1 += jacp[1, k] * qvel[k]
+    speed = np.sqrt(v0 * v0 + v1 * v1)
+    if not depth > 0.0:
+        return 0.0, 0.0, 0.0, speed
+    G = np.zeros((2, 2))
+    if implicit:
+        for i in range(2):
+            for j in range(2):
+                s = 0.0
+                for k in range(nv):
+                    s += jacp[i, k] * solved[j, k]
+                G[i, j] = s
+    velocity = np.empty(2)
+    velocity[0], velocity[1] = v0, v1
+    f_n, fx, fy = implicit_contact(depth, velocity, G, stiffness, mu, v_eps, dt)
+    return f_n, fx, fy, speed

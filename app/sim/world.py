@@ -254,20 +254,25 @@ class World:
         mujoco.mj_solveM(self.model, self.data, x, jacp)
         return jacp @ x.T
 
+    def site_point_jacobian(self, site_id: int, solve: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """(J_p (3, nv), M⁻¹ J_pᵀ as rows (3, nv) when `solve`, else None) of a site point, world axes:
+        buffers this world owns, overwritten by the next call (read them before stepping)."""
+        jacp = self._jacp
+        mujoco.mj_jacSite(self.model, self.data, jacp, None, site_id)
+        if not solve:
+            return jacp, None
+        mujoco.mj_solveM(self.model, self.data, self._solve_buf, jacp)
+        return jacp, self._solve_buf
+
     def site_point_state(
         self, site_id: int, inverse_mass: bool = False
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(position, linear velocity, inverse mass J_p M⁻¹ J_pᵀ or None) of a site point, world axes:
         `site_pose`, `site_velocity`[:3] and `site_inverse_mass` from one translational Jacobian."""
-        jacp, data = self._jacp, self.data
-        mujoco.mj_jacSite(self.model, data, jacp, None, site_id)
-        velocity = jacp.dot(data.qvel)  # ndarray.dot: less call overhead than @
-        G = None
-        if inverse_mass:
-            x = self._solve_buf
-            mujoco.mj_solveM(self.model, data, x, jacp)
-            G = jacp.dot(x.T)
-        return data.site_xpos[site_id].copy(), velocity, G
+        jacp, x = self.site_point_jacobian(site_id, solve=inverse_mass)
+        velocity = jacp.dot(self.data.qvel)  # ndarray.dot: less call overhead than @
+        G = None if x is None else jacp.dot(x.T)
+        return self.data.site_xpos[site_id].copy(), velocity, G
 
     def body_point_velocity(self, body_id: int, point_world: np.ndarray) -> np.ndarray:
         """Linear velocity of a world point rigidly attached to a body."""
