@@ -138,14 +138,15 @@ class ProjectionExecutor:
         A non-finite F/T reading is replaced by the last valid one (flagged); on numerical trouble
         the step returns gravity/Coriolis compensation only, flagged as a fallback.
         """
-        wrench = np.asarray(inputs.wrench_tcp, dtype=float)
+        wrench = inputs.wrench_tcp
+        if type(wrench) is not np.ndarray or wrench.dtype != np.float64:  # (a float array passes as it is)
+            wrench = np.asarray(wrench, dtype=float)
+            inputs = replace(inputs, wrench_tcp=wrench)
         sensor_invalid = not math.isfinite(float(wrench.dot(wrench)))  # NaN/inf anywhere (one dot product)
         if sensor_invalid:
             inputs = replace(inputs, wrench_tcp=self._last_valid_wrench.copy())
         else:
             self._last_valid_wrench = wrench.copy()
-            if wrench is not inputs.wrench_tcp:
-                inputs = replace(inputs, wrench_tcp=wrench)
         try:
             out = self._step_fused(dyn, inputs) if self.fused else self._step_reference(dyn, inputs)
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
