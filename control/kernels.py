@@ -1201,6 +1201,30 @@ def projection_law_fused(
     return F, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]
 
 
+@njit(cache=True)
+def projection_step_fused(
+    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
+    target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
+    gains, limits, chain, F_mu, qp_data, closed_form, N, Lambda_n, kn, h, x, tau,
+):  # fmt: skip
+    """`projection_law_fused`, then, with `closed_form` (the nullspace QP's 7-joint line form applies),
+    the QP [T15-17] by `nullspace_line_qp_fused` into `x` and the torque [T13-14] by
+    `joint_torque_fused` into `tau`: the whole [T] step in one call. Returns the law's values and the
+    number of active bounds (0 or 1), or −1 when the QP was not solved here (`x`, `tau` untouched:
+    the caller solves it with its backend)."""
+    F, integral, W, W_f, W_a, W_d, coupled, force_error = projection_law_fused(
+        q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
+        target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
+        gains, limits, chain, F_mu, qp_data,
+    )  # fmt: skip
+    active = -1
+    if closed_form:
+        active = nullspace_line_qp_fused(J, qp_data[0], qp_data[1], qp_data[2], x)
+        if active >= 0:
+            tau[:] = joint_torque_fused(J, F_mu, N, Lambda_n, kn, x, dq, h)
+    return F, integral, W, W_f, W_a, W_d, coupled, force_error, active
+
+
 # ==== [C] task rows and the QP objective [C3-9] ===================================================
 @njit(cache=True)
 def pose_task_target_fused(

@@ -40,7 +40,7 @@ from control.kernels import (
     joint_torque_fused,
     law_constants,
     pack_chain,
-    projection_law_fused,
+    projection_step_fused,
     task_wrench_fused,
 )
 from control.model import Dynamics, RobotModel
@@ -212,30 +212,37 @@ class ProjectionExecutor:
             )  # fmt: skip
 
     def _step_fused(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
-        """`_step_reference` with everything before the QP in one compiled call (`projection_law_fused`:
-        pose error, force integral, coupling blocks, k0 ∇W, task wrench, damper bounds)."""
+        """`_step_reference` in one compiled call (`projection_step_fused`: pose error, force integral,
+        coupling blocks, k0 ∇W, task wrench, damper bounds, and where the 7-joint closed form applies
+        the nullspace QP and the torque); otherwise the QP goes to the backend here."""
         sub, target = self.sub, inputs.target
         F_e = inputs.wrench_tcp
         self._last_terms, self._last_dyn, self._last_sub = None, dyn, sub
         q_d = target.q_posture if target.q_posture is not None else self.q_posture
+        qp_ = self.qp
+        x, tau = np.empty(self.n), np.empty(self.n)
         try:
             F_mu, qp_data = self._F_mu, self._qp_data  # filled by the kernel, read in this step only
-            F, integral, W_obj, W_f, W_a, W_d, coupled, force_error = projection_law_fused(
+            F, integral, W_obj, W_f, W_a, W_d, coupled, force_error, active = projection_step_fused(
                 dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq, not dyn.near_singular,
                 dyn.tcp_position_world, dyn.tcp_rotation_world, target.position, target.rotation,
                 target.velocity, target.acceleration, target.wrench, F_e, self.force_integral,
                 dyn.q if q_d is None else q_d, *self._law_constants, self._chain, F_mu, qp_data,
+                qp_.closed_form, dyn.N, dyn.Lambda_n, self._kn, dyn.h, x, tau,
             )  # fmt: skip
         except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
             return self._step_reference(dyn, inputs)
         self.force_integral = integral
         self._last_q, self._last_q_d = dyn.q, q_d  # for W_j in the view
         self.last_wrench = F
-        grad_step, lower, upper = qp_data
-        res = self.qp.solve(dyn.J, grad_step, lower, upper)  # [T15-17]
+        if active >= 0:  # solved in the call above: not timed apart from the law
+            res = qp_.closed_form_result(x, active)
+        else:
+            grad_step, lower, upper = qp_data
+            res = qp_.solve(dyn.J, grad_step, lower, upper)  # [T15-17]
+            # [T13] nullspace velocity tracking, [T14] torque
+            tau = joint_torque_fused(dyn.J, F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
         self.last_qp = res
-        # [T13] nullspace velocity tracking, [T14] torque
-        tau = joint_torque_fused(dyn.J, F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
         return self._output(tau, res, float(force_error), W_obj, W_f, W_a, W_d, coupled)
 
     def _output(self, tau, res, force_error, W_obj, W_f, W_a, W_d, coupled) -> ControlOutput:

@@ -134,6 +134,12 @@ class NullspaceQP:
             return self._fallback(J, gradient_step, lower, upper, "inconsistent bounds", res)
         return self._fallback(J, gradient_step, lower, upper, res.status, res)
 
+    def closed_form_result(self, x: np.ndarray, active: int) -> NullspaceResult:
+        """The result of a closed-form solve done by the caller's compiled step (see `solve`):
+        `active` bounds (0 or 1); its time is part of that call, so `solve_us` is NaN."""
+        self.last = NullspaceResult(x, qp.SOLVED, int(active), math.nan, self.backend)
+        return self.last
+
     def _fallback(
         self,
         J: np.ndarray,

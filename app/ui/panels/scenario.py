@@ -208,7 +208,8 @@ class ScenarioPanel(KnobPanel):
         )
         step = getattr(frame.scene, "step", None)  # the controller's view of its latest step
         if step is not None and step.qp_status is not None:
-            status += f" · QP {step.qp_backend} {step.qp_solve_us:.0f} µs"
+            solve = "closed form in the law" if math.isnan(step.qp_solve_us) else f"{step.qp_solve_us:.0f} µs"
+            status += f" · QP {step.qp_backend} {solve}"
         phase = self._phase.text(st, frame.scene)
         if phase:
             status += f"  \n**Phase:** {phase}"
