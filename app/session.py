@@ -284,7 +284,7 @@ class Session:
             t=t,
             q=dyn.q,
             dq=dyn.dq,
-            tau=world.tau_applied.copy(),
+            tau=world.tau_applied,  # a new array every step (`World.step`)
             wrench_tcp=wrench_tcp,
             target=target,
             fallback=out.fallback,

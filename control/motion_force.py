@@ -169,7 +169,7 @@ class ProjectionExecutor:
         """The latest step's objective, W values (W_j [T18] included), split, P_f/P_a/P_d, damper zone
         d_i and QP result."""
         terms, res, sub = self.last_terms, self.last_qp, self._last_sub
-        W = dict(self._last_W)
+        W = {key: self._last_W[key] for key in ("W", "W_f", "W_a", "W_d") if key in self._last_W}
         if self._last_q is not None and self._last_q_d is not None:
             e = self._last_q - np.asarray(self._last_q_d, dtype=float)
             W["W_j"] = 0.5 * float(e @ e)  # [T18], at the step's q and posture
@@ -246,7 +246,6 @@ class ProjectionExecutor:
         return self._output(tau, res, float(force_error), W_obj, W_f, W_a, W_d, coupled)
 
     def _output(self, tau, res, force_error, W_obj, W_f, W_a, W_d, coupled) -> ControlOutput:
-        self._last_W = {"W": W_obj, "W_f": W_f, "W_a": W_a, "W_d": W_d}
         info = {
             "W": W_obj,
             "W_f": W_f,
@@ -258,6 +257,7 @@ class ProjectionExecutor:
             "nullspace_speed": math.sqrt(float(res.x.dot(res.x))),
             "coupled_accel": coupled,
         }
+        self._last_W = info  # the view reads W, W_f, W_a, W_d from it
         return ControlOutput(tau=tau, fallback=res.fallback, info=info)
 
     def _step_reference(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:

@@ -182,6 +182,13 @@ class World:
         self._solve_buf = np.zeros((3, self.model.nv))
         self._tau_min = -np.asarray(robot.tau_max, dtype=float)
         self._warning_counts = self.data.warning.number  # a live view of MjData's warning counters
+        # live views of the MjData arrays read or written every step (MjData's buffers never move;
+        # each attribute read would build a new array object)
+        self._qfrc_applied = self.data.qfrc_applied
+        self._views = isinstance(self._qpos_at, slice) and isinstance(self._qvel_at, slice)  # else copies
+        if self._views:
+            self._qpos_arm, self._qvel_arm = self.data.qpos[self._qpos_at], self.data.qvel[self._qvel_at]
+            self._qfrc_applied_arm = self._qfrc_applied[self._qvel_at]
         self.applied: list[AppliedForce] = []
         self.carried: set[int] = set()  # payload bodies distal to the F/T sensor (their inertia loads it)
         self._acc_valid = False  # MuJoCo's body accelerations (cacc) hold the last step's values
@@ -199,11 +206,11 @@ class World:
 
     @property
     def q(self) -> np.ndarray:
-        return self.data.qpos[self._qpos_at].copy()
+        return self._qpos_arm.copy() if self._views else self.data.qpos[self._qpos_at]
 
     @property
     def dq(self) -> np.ndarray:
-        return self.data.qvel[self._qvel_at].copy()
+        return self._qvel_arm.copy() if self._views else self.data.qvel[self._qvel_at]
 
     def reset(self, q: np.ndarray, dq: np.ndarray | None = None) -> None:
         """Put the arm at (q, q̇), time 0, no forces."""
@@ -296,7 +303,7 @@ class World:
             p, f, t = np.array(point_world, dtype=float), np.array(force_world, dtype=float), t.copy()
         else:
             p, f = point_world, force_world
-        mujoco.mj_applyFT(self.model, self.data, f, t, p, body_id, self.data.qfrc_applied)
+        mujoco.mj_applyFT(self.model, self.data, f, t, p, body_id, self._qfrc_applied)
         self.applied.append(AppliedForce(body_id, p, f, t))
 
     def external_wrench_at_sensor(self) -> np.ndarray:
@@ -358,7 +365,7 @@ class World:
 
     def external_joint_torque(self) -> np.ndarray:
         """True external joint torque τ^e of the forces applied this step (sim truth)."""
-        return self.data.qfrc_applied[self._qvel_at].copy()
+        return self._qfrc_applied_arm.copy() if self._views else self._qfrc_applied[self._qvel_at]
 
     def _is_in_subtree(self, body_id: int, root_id: int) -> bool:
         b = body_id
@@ -392,7 +399,7 @@ class World:
             # step just taken, on the kinematics of the new state (a sensor sampled once a step)
             mujoco.mj_rnePostConstraint(self.model, self.data)
         self._acc_valid = bool(self.carried)
-        self.data.qfrc_applied[:] = 0.0
+        self._qfrc_applied.fill(0.0)
         self.applied.clear()
 
     def overpowered(self, tau_ext: np.ndarray | None) -> str:
