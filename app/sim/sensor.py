@@ -12,6 +12,7 @@ The random generator is passed in (seeded by the caller), so runs reproduce exac
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -82,6 +83,7 @@ class FTSensor(Sensor):
         noise: bool = True,
     ):
         self.rng = rng
+        self._noise = np.empty(6)  # this step's draws (read at once by `_reading`)
         self.dt = float(dt)
         self.set_params(
             "sensor",
@@ -115,12 +117,13 @@ class FTSensor(Sensor):
 
     def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
         """The filtered reading for this step's true wrench [f; m] at time t."""
-        noise = self.rng.standard_normal(6)
-        sine = self.sine_amplitude_n * np.sin(2.0 * np.pi * self.sine_hz * t) if self.sine_amplitude_n > 0 else None
+        noise = self.rng.standard_normal(out=self._noise)  # the same draws as standard_normal(6)
+        add_sine = self.sine_amplitude_n > 0
+        sine = self.sine_amplitude_n * math.sin(2.0 * math.pi * self.sine_hz * t) if add_sine else 0.0
         if self._y is None:
             self._y = np.empty(6)
-            return _reading(noise, self._std, true_wrench, sine is not None, sine or 0.0, False, self.alpha, self._y)
-        return _reading(noise, self._std, true_wrench, sine is not None, sine or 0.0, True, self.alpha, self._y)
+            return _reading(noise, self._std, true_wrench, add_sine, sine, False, self.alpha, self._y)
+        return _reading(noise, self._std, true_wrench, add_sine, sine, True, self.alpha, self._y)
 
 
 @njit(cache=True)
