@@ -169,7 +169,7 @@ class ProjectionExecutor:
         """The latest step's objective, W values (W_j [T18] included), split, P_f/P_a/P_d, damper zone
         d_i and QP result."""
         terms, res, sub = self.last_terms, self.last_qp, self._last_sub
-        W = {key: self._last_W[key] for key in ("W", "W_f", "W_a", "W_d") if key in self._last_W}
+        W: dict[str, float] = {key: self._last_W[key] for key in ("W", "W_f", "W_a", "W_d") if key in self._last_W}
         if self._last_q is not None and self._last_q_d is not None:
             e = self._last_q - np.asarray(self._last_q_d, dtype=float)
             W["W_j"] = 0.5 * float(e @ e)  # [T18], at the step's q and posture
