@@ -88,43 +88,6 @@ def _matmul_bt(A, B):
 
 
 @njit(cache=True)
-def _spd_inverse(M):
-    """Inverse of a symmetric positive definite matrix via Cholesky (NaN if M is not SPD)."""
-    n = M.shape[0]
-    L = np.zeros((n, n))
-    for j in range(n):
-        s = M[j, j]
-        for p in range(j):
-            s -= L[j, p] * L[j, p]
-        if not s > 0.0:
-            return np.full((n, n), np.nan)
-        d = np.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            t = M[i, j]
-            for p in range(j):
-                t -= L[i, p] * L[j, p]
-            L[i, j] = t / d
-    Li = np.zeros((n, n))  # L⁻¹, lower triangular
-    for j in range(n):
-        Li[j, j] = 1.0 / L[j, j]
-        for i in range(j + 1, n):
-            t = 0.0
-            for p in range(j, i):
-                t -= L[i, p] * Li[p, j]
-            Li[i, j] = t / L[i, i]
-    out = np.empty((n, n))  # M⁻¹ = L⁻ᵀ L⁻¹
-    for i in range(n):
-        for j in range(i, n):
-            s = 0.0
-            for p in range(j, n):
-                s += Li[p, i] * Li[p, j]
-            out[i, j] = s
-            out[j, i] = s
-    return out
-
-
-@njit(cache=True)
 def _sym_from_eig(V, f):
     n = V.shape[0]
     out = np.zeros((n, n))
@@ -183,7 +146,7 @@ def _cholesky_into(A, shift, L):
 @njit(cache=True)
 def _spd_inverse_into(A, L, Li, out):
     """out = A⁻¹ for symmetric positive definite A (L, Li: n×n scratch): A = L Lᵀ, A⁻¹ = L⁻ᵀ L⁻¹.
-    The same operations as `_spd_inverse`. False (out untouched) when A is not positive definite."""
+    False (out untouched) when A is not positive definite."""
     n = A.shape[0]
     if not _cholesky_into(A, 0.0, L):
         return False
