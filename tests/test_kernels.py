@@ -19,6 +19,7 @@ import pinocchio as pin
 import pytest
 
 from control import kernels as K
+from control import kernels_qp as KQ
 from control.coupling import Subspaces, coupling_gradient, coupling_gradient_direct, terms_of
 from control.model import SINGULAR_EIGENVALUE, RobotModel
 from tests.conftest import random_configurations
@@ -453,3 +454,61 @@ def test_moved_wrench_equals_numpy_reference():
     for _ in range(50):
         w, a, b = rng.normal(size=6) * 30, rng.normal(size=3), rng.normal(size=3)
         assert _rel(K.move_wrench_fused(w, a, b), K.move_wrench_reference(w, a, b)) < 1e-14
+
+
+# ---- [C] QP kernels (control/kernels_qp.py) ---------------------------------------------------
+def _qp_problem(rng: np.random.Generator, n: int, m: int, active: bool):
+    """A strictly convex problem whose unconstrained optimum meets every bound and row (active
+    False) or violates some (active True)."""
+    G = rng.normal(size=(n, n))
+    P = G @ G.T + 0.1 * np.eye(n)
+    x_unc = rng.normal(size=n)
+    q = -P @ x_unc
+    A = rng.normal(size=(m, n))
+    lb, ub = x_unc - rng.uniform(0.1, 1.0, n), x_unc + rng.uniform(0.1, 1.0, n)
+    l, u = A @ x_unc - rng.uniform(0.1, 1.0, m), A @ x_unc + rng.uniform(0.1, 1.0, m)
+    if active:
+        k = rng.integers(n + m)
+        if k < n:
+            ub[k] = x_unc[k] - 0.05
+            lb[k] = min(lb[k], ub[k] - 1.0)
+        else:
+            l[k - n] = (A @ x_unc)[k - n] + 0.05
+            u[k - n] = max(u[k - n], l[k - n] + 1.0)
+    return P, q, A, l, u, lb, ub
+
+
+def test_dense_qp_load_kernel_equals_numpy_reference():
+    """Same outcome code, same buffer and the same fast-path x (1e-10 relative) on feasible and
+    active unconstrained optima, ±inf bounds, NaN, crossed bounds, a semidefinite P and
+    equality rows."""
+    rng = np.random.default_rng(21)
+    seen = set()
+    for k in range(120):
+        n, m = (7, 7) if k % 3 else (5, 9)
+        P, q, A, l, u, lb, ub = _qp_problem(rng, n, m, active=k % 4 == 0)
+        n_eq = 2 if k % 17 == 5 else 0
+        if k % 10 == 3:
+            ub[1], l[0] = np.inf, -np.inf
+        if k % 10 == 7:
+            lb[2] = 1e200  # its square overflows: the bounds are clipped to ±1e30, then cross
+        if k % 23 == 11:
+            q = q.copy()
+            q[0] = np.nan
+        if k % 29 == 13:
+            lb[3], ub[3] = 1.0, -1.0
+        if k % 31 == 2:
+            P = np.outer(P[0], P[0])  # rank one: left to the solver
+        out = {}
+        for name, fn in (("ref", KQ.dense_qp_load_reference), ("fused", KQ.dense_qp_load_fused)):
+            data, x = KQ.dense_qp_buffer(n, m), np.zeros(n)
+            code = fn(data, n, m, n_eq, P, q, A, l, u, lb, ub, 1e30, 1e-6, x)
+            out[name] = code, data, x
+        (c_ref, d_ref, x_ref), (c_fused, d_fused, x_fused) = out["ref"], out["fused"]
+        assert c_ref == c_fused, k
+        np.testing.assert_array_equal(d_fused, d_ref)
+        seen.add(c_ref)
+        if c_ref == KQ.FAST_SOLVED:
+            assert _rel(x_fused, x_ref) < RTOL
+            np.testing.assert_allclose(x_ref, -np.linalg.solve(P, q), rtol=1e-9)
+    assert seen == {KQ.FAST_SOLVED, KQ.NEEDS_SOLVER, KQ.NON_FINITE_DATA, KQ.CROSSED_BOUNDS}

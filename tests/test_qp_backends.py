@@ -7,13 +7,22 @@ optimum is also known in closed form (J has a one-dimensional kernel z: x = t z,
 interval the box allows) and the dense backend is checked against it to 1e-9; there OSQP's ADMM
 stalls on a few feasible problems (max iter, even at 20 000 iterations, where the old OSQP path of
 the executor fell back too): those are counted and must stay under 10 %.
+
+The dense backend's fast path (the unconstrained optimum −P⁻¹q when it is feasible, no DAQP
+call: `control.kernels_qp`) is held to DAQP's own solve of the same problem (`daqp.solve`, fresh)
+to FAST_REL · max|x| and to OSQP as above, with and without active constraints, and along
+sequences that switch between the fast path and DAQP's warm-started solve.
 """
 
 from __future__ import annotations
 
+import itertools
+
+import daqp
 import numpy as np
 
 from control import coupling as c
+from control import qp
 from control.compliance_qp import AccelerationQP, ComplianceQPExecutor, PoseTask
 from control.executor import ControlInputs, TaskTarget
 from control.gains import ComplianceQPSettings, EstimatorGains, NullspaceGains, PoseTaskGains
@@ -23,6 +32,7 @@ from tests.conftest import random_configurations
 
 AGREE_ABS = 1e-6
 AGREE_REL = 1e-6
+FAST_REL = 1e-9  # dense backend (fast path or warm-started DAQP) vs a fresh DAQP solve
 TIGHT = ComplianceQPSettings(eps=1e-10, polish=True, max_iter=20000)
 
 
@@ -172,3 +182,95 @@ def test_compliance_qp_backends_agree_with_torque_limits_and_dampers_active(robo
             n_torque += int(np.any(np.isclose(tau_rows, l[:n], atol=1e-6) | np.isclose(tau_rows, u[:n], atol=1e-6)))
             n_damper += int(np.any(np.isclose(a.x, lb, atol=1e-6) | np.isclose(a.x, ub, atol=1e-6)))
     assert n_torque >= 5 and n_damper >= 5, (n_torque, n_damper, n_slack)
+
+
+def _fresh_daqp(P, q, A, l, u, lb, ub, n_eq=0):
+    """DAQP's solve of the problem from scratch (no workspace kept), its x and exit flag."""
+    sense = np.zeros(len(lb) + len(l), dtype=np.int32)
+    sense[len(sense) - n_eq :] = 5
+    x, _, flag, _ = daqp.solve(P, q, A, np.r_[ub, u], np.r_[lb, l], sense)
+    return x, flag
+
+
+def _convex_problem(rng, n, m, active):
+    """Strictly convex, unconstrained optimum feasible (active False) or cut off by one bound or
+    row (active True)."""
+    G = rng.normal(size=(n, n))
+    P = G @ G.T + 0.1 * np.eye(n)
+    x_unc = rng.normal(size=n)
+    A = rng.normal(size=(m, n))
+    lb, ub = x_unc - rng.uniform(0.1, 1.0, n), x_unc + rng.uniform(0.1, 1.0, n)
+    Ax = A @ x_unc
+    l, u = Ax - rng.uniform(0.5, 2.0, m), Ax + rng.uniform(0.5, 2.0, m)
+    if active:  # a cut small next to the other margins, so the problem stays feasible
+        k = int(rng.integers(n + m))
+        if k < n:
+            ub[k], lb[k] = x_unc[k] - 0.1, x_unc[k] - 2.0
+        else:
+            l[k - n], u[k - n] = Ax[k - n] + 0.1, Ax[k - n] + 2.0
+    return P, -P @ x_unc, A, l, u, lb, ub
+
+
+def test_dense_fast_path_is_the_optimum_daqp_and_osqp_find():
+    """Without an active constraint the dense backend returns −P⁻¹q without DAQP (iterations 0);
+    with one it calls DAQP; either way x is DAQP's fresh solution (FAST_REL) and OSQP's (AGREE)."""
+    rng = np.random.default_rng(31)
+    tight = qp.QPSettings(eps=1e-10, polish=True, max_iter=20000)
+    for k in range(60):
+        n, m = (7, 7) if k % 2 else (6, 10)
+        active = k % 3 == 0
+        prob = _convex_problem(rng, n, m, active)
+        res = qp.make_qp("dense", n, m).solve(*prob)
+        ref, flag = _fresh_daqp(*prob)
+        osqp_res = qp.make_qp("osqp", n, m, settings=tight).solve(*prob)
+        assert res.status == qp.SOLVED and flag == 1 and osqp_res.solved
+        assert (res.iterations == 0) != active
+        scale = float(np.max(np.abs(ref)))
+        assert float(np.max(np.abs(res.x - ref))) <= FAST_REL * scale
+        assert float(np.max(np.abs(res.x - osqp_res.x))) <= AGREE_ABS + AGREE_REL * scale
+
+
+def test_dense_warm_start_after_fast_path_solves_the_current_data():
+    """A sequence switching between the fast path and DAQP (warm-started from the empty working
+    set the fast path leaves, with the data the fast-path solves loaded since) gives DAQP's fresh
+    solution at every step, also when P and A are passed as None (unchanged since the last call)."""
+    rng = np.random.default_rng(32)
+    n, m = 7, 7
+    solver = qp.make_qp("dense", n, m)
+    P = A = np.eye(n)
+    paths = []
+    for k in range(80):
+        P_new, q, A_new, l, u, lb, ub = _convex_problem(rng, n, m, active=rng.random() < 0.5)
+        keep = k % 5 == 4  # the same P and A as the step before: passed as None
+        if not keep:
+            P, A = P_new, A_new
+            x_unc = -np.linalg.solve(P, q)
+        else:  # bounds around the old P's unconstrained optimum, one of them cut on odd k
+            x_unc = -np.linalg.solve(P, q)
+            lb, ub = x_unc - 1.0, x_unc + 1.0
+            l, u = A @ x_unc - 1.0, A @ x_unc + 1.0
+            if k % 2:
+                ub[0], lb[0] = x_unc[0] - 0.2, x_unc[0] - 2.0
+        res = solver.solve(None if keep else P, q, None if keep else A, l, u, lb, ub)
+        ref, flag = _fresh_daqp(P, q, A, l, u, lb, ub)
+        assert res.status == qp.SOLVED and flag == 1
+        assert float(np.max(np.abs(res.x - ref))) <= FAST_REL * float(np.max(np.abs(ref))), k
+        paths.append(res.iterations == 0)
+    switches = sum(a != b for a, b in itertools.pairwise(paths))
+    assert 10 <= sum(paths) <= 70 and switches >= 20
+
+
+def test_dense_backend_with_equality_rows_leaves_them_to_daqp():
+    """Equality rows: no fast path (DAQP's equality-constrained solve), same x as DAQP fresh, the
+    rows held (the unconstrained optimum, which meets every inequality, misses them by 0.05)."""
+    rng = np.random.default_rng(33)
+    n, m, n_eq = 7, 9, 2
+    solver = qp.make_qp("dense", n, m, n_eq=n_eq)
+    for _ in range(20):
+        P, q, A, l, u, lb, ub = _convex_problem(rng, n, m, active=False)
+        l[m - n_eq :] = u[m - n_eq :] = A[m - n_eq :] @ np.linalg.solve(P, -q) + 0.05
+        res = solver.solve(P, q, A, l, u, lb, ub)
+        ref, flag = _fresh_daqp(P, q, A, l, u, lb, ub, n_eq)
+        assert res.status == qp.SOLVED and flag == 1 and res.iterations > 0
+        np.testing.assert_allclose(A[m - n_eq :] @ res.x, l[m - n_eq :], rtol=0, atol=1e-9)
+        assert float(np.max(np.abs(res.x - ref))) <= FAST_REL * float(np.max(np.abs(ref)))

@@ -1,0 +1,191 @@
+"""Compiled kernels of the [C] acceleration QP, each beside its plain-numpy reference.
+
+Like `control.kernels` (same conventions: numba with `cache=True`, a `*_reference` function that
+states the algebra readably, `tests/test_kernels.py` holding the fused version to it):
+
+- `dense_qp_load_*`: what `control.qp.DenseBackend` does before DAQP — copy the data into the
+  backend's one buffer, refuse NaN and crossed bounds — and its exact fast path: for a strictly
+  convex problem without equality rows, the unconstrained minimiser x = −P⁻¹q (Cholesky) that
+  meets every bound and row (to the primal tolerance, DAQP's own test of the same candidate) is
+  the optimum (the KKT conditions hold with all multipliers zero), so DAQP is not needed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# `dense_qp_load_*` outcomes
+FAST_SOLVED = 0  # x holds the optimum (the unconstrained minimiser is feasible)
+NEEDS_SOLVER = 1  # data loaded, hand it to DAQP
+NON_FINITE_DATA = 2  # NaN (or inf outside the bounds) in the data
+CROSSED_BOUNDS = 3  # a lower bound above its upper bound
+PIVOT_FLOOR = 1e-12  # Cholesky pivots below this times P's largest diagonal entry: left to DAQP
+
+
+def dense_qp_buffer(n: int, m: int) -> np.ndarray:
+    """The one data buffer of an (n variables, m rows) problem: [P (n·n), A (m·n), q (n), lower
+    (n + m: box, then rows), upper (n + m)] (`dense_qp_views` names the parts)."""
+    return np.zeros(n * n + m * n + n + 2 * (n + m))
+
+
+def dense_qp_views(data: np.ndarray, n: int, m: int) -> tuple:
+    """(P, A, q, lower, upper) views into a `dense_qp_buffer`."""
+    k = n + m
+    P = data[: n * n].reshape(n, n)
+    A = data[n * n : n * n + m * n].reshape(m, n)
+    rest = data[n * n + m * n :]
+    return P, A, rest[:n], rest[n : n + k], rest[n + k : n + 2 * k]
+
+
+def dense_qp_load_reference(
+    data: np.ndarray,
+    n: int,
+    m: int,
+    n_eq: int,
+    P: np.ndarray | None,
+    q: np.ndarray,
+    A: np.ndarray | None,
+    l: np.ndarray,
+    u: np.ndarray,
+    lb: np.ndarray,
+    ub: np.ndarray,
+    no_bound: float,
+    tol: float,
+    x: np.ndarray,
+) -> int:
+    """Load min ½xᵀPx + qᵀx s.t. lb ≤ x ≤ ub, l ≤ Ax ≤ u (last n_eq rows equalities; P, A None:
+    unchanged) into `data` and try the fast path; returns one of the outcome codes above and, for
+    FAST_SOLVED, the optimum in `x`.
+
+    ±inf bounds become ±no_bound (only when the data's sum of squares is not finite, as the
+    backend always did); NaN anywhere is NON_FINITE_DATA. The fast path needs no equality rows and
+    P positive definite (every Cholesky pivot above PIVOT_FLOOR · max diag P); its candidate
+    x = −P⁻¹q must be finite and meet lb − tol ≤ x ≤ ub + tol, l − tol ≤ Ax ≤ u + tol."""
+    Pd, Ad, qd, lo, hi = dense_qp_views(data, n, m)
+    if P is not None:
+        Pd[:] = P
+    if A is not None:
+        Ad[:] = A
+    qd[:] = q
+    lo[:n], lo[n:], hi[:n], hi[n:] = lb, l, ub, u
+    with np.errstate(over="ignore", invalid="ignore"):
+        finite = math.isfinite(float(data @ data))
+        if not finite:
+            bounds = data[n * n + m * n + n :]
+            np.clip(bounds, -no_bound, no_bound, out=bounds)
+            finite = math.isfinite(float(data @ data))
+    if not finite:
+        return NON_FINITE_DATA
+    if (lo > hi).any():
+        return CROSSED_BOUNDS
+    if n_eq > 0:
+        return NEEDS_SOLVER
+    try:
+        L = np.linalg.cholesky(Pd)
+    except np.linalg.LinAlgError:
+        return NEEDS_SOLVER
+    if not np.all(np.diag(L) ** 2 > PIVOT_FLOOR * max(float(np.max(np.diag(Pd))), 0.0)):
+        return NEEDS_SOLVER
+    cand = -np.linalg.solve(L.T, np.linalg.solve(L, qd))
+    rows = Ad @ cand
+    if not np.all(np.isfinite(cand)):
+        return NEEDS_SOLVER
+    if np.any(cand < lo[:n] - tol) or np.any(cand > hi[:n] + tol):
+        return NEEDS_SOLVER
+    if np.any(rows < lo[n:] - tol) or np.any(rows > hi[n:] + tol):
+        return NEEDS_SOLVER
+    x[:] = cand
+    return FAST_SOLVED
+
+
+@njit(cache=True)
+def dense_qp_load_fused(data, n, m, n_eq, P, q, A, l, u, lb, ub, no_bound, tol, x):
+    """`dense_qp_load_reference` in one compiled call (Cholesky and the triangular solves written
+    out, on the P held in `data`)."""
+    k = n + m
+    off_A = n * n
+    off_q = off_A + m * n
+    off_lo = off_q + n
+    off_hi = off_lo + k
+    if P is not None:
+        for i in range(n):
+            for j in range(n):
+                data[i * n + j] = P[i, j]
+    if A is not None:
+        for i in range(m):
+            for j in range(n):
+                data[off_A + i * n + j] = A[i, j]
+    for i in range(n):
+        data[off_q + i] = q[i]
+        data[off_lo + i] = lb[i]
+        data[off_hi + i] = ub[i]
+    for i in range(m):
+        data[off_lo + n + i] = l[i]
+        data[off_hi + n + i] = u[i]
+    s = 0.0
+    for i in range(data.shape[0]):
+        s += data[i] * data[i]
+    if not math.isfinite(s):
+        for i in range(off_lo, off_hi + k):
+            if data[i] > no_bound:
+                data[i] = no_bound
+            elif data[i] < -no_bound:
+                data[i] = -no_bound
+        s = 0.0
+        for i in range(data.shape[0]):
+            s += data[i] * data[i]
+        if not math.isfinite(s):
+            return NON_FINITE_DATA
+    for i in range(k):
+        if data[off_lo + i] > data[off_hi + i]:
+            return CROSSED_BOUNDS
+    if n_eq > 0:
+        return NEEDS_SOLVER
+    # Cholesky P = L Lᵀ (lower triangle of P read)
+    L = np.zeros((n, n))
+    max_diag = 0.0
+    for i in range(n):
+        max_diag = max(max_diag, data[i * n + i])
+    floor = PIVOT_FLOOR * max_diag
+    for j in range(n):
+        d = data[j * n + j]
+        for c in range(j):
+            d -= L[j, c] * L[j, c]
+        if not d > floor:
+            return NEEDS_SOLVER
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, n):
+            v = data[i * n + j]
+            for c in range(j):
+                v -= L[i, c] * L[j, c]
+            L[i, j] = v / L[j, j]
+    # L y = −q, Lᵀ x = y
+    y = np.empty(n)
+    for i in range(n):
+        v = -data[off_q + i]
+        for c in range(i):
+            v -= L[i, c] * y[c]
+        y[i] = v / L[i, i]
+    cand = np.empty(n)
+    for i in range(n - 1, -1, -1):
+        v = y[i]
+        for c in range(i + 1, n):
+            v -= L[c, i] * cand[c]
+        v /= L[i, i]
+        if not math.isfinite(v):
+            return NEEDS_SOLVER
+        if v < data[off_lo + i] - tol or v > data[off_hi + i] + tol:
+            return NEEDS_SOLVER
+        cand[i] = v
+    for r in range(m):
+        v = 0.0
+        for j in range(n):
+            v += data[off_A + r * n + j] * cand[j]
+        if v < data[off_lo + n + r] - tol or v > data[off_hi + n + r] + tol:
+            return NEEDS_SOLVER
+    for i in range(n):
+        x[i] = cand[i]
+    return FAST_SOLVED
