@@ -16,6 +16,10 @@ and dampers cannot hold together) the damper bounds are softened with penalised 
 torque limits — which the motors enforce anyway by saturation — stay hard (`AccelerationQP`); if
 that fails too, the tasks' unconstrained optimum clipped to the damper bounds is used. Both cases
 are flagged; nothing raises inside `step`.
+
+`ComplianceQPExecutor._step_reference` states the step object by object; `step` runs the same
+step with the pose task, the posture task, the dampers and the torque rows in one compiled call
+(`control.kernels_qp.cqp_problem_fused`), tested equal to the reference to 1e-9.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ import numpy as np
 import pinocchio as pin
 
 from control import qp
-from control.dampers import JointLimitDamper
+from control.dampers import NO_BOUND, JointLimitDamper
 from control.estimation import ExternalTorqueEstimator
 from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
 from control.gains import (
@@ -47,6 +51,7 @@ from control.kernels import (
     posture_target_fused,
     torque_rows_fused,
 )
+from control.kernels_qp import cqp_problem_fused
 from control.model import Dynamics
 from control.params import expect
 
@@ -306,8 +311,12 @@ class ComplianceQPExecutor:
         settings: ComplianceQPSettings | None = None,
         dt: float = 1e-3,
         qp_backend: str | None = None,
+        fused: bool = True,
     ):
         self.n = n = len(q_lower)
+        # everything between the estimate and the QP in one compiled call (`_step_fused`); with
+        # fused=False, the same step object by object (`_step_reference`)
+        self.fused = bool(fused)
         self.qp_backend = qp.check_backend(qp_backend or qp.default_backend())
         self.dt = float(dt)
         self.tau_max = np.asarray(tau_max, dtype=float).copy()
@@ -323,6 +332,8 @@ class ComplianceQPExecutor:
         self._zeros = np.zeros(n)  # τ_fb without external-force feedback
         self._diag = np.diag_indices(n)
         self.ddq = np.zeros(n)
+        self._P, self._q = np.zeros((n, n)), np.zeros(n)  # the fused step's objective (read by the QP)
+        self._zeros6, self._zeros66 = np.zeros(6), np.zeros((6, 6))  # pose arguments when no pose task is fused
         self.last_qp: qp.QPResult | None = None
         self.last_info: dict[str, float] = {}
 
@@ -339,6 +350,9 @@ class ComplianceQPExecutor:
     def _build_qp(self) -> None:
         self.strict_tasks = [t for t in self.tasks if getattr(t, "strict", False)]
         self.soft_tasks = [t for t in self.tasks if not getattr(t, "strict", False)]
+        # the fused step computes the first soft PoseTask's rows itself, the others' by `rows`
+        self._fused_pose = next((t for t in self.soft_tasks if type(t) is PoseTask), None)
+        self._other_soft_tasks = [t for t in self.soft_tasks if t is not self._fused_pose]
         self.qp = AccelerationQP(self.n, sum(t.dim for t in self.strict_tasks), self.settings, self.qp_backend)
 
     # ---- Executor protocol --------------------------------------------------------------------
@@ -411,19 +425,71 @@ class ComplianceQPExecutor:
 
     def step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
         """One control step; never raises on numerical trouble (flags a fallback instead)."""
-        n = self.n
+        return self._step_fused(dyn, inputs) if self.fused else self._step_reference(dyn, inputs)
+
+    def _step_fused(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
+        """`_step_reference` with the pose task (the first soft `PoseTask`), the posture task, the
+        dampers and the torque rows in one compiled call (`control.kernels_qp.cqp_problem_fused`);
+        other tasks add their rows as in the reference."""
         target = inputs.target
+        tau_hat = self._estimate(dyn, inputs)
+        pose, posture, damper, aqp, settings = self._fused_pose, self.posture, self.damper, self.qp, self.settings
+        P, q = self._P, self._q
+        q_ref = posture.q_hold if target.q_posture is None else target.q_posture
+        dq_ref = posture._zeros if posture.dq_ref is None else posture.dq_ref
+        if pose is None:  # not read: no pose task is fused
+            pose_kp, pose_kd, pose_gamma, pose_use_gamma, pose_weight = (
+                self._zeros6,
+                self._zeros6,
+                self._zeros66,
+                False,
+                0.0,
+            )
+        else:
+            pose_kp, pose_kd, pose_gamma = pose.kp, pose.kd, pose.gamma
+            pose_use_gamma, pose_weight = pose._use_gamma, float(pose.gains.weight)
+        try:
+            crossed = cqp_problem_fused(
+                dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world,
+                dyn.tcp_rotation_world, tau_hat, settings.feedback, self.tau_max, settings.torque_limits,
+                pose is not None, target.position, target.rotation, target.velocity, target.acceleration, pose_kp,
+                pose_kd, pose_gamma, pose_use_gamma, pose_weight,
+                q_ref, dq_ref, posture.kp, posture.kd, posture.ki, posture._use_ki, posture.integral, posture.dt,
+                posture.gamma, posture._use_gamma, float(posture.gains.weight), posture.gains.metric == "inertia",
+                damper.q_lower, damper.q_upper, damper.d_s, damper.d_i, damper.xi, float(damper.kp),
+                float(damper.gains.lambda_), float(damper.velocity_gain), damper.dq_limit, damper.endless,
+                damper.gains.form == "proposed", damper.dt, NO_BOUND, P, q, aqp.A, aqp.l, aqp.u, aqp.lb, aqp.ub, qp.INF,
+            )  # fmt: skip
+        except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
+            P, q, crossed = self._problem_reference(dyn, target, tau_hat)
+            return self._solve_and_torque(dyn, P, q, tau_hat, crossed)
+        if self._other_soft_tasks or self.strict_tasks:
+            ddq_e = dyn.M_inv @ tau_hat
+            self._add_task_rows(self._other_soft_tasks, dyn, target, ddq_e, P, q)
+            self._strict_rows(dyn, target, ddq_e)
+        return self._solve_and_torque(dyn, P, q, tau_hat, bool(crossed))
+
+    def _step_reference(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
+        """Estimation [C25–26], the QP's data [C9, C10, C17–24] task by task, the QP, [C8]."""
+        tau_hat = self._estimate(dyn, inputs)
+        P, q, crossed = self._problem_reference(dyn, inputs.target, tau_hat)
+        return self._solve_and_torque(dyn, P, q, tau_hat, crossed)
+
+    def _estimate(self, dyn: Dynamics, inputs: ControlInputs) -> np.ndarray:
+        """τ̂_e of this step [C25–26]; then the tasks that need this step's inputs are prepared."""
         tau_hat = self.estimator.update(dyn, self.tau_prev, inputs.wrench_tcp, inputs.tau_ext_oracle)
         self.tau_hat = tau_hat
         for task in self.tasks:  # tasks that need this step's inputs (e.g. the [T] bridge)
             prepare = getattr(task, "prepare", None)
             if prepare is not None:
                 prepare(dyn, inputs)
-        ddq_e = dyn.M_inv @ tau_hat  # q̈_e = M⁻¹ τ̂_e
-        # objective [C9]: ½ q̈ᵀ P q̈ + qᵀ q̈
-        P = np.zeros((n, n))
-        q = np.zeros(n)
-        for task in (*self.soft_tasks, self.posture):
+        return tau_hat
+
+    def _add_task_rows(
+        self, tasks, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray, P: np.ndarray, q: np.ndarray
+    ) -> None:
+        """P += w JᵀWJ, q −= w JᵀWb for each task's rows [C9]."""
+        for task in tasks:
             J, b, w, W = task.rows(dyn, target, ddq_e)
             if J is self.posture._eye and W is None:  # identity rows: no matrix products
                 P[self._diag] += w
@@ -435,15 +501,29 @@ class ComplianceQPExecutor:
             JtW = (J.T @ W) * w
             P += JtW @ J
             q -= JtW @ b
+
+    def _strict_rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> None:
+        """Strict tasks as equality rows below the torque rows."""
         aqp = self.qp
-        # strict tasks as equality rows below the torque rows
-        row = n
+        row = self.n
         for task in self.strict_tasks:
             J, b, _, _ = task.rows(dyn, target, ddq_e)
             aqp.A[row : row + task.dim] = J
             aqp.l[row : row + task.dim] = b
             aqp.u[row : row + task.dim] = b
             row += task.dim
+
+    def _problem_reference(self, dyn: Dynamics, target: TaskTarget, tau_hat: np.ndarray) -> tuple:
+        """The QP's objective (P, q) [C9] and its rows and box in `self.qp` [C10, C17–24], task by
+        task; returns (P, q, damper bounds crossed)."""
+        n = self.n
+        ddq_e = dyn.M_inv @ tau_hat  # q̈_e = M⁻¹ τ̂_e
+        # objective [C9]: ½ q̈ᵀ P q̈ + qᵀ q̈
+        P = np.zeros((n, n))
+        q = np.zeros(n)
+        self._add_task_rows((*self.soft_tasks, self.posture), dyn, target, ddq_e, P, q)
+        self._strict_rows(dyn, target, ddq_e)
+        aqp = self.qp
         # dampers [C17–24] as the box on q̈
         bounds = self.damper.bounds(dyn.q, dyn.dq)
         aqp.lb[:] = bounds.lower
@@ -451,10 +531,17 @@ class ComplianceQPExecutor:
         # torque limits [C10] on τ_d of [C8] (compiled: rows of A, l, u in place)
         tau_fb = tau_hat if self.settings.feedback else self._zeros
         torque_rows_fused(dyn.M, dyn.h, tau_fb, self.tau_max, aqp.A, aqp.l, aqp.u, self.settings.torque_limits, qp.INF)
-        res = aqp.solve(P, q)
+        return P, q, bounds.crossed
+
+    def _solve_and_torque(
+        self, dyn: Dynamics, P: np.ndarray, q: np.ndarray, tau_hat: np.ndarray, crossed: bool
+    ) -> ControlOutput:
+        """The QP, then τ_d of [C8] and the step's output."""
+        res = self.qp.solve(P, q)
         self.ddq = res.x
         self.last_qp = res
         # [C8] τ_d = M q̈ + h − τ_fb; [C10] stays hard for approximate solutions too; the motors clip
+        tau_fb = tau_hat if self.settings.feedback else self._zeros
         tau, tau_cmd, saturated = inverse_dynamics_fused(
             dyn.M, res.x, dyn.h, tau_fb, self.tau_max, (res.fallback or not res.solved) and self.settings.torque_limits
         )
@@ -465,14 +552,14 @@ class ComplianceQPExecutor:
             "qp_iterations": float(res.iterations),
             "qp_relaxed": float(res.fallback),
             "qp_solve_us": res.solve_us,
-            "damper_crossed": float(bounds.crossed),
+            "damper_crossed": float(crossed),
             "tau_saturated": float(saturated),
             "tau_ext_estimate_norm": math.sqrt(float(tau_hat @ tau_hat)),
             "tau_ext_is_oracle": float(self.estimator.is_oracle),
             "feedback": float(self.settings.feedback),
         }
         self.last_info = info
-        return ControlOutput(tau=tau_cmd, fallback=res.fallback or bounds.crossed, info=info)
+        return ControlOutput(tau=tau_cmd, fallback=res.fallback or crossed, info=info)
 
 
 def _qp_view(view: StepView, res: qp.QPResult | None, backend: str, limit_zone: np.ndarray) -> StepView:

@@ -1,4 +1,4 @@
-"""Compiled kernels of the [C] acceleration QP, each beside its plain-numpy reference.
+"""Compiled kernels of the [C] acceleration QP and its executor, each beside its reference.
 
 Like `control.kernels` (same conventions: numba with `cache=True`, a `*_reference` function that
 states the algebra readably, `tests/test_kernels.py` holding the fused version to it):
@@ -8,6 +8,10 @@ states the algebra readably, `tests/test_kernels.py` holding the fused version t
   convex problem without equality rows, the unconstrained minimiser x = −P⁻¹q (Cholesky) that
   meets every bound and row (to the primal tolerance, DAQP's own test of the same candidate) is
   the optimum (the KKT conditions hold with all multipliers zero), so DAQP is not needed.
+- `cqp_problem_fused`: the [C] executor's QP data [C9, C10, C17-24] from the estimate, in one call
+  of the `control.kernels` functions the executor's reference path calls one by one
+  (`ComplianceQPExecutor._step_reference` is its statement; `tests/test_compliance_qp.py` holds
+  the fused step to it).
 """
 
 from __future__ import annotations
@@ -16,6 +20,14 @@ import math
 
 import numpy as np
 from numba import njit
+
+from control.kernels import (
+    acceleration_bounds_fused,
+    add_task_rows_fused,
+    pose_task_target_fused,
+    posture_target_fused,
+    torque_rows_fused,
+)
 
 # `dense_qp_load_*` outcomes
 FAST_SOLVED = 0  # x holds the optimum (the unconstrained minimiser is feasible)
@@ -189,3 +201,72 @@ def dense_qp_load_fused(data, n, m, n_eq, P, q, A, l, u, lb, ub, no_bound, tol, 
     for i in range(n):
         x[i] = cand[i]
     return FAST_SOLVED
+
+
+# ==== the [C] executor's problem: objective [C9], dampers [C17-24], torque rows [C10] =============
+@njit(cache=True)
+def cqp_problem_fused(
+    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation, tau_hat, feedback, tau_max, torque_limits,
+    pose_on, target_position, target_rotation, target_velocity, target_acceleration, pose_kp, pose_kd,
+    pose_gamma, pose_use_gamma, pose_weight,
+    q_ref, dq_ref, posture_kp, posture_kd, posture_ki, posture_use_ki, integral, posture_dt, posture_gamma,
+    posture_use_gamma, posture_weight, inertia_metric,
+    q_lower, q_upper, d_s, d_i, xi, damper_kp, lam, velocity_gain, dq_limit, endless, proposed, damper_dt,
+    damper_no_bound,
+    P, qv, A, l, u, lb, ub, no_bound,
+):  # fmt: skip
+    """What `control.compliance_qp.ComplianceQPExecutor._step_reference` builds between the
+    estimate and the QP, for a TCP pose task (when `pose_on`) and the posture task, in one call of
+    the kernels it calls one by one:
+
+    q̈_e = M⁻¹ τ̂_e; the objective [C9] ½ q̈ᵀP q̈ + qvᵀq̈ written into P, qv: the pose task's
+    rows (`pose_task_target_fused`, `add_task_rows_fused`), then the posture task's
+    (`posture_target_fused`, its integral advanced in place), identity metric (P += w I, qv −= w b)
+    or inertia metric (P += w M, qv −= w M b); the dampers' box lb ≤ q̈ ≤ ub [C17-24]
+    (`acceleration_bounds_fused`); the torque rows [C10] of A, l, u (`torque_rows_fused`, τ_fb =
+    τ̂_e with `feedback`, else 0). Returns whether the damper bounds crossed."""
+    n = q.shape[0]
+    ddq_e = np.empty(n)  # q̈_e = M⁻¹ τ̂_e
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += M_inv[i, j] * tau_hat[j]
+        ddq_e[i] = s
+    for i in range(n):
+        qv[i] = 0.0
+        for j in range(n):
+            P[i, j] = 0.0
+    if pose_on:
+        b = pose_task_target_fused(
+            J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
+            target_acceleration, pose_kp, pose_kd, pose_gamma, pose_use_gamma, ddq_e,
+        )  # fmt: skip
+        add_task_rows_fused(P, qv, J, b, pose_weight)
+    b0 = posture_target_fused(
+        q, q_ref, dq, dq_ref, posture_kp, posture_kd, posture_ki, posture_use_ki, integral, posture_dt,
+        posture_gamma, posture_use_gamma, ddq_e,
+    )  # fmt: skip
+    w = posture_weight
+    if inertia_metric:  # (Iᵀ M) w I = w M, (Iᵀ M) w b0 = w M b0
+        for i in range(n):
+            s = 0.0
+            for j in range(n):
+                P[i, j] += M[i, j] * w
+                s += M[i, j] * w * b0[j]
+            qv[i] -= s
+    else:
+        for i in range(n):
+            P[i, i] += w
+            qv[i] -= w * b0[i]
+    lower, upper, crossed = acceleration_bounds_fused(
+        q, dq, q_lower, q_upper, d_s, d_i, xi, damper_kp, lam, velocity_gain, dq_limit, endless, proposed,
+        damper_dt, damper_no_bound,
+    )  # fmt: skip
+    for i in range(n):
+        lb[i] = lower[i]
+        ub[i] = upper[i]
+    if feedback:
+        torque_rows_fused(M, h, tau_hat, tau_max, A, l, u, torque_limits, no_bound)
+    else:
+        torque_rows_fused(M, h, np.zeros(n), tau_max, A, l, u, torque_limits, no_bound)
+    return crossed

@@ -137,3 +137,114 @@ def test_infeasible_constraints_never_raise_and_keep_torque_limits(gen3):
     nan_dyn.M = np.full((7, 7), np.nan)
     out = ex.step(nan_dyn, ControlInputs(0.0, target, np.zeros(6)))  # garbage in: flagged, no raise
     assert out.fallback
+
+
+# ---- the fused step (one compiled call before the QP) equals the step task by task ---------------
+# swings through most of the joint ranges: (amplitude over the range, rate scale, torque-limit scale)
+SWINGS = {
+    "active": (0.45, 0.2, 1.0),  # torque limits and dampers bind on most steps
+    "relaxed": (0.45, 1.5, 0.2),  # the QP has no solution: the slack problem on most steps
+}
+
+
+def _twin_executors(robot, case: str):
+    """The same executor twice, fused and reference (`fused=False`), configured for `case`."""
+    from control.bridge import make_bridge_executor
+    from control.compliance_qp import PoseTask
+    from control.gains import DamperGains
+    from control.motion_force import make_projection_executor
+
+    model = RobotModel(robot.model)
+    pair = []
+    for fused in (True, False):
+        if case == "bridge":  # another soft task (the [T] law as a row), inertia metric posture
+            ex = make_bridge_executor(robot, make_projection_executor(robot, model))
+            ex.fused = fused
+        else:
+            kwargs: dict = {"fused": fused}
+            if case == "everything":
+                kwargs = {
+                    **kwargs,
+                    "tasks": [PoseTask(PoseTaskGains(stiffness=(300.0, 200, 100, 50, 40, 30), compliance=0.5))],
+                    "posture": PostureTaskGains(integral=2.0, compliance=(0, 0.3, 0, 1, 0, 0, 0.5), metric="inertia"),
+                    "dampers": DamperGains(form="classic"),
+                    "estimator": EstimatorGains(source="residual"),
+                    "settings": ComplianceQPSettings(feedback=False),
+                }
+            elif case == "no torque limits":
+                kwargs["settings"] = ComplianceQPSettings(torque_limits=False)
+            elif case == "strict":
+                kwargs["tasks"] = [PoseTask(strict=True)]
+            elif case in SWINGS:  # no estimate: the synthetic swing is not caused by the torques
+                kwargs["estimator"] = EstimatorGains(source="none")
+            ex = ComplianceQPExecutor.for_robot(robot, **kwargs)
+        if case in SWINGS:
+            ex.tau_max = ex.tau_max * SWINGS[case][2]
+        pair.append(ex)
+    return model, pair
+
+
+@pytest.mark.parametrize("case", ["default", "everything", "no torque limits", "strict", "active", "relaxed", "bridge"])
+def test_fused_step_equals_the_reference_step(rizon, case):
+    """Both executors see the same snapshots (a swing through the joint ranges, fast near the
+    limits for "active") and readings; τ, q̈, τ_d, the posture integral and the step's signals agree
+    to 1e-9 relative at every step; the QP outcome (status, fallback, crossed dampers) is the same."""
+    model, (fused, ref) = _twin_executors(rizon, case)
+    rng = np.random.default_rng(sum(map(ord, case)))
+    span, mid = rizon.q_upper - rizon.q_lower, 0.5 * (rizon.q_upper + rizon.q_lower)
+    amp_frac, rate_scale, _ = SWINGS.get(case, (0.01, 1.0, 1.0))
+    amp = amp_frac * span
+    phase, rate = rng.uniform(0, 6, 7), rng.uniform(0.5, 2.0, 7) * rate_scale
+    center = mid if case in SWINGS else rizon.home
+    dyn0 = model.compute(center + amp * np.sin(phase), amp * rate * np.cos(phase))
+    targets = [
+        TaskTarget(dyn0.tcp_position_world + np.array([0.005, 0, 0]), dyn0.tcp_rotation_world, q_posture=rizon.home),
+        TaskTarget(dyn0.tcp_position_world, dyn0.tcp_rotation_world, velocity=np.ones(6) * 0.01),  # q_posture None
+    ]
+    for ex in (fused, ref):
+        ex.reset(dyn0, targets[0])
+    n_fast = n_daqp = n_relaxed = 0
+    for k in range(300):
+        t = 1e-3 * k
+        q = center + amp * np.sin(rate * t + phase)
+        dq = amp * rate * np.cos(rate * t + phase)
+        dyn = model.compute(q, dq)
+        target = targets[(k // 100) % 2]
+        inputs = ControlInputs(t, target, rng.normal(size=6), rng.normal(size=7))
+        a, b = fused.step(dyn, inputs), ref.step(dyn, inputs)
+        scale = max(1.0, float(np.max(np.abs(b.tau))))
+        assert float(np.max(np.abs(a.tau - b.tau))) <= 1e-9 * scale, (k, a.info, b.info)
+        assert float(np.max(np.abs(fused.ddq - ref.ddq))) <= 1e-9 * max(1.0, float(np.max(np.abs(ref.ddq)))), k
+        np.testing.assert_allclose(fused.tau_desired, ref.tau_desired, rtol=0, atol=1e-9 * scale)
+        np.testing.assert_allclose(fused.posture.integral, ref.posture.integral, rtol=1e-9, atol=1e-12)
+        assert a.fallback == b.fallback and a.info.keys() == b.info.keys()
+        for key in a.info.keys() - {"qp_solve_us", "qp_iterations"}:
+            assert a.info[key] == pytest.approx(b.info[key], rel=1e-9, abs=1e-9), (k, key)
+        n_fast += a.info["qp_iterations"] == 0 and not a.fallback
+        n_daqp += a.info["qp_iterations"] > 0
+        n_relaxed += a.info["qp_relaxed"] > 0
+    if case == "active":
+        assert n_daqp >= 100 and n_fast >= 10, (n_fast, n_daqp)
+    elif case == "relaxed":
+        assert n_relaxed >= 100, n_relaxed
+    elif case == "strict":  # equality rows: always DAQP
+        assert n_fast == 0
+    else:
+        assert n_fast >= 250, n_fast
+
+
+def test_fused_step_accepts_targets_of_other_dtypes(rizon):
+    """A target of float32 and integer arrays gives the same step as the reference."""
+    model, (fused, ref) = _twin_executors(rizon, "default")
+    dyn = model.compute(rizon.home, np.full(7, 0.1))
+    target = TaskTarget(
+        (dyn.tcp_position_world + 0.01).astype(np.float32),
+        np.eye(3, dtype=int),
+        velocity=np.zeros(6, dtype=np.float32),
+        q_posture=rizon.home.astype(np.float32),
+    )
+    for ex in (fused, ref):
+        ex.reset(dyn, target)
+    for k in range(5):
+        inputs = ControlInputs(1e-3 * k, target, np.ones(6))
+        np.testing.assert_allclose(fused.step(dyn, inputs).tau, ref.step(dyn, inputs).tau, rtol=1e-12)
