@@ -32,7 +32,7 @@ import numpy as np
 import pinocchio as pin
 
 from control import qp
-from control.dampers import NO_BOUND, JointLimitDamper
+from control.dampers import JointLimitDamper
 from control.estimation import ExternalTorqueEstimator
 from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
 from control.gains import (
@@ -99,10 +99,15 @@ class PoseTask:
     def configure(self, gains: PoseTaskGains) -> None:
         """New gains / Γ (validated by the dataclass)."""
         self.gains = gains
-        self.kp = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (6,)).copy()
-        self.kd = np.broadcast_to(np.asarray(gains.damping, dtype=float), (6,)).copy()
-        self.gamma = compliance_matrix(gains.compliance, 6)
+        # K_p, K_d, Γ (rows 0, 1, 2–7; the attributes are views) and [weight, Γ ≠ 0] (row 8): the
+        # fused step's one argument for this task (`kernels_qp.cqp_problem_fused`)
+        packed = self.kernel_gains = np.zeros((9, 6))
+        self.kp, self.kd, self.gamma = packed[0], packed[1], packed[2:8]
+        self.kp[:] = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (6,))
+        self.kd[:] = np.broadcast_to(np.asarray(gains.damping, dtype=float), (6,))
+        self.gamma[:] = compliance_matrix(gains.compliance, 6)
         self._use_gamma = bool(self.gamma.any())
+        packed[8, :2] = gains.weight, self._use_gamma
 
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
         """No internal state."""
@@ -154,11 +159,18 @@ class PostureTask:
         """New gains / Γ₀ / metric (validated by the dataclass)."""
         n = self.dim
         self.gains = gains
-        self.kp = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (n,)).copy()
-        self.kd = np.broadcast_to(np.asarray(gains.damping, dtype=float), (n,)).copy()
-        self.ki = np.broadcast_to(np.asarray(gains.integral, dtype=float), (n,)).copy()
-        self.gamma = compliance_matrix(gains.compliance, n)
+        # K_p, K_d, K_i, Γ₀ (rows 0, 1, 2, 3…; the attributes are views) and [weight, K_i ≠ 0,
+        # Γ₀ ≠ 0, δt, inertia metric]: the fused step's arguments (`kernels_qp.cqp_problem_fused`)
+        packed = self.kernel_gains = np.zeros((3 + n, n))
+        self.kp, self.kd, self.ki, self.gamma = packed[0], packed[1], packed[2], packed[3:]
+        self.kp[:] = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (n,))
+        self.kd[:] = np.broadcast_to(np.asarray(gains.damping, dtype=float), (n,))
+        self.ki[:] = np.broadcast_to(np.asarray(gains.integral, dtype=float), (n,))
+        self.gamma[:] = compliance_matrix(gains.compliance, n)
         self._use_ki, self._use_gamma = bool(self.ki.any()), bool(self.gamma.any())
+        self.kernel_constants = np.array(
+            [gains.weight, self._use_ki, self._use_gamma, self.dt, gains.metric == "inertia"], dtype=float
+        )
         self._zeros = np.zeros(n)
 
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
@@ -332,8 +344,9 @@ class ComplianceQPExecutor:
         self._zeros = np.zeros(n)  # τ_fb without external-force feedback
         self._diag = np.diag_indices(n)
         self.ddq = np.zeros(n)
-        self._P, self._q = np.zeros((n, n)), np.zeros(n)  # the fused step's objective (read by the QP)
-        self._zeros6, self._zeros66 = np.zeros(6), np.zeros((6, 6))  # pose arguments when no pose task is fused
+        self._objective = np.zeros((n + 1, n))  # the fused step's P (rows 0…n−1) and q (row n) of [C9]
+        self._P, self._q = self._objective[:n], self._objective[n]
+        self._zeros6, self._pose_unused = np.zeros(6), np.zeros((9, 6))  # arguments not read
         self.last_qp: qp.QPResult | None = None
         self.last_info: dict[str, float] = {}
 
@@ -353,6 +366,7 @@ class ComplianceQPExecutor:
         # the fused step computes the first soft PoseTask's rows itself, the others' by `rows`
         self._fused_pose = next((t for t in self.soft_tasks if type(t) is PoseTask), None)
         self._other_soft_tasks = [t for t in self.soft_tasks if t is not self._fused_pose]
+        self._prepared_tasks = [t for t in self.tasks if getattr(t, "prepare", None) is not None]
         self.qp = AccelerationQP(self.n, sum(t.dim for t in self.strict_tasks), self.settings, self.qp_backend)
 
     # ---- Executor protocol --------------------------------------------------------------------
@@ -428,41 +442,46 @@ class ComplianceQPExecutor:
         return self._step_fused(dyn, inputs) if self.fused else self._step_reference(dyn, inputs)
 
     def _step_fused(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
-        """`_step_reference` with the pose task (the first soft `PoseTask`), the posture task, the
-        dampers and the torque rows in one compiled call (`control.kernels_qp.cqp_problem_fused`);
-        other tasks add their rows as in the reference."""
+        """`_step_reference` with the estimate (once observer and sensor filter have started, when
+        no task prepares itself on the step's inputs), the pose task (the first soft `PoseTask`),
+        the posture task, the dampers and the torque rows in one compiled call
+        (`control.kernels_qp.cqp_problem_fused`); other tasks add their rows as in the reference."""
         target = inputs.target
-        tau_hat = self._estimate(dyn, inputs)
+        est = self.estimator
+        observer, high_pass = est.observer, est.high_pass
+        M_prev, lp, wrench = observer._M_prev, high_pass.lp, inputs.wrench_tcp
+        estimate_on = (
+            M_prev is not None and lp is not None and wrench is not None and est.kernel_constants[2] >= 0.0
+        ) and not self._prepared_tasks
+        if estimate_on:
+            tau_hat = self._zeros  # not read
+            wrench = np.asarray(wrench, dtype=float)
+        else:  # not read: the estimate is given
+            tau_hat = self._estimate(dyn, inputs)
+            M_prev, lp, wrench = dyn.M, self._zeros, self._zeros6
         pose, posture, damper, aqp, settings = self._fused_pose, self.posture, self.damper, self.qp, self.settings
         P, q = self._P, self._q
         q_ref = posture.q_hold if target.q_posture is None else target.q_posture
         dq_ref = posture._zeros if posture.dq_ref is None else posture.dq_ref
-        if pose is None:  # not read: no pose task is fused
-            pose_kp, pose_kd, pose_gamma, pose_use_gamma, pose_weight = (
-                self._zeros6,
-                self._zeros6,
-                self._zeros66,
-                False,
-                0.0,
-            )
-        else:
-            pose_kp, pose_kd, pose_gamma = pose.kp, pose.kd, pose.gamma
-            pose_use_gamma, pose_weight = pose._use_gamma, float(pose.gains.weight)
         try:
-            crossed = cqp_problem_fused(
+            crossed, tau_hat, r, tau_s = cqp_problem_fused(
                 dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world,
-                dyn.tcp_rotation_world, tau_hat, settings.feedback, self.tau_max, settings.torque_limits,
-                pose is not None, target.position, target.rotation, target.velocity, target.acceleration, pose_kp,
-                pose_kd, pose_gamma, pose_use_gamma, pose_weight,
-                q_ref, dq_ref, posture.kp, posture.kd, posture.ki, posture._use_ki, posture.integral, posture.dt,
-                posture.gamma, posture._use_gamma, float(posture.gains.weight), posture.gains.metric == "inertia",
-                damper.q_lower, damper.q_upper, damper.d_s, damper.d_i, damper.xi, float(damper.kp),
-                float(damper.gains.lambda_), float(damper.velocity_gain), damper.dq_limit, damper.endless,
-                damper.gains.form == "proposed", damper.dt, NO_BOUND, P, q, aqp.A, aqp.l, aqp.u, aqp.lb, aqp.ub, qp.INF,
+                dyn.tcp_rotation_world, estimate_on, tau_hat, M_prev, observer._dq_prev, observer._h_prev,
+                self.tau_prev, observer.r, wrench, lp, est.kernel_constants, settings.feedback, self.tau_max,
+                settings.torque_limits, pose is not None, target.position, target.rotation, target.velocity,
+                target.acceleration, self._pose_unused if pose is None else pose.kernel_gains, q_ref, dq_ref,
+                posture.kernel_gains, posture.integral, posture.kernel_constants, damper.kernel_rows, damper.endless,
+                damper.kernel_constants, self._objective, aqp.A, aqp.l, aqp.u, aqp.lb, aqp.ub, qp.INF,
             )  # fmt: skip
         except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
+            if estimate_on:
+                tau_hat = self._estimate(dyn, inputs)
             P, q, crossed = self._problem_reference(dyn, target, tau_hat)
             return self._solve_and_torque(dyn, P, q, tau_hat, crossed)
+        if estimate_on:  # the estimator's state, as its `update` leaves it
+            observer.r = r
+            observer._store(dyn)
+            est.tau_s, est.estimate, self.tau_hat = tau_s, tau_hat, tau_hat
         if self._other_soft_tasks or self.strict_tasks:
             ddq_e = dyn.M_inv @ tau_hat
             self._add_task_rows(self._other_soft_tasks, dyn, target, ddq_e, P, q)

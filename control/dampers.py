@@ -77,6 +77,14 @@ class JointLimitDamper:
         self.kp = lam * lam / (4.0 * M * M)  # [C24] λ²/(4M²)
         self.xi = lam * (self.d_i - self.d_s) / (4.0 * M * M)  # [C23] solved for ξ (classic form)
         self.velocity_gain = lam if gains.form == "proposed" else 1.0 / self.dt
+        # the fused [C] step's arguments (`kernels_qp.cqp_problem_fused`): the per-joint rows as one
+        # array (the attributes are views of it) and the scalars
+        rows = np.array([self.q_lower, self.q_upper, self.d_s, self.d_i, self.xi, self.dq_limit])
+        self.kernel_rows = rows
+        self.q_lower, self.q_upper, self.d_s, self.d_i, self.xi, self.dq_limit = rows
+        self.kernel_constants = np.array(
+            [self.kp, lam, self.velocity_gain, float(gains.form == "proposed"), self.dt, NO_BOUND]
+        )
         self.has_position = ~self.endless
         self._d_s2 = np.concatenate([self.d_s, self.d_s])
         self._d_i2 = np.concatenate([self.d_i, self.d_i])

@@ -114,6 +114,9 @@ class ExternalTorqueEstimator:
         self.high_pass = HighPass(self.n, self.gains.observer_gain, self.dt)
         self.tau_s = np.zeros(self.n)
         self.estimate = np.zeros(self.n)
+        # [pole a, δt, source code] for the [C] executor's fused step (`kernels_qp.cqp_problem_fused`)
+        code = {"none": 0.0, "residual": 1.0, "fusion": 2.0}.get(self.gains.source, -1.0)
+        self.kernel_constants = np.array([self.observer.a, self.dt, code])
 
     def configure(self, gains: EstimatorGains) -> None:
         """New source or K_I; the observer keeps running from its current residual."""

@@ -8,7 +8,7 @@ states the algebra readably, `tests/test_kernels.py` holding the fused version t
   convex problem without equality rows, the unconstrained minimiser x = −P⁻¹q (Cholesky) that
   meets every bound and row (to the primal tolerance, DAQP's own test of the same candidate) is
   the optimum (the KKT conditions hold with all multipliers zero), so DAQP is not needed.
-- `cqp_problem_fused`: the [C] executor's QP data [C9, C10, C17-24] from the estimate, in one call
+- `cqp_problem_fused`: the [C] executor's estimate [C25-26] and QP data [C9, C10, C17-24] in one call
   of the `control.kernels` functions the executor's reference path calls one by one
   (`ComplianceQPExecutor._step_reference` is its statement; `tests/test_compliance_qp.py` holds
   the fused step to it).
@@ -24,8 +24,10 @@ from numba import njit
 from control.kernels import (
     acceleration_bounds_fused,
     add_task_rows_fused,
+    momentum_observer_fused,
     pose_task_target_fused,
     posture_target_fused,
+    sensor_high_pass_fused,
     torque_rows_fused,
 )
 
@@ -206,26 +208,55 @@ def dense_qp_load_fused(data, n, m, n_eq, P, q, A, l, u, lb, ub, no_bound, tol, 
 # ==== the [C] executor's problem: objective [C9], dampers [C17-24], torque rows [C10] =============
 @njit(cache=True)
 def cqp_problem_fused(
-    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation, tau_hat, feedback, tau_max, torque_limits,
-    pose_on, target_position, target_rotation, target_velocity, target_acceleration, pose_kp, pose_kd,
-    pose_gamma, pose_use_gamma, pose_weight,
-    q_ref, dq_ref, posture_kp, posture_kd, posture_ki, posture_use_ki, integral, posture_dt, posture_gamma,
-    posture_use_gamma, posture_weight, inertia_metric,
-    q_lower, q_upper, d_s, d_i, xi, damper_kp, lam, velocity_gain, dq_limit, endless, proposed, damper_dt,
-    damper_no_bound,
-    P, qv, A, l, u, lb, ub, no_bound,
+    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation,
+    estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, estimator_constants,
+    feedback, tau_max, torque_limits,
+    pose_on, target_position, target_rotation, target_velocity, target_acceleration, pose_gains,
+    q_ref, dq_ref, posture_gains, integral, posture_constants,
+    damper_rows, endless, damper_constants,
+    objective, A, l, u, lb, ub, no_bound,
 ):  # fmt: skip
-    """What `control.compliance_qp.ComplianceQPExecutor._step_reference` builds between the
-    estimate and the QP, for a TCP pose task (when `pose_on`) and the posture task, in one call of
-    the kernels it calls one by one:
+    """What `control.compliance_qp.ComplianceQPExecutor._step_reference` computes before the QP,
+    for a TCP pose task (when `pose_on`) and the posture task, in one call of the kernels it calls
+    one by one:
 
+    with `estimate_on`, the estimate τ̂_e of `control.estimation.ExternalTorqueEstimator.update`
+    (observer and sensor both started): the observer's new residual r [C25]
+    (`momentum_observer_fused`, from the last step's M, q̇, h and τ), τ_s = Jᵀ F_s and its high
+    pass (`sensor_high_pass_fused`, the low-pass state `lp` advanced in place), τ̂_e = 0, r or
+    r + high pass [C26] for `estimator_constants` = [a (observer and filter pole), δt, source 0/1/2
+    (none, residual, fusion)]; else τ̂_e = `tau_hat_given`;
     q̈_e = M⁻¹ τ̂_e; the objective [C9] ½ q̈ᵀP q̈ + qvᵀq̈ written into P, qv: the pose task's
     rows (`pose_task_target_fused`, `add_task_rows_fused`), then the posture task's
     (`posture_target_fused`, its integral advanced in place), identity metric (P += w I, qv −= w b)
     or inertia metric (P += w M, qv −= w M b); the dampers' box lb ≤ q̈ ≤ ub [C17-24]
     (`acceleration_bounds_fused`); the torque rows [C10] of A, l, u (`torque_rows_fused`, τ_fb =
-    τ̂_e with `feedback`, else 0). Returns whether the damper bounds crossed."""
+    τ̂_e with `feedback`, else 0). Returns (damper bounds crossed, τ̂_e, r, τ_s) (r and τ_s new only
+    with `estimate_on`: else r and `tau_hat_given`).
+
+    Packed arguments (one compiled call's argument checks cost per argument): `pose_gains` (9, 6)
+    = [K_p; K_d; Γ (6 rows); weight, Γ ≠ 0, …]; `posture_gains` (3 + n, n) = [K_p; K_d; K_i; Γ₀]
+    and `posture_constants` = [weight, K_i ≠ 0, Γ₀ ≠ 0, δt, inertia metric]; `damper_rows` =
+    [q⁻; q⁺; d_s; d_i; ξ; q̇ limit] and `damper_constants` = [k_p, λ, velocity gain, proposed,
+    δt, no bound] (`control.dampers.JointLimitDamper`); `objective` (n + 1, n) = [P; qv]."""
     n = q.shape[0]
+    if estimate_on:
+        a, dt, source = estimator_constants[0], estimator_constants[1], estimator_constants[2]
+        r = momentum_observer_fused(M_prev, dq, dq_prev, tau_prev, h_prev, dt, a, r)
+        tau_s, high = sensor_high_pass_fused(J, wrench, lp, a)
+        tau_hat = np.zeros(n)
+        if source == 1.0:  # residual
+            tau_hat[:] = r
+        elif source == 2.0:  # fusion [C26]
+            for i in range(n):
+                tau_hat[i] = r[i] + high[i]
+    else:
+        tau_hat, tau_s = tau_hat_given, tau_hat_given
+    P, qv = objective[:n], objective[n]
+    w_pose, pose_use_gamma = pose_gains[8, 0], pose_gains[8, 1] != 0.0
+    w_posture, posture_dt = posture_constants[0], posture_constants[3]
+    posture_use_ki, posture_use_gamma = posture_constants[1] != 0.0, posture_constants[2] != 0.0
+    inertia_metric = posture_constants[4] != 0.0
     ddq_e = np.empty(n)  # q̈_e = M⁻¹ τ̂_e
     for i in range(n):
         s = 0.0
@@ -239,14 +270,14 @@ def cqp_problem_fused(
     if pose_on:
         b = pose_task_target_fused(
             J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
-            target_acceleration, pose_kp, pose_kd, pose_gamma, pose_use_gamma, ddq_e,
+            target_acceleration, pose_gains[0], pose_gains[1], pose_gains[2:8], pose_use_gamma, ddq_e,
         )  # fmt: skip
-        add_task_rows_fused(P, qv, J, b, pose_weight)
+        add_task_rows_fused(P, qv, J, b, w_pose)
     b0 = posture_target_fused(
-        q, q_ref, dq, dq_ref, posture_kp, posture_kd, posture_ki, posture_use_ki, integral, posture_dt,
-        posture_gamma, posture_use_gamma, ddq_e,
+        q, q_ref, dq, dq_ref, posture_gains[0], posture_gains[1], posture_gains[2], posture_use_ki, integral,
+        posture_dt, posture_gains[3:], posture_use_gamma, ddq_e,
     )  # fmt: skip
-    w = posture_weight
+    w = w_posture
     if inertia_metric:  # (Iᵀ M) w I = w M, (Iᵀ M) w b0 = w M b0
         for i in range(n):
             s = 0.0
@@ -259,8 +290,9 @@ def cqp_problem_fused(
             P[i, i] += w
             qv[i] -= w * b0[i]
     lower, upper, crossed = acceleration_bounds_fused(
-        q, dq, q_lower, q_upper, d_s, d_i, xi, damper_kp, lam, velocity_gain, dq_limit, endless, proposed,
-        damper_dt, damper_no_bound,
+        q, dq, damper_rows[0], damper_rows[1], damper_rows[2], damper_rows[3], damper_rows[4], damper_constants[0],
+        damper_constants[1], damper_constants[2], damper_rows[5], endless, damper_constants[3] != 0.0,
+        damper_constants[4], damper_constants[5],
     )  # fmt: skip
     for i in range(n):
         lb[i] = lower[i]
@@ -269,4 +301,4 @@ def cqp_problem_fused(
         torque_rows_fused(M, h, tau_hat, tau_max, A, l, u, torque_limits, no_bound)
     else:
         torque_rows_fused(M, h, np.zeros(n), tau_max, A, l, u, torque_limits, no_bound)
-    return crossed
+    return crossed, tau_hat, r, tau_s

@@ -171,6 +171,8 @@ def _twin_executors(robot, case: str):
                     "estimator": EstimatorGains(source="residual"),
                     "settings": ComplianceQPSettings(feedback=False),
                 }
+            elif case == "oracle":  # the estimate from the executor's estimator, not the fused call
+                kwargs["estimator"] = EstimatorGains(source="oracle")
             elif case == "no torque limits":
                 kwargs["settings"] = ComplianceQPSettings(torque_limits=False)
             elif case == "strict":
@@ -184,7 +186,9 @@ def _twin_executors(robot, case: str):
     return model, pair
 
 
-@pytest.mark.parametrize("case", ["default", "everything", "no torque limits", "strict", "active", "relaxed", "bridge"])
+@pytest.mark.parametrize(
+    "case", ["default", "everything", "oracle", "no torque limits", "strict", "active", "relaxed", "bridge"]
+)
 def test_fused_step_equals_the_reference_step(rizon, case):
     """Both executors see the same snapshots (a swing through the joint ranges, fast near the
     limits for "active") and readings; τ, q̈, τ_d, the posture integral and the step's signals agree
