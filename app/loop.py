@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 from app.commands import Command, DragCommand, Pause, Play, StepOnce
 from app.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
 from app.lab import SPEED_RANGE, UNPACED_SPEED, Lab, Notice, Settings
-from app.pacing import Pacer, RateMeter
+from app.pacing import Pacer, RateMeter, next_frame_due
 from app.session import Session
 from app.steplog import StepLog
 from app.twin import Twin
@@ -239,7 +239,7 @@ class SimLoop:
             if now >= next_publish:
                 if lab.dirty or lab.running:
                     self._publish(now)
-                next_publish = now + self._publish_period()
+                next_publish = next_frame_due(next_publish, now, self._publish_period())
             if lab.pending_steps or lab.settling:
                 continue
             wake_at = next_publish

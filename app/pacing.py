@@ -91,3 +91,11 @@ class RateMeter:
         self.load = self._busy / elapsed
         self._wall0, self._sim0, self._busy = now, sim_time, 0.0
         return True
+
+
+def next_frame_due(due: float, now: float, period: float) -> float:
+    """When the frame after the one due at `due` (sent at `now` ≥ due) is due: one `period` after
+    `due`, so a late wake-up does not stretch the period and frames keep their rate on average; after
+    a stall longer than a period, one period from `now` (missed frames are not sent in a burst)."""
+    following = due + period
+    return following if following > now else now + period
