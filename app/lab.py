@@ -52,6 +52,7 @@ MAX_SINGLE_STEP = 10_000  # steps one StepOnce may ask for
 RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
 KEPT_ON_PRESET_SWITCH = ("drag",)  # parameter groups a new preset keeps from the old one
 OVERPOWERED_NOTICE_S = 2.0  # simulated time between two "overpowered" notices
+OVERPOWERED_CHECK_STEPS = 10  # steps between two looks for an overpowered joint (a look costs ~10 µs)
 
 
 @dataclass(frozen=True)
@@ -119,6 +120,7 @@ class Lab:
         self.drag_client: int | None = None
         self.overpowered = ""  # joints the surroundings overpower, in words (World.overpowered)
         self._overpowered_notice_t = -math.inf
+        self._overpowered_check_at = 0  # total_steps at which advance() looks for an overpowered joint again
         self.notices: deque[Notice] = deque(maxlen=100)  # not yet taken by the publisher
         self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice (for tests and logs)
         self.dirty = True  # something changed since the last frame
@@ -201,7 +203,9 @@ class Lab:
                 self._healthy = len(self.overrides)
             if twin is not None and twin.diverged():
                 self._drop_twin(f"the twin arm (W_{twin.objective}) diverged; it is switched off")
-            self._check_overpowered()
+            if self.total_steps >= self._overpowered_check_at:
+                self._overpowered_check_at = self.total_steps + OVERPOWERED_CHECK_STEPS
+                self._check_overpowered()
         self.step_cpu_s += time.thread_time() - cpu0
         self.dirty = True
         return result
@@ -323,6 +327,7 @@ class Lab:
         self.settling = False
         self.overpowered = ""
         self._overpowered_notice_t = -math.inf
+        self._overpowered_check_at = 0
         self.fallback_steps = 0
         self._steps_since_change = 0
         self.pending_steps = 0

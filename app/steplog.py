@@ -40,6 +40,10 @@ class StepLog:
         self._max_cols = self._n_base + max_signals
         self._data = np.full((self.capacity, self._max_cols), np.nan)
         self._signal_col: dict[str, int] = {}
+        # the columns of the last step's signal names, in their order: a step that reports the same
+        # names (every step but the first, in practice) writes its values with one indexed store
+        self._last_keys: tuple[str, ...] = ()
+        self._last_idx = np.zeros(0, dtype=np.intp)
         self.count = 0  # rows ever appended (the newest row is count - 1)
         n = n_joints
         self._sl_q = slice(1, 1 + n)
@@ -89,15 +93,29 @@ class StepLog:
         row[self._sl_f] = rec.wrench_tcp
         row[self._sl_fd] = rec.target.wrench
         row[self._i_fallback] = 1.0 if rec.fallback else 0.0
-        cols = self._signal_col
-        for key, value in rec.signals.items():
-            idx = cols.get(key)
+        signals = rec.signals
+        keys = tuple(signals)
+        if keys != self._last_keys:
+            self._last_keys, self._last_idx = keys, self._signal_columns(keys)
+        if len(self._last_idx) == len(keys):
+            row[self._last_idx] = list(signals.values())
+        else:  # more distinct signals than columns: the extra ones are not logged
+            for key, value in signals.items():
+                idx = self._signal_col.get(key)
+                if idx is not None:
+                    row[idx] = value
+        self.count += 1
+
+    def _signal_columns(self, keys: tuple[str, ...]) -> np.ndarray:
+        """The columns of these signals (added as they first appear, while there is room)."""
+        cols = []
+        for key in keys:
+            idx = self._signal_col.get(key)
             if idx is None:
                 idx = self._add_signal(key)
-                if idx is None:
-                    continue
-            row[idx] = value
-        self.count += 1
+            if idx is not None:
+                cols.append(idx)
+        return np.array(cols, dtype=np.intp)
 
     def segment_force_error_std(self) -> dict[int, float]:
         """STD (N) of the force error over each polish segment S1…S6 (signal "segment") from every row

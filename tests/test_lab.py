@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from app.commands import DragCommand, Pause, Play, Reset, SetParam, SettleNow, StepOnce, SwitchSession
-from app.lab import RECOVERY_STEPS, Lab
+from app.lab import OVERPOWERED_CHECK_STEPS, RECOVERY_STEPS, Lab
 from app.scenarios import Environment, Scenario
 from app.scenarios.free import FreeScenario
 from app.scenarios.polish import settle_pending
@@ -281,3 +281,20 @@ def test_the_largest_drag_sinks_no_joint_beyond_its_hard_stop_and_says_it_overpo
     print(f"{scenario}: worst {worst - HARD_STOP_BEYOND_RAD:+.4f} rad into a hard stop; {said}")
     assert worst <= HARD_STOP_BEYOND_RAD + HARD_STOP_GIVE_RAD
     assert said and all(re.search(r"joint \d", s) for s in said) and re.search(r"joint \d", status_said)
+
+
+def test_advance_looks_for_an_overpowered_joint_every_ten_steps_and_at_once_after_a_reset(monkeypatch):
+    """Paced, the loop advances two steps at a time; the look for an overpowered joint (World.overpowered,
+    a Python loop over the joints) runs once per OVERPOWERED_CHECK_STEPS steps, not once per burst, and
+    at the first burst after a reset (so a new run is looked at from its start)."""
+    lab = _lab()
+    looks: list[int] = []
+    check = lab._check_overpowered
+    monkeypatch.setattr(lab, "_check_overpowered", lambda: (looks.append(lab.total_steps), check())[1])
+    for _ in range(50):
+        lab.advance(2)
+    assert OVERPOWERED_CHECK_STEPS == 10
+    assert looks == list(range(2, 101, 10))  # 100 steps: 10 looks, 10 steps apart
+    lab.apply(Reset())
+    lab.advance(2)
+    assert looks[-1] == 102 and len(looks) == 11

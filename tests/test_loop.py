@@ -393,6 +393,26 @@ def test_step_log_keeps_the_newest_rows_and_decimates_from_the_newest():
     assert np.all(np.diff(full["t"]) > 0)
 
 
+def test_step_log_stores_each_signal_in_its_column_whatever_the_order_and_drops_those_beyond_its_room():
+    """The log writes a step's signals with one indexed store when they come in the same order as
+    the step before; another order, a new or a missing signal, or more signals than columns (the
+    extra ones are not logged) still put every value in its own column, NaN where a step has none."""
+    import dataclasses
+
+    s = Session("free")
+    log = StepLog(7, capacity=10, max_signals=3)
+    rows = [{"a": 1.0, "b": 2.0}, {"a": 3.0, "b": 4.0}, {"b": 5.0, "a": 6.0}, {"a": 7.0, "c": 8.0, "b": 9.0}]
+    rows += [{"d": 10.0, "a": 11.0, "e": 12.0, "c": 13.0}, {"a": 14.0}]
+    for signals in rows:
+        log.append(dataclasses.replace(s.step(), signals=signals))
+    cols = log.window(1.0, DT)
+    assert log.columns[-3:] == ["a", "b", "c"]  # room for three: "d" and "e" are not logged
+    nan = math.nan
+    np.testing.assert_array_equal(cols["a"], [1.0, 3.0, 6.0, 7.0, 11.0, 14.0])
+    np.testing.assert_array_equal(cols["b"], [2.0, 4.0, 5.0, 9.0, nan, nan])
+    np.testing.assert_array_equal(cols["c"], [nan, nan, nan, 8.0, 13.0, nan])
+
+
 def test_robot_and_scenario_switch_without_restarting(loop):
     loop.submit(StepOnce(50))
     loop.submit(SwitchSession(robot="gen3"))
