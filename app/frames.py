@@ -22,6 +22,7 @@ from app.lab import Lab, Settings
 from app.scenarios.polish import settle_pending
 from app.session import Session
 from app.variants import variant_of
+from control.executor import StepView
 
 PLOT_WINDOW_S = 10.0
 PLOT_POINTS = 500  # points per plotted series
@@ -87,8 +88,9 @@ class Frame:
     plot_seq: int = 0  # grows when `plot` is new data
 
 
-def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0) -> LoopStatus:
-    """The status of a lab; `rtf` and `load` come from the runner's rate meter."""
+def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | None = None) -> LoopStatus:
+    """The status of a lab; `rtf` and `load` come from the runner's rate meter; `view` is the executor's
+    view of its latest step when the caller has built it already (the scene capture has)."""
     s = lab.session
     last = s.last
     variant = variant_of(s.scenario)
@@ -116,7 +118,7 @@ def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0) -> LoopStatus:
         fallback_steps=lab.fallback_steps,
         drag_client=lab.drag_client,
         step_cpu_s=lab.step_cpu_s,
-        signals=_with_posture_objective(s, dict(last.signals) if last is not None else {}),
+        signals=_with_posture_objective(s, dict(last.signals) if last is not None else {}, view),
     )
 
 
@@ -140,8 +142,8 @@ class FrameBuilder:
         if lab.restarts != self._restarts:
             self._monitor.clear()  # a reset or a new session: the monitor series start over
             self._restarts = lab.restarts
-        status = make_status(lab, rtf, load)
         scene = self._scene(lab)
+        status = make_status(lab, rtf, load, getattr(scene, "step", None))
         self._monitor.append(_monitor_row(status, scene))
         if now >= self._next_plot:
             self._next_plot = now + self.plot_period
@@ -213,10 +215,12 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
     )
 
 
-def _with_posture_objective(session: Session, signals: dict[str, float]) -> dict[str, float]:
+def _with_posture_objective(
+    session: Session, signals: dict[str, float], view: StepView | None = None
+) -> dict[str, float]:
     """Add W_j = ½‖q − q_posture‖² [T18] when the executor did not report it."""
     if "W_j" not in signals:
-        view_W = session.executor.view().W  # the executor's own W_j, when it has a posture
+        view_W = (view or session.executor.view()).W  # the executor's own W_j, when it has a posture
         if "W_j" in view_W:
             signals["W_j"] = float(view_W["W_j"])
             return signals

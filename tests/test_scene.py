@@ -173,6 +173,37 @@ def test_snapshot_link_poses_are_copies_of_the_simulated_bodies(session):
     assert capture(session).drag_force is None
 
 
+def test_snapshot_defers_gamma_x_to_its_reader_and_looks_up_bodies_and_splits_once(monkeypatch):
+    """The loop thread only copies what Γ_x is computed from (Λx, the split, shaping): Γ_x itself is
+    computed when a reader first asks, from the copy (so a later step does not change it), and equals
+    control.bridge's on the captured Λx. Body ids and the split are looked up once, not per frame."""
+    import mujoco
+
+    from app.ui.snapshot import split_of
+    from control.bridge import gamma_x_matrix, gamma_x_summary
+
+    s = Session("polish", executor="projection")
+    s.run(steps=5)
+    snap = capture(s)
+    assert "_gamma_x" not in snap.__dict__  # nothing computed on the capturing thread
+    Lambda = s.dyn.Lambda.copy()
+    s.run(steps=20)  # the arm moves on: the snapshot keeps its own Λx
+    expected = gamma_x_summary(gamma_x_matrix(Lambda, split_of(snap.force_axes)))
+    np.testing.assert_array_equal(snap.gamma_x_sym_eigs, expected.sym_eigenvalues)
+    assert snap.gamma_x_skew == expected.skew_norm
+    assert capture(Session("polish", executor="compliance-qp")).gamma_x_sym_eigs is None
+    assert split_of((2,)) is split_of((2,)) and split_of((2,)).motion_axes == (0, 1, 3, 4, 5)
+    assert snap.subspaces is split_of(snap.force_axes)
+    lookups = []
+    real = mujoco.mj_name2id
+    monkeypatch.setattr(mujoco, "mj_name2id", lambda *a: (lookups.append(a[2]), real(*a))[1])
+    again = capture(s)
+    assert [n for n in lookups if n in again.link_names] == []
+    np.testing.assert_array_equal(
+        again.link_positions, [s.world.data.xpos[s.world.model.body(n).id] for n in again.link_names]
+    )
+
+
 def test_snapshot_reads_the_controllers_damper_distance():
     projection = capture(Session("polish", executor="projection"))
     assert projection.objective in ("j", "f", "a", "d")

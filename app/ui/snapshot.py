@@ -16,6 +16,7 @@ from functools import cached_property
 import mujoco
 import numpy as np
 
+from control.bridge import GammaXSummary, gamma_x_matrix, gamma_x_summary
 from control.coupling import POLISH_SUBSPACES, Subspaces, coupling_terms, coupling_values
 from control.executor import StepView
 
@@ -56,8 +57,10 @@ class SceneSnapshot:
     near_singular: bool = False  # Λx damped or ill-conditioned (NEAR_SINGULAR_EIG): no coupling shapes
     payload_position: np.ndarray | None = None  # (3,) attached payload mass (mass-drop, limit-drop), if any
     payload_mass_kg: float = 0.0
-    gamma_x_sym_eigs: np.ndarray | None = None  # (6,) real eigenvalues of ½(Γ_x + Γ_xᵀ), projection executor only
-    gamma_x_skew: float | None = None  # ‖½(Γ_x − Γ_xᵀ)‖₂ of Γ_x = Λ̂x⁻¹Λx (control.bridge)
+    # what Γ_x = Λ̂x⁻¹Λx of the running [T] projection executor is computed from, on the first read of
+    # `gamma_x_sym_eigs` / `gamma_x_skew` (by the reader, not on the loop thread): (Λx copy (6, 6), the
+    # split its step used, shaping); None for other executors
+    gamma_x_input: tuple[np.ndarray, Subspaces, bool] | None = None
     q: np.ndarray | None = None  # (7,) rad, joint positions (the self-motion preview starts from them)
     planned_q: np.ndarray | None = None  # (7,) rad: the planned posture now, when the scenario tracks a plan
     twin_link_positions: np.ndarray | None = None  # (L, 3) m: the twin arm's bodies (app.twin), if one runs
@@ -68,23 +71,57 @@ class SceneSnapshot:
 
     @cached_property
     def subspaces(self) -> Subspaces:
-        """The force/motion split of this frame (built once per snapshot)."""
-        return Subspaces.from_force_axes(self.force_axes)
+        """The force/motion split of this frame."""
+        return split_of(self.force_axes)
+
+    @cached_property
+    def _gamma_x(self) -> GammaXSummary | None:
+        """Γ_x of the projection executor on the split its step used, summarised (control.bridge)."""
+        if self.gamma_x_input is None:
+            return None
+        Lambda, sub, shaping = self.gamma_x_input
+        try:
+            return gamma_x_summary(gamma_x_matrix(Lambda, sub, shaping=shaping))
+        except np.linalg.LinAlgError:
+            return None
+
+    @property
+    def gamma_x_sym_eigs(self) -> np.ndarray | None:
+        """(6,) real eigenvalues of ½(Γ_x + Γ_xᵀ), projection executor only."""
+        summary = self._gamma_x
+        return None if summary is None else summary.sym_eigenvalues
+
+    @property
+    def gamma_x_skew(self) -> float | None:
+        """‖½(Γ_x − Γ_xᵀ)‖₂ of Γ_x = Λ̂x⁻¹Λx, projection executor only."""
+        summary = self._gamma_x
+        return None if summary is None else summary.skew_norm
 
     def link_index(self, name: str) -> int:
         """Row of a link in `link_positions`."""
         return self.link_names.index(name)
 
 
+_SPLITS: dict[tuple, Subspaces] = {}  # force axes → their Subspaces (a handful of splits ever occur)
+
+
+def split_of(force_axes: tuple) -> Subspaces:
+    """`Subspaces.from_force_axes(force_axes)`, built once per distinct tuple of axes."""
+    sub = _SPLITS.get(force_axes)
+    if sub is None:
+        sub = _SPLITS[force_axes] = Subspaces.from_force_axes(force_axes)
+    return sub
+
+
 def subspaces_of(session, view: StepView | None = None) -> Subspaces:
     """The force/motion split the running controller's step used (its view), else the scenario's
     `force_axes`, else pz only."""
     if view is not None and view.force_axes is not None:
-        return Subspaces.from_force_axes(view.force_axes)
+        return split_of(tuple(view.force_axes))
     axes = getattr(session.scenario, "force_axes", None)
     if axes:
         try:
-            return Subspaces.from_force_axes(tuple(axes))
+            return split_of(tuple(axes))
         except (TypeError, ValueError):
             pass
     return POLISH_SUBSPACES
@@ -97,8 +134,8 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
     model, data = world.model, world.data
     names = tuple(robot.link_names)
     ids = _body_ids(model, names)
-    positions = np.array([data.xpos[i] for i in ids], dtype=float).reshape(-1, 3)
-    wxyz = np.array([data.xquat[i] for i in ids], dtype=float).reshape(-1, 4)
+    positions = data.xpos[ids].reshape(-1, 3)  # fancy indexing: copies
+    wxyz = data.xquat[ids].reshape(-1, 4)
 
     q = world.q
     margins = np.minimum(q - robot.q_lower, robot.q_upper - q)
@@ -155,7 +192,7 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         q=q,
         planned_q=_planned_posture(last),
         **_payload(session),
-        **_gamma_x(session, view, dyn.Lambda),
+        gamma_x_input=_gamma_x_input(view, dyn.Lambda),
     )
 
 
@@ -170,20 +207,13 @@ def _planned_posture(last) -> np.ndarray | None:
     return np.array(last.target.q_posture, dtype=float)
 
 
-def _gamma_x(session, view, Lambda: np.ndarray) -> dict:
-    """Γ_x = Λ̂x⁻¹Λx of the running [T] projection executor on the split its step used, summarised
-    (control.bridge); {} for other executors."""
-    from control.bridge import gamma_x_matrix, gamma_x_summary
-
+def _gamma_x_input(view: StepView, Lambda: np.ndarray) -> tuple[np.ndarray, Subspaces, bool] | None:
+    """What Γ_x of the running [T] projection executor is computed from (a copy of Λx, the split its
+    step used, shaping); None for other executors."""
     if view.executor != "projection" or view.force_axes is None:
-        return {}
+        return None
     shaping = True if view.shaping is None else view.shaping
-    try:
-        G = gamma_x_matrix(Lambda, Subspaces.from_force_axes(view.force_axes), shaping=shaping)
-        summary = gamma_x_summary(G)
-    except np.linalg.LinAlgError:
-        return {}
-    return {"gamma_x_sym_eigs": summary.sym_eigenvalues, "gamma_x_skew": summary.skew_norm}
+    return np.array(Lambda, dtype=float), split_of(tuple(view.force_axes)), bool(shaping)
 
 
 def _payload(session) -> dict:
@@ -205,14 +235,26 @@ def _limit_zone(view: StepView, n: int) -> np.ndarray | None:
     return np.array(view.limit_zone)
 
 
-def _body_ids(model: mujoco.MjModel, names: tuple[str, ...]) -> list[int]:
+_BODY_IDS: dict[tuple[int, tuple[str, ...]], tuple[mujoco.MjModel, np.ndarray]] = {}
+
+
+def _body_ids(model: mujoco.MjModel, names: tuple[str, ...]) -> np.ndarray:
+    """Body ids of `names` in `model`, looked up once per model (the entry keeps the model, so its id
+    is not reused while cached)."""
+    key = (id(model), names)
+    hit = _BODY_IDS.get(key)
+    if hit is not None and hit[0] is model:
+        return hit[1]
     ids = []
     for name in names:
         i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
         if i < 0:
             raise ValueError(f"the simulation has no body named {name!r}")
         ids.append(i)
-    return ids
+    if len(_BODY_IDS) >= 16:  # sessions come and go: keep the newest few
+        _BODY_IDS.clear()
+    _BODY_IDS[key] = (model, np.array(ids, dtype=np.intp))
+    return _BODY_IDS[key][1]
 
 
 def _environment_overlay(session) -> dict[str, np.ndarray]:
