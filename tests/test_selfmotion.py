@@ -127,6 +127,22 @@ def test_scan_in_the_worker_process_equals_the_scan_here(rizon):
     assert (there.flow, there.best) == (here.flow, here.best)
 
 
+def test_the_scan_process_runs_at_a_lower_priority_than_the_server():
+    """The scan process is spawned SCAN_NICENESS steps nicer than the server (capped at 19), so on a
+    busy machine the 1 kHz loop and the browser get the cores first."""
+    import os
+
+    from app.ui.selfmotion import scan_pool
+    from app.ui.selfmotion_worker import SCAN_NICENESS
+
+    pool = scan_pool()
+    try:
+        niceness = pool.submit(os.nice, 0).result(timeout=60.0)
+    finally:
+        pool.shutdown()
+    assert niceness == min(os.nice(0) + SCAN_NICENESS, 19) and SCAN_NICENESS == 10
+
+
 def test_the_ghost_follows_the_planned_posture_while_a_plan_runs(server):
     """With the preview on and the first ghost choice, each frame of a planned case poses the ghost
     at the planned posture of that frame (to 1e-12); another choice leaves it to the scan."""

@@ -25,7 +25,7 @@ import pinocchio as pin
 import viser
 
 from app.ui.scene import add_ghost_arm, hide_ghost_arm, link_meshes, pose_ghost_arm
-from app.ui.selfmotion_worker import Preview, scan_in_worker, scan_preview
+from app.ui.selfmotion_worker import Preview, lower_priority, scan_in_worker, scan_preview
 from control.coupling import Subspaces
 from control.model import RobotModel
 from robots import RobotDescription
@@ -45,6 +45,12 @@ INTRO = (
     "the ghost arm shows where it settles (or, in a planned case, the planned posture now, as it moves) or "
     "the best posture inside the joint limits."
 )
+
+
+def scan_pool() -> ProcessPoolExecutor:
+    """The scan process: one worker, spawned (it does not inherit the server's threads), at a lower
+    scheduling priority than the server (`lower_priority`)."""
+    return ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"), initializer=lower_priority)
 
 
 def wrap_deg(value: Any) -> Any:
@@ -210,7 +216,7 @@ class SelfMotionPreview:
         if self._in_process:
             try:
                 if self._pool is None:
-                    self._pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"))
+                    self._pool = scan_pool()
                 job = self._pool.submit(
                     scan_in_worker, str(robot.urdf_path), robot.model, robot.q_lower, robot.q_upper, q,
                     sub.force_axes, objective,

@@ -8,6 +8,7 @@ best posture inside the joint limits.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,7 @@ from control.coupling import Subspaces, flow_minimum, swivel_scan
 from control.model import RobotModel
 
 _MODELS: dict[str, RobotModel] = {}  # in the scan process: one RobotModel per URDF
+SCAN_NICENESS = 10  # the scan process runs at this lower priority (`os.nice`)
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,16 @@ def scan_preview(model: RobotModel, robot, q: np.ndarray, sub: Subspaces, object
     inside = np.flatnonzero(feasible)
     best = int(inside[np.argmin(values[inside])]) if inside.size else None
     return Preview(objective, np.rad2deg(scan.swivel_rad), values, feasible, scan.q, flow, best)
+
+
+def lower_priority() -> None:
+    """Lower this process's scheduling priority by SCAN_NICENESS (the scan process's initializer): when
+    every core is busy, the 1 kHz loop and the browser go first and a scan waits (it is due about once
+    a second and nobody waits for it). Where the system refuses, the priority stays."""
+    try:
+        os.nice(SCAN_NICENESS)
+    except OSError:
+        pass
 
 
 def scan_in_worker(
