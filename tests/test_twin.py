@@ -111,3 +111,24 @@ def test_the_export_carries_the_twins_columns_beside_the_main_ones(polish):
     assert twin.session.last is not None and cols["twin_q_4"][-1] == twin.session.last.q[3]
     assert np.max(np.abs(cols["twin_q_4"] - cols["q_4"])) > 0.0  # W_j's elbow is not W_a's
     np.testing.assert_allclose(cols["twin_Fd_z"] - cols["twin_F_z"], twin.force_error_at(cols["t"]))
+
+
+def test_the_twins_link_poses_are_copies_of_its_bodies():
+    """The frame's twin arm: each link's position and orientation are the twin world's body origin and
+    quaternion at the capture, and stay so while the twin steps on (copies, not views into MjData)."""
+    from app.lab import Lab
+
+    lab = Lab("polish")
+    lab.apply(SetTwin("j"))
+    lab.advance(20)
+    twin = lab.twin
+    assert twin is not None
+    names = tuple(lab.session.robot.link_names)
+    positions, wxyz = twin.link_poses(names)
+    data, model = twin.session.world.data, twin.session.world.model
+    expected = np.array([data.xpos[model.body(n).id] for n in names])
+    np.testing.assert_array_equal(positions, expected)
+    np.testing.assert_array_equal(wxyz, [data.xquat[model.body(n).id] for n in names])
+    lab.advance(50)
+    np.testing.assert_array_equal(positions, expected)
+    assert not np.array_equal(twin.link_poses(names)[0], expected)
