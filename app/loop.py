@@ -8,10 +8,17 @@ chunks, so a release waits for at most one chunk. "Settle now" runs unpaced in c
 every command (Pause, Reset, a switch) applied between them. Unpaced, frames go out at 10 Hz. A
 failure while publishing is reported once and the loop goes on. Nothing outside this thread
 touches the Lab, except through `call()`, which runs a function here between two steps.
+
+On Linux the thread asks for a higher scheduling priority (niceness LOOP_NICENESS, this thread
+only) where the system allows it (root, or an RLIMIT_NICE that permits it): a browser drawing the
+page in software (Chromium raises its own display threads to −8) then no longer delays the steps
+that are due. Where it is refused, the thread keeps the process's priority.
 """
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
 import time
 import traceback
@@ -36,6 +43,23 @@ WAKE_STEPS = 2  # the loop sleeps until this many steps are due, then runs them 
 STEP_CHUNK = 100  # a single step runs in chunks this long; urgent commands are applied between them
 URGENT = (DragCommand, Pause)  # commands that jump the queue
 UNPACED_PUBLISH_S = 0.1  # frame period while running unpaced (10 Hz instead of 30)
+LOOP_NICENESS = -10  # the loop thread's niceness where the system allows it (below Chromium's −8)
+
+
+def raise_thread_priority(niceness: int) -> int | None:
+    """Give the calling thread the niceness `niceness` if that is a higher priority than it has (Linux,
+    this thread only); returns its niceness afterwards, or None where per-thread priorities are not
+    available. A refusal (no permission) leaves the priority as it was."""
+    if sys.platform != "linux":
+        return None
+    tid = threading.get_native_id()
+    current = os.getpriority(os.PRIO_PROCESS, tid)
+    if niceness < current:
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, niceness)
+        except OSError:
+            pass
+    return os.getpriority(os.PRIO_PROCESS, tid)
 
 
 @dataclass(frozen=True)
@@ -102,6 +126,7 @@ class SimLoop:
         self._thread: threading.Thread | None = None
         self._started = False
         self.failure = ""  # why the loop thread died, "" while it runs or after a clean stop
+        self.niceness: int | None = None  # the loop thread's niceness once it runs (None: not on Linux)
         self._pacer = Pacer(self.lab.dt)
         self._meter = RateMeter()
         self._pacing_epoch = -1
@@ -211,6 +236,7 @@ class SimLoop:
     # ---- the thread -----------------------------------------------------------------------------
     def _run(self) -> None:
         try:
+            self.niceness = raise_thread_priority(LOOP_NICENESS)
             self._loop()
         except BaseException as exc:  # reported to `serve`, which exits non-zero
             traceback.print_exc()
