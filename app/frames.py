@@ -123,10 +123,14 @@ def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | 
 
 
 class FrameBuilder:
-    """Builds frames from a lab: the scene every frame, the plot data at `plot_period`."""
+    """Builds frames from a lab: the scene every frame, the plot data at `plot_period` while the lab
+    runs (the frame closest to each plot time: frames come on a fixed schedule but a little late, up
+    to half a frame early counts) and in every frame while it does not (then frames go out only when
+    something changed, and the last one must show the last step)."""
 
     def __init__(self, publish_period: float, plot_period: float, capture: Callable[[Session], Any] | None = None):
         self.plot_period = plot_period
+        self._plot_slack = 0.5 * publish_period
         self.capture = capture
         self._monitor: deque[tuple[float, float, float, float, float]] = deque(
             maxlen=round(PLOT_WINDOW_S / publish_period) + 2
@@ -145,8 +149,8 @@ class FrameBuilder:
         scene = self._scene(lab)
         status = make_status(lab, rtf, load, getattr(scene, "step", None))
         self._monitor.append(_monitor_row(status, scene))
-        if now >= self._next_plot:
-            self._next_plot = now + self.plot_period
+        if now >= self._next_plot or not lab.running:
+            self._next_plot = now + self.plot_period - self._plot_slack
             self._plot = plot_data(lab, self._monitor)
             self._plot_seq += 1
         self._seq += 1

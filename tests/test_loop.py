@@ -394,6 +394,26 @@ def test_frames_keep_their_rate_through_late_wake_ups_and_a_stall_sends_no_burst
     assert due == pytest.approx(now + period)
 
 
+def test_plot_data_goes_out_in_every_third_frame_at_30_hz_and_in_every_frame_while_paused():
+    """Frames at 30 Hz, each up to 3 ms late: the plot data (10 Hz) is new in every third frame,
+    never two in a row; while the lab is not running every frame carries new plot data (the last frame
+    then shows the last step)."""
+    from app.frames import FrameBuilder
+    from app.lab import Lab
+
+    lab = Lab("free")
+    lab.advance(10)
+    lab.running = True
+    builder = FrameBuilder(1.0 / 30.0, 1.0 / 10.0)
+    rng = np.random.default_rng(2)
+    seqs = [builder.build(lab, k / 30.0 + rng.uniform(0.0, 3e-3)).plot_seq for k in range(300)]
+    assert seqs[-1] - seqs[0] == 99  # 10 s of frames: 100 plot updates
+    assert np.all(np.diff(np.flatnonzero(np.diff(seqs))) == 3)  # frames 3, 6, 9, …: every third
+    lab.running = False
+    paused = [builder.build(lab, 10.0 + k * 1e-3).plot_seq for k in range(5)]
+    assert np.all(np.diff(paused) == 1)
+
+
 # ---- step log ------------------------------------------------------------------------------------
 def test_step_log_keeps_the_newest_rows_and_decimates_from_the_newest():
     s = Session("free")
