@@ -25,6 +25,7 @@ step with the pose task, the posture task, the dampers and the torque rows in on
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import replace
 from typing import Any, NamedTuple, Protocol
 
@@ -270,6 +271,15 @@ class AccelerationQP:
         self.ub2 = np.full(2 * n, qp.INF)
         self._last = np.zeros(n)
 
+    def take_unconstrained_optimum(self, x: np.ndarray, solve_us: float) -> qp.QPResult:
+        """The result for x = −P⁻¹q that the caller found feasible with the dense backend's exact
+        fast path (`kernels_qp.unconstrained_optimum_fused`, the fused [C] step): what `solve` would
+        return; the backend's next DAQP solve starts afresh (all data, empty working set)."""
+        if isinstance(self.primary, qp.DenseBackend):
+            self.primary.forget_warm_start()
+        self._last = x
+        return qp.QPResult(x, qp.SOLVED, 0, solve_us, self.backend)
+
     def solve(self, P: np.ndarray, q: np.ndarray) -> qp.QPResult:
         """Solve with the current A, l, u, lb, ub; fall back as described in the class docstring."""
         n = self.n
@@ -367,6 +377,8 @@ class ComplianceQPExecutor:
         self._fused_pose = next((t for t in self.soft_tasks if type(t) is PoseTask), None)
         self._other_soft_tasks = [t for t in self.soft_tasks if t is not self._fused_pose]
         self._prepared_tasks = [t for t in self.tasks if getattr(t, "prepare", None) is not None]
+        # the fused step may run the dense backend's exact fast path itself (the objective is final there)
+        self._fast_qp = self.qp_backend == "dense" and not self.strict_tasks and not self._other_soft_tasks
         self.qp = AccelerationQP(self.n, sum(t.dim for t in self.strict_tasks), self.settings, self.qp_backend)
 
     # ---- Executor protocol --------------------------------------------------------------------
@@ -445,7 +457,10 @@ class ComplianceQPExecutor:
         """`_step_reference` with the estimate (once observer and sensor filter have started, when
         no task prepares itself on the step's inputs), the pose task (the first soft `PoseTask`),
         the posture task, the dampers and the torque rows in one compiled call
-        (`control.kernels_qp.cqp_problem_fused`); other tasks add their rows as in the reference."""
+        (`control.kernels_qp.cqp_problem_fused`); other tasks add their rows as in the reference.
+        With the dense backend and the objective final in that call (no other task), the call also
+        runs the backend's exact fast path and, when it holds, τ_d [C8]: the backend is not called
+        (`qp_solve_us` is then the whole call's time)."""
         target = inputs.target
         est = self.estimator
         observer, high_pass = est.observer, est.high_pass
@@ -463,8 +478,9 @@ class ComplianceQPExecutor:
         P, q = self._P, self._q
         q_ref = posture.q_hold if target.q_posture is None else target.q_posture
         dq_ref = posture._zeros if posture.dq_ref is None else posture.dq_ref
+        t0 = time.perf_counter()
         try:
-            crossed, tau_hat, r, tau_s = cqp_problem_fused(
+            crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated = cqp_problem_fused(
                 dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world,
                 dyn.tcp_rotation_world, estimate_on, tau_hat, M_prev, observer._dq_prev, observer._h_prev,
                 self.tau_prev, observer.r, wrench, lp, est.kernel_constants, settings.feedback, self.tau_max,
@@ -472,6 +488,7 @@ class ComplianceQPExecutor:
                 target.acceleration, self._pose_unused if pose is None else pose.kernel_gains, q_ref, dq_ref,
                 posture.kernel_gains, posture.integral, posture.kernel_constants, damper.kernel_rows, damper.endless,
                 damper.kernel_constants, self._objective, aqp.A, aqp.l, aqp.u, aqp.lb, aqp.ub, qp.INF,
+                self._fast_qp, settings.eps,
             )  # fmt: skip
         except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
             if estimate_on:
@@ -482,6 +499,9 @@ class ComplianceQPExecutor:
             observer.r = r
             observer._store(dyn)
             est.tau_s, est.estimate, self.tau_hat = tau_s, tau_hat, tau_hat
+        if solved:  # the unconstrained optimum is feasible: the QP's solution, τ_d computed with it
+            res = aqp.take_unconstrained_optimum(x, (time.perf_counter() - t0) * 1e6)
+            return self._output(res, tau_hat, bool(crossed), tau, tau_cmd, saturated)
         if self._other_soft_tasks or self.strict_tasks:
             ddq_e = dyn.M_inv @ tau_hat
             self._add_task_rows(self._other_soft_tasks, dyn, target, ddq_e, P, q)
@@ -557,13 +577,25 @@ class ComplianceQPExecutor:
     ) -> ControlOutput:
         """The QP, then τ_d of [C8] and the step's output."""
         res = self.qp.solve(P, q)
-        self.ddq = res.x
-        self.last_qp = res
         # [C8] τ_d = M q̈ + h − τ_fb; [C10] stays hard for approximate solutions too; the motors clip
         tau_fb = tau_hat if self.settings.feedback else self._zeros
         tau, tau_cmd, saturated = inverse_dynamics_fused(
             dyn.M, res.x, dyn.h, tau_fb, self.tau_max, (res.fallback or not res.solved) and self.settings.torque_limits
         )
+        return self._output(res, tau_hat, crossed, tau, tau_cmd, saturated)
+
+    def _output(
+        self,
+        res: qp.QPResult,
+        tau_hat: np.ndarray,
+        crossed: bool,
+        tau: np.ndarray,
+        tau_cmd: np.ndarray,
+        saturated: bool,
+    ) -> ControlOutput:
+        """Keep the step's QP result, τ_d and command; the output with its signals."""
+        self.ddq = res.x
+        self.last_qp = res
         self.tau_desired = tau
         self.tau_prev = tau_cmd
         info = {

@@ -24,6 +24,7 @@ from numba import njit
 from control.kernels import (
     acceleration_bounds_fused,
     add_task_rows_fused,
+    inverse_dynamics_fused,
     momentum_observer_fused,
     pose_task_target_fused,
     posture_target_fused,
@@ -158,28 +159,54 @@ def dense_qp_load_fused(data, n, m, n_eq, P, q, A, l, u, lb, ub, no_bound, tol, 
             return CROSSED_BOUNDS
     if n_eq > 0:
         return NEEDS_SOLVER
-    # Cholesky P = L Lᵀ (lower triangle of P read)
+    P = data[:off_A].reshape((n, n))
+    A = data[off_A:off_q].reshape((m, n))
+    lower, upper = data[off_lo:off_hi], data[off_hi : off_hi + k]
+    if unconstrained_optimum_fused(P, data[off_q:off_lo], A, lower[:n], lower[n:], upper[:n], upper[n:], tol, x):
+        return FAST_SOLVED
+    return NEEDS_SOLVER
+
+
+@njit(cache=True)
+def unconstrained_optimum_fused(P, q, A, lb, l, ub, u, tol, x):
+    """The fast path of `dense_qp_load_fused`: x = −P⁻¹q by Cholesky (lower triangle of P read;
+    every pivot above PIVOT_FLOOR · max diag P) written into `x` when it is finite and meets
+    lb − tol ≤ x ≤ ub + tol and l − tol ≤ A x ≤ u + tol; returns whether it did. Data with NaN
+    (or a crossed bound) is refused: it is the backend's to report."""
+    n, m = P.shape[0], A.shape[0]
+    for i in range(n):
+        if not (math.isfinite(q[i]) and lb[i] <= ub[i]):
+            return False
+        for j in range(n):
+            if not math.isfinite(P[i, j]):
+                return False
+    for r in range(m):
+        if not l[r] <= u[r]:
+            return False
+        for j in range(n):
+            if not math.isfinite(A[r, j]):
+                return False
     L = np.zeros((n, n))
     max_diag = 0.0
     for i in range(n):
-        max_diag = max(max_diag, data[i * n + i])
+        max_diag = max(max_diag, P[i, i])
     floor = PIVOT_FLOOR * max_diag
     for j in range(n):
-        d = data[j * n + j]
+        d = P[j, j]
         for c in range(j):
             d -= L[j, c] * L[j, c]
         if not d > floor:
-            return NEEDS_SOLVER
+            return False
         L[j, j] = math.sqrt(d)
         for i in range(j + 1, n):
-            v = data[i * n + j]
+            v = P[i, j]
             for c in range(j):
                 v -= L[i, c] * L[j, c]
             L[i, j] = v / L[j, j]
     # L y = −q, Lᵀ x = y
     y = np.empty(n)
     for i in range(n):
-        v = -data[off_q + i]
+        v = -q[i]
         for c in range(i):
             v -= L[i, c] * y[c]
         y[i] = v / L[i, i]
@@ -190,19 +217,19 @@ def dense_qp_load_fused(data, n, m, n_eq, P, q, A, l, u, lb, ub, no_bound, tol, 
             v -= L[c, i] * cand[c]
         v /= L[i, i]
         if not math.isfinite(v):
-            return NEEDS_SOLVER
-        if v < data[off_lo + i] - tol or v > data[off_hi + i] + tol:
-            return NEEDS_SOLVER
+            return False
+        if v < lb[i] - tol or v > ub[i] + tol:
+            return False
         cand[i] = v
     for r in range(m):
         v = 0.0
         for j in range(n):
-            v += data[off_A + r * n + j] * cand[j]
-        if v < data[off_lo + n + r] - tol or v > data[off_hi + n + r] + tol:
-            return NEEDS_SOLVER
+            v += A[r, j] * cand[j]
+        if v < l[r] - tol or v > u[r] + tol:
+            return False
     for i in range(n):
         x[i] = cand[i]
-    return FAST_SOLVED
+    return True
 
 
 # ==== the [C] executor's problem: objective [C9], dampers [C17-24], torque rows [C10] =============
@@ -215,6 +242,7 @@ def cqp_problem_fused(
     q_ref, dq_ref, posture_gains, integral, posture_constants,
     damper_rows, endless, damper_constants,
     objective, A, l, u, lb, ub, no_bound,
+    fast_on, tol,
 ):  # fmt: skip
     """What `control.compliance_qp.ComplianceQPExecutor._step_reference` computes before the QP,
     for a TCP pose task (when `pose_on`) and the posture task, in one call of the kernels it calls
@@ -231,8 +259,13 @@ def cqp_problem_fused(
     (`posture_target_fused`, its integral advanced in place), identity metric (P += w I, qv −= w b)
     or inertia metric (P += w M, qv −= w M b); the dampers' box lb ≤ q̈ ≤ ub [C17-24]
     (`acceleration_bounds_fused`); the torque rows [C10] of A, l, u (`torque_rows_fused`, τ_fb =
-    τ̂_e with `feedback`, else 0). Returns (damper bounds crossed, τ̂_e, r, τ_s) (r and τ_s new only
-    with `estimate_on`: else r and `tau_hat_given`).
+    τ̂_e with `feedback`, else 0); with `fast_on` (the objective is final: no other task adds
+    rows), the dense backend's exact fast path on that QP (`unconstrained_optimum_fused`, primal
+    tolerance `tol`) and, when it holds, τ_d = M q̈ + h − τ_fb [C8] (`inverse_dynamics_fused`).
+
+    Returns (damper bounds crossed, τ̂_e, r, τ_s, solved, q̈, τ_d, τ command, saturated): r and
+    τ_s new only with `estimate_on` (else r and `tau_hat_given`), the last four only when
+    `solved` (the fast path held).
 
     Packed arguments (one compiled call's argument checks cost per argument): `pose_gains` (9, 6)
     = [K_p; K_d; Γ (6 rows); weight, Γ ≠ 0, …]; `posture_gains` (3 + n, n) = [K_p; K_d; K_i; Γ₀]
@@ -301,4 +334,12 @@ def cqp_problem_fused(
         torque_rows_fused(M, h, tau_hat, tau_max, A, l, u, torque_limits, no_bound)
     else:
         torque_rows_fused(M, h, np.zeros(n), tau_max, A, l, u, torque_limits, no_bound)
-    return crossed, tau_hat, r, tau_s
+    x = np.zeros(n)
+    solved = False
+    if fast_on and not crossed:
+        solved = unconstrained_optimum_fused(P, qv, A, lb, l, ub, u, tol, x)
+    if solved:  # [C8] for an exact solution (no clipping of τ_d)
+        tau, tau_cmd, saturated = inverse_dynamics_fused(M, x, h, tau_hat if feedback else np.zeros(n), tau_max, False)
+    else:
+        tau, tau_cmd, saturated = x, x, False
+    return crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated

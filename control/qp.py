@@ -195,6 +195,11 @@ class DenseBackend:
         self._P[:] = np.eye(n)  # P starts as the identity (as OSQP's pattern), A as zeros
         self._x = np.zeros(n)
 
+    def forget_warm_start(self) -> None:
+        """The next DAQP solve loads all data and starts from an empty working set, as after a
+        fast-path solve (for a caller that ran the fast path itself)."""
+        self._model_current = False
+
     def solve(self, P, q, A, l, u, lb, ub) -> QPResult:
         """Update and solve (see `QP.solve`)."""
         n = self.n
