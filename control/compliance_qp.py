@@ -468,10 +468,10 @@ class ComplianceQPExecutor:
         estimate_on = (
             M_prev is not None and lp is not None and wrench is not None and est.kernel_constants[2] >= 0.0
         ) and not self._prepared_tasks
-        if estimate_on:
-            tau_hat = self._zeros  # not read
+        if estimate_on:  # the call computes the estimate (`tau_hat` is not read)
+            tau_hat = self._zeros
             wrench = np.asarray(wrench, dtype=float)
-        else:  # not read: the estimate is given
+        else:  # the estimate is given (the observer's and the filter's arguments are not read)
             tau_hat = self._estimate(dyn, inputs)
             M_prev, lp, wrench = dyn.M, self._zeros, self._zeros6
         pose, posture, damper, aqp, settings = self._fused_pose, self.posture, self.damper, self.qp, self.settings

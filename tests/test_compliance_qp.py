@@ -171,6 +171,8 @@ def _twin_executors(robot, case: str):
                     "estimator": EstimatorGains(source="residual"),
                     "settings": ComplianceQPSettings(feedback=False),
                 }
+            elif case == "osqp":  # no fast path in the fused call: every QP goes to the backend
+                kwargs["qp_backend"] = "osqp"
             elif case == "oracle":  # the estimate from the executor's estimator, not the fused call
                 kwargs["estimator"] = EstimatorGains(source="oracle")
             elif case == "no torque limits":
@@ -187,7 +189,7 @@ def _twin_executors(robot, case: str):
 
 
 @pytest.mark.parametrize(
-    "case", ["default", "everything", "oracle", "no torque limits", "strict", "active", "relaxed", "bridge"]
+    "case", ["default", "everything", "oracle", "osqp", "no torque limits", "strict", "active", "relaxed", "bridge"]
 )
 def test_fused_step_equals_the_reference_step(rizon, case):
     """Both executors see the same snapshots (a swing through the joint ranges, fast near the
@@ -231,7 +233,7 @@ def test_fused_step_equals_the_reference_step(rizon, case):
         assert n_daqp >= 100 and n_fast >= 10, (n_fast, n_daqp)
     elif case == "relaxed":
         assert n_relaxed >= 100, n_relaxed
-    elif case == "strict":  # equality rows: always DAQP
+    elif case in ("strict", "osqp"):  # equality rows: always DAQP; OSQP iterates
         assert n_fast == 0
     else:
         assert n_fast >= 250, n_fast

@@ -512,3 +512,27 @@ def test_dense_qp_load_kernel_equals_numpy_reference():
             assert _rel(x_fused, x_ref) < RTOL
             np.testing.assert_allclose(x_ref, -np.linalg.solve(P, q), rtol=1e-9)
     assert seen == {KQ.FAST_SOLVED, KQ.NEEDS_SOLVER, KQ.NON_FINITE_DATA, KQ.CROSSED_BOUNDS}
+
+
+def test_unconstrained_optimum_kernel_agrees_with_the_backend_load_and_refuses_bad_data():
+    """The fused [C] step's fast path (`unconstrained_optimum_fused`, on separate arrays) takes
+    exactly the problems the backend's load takes, with the same x; NaN or crossed bounds: refused."""
+    rng = np.random.default_rng(22)
+    n_fast = 0
+    for k in range(80):
+        P, q, A, l, u, lb, ub = _qp_problem(rng, 7, 7, active=k % 3 == 0)
+        data, x_ref, x = KQ.dense_qp_buffer(7, 7), np.zeros(7), np.zeros(7)
+        code = KQ.dense_qp_load_reference(data, 7, 7, 0, P, q, A, l, u, lb, ub, 1e30, 1e-6, x_ref)
+        took = KQ.unconstrained_optimum_fused(P, q, A, lb, l, ub, u, 1e-6, x)
+        assert took == (code == KQ.FAST_SOLVED)
+        if took:
+            n_fast += 1
+            assert _rel(x, x_ref) < RTOL
+        for spoil in ("nan", "crossed"):
+            q2, lb2 = q.copy(), lb.copy()
+            if spoil == "nan":
+                q2[3] = np.nan
+            else:
+                lb2[2] = ub[2] + 1.0
+            assert not KQ.unconstrained_optimum_fused(P, q2, A, lb2, l, ub, u, 1e-6, x)
+    assert 30 <= n_fast <= 70
