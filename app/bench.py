@@ -241,7 +241,7 @@ def _compliance_qp_solve(robot, backend: str):
     from control.gains import ComplianceQPSettings
 
     model = RobotModel(robot.model)
-    ex = make_compliance_qp(robot, model)
+    ex = make_compliance_qp(robot, model, fused=False)  # every step's QP goes through `ex.qp.solve`
     dyn0 = model.compute(robot.home, np.zeros(7))
     target = TaskTarget(position=dyn0.tcp_position_world, rotation=dyn0.tcp_rotation_world, q_posture=robot.home)
     ex.reset(dyn0, target)

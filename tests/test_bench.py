@@ -15,6 +15,11 @@ def test_every_bench_entry_has_its_real_time_factor():
         assert entry["real_time_factor"] == pytest.approx(BUDGET_US / entry["median_us"], rel=1e-12)
 
 
+def test_qp_solve_entries_run_on_the_problems_the_executors_built():
+    report = run_bench(only=["qp_solve_compliance_dense", "qp_solve_nullspace_dense"], repeats=5)
+    assert set(report["results"]) == {"qp_solve_compliance_dense", "qp_solve_nullspace_dense"}
+
+
 def test_placo_peer_without_placo_says_why(rizon):
     """This venv has no placo (it pins another Pinocchio): the error names the failure."""
     try:

@@ -131,6 +131,7 @@ def _compliance_problems(robot, rng, count, tau_scale):
         tasks=[PoseTask(PoseTaskGains(stiffness=400.0, damping=40.0))],
         estimator=EstimatorGains(source="oracle"),
         qp_backend="dense",
+        fused=False,  # every step's QP goes through `ex.qp.solve` (the fused step may solve it itself)
     )
     ex.tau_max = ex.tau_max * tau_scale
     captured = []
