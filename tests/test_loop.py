@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from app.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, SettleNow, StepOnce, SwitchSession
-from app.loop import LOOP_NICENESS, SimLoop
+from app.loop import LOOP_NICENESS, WAKE_STEPS, SimLoop
 from app.pacing import Pacer, RateMeter, next_frame_due
 from app.scenarios import SCENARIOS
 from app.session import Session
@@ -311,6 +311,25 @@ def test_the_loop_thread_alone_runs_at_a_higher_priority_where_the_system_allows
     assert loop.niceness == os.getpriority(os.PRIO_PROCESS, loop._thread.native_id)
     assert loop.niceness == (min(LOOP_NICENESS, process) if permitted else process)
     assert os.getpriority(os.PRIO_PROCESS, 0) == process
+
+
+def test_running_paced_the_loop_steps_in_bursts_of_wake_steps():
+    """Paced at 1×, the loop sleeps until WAKE_STEPS (8) steps are due and runs them in one burst:
+    most bursts are that long (a frame due in between, or a command, wakes it earlier; a late wake-up
+    makes a burst longer), so it wakes at most ~1000 / 8 + 30 times per simulated second."""
+    lp = SimLoop("free", capture=lambda s: None)
+    bursts: list[int] = []
+    advance = lp.lab.advance
+    lp.lab.advance = lambda n: (bursts.append(n), advance(n))[1]  # type: ignore[method-assign]
+    lp.start(running=True)
+    try:
+        _wait(lambda: lp.status.t >= 1.0, 60, "a simulated second")  # no commands: nothing wakes it early
+        t = lp.sync().t
+    finally:
+        lp.stop()
+    assert WAKE_STEPS == 8
+    assert float(np.median(bursts)) >= WAKE_STEPS
+    assert len(bursts) <= t * (1000 / WAKE_STEPS + 30) + 5
 
 
 # ---- pacing (fake clock: exact numbers) ----------------------------------------------------------
