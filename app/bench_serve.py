@@ -20,6 +20,7 @@ from app.commands import Play, Reset, SetParam, SetTwin
 from app.server import start_app
 
 CHROMIUM = os.environ.get("TORQUELAB_CHROMIUM", "/usr/bin/chromium")
+WARMUP_TIMEOUT_S = 300.0  # wall seconds the warm-up may take (compiling the kernels included)
 CHROMIUM_ARGS = [
     "--no-sandbox",
     "--disable-gpu",
@@ -51,7 +52,7 @@ def _preview_on(app: Any) -> Any:
 def run_serve_bench(
     scenario: str = "polish",
     seconds: float = 20.0,
-    warmup: float = 3.0,
+    warmup: float = 3.0,  # simulated seconds run before measuring
     objective: str = "a",
     robot: str | None = None,
     twin: str | None = None,
@@ -85,7 +86,14 @@ def run_serve_bench(
             app.loop.submit(Reset())
             app.loop.submit(Play())
             app.loop.sync()
-            time.sleep(warmup)
+            # warm up for `warmup` simulated seconds, however long the first steps take (a cold numba
+            # cache compiles the kernels on the first step: many seconds, during which the loop
+            # answers nothing)
+            deadline = time.monotonic() + WARMUP_TIMEOUT_S
+            while app.loop.sync(timeout=WARMUP_TIMEOUT_S).t < warmup:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"the simulation did not run {warmup} s within {WARMUP_TIMEOUT_S:.0f} s")
+                time.sleep(0.2)
             windows = []
             s0 = app.loop.sync()
             w0, frames0, scene0 = time.perf_counter(), app.publisher.frames_shown, app.publisher.scene_updates
