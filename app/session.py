@@ -277,8 +277,11 @@ class Session:
         out = self._safe_step(dyn, inputs)  # [4]
         world.step(out.tau)  # [5]
         self.steps += 1
-        # ‖F‖ as np.linalg.norm computes it
-        signals = {**out.info, **env_signals, "drag_force_n": math.sqrt(float(drag_force.dot(drag_force)))}
+        # the executor's signals (a new dict every step), then the environment's (they win a shared
+        # name), then ‖F‖ of the drag as np.linalg.norm computes it
+        signals = out.info
+        signals.update(env_signals)
+        signals["drag_force_n"] = math.sqrt(float(drag_force.dot(drag_force)))
         self.environment.observe(signals, t)
         self.last = StepRecord(
             t=t,
@@ -339,7 +342,7 @@ class Session:
             out = self.executor.step(dyn, inputs)
         except (ValueError, ArithmeticError, np.linalg.LinAlgError):
             out = ControlOutput(tau=dyn.h.copy(), fallback=True, info={"executor_error": 1.0})
-        tau = np.asarray(out.tau, dtype=float)
+        tau = out.tau if type(out.tau) is np.ndarray else np.asarray(out.tau, dtype=float)
         if not math.isfinite(float(tau.dot(tau))):  # NaN/inf anywhere (one dot product)
             out = ControlOutput(tau=dyn.h.copy(), fallback=True, info={**out.info, "executor_error": 1.0})
         return out

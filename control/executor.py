@@ -46,7 +46,8 @@ class ControlOutput:
 
     tau: np.ndarray  # (n,) commanded joint torque, N m
     fallback: bool = False  # a QP failed and a fallback solution was used
-    info: dict[str, float] = field(default_factory=dict)  # scalar signals for plots and logs
+    # scalar signals for plots and logs: a new dict every step (the session adds the environment's)
+    info: dict[str, float] = field(default_factory=dict)
 
 
 def frozen_copy(array: object) -> np.ndarray:

@@ -1354,3 +1354,24 @@ def move_wrench_fused(wrench, p_from, p_to):
     out[4] = wrench[4] + (r2 * f0 - r0 * f2)
     out[5] = wrench[5] + (r0 * f1 - r1 * f0)
     return out
+
+
+# ==== elbow swivel of the joint anchors (a polish signal every step) ==============================
+@njit(cache=True)
+def swivel_of_anchors_fused(anchors, shoulder, elbow, wrist):
+    """`control.planner.swivel_of_points` (rad) of rows `shoulder`, `elbow`, `wrist` of an (m, 3)
+    array of points (MuJoCo's joint anchors), the same arithmetic in one compiled call."""
+    s0, s1, s2 = anchors[shoulder, 0], anchors[shoulder, 1], anchors[shoulder, 2]
+    u0, u1, u2 = anchors[wrist, 0] - s0, anchors[wrist, 1] - s1, anchors[wrist, 2] - s2
+    norm = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    u0, u1, u2 = u0 / norm, u1 / norm, u2 / norm
+    r0, r1, r2 = -u2 * u0, -u2 * u1, 1.0 - u2 * u2
+    if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) < 1e-9:
+        r0, r1, r2 = 1.0 - u0 * u0, -u0 * u1, -u0 * u2
+    norm = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    r0, r1, r2 = r0 / norm, r1 / norm, r2 / norm
+    e0, e1, e2 = anchors[elbow, 0] - s0, anchors[elbow, 1] - s1, anchors[elbow, 2] - s2
+    along = e0 * u0 + e1 * u1 + e2 * u2
+    d0, d1, d2 = e0 - along * u0, e1 - along * u1, e2 - along * u2
+    c0, c1, c2 = r1 * d2 - r2 * d1, r2 * d0 - r0 * d2, r0 * d1 - r1 * d0
+    return np.arctan2(u0 * c0 + u1 * c1 + u2 * c2, r0 * d0 + r1 * d1 + r2 * d2)

@@ -231,6 +231,8 @@ def test_swivel_of_points_equals_swivel_angle(robot):
         pin.forwardKinematics(robot.model, data, q)
         points = [data.oMi[j].translation for j in (2, 4, 6)]
         assert abs(swivel_of_points(*points) - swivel_angle(model, q)) < 1e-12
+        anchors = np.array([data.oMi[j].translation for j in range(robot.model.njoints)])
+        assert abs(K.swivel_of_anchors_fused(anchors, 2, 4, 6) - swivel_of_points(*points)) < 1e-14
 
 
 def test_inertia_contraction_kernel_equals_rnea_derivatives(robot):

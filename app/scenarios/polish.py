@@ -30,10 +30,11 @@ from app.sim.world import World
 from control.coupling import POLISH_SUBSPACES, move_to_swivel, project_to_pose
 from control.executor import TaskTarget
 from control.gains import MotionForceGains
+from control.kernels import swivel_of_anchors_fused
 from control.margin import ContactLoop, posture_margin
 from control.model import Dynamics, RobotModel
 from control.params import ParamGroup, expect, param, replaced
-from control.planner import PLAN_COSTS, Plan, cost_map, loops_along, swivel_of_points
+from control.planner import PLAN_COSTS, Plan, cost_map, loops_along
 from control.planner import plan as make_plan
 from robots import RobotDescription
 
@@ -250,10 +251,10 @@ class PolishEnvironment(Environment):
         clock = self.clock
         settling = clock.trajectory_start is None
         quiet, dw = clock.criterion.progress() if settling else (float("nan"), float("nan"))
-        anchors = self._world.data.xanchor.tolist() if self._world is not None else None  # Python floats
-        swivel = (
-            math.degrees(swivel_of_points(anchors[self._joints[1]], anchors[self._joints[3]], anchors[self._joints[5]]))
-            if anchors is not None
+        joints = self._joints
+        swivel = (  # `swivel_of_points` of the shoulder, elbow and wrist anchors, compiled
+            math.degrees(swivel_of_anchors_fused(self._world.data.xanchor, joints[1], joints[3], joints[5]))
+            if self._world is not None
             else float("nan")
         )
         if self._world is not None and t - self._margin_at >= self.live_margin_every_s:
