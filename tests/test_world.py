@@ -98,3 +98,15 @@ def test_site_point_state_is_the_site_pose_velocity_and_inverse_mass_in_one(rizo
     mujoco.mj_fullM(world.model, world.data, M)
     np.testing.assert_allclose(G, jacp @ np.linalg.solve(M, jacp.T), rtol=1e-9, atol=1e-12)
     assert world.site_point_state(world.tcp_site)[2] is None  # the inverse mass only when asked
+
+
+def test_compiled_torque_clip_equals_numpy_minimum_of_maximum():
+    """`clip_torque` gives np.minimum(np.maximum(τ, lower), upper) exactly, NaN kept as NaN."""
+    from app.sim.world import clip_torque
+
+    rng = np.random.default_rng(6)
+    upper = rng.uniform(10, 80, 7)
+    for _ in range(200):
+        tau = rng.normal(0, 60, 7)
+        tau[rng.integers(0, 7)] = rng.choice([np.nan, np.inf, -np.inf, 0.0])
+        np.testing.assert_array_equal(clip_torque(tau, -upper, upper), np.minimum(np.maximum(tau, -upper), upper))

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 import pinocchio as pin
+from numba import njit
 
 from control.params import ParamGroup, expect, param
 from robots import SENSOR_FRAME, TCP_FRAME, RobotDescription
@@ -185,8 +186,10 @@ class World:
         # live views of the MjData arrays read or written every step (MjData's buffers never move;
         # each attribute read would build a new array object)
         self._qfrc_applied = self.data.qfrc_applied
-        self._views = isinstance(self._qpos_at, slice) and isinstance(self._qvel_at, slice)  # else copies
+        self._views = all(isinstance(at, slice) for at in (self._qpos_at, self._qvel_at, self._ctrl_at))  # else copies
+        self._tau_max = np.asarray(robot.tau_max, dtype=float).copy()
         if self._views:
+            self._ctrl_arm = self.data.ctrl[self._ctrl_at]
             self._qpos_arm, self._qvel_arm = self.data.qpos[self._qpos_at], self.data.qvel[self._qvel_at]
             self._qfrc_applied_arm = self._qfrc_applied[self._qvel_at]
         self.applied: list[AppliedForce] = []
@@ -380,14 +383,17 @@ class World:
         """Advance one timestep with joint torques τ (clipped to the motor limits), then clear forces.
         With a torque delay of d steps the motors apply the command of d steps ago (the first
         command is held until the pipeline has filled)."""
-        ctrl = np.minimum(np.maximum(tau, self._tau_min), self.robot.tau_max)  # np.clip's result, less overhead
+        ctrl = clip_torque(tau, self._tau_min, self._tau_max)  # np.clip's result (NaN kept), compiled
         if self.torque_delay_steps > 0:
             self._tau_pipeline.append(ctrl)
             ctrl = self._tau_pipeline[0]
             if len(self._tau_pipeline) > self.torque_delay_steps:
                 self._tau_pipeline.popleft()
         self.tau_applied = ctrl
-        self.data.ctrl[self._ctrl_at] = ctrl
+        if self._views:
+            self._ctrl_arm[:] = ctrl
+        else:
+            self.data.ctrl[self._ctrl_at] = ctrl
         # mj_step2 integrates with the forces and controls set on the kinematics of this state;
         # mj_step1 then computes the kinematics (site poses, Jacobians, M) of the new state, so
         # the next step's contact and drag forces see the current position, not the previous
@@ -451,3 +457,18 @@ class World:
         self.data.qpos[self.qpos_adr] = q
         self.data.qvel[self.dof_adr] = dq
         mujoco.mj_forward(self.model, self.data)
+
+
+@njit(cache=True)
+def clip_torque(tau, lower, upper):
+    """min(max(τ, lower), upper) element by element as a new array (NaN stays NaN, as with
+    np.minimum/np.maximum): the motors' torque limits."""
+    out = np.empty(tau.shape[0])
+    for i in range(tau.shape[0]):
+        x = tau[i]
+        if x < lower[i]:
+            x = lower[i]
+        elif x > upper[i]:
+            x = upper[i]
+        out[i] = x
+    return out
