@@ -60,31 +60,56 @@ def nullspace_inertia_reference(S: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _matmul(A, B):
+def _matmul_into(A, B, out):
+    """out = A @ B (out may be a view; not A or B)."""
     m, k = A.shape
     n = B.shape[1]
-    out = np.zeros((m, n))
     for i in range(m):
-        for p in range(k):
-            a = A[i, p]
-            for j in range(n):
-                out[i, j] += a * B[p, j]
-    return out
+        for j in range(n):
+            s = 0.0
+            for p in range(k):
+                s += A[i, p] * B[p, j]
+            out[i, j] = s
 
 
 @njit(cache=True)
-def _matmul_bt(A, B):
-    """A @ Bᵀ."""
+def _matmul_bt_into(A, B, out):
+    """out = A @ Bᵀ (out may be a view; not A or B)."""
     m, k = A.shape
     n = B.shape[0]
-    out = np.empty((m, n))
     for i in range(m):
         for j in range(n):
             s = 0.0
             for p in range(k):
                 s += A[i, p] * B[j, p]
             out[i, j] = s
+
+
+@njit(cache=True)
+def _matmul(A, B):
+    """A @ B, a new array."""
+    out = np.empty((A.shape[0], B.shape[1]))
+    _matmul_into(A, B, out)
     return out
+
+
+@njit(cache=True)
+def _matmul_bt(A, B):
+    """A @ Bᵀ, a new array."""
+    out = np.empty((A.shape[0], B.shape[0]))
+    _matmul_bt_into(A, B, out)
+    return out
+
+
+@njit(cache=True)
+def _symmetrise(A):
+    """A ← (A + Aᵀ)/2 in place."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            s = 0.5 * (A[i, j] + A[j, i])
+            A[i, j] = s
+            A[j, i] = s
 
 
 @njit(cache=True)
@@ -212,23 +237,9 @@ def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar,
             M[j, i] = M_upper[i, j]
     if not _spd_inverse_into(M, L, Li, M_inv):
         M_inv[:, :] = np.nan
-    for i in range(n):  # X = M⁻¹ Jᵀ
-        for j in range(6):
-            s = 0.0
-            for p in range(n):
-                s += M_inv[i, p] * J[j, p]
-            X[i, j] = s
-    for i in range(6):  # Λx⁻¹ = J M⁻¹ Jᵀ, symmetrised
-        for j in range(6):
-            s = 0.0
-            for p in range(n):
-                s += J[i, p] * X[p, j]
-            Lambda_inv[i, j] = s
-    for i in range(6):
-        for j in range(i + 1, 6):
-            s = 0.5 * (Lambda_inv[i, j] + Lambda_inv[j, i])
-            Lambda_inv[i, j] = s
-            Lambda_inv[j, i] = s
+    _matmul_bt_into(M_inv, J, X)  # X = M⁻¹ Jᵀ
+    _matmul_into(J, X, Lambda_inv)  # Λx⁻¹ = J M⁻¹ Jᵀ, symmetrised
+    _symmetrise(Lambda_inv)
     L6, Li6 = L[:6, :6], Li[:6, :6]
     near_singular = not _cholesky_into(Lambda_inv, singular_eig, L6)  # min eig ≤ ρ (or NaN)
     min_eig = np.nan
@@ -241,37 +252,16 @@ def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar,
         for i in range(6):
             f[i] = w[i] / (w[i] * w[i] + singular_eig * singular_eig)
         Lambda[:, :] = _sym_from_eig(V, f)
-    for i in range(n):  # [T2] J̄ = M⁻¹ Jᵀ Λx
-        for j in range(6):
-            s = 0.0
-            for p in range(6):
-                s += X[i, p] * Lambda[p, j]
-            J_bar[i, j] = s
-    for i in range(n):  # [T4] N = I − J̄ J
+    _matmul_into(X, Lambda, J_bar)  # [T2] J̄ = M⁻¹ Jᵀ Λx
+    _matmul_into(J_bar, J, N)  # [T4] N = I − J̄ J
+    for i in range(n):
         for j in range(n):
-            s = 0.0
-            for p in range(6):
-                s -= J_bar[i, p] * J[p, j]
-            N[i, j] = s
+            N[i, j] = -N[i, j]
         N[i, i] += 1.0
     T = L  # N M⁻¹ (L is free again)
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for p in range(n):
-                s += N[i, p] * M_inv[p, j]
-            T[i, j] = s
-    for i in range(n):  # S = N M⁻¹ Nᵀ, symmetrised
-        for j in range(n):
-            s = 0.0
-            for p in range(n):
-                s += T[i, p] * N[j, p]
-            S[i, j] = s
-    for i in range(n):
-        for j in range(i + 1, n):
-            s = 0.5 * (S[i, j] + S[j, i])
-            S[i, j] = s
-            S[j, i] = s
+    _matmul_into(N, M_inv, T)
+    _matmul_bt_into(T, N, S)  # S = N M⁻¹ Nᵀ, symmetrised
+    _symmetrise(S)
     if n == 7:  # [T5] rank one: S# = S / ‖S‖_F²
         ss = 0.0
         for i in range(n):
