@@ -14,6 +14,7 @@ import atexit
 import contextlib
 import gc
 import io
+import logging
 import socket
 import sys
 import time
@@ -86,6 +87,29 @@ def port_is_free(host: str, port: int) -> bool:
     return True
 
 
+class AbortedHandshakeFilter(logging.Filter):
+    """Drops the websocket library's "opening handshake failed" record when the cause is a
+    connection closed before it sent a request: browsers open spare connections to the page's
+    origin and close them unused, which is not an error. Any other handshake failure is kept."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage() != "opening handshake failed" or not record.exc_info:
+            return True
+        exc: BaseException | None = record.exc_info[1]
+        while exc is not None:
+            if isinstance(exc, EOFError) and "0 bytes" in str(exc):
+                return False
+            exc = exc.__cause__
+        return True
+
+
+def quiet_aborted_handshakes() -> None:
+    """Install `AbortedHandshakeFilter` on the websocket server's logger (once)."""
+    logger = logging.getLogger("websockets.server")
+    if not any(isinstance(f, AbortedHandshakeFilter) for f in logger.filters):
+        logger.addFilter(AbortedHandshakeFilter())
+
+
 def start_app(
     host: str = "127.0.0.1",
     port: int = 8080,
@@ -97,6 +121,7 @@ def start_app(
 ) -> App:
     """Start loop, server, panels and scene; returns at once. `port=0` picks any free port."""
     loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
+    quiet_aborted_handshakes()
     out = io.StringIO()
     with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)

@@ -880,3 +880,26 @@ def test_disconnect_during_a_drag_releases_the_force_within_a_second(app, page):
     assert released_s < 1.0, f"the release took {released_s:.2f} s"
     assert not app.loop.session.drag.active
     wait_for(lambda: client.client_id not in app.server.get_clients(), 20, "the server to drop the client")
+
+
+def test_bench_serve_runs_the_app_with_a_plain_headless_chromium_and_reports_what_it_measured(monkeypatch):
+    """`bench --serve` opens the page in a Chromium process of its own (no automation driver in the
+    server's process), runs the polish preset with every overlay, and reports a run it measured: one
+    browser connected, simulated time advancing near real time, frames published, nothing halted;
+    the browser is gone afterwards."""
+    import subprocess
+
+    from app import bench_serve
+
+    monkeypatch.setattr(bench_serve, "CHROMIUM", chromium_path())
+    report = bench_serve.run_serve_bench(seconds=3.0, warmup=0.5)
+    assert report["browser_clients"] == 1
+    assert report["halted"] == ""
+    assert report["sim_s"] > 1.0
+    assert 0.5 < report["real_time_factor"] < 1.1
+    assert report["frames_per_s"] > 5.0
+    assert report["scene_updates_per_s"] > 5.0
+    assert report["step_cpu_per_sim_s"] > 0.0
+    assert len(report["overlays_on"]) >= 5
+    left = subprocess.run(["pgrep", "-f", "torquelab-chromium-"], capture_output=True, text=True).stdout.split()
+    assert left == []
