@@ -39,12 +39,14 @@ from app.twin import Twin
 __all__ = ["SPEED_RANGE", "Frame", "LoopStatus", "Notice", "PlotData", "Settings", "SimLoop"]
 
 T = TypeVar("T")
-# The loop sleeps until this many steps are due, then runs them in one burst. The first step after a
-# wake-up runs on caches the browser and the other threads have used meanwhile (in the server it
-# costs ~2-3× a warm one), so fewer, longer bursts cost less CPU per simulated second: 8 ms bursts
-# took ~10 % less than 2 ms ones, measured alternately within one `bench --serve` run. Commands
-# still wake the loop at once; only simulated time advances in 8 ms steps (a quarter of a frame).
-WAKE_STEPS = 8
+# Paced, the loop sleeps until the next frame is due and then runs every step due (about 33 at 1×,
+# 30 Hz) in one burst just before building the frame, so a frame shows the state at its own instant.
+# Each wake-up costs far more than its steps suggest: the first steps after a sleep run on caches
+# the browser, the other threads or the host's other guests have used meanwhile (measured here, one
+# step warm ~70 µs, the first after an 8 ms sleep ~800 µs, the next two ~250 and ~170 µs), so one
+# wake-up per frame spends much less CPU per simulated second than one per 8 steps did. Commands
+# still wake the loop at once (and run the steps due then); at a speed where more than a burst
+# (`Pacer.max_burst`) is due within a frame, the loop also wakes when a full burst is due.
 STEP_CHUNK = 100  # a single step runs in chunks this long; urgent commands are applied between them
 URGENT = (DragCommand, Pause)  # commands that jump the queue
 UNPACED_PUBLISH_S = 0.1  # frame period while running unpaced (10 Hz instead of 30)
@@ -275,8 +277,8 @@ class SimLoop:
                 continue
             wake_at = next_publish
             if lab.running:
-                # wake when WAKE_STEPS steps are due (a command wakes it earlier)
-                wake_at = min(wake_at, self._pacer.next_due(lab.total_steps + WAKE_STEPS - 1))
+                # wake at the next frame, or earlier when a full burst is due (a command wakes it at once)
+                wake_at = min(wake_at, self._pacer.next_due(lab.total_steps + self._pacer.max_burst - 1))
             timeout = wake_at - self._clock()
             if timeout > 2e-4 and self._queue.empty():
                 self._wake.wait(timeout)

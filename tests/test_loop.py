@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from app.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, SettleNow, StepOnce, SwitchSession
-from app.loop import LOOP_NICENESS, WAKE_STEPS, SimLoop
+from app.loop import LOOP_NICENESS, SimLoop
 from app.pacing import Pacer, RateMeter, next_frame_due
 from app.scenarios import SCENARIOS
 from app.session import Session
@@ -313,23 +313,41 @@ def test_the_loop_thread_alone_runs_at_a_higher_priority_where_the_system_allows
     assert os.getpriority(os.PRIO_PROCESS, 0) == process
 
 
-def test_running_paced_the_loop_steps_in_bursts_of_wake_steps():
-    """Paced at 1×, the loop sleeps until WAKE_STEPS (8) steps are due and runs them in one burst:
-    most bursts are that long (a frame due in between, or a command, wakes it earlier; a late wake-up
-    makes a burst longer), so it wakes at most ~1000 / 8 + 30 times per simulated second."""
+def _bursts_at(speed: float, sim_seconds: float) -> tuple[list[int], float, float]:
+    """Run the free scenario paced at `speed` for `sim_seconds` of simulated time (no commands, so
+    nothing wakes the loop early); returns the burst lengths, the simulated and the wall seconds."""
     lp = SimLoop("free", capture=lambda s: None)
     bursts: list[int] = []
     advance = lp.lab.advance
     lp.lab.advance = lambda n: (bursts.append(n), advance(n))[1]  # type: ignore[method-assign]
+    lp.submit(SetSpeed(speed))
     lp.start(running=True)
     try:
-        _wait(lambda: lp.status.t >= 1.0, 60, "a simulated second")  # no commands: nothing wakes it early
-        t = lp.sync().t
+        _wait(lambda: lp.status.t >= 0.1 * speed, 60, "the first steps")  # warm, compiled
+        t0, w0, n0 = lp.sync().t, time.perf_counter(), len(bursts)
+        _wait(lambda: lp.status.t >= t0 + sim_seconds, 60, "the simulated seconds")
+        t1, w1 = lp.sync().t, time.perf_counter()
     finally:
         lp.stop()
-    assert WAKE_STEPS == 8
-    assert float(np.median(bursts)) >= WAKE_STEPS
-    assert len(bursts) <= t * (1000 / WAKE_STEPS + 30) + 5
+    return bursts[n0:], t1 - t0, w1 - w0
+
+
+def test_running_paced_the_loop_wakes_once_per_frame():
+    """Paced at 1×, the loop sleeps until the next frame is due and runs every step due then in one
+    burst (33 at 30 Hz), so it wakes about once per frame: median burst ≥ 25 steps (a late wake-up
+    makes one longer, a frame's own wake-up can split one), ≤ 30 + 10 wake-ups with steps per
+    simulated second."""
+    bursts, sim_s, _ = _bursts_at(1.0, 1.0)
+    assert float(np.median(bursts)) >= 25
+    assert len(bursts) <= sim_s * (30 + 10) + 3
+
+
+def test_at_a_speed_beyond_a_burst_per_frame_the_loop_wakes_for_full_bursts():
+    """At 3× (100 steps per 30 Hz frame, more than `Pacer.max_burst` = 50) the loop also wakes when a
+    full burst is due, so it keeps the requested speed: ≥ 2.7× over 3 simulated seconds."""
+    bursts, sim_s, wall_s = _bursts_at(3.0, 3.0)
+    assert sim_s / wall_s >= 2.7
+    assert max(bursts) <= 50
 
 
 # ---- pacing (fake clock: exact numbers) ----------------------------------------------------------
