@@ -87,27 +87,22 @@ def port_is_free(host: str, port: int) -> bool:
     return True
 
 
-class AbortedHandshakeFilter(logging.Filter):
-    """Drops the websocket library's "opening handshake failed" record when the cause is a
-    connection closed before it sent a request: browsers open spare connections to the page's
-    origin and close them unused, which is not an error. Any other handshake failure is kept."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if record.getMessage() != "opening handshake failed" or not record.exc_info:
-            return True
-        exc: BaseException | None = record.exc_info[1]
-        while exc is not None:
-            if isinstance(exc, EOFError) and "0 bytes" in str(exc):
-                return False
-            exc = exc.__cause__
-        return True
+HANDSHAKE_FAILED = "opening handshake failed"  # the websocket server's record for a failed opening
 
 
-def quiet_aborted_handshakes() -> None:
-    """Install `AbortedHandshakeFilter` on the websocket server's logger (once)."""
+def not_a_failed_handshake(record: logging.LogRecord) -> bool:
+    """Logging filter: drop the websocket server's "opening handshake failed" record. Browsers open
+    spare connections to the page's origin and close them unused; viser drops these records itself,
+    but only once it has served its first request, so a fresh server printed a traceback for the
+    first one. Installed from the start, this does the same from the first connection on."""
+    return record.getMessage() != HANDSHAKE_FAILED
+
+
+def quiet_failed_handshakes() -> None:
+    """Install `not_a_failed_handshake` on the websocket server's logger (once)."""
     logger = logging.getLogger("websockets.server")
-    if not any(isinstance(f, AbortedHandshakeFilter) for f in logger.filters):
-        logger.addFilter(AbortedHandshakeFilter())
+    if not_a_failed_handshake not in logger.filters:
+        logger.addFilter(not_a_failed_handshake)
 
 
 def start_app(
@@ -121,7 +116,7 @@ def start_app(
 ) -> App:
     """Start loop, server, panels and scene; returns at once. `port=0` picks any free port."""
     loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
-    quiet_aborted_handshakes()
+    quiet_failed_handshakes()
     out = io.StringIO()
     with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)

@@ -256,8 +256,9 @@ class World:
 
     def site_inverse_mass(self, site_id: int) -> np.ndarray:
         """(3, 3) translational inverse mass J_p M⁻¹ J_pᵀ of a site point (world axes): the
-        acceleration of that point per newton applied there, from MuJoCo's own factorised M. The
-        contact reads it through `site_point_state`; this single read is that one's test reference."""
+        acceleration of that point per newton applied there, from MuJoCo's own factorised M: the
+        single-purpose read that `site_point_state` (itself the contact step's test reference) is
+        tested against."""
         jacp = self._jacp
         mujoco.mj_jacSite(self.model, self.data, jacp, None, site_id)
         x = self._solve_buf
