@@ -45,7 +45,6 @@ class Twin:
             self.set_param(o.group, o.field, o.value, o.index)
         self.dt = dt
         self.log = StepLog(self.session.robot.nq, capacity=round(log_seconds / dt))  # as the main log
-        self._body_ids: tuple[tuple[str, ...], np.ndarray] | None = None  # link_poses' names and their ids
 
     def _own_objective(self, executor: str) -> None:
         if "nullspace" not in self.session.params():
@@ -108,9 +107,7 @@ class Twin:
     def link_poses(self, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
         """World positions (L, 3) and quaternions (L, 4, wxyz) of the twin's bodies."""
         world = self.session.world
-        if self._body_ids is None or self._body_ids[0] != names:
-            self._body_ids = (names, np.array([world.model.body(name).id for name in names], dtype=np.intp))
-        ids = self._body_ids[1]
+        ids = world.body_ids(names)
         return world.data.xpos[ids], world.data.xquat[ids]  # fancy indexing: copies
 
     @property

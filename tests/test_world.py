@@ -110,3 +110,17 @@ def test_compiled_torque_clip_equals_numpy_minimum_of_maximum():
         tau = rng.normal(0, 60, 7)
         tau[rng.integers(0, 7)] = rng.choice([np.nan, np.inf, -np.inf, 0.0])
         np.testing.assert_array_equal(clip_torque(tau, -upper, upper), np.minimum(np.maximum(tau, -upper), upper))
+
+
+def test_body_ids_are_mujocos_looked_up_once_and_an_unknown_name_is_refused_by_name(rizon):
+    """`World.body_ids` gives MuJoCo's ids of the named bodies, the same array on a second ask (the
+    scene and the twin ask every frame), and a ValueError naming the first body the model lacks."""
+    import mujoco
+
+    world = World(rizon)
+    names = tuple(rizon.link_names)
+    ids = world.body_ids(names)
+    assert ids.tolist() == [mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_BODY, n) for n in names]
+    assert world.body_ids(names) is ids
+    with pytest.raises(ValueError, match="no body named 'no_such_link'"):
+        world.body_ids((names[0], "no_such_link"))

@@ -193,6 +193,7 @@ class World:
             self._qpos_arm, self._qvel_arm = self.data.qpos[self._qpos_at], self.data.qvel[self._qvel_at]
             self._qfrc_applied_arm = self._qfrc_applied[self._qvel_at]
         self.applied: list[AppliedForce] = []
+        self._body_ids: dict[tuple[str, ...], np.ndarray] = {}  # `body_ids`, per tuple of names asked for
         self.carried: set[int] = set()  # payload bodies distal to the F/T sensor (their inertia loads it)
         self._acc_valid = False  # MuJoCo's body accelerations (cacc) hold the last step's values
         self.tau_applied = np.zeros(len(robot.joint_names))
@@ -408,6 +409,18 @@ class World:
         self._acc_valid = bool(self.carried)
         self._qfrc_applied.fill(0.0)
         self.applied.clear()
+
+    def body_ids(self, names: tuple[str, ...]) -> np.ndarray:
+        """Body ids of `names` in this world's model, looked up once per tuple of names (the scene and
+        the twin read link poses every frame); ValueError naming a body the model does not have."""
+        ids = self._body_ids.get(names)
+        if ids is None:
+            found = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name) for name in names]
+            missing = [name for name, i in zip(names, found, strict=True) if i < 0]
+            if missing:
+                raise ValueError(f"the simulation has no body named {missing[0]!r}")
+            ids = self._body_ids[names] = np.array(found, dtype=np.intp)
+        return ids
 
     def overpowered(self, tau_ext: np.ndarray | None) -> str:
         """Joints the surroundings overpower, in words ("" if none): an external torque |τ_ext| beyond

@@ -133,7 +133,7 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
     robot = session.robot
     model, data = world.model, world.data
     names = tuple(robot.link_names)
-    ids = _body_ids(model, names)
+    ids = world.body_ids(names)
     positions = data.xpos[ids].reshape(-1, 3)  # fancy indexing: copies
     wxyz = data.xquat[ids].reshape(-1, 4)
 
@@ -233,28 +233,6 @@ def _limit_zone(view: StepView, n: int) -> np.ndarray | None:
     if view.limit_zone is None or view.limit_zone.shape != (n,) or not np.all(np.isfinite(view.limit_zone)):
         return None
     return np.array(view.limit_zone)
-
-
-_BODY_IDS: dict[tuple[int, tuple[str, ...]], tuple[mujoco.MjModel, np.ndarray]] = {}
-
-
-def _body_ids(model: mujoco.MjModel, names: tuple[str, ...]) -> np.ndarray:
-    """Body ids of `names` in `model`, looked up once per model (the entry keeps the model, so its id
-    is not reused while cached)."""
-    key = (id(model), names)
-    hit = _BODY_IDS.get(key)
-    if hit is not None and hit[0] is model:
-        return hit[1]
-    ids = []
-    for name in names:
-        i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
-        if i < 0:
-            raise ValueError(f"the simulation has no body named {name!r}")
-        ids.append(i)
-    if len(_BODY_IDS) >= 16:  # sessions come and go: keep the newest few
-        _BODY_IDS.clear()
-    _BODY_IDS[key] = (model, np.array(ids, dtype=np.intp))
-    return _BODY_IDS[key][1]
 
 
 def _environment_overlay(session) -> dict[str, np.ndarray]:
