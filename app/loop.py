@@ -280,9 +280,11 @@ class SimLoop:
                 # wake at the next frame, or earlier when a full burst is due (a command wakes it at once)
                 wake_at = min(wake_at, self._pacer.next_due(lab.total_steps + self._pacer.max_burst - 1))
             timeout = wake_at - self._clock()
+            # cleared before the queue is looked at: a command queued after the look sets it again
+            # and ends the wait at once (cleared after the wait, its wake-up could be lost)
+            self._wake.clear()
             if timeout > 2e-4 and self._queue.empty():
                 self._wake.wait(timeout)
-                self._wake.clear()
 
     def _publish_period(self) -> float:
         """Seconds to the next frame: `publish_period`, or UNPACED_PUBLISH_S while running unpaced
