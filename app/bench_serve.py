@@ -52,7 +52,8 @@ def headless_chromium(url: str, width: int = 1280, height: int = 800) -> Iterato
     """Chromium showing `url` headless, in a fresh profile, for the duration of the block."""
     if not os.path.exists(CHROMIUM):
         raise ValueError(f"no Chromium at {CHROMIUM}; set TORQUELAB_CHROMIUM to a Chromium binary")
-    with tempfile.TemporaryDirectory(prefix="torquelab-chromium-") as profile:
+    # Chromium's helper processes may still be writing the profile as it is removed: not an error
+    with tempfile.TemporaryDirectory(prefix="torquelab-chromium-", ignore_cleanup_errors=True) as profile:
         args = [CHROMIUM, "--headless=new", *CHROMIUM_ARGS, f"--user-data-dir={profile}"]
         args += [f"--window-size={width},{height}", url]
         proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
