@@ -268,6 +268,8 @@ def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):
         return last is not None and last.status.scenario == "free" and app.publisher.scene_session_id == last.session_id
 
     assert _wait(shown_free)
+    shown = app.publisher.frames_shown
+    assert _wait(lambda: app.publisher.frames_shown > shown)  # that frame's show has run to its end
     assert plots.joint.value == "6"  # a preset without a focus joint leaves the choice alone
 
 
@@ -360,11 +362,44 @@ def test_tune_tab_puts_the_presets_folders_first_and_hides_what_the_executor_lac
     try:
         app.loop.submit(SwitchSession(scenario="polish", executor="projection"))
         assert _wait(lambda: orders()[:2] == ["Motion–force", "Nullspace"], 20), orders()
-        assert _wait(lambda: ns.folder.visible and mf.intro.visible and not mf.other.visible, 20)
-        assert co.folder.visible and not co.intro.visible and co.gamma_x.visible
+        # The publisher refreshes the panels one after another: wait for the last of them too.
+        assert _wait(
+            lambda: (
+                ns.folder.visible
+                and mf.intro.visible
+                and not mf.other.visible
+                and co.folder.visible
+                and not co.intro.visible
+                and co.gamma_x.visible
+            ),
+            20,
+        ), (
+            ns.folder.visible,
+            mf.intro.visible,
+            mf.other.visible,
+            co.folder.visible,
+            co.intro.visible,
+            co.gamma_x.visible,
+        )
         app.loop.submit(SwitchSession(executor="compliance-qp"))
-        assert _wait(lambda: not ns.folder.visible and not mf.intro.visible and mf.other.visible, 20)
-        assert not mf.help.visible and co.intro.visible and not co.gamma_x.visible
+        assert _wait(
+            lambda: (
+                not ns.folder.visible
+                and not mf.intro.visible
+                and mf.other.visible
+                and not mf.help.visible
+                and co.intro.visible
+                and not co.gamma_x.visible
+            ),
+            20,
+        ), (
+            ns.folder.visible,
+            mf.intro.visible,
+            mf.other.visible,
+            mf.help.visible,
+            co.intro.visible,
+            co.gamma_x.visible,
+        )
         app.loop.submit(SwitchSession(scenario="limit-drop"))
         assert _wait(lambda: orders()[0] == "Safety", 20), orders()
     finally:
