@@ -155,12 +155,13 @@ def implicit_friction(
     `coulomb_n` is μF_n, `inverse_mass` the (2, 2) tangential inverse mass G of the contact
     point (symmetric positive definite), `dt` the step. With G = 0 this is the explicit law.
     """
-    v = np.asarray(v_t, dtype=float)
-    c = coulomb_n / math.sqrt(float(v @ v) + v_eps * v_eps)
+    # Python floats throughout: the same IEEE operations as the compiled step on every CPU (a numpy
+    # dot product may fuse multiply-adds where the CPU has FMA, and then differs in the last bit)
+    v0, v1 = np.asarray(v_t, dtype=float).tolist()
+    c = coulomb_n / math.sqrt((v0 * v0 + v1 * v1) + v_eps * v_eps)
     s = dt * c
-    (g00, g01), (g10, g11) = np.asarray(inverse_mass, dtype=float).tolist()  # Python floats: same IEEE
+    (g00, g01), (g10, g11) = np.asarray(inverse_mass, dtype=float).tolist()
     a, b, cc, d = 1.0 + g00 * s, g01 * s, g10 * s, 1.0 + g11 * s  # I + Δt c G, solved in closed form
-    v0, v1 = v.tolist()
     det = a * d - b * cc
     k = -c / det
     return np.array([k * (d * v0 - b * v1), k * (a * v1 - cc * v0)])
