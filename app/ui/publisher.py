@@ -96,6 +96,11 @@ class Publisher:
         except Exception:
             traceback.print_exc()
 
+    @property
+    def framing_pending(self) -> bool:
+        """True from a new scene until its first snapshot has framed every page's camera on the arm."""
+        return self._frame_pending
+
     def frame_view(self, client: viser.ClientHandle | None = None) -> bool:
         """Point one client's camera (every client's when None) at the arm of the newest frame."""
         frame = self.last_frame
