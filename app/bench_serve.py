@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import subprocess
 import tempfile
 import time
@@ -56,16 +57,36 @@ def headless_chromium(url: str, width: int = 1280, height: int = 800) -> Iterato
     with tempfile.TemporaryDirectory(prefix="torquelab-chromium-", ignore_cleanup_errors=True) as profile:
         args = [CHROMIUM, "--headless=new", *CHROMIUM_ARGS, f"--user-data-dir={profile}"]
         args += [f"--window-size={width},{height}", url]
-        proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        # a session of its own: its helper processes (zygote, GPU, renderers) end with it
+        proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             yield proc
         finally:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            _end_process_group(proc)
+
+
+def _end_process_group(proc: subprocess.Popen, timeout: float = 10.0) -> None:
+    """Terminate a process started in a session of its own and every process of its group (kill
+    what is left after `timeout`), and wait until the group is gone (at most `timeout` more)."""
+    _signal_group(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        pass
+    _signal_group(proc.pid, signal.SIGKILL)
+    proc.wait()
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and _signal_group(proc.pid, 0):
+        time.sleep(0.05)
+
+
+def _signal_group(pgid: int, sig: int) -> bool:
+    """Send `sig` to a process group; False when the group has no process left."""
+    try:
+        os.killpg(pgid, sig)
+    except ProcessLookupError:
+        return False
+    return True
 
 
 def _preview_on(app: Any) -> Any:
