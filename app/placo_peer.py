@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from importlib import metadata
 
 import numpy as np
 import placo
@@ -64,10 +65,18 @@ def main(argv: list[str]) -> int:
         "step_us": float(np.median(us)),
         "p95_us": float(np.percentile(us, 95)),
         "steps": steps,
-        "placo_version": getattr(placo, "__version__", "unknown"),
+        "placo_version": _placo_version(),
     }
     print(json.dumps(out))
     return 0
+
+
+def _placo_version() -> str:
+    """The installed placo's version (the module itself has no `__version__`)."""
+    try:
+        return metadata.version("placo")
+    except metadata.PackageNotFoundError:
+        return getattr(placo, "__version__", "unknown")
 
 
 if __name__ == "__main__":
