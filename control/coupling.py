@@ -14,6 +14,7 @@ of arrays (plus a `Dynamics` snapshot), shared by the controller, the experiment
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -260,6 +261,24 @@ def principal_axes(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.clip(w[order], 0.0, None), V[:, order]
 
 
+@functools.lru_cache(maxsize=16)
+def unit_directions(dim: int, points: int = 64) -> np.ndarray:
+    """Read-only samples (k, dim) of the unit sphere in 1, 2 or 3 dimensions: the two ends of a
+    segment, `points` points around a circle (closed), or a latitude–longitude grid on a sphere."""
+    if dim == 1:
+        V = np.array([[-1.0], [1.0]])
+    elif dim == 2:
+        t = np.linspace(0.0, 2 * np.pi, points, endpoint=True)
+        V = np.stack([np.cos(t), np.sin(t)], axis=1)
+    else:
+        rng = np.linspace(0.0, np.pi, max(points // 8, 4))
+        az = np.linspace(0.0, 2 * np.pi, max(points // 4, 8))
+        th, ph = np.meshgrid(rng, az)
+        V = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1).reshape(-1, 3)
+    V.flags.writeable = False
+    return V
+
+
 def coupling_ellipse(P: np.ndarray, sub: Subspaces, scale: float = 1.0, points: int = 64) -> np.ndarray:
     """Points (k, 3) of the coupling ellipse in translational task space (DESIGN §6).
 
@@ -272,16 +291,7 @@ def coupling_ellipse(P: np.ndarray, sub: Subspaces, scale: float = 1.0, points: 
     lin_f = [i for i, a in enumerate(sub.force_axes) if a < 3]
     if not lin_m:
         return np.zeros((0, 3))
-    if len(lin_m) == 1:
-        V = np.array([[-1.0], [1.0]])
-    elif len(lin_m) == 2:
-        t = np.linspace(0.0, 2 * np.pi, points, endpoint=True)
-        V = np.stack([np.cos(t), np.sin(t)], axis=1)
-    else:
-        rng = np.linspace(0.0, np.pi, max(points // 8, 4))
-        az = np.linspace(0.0, 2 * np.pi, max(points // 4, 8))
-        th, ph = np.meshgrid(rng, az)
-        V = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1).reshape(-1, 3)
+    V = unit_directions(min(len(lin_m), 3), points)
     out = np.zeros((V.shape[0], 3))
     for col, i in enumerate(lin_m):
         out[:, sub.motion_axes[i]] = V[:, col]

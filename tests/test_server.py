@@ -77,6 +77,28 @@ def test_page_is_served_on_localhost_and_frames_are_published(app):
     assert _wait(lambda: app.publisher.frames_shown > shown)
 
 
+def test_the_publisher_sends_each_frame_as_one_message_batch(app, monkeypatch):
+    """Every message the publisher queues for a frame (scene poses, overlays, panels, plots) is
+    inside one atomic block, so the server's event loop is woken once per frame, not per property."""
+    import threading
+
+    buffer = app.server._websock_server.get_message_buffer()
+    pushes: list[bool] = []  # for each message the publisher thread queued: inside an atomic block?
+    push = buffer.push
+
+    def recording_push(message):
+        if threading.current_thread().name == "torquelab-publisher":
+            pushes.append(buffer.atomic_counter > 0)
+        return push(message)
+
+    monkeypatch.setattr(buffer, "push", recording_push)
+    for _ in range(5):
+        shown = app.publisher.frames_shown
+        app.loop.submit(StepOnce(10))  # the paused loop publishes a frame with the arm moved
+        assert _wait(lambda shown=shown: app.publisher.frames_shown > shown)
+    assert len(pushes) >= 5 and all(pushes), (len(pushes), pushes.count(False))
+
+
 def test_panel_refuses_nonsense_values_and_applies_valid_ones(app):
     _panel, _knob, handle = _knob_handle(app, "max_force_n")
     before = app.loop.settings.values["drag"]["max_force_n"]

@@ -91,8 +91,9 @@ class Publisher:
             return
         self._next_live = now + LIVE_PERIOD_S
         try:
-            for panel in self.panels:
-                panel.refresh(frame.settings)
+            with self.server.atomic():
+                for panel in self.panels:
+                    panel.refresh(frame.settings)
         except Exception:
             traceback.print_exc()
 
@@ -108,8 +109,14 @@ class Publisher:
         return frame_robot(self.server, scene, None if client is None else [client])
 
     def show(self, frame: Frame) -> None:
-        """Show one frame."""
+        """Show one frame: its scene, panels and plots go out as one message batch (one wake-up of
+        the server's event loop per frame instead of one per changed property)."""
         self.last_frame = frame
+        with self.server.atomic():
+            self._show(frame)
+        self.frames_shown += 1
+
+    def _show(self, frame: Frame) -> None:
         if self.make_scene is not None and frame.session_id != self.scene_session_id:
             if self.scene is not None:
                 self.scene.remove()
@@ -120,8 +127,7 @@ class Publisher:
             if self.plots is not None:
                 self.plots.focus(frame.status.focus_joint)
         if self.scene is not None and frame.scene is not None:
-            with self.server.atomic():
-                self.scene.update(frame.scene)
+            self.scene.update(frame.scene)
             self.scene_updates += 1
             if self._frame_pending:
                 self._frame_pending = not frame_robot(self.server, frame.scene)
@@ -142,4 +148,3 @@ class Publisher:
         if frame.plot is not None and self.plots is not None and frame.plot_seq != self._plot_seq:
             self._plot_seq = frame.plot_seq  # a frame skipped while busy does not lose a plot update
             self.plots.update(frame.plot, frame.session_id)
-        self.frames_shown += 1
