@@ -17,6 +17,7 @@ import math
 import time
 import traceback
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -179,8 +180,9 @@ class Lab:
             raise ValueError(f"unknown command {cmd!r}")
 
     # ---- stepping -------------------------------------------------------------------------------
-    def advance(self, n: int) -> RunResult:
-        """Run n steps, logging each (and the twin in lockstep); halt at the first sign of divergence."""
+    def advance(self, n: int, until: Callable[[], bool] | None = None) -> RunResult:
+        """Run n steps, logging each (and the twin in lockstep); halt at the first sign of divergence.
+        `until()`, asked after each step, may end the run early (its result says "until")."""
         cpu0 = time.thread_time()
         log, twin = self.log, self.twin
 
@@ -192,7 +194,7 @@ class Lab:
             if twin is not None:
                 twin.step()
 
-        result = self.session.run(steps=n, record=record)
+        result = self.session.run(steps=n, record=record, until=None if until is None else lambda _rec: until())
         if result.error is not None:  # a bug or numerical failure must not kill the server
             traceback.print_exception(result.error)
         if result.halted:

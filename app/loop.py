@@ -49,6 +49,7 @@ T = TypeVar("T")
 # (`Pacer.max_burst`) is due within a frame, the loop also wakes when a full burst is due.
 STEP_CHUNK = 100  # a single step runs in chunks this long; urgent commands are applied between them
 URGENT = (DragCommand, Pause)  # commands that jump the queue
+BURST_SLACK = 0.5  # a burst begun once its frame is due may delay that frame by this share of a period
 UNPACED_PUBLISH_S = 0.1  # frame period while running unpaced (10 Hz instead of 30)
 LOOP_NICENESS = -10  # the loop thread's niceness where the system allows it (below Chromium's −8)
 
@@ -254,6 +255,7 @@ class SimLoop:
         lab = self.lab
         next_publish = self._clock()
         while not self._stop.is_set():
+            cut = False
             self._drain()
             self._follow_pacing()
             if lab.pending_steps:
@@ -263,9 +265,12 @@ class SimLoop:
                 if self._meter.sample(self._clock(), lab.session.world.time):
                     lab.dirty = True
             elif lab.running:
-                n = self._pacer.due(self._clock(), lab.total_steps)
+                now = self._clock()
+                n = self._pacer.due(now, lab.total_steps)
                 if n:
-                    self._timed(lab.advance, n)
+                    # a burst a busy machine slows down ends when a frame is due, so frames keep their rate
+                    frame_at = next_publish if next_publish > now else now + BURST_SLACK * self._publish_period()
+                    cut = self._timed(lab.advance, n, until=lambda: self._clock() >= frame_at).stop == "until"  # noqa: B023
                 if self._meter.sample(self._clock(), lab.session.world.time):
                     lab.dirty = True
             now = self._clock()
@@ -275,6 +280,8 @@ class SimLoop:
                 next_publish = next_frame_due(next_publish, now, self._publish_period())
             if lab.pending_steps or lab.settling:
                 continue
+            if cut:
+                continue  # the steps the cut burst left are due already
             wake_at = next_publish
             if lab.running:
                 # wake at the next frame, or earlier when a full burst is due (a command wakes it at once)
@@ -295,10 +302,11 @@ class SimLoop:
             return max(self.publish_period, UNPACED_PUBLISH_S)
         return self.publish_period
 
-    def _timed(self, work: Callable[[int], Any], n: int) -> None:
+    def _timed(self, work: Callable[..., T], n: int, **kwargs: Any) -> T:
         t0 = self._clock()
-        work(n)
+        result = work(n, **kwargs)
         self._meter.add_busy(self._clock() - t0)
+        return result
 
     def _follow_pacing(self) -> None:
         """Restart the pacing when the lab asks (play, reset, switch, speed change)."""

@@ -319,7 +319,7 @@ def _bursts_at(speed: float, sim_seconds: float) -> tuple[list[int], float, floa
     lp = SimLoop("free", capture=lambda s: None)
     bursts: list[int] = []
     advance = lp.lab.advance
-    lp.lab.advance = lambda n: (bursts.append(n), advance(n))[1]  # type: ignore[method-assign]
+    lp.lab.advance = lambda n, **kw: (bursts.append(n), advance(n, **kw))[1]  # type: ignore[method-assign]
     lp.submit(SetSpeed(speed))
     lp.start(running=True)
     try:
@@ -348,6 +348,37 @@ def test_at_a_speed_beyond_a_burst_per_frame_the_loop_wakes_for_full_bursts():
     bursts, sim_s, wall_s = _bursts_at(3.0, 3.0)
     assert sim_s / wall_s >= 2.7
     assert max(bursts) <= 50
+
+
+def test_on_a_machine_too_slow_for_real_time_frames_keep_their_rate():
+    """Each step made to take 1.5 ms (a machine too busy for 1×): a 50-step burst takes 75 ms, yet the
+    loop ends a burst when a frame is due, so it still publishes ≥ 24 frames a second (a burst run to
+    its end would give ~13), while the simulation runs as fast as the steps allow (≥ 0.55× real time)."""
+    lp = SimLoop("free", capture=lambda s: None)
+    step = lp.session.step
+
+    def slow_step():
+        rec = step()
+        until = time.perf_counter() + 1.5e-3
+        while time.perf_counter() < until:
+            pass
+        return rec
+
+    lp.session.step = slow_step  # type: ignore[method-assign]
+    lp.start(running=True)
+    try:
+        first = lp.wait_frame(0, 30.0)
+        assert first is not None
+        _wait(lambda: lp.status.t >= 0.1, 60, "the first steps")
+        t0, w0, seq0 = lp.sync().t, time.monotonic(), lp.wait_frame(0, 5.0).seq
+        time.sleep(2.0)
+        last = lp.wait_frame(0, 5.0)
+        t1, w1 = lp.sync().t, time.monotonic()
+    finally:
+        lp.stop()
+    assert last is not None
+    frames_per_s, rtf = (last.seq - seq0) / (w1 - w0), (t1 - t0) / (w1 - w0)
+    assert frames_per_s >= 24.0 and rtf >= 0.55, (frames_per_s, rtf)
 
 
 # ---- pacing (fake clock: exact numbers) ----------------------------------------------------------
