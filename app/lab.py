@@ -180,9 +180,9 @@ class Lab:
             raise ValueError(f"unknown command {cmd!r}")
 
     # ---- stepping -------------------------------------------------------------------------------
-    def advance(self, n: int, until: Callable[[], bool] | None = None) -> RunResult:
+    def advance(self, n: int, until: Callable[[StepRecord], bool] | None = None) -> RunResult:
         """Run n steps, logging each (and the twin in lockstep); halt at the first sign of divergence.
-        `until()`, asked after each step, may end the run early (its result says "until")."""
+        `until`, asked after each step (as in `Session.run`), may end the run early."""
         cpu0 = time.thread_time()
         log, twin = self.log, self.twin
 
@@ -194,7 +194,7 @@ class Lab:
             if twin is not None:
                 twin.step()
 
-        result = self.session.run(steps=n, record=record, until=None if until is None else lambda _rec: until())
+        result = self.session.run(steps=n, record=record, until=until)
         if result.error is not None:  # a bug or numerical failure must not kill the server
             traceback.print_exception(result.error)
         if result.halted:

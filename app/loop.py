@@ -270,7 +270,8 @@ class SimLoop:
                 if n:
                     # a burst a busy machine slows down ends when a frame is due, so frames keep their rate
                     frame_at = next_publish if next_publish > now else now + BURST_SLACK * self._publish_period()
-                    cut = self._timed(lab.advance, n, until=lambda: self._clock() >= frame_at).stop == "until"  # noqa: B023
+                    result = self._timed(lab.advance, n, until=lambda _rec, at=frame_at: self._clock() >= at)
+                    cut = result.stop == "until"
                 if self._meter.sample(self._clock(), lab.session.world.time):
                     lab.dirty = True
             now = self._clock()

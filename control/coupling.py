@@ -291,7 +291,7 @@ def coupling_ellipse(P: np.ndarray, sub: Subspaces, scale: float = 1.0, points: 
     lin_f = [i for i, a in enumerate(sub.force_axes) if a < 3]
     if not lin_m:
         return np.zeros((0, 3))
-    V = unit_directions(min(len(lin_m), 3), points)
+    V = unit_directions(len(lin_m), points)
     out = np.zeros((V.shape[0], 3))
     for col, i in enumerate(lin_m):
         out[:, sub.motion_axes[i]] = V[:, col]
