@@ -16,6 +16,7 @@ import numpy as np
 import viser
 import viser.transforms as vtf
 
+from app.ui.node_writes import set_position, set_prop, set_wxyz
 from app.ui.snapshot import SceneSnapshot
 from app.ui.visuals import VisualSettings
 from control.coupling import Subspaces, coupled_response, coupling_ellipse, principal_axes
@@ -238,9 +239,9 @@ class Overlays:
         self.payload.visible = shown
         self.payload_label.visible = shown and s.labels
         if p is not None and shown:
-            self.payload.position = p
-            self.payload_label.position = p + np.array([0.0, 0.0, 1.5 * PAYLOAD_RADIUS_M])
-            self.payload_label.text = f"{snap.payload_mass_kg:.2f} kg"
+            set_position(self.payload, p)
+            set_position(self.payload_label, p + np.array([0.0, 0.0, 1.5 * PAYLOAD_RADIUS_M]))
+            set_prop(self.payload_label, "text", f"{snap.payload_mass_kg:.2f} kg")
 
     def _nodes(self) -> tuple[viser.SceneNodeHandle, ...]:
         return (
@@ -272,25 +273,25 @@ class Overlays:
         self.coupling_outline.visible = show
         self.coupling_label.visible = s.coupling and s.labels and L.shape[1] > 0
         if snap.near_singular:
-            self.coupling_label.position = snap.tcp_position + LIFT_M
-            self.coupling_label.text = "near a singularity: Λx ill-conditioned"
+            set_position(self.coupling_label, snap.tcp_position + LIFT_M)
+            set_prop(self.coupling_label, "text", "near a singularity: Λx ill-conditioned")
         if not show:
             return
         radius = s.coupling_radius_m
         center = snap.tcp_position + LIFT_M
         axes, R = ellipsoid_of_map(L)
-        self.coupling_disc.position = center
-        self.coupling_disc.wxyz = wxyz_of(R)
-        self.coupling_disc.scale = _triple(np.clip(radius * axes, MIN_AXIS_M, MAX_AXIS_M))
-        self.coupling_disc.color = magnitude_color(np.tan(tilt_rad(P, sub, scale)))
+        set_position(self.coupling_disc, center)
+        set_wxyz(self.coupling_disc, wxyz_of(R))
+        set_prop(self.coupling_disc, "scale", _triple(np.clip(radius * axes, MIN_AXIS_M, MAX_AXIS_M)))
+        set_prop(self.coupling_disc, "color", magnitude_color(np.tan(tilt_rad(P, sub, scale))))
         outline = coupling_ellipse(P, sub, scale=scale, points=48)
         outline = radius * outline
         reach = np.linalg.norm(outline, axis=1, keepdims=True)
         outline *= np.minimum(1.0, MAX_AXIS_M / np.maximum(reach, 1e-12))  # same cap as the disc, roughly
-        self.coupling_outline.points = polyline_segments(center + outline).astype(np.float32)
+        set_prop(self.coupling_outline, "points", polyline_segments(center + outline).astype(np.float32))
         W = snap.W.get("W" + kind[1:], float("nan"))
-        self.coupling_label.position = center + np.array([0.0, 0.0, radius * 1.2])
-        self.coupling_label.text = f"W{kind[1:]} = {W:.3g}"
+        set_position(self.coupling_label, center + np.array([0.0, 0.0, radius * 1.2]))
+        set_prop(self.coupling_label, "text", f"W{kind[1:]} = {W:.3g}")
 
     def _update_ppt(self, snap: SceneSnapshot, s: VisualSettings) -> None:
         kind = s.projection_name(snap.objective)
@@ -301,18 +302,18 @@ class Overlays:
             return
         axes, R = shape
         size = s.coupling_radius_m * s.coupling_scale(snap.objective)
-        self.ppt.position = snap.tcp_position + LIFT_M
-        self.ppt.wxyz = wxyz_of(R)
-        self.ppt.scale = _triple(np.clip(size * axes, MIN_AXIS_M, MAX_AXIS_M))
+        set_position(self.ppt, snap.tcp_position + LIFT_M)
+        set_wxyz(self.ppt, wxyz_of(R))
+        set_prop(self.ppt, "scale", _triple(np.clip(size * axes, MIN_AXIS_M, MAX_AXIS_M)))
 
     def _update_inertia(self, snap: SceneSnapshot, s: VisualSettings) -> None:
         self.inertia.visible = s.inertia_ellipsoid and not snap.near_singular
         if not self.inertia.visible:
             return
         masses, R = inertia_ellipsoid(snap.Lambda_translational)
-        self.inertia.position = snap.tcp_position
-        self.inertia.wxyz = wxyz_of(R)
-        self.inertia.scale = _triple(np.clip(s.inertia_m_per_kg * masses, MIN_AXIS_M, MAX_AXIS_M))
+        set_position(self.inertia, snap.tcp_position)
+        set_wxyz(self.inertia, wxyz_of(R))
+        set_prop(self.inertia, "scale", _triple(np.clip(s.inertia_m_per_kg * masses, MIN_AXIS_M, MAX_AXIS_M)))
 
     def _update_arrows(self, snap: SceneSnapshot, s: VisualSettings) -> None:
         _set_arrow(self.drag_arrow, s.drag_force, snap.drag_point, snap.drag_force, s.force_m_per_n)
@@ -326,20 +327,20 @@ class Overlays:
         self.spring.visible = dragging
         self.grab_point.visible = dragging
         if point is not None and target is not None:
-            self.spring.points = np.stack([point, target])[None].astype(np.float32)
-            self.grab_point.position = point
+            set_prop(self.spring, "points", np.stack([point, target])[None].astype(np.float32))
+            set_position(self.grab_point, point)
         self.trail.add(snap.t, snap.tcp_position, s.trail_seconds)
         trail = self.trail.array()
         self.trail_line.visible = s.trail and len(trail) >= 2
         if self.trail_line.visible:
-            self.trail_line.points = polyline_segments(trail).astype(np.float32)
+            set_prop(self.trail_line, "points", polyline_segments(trail).astype(np.float32))
         has_path = s.path and len(snap.path) >= 2
         self.path_line.visible = has_path
         if has_path:
-            self.path_line.points = polyline_segments(snap.path).astype(np.float32)
+            set_prop(self.path_line, "points", polyline_segments(snap.path).astype(np.float32))
         self.target.visible = s.path and snap.target_position is not None
         if snap.target_position is not None and s.path:
-            self.target.position = snap.target_position
+            set_position(self.target, snap.target_position)
 
     def remove(self) -> None:
         """Remove every overlay node."""
@@ -361,7 +362,7 @@ def _set_arrow(
     handle.visible = bool(show)
     if show:
         assert origin is not None and vector is not None
-        handle.points = arrow_points(origin, vector, scale).astype(np.float32)
+        set_prop(handle, "points", arrow_points(origin, vector, scale).astype(np.float32))
 
 
 def _add_arrow(scene: viser.SceneApi, name: str, color: tuple[int, int, int]) -> viser.ArrowsHandle:

@@ -17,6 +17,7 @@ import viser
 import yourdfpy
 
 from app.commands import DragCommand
+from app.ui.node_writes import set_pose, set_position, set_prop
 from app.ui.overlays import Overlays, margin_color
 from app.ui.snapshot import SceneSnapshot
 from app.ui.visuals import VisualSettings
@@ -105,8 +106,7 @@ def pose_ghost_arm(
         handle = meshes.get(name)
         if handle is None:
             continue
-        handle.position = tuple(positions[i])
-        handle.wxyz = tuple(wxyz[i])
+        set_pose(handle, positions[i], wxyz[i])
         if not handle.visible:
             handle.visible = True
 
@@ -168,7 +168,6 @@ class SceneView:
         server.initial_camera.look_at = CAMERA_LOOK_AT
         server.initial_camera.up = (0.0, 0.0, 1.0)
         self._colors: dict[str, tuple[int, int, int]] = {}
-        self._poses: dict[str, tuple[float, ...]] = {}
         self._link_shapes = meshes
         self.twin_meshes: dict[str, viser.MeshHandle] = {}
         self.twin_label: viser.LabelHandle | None = None
@@ -194,14 +193,9 @@ class SceneView:
             frame = self.frames.get(name)
             if frame is None:
                 continue
-            pose = (*snap.link_positions[i].tolist(), *snap.link_wxyz[i].tolist())
-            if self._poses.get(name) == pose or not np.all(
-                np.isfinite(pose)
-            ):  # cheaper than viser's own allclose check (base, pauses)
-                continue
-            self._poses[name] = pose
-            frame.position = pose[:3]
-            frame.wxyz = pose[3:]
+            position, wxyz = snap.link_positions[i], snap.link_wxyz[i]
+            if np.isfinite(position).all() and np.isfinite(wxyz).all():
+                set_pose(frame, position, wxyz)
         self._update_colors(snap)
         self._update_table(snap)
         self._update_twin(snap)
@@ -223,11 +217,10 @@ class SceneView:
         pose_ghost_arm(self.twin_meshes, snap.link_names, positions, wxyz)
         if self.twin_label is not None:
             middle = len(snap.link_names) // 2
-            self.twin_label.position = tuple(positions[middle] + np.array([0.0, 0.0, 0.08]))
+            set_position(self.twin_label, positions[middle] + np.array([0.0, 0.0, 0.08]))
             W = snap.twin_W.get("W")
             text = f"twin: W_{snap.twin_objective}" + (f" = {W:.3g}" if W is not None else "")
-            if self.twin_label.text != text:
-                self.twin_label.text = text
+            set_prop(self.twin_label, "text", text)
             if not self.twin_label.visible:
                 self.twin_label.visible = True
 
