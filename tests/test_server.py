@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import socket
+import threading
 import time
 import urllib.request
 
@@ -80,7 +82,6 @@ def test_page_is_served_on_localhost_and_frames_are_published(app):
 def test_the_publisher_sends_each_frame_as_one_message_batch(app, monkeypatch):
     """Every message the publisher queues for a frame (scene poses, overlays, panels, plots) is
     inside one atomic block, so the server's event loop is woken once per frame, not per property."""
-    import threading
 
     buffer = app.server._websock_server.get_message_buffer()
     pushes: list[bool] = []  # for each message the publisher thread queued: inside an atomic block?
@@ -97,6 +98,29 @@ def test_the_publisher_sends_each_frame_as_one_message_batch(app, monkeypatch):
         app.loop.submit(StepOnce(10))  # the paused loop publishes a frame with the arm moved
         assert _wait(lambda shown=shown: app.publisher.frames_shown > shown)
     assert len(pushes) >= 5 and all(pushes), (len(pushes), pushes.count(False))
+
+
+@pytest.mark.skipif(not hasattr(os, "setpriority") or os.uname().sysname != "Linux", reason="per-thread niceness")
+def test_the_publisher_and_the_server_event_loop_run_between_the_browser_and_the_loop_in_priority(app):
+    """The publisher thread and the server's event loop ask for niceness −9 (above Chromium's display
+    threads at −8, below the loop's −10): granted where permitted, else they keep the process's."""
+    import resource
+
+    from app.loop import LOOP_NICENESS
+    from app.ui.publisher import PUBLISHER_NICENESS
+
+    assert LOOP_NICENESS < PUBLISHER_NICENESS == -9
+    process = os.getpriority(os.PRIO_PROCESS, 0)
+    permitted = os.geteuid() == 0 or 20 - resource.getrlimit(resource.RLIMIT_NICE)[0] <= PUBLISHER_NICENESS
+    expected = min(PUBLISHER_NICENESS, process) if permitted else process
+    assert _wait(lambda: app.publisher.niceness is not None and app.publisher.server_niceness is not None)
+    assert app.publisher.niceness == os.getpriority(os.PRIO_PROCESS, app.publisher._thread.native_id) == expected
+    assert app.publisher.server_niceness == expected
+    tids: list[int] = []  # the event loop thread's id, asked from that thread
+    app.server.get_event_loop().call_soon_threadsafe(lambda: tids.append(threading.get_native_id()))
+    assert _wait(lambda: bool(tids))
+    assert os.getpriority(os.PRIO_PROCESS, tids[0]) == expected
+    assert os.getpriority(os.PRIO_PROCESS, 0) == process  # the other threads keep theirs
 
 
 def test_panel_refuses_nonsense_values_and_applies_valid_ones(app):

@@ -16,12 +16,16 @@ from typing import Any
 
 import viser
 
-from app.loop import Frame, SimLoop
+from app.loop import Frame, SimLoop, raise_thread_priority
 from app.ui.camera import frame_on_connect, frame_robot
 from app.ui.panels.base import notify
 from app.ui.plots import Plots
 
 LIVE_PERIOD_S = 0.15
+# Niceness of the publisher thread and of the server's event loop (Linux, where permitted): above
+# Chromium's display threads (−8), which otherwise preempt a thread holding the interpreter the loop
+# thread (−10) waits for, below the loop's.
+PUBLISHER_NICENESS = -9
 
 
 class Publisher:
@@ -56,10 +60,17 @@ class Publisher:
         self.framed_clients = frame_on_connect(
             server, lambda: self.last_frame.scene if self.last_frame is not None else None
         )
+        self.niceness: int | None = None  # the publisher thread's, once it runs (None: not on Linux)
+        self.server_niceness: int | None = None  # the server event loop thread's, likewise
 
     def start(self) -> None:
-        """Start the thread."""
+        """Start the thread, and raise it and the server's event loop to PUBLISHER_NICENESS."""
         self._thread.start()
+
+        def raise_server_priority() -> None:
+            self.server_niceness = raise_thread_priority(PUBLISHER_NICENESS)
+
+        self.server.get_event_loop().call_soon_threadsafe(raise_server_priority)
 
     def stop(self, timeout: float = 5.0) -> None:
         """Stop the thread and remove the scene view."""
@@ -67,6 +78,7 @@ class Publisher:
         self._thread.join(timeout)
 
     def _run(self) -> None:
+        self.niceness = raise_thread_priority(PUBLISHER_NICENESS)
         seq = 0
         while not self._stop.is_set():
             for notice in self.loop.take_notices():
