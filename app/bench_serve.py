@@ -15,6 +15,7 @@ import json
 import os
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -89,6 +90,25 @@ def _signal_group(pgid: int, sig: int) -> bool:
     return True
 
 
+def _start_stall_probe(seconds: float) -> subprocess.Popen:
+    """`app.stall_probe` in a process of its own for `seconds`, at the loop thread's niceness."""
+    from app.loop import LOOP_NICENESS
+
+    args = [sys.executable, "-m", "app.stall_probe", str(seconds), str(LOOP_NICENESS)]
+    return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+
+
+def _stall_probe_report(proc: subprocess.Popen) -> dict[str, Any]:
+    """The probe's JSON report, or {"error": …} when it gave none."""
+    try:
+        out, _ = proc.communicate(timeout=30.0)
+        return json.loads(out)
+    except (subprocess.TimeoutExpired, json.JSONDecodeError) as exc:
+        proc.kill()
+        proc.wait()
+        return {"error": f"stall probe gave no report: {exc!r}"}
+
+
 def _preview_on(app: Any) -> Any:
     """Switch the Nullspace panel's self-motion preview on (a scan a second, ghost arm); returns it."""
     from app.ui.panels.nullspace import NullspacePanel
@@ -137,6 +157,7 @@ def run_serve_bench(
                     raise RuntimeError(f"the simulation did not run {warmup} s within {WARMUP_TIMEOUT_S:.0f} s")
                 time.sleep(0.2)
             windows = []
+            probe = _start_stall_probe(seconds)
             s0 = app.loop.sync()
             w0, frames0, scene0 = time.perf_counter(), app.publisher.frames_shown, app.publisher.scene_updates
             times0 = os.times()
@@ -157,6 +178,7 @@ def run_serve_bench(
             frames = app.publisher.frames_shown - frames0
             scenes = app.publisher.scene_updates - scene0
             clients = len(app.server.get_clients())
+            stalls = _stall_probe_report(probe)
         return {
             "scenario": scenario,
             "robot": s1.robot,
@@ -176,6 +198,7 @@ def run_serve_bench(
             "twin": s1.twin,
             "self_motion_scans_per_s": (preview.scans - scans0) / wall if preview is not None else 0.0,
             "halted": s1.halted,
+            "machine_stalls": stalls,
             "cpu_count": os.cpu_count(),
             "load_average_1min": os.getloadavg()[0],
         }
@@ -211,4 +234,12 @@ def cmd_bench_serve(args: argparse.Namespace) -> int:
             f"  frames published        {report['frames_per_s']:.1f} /s (scene {report['scene_updates_per_s']:.1f} /s)"
         )
         print(f"  machine                 {report['cpu_count']} cores, load average {report['load_average_1min']:.2f}")
+        stalls = report["machine_stalls"]
+        if "error" in stalls:
+            print(f"  machine stalls          {stalls['error']}")
+        else:
+            print(
+                f"  machine stalls          {stalls['stalls_over_frame_period']} wake-ups over a frame period late "
+                f"(max {stalls['delay_max_ms']:.0f} ms) in a probe process of the loop's priority, beside the app"
+            )
     return 0 if report["real_time_factor"] >= 0.99 and not report["halted"] else 1

@@ -30,3 +30,29 @@ def test_placo_peer_without_placo_says_why(rizon):
         pytest.skip("placo is importable here")
     with pytest.raises(ValueError, match=r"placo run with .* failed: .*placo"):
         placo_step(sys.executable, rizon, steps=5)
+
+
+def test_the_stall_probe_counts_late_wakeups_in_a_process_of_its_own():
+    """`python -m app.stall_probe` sleeps 1 ms at a time and reports its wake-up delays as JSON;
+    a stall made on purpose (the probe process stopped for 0.15 s) is counted as one over a frame period."""
+    import json
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from app.stall_probe import probe
+
+    quiet = probe(0.2)
+    assert 20 < quiet["wakeups"] <= 200
+    assert quiet["stalls_over_frame_period"] <= quiet["stalls_over_10ms"] <= quiet["wakeups"]
+    assert quiet["delay_p99_ms"] <= quiet["delay_max_ms"]
+    proc = subprocess.Popen([sys.executable, "-m", "app.stall_probe", "1.0"], stdout=subprocess.PIPE, text=True)
+    time.sleep(0.4)
+    proc.send_signal(signal.SIGSTOP)
+    time.sleep(0.15)
+    proc.send_signal(signal.SIGCONT)
+    report = json.loads(proc.communicate(timeout=30)[0])
+    assert report["stalls_over_frame_period"] >= 1
+    assert report["delay_max_ms"] > 140.0
+    assert report["stalled_s_over_frame_period"] > 0.14

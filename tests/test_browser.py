@@ -952,5 +952,8 @@ def test_bench_serve_runs_the_app_with_a_plain_headless_chromium_and_reports_wha
     assert report["scene_updates_per_s"] > 5.0
     assert report["step_cpu_per_sim_s"] > 0.0
     assert len(report["overlays_on"]) >= 5
+    stalls = report["machine_stalls"]  # the probe process beside the app reported
+    assert "error" not in stalls, stalls
+    assert stalls["seconds"] == 3.0 and stalls["wakeups"] > 100
     left = subprocess.run(["pgrep", "-f", "torquelab-chromium-"], capture_output=True, text=True).stdout.split()
     assert left == []

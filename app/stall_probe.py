@@ -1,0 +1,54 @@
+"""How often the machine itself stalls a waiting thread: `python -m app.stall_probe SECONDS [NICENESS]`.
+
+A process of its own (no interpreter shared with the app) sleeps 1 ms at a time for SECONDS and
+prints, as JSON, how often and how long its wake-ups came late. `torquelab bench --serve` runs it
+beside the app at the loop thread's niceness: a frame the loop misses while this probe was stalled
+too was lost to the machine (a virtual CPU the host did not run, another process), not to the app.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+
+SLEEP_S = 1e-3
+
+
+def probe(seconds: float, frame_period_s: float = 1.0 / 30.0) -> dict[str, float]:
+    """Sleep SLEEP_S at a time for `seconds`; statistics of the oversleep (wake-up delay)."""
+    delays = []
+    end = time.perf_counter() + seconds
+    while (t0 := time.perf_counter()) < end:
+        time.sleep(SLEEP_S)
+        delays.append(time.perf_counter() - t0 - SLEEP_S)
+    delays.sort()
+    n = len(delays)
+    long = [d for d in delays if d > frame_period_s]
+    return {
+        "seconds": seconds,
+        "wakeups": n,
+        "delay_p99_ms": 1e3 * delays[min(n - 1, int(0.99 * n))] if n else float("nan"),
+        "delay_max_ms": 1e3 * delays[-1] if n else float("nan"),
+        "stalls_over_10ms": sum(d > 0.010 for d in delays),
+        "stalls_over_frame_period": len(long),
+        "stalled_s_over_frame_period": sum(long),
+    }
+
+
+def main(argv: list[str]) -> int:
+    """Entry point: SECONDS [NICENESS]; prints the JSON report."""
+    seconds = float(argv[0])
+    if len(argv) > 1:
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, int(argv[1]))
+        except (OSError, AttributeError):
+            pass  # not permitted (or not on Linux): the default priority
+    niceness = os.getpriority(os.PRIO_PROCESS, 0) if hasattr(os, "getpriority") else None
+    print(json.dumps({**probe(seconds), "niceness": niceness}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
