@@ -807,7 +807,13 @@ def test_the_readme_tour_step_by_step(app, page):
         # Case → planned W_a: the nullspace tracks the planned swivel path, the transfer across the ridge first
         open_tab(pg, "Run")
         choose(pg, "Case", "planned W_a")
-        wait_for(lambda: app.loop.sync().variant == "planned W_a" and app.loop.status.t < 0.1, 60, "the planned case")
+        # (the switch plans the path on the loop thread, ~4.5 s of CPU on a quiet 2-core machine: the
+        # loop answers once it is done)
+        wait_for(
+            lambda: app.loop.sync(timeout=60.0).variant == "planned W_a" and app.loop.status.t < 0.1,
+            60,
+            "the planned case",
+        )
         planned = settle_now(app, pg)
         plan_now = app.loop.sync().signals.get("swivel_plan_deg", math.nan)
         print(f"tour step 2: planned W_a settled: {planned}, planned swivel {plan_now:+.1f}°")
