@@ -39,7 +39,7 @@ from app.commands import (
 )
 from app.executors import EXECUTORS
 from app.scenarios import Scenario
-from app.scenarios.polish import settle_pending
+from app.scenarios.polish import PlanPending, plans_deferred, settle_pending
 from app.session import RunResult, Session, StepRecord
 from app.settings import finite_number, plain
 from app.steplog import StepLog
@@ -126,12 +126,18 @@ class Lab:
         self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice (for tests and logs)
         self.dirty = True  # something changed since the last frame
         self.settings = Settings(0, self._read_settings())
+        # a preset switch that needs a swivel plan not computed yet raises PlanPending from `apply`
+        # (nothing changed) instead of planning here; the app's loop plans elsewhere and applies it again
+        self.defer_plans = False
 
     # ---- commands -------------------------------------------------------------------------------
     def apply(self, cmd: Command) -> None:
-        """Apply one command; a refused or failing one becomes a notice (never raises)."""
+        """Apply one command; a refused or failing one becomes a notice (never raises, but for
+        PlanPending with `defer_plans`)."""
         try:
             self._apply(cmd)
+        except PlanPending:
+            raise  # (only with defer_plans, before anything changed)
         except (ValueError, KeyError) as exc:
             self.notify("error", "Refused", _reason(exc), getattr(cmd, "client_id", None))
         except Exception as exc:  # never let a command take the loop down
@@ -410,7 +416,8 @@ class Lab:
         else:
             spec = scenario
         try:
-            new = Session(spec, robot=robot_choice or None, executor=executor, seed=self.seed)
+            with plans_deferred(self.defer_plans):  # raises PlanPending before anything changed
+                new = Session(spec, robot=robot_choice or None, executor=executor, seed=self.seed)
         except ValueError as exc:
             if cmd.scenario is None or not robot_choice:
                 raise

@@ -32,6 +32,8 @@ from app.commands import Command, DragCommand, Pause, Play, StepOnce
 from app.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
 from app.lab import SPEED_RANGE, UNPACED_SPEED, Lab, Notice, Settings
 from app.pacing import Pacer, RateMeter, next_frame_due
+from app.plan_worker import BackgroundPlanner
+from app.scenarios.polish import PlanPending
 from app.session import Session
 from app.steplog import StepLog
 from app.twin import Twin
@@ -125,6 +127,8 @@ class SimLoop:
         capture: Callable[[Session], Any] | None = None,
     ):
         self.lab = Lab(scenario, robot=robot, executor=executor, seed=seed, log_seconds=log_seconds)
+        self.lab.defer_plans = True  # a swivel plan is computed by `planner` while the loop runs on
+        self.planner = BackgroundPlanner()
         self._clock = clock
         self.publish_period = 1.0 / publish_hz
         self.frames = FrameBuilder(self.publish_period, 1.0 / plot_hz, capture)
@@ -198,6 +202,7 @@ class SimLoop:
             if self._thread.is_alive():
                 return False
             self._thread = None
+        self.planner.stop()
         return True
 
     @property
@@ -320,14 +325,35 @@ class SimLoop:
         """Apply queued items; while a single step is under way only urgent ones (the rest keep
         their order behind it)."""
         lab = self.lab
-        while (item := self._queue.get(urgent_only=lab.pending_steps > 0)) is not None:
+        done = self.planner.take_done()
+        if done is not None:  # the plan a switch waited for: apply it first (its place in the order)
+            command, error = done
+            if error is None:
+                self._apply(command)
+            else:
+                lab.notify("error", "Planning failed", f"{type(error).__name__}: {error}")
+        # while a plan is computed only urgent commands apply (the rest keep their order behind the switch)
+        while (item := self._queue.get(urgent_only=lab.pending_steps > 0 or self.planner.busy)) is not None:
             if isinstance(item, _Call):
                 try:
                     item.future.set_result(item.fn(lab.session))
                 except Exception as exc:
                     item.future.set_exception(exc)
             else:
-                lab.apply(item)
+                self._apply(item)
+
+    def _apply(self, command: Command) -> None:
+        """`lab.apply`; a switch that needs a swivel plan not computed yet waits for `planner`."""
+        try:
+            self.lab.apply(command)
+        except PlanPending as pending:
+            self.lab.notify(
+                "info",
+                "Planning the swivel path",
+                "The planned case starts once its path is planned (a few seconds); the current preset runs on.",
+            )
+            self.planner.start(command, pending)
+            self.lab.dirty = True
 
     def _fail_queued_calls(self) -> None:
         while (item := self._queue.get()) is not None:

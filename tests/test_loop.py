@@ -659,3 +659,52 @@ def test_nothing_under_the_loop_imports_the_ui():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_a_switch_to_a_planned_case_plans_in_another_process_while_the_loop_runs_on(monkeypatch):
+    """The swivel plan of "planned W_a" (~4.5 s of Python) is computed in a worker process: meanwhile
+    the loop keeps stepping the running preset and publishing frames, a Pause (urgent) still applies,
+    and a call queued after the switch waits behind it; then the switch applies with the plan the
+    worker computed, equal to the one computed in this process."""
+    from app.scenarios import polish
+
+    monkeypatch.setattr(polish, "_PLAN_CACHE", {})  # not planned yet, whatever ran before
+    lp = SimLoop("polish", capture=lambda s: None)
+    lp.start(running=True)
+    try:
+        lp.sync()
+        lp.submit(SwitchSession(variant="planned W_a"))
+        deadline = time.monotonic() + 30.0
+        while not lp.planner.busy and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert lp.planner.busy, "the switch did not hand its plan to the worker"
+        frame = lp.wait_frame(0, timeout=5.0)
+        assert frame is not None
+        t0, seq0, wall0 = frame.status.t, frame.seq, time.monotonic()
+        time.sleep(1.0)
+        frame = lp.wait_frame(seq0, timeout=5.0)
+        assert frame is not None and lp.planner.busy  # (the plan takes seconds: still planning)
+        wall = time.monotonic() - wall0
+        assert frame.status.scenario == "polish" and frame.status.variant != "planned W_a"
+        assert frame.status.t - t0 > 0.5 * wall, "the loop did not run on while planning"
+        assert frame.seq - seq0 >= 10, "frames stopped while planning"
+        lp.submit(Pause())  # urgent: applies at once, behind nothing
+        deadline = time.monotonic() + 5.0
+        while (f := lp.wait_frame(0, timeout=1.0)) is not None and f.status.running and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert f is not None and not f.status.running and lp.planner.busy
+        status = lp.sync(timeout=180.0)  # queued behind the switch: answered once it applied
+        assert status.variant == "planned W_a" and status.t == 0.0
+        assert any(n.title == "Planning the swivel path" for n in lp.notice_log)
+        ((key, plan),) = polish._PLAN_CACHE.items()
+        robot = lp.call(lambda s: s.robot)
+        here = polish.compute_plan(robot, key[1], key[2])
+        for name, value in plan._asdict().items():
+            assert np.array_equal(value, getattr(here, name)), name
+        if hasattr(os, "getpriority"):  # the worker runs at the app's priority, not the loop thread's
+            pool = lp.planner._pool
+            assert pool is not None
+            worker = pool.submit(os.getpriority, os.PRIO_PROCESS, 0).result(timeout=30)
+            assert worker == os.getpriority(os.PRIO_PROCESS, os.getpid())
+    finally:
+        lp.stop()

@@ -14,8 +14,10 @@ the same line) and is not re-tuned to match the paper's tables.
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -550,22 +552,69 @@ def friction_direction(tau: float) -> np.ndarray:
     return -d / np.linalg.norm(d)
 
 
+class PlanPending(Exception):
+    """Raised by `planned_path` inside `plans_deferred()` when the plan is not cached yet: the caller
+    computes it elsewhere (`compute_plan(*args)`, picklable arguments), stores it with
+    `store_plan(key, plan)`, and builds again."""
+
+    def __init__(self, key: tuple, args: tuple):
+        super().__init__(f"the swivel path {key[2]!r} for {key[0]} is not planned yet")
+        self.key = key
+        self.args = args
+
+
+_DEFER = threading.local()
+
+
+@contextmanager
+def plans_deferred(on: bool = True) -> Iterator[None]:
+    """Inside the block (this thread only), a plan that is not cached raises `PlanPending` instead of
+    being computed here: the app's loop thread plans in another process and keeps running meanwhile."""
+    before = getattr(_DEFER, "on", False)
+    _DEFER.on = on
+    try:
+        yield
+    finally:
+        _DEFER.on = before
+
+
+def _plan_key(robot: RobotDescription, start_swivel_deg: float, cost: str, armature_scale: float) -> tuple:
+    return (robot.name, round(start_swivel_deg, 6), cost, armature_scale, PLAN_SAMPLE_S, PLAN_GRID_DEG)
+
+
+def compute_plan(robot: RobotDescription, start_swivel_deg: float, cost: str, model: RobotModel | None = None) -> Plan:
+    """The swivel path planned over the zig-zag from a start swivel, with a cost of PLAN_COSTS (no
+    cache; picklable arguments, so that it can run in another process). `model` is
+    `RobotModel(robot.model)`, built here when not given."""
+    model = RobotModel(robot.model) if model is None else model
+    p0, R0 = np.array([*START_XY_M, TABLE_HEIGHT_M]), TOOL_DOWN.copy()
+    q0 = move_to_swivel(model, project_to_pose(model, robot.home, p0, R0, iters=200), np.deg2rad(start_swivel_deg))
+    times = np.arange(0.0, trajectory_duration() + 1e-9, PLAN_SAMPLE_S)
+    positions = np.array([[*trajectory_state(t)[0], TABLE_HEIGHT_M] for t in times])
+    loops = loops_along(model, q0, positions, R0, robot.q_lower, robot.q_upper, np.deg2rad(PLAN_GRID_DEG))
+    dirs = np.array([friction_direction(t) for t in times])
+    costs = cost_map(model, loops, cost, dirs)
+    return make_plan(
+        loops, costs, PLAN_SAMPLE_S, np.deg2rad(start_swivel_deg), rate_max_rad_s=np.deg2rad(PLAN_RATE_MAX_DEG_S)
+    )
+
+
+def store_plan(key: tuple, plan: Plan) -> None:
+    """Cache a plan computed elsewhere under the key its `PlanPending` named."""
+    _PLAN_CACHE[key] = plan
+
+
 def planned_path(
     robot: RobotDescription, model: RobotModel, start_swivel_deg: float, cost: str, armature_scale: float = 1.0
 ) -> Plan:
-    """The swivel path planned over the zig-zag (cached per robot, start, cost and armature)."""
-    key = (robot.name, round(start_swivel_deg, 6), cost, armature_scale, PLAN_SAMPLE_S, PLAN_GRID_DEG)
+    """The swivel path planned over the zig-zag (cached per robot, start, cost and armature); `model`
+    is `RobotModel(robot.model)`. Inside `plans_deferred()` a plan not cached yet raises
+    `PlanPending`."""
+    key = _plan_key(robot, start_swivel_deg, cost, armature_scale)
     if key not in _PLAN_CACHE:
-        p0, R0 = np.array([*START_XY_M, TABLE_HEIGHT_M]), TOOL_DOWN.copy()
-        q0 = move_to_swivel(model, project_to_pose(model, robot.home, p0, R0, iters=200), np.deg2rad(start_swivel_deg))
-        times = np.arange(0.0, trajectory_duration() + 1e-9, PLAN_SAMPLE_S)
-        positions = np.array([[*trajectory_state(t)[0], TABLE_HEIGHT_M] for t in times])
-        loops = loops_along(model, q0, positions, R0, robot.q_lower, robot.q_upper, np.deg2rad(PLAN_GRID_DEG))
-        dirs = np.array([friction_direction(t) for t in times])
-        costs = cost_map(model, loops, cost, dirs)
-        _PLAN_CACHE[key] = make_plan(
-            loops, costs, PLAN_SAMPLE_S, np.deg2rad(start_swivel_deg), rate_max_rad_s=np.deg2rad(PLAN_RATE_MAX_DEG_S)
-        )
+        if getattr(_DEFER, "on", False):
+            raise PlanPending(key, (robot, start_swivel_deg, cost))
+        _PLAN_CACHE[key] = compute_plan(robot, start_swivel_deg, cost, model)
     return _PLAN_CACHE[key]
 
 
