@@ -807,8 +807,8 @@ def test_the_readme_tour_step_by_step(app, page):
         # Case → planned W_a: the nullspace tracks the planned swivel path, the transfer across the ridge first
         open_tab(pg, "Run")
         choose(pg, "Case", "planned W_a")
-        # (the switch plans the path on the loop thread, ~4.5 s of CPU on a quiet 2-core machine: the
-        # loop answers once it is done)
+        # (the first switch plans the path in a worker process, ~5 s on a quiet 2-core machine; a sync
+        # queued behind the switch is answered once it applied)
         wait_for(
             lambda: app.loop.sync(timeout=60.0).variant == "planned W_a" and app.loop.status.t < 0.1,
             60,
