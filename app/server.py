@@ -27,6 +27,7 @@ import robots
 from app.commands import DragCommand
 from app.loop import SimLoop
 from app.params import parse_settings
+from app.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
 from app.scenarios import SCENARIOS
 from app.settings_io import load_settings_text
 from app.ui.keys import add_hotkeys
@@ -60,6 +61,7 @@ class App:
     panels: list[Any] = field(default_factory=list)
     visual_settings: Any = None  # the Visuals panel's settings
     stopped: bool = False
+    autogroup_niceness_before: int | None = None  # given back on stop when start_app raised it
 
     def stop(self) -> None:
         """Stop the publisher, the loop and the web server (again: nothing happens)."""
@@ -74,6 +76,8 @@ class App:
         self.loop.stop()
         with contextlib.redirect_stdout(io.StringIO()):
             self.server.stop()
+        if self.autogroup_niceness_before is not None:
+            set_autogroup_niceness(self.autogroup_niceness_before)
 
 
 def port_is_free(host: str, port: int) -> bool:
@@ -166,6 +170,8 @@ def start_app(
     publisher.start()
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
     app = App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)
+    # the server's session before the browser's in the CPU's division between sessions (app/priority.py)
+    app.autogroup_niceness_before = raise_autogroup_priority(SERVER_NICENESS)
     atexit.register(app.stop)  # threads that step MuJoCo must end before the interpreter does
     return app
 

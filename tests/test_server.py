@@ -525,3 +525,40 @@ def test_a_connection_closed_before_its_request_is_not_logged_as_an_error():
         fresh.stop()
         logging.getLogger().removeHandler(handler)
     assert [r.getMessage() for r in records if r.name.startswith("websockets")] == []
+
+
+def test_priority_reads_and_raises_an_autogroup_niceness_and_says_what_to_give_back(tmp_path):
+    from app.priority import autogroup_niceness, raise_autogroup_priority, set_autogroup_niceness
+
+    fake = tmp_path / "autogroup"
+    fake.write_text("/autogroup-255 nice 0\n")
+    assert autogroup_niceness(str(fake)) == 0
+    assert raise_autogroup_priority(-10, str(fake)) == 0  # changed: 0 is what to give back
+    assert autogroup_niceness(str(fake)) == -10
+    assert raise_autogroup_priority(-5, str(fake)) is None  # already higher: nothing to give back
+    assert set_autogroup_niceness(0, str(fake)) == 0
+    assert autogroup_niceness(str(tmp_path / "missing")) is None
+    assert raise_autogroup_priority(-10, str(tmp_path / "missing")) is None
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/autogroup"), reason="no autogroup scheduling here")
+def test_the_app_raises_its_sessions_share_of_the_cpu_while_it_runs_and_gives_it_back(app):
+    """With autogroup scheduling the CPU is divided between sessions first: the app asks for its
+    session's niceness SERVER_NICENESS where permitted and restores the one it found on stop."""
+    import resource
+
+    from app.priority import SERVER_NICENESS, autogroup_niceness, set_autogroup_niceness
+
+    found = autogroup_niceness()
+    assert found is not None
+    set_autogroup_niceness(0)  # (raising a niceness is always permitted)
+    try:
+        permitted = os.geteuid() == 0 or 20 - resource.getrlimit(resource.RLIMIT_NICE)[0] <= SERVER_NICENESS
+        second = start_app(port=0, scenario="free", running=False)
+        try:
+            assert autogroup_niceness() == (SERVER_NICENESS if permitted else 0)
+        finally:
+            second.stop()
+        assert autogroup_niceness() == 0
+    finally:
+        set_autogroup_niceness(found)
