@@ -10,9 +10,11 @@ failure while publishing is reported once and the loop goes on. Nothing outside 
 touches the Lab, except through `call()`, which runs a function here between two steps.
 
 On Linux the thread asks for a higher scheduling priority (niceness LOOP_NICENESS, this thread
-only) where the system allows it (root, or an RLIMIT_NICE that permits it): a browser drawing the
-page in software (Chromium raises its own display threads to −8) then no longer delays the steps
-that are due. Where it is refused, the thread keeps the process's priority.
+only) where the system allows it (root, or an RLIMIT_NICE that permits it): the server's other
+threads then do not delay the steps that are due, nor does a browser in the same session (Chromium
+raises its own display threads to −8). A browser in another session is another autogroup: the app
+raises its session's share against it (`app.priority`). Where it is refused, the thread keeps the
+process's priority.
 """
 
 from __future__ import annotations

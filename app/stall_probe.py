@@ -2,8 +2,9 @@
 
 A process of its own (no interpreter shared with the app) sleeps 1 ms at a time for SECONDS and
 prints, as JSON, how often and how long its wake-ups came late. `torquelab bench --serve` runs it
-beside the app at the loop thread's niceness: a frame the loop misses while this probe was stalled
-too was lost to the machine (a virtual CPU the host did not run, another process), not to the app.
+beside the app, in the app's session, at the loop thread's niceness: what it meets, any thread of
+the server meets from the rest of the machine (other sessions such as the browser, the host), so a
+frame the loop misses while the probe was stalled too was not lost to the app's own work.
 """
 
 from __future__ import annotations

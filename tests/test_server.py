@@ -102,8 +102,8 @@ def test_the_publisher_sends_each_frame_as_one_message_batch(app, monkeypatch):
 
 @pytest.mark.skipif(not hasattr(os, "setpriority") or os.uname().sysname != "Linux", reason="per-thread niceness")
 def test_the_publisher_and_the_server_event_loop_run_between_the_browser_and_the_loop_in_priority(app):
-    """The publisher thread and the server's event loop ask for niceness −9 (above Chromium's display
-    threads at −8, below the loop's −10): granted where permitted, else they keep the process's."""
+    """The publisher thread and the server's event loop ask for niceness −9 (just below the loop's −10,
+    above Chromium's display threads at −8): granted where permitted, else they keep the process's."""
     import resource
 
     from app.loop import LOOP_NICENESS

@@ -22,9 +22,10 @@ from app.ui.panels.base import notify
 from app.ui.plots import Plots
 
 LIVE_PERIOD_S = 0.15
-# Niceness of the publisher thread and of the server's event loop (Linux, where permitted): above
-# Chromium's display threads (−8), which otherwise preempt a thread holding the interpreter the loop
-# thread (−10) waits for, below the loop's.
+# Niceness of the publisher thread and of the server's event loop (Linux, where permitted): just below
+# the loop thread's (−10). At the default 0 they got a tenth of its weight in the server's share of
+# the CPU, and lost frames; it is also above Chromium's display threads (−8) where the browser runs
+# in the server's session.
 PUBLISHER_NICENESS = -9
 
 
