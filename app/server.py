@@ -15,6 +15,7 @@ import contextlib
 import gc
 import io
 import logging
+import signal
 import socket
 import sys
 import time
@@ -176,6 +177,11 @@ def start_app(
     return app
 
 
+def _interrupt(signum: int, frame: Any) -> None:
+    """Signal handler: stop `serve` as Ctrl-C does."""
+    raise KeyboardInterrupt
+
+
 def _read_settings_file(path: str) -> str:
     """The text of a settings file, checked as TOML; ValueError (one line) otherwise."""
     try:
@@ -206,19 +212,23 @@ def serve(args: argparse.Namespace) -> int:
     busy = args.port != 0 and not port_is_free(args.host, args.port)
     print(f"torquelab: starting scenario {scenario!r} …", flush=True)
     app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)
-    if settings_text is not None:
-        refused = load_settings_text(app.loop, settings_text)
-        for line in refused:
-            print(f"torquelab: {settings_file}: refused: {line}", flush=True)
-        print(f"torquelab: settings from {settings_file} applied ({len(refused)} refused)", flush=True)
-    if args.port == 0:
-        print(f"torquelab: --port 0: using free port {app.port}", flush=True)
-    elif busy or app.port != args.port:
-        print(f"torquelab: port {args.port} is busy; using port {app.port} instead", flush=True)
-    print(f"torquelab: open {app.url} in a browser (Ctrl-C to stop)", flush=True)
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
-        print(f"torquelab: listening on {args.host}: reachable from other machines", flush=True)
+    # a `kill` or a closed terminal stops the app as Ctrl-C does (the session's CPU share given back)
+    for signum in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if signum is not None:
+            signal.signal(signum, _interrupt)
     try:
+        if settings_text is not None:
+            refused = load_settings_text(app.loop, settings_text)
+            for line in refused:
+                print(f"torquelab: {settings_file}: refused: {line}", flush=True)
+            print(f"torquelab: settings from {settings_file} applied ({len(refused)} refused)", flush=True)
+        if args.port == 0:
+            print(f"torquelab: --port 0: using free port {app.port}", flush=True)
+        elif busy or app.port != args.port:
+            print(f"torquelab: port {args.port} is busy; using port {app.port} instead", flush=True)
+        print(f"torquelab: open {app.url} in a browser (Ctrl-C to stop)", flush=True)
+        if args.host not in ("127.0.0.1", "localhost", "::1"):
+            print(f"torquelab: listening on {args.host}: reachable from other machines", flush=True)
         while app.loop.alive:
             time.sleep(0.5)
     except KeyboardInterrupt:

@@ -207,6 +207,40 @@ def test_serve_prints_the_url_says_when_the_port_is_busy_and_stops_on_ctrl_c():
                 proc.kill()
 
 
+def test_serve_stops_cleanly_on_sigterm_and_gives_its_sessions_cpu_share_back():
+    """`kill` (SIGTERM) stops `serve` as Ctrl-C does: exit code 0, and where it raised its session's
+    autogroup niceness (app/priority.py), the value it found is back."""
+    import signal
+    import subprocess
+    import sys
+
+    from app.priority import autogroup_niceness, set_autogroup_niceness
+
+    found = autogroup_niceness()
+    if found is not None:
+        set_autogroup_niceness(0)  # (raising a niceness is always permitted)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "--scenario", "free", "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if "open http://" in line:
+                break
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 0
+        if found is not None:
+            assert autogroup_niceness() == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        if found is not None:
+            set_autogroup_niceness(found)
+
+
 def test_nonsense_sent_over_the_websocket_is_refused_and_the_server_keeps_running(app):
     _panel, _knob, handle = _knob_handle(app, "max_force_n")
     before = app.loop.settings.values["drag"]["max_force_n"]
