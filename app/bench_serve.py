@@ -24,6 +24,7 @@ from dataclasses import fields
 from typing import Any
 
 from app.commands import Play, Reset, SetParam, SetTwin
+from app.loop import LOOP_NICENESS
 from app.server import start_app
 
 CHROMIUM = os.environ.get("TORQUELAB_CHROMIUM", "/usr/bin/chromium")
@@ -92,8 +93,6 @@ def _signal_group(pgid: int, sig: int) -> bool:
 
 def _start_stall_probe(seconds: float) -> subprocess.Popen:
     """`app.stall_probe` in a process of its own for `seconds`, at the loop thread's niceness."""
-    from app.loop import LOOP_NICENESS
-
     args = [sys.executable, "-m", "app.stall_probe", str(seconds), str(LOOP_NICENESS)]
     return subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
 

@@ -355,7 +355,6 @@ class SimLoop:
                 "The planned case starts once its path is planned (a few seconds); the current preset runs on.",
             )
             self.planner.start(command, pending)
-            self.lab.dirty = True
 
     def _fail_queued_calls(self) -> None:
         while (item := self._queue.get()) is not None:

@@ -16,16 +16,8 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from multiprocessing import get_context
 from typing import Any
 
+from app.priority import set_process_niceness
 from app.scenarios.polish import PlanPending, compute_plan, store_plan
-
-
-def _run_at(niceness: int) -> None:
-    """Worker initializer: run at `niceness` (the worker is spawned from the loop thread, whose raised
-    priority it would otherwise inherit and use against the loop)."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, niceness)
-    except (OSError, AttributeError):
-        pass
 
 
 def _app_niceness() -> int:
@@ -53,8 +45,12 @@ class BackgroundPlanner:
         Where no worker process can start, the plan is computed here (and is done at once)."""
         try:
             if self._pool is None:
+                # at the app's priority: spawned from the loop thread, it would inherit that thread's
                 self._pool = ProcessPoolExecutor(
-                    max_workers=1, mp_context=get_context("spawn"), initializer=_run_at, initargs=(_app_niceness(),)
+                    max_workers=1,
+                    mp_context=get_context("spawn"),
+                    initializer=set_process_niceness,
+                    initargs=(_app_niceness(),),
                 )
             future = self._pool.submit(compute_plan, *pending.args)
         except Exception:  # no worker process here: plan in this thread, as without deferral

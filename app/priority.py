@@ -12,8 +12,22 @@ RLIMIT_NICE); refused or unavailable, nothing changes.
 
 from __future__ import annotations
 
+import os
+
 AUTOGROUP = "/proc/self/autogroup"
 SERVER_NICENESS = -10  # the server's autogroup niceness where permitted (the loop thread's own is −10 too)
+
+
+def set_process_niceness(niceness: int) -> int | None:
+    """Give the calling process (on Linux: its calling thread) the niceness `niceness` where permitted;
+    returns its niceness afterwards (None where priorities are not available)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, niceness)
+    except OSError:
+        pass  # not permitted: the priority stays
+    except AttributeError:
+        return None
+    return os.getpriority(os.PRIO_PROCESS, 0)
 
 
 def autogroup_niceness(path: str = AUTOGROUP) -> int | None:

@@ -10,9 +10,10 @@ frame the loop misses while the probe was stalled too was not lost to the app's 
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
+
+from app.priority import set_process_niceness
 
 SLEEP_S = 1e-3
 
@@ -41,12 +42,7 @@ def probe(seconds: float, frame_period_s: float = 1.0 / 30.0) -> dict[str, float
 def main(argv: list[str]) -> int:
     """Entry point: SECONDS [NICENESS]; prints the JSON report."""
     seconds = float(argv[0])
-    if len(argv) > 1:
-        try:
-            os.setpriority(os.PRIO_PROCESS, 0, int(argv[1]))
-        except (OSError, AttributeError):
-            pass  # not permitted (or not on Linux): the default priority
-    niceness = os.getpriority(os.PRIO_PROCESS, 0) if hasattr(os, "getpriority") else None
+    niceness = set_process_niceness(int(argv[1])) if len(argv) > 1 else None
     print(json.dumps({**probe(seconds), "niceness": niceness}))
     return 0
 

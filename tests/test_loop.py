@@ -672,7 +672,11 @@ def test_a_switch_to_a_planned_case_plans_in_another_process_while_the_loop_runs
     lp = SimLoop("polish", capture=lambda s: None)
     lp.start(running=True)
     try:
-        lp.sync()
+        # the first steps compile the kernels where their cache is cold (a fresh checkout): seconds
+        # without frames, which the check below must not mistake for the planning
+        deadline = time.monotonic() + 300.0
+        while lp.sync(timeout=300.0).t < 0.2 and time.monotonic() < deadline:
+            time.sleep(0.05)
         lp.submit(SwitchSession(variant="planned W_a"))
         deadline = time.monotonic() + 30.0
         while not lp.planner.busy and time.monotonic() < deadline:
