@@ -353,15 +353,20 @@ def test_at_a_speed_beyond_a_burst_per_frame_the_loop_wakes_for_full_bursts():
 def test_on_a_machine_too_slow_for_real_time_frames_keep_their_rate():
     """Each step made to take 1.5 ms (a machine too busy for 1×): a 50-step burst takes 75 ms, yet the
     loop ends a burst when a frame is due, so it still publishes ≥ 24 frames a second (a burst run to
-    its end would give ~13), while the simulation runs as fast as the steps allow (≥ 0.55× real time)."""
+    its end would give ~13), while the simulation runs as fast as the steps allow: the loop spends
+    ≥ 75 % of the wall time inside steps. That is judged against the steps' measured time, not a fixed
+    speed, since the 1.5 ms wait comes on top of a real step whose cost differs between machines."""
     lp = SimLoop("free", capture=lambda s: None)
     step = lp.session.step
+    spans: list[tuple[float, float]] = []
 
     def slow_step():
+        start = time.perf_counter()
         rec = step()
         until = time.perf_counter() + 1.5e-3
         while time.perf_counter() < until:
             pass
+        spans.append((start, time.perf_counter()))
         return rec
 
     lp.session.step = slow_step  # type: ignore[method-assign]
@@ -370,15 +375,19 @@ def test_on_a_machine_too_slow_for_real_time_frames_keep_their_rate():
         first = lp.wait_frame(0, 30.0)
         assert first is not None
         _wait(lambda: lp.status.t >= 0.1, 60, "the first steps")
-        t0, w0, seq0 = lp.sync().t, time.monotonic(), lp.wait_frame(0, 5.0).seq
+        t0, w0, seq0 = lp.sync().t, time.perf_counter(), lp.wait_frame(0, 5.0).seq
         time.sleep(2.0)
         last = lp.wait_frame(0, 5.0)
-        t1, w1 = lp.sync().t, time.monotonic()
+        t1, w1 = lp.sync().t, time.perf_counter()
     finally:
         lp.stop()
     assert last is not None
-    frames_per_s, rtf = (last.seq - seq0) / (w1 - w0), (t1 - t0) / (w1 - w0)
-    assert frames_per_s >= 24.0 and rtf >= 0.55, (frames_per_s, rtf)
+    wall = w1 - w0
+    inside = [(a, b) for a, b in spans if a >= w0 and b <= w1]
+    step_share = sum(b - a for a, b in inside) / wall
+    frames_per_s, rtf = (last.seq - seq0) / wall, (t1 - t0) / wall
+    assert frames_per_s >= 24.0, frames_per_s
+    assert step_share >= 0.75, (step_share, rtf)
 
 
 # ---- pacing (fake clock: exact numbers) ----------------------------------------------------------
