@@ -55,6 +55,7 @@ STEP_CHUNK = 100  # a single step runs in chunks this long; urgent commands are 
 URGENT = (DragCommand, Pause)  # commands that jump the queue
 BURST_SLACK = 0.5  # a burst begun once its frame is due may delay that frame by this share of a period
 UNPACED_PUBLISH_S = 0.1  # frame period while running unpaced (10 Hz instead of 30)
+CALL_POLL_S = 0.1  # `call` looks this often whether a plan is being computed (its time is not counted)
 LOOP_NICENESS = -10  # the loop thread's niceness where the system allows it (below Chromium's −8)
 
 
@@ -219,7 +220,9 @@ class SimLoop:
 
     def call(self, fn: Callable[[Session], T], timeout: float = 10.0) -> T:
         """Run `fn(session)` in the loop thread between two steps and return its result. Before
-        `start()` it runs here; RuntimeError once the loop thread has ended."""
+        `start()` it runs here; RuntimeError once the loop thread has ended. `timeout` (TimeoutError)
+        counts only the time no swivel plan is being computed: a call queued behind a switch to a
+        planned case waits for the plan (seconds, more on a loaded machine) on top of it."""
         if threading.current_thread() is self._thread or not self._started:
             return fn(self.lab.session)
         if not self.alive:
@@ -227,7 +230,18 @@ class SimLoop:
         fut: Future = Future()
         self._queue.put(_Call(fn, fut))
         self._wake.set()
-        return fut.result(timeout)
+        left = timeout
+        while True:
+            t0 = time.monotonic()
+            try:
+                return fut.result(max(0.0, min(left, CALL_POLL_S)))
+            except TimeoutError:
+                if fut.done():  # `fn` itself raised TimeoutError
+                    raise
+                if not self.planner.busy:
+                    left -= time.monotonic() - t0
+                if left <= 0.0:
+                    raise TimeoutError(f"the simulation loop did not answer within {timeout:g} s") from None
 
     def sync(self, timeout: float = 10.0) -> LoopStatus:
         """Wait until every command queued before this call has been applied; returns the status then."""

@@ -721,3 +721,48 @@ def test_a_switch_to_a_planned_case_plans_in_another_process_while_the_loop_runs
             assert worker == os.getpriority(os.PRIO_PROCESS, os.getpid())
     finally:
         lp.stop()
+
+
+class _StandInPlanner:
+    """A planner that computes for `seconds` and then says its plan failed (no switch applies)."""
+
+    def __init__(self, seconds: float) -> None:
+        self.until = time.monotonic() + seconds
+        self.handed_back = False
+
+    @property
+    def busy(self) -> bool:
+        return not self.handed_back
+
+    def take_done(self):
+        if self.handed_back or time.monotonic() < self.until:
+            return None
+        self.handed_back = True
+        return SwitchSession(variant="planned W_a"), RuntimeError("stand-in plan")
+
+    def stop(self) -> None:
+        pass
+
+
+def test_a_calls_timeout_does_not_count_the_time_a_plan_is_computed(loop):
+    """A call queued while a swivel plan is computed waits behind the switch; its timeout runs only
+    outside the planning, so a slider's echo (a 10 s `sync`) survives a slow plan on a loaded
+    machine. Outside planning the timeout holds as before."""
+    loop.sync()
+    loop.planner = _StandInPlanner(seconds=1.0)  # type: ignore[assignment]
+    t0 = time.monotonic()
+    status = loop.sync(timeout=0.3)  # held behind the plan for 1 s, answered after it
+    waited = time.monotonic() - t0
+    assert 0.9 <= waited < 10.0 and not loop.planner.busy
+    assert status.variant != "planned W_a"  # (the stand-in plan failed: nothing switched)
+    assert any(n.title == "Planning failed" for n in loop.notice_log)
+    import threading
+
+    busy = threading.Thread(target=lambda: loop.call(lambda s: time.sleep(1.0)))
+    busy.start()
+    time.sleep(0.1)
+    t0 = time.monotonic()
+    with pytest.raises(TimeoutError, match=r"did not answer within 0\.3 s"):
+        loop.sync(timeout=0.3)
+    assert 0.25 <= time.monotonic() - t0 < 0.9
+    busy.join()
