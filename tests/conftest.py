@@ -49,6 +49,22 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+@pytest.fixture(scope="session")
+def warm_kernels() -> None:
+    """Run every scenario with every executor for 1.1 simulated seconds (the polish live margin
+    included), once per test run: numba compiles the kernels here where its cache is cold (a fresh
+    checkout: about a minute of CPU) or loads them from it, so that a test timing the loop thread
+    never meets that compile inside it."""
+    from app.executors import EXECUTORS
+    from app.lab import Lab
+    from app.scenarios import SCENARIOS
+
+    for scenario in SCENARIOS:
+        for executor in EXECUTORS:
+            result = Lab(scenario, executor=executor).advance(1100)
+            assert not result.halted, (scenario, executor, result.reason)
+
+
 @pytest.fixture(scope="module")
 def server():
     """A bare viser server (no app) for scene and plot tests."""

@@ -17,6 +17,9 @@ from app.session import Session
 from app.steplog import StepLog
 from app.ui.snapshot import capture
 
+# the loop thread is timed here: the kernels are compiled (or loaded) before, not inside it
+pytestmark = pytest.mark.usefixtures("warm_kernels")
+
 DT = 1e-3
 
 

@@ -18,6 +18,9 @@ from app.commands import DragCommand, StepOnce
 from app.server import port_is_free, start_app
 from app.ui.panels.base import KnobPanel
 
+# the loop thread is timed here: the kernels are compiled (or loaded) before, not inside it
+pytestmark = pytest.mark.usefixtures("warm_kernels")
+
 
 @pytest.fixture(scope="module")
 def app():
