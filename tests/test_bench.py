@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from app.bench import BUDGET_US, placo_step, run_bench
+from app.bench import BUDGET_US, placo_step, run_bench, time_call
 
 
 def test_every_bench_entry_has_its_real_time_factor():
@@ -18,6 +18,35 @@ def test_every_bench_entry_has_its_real_time_factor():
 def test_qp_solve_entries_run_on_the_problems_the_executors_built():
     report = run_bench(only=["qp_solve_compliance_dense", "qp_solve_nullspace_dense"], repeats=5)
     assert set(report["results"]) == {"qp_solve_compliance_dense", "qp_solve_nullspace_dense"}
+
+
+def test_the_app_step_entry_times_a_frames_burst_of_lab_steps_per_step():
+    """`app_step_polish_W_a` runs `Lab.advance(33)` after a simulated second (33 healthy steps per
+    call, 33 ms further each), and its figures are per step: 1/33 of the call's."""
+    from app.bench import BENCHES
+
+    burst = BENCHES["app_step_polish_W_a"](None)
+    results = [burst() for _ in range(3)]
+    assert [(r.steps, r.stop) for r in results] == [(33, "done")] * 3
+    assert [r.t for r in results] == pytest.approx([1.033, 1.066, 1.099], abs=1e-9)
+
+
+def test_a_bench_entry_of_several_steps_per_call_reports_per_step(monkeypatch):
+    """`time_call` divides by `fn.steps_per_call`: on a clock each call moves by 2 ms, 4 steps a
+    call read 500 µs."""
+    import app.bench
+
+    clock = [0.0]
+    monkeypatch.setattr(app.bench.time, "perf_counter", lambda: clock[0])
+
+    def four_steps():
+        clock[0] += 2e-3
+
+    four_steps.steps_per_call = 4  # type: ignore[attr-defined]
+    out = time_call(four_steps, repeats=5, warmup=0)
+    assert out["median_us"] == pytest.approx(500.0, rel=1e-9)
+    assert out["p95_us"] == pytest.approx(500.0, rel=1e-9)
+    assert out["real_time_factor"] == pytest.approx(2.0, rel=1e-9)
 
 
 def test_placo_peer_without_placo_says_why(rizon):
