@@ -21,7 +21,7 @@ def _robot_name(args: argparse.Namespace, default: str = robots.DEFAULT_ROBOT) -
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from app.check import cross_check
+    from app.tools.check import cross_check
 
     names = [_robot_name(args)] if (args.robot or args.urdf) else list(robots.available())
     reports = [cross_check(robots.load(n), samples=args.samples) for n in names]
@@ -40,10 +40,10 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     if getattr(args, "serve", False):
-        from app.bench_serve import cmd_bench_serve
+        from app.tools.bench_serve import cmd_bench_serve
 
         return cmd_bench_serve(args)
-    from app.bench import run_bench
+    from app.tools.bench import run_bench
 
     report = run_bench(_robot_name(args), repeats=args.repeats, only=args.only, placo_python=args.vs_placo)
     if args.json:
@@ -64,7 +64,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from app.server import serve
+    from app.live.server import serve
 
     return serve(args)
 
@@ -108,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_bench)
 
-    from app.experiments import add_parsers
+    from app.headless.experiments import add_parsers
 
     add_parsers(sub)
     _add_sweep(sub)
@@ -137,7 +137,7 @@ def _qp_backend_arg(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_sweep(sub) -> None:
-    from app.sweep.cli import add_parser
+    from app.headless.sweep.cli import add_parser
 
     add_parser(sub)
 

@@ -55,8 +55,8 @@ def warm_kernels() -> None:
     included), once per test run: numba compiles the kernels here where its cache is cold (a fresh
     checkout: about a minute of CPU) or loads them from it, so that a test timing the loop thread
     never meets that compile inside it."""
-    from app.executors import EXECUTORS
-    from app.lab import Lab
+    from app.core.executors import EXECUTORS
+    from app.live.lab import Lab
     from app.scenarios import SCENARIOS
 
     for scenario in SCENARIOS:

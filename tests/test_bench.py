@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from app.bench import BUDGET_US, placo_step, run_bench, time_call
+from app.tools.bench import BUDGET_US, placo_step, run_bench, time_call
 
 
 def test_every_bench_entry_has_its_real_time_factor():
@@ -23,7 +23,7 @@ def test_qp_solve_entries_run_on_the_problems_the_executors_built():
 def test_the_app_step_entry_times_a_frames_burst_of_lab_steps_per_step():
     """`app_step_polish_W_a` runs `Lab.advance(33)` after a simulated second (33 healthy steps per
     call, 33 ms further each), and its figures are per step: 1/33 of the call's."""
-    from app.bench import BENCHES
+    from app.tools.bench import BENCHES
 
     burst = BENCHES["app_step_polish_W_a"](None)
     results = [burst() for _ in range(3)]
@@ -34,10 +34,10 @@ def test_the_app_step_entry_times_a_frames_burst_of_lab_steps_per_step():
 def test_a_bench_entry_of_several_steps_per_call_reports_per_step(monkeypatch):
     """`time_call` divides by `fn.steps_per_call`: on a clock each call moves by 2 ms, 4 steps a
     call read 500 µs."""
-    import app.bench
+    import app.tools.bench
 
     clock = [0.0]
-    monkeypatch.setattr(app.bench.time, "perf_counter", lambda: clock[0])
+    monkeypatch.setattr(app.tools.bench.time, "perf_counter", lambda: clock[0])
 
     def four_steps():
         clock[0] += 2e-3
@@ -62,7 +62,7 @@ def test_placo_peer_without_placo_says_why(rizon):
 
 
 def test_the_stall_probe_counts_late_wakeups_in_a_process_of_its_own():
-    """`python -m app.stall_probe` sleeps 1 ms at a time and reports its wake-up delays as JSON;
+    """`python -m app.tools.stall_probe` sleeps 1 ms at a time and reports its wake-up delays as JSON;
     a stall made on purpose (the probe process stopped for 0.15 s) is counted as one over a frame period."""
     import json
     import signal
@@ -70,13 +70,13 @@ def test_the_stall_probe_counts_late_wakeups_in_a_process_of_its_own():
     import sys
     import time
 
-    from app.stall_probe import probe
+    from app.tools.stall_probe import probe
 
     quiet = probe(0.2)
     assert 20 < quiet["wakeups"] <= 200
     assert quiet["stalls_over_frame_period"] <= quiet["stalls_over_10ms"] <= quiet["wakeups"]
     assert quiet["delay_p99_ms"] <= quiet["delay_max_ms"]
-    proc = subprocess.Popen([sys.executable, "-m", "app.stall_probe", "1.0"], stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "app.tools.stall_probe", "1.0"], stdout=subprocess.PIPE, text=True)
     time.sleep(0.4)
     proc.send_signal(signal.SIGSTOP)
     time.sleep(0.15)

@@ -223,9 +223,9 @@ def test_gamma_x_summary_reports_symmetric_eigenvalues_and_skew_size(rizon):
 
 
 def test_the_app_shows_gamma_x_live_while_the_projection_executor_runs():
-    from app.session import Session
-    from app.ui.panels.compliance import gamma_x_text
-    from app.ui.snapshot import capture
+    from app.core.session import Session
+    from app.live.ui.panels.compliance import gamma_x_text
+    from app.live.ui.snapshot import capture
     from control.bridge import gamma_x_matrix, gamma_x_summary
 
     session = Session("free", robot="rizon4s", executor="projection")

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 import viser.transforms as vtf
 
-from app.bench_serve import CHROMIUM_ARGS
+from app.tools.bench_serve import CHROMIUM_ARGS
 from tests.conftest import free_port
 
 pytestmark = [pytest.mark.browser, pytest.mark.usefixtures("warm_kernels")]
@@ -69,7 +69,7 @@ def wait_for(condition: Callable[[], Any], timeout: float, what: str, period: fl
 # ---- fixtures -----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def app() -> Iterator[Any]:
-    from app.server import start_app
+    from app.live.server import start_app
 
     running = start_app("127.0.0.1", free_port(), "polish", "rizon4s", "projection")
     try:
@@ -124,7 +124,7 @@ def page(app: Any, browser: Any) -> Iterator[tuple[Any, Any]]:
 def paused(app: Any) -> Iterator[None]:
     """The simulation paused for a test that only clicks and reads (a running simulation keeps a
     software-rendered page busy, so each click waits seconds); it plays again afterwards."""
-    from app.commands import Pause, Play
+    from app.core.commands import Pause, Play
 
     app.loop.submit(Pause())
     app.loop.sync()
@@ -207,7 +207,7 @@ def link_point_world(app: Any, link: str) -> np.ndarray:
 
 @functools.cache
 def _link_centroids(urdf_path: str) -> dict[str, np.ndarray]:
-    from app.ui.scene import link_meshes
+    from app.live.ui.scene import link_meshes
 
     return {name: np.array(mesh.centroid) for name, mesh in link_meshes(urdf_path).items()}
 
@@ -299,7 +299,7 @@ def choose(pg: Any, label: str, option: str) -> list[str]:
 
 # ---- tests ------------------------------------------------------------------------------------------
 def test_page_loads_and_draws_the_robot_where_the_camera_projects_it(app, page):
-    from app.commands import Pause, Play
+    from app.core.commands import Pause, Play
 
     pg, client = page
     app.loop.submit(Pause())  # a still arm: the projected points stay on it however slow the page is
@@ -356,7 +356,7 @@ def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page
     assert {"W_j", "W_f", "W_a", "W_d"} <= set(offered)
     objective = lambda: app.loop.call(lambda s: s.executor.nullspace.objective)  # noqa: E731
     wait_for(lambda: objective() == "d", 20, "the server's objective to become d")
-    from app.commands import SetParam
+    from app.core.commands import SetParam
 
     app.loop.submit(SetParam("nullspace", "objective", "a"))  # back to the polish default for the screenshot
     wait_for(lambda: objective() == "a", 20, "the objective to return to a")
@@ -364,7 +364,7 @@ def test_objective_dropdown_in_the_page_sets_the_controllers_objective(app, page
 
 
 def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page, paused):
-    from app.ui.panels.nullspace import NullspacePanel
+    from app.live.ui.panels.nullspace import NullspacePanel
 
     pg, _ = page
     preview = next(p for p in app.panels if isinstance(p, NullspacePanel)).preview
@@ -381,7 +381,7 @@ def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page,
 
 
 def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page, paused):
-    from app.commands import SetTwin
+    from app.core.commands import SetTwin
 
     pg, _ = page
     open_tab(pg, "Tune")
@@ -399,8 +399,8 @@ def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page,
 def test_screenshot_of_the_running_app_is_saved(app, page):
     """test-artifacts/app.png; copied to static/screenshot.png (the README's) when that is missing
     or TORQUELAB_UPDATE_SCREENSHOT=1."""
-    from app.ui.panels.nullspace import NullspacePanel
-    from app.ui.selfmotion import GHOST_CHOICES
+    from app.live.ui.panels.nullspace import NullspacePanel
+    from app.live.ui.selfmotion import GHOST_CHOICES
 
     pg, client = page
     preview = next(p for p in app.panels if isinstance(p, NullspacePanel)).preview
@@ -444,7 +444,7 @@ def test_screenshot_of_the_running_app_is_saved(app, page):
 def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page, paused):
     """Γ (task compliance), λ and M belong to the [C] QP executor: with it running they are in the page,
     and the Nullspace folder of the [T] executor (its Twin arm input, its live W line) is not."""
-    from app.commands import SwitchSession
+    from app.core.commands import SwitchSession
 
     pg, _ = page
     wait_for(lambda: app.loop.call(lambda s: s.executor_name) == "projection", 30, "the projection executor")
@@ -511,7 +511,7 @@ def red_pixels(pg: Any, box: dict[str, float]) -> int:
 def test_force_plot_has_a_finite_range_and_a_drawn_trace_in_every_preset(app, page):
     """With the twin off (its series all NaN) the force error is drawn in each preset's default state;
     the limit drop shows its peak-torque readout."""
-    from app.commands import Play, SwitchSession
+    from app.core.commands import Play, SwitchSession
     from app.scenarios import SCENARIOS
 
     pg, _ = page
@@ -539,8 +539,8 @@ def test_force_plot_has_a_finite_range_and_a_drawn_trace_in_every_preset(app, pa
 
 
 def test_space_pauses_and_plays_arrow_steps_and_r_resets(app, page):
-    from app.commands import Play
-    from app.ui.panels.scenario import ScenarioPanel
+    from app.core.commands import Play
+    from app.live.ui.panels.scenario import ScenarioPanel
 
     pg, _ = page
     open_tab(pg, "Run")
@@ -566,8 +566,8 @@ def test_space_pauses_and_plays_arrow_steps_and_r_resets(app, page):
 
 
 def test_restore_defaults_button_in_the_page_returns_the_parameters_to_the_presets_defaults(app, page, paused):
-    from app.commands import SetParam
-    from app.session import Session
+    from app.core.commands import SetParam
+    from app.core.session import Session
 
     pg, _ = page
     open_tab(pg, "Run")
@@ -717,7 +717,7 @@ def test_the_readme_tour_step_by_step(app, page):
        no delay and M = 0.5: at the torque limit, more than 2 mrad into d_s, at least 2 reversals.
     (Step 2 also: Case → mirror start, Settle now: the W_a flow ends at −82 ± 3°; Case → planned W_a,
     Settle now: the posture is at the plan's −84 ± 3° and within 3° of the planned swivel the page shows.)"""
-    from app.commands import Play, SetSpeed, SwitchSession
+    from app.core.commands import Play, SetSpeed, SwitchSession
 
     pg, client = page
     plots = app.publisher.plots
@@ -932,7 +932,7 @@ def test_the_readme_tour_step_by_step(app, page):
 def test_disconnect_during_a_drag_releases_the_force_within_a_second(app, page):
     """Closing the tab mid-drag (no mouse-up) releases the spring within 1 s, even behind ten seconds
     of queued single steps; runs last: it closes the page."""
-    from app.commands import StepOnce
+    from app.core.commands import StepOnce
 
     pg, client = page
     start_drag(pg, client, app, DRAG_LINK)
@@ -958,7 +958,7 @@ def test_bench_serve_runs_the_app_with_a_plain_headless_chromium_and_reports_wha
     the browser is gone afterwards."""
     import subprocess
 
-    from app import bench_serve
+    from app.tools import bench_serve
 
     monkeypatch.setattr(bench_serve, "CHROMIUM", chromium_path())
     report = bench_serve.run_serve_bench(seconds=3.0, warmup=0.5)

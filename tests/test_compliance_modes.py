@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.experiments.c_common import qp_session
+from app.headless.experiments.c_common import qp_session
 from app.scenarios.compliance import ComplianceScenario
 
 

@@ -192,8 +192,8 @@ def test_friction_at_1_mm_per_s_is_stable_at_the_heaviest_tangential_mass():
     the implicit run to flip the friction on < 15 % of the steps and keep |v_t| < 2 mm/s, and
     the explicit run (the same run otherwise) to flip it on > 50 %, so the test would catch a
     return to explicit stepping."""
+    from app.core.session import Session
     from app.scenarios.polish import PolishScenario
-    from app.session import Session
 
     flips, vmax = {}, {}
     for implicit in (True, False):

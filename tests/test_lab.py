@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from app.commands import DragCommand, Pause, Play, Reset, SetParam, SettleNow, StepOnce, SwitchSession
-from app.lab import OVERPOWERED_CHECK_STEPS, RECOVERY_STEPS, Lab
+from app.core.commands import DragCommand, Pause, Play, Reset, SetParam, SettleNow, StepOnce, SwitchSession
+from app.live.lab import OVERPOWERED_CHECK_STEPS, RECOVERY_STEPS, Lab
 from app.scenarios import Environment, Scenario
 from app.scenarios.free import FreeScenario
 from app.scenarios.polish import settle_pending
@@ -250,7 +250,7 @@ def _body_of_joint(world, joint_name: str) -> int:
 def test_the_largest_drag_sinks_no_joint_beyond_its_hard_stop_and_says_it_overpowers_the_arm(scenario):
     """A 300 N pull (the GUI's largest drag) at the TCP and at the elbow: every joint stays within
     HARD_STOP_GIVE_RAD of its mechanical stop, and a notice and the status name an overpowered joint."""
-    from app.frames import make_status
+    from app.live.frames import make_status
     from app.sim.world import HARD_STOP_BEYOND_RAD, HARD_STOP_GIVE_RAD
 
     lab = _lab(scenario)

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.experiments.limit_drop import count_oscillations, run_drop
+from app.core.session import Session
+from app.headless.experiments.limit_drop import count_oscillations, run_drop
 from app.scenarios.limit_drop import FALLING_JOINT, LimitDropScenario
-from app.session import Session
 from control.compliance_qp import ComplianceQPExecutor
 from control.gains import DamperGains
 

@@ -9,13 +9,13 @@ import time
 import numpy as np
 import pytest
 
-from app.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, SettleNow, StepOnce, SwitchSession
-from app.loop import LOOP_NICENESS, SimLoop
-from app.pacing import Pacer, RateMeter, next_frame_due
+from app.core.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, SettleNow, StepOnce, SwitchSession
+from app.core.session import Session
+from app.core.steplog import StepLog
+from app.live.loop import LOOP_NICENESS, SimLoop
+from app.live.pacing import Pacer, RateMeter, next_frame_due
+from app.live.ui.snapshot import capture
 from app.scenarios import SCENARIOS
-from app.session import Session
-from app.steplog import StepLog
-from app.ui.snapshot import capture
 
 # the loop thread is timed here: the kernels are compiled (or loaded) before, not inside it
 pytestmark = pytest.mark.usefixtures("warm_kernels")
@@ -172,7 +172,7 @@ def test_settle_now_runs_unpaced_on_the_loop_then_paced_and_pause_and_reset_act_
 def test_frames_go_out_at_10_hz_unpaced_and_30_hz_paced():
     """Unpaced (the speed "as fast as possible") the loop publishes ≤ 12 frames per wall second, so the
     page's drawing leaves the machine to the simulation; paced at 1× it publishes ≥ 20."""
-    from app.lab import UNPACED_SPEED
+    from app.live.lab import UNPACED_SPEED
 
     lp = SimLoop("free", capture=lambda s: None)
     lp.start(running=True)
@@ -288,7 +288,7 @@ def test_executor_switch_keeps_the_simulation_state(loop):
 
 
 def test_speed_is_limited_to_a_hundredth_to_unpaced(loop):
-    from app.loop import SPEED_RANGE
+    from app.live.loop import SPEED_RANGE
 
     loop.submit(SetSpeed(0.25))
     assert loop.sync().speed == 0.25
@@ -478,8 +478,8 @@ def test_plot_data_goes_out_in_every_third_frame_at_30_hz_and_in_every_frame_whi
     """Frames at 30 Hz, each up to 3 ms late: the plot data (10 Hz) is new in every third frame,
     never two in a row; while the lab is not running every frame carries new plot data (the last frame
     then shows the last step)."""
-    from app.frames import FrameBuilder
-    from app.lab import Lab
+    from app.live.frames import FrameBuilder
+    from app.live.lab import Lab
 
     lab = Lab("free")
     lab.advance(10)
@@ -666,8 +666,8 @@ def test_nothing_under_the_loop_imports_the_ui():
     import sys
 
     code = (
-        "import sys, app.loop, app.lab, app.frames, app.session, app.twin, app.commands; "
-        "print(sorted(m for m in sys.modules if m.startswith('app.ui') or m == 'viser'))"
+        "import sys, app.live.loop, app.live.lab, app.live.frames, app.core.session, app.core.twin, app.core.commands; "
+        "print(sorted(m for m in sys.modules if m.startswith('app.live.ui') or m == 'viser'))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"

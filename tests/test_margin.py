@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.experiments.polish import peak_speed
+from app.core.session import Session
+from app.headless.experiments.polish import peak_speed
 from app.scenarios import polish as P
-from app.session import Session
 from control.coupling import POLISH_SUBSPACES
 from control.gains import MotionForceGains
 from control.margin import ContactLoop, force_loop_margin, posture_margin, step_matrix

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.experiments.mass_drop import METRICS, draw_rig, drop_metrics, ratio_of_means, run_mass_drop, summarize
+from app.headless.experiments.mass_drop import METRICS, draw_rig, drop_metrics, ratio_of_means, run_mass_drop, summarize
 from app.scenarios.mass_drop import (
     MODES,
     PAYLOAD_KG,

@@ -94,7 +94,7 @@ def test_set_params_switches_objective_and_axes_without_rebuilding_the_qp(rizon)
 
 def test_static_contact_force_converges_to_the_desired_force(rizon):
     """On the table with an ideal sensor, u_f [T12] settles at F^e_z = F̂ = 20 N."""
-    from app.session import Session
+    from app.core.session import Session
 
     session = Session(PolishScenario(mu=0.25, sensor_noise=False), seed=0)
     session.set_param("nullspace", "objective", "j")

@@ -7,7 +7,7 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from app.ui.node_writes import set_pose, set_position, set_prop, set_wxyz
+from app.live.ui.node_writes import set_pose, set_position, set_prop, set_wxyz
 
 
 @contextmanager

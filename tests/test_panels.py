@@ -7,15 +7,15 @@ import json
 import numpy as np
 import pytest
 
-from app.commands import SetParam
-from app.export import to_csv, to_json
-from app.loop import SimLoop
-from app.params import group_types
+from app.core.commands import SetParam
+from app.core.export import to_csv, to_json
+from app.core.params import group_types
+from app.core.session import Session
+from app.live.loop import SimLoop
+from app.live.ui.panels import ALL_FIELDS
+from app.live.ui.panels.base import knob
+from app.live.ui.panels.more_gains import claimed_fields
 from app.scenarios import SCENARIOS
-from app.session import Session
-from app.ui.panels import ALL_FIELDS
-from app.ui.panels.base import knob
-from app.ui.panels.more_gains import claimed_fields
 from control.params import specs
 
 

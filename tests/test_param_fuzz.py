@@ -21,10 +21,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from app.commands import Reset, SetParam
-from app.lab import RECOVERY_STEPS, Lab
-from app.params import GROUP_TYPES
-from app.session import Session
+from app.core.commands import Reset, SetParam
+from app.core.params import GROUP_TYPES
+from app.core.session import Session
+from app.live.lab import RECOVERY_STEPS, Lab
 from control.params import ParamError, ParamSpec, specs
 
 # presets whose sessions together have every registered group

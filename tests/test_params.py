@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from app.params import GROUP_TYPES, SCENARIO_TYPES, dumps, load_settings, parse_settings, save_settings
-from app.session import Session
+from app.core.params import GROUP_TYPES, SCENARIO_TYPES, dumps, load_settings, parse_settings, save_settings
+from app.core.session import Session
 from control.gains import MotionForceGains, NullspaceGains, PoseTaskGains, PostureTaskGains
 from control.params import ParamError, replaced, specs
 
@@ -146,8 +146,8 @@ def test_settings_round_trip_through_toml_and_refusals_are_listed():
 
 
 def test_a_settings_file_reaches_the_running_loop_in_order_and_refusals_are_listed():
-    from app.loop import SimLoop
-    from app.settings_io import load_settings_text, save_settings_text
+    from app.live.loop import SimLoop
+    from app.live.settings_io import load_settings_text, save_settings_text
 
     loop = SimLoop("polish", capture=lambda s: None)
     loop.start(running=False)
@@ -184,8 +184,8 @@ def test_serve_refuses_an_unreadable_or_malformed_settings_file_in_one_line(tmp_
 
 
 def test_restore_defaults_returns_every_parameter_of_the_preset_and_forgets_the_overrides():
-    from app.commands import RestoreDefaults, SetParam
-    from app.lab import Lab
+    from app.core.commands import RestoreDefaults, SetParam
+    from app.live.lab import Lab
 
     lab = Lab("limit-drop")
     defaults = lab.session.params()

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from app.ui.phase import PhaseReader
+from app.live.ui.phase import PhaseReader
 
 
 def _status(scenario: str, t: float, focus_joint: int | None = None, **signals: float) -> SimpleNamespace:

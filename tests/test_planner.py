@@ -107,8 +107,8 @@ def test_executed_swivel_follows_the_plan(monkeypatch):
     Tolerance: the W_j tracking is led by 1/k0_j, so what remains is the tracking of the nullspace
     velocity (K_n^d) and the linear interpolation between plan samples (the full-resolution run of
     the report measured 0.5° mean, 4.1° max)."""
+    from app.core.session import Session
     from app.scenarios import polish as P
-    from app.session import Session
 
     monkeypatch.setattr(P, "PLAN_SAMPLE_S", 1.25)
     monkeypatch.setattr(P, "PLAN_GRID_DEG", 8.0)

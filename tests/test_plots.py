@@ -8,9 +8,9 @@ from collections import deque
 import numpy as np
 import pytest
 
-from app.commands import StepOnce
-from app.loop import SimLoop
-from app.ui.plots import (
+from app.core.commands import StepOnce
+from app.live.loop import SimLoop
+from app.live.ui.plots import (
     COUPLING_TITLE,
     FORCE_RANGE_N,
     FORCE_TITLE,
@@ -21,7 +21,7 @@ from app.ui.plots import (
     phase_markers,
     segment_std,
 )
-from app.ui.snapshot import capture
+from app.live.ui.snapshot import capture
 
 
 def _plot_data(scenario: str, steps: int = 300):
@@ -165,8 +165,8 @@ def test_limit_drop_readout_names_the_peak_torque_of_the_falling_joint(server, d
 def test_peak_torque_comes_from_every_step_not_the_plotted_samples():
     """The limit drop's peak |τ₄| and max q₄, folded in 100 steps at a time, equal those of every
     logged 1 ms step; the ≈ 50 samples per second the plots get miss the peak's exact step."""
-    from app.frames import plot_data
-    from app.lab import Lab
+    from app.live.frames import plot_data
+    from app.live.lab import Lab
 
     lab = Lab("limit-drop")
     for _ in range(20):
@@ -201,9 +201,9 @@ def test_segment_std_comes_from_every_step_for_the_main_arm_and_the_twin():
     """Polish with a W_j arm and a W_j twin (both settle within about a second): the per-segment
     force-error STD the loop folds in 100 steps at a time equals that of every logged step (1e-9 N),
     for each arm from its own log and segments."""
-    from app.commands import SetParam, SetTwin
-    from app.frames import plot_data
-    from app.lab import Lab
+    from app.core.commands import SetParam, SetTwin
+    from app.live.frames import plot_data
+    from app.live.lab import Lab
 
     lab = Lab("polish", robot="rizon4s", executor="projection")
     lab.apply(SetParam("nullspace", "objective", "j"))

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.experiments.polish import _parse_mu, _stats, format_table, summarise
+from app.core.session import Session
+from app.headless.experiments.polish import _parse_mu, _stats, format_table, summarise
 from app.scenarios import polish as P
-from app.session import Session
 from control.coupling import swivel_angle
 
 
@@ -102,8 +102,8 @@ def test_metrics_summary_and_table_helpers():
 def test_cli_registers_the_polish_experiment_with_its_options():
     import argparse
 
-    from app.experiments import EXPERIMENTS
-    from app.experiments.polish import add_arguments, table_specs
+    from app.headless.experiments import EXPERIMENTS
+    from app.headless.experiments.polish import add_arguments, table_specs
 
     assert EXPERIMENTS["polish"] == "polish"
     parser = argparse.ArgumentParser()
@@ -163,7 +163,7 @@ def test_settle_criterion_needs_a_full_quiet_second_and_restarts_on_bad_numbers(
 
 def test_settle_now_ends_the_settle_phase_on_the_criterion_and_the_panel_shows_it():
     """A W_j hold converges one window after contact (q̂̇n ≈ 0, W_j ≈ 0); settle_now runs until then."""
-    from app.ui.panels.nullspace import _polish_lines
+    from app.live.ui.panels.nullspace import _polish_lines
 
     session = Session(P.PolishScenario(mu=0.25, hold_swivel_deg=0.0), seed=0)
     assert session.executor.nullspace.objective == "j"  # holding a swivel runs W_j on the start posture
@@ -180,7 +180,7 @@ def test_settle_now_ends_the_settle_phase_on_the_criterion_and_the_panel_shows_i
 
 
 def test_polish_cases_pick_the_mirror_start_or_a_planned_path():
-    from app.variants import make_variant, variant_of
+    from app.core.variants import make_variant, variant_of
 
     assert variant_of(P.SCENARIO).options == P.MODES
     assert make_variant("polish", "mirror start").start_swivel_deg == P.MIRROR_START_DEG
@@ -212,7 +212,7 @@ def _toy_run(spec: dict) -> dict:
 
 
 def test_finished_runs_are_kept_as_they_finish_and_resume_reuses_only_matching_ones(tmp_path, capsys):
-    from app.experiments.polish import _map, load_run
+    from app.headless.experiments.polish import _map, load_run
 
     specs = [{"objective": "j", "mu": 1.0, "seed": s, "session_params": [("nullspace", "k0_j", 2.0)]} for s in (1, 2)]
     runs = tmp_path / "runs"
@@ -256,7 +256,7 @@ def test_a_quick_one_row_experiment_writes_a_report_from_its_own_runs(tmp_path):
 
 
 def test_armature_table_flags_runs_that_did_not_converge_or_lost_contact():
-    from app.experiments.polish_report import _arm_ptp
+    from app.headless.experiments.polish_report import _arm_ptp
 
     def run(objective, converged, stable):
         return {

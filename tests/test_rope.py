@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from app.experiments.c_common import qp_session
+from app.headless.experiments.c_common import qp_session
 from app.scenarios.mass_drop import RELEASE_TIME_S, MassDropParams, MassDropScenario
 from app.sim.rope import Rope
 
@@ -128,7 +128,7 @@ def test_released_mass_falls_freely_then_the_rope_pulls_tcp_and_mass_equally():
 
 
 def test_rig_parameters_are_set_through_the_session_and_apply_at_reset():
-    from app.session import Session
+    from app.core.session import Session
     from control.params import ParamError
 
     session = Session("mass-drop")

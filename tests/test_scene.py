@@ -11,10 +11,9 @@ import types
 import numpy as np
 import pytest
 
-from app.commands import DragCommand
-from app.scenarios.mass_drop import MASS_BODY, PAYLOAD_KG, MassDropScenario
-from app.session import Session
-from app.ui.overlays import (
+from app.core.commands import DragCommand
+from app.core.session import Session
+from app.live.ui.overlays import (
     Trail,
     coupling_map,
     ellipsoid_of_map,
@@ -25,9 +24,10 @@ from app.ui.overlays import (
     tilt_rad,
     translational_force_ellipsoid,
 )
-from app.ui.scene import SceneView, link_joint_indices, link_meshes
-from app.ui.snapshot import capture
-from app.ui.visuals import VisualSettings, VisualsPanel, field_names
+from app.live.ui.scene import SceneView, link_joint_indices, link_meshes
+from app.live.ui.snapshot import capture
+from app.live.ui.visuals import VisualSettings, VisualsPanel, field_names
+from app.scenarios.mass_drop import MASS_BODY, PAYLOAD_KG, MassDropScenario
 from control.coupling import POLISH_SUBSPACES, Subspaces, coupling_ellipse
 
 PZ = POLISH_SUBSPACES  # motion px py rx ry rz, force pz
@@ -179,7 +179,7 @@ def test_snapshot_defers_gamma_x_to_its_reader_and_looks_up_bodies_and_splits_on
     control.bridge's on the captured Λx. Body ids and the split are looked up once, not per frame."""
     import mujoco
 
-    from app.ui.snapshot import split_of
+    from app.live.ui.snapshot import split_of
     from control.bridge import gamma_x_matrix, gamma_x_summary
 
     s = Session("polish", executor="projection")

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import viser
 
+from app.live.server import start_app
+from app.live.ui.panels.nullspace import NullspacePanel
+from app.live.ui.selfmotion import AS_CONTROLLER, link_poses, preview_objective, scan_preview
 from app.scenarios import get_scenario
-from app.server import start_app
 from app.sim.world import World
-from app.ui.panels.nullspace import NullspacePanel
-from app.ui.selfmotion import AS_CONTROLLER, link_poses, preview_objective, scan_preview
 from control import coupling as c
 from control.model import RobotModel
 
@@ -115,7 +115,7 @@ def test_scan_in_the_worker_process_equals_the_scan_here(rizon):
     """The picklable entry point of the scan process gives the same preview as a scan in-process."""
     import pickle
 
-    from app.ui.selfmotion_worker import scan_in_worker
+    from app.live.ui.selfmotion_worker import scan_in_worker
 
     q0 = rizon.postures.get("polish_start", rizon.home)
     model = RobotModel(rizon.model)
@@ -132,8 +132,8 @@ def test_the_scan_process_runs_at_a_lower_priority_than_the_server():
     busy machine the 1 kHz loop and the browser get the cores first."""
     import os
 
-    from app.ui.selfmotion import scan_pool
-    from app.ui.selfmotion_worker import SCAN_NICENESS
+    from app.live.ui.selfmotion import scan_pool
+    from app.live.ui.selfmotion_worker import SCAN_NICENESS
 
     pool = scan_pool()
     try:
@@ -149,7 +149,7 @@ def test_the_ghost_follows_the_planned_posture_while_a_plan_runs(server):
     from types import SimpleNamespace
 
     import robots
-    from app.ui.selfmotion import GHOST_CHOICES, SelfMotionPreview
+    from app.live.ui.selfmotion import GHOST_CHOICES, SelfMotionPreview
 
     robot = robots.load("rizon4s")
     preview = SelfMotionPreview(server)
@@ -178,7 +178,7 @@ def test_the_ghost_follows_the_planned_posture_while_a_plan_runs(server):
 def test_the_scene_carries_the_planned_posture_only_while_a_plan_runs():
     from types import SimpleNamespace
 
-    from app.ui.snapshot import _planned_posture
+    from app.live.ui.snapshot import _planned_posture
 
     q = np.arange(7.0)
     step = lambda sig: SimpleNamespace(target=SimpleNamespace(q_posture=q), signals=sig)  # noqa: E731
@@ -193,10 +193,10 @@ def test_in_the_planned_case_the_scene_and_the_ghost_follow_the_sessions_plan(se
     nullspace tracks (the step's q_posture, exactly) and the ghost stands on it; the flow case has none."""
     from types import SimpleNamespace
 
-    from app.session import Session
-    from app.ui.selfmotion import GHOST_CHOICES, SelfMotionPreview
-    from app.ui.snapshot import capture
-    from app.variants import make_variant
+    from app.core.session import Session
+    from app.core.variants import make_variant
+    from app.live.ui.selfmotion import GHOST_CHOICES, SelfMotionPreview
+    from app.live.ui.snapshot import capture
 
     planned = Session(make_variant("polish", "planned W_a"), robot="rizon4s", executor="projection")
     flow = Session("polish", robot="rizon4s", executor="projection")

@@ -14,9 +14,9 @@ import pytest
 import viser
 from websockets.sync.client import connect
 
-from app.commands import DragCommand, StepOnce
-from app.server import port_is_free, start_app
-from app.ui.panels.base import KnobPanel
+from app.core.commands import DragCommand, StepOnce
+from app.live.server import port_is_free, start_app
+from app.live.ui.panels.base import KnobPanel
 
 # the loop thread is timed here: the kernels are compiled (or loaded) before, not inside it
 pytestmark = pytest.mark.usefixtures("warm_kernels")
@@ -109,8 +109,8 @@ def test_the_publisher_and_the_server_event_loop_run_between_the_browser_and_the
     above Chromium's display threads at −8): granted where permitted, else they keep the process's."""
     import resource
 
-    from app.loop import LOOP_NICENESS
-    from app.ui.publisher import PUBLISHER_NICENESS
+    from app.live.loop import LOOP_NICENESS
+    from app.live.ui.publisher import PUBLISHER_NICENESS
 
     assert LOOP_NICENESS < PUBLISHER_NICENESS == -9
     process = os.getpriority(os.PRIO_PROCESS, 0)
@@ -212,12 +212,12 @@ def test_serve_prints_the_url_says_when_the_port_is_busy_and_stops_on_ctrl_c():
 
 def test_serve_stops_cleanly_on_sigterm_and_gives_its_sessions_cpu_share_back():
     """`kill` (SIGTERM) stops `serve` as Ctrl-C does: exit code 0, and where it raised its session's
-    autogroup niceness (app/priority.py), the value it found is back."""
+    autogroup niceness (app/live/priority.py), the value it found is back."""
     import signal
     import subprocess
     import sys
 
-    from app.priority import autogroup_niceness, set_autogroup_niceness
+    from app.live.priority import autogroup_niceness, set_autogroup_niceness
 
     found = autogroup_niceness()
     if found is not None:
@@ -273,7 +273,7 @@ def test_nonsense_sent_over_the_websocket_is_refused_and_the_server_keeps_runnin
 def test_status_shows_the_fallback_badge_the_halt_message_and_a_slow_machine(app):
     import dataclasses
 
-    from app.ui.panels.scenario import ScenarioPanel
+    from app.live.ui.panels.scenario import ScenarioPanel
 
     panel = next(p for p in app.panels if isinstance(p, ScenarioPanel))
     app.loop.sync()
@@ -305,7 +305,7 @@ def test_status_shows_the_fallback_badge_the_halt_message_and_a_slow_machine(app
 def test_status_line_names_the_qp_backend_and_the_fallback_reason_from_the_step_view(app):
     import dataclasses
 
-    from app.ui.panels.scenario import ScenarioPanel
+    from app.live.ui.panels.scenario import ScenarioPanel
     from control.executor import StepView
 
     panel = next(p for p in app.panels if isinstance(p, ScenarioPanel))
@@ -319,7 +319,7 @@ def test_status_line_names_the_qp_backend_and_the_fallback_reason_from_the_step_
 
 
 def test_averaged_rate_does_not_read_a_catch_up_burst_as_faster_than_real_time():
-    from app.ui.panels.scenario import AveragedRate
+    from app.live.ui.panels.scenario import AveragedRate
 
     rate = AveragedRate(window_s=2.0)
     sim, values = 0.0, []
@@ -335,7 +335,7 @@ def test_averaged_rate_does_not_read_a_catch_up_burst_as_faster_than_real_time()
 
 
 def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):
-    from app.commands import SwitchSession
+    from app.core.commands import SwitchSession
 
     plots = app.publisher.plots
     plots.joint.value = "2"
@@ -357,8 +357,8 @@ def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):
 def test_serve_exits_non_zero_with_the_reason_when_the_loop_thread_dies(monkeypatch, capsys):
     import argparse
 
-    from app.loop import SimLoop
-    from app.server import serve
+    from app.live.loop import SimLoop
+    from app.live.server import serve
 
     def boom(self):
         raise RuntimeError("the loop broke")
@@ -372,7 +372,7 @@ def test_serve_exits_non_zero_with_the_reason_when_the_loop_thread_dies(monkeypa
 def test_page_settings_load_applies_good_entries_lists_bad_ones_and_restore_defaults_undoes_them(app):
     from viser._gui_handles import UploadedFile
 
-    from app.session import Session
+    from app.core.session import Session
 
     buttons = app.panels[0].settings
     defaults = Session("free", executor=app.loop.status.executor).params()  # the preset's own defaults
@@ -396,7 +396,7 @@ def test_page_settings_load_applies_good_entries_lists_bad_ones_and_restore_defa
 
 
 def test_a_refused_or_adjusted_number_is_replaced_in_the_input_by_the_value_in_force_at_once(app, monkeypatch):
-    import app.ui.panels.base as base
+    import app.live.ui.panels.base as base
 
     panel, knob, handle = _knob_handle(app, "max_force_n")
     _browser_update(handle, 60.0, client_id=12345)
@@ -426,11 +426,11 @@ def test_tune_tab_puts_the_presets_folders_first_and_hides_what_the_executor_lac
     """polish: Motion–force and Nullspace on top; limit-drop: Safety on top. With the [C] QP executor
     the Nullspace folder (prose, live lines, twin, preview) is hidden and Motion–force's [T] prose
     gives way to one line; with the [T] executor Compliance shows only its Γ_x line."""
-    from app.commands import SwitchSession
-    from app.ui.panels.compliance import CompliancePanel
-    from app.ui.panels.motion_force import MotionForcePanel
-    from app.ui.panels.nullspace import NullspacePanel
-    from app.ui.panels.tune import TuneOrder
+    from app.core.commands import SwitchSession
+    from app.live.ui.panels.compliance import CompliancePanel
+    from app.live.ui.panels.motion_force import MotionForcePanel
+    from app.live.ui.panels.nullspace import NullspacePanel
+    from app.live.ui.panels.tune import TuneOrder
 
     tune = next(p for p in app.panels if isinstance(p, TuneOrder))
     mf = next(p for p in app.panels if isinstance(p, MotionForcePanel))
@@ -490,8 +490,8 @@ def test_tune_tab_puts_the_presets_folders_first_and_hides_what_the_executor_lac
 
 
 def test_tune_order_and_the_live_w_line_near_a_singularity():
-    from app.ui.panels.nullspace import w_text
-    from app.ui.panels.tune import tune_order
+    from app.live.ui.panels.nullspace import w_text
+    from app.live.ui.panels.tune import tune_order
 
     titles = ["Motion–force", "Nullspace", "Compliance", "Safety"]
     assert tune_order("limit-drop", titles) == ["Safety", "Compliance", "Motion–force", "Nullspace"]
@@ -505,8 +505,8 @@ def test_tune_order_and_the_live_w_line_near_a_singularity():
 def test_settle_now_button_shows_in_polishs_settle_phase_and_runs_it(app):
     """The button is shown while polish settles; a click runs the settle phase on the loop until the
     trajectory starts, then hides it."""
-    from app.commands import Pause, SetParam, SwitchSession
-    from app.ui.panels.scenario import ScenarioPanel
+    from app.core.commands import Pause, SetParam, SwitchSession
+    from app.live.ui.panels.scenario import ScenarioPanel
 
     panel = next(p for p in app.panels if isinstance(p, ScenarioPanel))
     try:
@@ -527,7 +527,7 @@ def test_settle_now_button_shows_in_polishs_settle_phase_and_runs_it(app):
 def test_a_paused_page_shows_the_value_in_force_once_the_touched_inputs_hold_has_passed(app):
     """Paused, no frames come; a value set on the server right after a person touched the input (within
     its 0.6 s hold) still reaches the input within a few seconds."""
-    from app.commands import Pause, SetParam
+    from app.core.commands import Pause, SetParam
 
     app.loop.submit(Pause())
     _, _, handle = _knob_handle(app, "max_force_n")
@@ -565,7 +565,7 @@ def test_a_connection_closed_before_its_request_is_not_logged_as_an_error():
 
 
 def test_priority_reads_and_raises_an_autogroup_niceness_and_says_what_to_give_back(tmp_path):
-    from app.priority import autogroup_niceness, raise_autogroup_priority, set_autogroup_niceness
+    from app.live.priority import autogroup_niceness, raise_autogroup_priority, set_autogroup_niceness
 
     fake = tmp_path / "autogroup"
     fake.write_text("/autogroup-255 nice 0\n")
@@ -585,7 +585,7 @@ def test_priority_reads_and_raises_an_autogroup_niceness_and_says_what_to_give_b
 def _in_an_autogroup() -> bool:
     """Whether this process is in an autogroup: /proc/self/autogroup can exist and read empty, as in
     a container whose processes sit in a cgroup of their own (no autogroup scheduling for them)."""
-    from app.priority import autogroup_niceness
+    from app.live.priority import autogroup_niceness
 
     return autogroup_niceness() is not None
 
@@ -594,7 +594,7 @@ def _in_an_autogroup() -> bool:
 def test_the_app_raises_its_sessions_share_of_the_cpu_while_it_runs_and_gives_it_back(app):
     """With autogroup scheduling the CPU is divided between sessions first: the app asks for its
     session's niceness SERVER_NICENESS where permitted and restores the one it found on stop."""
-    from app.priority import SERVER_NICENESS, autogroup_niceness, set_autogroup_niceness
+    from app.live.priority import SERVER_NICENESS, autogroup_niceness, set_autogroup_niceness
 
     found = autogroup_niceness()
     assert found is not None

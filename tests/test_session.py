@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from app.session import Session
+from app.core.session import Session
 from control.executor import ControlOutput
 
 

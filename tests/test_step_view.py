@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.session import Session
-from app.ui import snapshot
+from app.core.session import Session
+from app.live.ui import snapshot
 from control import coupling as c
 from control.bridge import make_bridge_executor
 from control.compliance_qp import ComplianceQPExecutor

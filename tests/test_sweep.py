@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from app.sweep.grid import cells, parse_grid, parse_item
-from app.sweep.knobs import build_axes
-from app.sweep.report import _cell_summary
-from app.sweep.runner import coarse_to_fine, run_sweep, spread_order
-from app.sweep.store import CellStore
+from app.headless.sweep.grid import cells, parse_grid, parse_item
+from app.headless.sweep.knobs import build_axes
+from app.headless.sweep.report import _cell_summary
+from app.headless.sweep.runner import coarse_to_fine, run_sweep, spread_order
+from app.headless.sweep.store import CellStore
 
 KILL_FLAG = "TORQUELAB_TEST_SWEEP_KILL"  # file: the cell x = 4 raises SystemExit while it exists
 FAIL_FLAG = "TORQUELAB_TEST_SWEEP_FAIL"  # file: the cell x = 3 raises ValueError while it exists
@@ -54,7 +54,7 @@ def test_grid_values_as_linspace_list_or_single():
     assert parse_item("mu=0.25,0.5,1.0") == ("mu", ["0.25", "0.5", "1.0"])
     assert parse_item("form=classic") == ("form", ["classic"])
     grid = parse_grid(["lambda=100,300", "M=1.5:3:2"])
-    from app.sweep.experiments import get
+    from app.headless.sweep.experiments import get
 
     exp = get("limit-drop")
     axes = build_axes(exp.knobs, grid, exp.groups)
@@ -245,7 +245,7 @@ def test_the_grid_itself_must_be_given(capsys, tmp_path):
 
 
 def test_mass_drop_k_i_reaches_the_run_a_faster_observer_catches_the_drop_with_less_deflection():
-    from app.sweep.experiments import get
+    from app.headless.sweep.experiments import get
 
     cell = get("mass-drop").cell
     slow = cell({"controller": "torque-residual", "K_I": 10.0}, 0)["metrics"]
@@ -255,7 +255,7 @@ def test_mass_drop_k_i_reaches_the_run_a_faster_observer_catches_the_drop_with_l
 
 
 def test_polish_k0_reaches_the_session_a_larger_k0_a_moves_the_posture_further_in_the_same_settle_time():
-    from app.sweep.experiments import get
+    from app.headless.sweep.experiments import get
 
     cell = get("polish").cell
     base = {"objective": "a", "mu": 0.25, "converge_timeout": 2.0}
@@ -273,8 +273,8 @@ def test_polish_map_marks_the_planned_paths_over_the_swivels_they_visit():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from app.sweep.grid import Axis
-    from app.sweep.overlays import PLAN_STYLES, planned_swivels, polish_notes, polish_overlay
+    from app.headless.sweep.grid import Axis
+    from app.headless.sweep.overlays import PLAN_STYLES, planned_swivels, polish_notes, polish_overlay
 
     swivels = tuple(float(x) for x in np.linspace(-180.0, 180.0, 13))
     axes = [Axis("swivel", swivels), Axis("mu", (0.25, 1.0))]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.commands import DragCommand, Reset, SetParam, SetTwin, StepOnce, SwitchSession
-from app.loop import SimLoop
-from app.ui.snapshot import capture
+from app.core.commands import DragCommand, Reset, SetParam, SetTwin, StepOnce, SwitchSession
+from app.live.loop import SimLoop
+from app.live.ui.snapshot import capture
 
 
 @pytest.fixture
@@ -116,7 +116,7 @@ def test_the_export_carries_the_twins_columns_beside_the_main_ones(polish):
 def test_the_twins_link_poses_are_copies_of_its_bodies():
     """The frame's twin arm: each link's position and orientation are the twin world's body origin and
     quaternion at the capture, and stay so while the twin steps on (copies, not views into MjData)."""
-    from app.lab import Lab
+    from app.live.lab import Lab
 
     lab = Lab("polish")
     lab.apply(SetTwin("j"))

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.check import TOLERANCE, cross_check
 from app.sim.world import World
+from app.tools.check import TOLERANCE, cross_check
 from control.model import RobotModel
 from control.params import ParamError, replaced
 

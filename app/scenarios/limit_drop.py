@@ -13,7 +13,7 @@ Constants, chosen once from the paper and not tuned afterwards:
   ideal F/T sensor (the drop is about the dampers, not about sensor noise);
 - lowered velocity limit for case (b): 0.5 rad/s on joint 4, about a third of its 1.40 rad/s
   limit, so the velocity damper acts well before the position damper;
-- run length: until joint 4 has stopped, at most 6 s (`app.experiments.limit_drop`), so that no
+- run length: until joint 4 has stopped, at most 6 s (`app.headless.experiments.limit_drop`), so that no
   curve ends mid-motion; the fall takes about 1 s.
 """
 

@@ -1,0 +1,512 @@
+"""limit-drop: joint 4 of the Gen3 falls into its position / velocity limit ([C] §IV-B–C, Figs. 2–4).
+
+Sweeps λ ∈ {70, 100, 300, 500} at M = 3, M ∈ {1.5, 2, 3, 5} at λ = 100 and the classic δt form,
+each with and without external-force feedback, for (a) the position limit and (b) a lowered
+velocity limit. Writes limit_drop.json, phase diagrams and report.html.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import time
+from pathlib import Path
+
+import numpy as np
+
+from app.headless.experiments.c_common import html_table, qp_session, run_parallel, verdict, write_json, write_report
+from app.scenarios.limit_drop import DURATION_S, FALLING_JOINT, LimitDropScenario
+from control.compliance_qp import ComplianceQPExecutor
+from control.gains import DamperGains
+
+LAMBDAS_AT_M3 = (70.0, 100.0, 300.0, 500.0)
+DELAY_STEPS = 5  # sensitivity check only: torque applied 5 ms late (a few ms of torque-loop/link latency)
+MS_AT_L100 = (1.5, 2.0, 3.0, 5.0)
+VELOCITY_HYSTERESIS = 0.02  # rad/s: velocity reversals smaller than this are not counted as oscillations
+STOP_SPEED = 0.01  # rad/s: joint 4 counts as stopped below this speed ...
+STOP_HOLD_S = 0.2  # ... held this long
+FALLEN_RAD = 0.05  # rad: ... once it has fallen at least this far
+OBSERVER_GAINS = (50.0, 200.0, 1000.0)  # 1/s: K_I of the velocity-overshoot study (50 is the default)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of this experiment."""
+    parser.add_argument(
+        "--duration", type=float, default=DURATION_S, help="cap in seconds per drop; each runs until joint 4 stops (6)"
+    )
+    parser.add_argument("--quick", action="store_true", help="only λ=100, M=2 and the classic form")
+
+
+def variants(quick: bool = False) -> list[tuple[str, float, float]]:
+    """(form, λ, M) of the sweep; the classic form takes ξ from λ = 100, M = 2 via [C23]."""
+    if quick:
+        return [("proposed", 100.0, 2.0), ("classic", 100.0, 2.0)]
+    out = [("proposed", lam, 3.0) for lam in LAMBDAS_AT_M3]
+    out += [("proposed", 100.0, M) for M in MS_AT_L100 if M != 3.0]
+    out.append(("classic", 100.0, 2.0))
+    return out
+
+
+def count_oscillations(dq: np.ndarray, hysteresis: float = VELOCITY_HYSTERESIS) -> int:
+    """Velocity reversals with a hysteresis band: 0 for a fall that stops without rebounding."""
+    sign = 0
+    reversals = 0
+    for v in dq:
+        if v > hysteresis and sign <= 0:
+            reversals += sign < 0
+            sign = 1
+        elif v < -hysteresis and sign >= 0:
+            reversals += sign > 0
+            sign = -1
+    return int(reversals)
+
+
+def run_drop(
+    form: str,
+    lam: float,
+    M: float,
+    feedback: bool,
+    limit: str,
+    duration: float = DURATION_S,
+    observer_gain: float | None = None,
+    delay_steps: int = 0,
+    source: str | None = None,
+    until_stopped: bool = True,
+) -> dict:
+    """One drop, until joint 4 has stopped (fallen ≥ FALLEN_RAD, then slower than STOP_SPEED for
+    STOP_HOLD_S) or `duration` s (the cap); returns the
+    metrics of limit_drop.json and the joint-4 trace. `source` overrides the τ̂_e source (fusion)."""
+    scenario = LimitDropScenario(limit)
+    session = qp_session(scenario)
+    robot = session.robot
+    gains = DamperGains(form=form, lambda_=lam, M=M)
+    executor = session.executor
+    assert isinstance(executor, ComplianceQPExecutor)
+    scenario.configure_executor(executor, robot, gains, feedback=feedback)
+    if observer_gain is not None:
+        session.set_param("estimator", "observer_gain", observer_gain)
+    if source is not None:
+        session.set_param("estimator", "source", source)
+    if delay_steps > 0:  # actuator latency in the simulation (the app's Safety → Torque delay)
+        session.set_param("world", "torque_delay_ms", delay_steps * 1e3 * session.world.model.opt.timestep)
+    session.reset()
+    j = FALLING_JOINT
+    dt = session.world.model.opt.timestep
+    qs: list[float] = []
+    dqs: list[float] = []
+    taus: list[float] = []
+    counts = {"relaxed": 0, "slow": 0}  # QP relaxations; consecutive steps slower than STOP_SPEED
+    q_start = session.world.q
+    others = np.arange(robot.nq) != j
+    drift = [0.0]
+
+    def record(rec) -> None:
+        qs.append(float(rec.q[j]))
+        dqs.append(float(rec.dq[j]))
+        taus.append(float(rec.tau[j]))
+        counts["relaxed"] += int(rec.signals.get("qp_relaxed", 0.0) > 0)
+        counts["slow"] = counts["slow"] + 1 if abs(rec.dq[j]) < STOP_SPEED else 0
+        drift[0] = max(drift[0], float(np.max(np.abs(rec.q[others] - q_start[others]))))
+
+    hold = round(STOP_HOLD_S / dt)
+
+    def stopped(rec) -> bool:  # fallen at least FALLEN_RAD, then slower than STOP_SPEED for STOP_HOLD_S
+        return counts["slow"] >= hold and abs(qs[-1] - qs[0]) >= FALLEN_RAD
+
+    until = stopped if until_stopped else None
+    result = session.run(duration, record=record, until=until)
+    q, dq, tau = np.array(qs), np.array(dqs), np.array(taus)
+    steps = q.size
+    relaxed = counts["relaxed"]
+    drift_max = drift[0]
+    q_up = float(robot.q_upper[j])
+    d_s = 0.01 * float(robot.q_upper[j] - robot.q_lower[j])
+    dq_lim = float(scenario.velocity_limits(robot)[j])
+    k_peak = int(np.argmax(dq))
+    slow = np.flatnonzero(dq[k_peak:] < 0.9 * dq[k_peak])
+    k_brake = k_peak + int(slow[0]) if slow.size else steps - 1  # braking: below 90 % of the peak speed
+    window = 5  # steps: deceleration from 5 ms velocity differences
+    ddq = (dq[window:] - dq[:-window]) / (window * dt)
+    if limit == "position":
+        violation = float(np.max(q) - q_up)
+    else:
+        violation = float(np.max(dq) - dq_lim)
+    return {
+        "form": form,
+        "lambda": lam,
+        "M": M,
+        "feedback": bool(feedback),
+        "limit": limit,
+        "max_violation": violation,
+        "overshoot_beyond_ds": float(np.max(q) - (q_up - d_s)),
+        "oscillations": count_oscillations(dq),
+        "peak_torque": float(np.max(np.abs(tau))),
+        "peak_velocity": float(np.max(dq)),
+        "brake_onset_margin": float(q_up - q[k_brake]),
+        "peak_deceleration": float(-np.min(ddq)),
+        "observer_gain": float(executor.estimator.gains.observer_gain),
+        "source": str(executor.estimator.gains.source),
+        "stop": result.stop,  # "until": joint 4 stopped; "done": still moving at the cap
+        "duration_s": steps * dt,
+        "torque_delay_ms": delay_steps * 1e3 * session.world.model.opt.timestep,
+        "final_margin": float(q_up - q[-1]),
+        "relaxed_steps": relaxed,
+        "other_joints_drift": drift_max,
+        "q_upper": q_up,
+        "d_s": d_s,
+        "dq_limit": dq_lim,
+        "trace_q": q[::5].tolist(),
+        "trace_dq": dq[::5].tolist(),
+    }
+
+
+def _phase_figure(runs: list[dict], title: str, path: Path, key: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    r0 = runs[0]
+    q_up, d_s, dq_lim = r0["q_upper"], r0["d_s"], r0["dq_limit"]
+    qs = np.concatenate([np.asarray(r["trace_q"]) for r in runs])
+    dqs = np.concatenate([np.asarray(r["trace_dq"]) for r in runs])
+    x_lo, x_hi = float(qs.min()) - 0.02, max(float(qs.max()), q_up) + 0.03
+    y_lo, y_hi = min(float(dqs.min()), 0.0) - 0.05, max(float(dqs.max()), dq_lim) + 0.1
+    ax.axvspan(q_up, x_hi, color="0.75", label="beyond position limit")
+    ax.axvspan(q_up - d_s, q_up, color="0.9", label="safety distance d_s")
+    ax.axhspan(dq_lim, y_hi, color="0.85")
+    ax.axhline(dq_lim, ls="--", color="0.4", lw=0.8, label="velocity limit")
+    for r in runs:
+        if r["form"] == "classic":
+            ax.plot(r["trace_q"], r["trace_dq"], color="0.5", lw=1.6, label="classic δt [C17–19]")
+        else:
+            ax.plot(r["trace_q"], r["trace_dq"], lw=1.2, label=f"{key} = {r[key]:g}")
+    ax.set_xlim(x_lo, x_hi)
+    ax.set_ylim(y_lo, y_hi)
+    ax.set_xlabel("joint 4 position q (rad)")
+    ax.set_ylabel("joint 4 velocity q̇ (rad/s)")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _select(runs, *, limit, feedback, sweep):
+    out = []
+    for r in runs:
+        if r["limit"] != limit or r["feedback"] != feedback:
+            continue
+        if r["form"] == "classic":
+            out.append(r)
+        elif sweep == "lambda" and r["M"] == 3.0:
+            out.append(r)
+        elif sweep == "M" and r["lambda"] == 100.0:
+            out.append(r)
+    return out
+
+
+def _label(r: dict) -> str:
+    fb = "on" if r["feedback"] else "off"
+    delay = f", torque {r['torque_delay_ms']:g} ms late" if r.get("torque_delay_ms", 0.0) > 0 else ""
+    return f"{r['limit']} {r['form']} λ={r['lambda']:g} M={r['M']:g} feedback {fb}{delay}"
+
+
+def velocity_overshoot_item(study: list[dict]) -> str:
+    """The lowered velocity limit's excess with feedback per K_I and τ̂_e source, as an HTML item."""
+    lim = study[0]["dq_limit"]
+
+    def pct(r: dict) -> str:
+        return f"{100 * r['max_violation'] / lim:+.2f} %"
+
+    by = {(r["source"], r["observer_gain"]): r for r in study}
+    rows = []
+    for src in ("fusion", "residual"):
+        cells = [f"K_I = {k:g} s⁻¹: {pct(by[(src, k)])}" for k in OBSERVER_GAINS if (src, k) in by]
+        rows.append(f"{src}: " + ", ".join(cells))
+    res = [by[("residual", k)] for k in OBSERVER_GAINS if ("residual", k) in by]
+    shrinks = all(a["max_violation"] >= b["max_violation"] - 1e-6 for a, b in itertools.pairwise(res))
+    lag = (
+        "the excess shrinks as K_I grows, so it is the observer's lag (time constant 1/K_I)"
+        if shrinks
+        else "the excess does not shrink monotonically with K_I, so lag is not the whole story"
+    )
+    default = by.get(("fusion", OBSERVER_GAINS[0]))
+    return (
+        "<li>Velocity-limit overshoot with feedback (λ = 100, M = 2), peak q̇₄ above the lowered limit as a "
+        f"share of it — {'; '.join(rows)}. With the observer alone {lag}. Fusion adds the F/T sensor's "
+        "high-pass part, and the sensor now reads the payload's inertial force m(g − a) as well as its weight, "
+        "so the observer's lag matters less"
+        + (f": {pct(default)} at the default K_I" if default else "")
+        + f". The defaults use K_I = {OBSERVER_GAINS[0]:g} s⁻¹ (the paper gives none). It is the slowest gain "
+        "studied: the observer low-passes model error and encoder noise over 1/K_I = 20 ms, and with fusion the "
+        "sensor covers the fast part.</li>"
+    )
+
+
+def findings(runs: list[dict]) -> list[str]:
+    """The paper's claims checked against our runs, as HTML list items with numbers."""
+    items = []
+    fb = [r for r in runs if r["feedback"] and r["form"] == "proposed"]
+    nofb = [r for r in runs if not r["feedback"]]
+    pos_fb = [r for r in fb if r["limit"] == "position"]
+    vel_fb = [r for r in fb if r["limit"] == "velocity"]
+    if pos_fb:
+        worst = max(r["max_violation"] for r in pos_fb)
+        worst_ds = max(r["overshoot_beyond_ds"] for r in pos_fb)
+        items.append(
+            verdict(
+                worst <= 0.0,
+                f"with feedback the proposed damper keeps joint 4 inside its position limit: largest "
+                f"excursion {worst * 1e3:+.2f} mrad relative to the limit, {worst_ds * 1e3:+.2f} mrad relative "
+                f"to q⁺ − d_s (paper Figs. 2–3: inside).",
+            )
+        )
+    if vel_fb:
+        worst_v = max(r["max_violation"] for r in vel_fb)
+        items.append(
+            verdict(
+                worst_v <= 0.02 * vel_fb[0]["dq_limit"],
+                f"with feedback the lowered velocity limit holds: largest excess {worst_v * 1e3:+.1f} mrad/s "
+                f"({100 * worst_v / vel_fb[0]['dq_limit']:+.1f} % of the limit; 2 % accepted).",
+            )
+        )
+    lam_runs = {r["lambda"]: r for r in pos_fb if r["M"] == 3.0}
+    if all(lam in lam_runs for lam in LAMBDAS_AT_M3):
+        hi = max(lam_runs[300.0]["oscillations"], lam_runs[500.0]["oscillations"])
+        lo = max(lam_runs[70.0]["oscillations"], lam_runs[100.0]["oscillations"])
+        items.append(
+            verdict(
+                hi > lo,
+                "λ = 300–500 oscillates more than λ = 70–100 (velocity reversals at M = 3: "
+                + ", ".join(f"λ={lam:g}: {lam_runs[lam]['oscillations']}" for lam in LAMBDAS_AT_M3)
+                + "). With exact, delay-free torque tracking, rigid links and noise-free encoders the damped "
+                "joint is the linear second-order system of [C21–22] whatever λ; oscillations at high λ need what "
+                "this simulation leaves out (torque-loop delay and bandwidth, joint elasticity).",
+            )
+        )
+    m_runs = {r["M"]: r for r in pos_fb if r["lambda"] == 100.0}
+    if all(M in m_runs for M in MS_AT_L100):
+        late = min(m_runs.values(), key=lambda r: r["brake_onset_margin"])
+        hard = max(m_runs.values(), key=lambda r: r["peak_deceleration"])
+        strong = max(m_runs.values(), key=lambda r: r["peak_torque"])
+        items.append(
+            verdict(
+                late["M"] == 1.5 and hard["M"] == 1.5 and strong["M"] == 1.5,
+                "M near 1 brakes late and hard: braking (speed below 90 % of its peak) starts at "
+                + ", ".join(f"M={M:g}: {m_runs[M]['brake_onset_margin']:.3f} rad" for M in MS_AT_L100)
+                + " from the limit; peak deceleration "
+                + ", ".join(f"M={M:g}: {m_runs[M]['peak_deceleration']:.1f} rad/s²" for M in MS_AT_L100)
+                + "; peak joint-4 torque "
+                + ", ".join(f"M={M:g}: {m_runs[M]['peak_torque']:.1f} N m" for M in MS_AT_L100)
+                + ".",
+            )
+        )
+    if nofb:
+        pairs = []
+        for r in nofb:
+            twin = next(
+                (
+                    f
+                    for f in runs
+                    if f["feedback"]
+                    and f["form"] == r["form"]
+                    and f["lambda"] == r["lambda"]
+                    and f["M"] == r["M"]
+                    and f["limit"] == r["limit"]
+                ),
+                None,
+            )
+            if twin is not None:
+                pairs.append((r, twin))
+
+        def crossed(r: dict) -> bool:  # the constraint: q⁺ − d_s (position) or q̇⁺ (velocity)
+            return r["overshoot_beyond_ds"] > 0 if r["limit"] == "position" else r["max_violation"] > 0
+
+        over = [r for r, _ in pairs if crossed(r)]
+        beyond = [r for r, _ in pairs if r["limit"] == "position" and r["max_violation"] > 0]
+        n_pos = sum(r["limit"] == "position" for r, _ in pairs)
+        more = [r for r, f in pairs if r["overshoot_beyond_ds"] > f["overshoot_beyond_ds"]]
+        items.append(
+            verdict(
+                len(over) == len(pairs),
+                f"without feedback every setting overshoots its constraint: {len(over)}/{len(pairs)} runs cross it "
+                f"(position: q > q⁺ − d_s; velocity: q̇ > q̇⁺), {len(more)}/{len(pairs)} go further than the same "
+                f"setting with feedback; {len(beyond)}/{n_pos} position runs also cross the hard limit q⁺ "
+                "(paper Fig. 4: all overshoot).",
+            )
+        )
+    return items
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the sweep, write limit_drop.json, figures and report.html."""
+    if not args.duration > 0:
+        print("limit-drop: --duration must be positive")
+        return 2
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    jobs_args = [
+        (form, lam, M, fb, limit, args.duration)
+        for limit in ("position", "velocity")
+        for fb in (True, False)
+        for form, lam, M in variants(args.quick)
+    ]
+    t0 = time.perf_counter()
+    # velocity-limit overshoot with feedback, per observer gain K_I, for fusion [C26] and the
+    # observer alone [C25]: how much of the excess is the observer's lag
+    extra_args = (
+        []
+        if args.quick
+        else [
+            ("proposed", 100.0, 2.0, True, "velocity", args.duration, k, 0, src)
+            for src in ("fusion", "residual")
+            for k in OBSERVER_GAINS
+        ]
+    )
+    # latency check: the λ sweep at M = 3 with the torque applied DELAY_STEPS periods late
+    delay_args = (
+        []
+        if args.quick
+        else [("proposed", lam, 3.0, True, "position", args.duration, None, DELAY_STEPS) for lam in LAMBDAS_AT_M3]
+    )
+    all_runs = run_parallel(run_drop, jobs_args + extra_args + delay_args, args.jobs, "limit-drop")
+    n0, n1 = len(jobs_args), len(jobs_args) + len(extra_args)
+    runs, extra, delayed = all_runs[:n0], all_runs[n0:n1], all_runs[n1:]
+    elapsed = time.perf_counter() - t0
+    keys = (
+        "form",
+        "lambda",
+        "M",
+        "feedback",
+        "limit",
+        "max_violation",
+        "overshoot_beyond_ds",
+        "oscillations",
+        "stop",
+        "duration_s",
+    )
+    extra_keys = ("peak_torque", "peak_velocity", "brake_onset_margin", "peak_deceleration", "other_joints_drift")
+    summary = [{k: r[k] for k in (*keys, *extra_keys)} for r in runs]
+    delay_summary = [{k: r[k] for k in (*keys, *extra_keys, "torque_delay_ms")} for r in delayed]
+    study_keys = ("source", "observer_gain", "max_violation", "peak_velocity", "dq_limit", "stop", "duration_s")
+    write_json(
+        out / "limit_drop.json",
+        {
+            "runs": summary,
+            "latency_check": delay_summary,
+            "velocity_overshoot_per_K_I": [{k: r[k] for k in study_keys} for r in extra],
+            "elapsed_s": elapsed,
+            "estimate_source": "fusion",
+        },
+    )
+    write_json(out / "limit_drop_traces.json", runs)
+    figures = []
+    for limit in ("position", "velocity"):
+        for fb, sweep, key, fig in ((True, "lambda", "lambda", 2), (True, "M", "M", 3), (False, "M", "M", 4)):
+            sel = _select(runs, limit=limit, feedback=fb, sweep=sweep)
+            if not sel:
+                continue
+            name = f"fig{fig}_{limit}.png"
+            fixed = "M = 3" if sweep == "lambda" else "λ = 100"
+            title = f"Fig. {fig} style: {limit} limit, {fixed}, feedback {'on' if fb else 'off'}"
+            _phase_figure(sel, title, out / name, key)
+            figures.append((name, title))
+    rows = [
+        [
+            r["limit"],
+            r["form"],
+            r["lambda"],
+            r["M"],
+            "on" if r["feedback"] else "off",
+            r["max_violation"],
+            r["overshoot_beyond_ds"],
+            r["oscillations"],
+            r["peak_torque"],
+            r["brake_onset_margin"],
+            {"until": "stopped", "done": "moving"}.get(r["stop"], "halted") + f" at {r['duration_s']:.2f} s",
+        ]
+        for r in runs
+    ]
+    header = [
+        "limit",
+        "form",
+        "λ",
+        "M",
+        "feedback",
+        "max violation (rad | rad/s)",
+        "beyond q⁺−d_s (rad)",
+        "oscillations",
+        "peak τ₄ (N m)",
+        "braking starts (rad from q⁺)",
+        "end",
+    ]
+    print(f"{'limit':9s} {'form':9s} {'λ':>5s} {'M':>4s} {'fb':>3s} {'violation':>10s} {'beyond_ds':>10s} osc peakτ")
+    for r in runs:
+        print(
+            f"{r['limit']:9s} {r['form']:9s} {r['lambda']:5.0f} {r['M']:4.1f} {'on' if r['feedback'] else 'off':>3s} "
+            f"{r['max_violation']:+10.4f} {r['overshoot_beyond_ds']:+10.4f} {r['oscillations']:3d} "
+            f"{r['peak_torque']:5.1f}"
+        )
+    items = findings(runs)
+    drifts_on = [r["other_joints_drift"] for r in runs if r["feedback"]]
+    drifts_off = [r["other_joints_drift"] for r in runs if not r["feedback"]]
+    if drifts_on and drifts_off:
+        items.append(
+            f"<li>Posture of the other joints: with feedback they move at most {max(drifts_on) * 1e3:.1f} mrad; "
+            f"without feedback up to {max(drifts_off):.2f} rad. As joint 4 turns, the mass loads joint 2 as well, "
+            "which only the soft posture task (K_p = 1) holds; it sags and pulls joint 4 back from its limit. "
+            "Velocity reversals of joint 4 without feedback: "
+            + ", ".join(f"{_label(r)}: {r['oscillations']}" for r in runs if not r["feedback"])
+            + f"; {sum(r['stop'] == 'done' for r in runs if not r['feedback'])} of these runs are still moving at "
+            "the cap (the sagging arm swings), so their reversals are the sag's swing, not a rebound from the "
+            "damper.</li>"
+        )
+    if delayed:
+        items.append(
+            f"<li>Latency check (not in the paper's setup): with the torque applied {DELAY_STEPS} ms late, the same "
+            "λ sweep (M = 3, feedback on) gives velocity reversals "
+            + ", ".join(f"λ={r['lambda']:g}: {r['oscillations']}" for r in delayed)
+            + "; largest position excursion "
+            + ", ".join(f"λ={r['lambda']:g}: {r['max_violation'] * 1e3:+.1f} mrad" for r in delayed)
+            + ". High λ loses its margin to delay first, which is one way to read the paper's oscillations.</li>"
+        )
+    if extra:
+        items.append(velocity_overshoot_item(extra))
+    moving = [r for r in runs + extra + delayed if r["stop"] != "until"]
+    items.append(
+        f"<li>Run length: each drop runs until joint 4 has stopped (|q̇₄| &lt; {STOP_SPEED} rad/s for "
+        f"{STOP_HOLD_S} s after falling ≥ {FALLEN_RAD} rad), at most {args.duration:g} s; the runs took "
+        f"{min(r['duration_s'] for r in runs):.2f}–{max(r['duration_s'] for r in runs):.2f} s; "
+        f"{len(moving)} of {len(runs) + len(extra) + len(delayed)} were still moving at the cap"
+        + (": " + ", ".join(_label(r) for r in moving) if moving else "")
+        + ".</li>"
+    )
+    setup = (
+        "<p>Gen3 in the L-shape (<code>l_shape</code>), 1.25 kg at the TCP in the simulation only, posture task "
+        "only (K_p = 1, K_d = 2), Γ₀ = e₄, external torque from the momentum observer fused with the F/T sensor "
+        f"(K_I = 50 s⁻¹), each drop until joint 4 has stopped (at most {args.duration:g} s), 1 kHz. The F/T model "
+        "reads the payload's weight and its inertial force m(g − a). Case (a): position limit q⁺ = 2.57 rad "
+        "(d_s = 1 % of the range); case (b): joint-4 velocity limit lowered to 0.5 rad/s. The classic δt form uses "
+        "d_i = 10 % of the range and ξ from [C23] with λ = 100, M = 2. Violation: positive = beyond the limit. "
+        f"Oscillations: velocity reversals larger than {VELOCITY_HYSTERESIS} rad/s. "
+        f"Sweep wall time {elapsed:.1f} s.</p>"
+    )
+    figs_html = "".join(f"<figure><img src='{n}'><figcaption>{t}</figcaption></figure>" for n, t in figures)
+    write_report(
+        out,
+        "Joint-limit drop [C] §IV-B–C",
+        [
+            ("Setup", setup),
+            ("What the paper found and what we get", "<ul>" + "".join(items) + "</ul>"),
+            ("All runs", html_table(header, rows)),
+            ("Phase diagrams (Figs. 2–4 style)", figs_html),
+        ],
+    )
+    if args.json:
+        import json
+
+        print(json.dumps(summary, indent=2))
+    print(f"wrote {out / 'limit_drop.json'} and {out / 'report.html'} ({elapsed:.1f} s)")
+    return 0

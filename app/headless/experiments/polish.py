@@ -1,0 +1,681 @@
+"""Polish: reproduce the simulation study of [T] §IV-B (Table III, Figs. 6, 8, 9) headless.
+
+Each run is one `Session` of the polish scenario (contact, settle until the posture has
+converged, six-segment zig-zag) with one nullspace objective, one friction coefficient and one
+noise seed; rows add the W_a start across the ridge, W_j without inertia shaping and the two
+planned-path rows ([T] §IV-B future work, `control.planner`). Every run carries the force-loop
+margin of its converged posture (`control.margin`). Runs go to worker processes (`--jobs`).
+Outputs in --out: polish.json (every run and the mean ± sd per row), polish_series.npz,
+figures and report.html; runs/ keeps each run as it finishes (`--resume` reuses them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.core.provenance import code_version
+from app.scenarios import polish as scenario_module
+from app.scenarios.polish import N_SEGMENTS, PolishScenario
+
+PAPER_TABLE_III = {  # [T] Table III: force error MA / PTP / STD (N)
+    0.25: {"j": (2.3, 18.2, 2.8), "f": (2.5, 17.4, 3.1), "a": (1.5, 10.5, 1.8), "d": (1.6, 12.2, 2.0)},
+    1.0: {"j": (5.9, 72.4, 9.3), "f": (7.4, 74.0, 12.0), "a": (1.6, 10.8, 2.0), "d": (1.8, 14.1, 2.1)},
+}
+OBJECTIVE_NAMES = {
+    "j": "W_j",
+    "f": "W_f",
+    "a": "W_a",
+    "d": "W_d",
+    "planned": "planned (P_d·f̂)²",
+    "planned_a": "planned W_a",
+}
+PLAN_COST_OF = {"planned": "directional", "planned_a": "a"}
+MIRROR_START_DEG = scenario_module.MIRROR_START_DEG
+DEFAULT_SEEDS = 5
+ARMATURE_SCALES = (0.0, 0.5, 1.0, 2.0)  # item 6: the armature is not published (robots/rizon4s.toml)
+V_EPS_CHECK_M_PER_S = (0.001, 0.002, 0.01)  # friction regularisation re-measured each run (W_j hold, μ = 1)
+V_EPS_HOLD_S = 3.0
+RECORD_EVERY = 5  # time series kept at 200 Hz for the figures
+SAFETY_CAP_S = scenario_module.CONVERGE_TIMEOUT_S + scenario_module.CONTACT_TIME_S + 20.0  # settle cap + trajectory
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `torquelab experiment polish`."""
+    parser.add_argument("--mu", default="0.25,1.0", help="Coulomb friction coefficients, comma separated")
+    parser.add_argument("--seeds", type=int, default=DEFAULT_SEEDS, help="noise seeds per cell (0, 1, ...)")
+    parser.add_argument("--first-seed", type=int, default=0, help="first noise seed (to add seeds to an earlier run)")
+    parser.add_argument("--sander", action="store_true", help="add the 7000 RPM electric-sander disturbance")
+    parser.add_argument(
+        "--quick", action="store_true", help="1 seed, the 8 paper cells only (W_j/W_f/W_a/W_d × μ): a few-minute look"
+    )
+    parser.add_argument("--no-armature", action="store_true", help="skip the armature sensitivity runs")
+    parser.add_argument("--only-armature", action="store_true", help="run the armature sensitivity runs alone")
+    parser.add_argument(
+        "--combine",
+        default=None,
+        help="write one report from the runs of earlier output directories (comma separated), running nothing",
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="reuse the runs an earlier (interrupted) invocation with the same --out already finished "
+        "(runs/ in --out: each run is saved as it finishes) with the same code version",
+    )
+    parser.add_argument(
+        "--rows", default=None, help=f"only these rows of the table, comma separated ({', '.join(ROW_KEYS)})"
+    )
+
+
+def _parse_mu(text: str) -> list[float]:
+    items = [s.strip() for s in str(text).split(",") if s.strip()]
+    if not items:
+        raise ValueError("--mu needs at least one value")
+    try:
+        values = [float(s) for s in items]
+    except ValueError:
+        raise ValueError(f"--mu must be numbers, got {text!r}") from None
+    if any(not np.isfinite(v) or v < 0 for v in values):
+        raise ValueError("--mu values must be finite and non-negative")
+    return values
+
+
+# ---- the rows of Table III -----------------------------------------------------------------------
+ROWS: dict[str, dict[str, Any]] = {
+    **{o: {"row": OBJECTIVE_NAMES[o], "objective": o} for o in ("j", "f", "a", "d")},
+    "mirror": {"row": f"W_a from {MIRROR_START_DEG:+.0f}°", "objective": "a", "start_swivel_deg": MIRROR_START_DEG},
+    "noshaping": {"row": "W_j, no shaping", "objective": "j", "shaping": False},
+    "planned_a": {"row": OBJECTIVE_NAMES["planned_a"], "objective": "planned_a"},
+    "planned": {"row": OBJECTIVE_NAMES["planned"], "objective": "planned"},
+}
+ROW_KEYS = tuple(ROWS)
+
+
+def table_specs(
+    mus: list[float],
+    seeds: int,
+    quick: bool,
+    sander: bool = False,
+    only: list[str] | None = None,
+    first_seed: int = 0,
+) -> list[dict]:
+    """Every run of the table: (row, μ, seed); `only` picks rows by key (`ROW_KEYS`)."""
+    keys = list(only) if only else (["j", "f", "a", "d"] if quick else list(ROW_KEYS))
+    bad = [k for k in keys if k not in ROWS]
+    if bad:
+        raise ValueError(f"unknown row(s) {', '.join(bad)}; choose from {', '.join(ROW_KEYS)}")
+    rows = [ROWS[k] for k in keys]
+    n_seeds = 1 if quick else max(1, int(seeds))
+    base = {"sander": bool(sander), "start_swivel_deg": 0.0, "shaping": True, "armature_scale": 1.0, "group": "table"}
+    seeds_used = range(first_seed, first_seed + n_seeds)
+    return [{**base, **row, "mu": mu, "seed": s} for row in rows for mu in mus for s in seeds_used]
+
+
+def armature_specs(mu: float = 1.0) -> list[dict]:
+    """Item 6: W_j/W_f/W_a/W_d from the Fig. 6a start at μ = 1 with the armature scaled (×1 is in the table)."""
+    return [
+        {
+            "row": f"{OBJECTIVE_NAMES[o]}, armature ×{scale:g}",
+            "objective": o,
+            "mu": mu,
+            "seed": 0,
+            "sander": False,
+            "start_swivel_deg": 0.0,
+            "shaping": True,
+            "armature_scale": scale,
+            "group": "armature",
+        }
+        for scale in ARMATURE_SCALES
+        if scale != 1.0
+        for o in ("j", "f", "a", "d")
+    ]
+
+
+# ---- one run ------------------------------------------------------------------------------------
+def simulate(spec: dict) -> dict:
+    """Run one polish session and return its metrics and (downsampled) time series.
+
+    spec: objective ("j", "f", "a", "d", "planned", "planned_a"), mu, seed, start_swivel_deg,
+    optional shaping, armature_scale, sander, sensor_cutoff_hz, converge_timeout_s (settle cap),
+    hold_swivel_deg, row, group, session_params ((group, field, value) set on the session)."""
+    from app.core.session import Session
+    from control.coupling import swivel_angle
+
+    t_wall = time.perf_counter()
+    objective = str(spec["objective"])
+    plan_cost = PLAN_COST_OF.get(objective)
+    scenario = PolishScenario(
+        mu=float(spec["mu"]),
+        sander=bool(spec.get("sander", False)),
+        start_swivel_deg=float(spec.get("start_swivel_deg", 0.0)),
+        converge_timeout_s=float(spec.get("converge_timeout_s", scenario_module.CONVERGE_TIMEOUT_S)),
+        hold_swivel_deg=spec.get("hold_swivel_deg"),
+        armature_scale=float(spec.get("armature_scale", 1.0)),
+        plan_cost=plan_cost,
+    )
+    session = Session(scenario, seed=int(spec["seed"]))
+    session.set_param("motion_force", "shaping", bool(spec.get("shaping", True)))
+    if plan_cost is None and spec.get("hold_swivel_deg") is None:
+        session.set_param("nullspace", "objective", objective)
+    if spec.get("sensor_cutoff_hz") is not None:
+        session.set_param("sensor", "cutoff_hz", float(spec["sensor_cutoff_hz"]))
+    for group, name, value in spec.get("session_params", ()):  # e.g. ("nullspace", "k0_a", 0.5) from a sweep
+        session.set_param(group, name, value)
+    clock = session.environment.clock  # type: ignore[attr-defined]
+    session.environment.live_margin_every_s = float("inf")  # type: ignore[attr-defined]  # a page signal only
+    target = session.target_fn
+    q_start = session.world.q.copy()
+    cols = ("t", "force_error", "force_error_true", "W_f", "W_a", "W_d", "segment", "swivel", "swivel_plan")
+    rec: dict[str, list[float]] = {k: [] for k in cols}
+    q_converged: list[np.ndarray] = []
+
+    def record(r) -> None:
+        sig = r.signals
+        if not q_converged and clock.trajectory_start is not None:
+            q_converged.append(r.q.copy())
+        rec["t"].append(r.t)
+        rec["force_error"].append(scenario_module.DESIRED_FORCE_N - r.wrench_tcp[2])  # filtered F/T reading
+        rec["force_error_true"].append(scenario_module.DESIRED_FORCE_N - sig["contact_force_n"])
+        rec["W_f"].append(sig["W_f"])
+        rec["W_a"].append(sig["W_a"])
+        rec["W_d"].append(sig["W_d"])
+        rec["segment"].append(sig["segment"])
+        rec["swivel"].append(sig["swivel_deg"])
+        rec["swivel_plan"].append(target.planned_swivel_deg(r.t) if plan_cost else np.nan)  # type: ignore[attr-defined]
+
+    result_run = session.run(SAFETY_CAP_S, until=lambda r: clock.finished(r.t), record=record)
+    series = {k: np.asarray(v, dtype=float) for k, v in rec.items()}
+    qc = q_converged[0] if q_converged else session.world.q.copy()
+    model = session.model
+    traj = (series["segment"] >= 1) & (series["segment"] <= N_SEGMENTS)
+    posture = posture_figures(session, qc, float(spec["mu"]), bool(spec.get("shaping", True)))
+    result: dict[str, Any] = {
+        "row": spec.get("row", OBJECTIVE_NAMES.get(objective, objective)),
+        "group": spec.get("group", "table"),
+        "objective": objective,
+        "mu": float(spec["mu"]),
+        "seed": int(spec["seed"]),
+        "start_swivel_deg": float(np.rad2deg(swivel_angle(model, q_start))),
+        "shaping": bool(spec.get("shaping", True)),
+        "armature_scale": float(spec.get("armature_scale", 1.0)),
+        "sander": bool(spec.get("sander", False)),
+        "sensor_cutoff_hz": spec.get("sensor_cutoff_hz", scenario_module.SENSOR_CUTOFF_HZ),
+        "converged": bool(clock.converged),
+        "convergence_time_s": clock.convergence_time_s,
+        "settle_cap_s": clock.timeout_s,
+        "converged_swivel_deg": float(np.rad2deg(swivel_angle(model, qc))),
+        "posture_change_deg": [float(x) for x in np.rad2deg(qc - q_start)],
+        **posture,
+        "force_error": _stats(series["force_error"][traj]),
+        "force_error_true_contact": _stats(series["force_error_true"][traj]),
+        "contact_lost_ms": int(np.sum(series["force_error_true"][traj] >= scenario_module.DESIRED_FORCE_N)),
+        "run_stop": result_run.stop,
+        "diverged": result_run.stop == "diverged",
+        "per_segment": [],
+        "q_start": [float(x) for x in q_start],
+        "q_converged": [float(x) for x in qc],
+    }
+    result["stable"] = bool(result_run.stop != "diverged" and result["contact_lost_ms"] == 0 and np.any(traj))
+    if plan_cost is not None:
+        plan = session.scenario.plan  # type: ignore[attr-defined]  # the session's copy of the scenario
+        assert plan is not None
+        result["plan_cost"] = plan.total_cost
+        result["plan_cost_kind"] = plan_cost
+        sel = traj | ((series["segment"] == 0) & (series["t"] >= scenario_module.CONTACT_TIME_S + plan.transfer_s))
+        err = np.abs((series["swivel"][sel] - series["swivel_plan"][sel] + 180.0) % 360.0 - 180.0)
+        result["plan_tracking_deg"] = {"mean": _mean(err), "max": float(np.max(err)) if err.size else None}
+        result["plan"] = {
+            "t": [float(x) for x in plan.t],
+            "swivel_deg": [float(x) for x in np.rad2deg(plan.swivel_rad)],
+            "transfer_s": plan.transfer_s,
+        }
+    for seg_k in range(1, N_SEGMENTS + 1):
+        sel = series["segment"] == seg_k
+        result["per_segment"].append(
+            {
+                "segment": seg_k,
+                "direction": "retract (-X)" if seg_k % 2 == 1 else "stretch (+X)",
+                "force_error": _stats(series["force_error"][sel]),
+                "contact_lost_ms": int(np.sum(series["force_error_true"][sel] >= scenario_module.DESIRED_FORCE_N)),
+            }
+        )
+    result["wall_s"] = time.perf_counter() - t_wall
+    down = {k: v[::RECORD_EVERY].astype(np.float32) for k, v in series.items()}
+    return {"result": result, "series": down}
+
+
+def posture_figures(session, q: np.ndarray, mu: float, shaping: bool) -> dict:
+    """W_f/W_a/W_d, P_f·f̂ and P_d·f̂ (stretching and retracting friction directions) and the
+    force-loop margin at a posture (the trajectory start)."""
+    from dataclasses import replace
+
+    from control.coupling import POLISH_SUBSPACES, coupling_values, terms_of
+    from control.margin import ContactLoop, posture_margin
+
+    dyn = session.model.compute(q, np.zeros(len(q)))
+    terms = terms_of(dyn, POLISH_SUBSPACES)
+    W = coupling_values(terms)
+    dirs = {"stretch": scenario_module.friction_direction(1.5 * scenario_module.SEGMENT_DURATION_S)}
+    dirs["retract"] = scenario_module.friction_direction(0.5 * scenario_module.SEGMENT_DURATION_S)
+    gains = replace(session.executor.gains, shaping=shaping)  # type: ignore[attr-defined]
+    loop = ContactLoop(
+        stiffness_n_per_m=scenario_module.CONTACT_STIFFNESS_N_PER_M,
+        mu=mu,
+        normal_force_n=scenario_module.DESIRED_FORCE_N,
+        speed_m_s=peak_speed(),
+        v_eps_m_per_s=session.environment.contact.v_eps_m_per_s,
+        sensor_cutoff_hz=session.sensor.cutoff_hz,
+    )
+    pm = posture_margin(dyn.Lambda, POLISH_SUBSPACES, gains, loop, [dirs["stretch"], dirs["retract"]])
+    return {
+        "W": {"f": W["W_f"], "a": W["W_a"], "d": W["W_d"]},
+        "Pf_fhat": {k: float(terms.P_f[0, :2] @ d) for k, d in dirs.items()},
+        "Pd_fhat": {k: float(terms.P_d[0, :2] @ d) for k, d in dirs.items()},
+        "margin": _finite_or_none(pm.kd_margin),  # None: no K_f^d up to 2000 N s/m stabilises the loop
+        "margin_detail": {
+            "kd_critical": _finite_or_none(pm.kd_critical),
+            "kd_critical_stretch": _finite_or_none(pm.kd_critical_per_direction[0]),
+            "kd_critical_retract": _finite_or_none(pm.kd_critical_per_direction[1]),
+            "worst_direction": ("stretch", "retract")[pm.worst_direction],
+            "worst_speed_m_s": pm.worst_speed_m_s,
+        },
+    }
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def peak_speed() -> float:
+    """Peak TCP speed of a segment (minimum jerk: 1.875 × length / duration)."""
+    return scenario_module.PEAK_SPEED_M_S
+
+
+def _stats(e: np.ndarray) -> dict:
+    if e.size == 0:
+        return {"ma": None, "ptp": None, "std": None}
+    return {"ma": float(np.mean(np.abs(e))), "ptp": float(np.ptp(e)), "std": float(np.std(e))}
+
+
+def _mean(x: np.ndarray) -> float | None:
+    return float(np.mean(x)) if x.size else None
+
+
+def v_eps_check(v_eps: float, seed: int = 0) -> dict:
+    """Force-error STD (true contact force) of a W_j hold at μ = 1 with friction regularised at v_ε."""
+    from app.core.session import Session
+
+    session = Session(PolishScenario(mu=1.0), seed=seed)
+    session.set_param("nullspace", "objective", "j")
+    session.set_param("contact", "v_eps_m_per_s", v_eps)
+    f: list[float] = []
+    res = session.run(
+        scenario_module.CONTACT_TIME_S + V_EPS_HOLD_S,
+        record=lambda r: f.append(r.signals["contact_force_n"]) if r.t >= scenario_module.CONTACT_TIME_S else None,
+    )
+    arr = np.asarray(f)
+    return {
+        "v_eps_m_per_s": v_eps,
+        "force_std_n": float(np.std(arr)),
+        "lost_ms": int(np.sum(arr <= 0)),
+        "stop": res.stop,
+    }
+
+
+# ---- summary ------------------------------------------------------------------------------------
+def summarise(runs: list[dict]) -> list[dict]:
+    """Mean ± sd per row and μ (the JSON's `summary`)."""
+    keys: list[tuple[str, float]] = []
+    for r in runs:
+        if (r["row"], r["mu"]) not in keys:
+            keys.append((r["row"], r["mu"]))
+    out = []
+    for row, mu in keys:
+        rs = [r for r in runs if r["row"] == row and r["mu"] == mu]
+        entry: dict[str, Any] = {
+            "row": row,
+            "objective": rs[0]["objective"],
+            "mu": mu,
+            "n": len(rs),
+            "converged": sum(r["converged"] for r in rs),
+            "stable": sum(r["stable"] for r in rs),
+            "start_swivel_deg": rs[0]["start_swivel_deg"],
+            "shaping": rs[0]["shaping"],
+        }
+        for k in ("ma", "ptp", "std"):
+            entry[k] = _mean_sd([r["force_error"][k] for r in rs])
+        entry["converged_swivel_deg"] = _mean_sd([r["converged_swivel_deg"] for r in rs])
+        entry["convergence_time_s"] = _mean_sd([r["convergence_time_s"] for r in rs])
+        entry["margin"] = _mean_sd([r["margin"] for r in rs])
+        entry["contact_lost_ms"] = _mean_sd([r["contact_lost_ms"] for r in rs])
+        for w in ("f", "a", "d"):
+            entry[f"W_{w}"] = _mean_sd([r["W"][w] for r in rs])
+        for key in ("Pf_fhat", "Pd_fhat"):
+            for d in ("stretch", "retract"):
+                entry[f"{key}_{d}"] = _mean_sd([r[key][d] for r in rs])
+        if "plan_cost" in rs[0]:
+            entry["plan_cost"] = _mean_sd([r["plan_cost"] for r in rs])
+            entry["plan_tracking_max_deg"] = _mean_sd([r["plan_tracking_deg"]["max"] for r in rs])
+        paper = (
+            PAPER_TABLE_III.get(mu, {}).get(rs[0]["objective"])
+            if row == OBJECTIVE_NAMES.get(rs[0]["objective"])
+            else None
+        )
+        entry["paper"] = None if paper is None or not rs[0]["shaping"] else list(paper)
+        out.append(entry)
+    return out
+
+
+def _mean_sd(values: list) -> dict:
+    xs = np.array([v for v in values if v is not None], dtype=float)
+    if xs.size == 0:
+        return {"mean": None, "sd": None, "n": 0}
+    return {"mean": float(np.mean(xs)), "sd": float(np.std(xs, ddof=1)) if xs.size > 1 else None, "n": int(xs.size)}
+
+
+# ---- the experiment -------------------------------------------------------------------------------
+def run(args: argparse.Namespace) -> int:
+    """Run the table (+ armature sensitivity and the v_ε check), write JSON, figures and the report."""
+    if getattr(args, "combine", None):
+        return combine(args, [Path(d.strip()) for d in args.combine.split(",") if d.strip()])
+    mus = _parse_mu(args.mu)
+    if args.seeds < 1:
+        raise ValueError("--seeds must be at least 1")
+    jobs = max(1, int(args.jobs))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    quick = bool(args.quick)
+    only = [k.strip() for k in args.rows.split(",") if k.strip()] if getattr(args, "rows", None) else None
+    specs = (
+        []
+        if getattr(args, "only_armature", False)
+        else table_specs(mus, args.seeds, quick, bool(args.sander), only, int(getattr(args, "first_seed", 0)))
+    )
+    if not quick and not args.no_armature:
+        specs += armature_specs(max(mus))
+    t0 = time.perf_counter()
+    print(f"polish: {len(specs)} runs on {jobs} process(es)", file=sys.stderr, flush=True)
+    outputs, reused = _map(simulate, specs, jobs, t0, out / RUNS_DIR, bool(getattr(args, "resume", False)))
+    results = [o["result"] for o in outputs]
+    series = [o["series"] for o in outputs]
+    v_eps = [] if quick else [v_eps_check(v) for v in V_EPS_CHECK_M_PER_S]
+
+    from app.headless.experiments.polish_report import armature_basins, scan_at_start, write_figures, write_report
+
+    scan = scan_at_start()
+    table = [r for r in results if r["group"] == "table"]
+    doc = {
+        "experiment": "polish",
+        "settings": {**_settings(args, mus, quick), "reused_runs": reused},
+        "paper_table_iii": {
+            str(mu): {OBJECTIVE_NAMES[k]: v for k, v in row.items()} for mu, row in PAPER_TABLE_III.items()
+        },
+        "runs": table,
+        "summary": summarise(table),
+        "armature": {
+            "runs": [r for r in results if r["group"] == "armature"] + [r for r in table if _is_fig6a_start(r, mus)],
+            "basins": armature_basins(ARMATURE_SCALES),
+        },
+        "v_eps": v_eps,
+        "swivel_scan": scan["summary"],
+    }
+    doc["wall_s"] = time.perf_counter() - t0
+    (out / "polish.json").write_text(json.dumps(doc, indent=2))
+    np.savez_compressed(
+        out / "polish_series.npz",
+        **{f"{_label(r)}__{k}": v for r, s in zip(results, series, strict=True) for k, v in s.items()},
+    )
+    write_figures(out, results, series, scan)
+    write_report(out, doc)
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        print(format_table(doc["summary"]))
+        print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} in {doc['wall_s']:.0f} s")
+    return 0
+
+
+def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
+    """One polish.json, figures and report from the runs of several earlier output directories
+    (e.g. rows run separately); a run (row, μ, seed, armature) present twice is kept once."""
+    from app.headless.experiments.polish_report import scan_at_start, write_figures, write_report
+
+    docs, series_files = [], []
+    for d in dirs:
+        if not (d / "polish.json").is_file():
+            raise ValueError(f"{d} has no polish.json to combine")
+        docs.append(json.loads((d / "polish.json").read_text()))
+        series_files.append(np.load(d / "polish_series.npz"))
+    seen: set[tuple] = set()
+    results, series = [], []
+    for doc, npz in zip(docs, series_files, strict=True):
+        for r in doc["runs"] + [x for x in doc["armature"]["runs"] if x["group"] == "armature"]:
+            if r.get("margin") is not None and not np.isfinite(r["margin"]):
+                r["margin"] = None  # older outputs wrote ±inf for "no K_f^d stabilises"
+            key = (r["row"], r["mu"], r["seed"], r["armature_scale"])
+            if key in seen:
+                continue
+            seen.add(key)
+            results.append(r)
+            prefix = f"{_label(r)}__"
+            series.append({k[len(prefix) :]: npz[k] for k in npz.files if k.startswith(prefix)})
+    if getattr(args, "recompute_margin", True):
+        _recompute_margins(results)
+    table = [r for r in results if r["group"] == "table"]
+    mus = sorted({r["mu"] for r in table})
+    settings = dict(docs[0]["settings"])
+    settings["command"] = "; ".join(d["settings"]["command"] for d in docs) + f" (combined: {args.combine})"
+    settings["mu"] = mus
+    settings["seeds"] = max(d["settings"]["seeds"] for d in docs)
+    scan = scan_at_start()
+    basins: list = next((d["armature"]["basins"] for d in docs if d["armature"]["basins"]), [])
+    doc = {
+        "experiment": "polish",
+        "settings": settings,
+        "paper_table_iii": docs[0]["paper_table_iii"],
+        "runs": table,
+        "summary": summarise(table),
+        "armature": {
+            "runs": [r for r in results if r["group"] == "armature"] + [r for r in table if _is_fig6a_start(r, mus)],
+            "basins": basins,
+        },
+        "v_eps": next((d["v_eps"] for d in docs if d.get("v_eps")), []),
+        "swivel_scan": scan["summary"],
+        "wall_s": float(sum(d["wall_s"] for d in docs)),
+        "combined_from": [str(d) for d in dirs],
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "polish.json").write_text(json.dumps(doc, indent=2))
+    np.savez_compressed(
+        out / "polish_series.npz",
+        **{f"{_label(r)}__{k}": v for r, s in zip(results, series, strict=True) for k, v in s.items()},
+    )
+    write_figures(out, results, series, scan)
+    write_report(out, doc)
+    print(format_table(doc["summary"]))
+    print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} from {len(dirs)} directories")
+    return 0
+
+
+def _recompute_margins(results: list[dict]) -> None:
+    """The posture figures (W, P·f̂, margin) of each run again from its converged posture with this
+    version's `control.margin`, so runs made by different versions are compared alike."""
+    from app.core.session import Session
+
+    sessions: dict[float, Any] = {}
+    for r in results:
+        scale = float(r["armature_scale"])
+        if scale not in sessions:
+            sessions[scale] = Session(PolishScenario(armature_scale=scale), seed=0)
+        r.update(posture_figures(sessions[scale], np.array(r["q_converged"]), float(r["mu"]), bool(r["shaping"])))
+
+
+def _is_fig6a_start(r: dict, mus: list[float]) -> bool:
+    return (
+        r["objective"] in ("j", "f", "a", "d")
+        and r["mu"] == max(mus)
+        and r["seed"] == 0
+        and abs(r["start_swivel_deg"]) < 1e-6
+        and r["shaping"]
+    )
+
+
+RUNS_DIR = "runs"  # one file pair per finished run: <key>.json (spec and result) and <key>.npz (series)
+
+
+def run_key(spec: dict) -> str:
+    """A run's file name in runs/: a hash of its spec."""
+    return hashlib.sha1(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def save_run(runs_dir: Path, spec: dict, output: dict) -> None:
+    """Keep one finished run (written to a temporary name first, so a half-written run is never read)."""
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    key = run_key(spec)
+    with open(runs_dir / f"{key}.tmp.npz", "wb") as f:
+        np.savez_compressed(f, **output["series"])
+    (runs_dir / f"{key}.tmp.npz").replace(runs_dir / f"{key}.npz")
+    doc = {"spec": spec, "code": code_version(), "result": output["result"]}
+    (runs_dir / f"{key}.tmp.json").write_text(json.dumps(doc))
+    (runs_dir / f"{key}.tmp.json").replace(runs_dir / f"{key}.json")
+
+
+def load_run(runs_dir: Path, spec: dict) -> dict | None:
+    """A run of exactly this spec saved earlier by this code version, or None."""
+    key = run_key(spec)
+    meta, arrays = runs_dir / f"{key}.json", runs_dir / f"{key}.npz"
+    if not (meta.exists() and arrays.exists()):
+        return None
+    doc = json.loads(meta.read_text())
+    if doc.get("spec") != json.loads(json.dumps(spec)) or doc.get("code") != code_version():
+        return None
+    with np.load(arrays) as z:
+        series = {k: z[k] for k in z.files}
+    return {"result": doc["result"], "series": series}
+
+
+def _map(
+    fn, specs: list[dict], jobs: int, t0: float, runs_dir: Path | None = None, resume: bool = False
+) -> tuple[list[dict], int]:
+    """fn over specs on `jobs` processes; each finished run is saved in runs_dir at once, and with
+    `resume` a run saved there earlier is reused instead of run again. Returns (outputs, reused)."""
+    outputs: list[dict | None] = [None] * len(specs)
+    reused = 0
+    if runs_dir is not None and resume:
+        for i, spec in enumerate(specs):
+            outputs[i] = load_run(runs_dir, spec)
+        reused = sum(o is not None for o in outputs)
+        print(f"polish: reusing {reused} finished run(s) from {runs_dir}", file=sys.stderr, flush=True)
+    todo = [i for i, o in enumerate(outputs) if o is None]
+
+    def finished(done: int, i: int, output: dict) -> None:
+        outputs[i] = output
+        if runs_dir is not None:
+            save_run(runs_dir, specs[i], output)
+        _progress(done, len(todo), output, t0)
+
+    if jobs == 1:
+        for done, i in enumerate(todo):
+            finished(done, i, fn(specs[i]))
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = {pool.submit(fn, specs[i]): i for i in todo}
+            for done, fut in enumerate(as_completed(futures)):
+                finished(done, futures[fut], fut.result())
+    return [o for o in outputs if o is not None], reused
+
+
+def _label(r: dict) -> str:
+    """Unique name of a run, e.g. "a_mu1_sw+0_s0" or "j_mu1_sw+0_s0_noshaping_arm0.5"."""
+    label = f"{r['objective']}_mu{r['mu']:g}_sw{r['start_swivel_deg']:+.0f}_s{r['seed']}"
+    if not r["shaping"]:
+        label += "_noshaping"
+    if r["armature_scale"] != 1.0:
+        label += f"_arm{r['armature_scale']:g}"
+    return label
+
+
+def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
+    if output is None:
+        return
+    r = output["result"]
+    fe = r["force_error"]
+    ma = "-" if fe["ma"] is None else f"{fe['ma']:.1f}/{fe['ptp']:.1f}/{fe['std']:.1f}"
+    conv = f"converged in {r['convergence_time_s']:.1f} s" if r["converged"] else "NOT converged"
+    swivel = "-" if r.get("converged_swivel_deg") is None else f"{r['converged_swivel_deg']:+.0f}°"
+    # margin None: no K_f^d stabilises the linearised loop
+    margin = "none (no K_f^d stabilises)" if r.get("margin") is None else f"{r['margin']:+.0f} N s/m"
+    print(
+        f"[{i + 1}/{total}] {_label(r)}: {conv} at {swivel}, "
+        f"MA/PTP/STD {ma} N, margin {margin}, {'stable' if r['stable'] else 'UNSTABLE'} "
+        f"({r['wall_s']:.0f} s, total {time.perf_counter() - t0:.0f} s)",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
+    s = scenario_module
+    return {
+        "command": "torquelab experiment polish"
+        + (" --quick" if quick else f" --seeds {args.seeds}")
+        + (f" --rows {args.rows}" if getattr(args, "rows", None) else "")
+        + f" --mu {','.join(f'{m:g}' for m in mus)}",
+        "code": code_version(),
+        "quick": quick,
+        "seeds": 1 if quick else int(args.seeds),
+        "jobs": int(args.jobs),
+        "mu": mus,
+        "sander": bool(args.sander),
+        "table_height_m": s.TABLE_HEIGHT_M,
+        "start_xy_m": list(s.START_XY_M),
+        "start_swivel_deg": s.START_SWIVEL_DEG,
+        "segment_dx_m": s.SEGMENT_DX_M,
+        "segment_dy_m": s.SEGMENT_DY_M,
+        "segment_duration_s": s.SEGMENT_DURATION_S,
+        "settle": {
+            "speed_tol_rad_s": s.SETTLE_SPEED_RAD_S,
+            "w_rtol": s.SETTLE_W_RTOL,
+            "w_atol": s.SETTLE_W_ATOL,
+            "window_s": s.SETTLE_WINDOW_S,
+            "cap_s": s.CONVERGE_TIMEOUT_S,
+        },
+        "plan": {"sample_s": s.PLAN_SAMPLE_S, "grid_deg": s.PLAN_GRID_DEG, "rate_max_deg_s": s.PLAN_RATE_MAX_DEG_S},
+        "friction_v_eps_m_per_s": s.FRICTION_V_EPS_M_PER_S,
+        "force_error": "20 N minus the filtered F/T reading along z, over the six segments",
+    }
+
+
+def _pm(x: dict, digits: int = 1) -> str:
+    if x["mean"] is None:
+        return "-"
+    if x["sd"] is None:  # one seed: no spread to show
+        return f"{x['mean']:.{digits}f}"
+    return f"{x['mean']:.{digits}f} ± {x['sd']:.{digits}f}"
+
+
+def format_table(summary: list[dict]) -> str:
+    """Our Table III (mean ± sd) beside the paper's, as text."""
+    lines = [
+        f"{'row':22s} {'mu':>5s} {'MA':>12s} {'PTP':>13s} {'STD':>12s}  {'paper':>15s} {'swivel':>8s} "
+        f"{'margin':>8s} conv stable"
+    ]
+    for e in summary:
+        paper = "-" if not e.get("paper") else "/".join(f"{x:.1f}" for x in e["paper"])
+        sw = e["converged_swivel_deg"]["mean"]
+        mg = e["margin"]["mean"]
+        lines.append(
+            f"{e['row']:22s} {e['mu']:5.2f} {_pm(e['ma']):>12s} {_pm(e['ptp']):>13s} {_pm(e['std']):>12s}  "
+            f"{paper:>15s} {'-' if sw is None else f'{sw:+.0f}°':>8s} {'-' if mg is None else f'{mg:+.0f}':>8s} "
+            f"{e['converged']}/{e['n']} {e['stable']}/{e['n']}"
+        )
+    return "\n".join(lines)

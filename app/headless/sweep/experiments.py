@@ -1,0 +1,297 @@
+"""What each experiment offers a sweep: its knobs, one cell (one single run), its headline metrics.
+
+A cell calls the experiment's own single-run function (`run_drop`, `run_mass_drop`,
+`polish.simulate`) with the cell's values over the experiment's defaults, and returns its
+scalar metrics and whether the run was stable (the meaning is stated per experiment).
+Cell functions live at module level so that any `concurrent.futures.Executor` can ship them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from app.headless.sweep.grid import SweepError
+from app.headless.sweep.knobs import RUN, Knob, positive
+from app.headless.sweep.overlays import polish_notes, polish_overlay
+
+
+@dataclass(frozen=True)
+class SweepExperiment:
+    """An experiment as a sweep sees it."""
+
+    name: str
+    knobs: tuple[Knob, ...]
+    cell: Callable[[dict, int], dict]
+    map_metrics: tuple[str, ...]  # metrics drawn as maps / lines in the report
+    stable_means: str  # what "stable" means for this experiment (shown in the report)
+    seeded: bool = True  # False: the run does not depend on the seed (seeds repeat it)
+    groups: Callable[[], dict] | None = None  # the default session's parameter groups by name
+    overlay: Callable | None = None  # (ax, axes, records) → extra layers on its maps
+    report_notes: Callable | None = None  # (axes, records) → HTML paragraph for the report
+
+    def check_combination(self, names: list[str]) -> None:
+        """SweepError for knobs that cannot be swept together."""
+        if self.name == "polish" and "hold_swivel" in names:
+            clash = [n for n in ("swivel", "objective") if n in names]
+            if clash:
+                raise SweepError(f"hold_swivel sets the start swivel and the objective; drop {', '.join(clash)}")
+
+
+def _scalars(d: dict, prefix: str = "") -> dict:
+    """Flat {name: number|bool|str|None} of the scalar entries of a (nested) result dict."""
+    out: dict = {}
+    for key, value in d.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_scalars(value, f"{name}_"))
+        elif isinstance(value, bool | int | str) or value is None:
+            out[name] = value
+        elif isinstance(value, float):
+            out[name] = value if math.isfinite(value) else None
+    return out
+
+
+# ---- limit-drop [C] §IV-B–C -------------------------------------------------------------------
+LIMIT_DROP_KNOBS = (
+    Knob("lambda", "damper", "lambda_", "damper gain λ (1/s) [C24]", ("lam", "λ", "lambda_")),
+    Knob("M", "damper", "M", "damper overdamping M [C24]"),
+    Knob("form", "damper", "form", "damper form: proposed [C24] or classic δt [C17–19]"),
+    Knob("feedback", "compliance_qp", "feedback", "τ̂_e kept in the inverse dynamics [C8]"),
+    Knob("torque_delay_ms", "world", "torque_delay_ms", "actuator latency, ms", ("delay", "torque_delay")),
+    Knob("K_I", "estimator", "observer_gain", "momentum-observer gain K_I (1/s) [C25]", ("observer_gain",)),
+    Knob("limit", RUN, "limit", "which limit joint 4 falls into", kind=("position", "velocity")),
+    Knob(
+        "duration",
+        RUN,
+        "duration",
+        "simulated seconds per drop (a cap: it ends once joint 4 has stopped)",
+        ("duration_s",),
+        check=positive,
+    ),
+)
+
+
+def limit_drop_groups() -> dict:
+    """The limit-drop session's parameter groups (the QP executor's, the world's...)."""
+    from app.headless.experiments.c_common import qp_session
+    from app.scenarios.limit_drop import LimitDropScenario
+
+    return qp_session(LimitDropScenario()).params()
+
+
+def limit_drop_cell(values: dict, seed: int) -> dict:
+    """One drop of limit-drop (`run_drop`); stable = joint 4 stays inside its limit."""
+    from app.headless.experiments.limit_drop import run_drop
+    from app.scenarios.limit_drop import DURATION_S
+
+    delay_ms = float(values.get("torque_delay_ms", 0.0))
+    r = run_drop(
+        str(values.get("form", "proposed")),
+        float(values.get("lambda", 100.0)),
+        float(values.get("M", 2.0)),
+        bool(values.get("feedback", True)),
+        str(values.get("limit", "position")),
+        duration=float(values.get("duration", DURATION_S)),
+        observer_gain=values.get("K_I"),
+        delay_steps=round(delay_ms),  # the Gen3 world steps at 1 ms
+    )
+    metrics = _scalars({k: v for k, v in r.items() if not k.startswith("trace")})
+    return {"metrics": metrics, "stable": bool(r["max_violation"] <= 0.0)}
+
+
+# ---- mass-drop [C] §IV-D ----------------------------------------------------------------------
+MASS_DROP_KNOBS = (
+    Knob(
+        "controller",
+        RUN,
+        "mode",
+        "Position PID, Torque + Residual or Torque + Fusion",
+        ("mode",),
+        kind=("position", "torque-residual", "torque-fusion"),
+    ),
+    Knob("case", RUN, "case", "the mass falls on a rope, or is let go", kind=("rope-drop", "held-release")),
+    Knob(
+        "payload_mass_error",
+        "scenario",
+        "payload_mass_error",
+        "true mass = 1.25 kg × (1 + error), unknown to every controller (nominal of the seeded rig draw)",
+        ("mass_error",),
+    ),
+    Knob("rope_stiffness", "scenario", "rope_stiffness_n_per_m", "rope stiffness, N/m (nominal)"),
+    Knob("drop_height", "scenario", "drop_height_m", "free fall before the rope is taut, m (nominal)"),
+    Knob("K_I", "estimator", "observer_gain", "momentum-observer gain K_I (1/s) [C25]", ("observer_gain",)),
+    Knob("window", RUN, "window_s", "seconds analysed after the release", ("window_s",), check=positive),
+)
+
+
+SETTLED_FOR_S = 0.1  # "settled": inside the band for at least the last 0.1 s of the window
+RIG_FIELDS = {"payload_mass_error": "payload_mass_error", "rope_stiffness": "rope_stiffness_n_per_m"}
+
+
+def mass_drop_groups() -> dict:
+    """The mass-drop session's parameter groups."""
+    from app.headless.experiments.c_common import qp_session
+    from app.scenarios.mass_drop import MassDropScenario
+
+    return qp_session(MassDropScenario()).params()
+
+
+def mass_drop_cell(values: dict, seed: int) -> dict:
+    """One release of mass-drop (`run_mass_drop`) on the rig drawn for this seed around the nominal the
+    cell sets; stable = the run completes and the TCP is inside the 1 mm band for the window's last 0.1 s
+    or longer."""
+    from app.headless.experiments.mass_drop import draw_rig, run_mass_drop
+    from app.scenarios.mass_drop import WINDOW_S, MassDropParams
+
+    nominal = {field: float(values[name]) for name, field in RIG_FIELDS.items() if name in values}
+    if "drop_height" in values:
+        nominal["drop_height_m"] = float(values["drop_height"])
+    window = float(values.get("window", WINDOW_S))
+    r = run_mass_drop(
+        str(values.get("controller", "torque-fusion")),
+        seed,
+        case=str(values.get("case", "rope-drop")),
+        params=draw_rig(seed, MassDropParams(**nominal)),
+        window_s=window,
+        observer_gain=values.get("K_I"),
+    )
+    metrics = _scalars({k: v for k, v in r.items() if not k.startswith("trace")})
+    stable = r.get("stop", "done") == "done" and r["stabilization_time_s"] < window - SETTLED_FOR_S
+    return {"metrics": metrics, "stable": bool(stable)}
+
+
+# ---- polish [T] §IV-B ---------------------------------------------------------------------------
+POLISH_KNOBS = (
+    Knob("mu", "contact", "mu", "Coulomb friction coefficient μ", ("μ",)),
+    Knob("swivel", "scenario", "start_swivel_deg", "start swivel, degrees", ("start_swivel",)),
+    Knob(
+        "hold_swivel",
+        RUN,
+        "hold_swivel_deg",
+        "start at this swivel and hold it (W_j on the start posture: no flow), degrees",
+        check=lambda v: _held_swivel(v),
+    ),
+    Knob(
+        "objective",
+        RUN,
+        "objective",
+        "nullspace objective W_j/W_f/W_a/W_d [T15], or track the planned path (directional or W_a cost)",
+        kind=("j", "f", "a", "d", "planned", "planned_a"),
+    ),
+    Knob("armature_scale", "scenario", "armature_scale", "armature × this, robot and model alike"),
+    Knob("shaping", "motion_force", "shaping", "inertia shaping Λ̂x [T9] on/off"),
+    Knob("sensor_cutoff", "sensor", "cutoff_hz", "F/T low-pass cutoff, Hz (0 = none)", ("cutoff_hz",)),
+    Knob(
+        "converge_timeout",
+        RUN,
+        "converge_timeout_s",
+        "posture settle cap, s",
+        check=lambda v: _polish(converge_timeout_s=v),
+    ),
+    Knob("sander", "sander", "enabled", "7000 RPM sander disturbance"),
+    *(
+        Knob(
+            f"k0_{o}",
+            "nullspace",
+            f"k0_{o}",
+            f"nullspace gain k0 of W_{o} [T15]" + (" (held/planned posture)" if o == "j" else ""),
+        )
+        for o in ("j", "f", "a", "d")
+    ),
+)
+POLISH_SESSION_KNOBS = ("k0_j", "k0_f", "k0_a", "k0_d")  # set on the session as they are (group, field)
+
+
+def _polish(**values):
+    """The polish scenario validates its own arguments."""
+    from app.scenarios.polish import PolishScenario
+
+    return PolishScenario(**values)
+
+
+def _held_swivel(value: float) -> None:
+    """A held swivel becomes the start swivel: the scenario group's `start_swivel_deg` range applies."""
+    from app.scenarios.polish import PolishParams
+    from control.params import replaced
+
+    replaced(PolishParams(), "start_swivel_deg", value)
+    _polish(hold_swivel_deg=value)
+
+
+def polish_groups() -> dict:
+    """The polish session's parameter groups (projection executor, contact, sensor, scenario...)."""
+    from app.core.session import Session
+    from app.scenarios.polish import PolishScenario
+
+    return Session(PolishScenario()).params()
+
+
+def polish_cell(values: dict, seed: int) -> dict:
+    """One polish run (`polish.simulate`); stable = never diverged and never lost contact."""
+    from app.headless.experiments.polish import simulate
+
+    spec: dict = {
+        "mu": float(values.get("mu", 0.25)),
+        "sander": bool(values.get("sander", False)),
+        "seed": int(seed),
+        "objective": str(values.get("objective", "a")),
+        "start_swivel_deg": float(values.get("swivel", 0.0)),
+        "shaping": bool(values.get("shaping", True)),
+        "group": "sweep",
+    }
+    if "hold_swivel" in values:  # the nullspace holds the start posture (W_j on it): no flow
+        spec["hold_swivel_deg"] = float(values["hold_swivel"])
+    if "armature_scale" in values:
+        spec["armature_scale"] = float(values["armature_scale"])
+    if "sensor_cutoff" in values:
+        spec["sensor_cutoff_hz"] = float(values["sensor_cutoff"])
+    if "converge_timeout" in values:
+        spec["converge_timeout_s"] = float(values["converge_timeout"])
+    knobs = {k.name: k for k in POLISH_KNOBS}
+    spec["session_params"] = [
+        (knobs[name].group, knobs[name].field, float(values[name])) for name in POLISH_SESSION_KNOBS if name in values
+    ]
+    r = simulate(spec)["result"]
+    drop = ("per_segment", "q_start", "q_converged", "posture_change_deg", "plan")
+    keep = {k: v for k, v in r.items() if k not in drop}
+    return {"metrics": _scalars(keep), "stable": bool(r["stable"])}
+
+
+EXPERIMENTS: dict[str, SweepExperiment] = {
+    "limit-drop": SweepExperiment(
+        "limit-drop",
+        LIMIT_DROP_KNOBS,
+        limit_drop_cell,
+        ("max_violation", "oscillations", "overshoot_beyond_ds", "peak_torque"),
+        "joint 4 stays inside its limit (max violation ≤ 0)",
+        seeded=False,
+        groups=limit_drop_groups,
+    ),
+    "mass-drop": SweepExperiment(
+        "mass-drop",
+        MASS_DROP_KNOBS,
+        mass_drop_cell,
+        ("peak_deflection_mm", "stabilization_time_s", "residual_error_mm"),
+        "the TCP settles inside the 1 mm band and stays there for at least the last 0.1 s of the window",
+        groups=mass_drop_groups,
+    ),
+    "polish": SweepExperiment(
+        "polish",
+        POLISH_KNOBS,
+        polish_cell,
+        ("stable", "force_error_ptp", "force_error_ma", "contact_lost_ms", "converged_swivel_deg"),
+        "no divergence and no contact loss during the six segments",
+        groups=polish_groups,
+        overlay=polish_overlay,
+        report_notes=polish_notes,
+    ),
+}
+
+
+def get(name: str) -> SweepExperiment:
+    """The sweepable experiment `name`; SweepError naming the choices otherwise."""
+    if name not in EXPERIMENTS:
+        raise SweepError(f"unknown experiment {name!r}; sweepable: {', '.join(EXPERIMENTS)}")
+    return EXPERIMENTS[name]

@@ -1,0 +1,249 @@
+"""What the loop publishes: one `Frame` (status, settings, scene snapshot, plot data) built from a Lab.
+
+The status line, the plot data and the scene capture are built here, between two steps on the
+loop thread, as copies the browser side can read without touching the Session. The scene capture
+is a function handed in by the server (`app.live.ui.snapshot.capture`); without one, frames carry no
+scene (tests, headless runs).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import traceback
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from app.core.session import Session
+from app.core.variants import variant_of
+from app.live.lab import Lab, Settings
+from app.scenarios.polish import settle_pending
+from control.executor import StepView
+
+PLOT_WINDOW_S = 10.0
+PLOT_POINTS = 500  # points per plotted series
+
+
+@dataclass(frozen=True)
+class LoopStatus:
+    """What the loop is doing, for the status line and the tests."""
+
+    running: bool = False
+    settling: bool = False  # "Settle now" runs the settle phase unpaced
+    can_settle: bool = False  # the preset is in a settle phase that "Settle now" can run
+    t: float = 0.0  # s, simulated time of the session
+    steps: int = 0  # steps since the last reset
+    speed: float = 1.0  # requested simulated seconds per wall second
+    rtf: float = 0.0  # achieved real-time factor over the last window
+    load: float = 0.0  # fraction of wall time spent computing steps
+    scenario: str = ""
+    scenario_title: str = ""
+    scenario_text: str = ""  # what the preset shows, one paragraph
+    variant: str = ""  # the scenario's case, "" if it has none
+    variants: tuple[str, ...] = ()  # the cases it can run in
+    focus_joint: int | None = None  # 0-based joint the scenario is about (phase plot), if any
+    twin: str = ""  # nullspace objective of the twin arm ("j", "f", "a", "d"), "" when there is none
+    robot: str = ""
+    executor: str = ""
+    halted: str = ""  # why the loop auto-paused (divergence), "" otherwise
+    overpowered: str = ""  # joints the surroundings overpower (torque beyond the motors', or at a stop)
+    fallback: bool = False  # the last step used a fallback solution (QP failed)
+    fallback_steps: int = 0  # fallback steps since the last reset
+    drag_client: int | None = None  # client holding the drag spring
+    step_cpu_s: float = 0.0  # CPU time the loop thread spent in steps since it started
+    signals: dict[str, float] = field(default_factory=dict)  # last step's scalar signals
+
+
+@dataclass(frozen=True)
+class PlotData:
+    """The last seconds of logged signals, decimated, plus the slower monitor series."""
+
+    columns: dict[str, np.ndarray]  # StepLog columns
+    monitor: dict[str, np.ndarray]  # "t", "rtf", "W_f", "W_a", "W_d" sampled at the publish rate
+    q_lower: np.ndarray
+    q_upper: np.ndarray
+    dq_max: np.ndarray
+    tau_max: np.ndarray
+    peak_abs_tau: np.ndarray | None = None  # max |τ_i| per joint over every step since the reset
+    peak_q: np.ndarray | None = None  # max q_i per joint over every step since the reset
+    segment_std: dict[int, float] | None = None  # force-error STD per polish segment, every step since the reset
+    twin_segment_std: dict[int, float] | None = None  # the same for the twin arm, over its own segments
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One publication of the loop to the browser side."""
+
+    seq: int
+    session_id: int  # grows when the session (robot, scenario) is rebuilt
+    robot: Any  # RobotDescription of the current session
+    status: LoopStatus
+    settings: Settings
+    scene: Any = None  # SceneSnapshot, if a capture function was handed in
+    plot: PlotData | None = None  # the newest plot data (kept in later frames until replaced)
+    plot_seq: int = 0  # grows when `plot` is new data
+
+
+def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | None = None) -> LoopStatus:
+    """The status of a lab; `rtf` and `load` come from the runner's rate meter; `view` is the executor's
+    view of its latest step when the caller has built it already (the scene capture has)."""
+    s = lab.session
+    last = s.last
+    variant = variant_of(s.scenario)
+    return LoopStatus(
+        running=lab.running,
+        settling=lab.settling,
+        can_settle=settle_pending(s),
+        t=s.world.time,
+        steps=s.steps,
+        speed=lab.speed,
+        rtf=rtf if lab.running else 0.0,
+        load=load if lab.running else 0.0,
+        scenario=s.scenario.name,
+        scenario_title=s.scenario.title,
+        scenario_text=s.scenario.description,
+        variant=variant.current if variant else "",
+        variants=variant.options if variant else (),
+        focus_joint=s.scenario.focus_joint,
+        twin=lab.twin.objective if lab.twin is not None else "",
+        robot=s.robot.name,
+        executor=s.executor_name,
+        halted=lab.halted,
+        overpowered=lab.overpowered,
+        fallback=bool(last.fallback) if last is not None else False,
+        fallback_steps=lab.fallback_steps,
+        drag_client=lab.drag_client,
+        step_cpu_s=lab.step_cpu_s,
+        signals=_with_posture_objective(s, dict(last.signals) if last is not None else {}, view),
+    )
+
+
+class FrameBuilder:
+    """Builds frames from a lab: the scene every frame, the plot data at `plot_period` while the lab
+    runs (the frame closest to each plot time: frames come on a fixed schedule but a little late, up
+    to half a frame early counts) and in every frame while it does not (then frames go out only when
+    something changed, and the last one must show the last step)."""
+
+    def __init__(self, publish_period: float, plot_period: float, capture: Callable[[Session], Any] | None = None):
+        self.plot_period = plot_period
+        self._plot_slack = 0.5 * publish_period
+        self.capture = capture
+        self._monitor: deque[tuple[float, float, float, float, float]] = deque(
+            maxlen=round(PLOT_WINDOW_S / publish_period) + 2
+        )
+        self._restarts = -1
+        self._seq = 0
+        self._next_plot = 0.0
+        self._plot: PlotData | None = None
+        self._plot_seq = 0
+
+    def build(self, lab: Lab, now: float, rtf: float = 0.0, load: float = 0.0) -> Frame:
+        """The next frame (`now`: wall time, for the plot rate)."""
+        if lab.restarts != self._restarts:
+            self._monitor.clear()  # a reset or a new session: the monitor series start over
+            self._restarts = lab.restarts
+        scene = self._scene(lab)
+        status = make_status(lab, rtf, load, getattr(scene, "step", None))
+        self._monitor.append(_monitor_row(status, scene))
+        if now >= self._next_plot or not lab.running:
+            self._next_plot = now + self.plot_period - self._plot_slack
+            self._plot = plot_data(lab, self._monitor)
+            self._plot_seq += 1
+        self._seq += 1
+        return Frame(
+            seq=self._seq,
+            session_id=lab.session_id,
+            robot=lab.session.robot,
+            status=status,
+            settings=lab.settings,
+            scene=scene,
+            plot=self._plot,
+            plot_seq=self._plot_seq,
+        )
+
+    def _scene(self, lab: Lab) -> Any:
+        if self.capture is None:
+            return None
+        try:
+            scene = self.capture(lab.session)
+        except Exception:  # a drawing problem must not stop the simulation
+            traceback.print_exc()
+            self.capture = None
+            lab.notify("warning", "Scene disabled", "capturing the scene failed; see the server log")
+            return None
+        twin = lab.twin
+        if scene is not None and twin is not None:
+            positions, wxyz = twin.link_poses(scene.link_names)
+            scene = dataclasses.replace(
+                scene,
+                twin_link_positions=positions,
+                twin_link_wxyz=wxyz,
+                twin_objective=twin.objective,
+                twin_W=twin.W,
+            )
+        return scene
+
+
+def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]) -> PlotData:
+    """The last PLOT_WINDOW_S of the lab's log, decimated to ≈ PLOT_POINTS per series."""
+    every = max(1, round(PLOT_WINDOW_S / lab.dt / PLOT_POINTS))
+    columns = lab.log.window(PLOT_WINDOW_S, lab.dt, every)
+    if lab.twin is not None and "t" in columns:
+        # the twin's own segment column: with another objective its zig-zag starts at another time
+        twin = lab.twin.columns_at(columns["t"])
+        missing = np.full(len(columns["t"]), np.nan)
+        columns["twin_force_error_n"] = twin["Fd_z"] - twin["F_z"] if "Fd_z" in twin else missing
+        if "segment" in twin:
+            columns["twin_segment"] = twin["segment"]
+    peak_abs_tau, peak_q = lab.log.extremes()
+    segment_std = lab.log.segment_force_error_std()
+    twin_segment_std = lab.twin.log.segment_force_error_std() if lab.twin is not None else None
+    mon = np.array(monitor) if monitor else np.zeros((0, 5))
+    series = {k: mon[:, i].copy() for i, k in enumerate(("t", "rtf", "W_f", "W_a", "W_d"))}
+    r = lab.session.robot
+    return PlotData(
+        columns,
+        series,
+        r.q_lower.copy(),
+        r.q_upper.copy(),
+        r.dq_max.copy(),
+        r.tau_max.copy(),
+        peak_abs_tau,
+        peak_q,
+        segment_std,
+        twin_segment_std,
+    )
+
+
+def _with_posture_objective(
+    session: Session, signals: dict[str, float], view: StepView | None = None
+) -> dict[str, float]:
+    """Add W_j = ½‖q − q_posture‖² [T18] when the executor did not report it."""
+    if "W_j" not in signals:
+        view_W = (view or session.executor.view()).W  # the executor's own W_j, when it has a posture
+        if "W_j" in view_W:
+            signals["W_j"] = float(view_W["W_j"])
+            return signals
+        q_posture = session.last.target.q_posture if session.last is not None else None
+        if q_posture is not None:
+            e = session.world.q - np.asarray(q_posture, dtype=float)
+            signals["W_j"] = 0.5 * float(e @ e)
+    return signals
+
+
+def _monitor_row(status: LoopStatus, scene: Any) -> tuple[float, float, float, float, float]:
+    """(t, real-time factor, W_f, W_a, W_d); the W are NaN near a singularity, where Λx is ill-conditioned
+    and W_a runs into the 1e8s (the overlays hide there too)."""
+    W = getattr(scene, "W", None) or {}
+    sig = status.signals
+    singular = bool(getattr(scene, "near_singular", False))
+
+    def pick(key: str) -> float:
+        value = W.get(key, sig.get(key, math.nan))
+        return math.nan if singular else float(value)
+
+    return (status.t, status.rtf, pick("W_f"), pick("W_a"), pick("W_d"))

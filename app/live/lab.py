@@ -1,0 +1,557 @@
+"""The lab: one Session (and its twin arm) with everything a person changes about it — no threads.
+
+`Lab.apply(command)` applies one command of `app.core.commands` (a refused one becomes a `Notice`,
+nothing raises); `Lab.advance(n)` runs n steps through `Session.run`, logging each, and halts on
+divergence or a step error. The person's accepted changes are kept as `overrides`, replayed in
+order after a reset or a rebuild. After a halt, Reset recovers: if the preset with the current
+overrides halts again within `RECOVERY_STEPS` steps, the overrides applied since the simulation
+last ran healthy are dropped, newest first, until it runs (each dropped one is named in a notice).
+
+`app.live.loop.SimLoop` runs a Lab on its own thread (pacing, the command queue, publishing); tests
+drive a Lab directly.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from app.core.commands import (
+    Command,
+    DragCommand,
+    Pause,
+    Play,
+    Reset,
+    RestoreDefaults,
+    SetParam,
+    SetSpeed,
+    SettleNow,
+    SetTwin,
+    StepOnce,
+    SwitchSession,
+)
+from app.core.executors import EXECUTORS
+from app.core.session import RunResult, Session, StepRecord
+from app.core.settings import finite_number, plain
+from app.core.steplog import StepLog
+from app.core.twin import Twin
+from app.core.variants import make_variant
+from app.scenarios import Scenario
+from app.scenarios.polish import PlanPending, plans_deferred, settle_pending
+from control.params import ParamError, ParamGroup
+
+UNPACED_SPEED = 1000.0  # a requested speed this high means "as fast as possible": every wake-up runs a full burst
+SPEED_RANGE = (0.01, UNPACED_SPEED)
+MAX_SINGLE_STEP = 10_000  # steps one StepOnce may ask for
+RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
+KEPT_ON_PRESET_SWITCH = ("drag",)  # parameter groups a new preset keeps from the old one
+OVERPOWERED_NOTICE_S = 2.0  # simulated time between two "overpowered" notices
+OVERPOWERED_CHECK_STEPS = 10  # steps between two looks for an overpowered joint (a look costs ~10 µs)
+
+
+@dataclass(frozen=True)
+class Notice:
+    """A message for the browser: to one client (`client_id`) or to all (None)."""
+
+    level: str  # "info", "warning" or "error"
+    title: str
+    body: str
+    client_id: int | None = None
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The session's parameter groups in force (`Session.params()`, frozen); `version` grows."""
+
+    version: int
+    groups: dict[str, ParamGroup]
+
+    @property
+    def values(self) -> dict[str, dict[str, Any]]:
+        """Group → field → value as plain data (for exports and tests)."""
+        return {name: group.values() for name, group in self.groups.items()}
+
+
+def label(o: SetParam) -> str:
+    """How a notice names an override: "damper.lambda_ = 300.0", "posture_task.compliance[3] = 1.0"."""
+    index = "" if o.index is None else f"[{o.index}]"
+    return f"{o.group}.{o.field}{index} = {o.value!r}"
+
+
+class Lab:
+    """One session and the person's changes to it (see the module docstring)."""
+
+    def __init__(
+        self,
+        scenario: str | Scenario = "free",
+        robot: str | None = None,
+        executor: str | None = None,
+        seed: int = 0,
+        log_seconds: float = 60.0,
+    ):
+        self.seed = seed
+        self.robot_choice = robot or ""  # "" = the scenario's default robot
+        self.session = Session(scenario, robot=robot or None, executor=executor or None, seed=seed)
+        self.dt = float(self.session.world.model.opt.timestep)
+        self._log_seconds = log_seconds
+        self.log = StepLog(self.session.robot.nq, capacity=round(log_seconds / self.dt))
+        self.twin: Twin | None = None  # a second session in lockstep with another objective (app.core.twin)
+        self.overrides: list[SetParam] = []  # accepted parameter changes, oldest first
+        self._healthy = 0  # overrides[:_healthy] were all in force while the simulation ran healthy
+        self._steps_since_change = 0  # steps run without a halt since the last override
+        self.running = False
+        self.halted = ""  # why the simulation auto-paused, "" otherwise
+        self._resume_after_reset = False
+        self.pending_steps = 0  # steps of a single-step request not yet run (run in chunks)
+        self.settling = False  # "Settle now": the settle phase runs unpaced, in chunks, then paced again
+        self.speed = 1.0
+        self.pacing_epoch = 0  # grows when the pacing must restart (play, reset, switch, speed)
+        self.session_id = 0  # grows when the session (robot, scenario) is rebuilt
+        self.restarts = 0  # grows at every reset or rebuild (the log starts over)
+        self.total_steps = 0
+        self.fallback_steps = 0  # fallback steps since the last reset
+        self.step_cpu_s = 0.0  # CPU time spent in steps
+        self.drag_client: int | None = None
+        self.overpowered = ""  # joints the surroundings overpower, in words (World.overpowered)
+        self._overpowered_notice_t = -math.inf
+        self._overpowered_check_at = 0  # total_steps at which advance() looks for an overpowered joint again
+        self.notices: deque[Notice] = deque(maxlen=100)  # not yet taken by the publisher
+        self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice (for tests and logs)
+        self.dirty = True  # something changed since the last frame
+        self.settings = Settings(0, self._read_settings())
+        # a preset switch that needs a swivel plan not computed yet raises PlanPending from `apply`
+        # (nothing changed) instead of planning here; the app's loop plans elsewhere and applies it again
+        self.defer_plans = False
+
+    # ---- commands -------------------------------------------------------------------------------
+    def apply(self, cmd: Command) -> None:
+        """Apply one command; a refused or failing one becomes a notice (never raises, but for
+        PlanPending with `defer_plans`)."""
+        try:
+            self._apply(cmd)
+        except PlanPending:
+            raise  # (only with defer_plans, before anything changed)
+        except (ValueError, KeyError) as exc:
+            self.notify("error", "Refused", _reason(exc), getattr(cmd, "client_id", None))
+        except Exception as exc:  # never let a command take the loop down
+            traceback.print_exc()
+            self.notify("error", "Command failed", f"{type(exc).__name__}: {exc}")
+        self.dirty = True
+
+    def _apply(self, cmd: Command) -> None:
+        if isinstance(cmd, DragCommand):
+            self._apply_drag(cmd)
+        elif isinstance(cmd, Play):
+            if self.halted:
+                self.notify("warning", "Cannot play", "The simulation diverged: press Reset first.")
+            elif not self.running:
+                self.running = True
+                self.pacing_epoch += 1
+        elif isinstance(cmd, Pause):
+            self.running = False
+            self.settling = False
+            self.pending_steps = 0
+        elif isinstance(cmd, StepOnce):
+            self.running = False
+            self.settling = False
+            if self.halted:
+                self.notify("warning", "Cannot step", "The simulation diverged: press Reset first.")
+                return
+            steps = None if isinstance(cmd.steps, str) else finite_number(cmd.steps)
+            if steps is None or steps != int(steps) or not 1 <= steps <= MAX_SINGLE_STEP:
+                raise ValueError(f"step count must be a whole number 1…{MAX_SINGLE_STEP}, got {cmd.steps!r}")
+            self.pending_steps += int(steps)
+        elif isinstance(cmd, SettleNow):
+            self._settle_now()
+        elif isinstance(cmd, Reset):
+            self.reset()
+        elif isinstance(cmd, SetSpeed):
+            self._set_speed(cmd.factor)
+        elif isinstance(cmd, SwitchSession):
+            self._switch(cmd)
+        elif isinstance(cmd, SetParam):
+            self._set_param(cmd)
+        elif isinstance(cmd, RestoreDefaults):
+            self._restore_defaults()
+        elif isinstance(cmd, SetTwin):
+            self._set_twin(cmd.objective)
+        else:
+            raise ValueError(f"unknown command {cmd!r}")
+
+    # ---- stepping -------------------------------------------------------------------------------
+    def advance(self, n: int, until: Callable[[StepRecord], bool] | None = None) -> RunResult:
+        """Run n steps, logging each (and the twin in lockstep); halt at the first sign of divergence.
+        `until`, asked after each step (as in `Session.run`), may end the run early."""
+        cpu0 = time.thread_time()
+        log, twin = self.log, self.twin
+
+        def record(rec: StepRecord) -> None:
+            log.append(rec)
+            self.total_steps += 1
+            if rec.fallback:
+                self.fallback_steps += 1
+            if twin is not None:
+                twin.step()
+
+        result = self.session.run(steps=n, record=record, until=until)
+        if result.error is not None:  # a bug or numerical failure must not kill the server
+            traceback.print_exception(result.error)
+        if result.halted:
+            self._halt(result.reason)
+        else:
+            self._steps_since_change += result.steps
+            if self._steps_since_change >= RECOVERY_STEPS:
+                self._healthy = len(self.overrides)
+            if twin is not None and twin.diverged():
+                self._drop_twin(f"the twin arm (W_{twin.objective}) diverged; it is switched off")
+            if self.total_steps >= self._overpowered_check_at:
+                self._overpowered_check_at = self.total_steps + OVERPOWERED_CHECK_STEPS
+                self._check_overpowered()
+        self.step_cpu_s += time.thread_time() - cpu0
+        self.dirty = True
+        return result
+
+    def _check_overpowered(self) -> None:
+        """Say when the surroundings (the drag) overpower a joint: in the status, and in a notice when
+        it starts (at most every OVERPOWERED_NOTICE_S of simulated time)."""
+        last = self.session.last
+        was, self.overpowered = self.overpowered, self.session.world.overpowered(last.tau_ext if last else None)
+        t = self.session.world.time
+        if self.overpowered and not was and t - self._overpowered_notice_t >= OVERPOWERED_NOTICE_S:
+            self._overpowered_notice_t = t
+            self.notify(
+                "warning",
+                "Overpowered",
+                f"{self.overpowered}: more than the motors can resist, so no controller can hold the arm here",
+            )
+
+    def step_pending(self, chunk: int) -> RunResult | None:
+        """Run up to `chunk` steps of a pending single-step request (None if there is none)."""
+        n = min(self.pending_steps, int(chunk))
+        if n <= 0:
+            return None
+        self.pending_steps -= n
+        result = self.advance(n)
+        if result.halted:
+            self.pending_steps = 0
+        return result
+
+    def _settle_now(self) -> None:
+        """Start "Settle now" (see `SettleNow`); ValueError (a notice) when there is nothing to settle."""
+        if self.halted:
+            self.notify("warning", "Cannot settle", "The simulation diverged: press Reset first.")
+            return
+        if not settle_pending(self.session):
+            raise ValueError("nothing to settle: the preset has no settle phase, or it has ended (Reset starts again)")
+        self.settling = True
+        self.running = True
+        self.pending_steps = 0
+
+    def settle_chunk(self, chunk: int) -> RunResult | None:
+        """Run up to `chunk` steps of "Settle now" (None if it is not on). When the settle phase has
+        ended (converged, or at its cap) the run goes on paced from here: the pacing restarts."""
+        if not self.settling:
+            return None
+        result = self.advance(int(chunk))
+        if result.halted:
+            self.settling = False
+        elif not settle_pending(self.session):
+            self.settling = False
+            self.pacing_epoch += 1
+            self.notify("info", "Settled", f"the trajectory starts at t = {self.session.world.time:.3f} s; paced again")
+        return result
+
+    def _halt(self, reason: str) -> None:
+        self._resume_after_reset = self.running
+        self.running = False
+        self.settling = False
+        self.pending_steps = 0
+        self.halted = reason
+        self.notify("error", "Simulation paused", f"{reason}. Press Reset to start again.")
+
+    # ---- reset and recovery ---------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to t = 0 with the accepted settings; after a halt, recover (see the module docstring)."""
+        if self.halted:
+            self._recover()
+            self.halted = ""
+            self.running = self._resume_after_reset
+            self._resume_after_reset = False
+        self.session.reset()  # the session re-applies its parameter overrides itself
+        self._after_rebuild(replay=False)
+        if self.twin is not None:
+            self.twin.reset()
+
+    def _recover(self) -> None:
+        """Rebuild the session from scratch until the preset with the overrides runs RECOVERY_STEPS
+        steps without a halt, dropping overrides (newest first, those since the last healthy run
+        first) until it does."""
+        while True:
+            self._rebuild()
+            probe = self.session.run(steps=RECOVERY_STEPS)
+            if not probe.halted:
+                return
+            if not self.overrides:
+                self.notify("error", "Preset halts", f"the preset itself halts within {RECOVERY_STEPS} steps")
+                return
+            newest = len(self.overrides) - 1
+            recent = newest >= self._healthy
+            dropped = self.overrides.pop(newest)
+            self._healthy = min(self._healthy, len(self.overrides))
+            since = "since the simulation last ran healthy" if recent else "earlier"
+            self.notify(
+                "warning",
+                "Setting dropped",
+                f"{label(dropped)} (applied {since}) is undone: with it the preset halts again ({probe.reason})",
+            )
+
+    def _rebuild(self) -> None:
+        """A fresh session of the same preset, robot and executor (after a halt)."""
+        s = self.session
+        self._install(Session(s.preset, robot=self.robot_choice or None, executor=s.executor_name, seed=self.seed))
+
+    def _install(self, session: Session) -> None:
+        """Make `session` the lab's, with every override it accepts; the twin follows."""
+        self.session = session
+        self.session_id += 1
+        self.log = StepLog(session.robot.nq, capacity=round(self._log_seconds / self.dt))
+        twin, self.twin = self.twin, None  # the old twin belongs to the old session
+        self._after_rebuild(replay=True)
+        self.twin = twin
+        self._rebuild_twin()
+
+    def _after_rebuild(self, replay: bool) -> None:
+        """After a reset or a new session: replay the overrides on a new session, clear logs and drag."""
+        if replay:
+            self._replay()
+        self.drag_client = None
+        self.settling = False
+        self.overpowered = ""
+        self._overpowered_notice_t = -math.inf
+        self._overpowered_check_at = 0
+        self.fallback_steps = 0
+        self._steps_since_change = 0
+        self.pending_steps = 0
+        self.log.clear()
+        self.restarts += 1
+        self.pacing_epoch += 1
+        self._settings_changed()
+
+    def _replay(self) -> None:
+        """Apply the overrides in order; forget those the session no longer accepts."""
+        kept = []
+        for i, o in enumerate(self.overrides):
+            try:
+                self.session.set_param(o.group, o.field, o.value, o.index)
+            except ParamError:
+                if i < self._healthy:
+                    self._healthy -= 1
+                continue
+            kept.append(o)
+        self.overrides = kept
+
+    # ---- parameters -----------------------------------------------------------------------------
+    def _set_param(self, cmd: SetParam) -> None:
+        """One parameter change, validated by its group's dataclass; refused: a notice, nothing changes."""
+        try:
+            self.session.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
+        except ParamError as exc:
+            self.notify("error", "Value refused", str(exc), cmd.client_id)
+            self._settings_changed()  # the panels show the value that is still in force
+            return
+        self.overrides.append(cmd)
+        if self.twin is not None:
+            self.twin.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
+        self._steps_since_change = 0
+        self._settings_changed()
+
+    def _restore_defaults(self) -> None:
+        """Every parameter of the preset back to its defaults; the run restarts (twin too)."""
+        self.overrides = []
+        self._healthy = 0
+        self.session.restore_defaults()
+        self._after_rebuild(replay=False)
+        self._rebuild_twin()
+        if self.halted:
+            self.halted = ""
+            self.running = self._resume_after_reset
+            self._resume_after_reset = False
+
+    def _set_speed(self, factor: object) -> None:
+        value = finite_number(factor)
+        if value is None or not SPEED_RANGE[0] <= value <= SPEED_RANGE[1]:
+            raise ValueError(f"speed must be between {SPEED_RANGE[0]} and {SPEED_RANGE[1]}, got {factor!r}")
+        self.speed = value
+        self.pacing_epoch += 1
+
+    def _settings_changed(self) -> None:
+        self.settings = Settings(self.settings.version + 1, self._read_settings())
+        self.dirty = True
+
+    def _read_settings(self) -> dict[str, ParamGroup]:
+        return self.session.params()
+
+    # ---- switching ------------------------------------------------------------------------------
+    def _switch(self, cmd: SwitchSession) -> None:
+        s = self.session
+        if cmd.scenario is None and cmd.robot is None and cmd.variant is None:
+            if cmd.executor is not None and cmd.executor != s.executor_name:
+                self._switch_executor(cmd.executor)
+            return
+        scenario = cmd.scenario if cmd.scenario is not None else s.scenario.name
+        robot_choice = self.robot_choice if cmd.robot is None else cmd.robot
+        # a new scenario brings its default executor unless one is asked for explicitly
+        executor = cmd.executor if cmd.executor is not None else (None if cmd.scenario is not None else s.executor_name)
+        if cmd.variant is not None:
+            spec: str | Scenario = make_variant(scenario, cmd.variant)
+        elif cmd.scenario is None:
+            spec = s.preset  # same scenario object, same case (robot switch; its parameters are replayed)
+        else:
+            spec = scenario
+        try:
+            with plans_deferred(self.defer_plans):  # raises PlanPending before anything changed
+                new = Session(spec, robot=robot_choice or None, executor=executor, seed=self.seed)
+        except ValueError as exc:
+            if cmd.scenario is None or not robot_choice:
+                raise
+            # a preset that needs its own arm (a posture the picked one lacks): run it on its default robot
+            new = Session(spec, robot=None, executor=executor, seed=self.seed)
+            self.notify("info", "Robot changed", f"{exc}. Using {new.robot.name}.")
+            robot_choice = ""
+        if cmd.scenario is not None or cmd.variant is not None:  # a new preset starts from its defaults
+            self.overrides = [o for o in self.overrides if o.group in KEPT_ON_PRESET_SWITCH]
+            self._healthy = len(self.overrides)
+        self.robot_choice = robot_choice
+        self._install(new)
+        self.halted = ""
+
+    def _switch_executor(self, name: str) -> None:
+        if name not in EXECUTORS:
+            raise ValueError(f"unknown executor {name!r}; choose one of {', '.join(EXECUTORS)}")
+        twin, self.twin = self.twin, None
+        self.session.set_executor(name)  # re-applies the overrides the new executor has
+        self.twin = twin
+        if twin is not None:
+            try:
+                twin.set_executor(name)
+            except ValueError as exc:
+                self._drop_twin(f"the twin arm is switched off: {exc}")
+        self._settings_changed()
+
+    # ---- the twin arm ---------------------------------------------------------------------------
+    def _set_twin(self, objective: str | None) -> None:
+        """Switch the twin off (None) or on with an objective; on restarts the scenario."""
+        if objective is None or objective == "":
+            self.twin = None
+            return
+        self.twin = self._new_twin(str(objective))  # ValueError for a wrong objective or executor
+        self.reset()
+
+    def _rebuild_twin(self) -> None:
+        """After a new session: the same twin objective on it, or no twin if it cannot have one."""
+        if self.twin is None:
+            return
+        try:
+            self.twin = self._new_twin(self.twin.objective)
+        except ValueError as exc:
+            self._drop_twin(f"the twin arm is switched off: {exc}")
+
+    def _new_twin(self, objective: str) -> Twin:
+        s = self.session
+        return Twin(
+            s.preset,
+            self.robot_choice or None,
+            s.executor_name,
+            self.seed,
+            objective,
+            self.dt,
+            self.overrides,
+            self._log_seconds,
+        )
+
+    def _drop_twin(self, reason: str) -> None:
+        self.twin = None
+        self.notify("warning", "Twin arm off", reason)
+
+    # ---- the drag spring ------------------------------------------------------------------------
+    def _apply_drag(self, cmd: DragCommand) -> None:
+        drag = self.session.drag
+        if cmd.kind == "grab":
+            point = _vec3(cmd.point_world)
+            if point is None:
+                raise ValueError("grab needs a finite 3-D point")
+            body_id = self.session.world.model.body(cmd.body_name).id  # KeyError for unknown names
+            if body_id == 0:
+                raise ValueError("the world body cannot be dragged")
+            drag.grab(self.session.world, body_id, point)
+            self.drag_client = cmd.client_id
+        elif cmd.kind == "move":
+            target = _vec3(cmd.target_world)
+            if target is not None and drag.active and cmd.client_id == self.drag_client:
+                drag.move(target)
+        elif cmd.kind == "release":
+            if cmd.client_id == self.drag_client:
+                drag.release()
+                self.drag_client = None
+        else:
+            raise ValueError(f"unknown drag command {cmd.kind!r}")
+
+    # ---- output ---------------------------------------------------------------------------------
+    def notify(self, level: str, title: str, body: str, client_id: int | None = None) -> None:
+        """Queue a notice for the browser (and keep it in `notice_log`)."""
+        notice = Notice(level, title, body, client_id)
+        self.notices.append(notice)
+        self.notice_log.append(notice)
+        self.dirty = True
+
+    def take_notices(self) -> list[Notice]:
+        """Notices produced since the last call."""
+        out = []
+        while True:
+            try:
+                out.append(self.notices.popleft())
+            except IndexError:
+                return out
+
+    def export(self, seconds: float) -> dict[str, Any]:
+        """The last `seconds` of the step log (every step) plus what produced it."""
+        columns = self.log.window(seconds, self.dt)
+        twin = self.twin
+        if twin is not None and "t" in columns:  # the twin's columns beside the main ones, same rows
+            columns |= {f"twin_{k}": v for k, v in twin.columns_at(columns["t"]).items() if k != "t"}
+        s = self.session
+        return {
+            "columns": columns,
+            "twin_objective": twin.objective if twin is not None else None,
+            "scenario": s.scenario.name,
+            "robot": s.robot.name,
+            "executor": s.executor_name,
+            "dt": self.dt,
+            "seed": self.seed,
+            "settings": plain(self.settings.values),
+        }
+
+
+def _vec3(value: object) -> np.ndarray | None:
+    """A finite 3-vector, or None."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        return None
+    return arr
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc) or type(exc).__name__
+    if isinstance(exc, TypeError) and "unexpected keyword" in text:
+        return f"this controller has no such setting ({text})"
+    return text

@@ -1,0 +1,241 @@
+"""The web app: a viser server, the real-time loop, the panels, the plots and the 3D scene.
+
+`start_app(...)` starts everything without blocking and returns an `App` (tests use it
+in-process); `serve(args)` is the `torquelab serve` command: it starts the app, prints the URL
+and runs until Ctrl-C (exit 0), or until the simulation loop dies (exit 1, with the reason). The
+server binds 127.0.0.1 unless `--host` says otherwise; if the port is taken, the next free one is
+used, and `--port 0` picks any free port; the URL printed says which.
+"""
+
+from __future__ import annotations
+
+import argparse
+import atexit
+import contextlib
+import gc
+import io
+import logging
+import signal
+import socket
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import viser
+
+import robots
+from app.core.commands import DragCommand
+from app.core.params import parse_settings
+from app.live.loop import SimLoop
+from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
+from app.live.settings_io import load_settings_text
+from app.live.ui.keys import add_hotkeys
+from app.live.ui.panels import ALL_FIELDS
+from app.live.ui.panels.compliance import CompliancePanel
+from app.live.ui.panels.more_gains import MoreGainsPanel, claimed_fields
+from app.live.ui.panels.motion_force import MotionForcePanel
+from app.live.ui.panels.nullspace import NullspacePanel
+from app.live.ui.panels.record import RecordPanel
+from app.live.ui.panels.safety import SafetyPanel
+from app.live.ui.panels.scenario import ScenarioPanel
+from app.live.ui.panels.tune import TuneOrder
+from app.live.ui.phase import SHORT_PRESETS
+from app.live.ui.plots import Plots
+from app.live.ui.publisher import Publisher
+from app.live.ui.scene import SceneView
+from app.live.ui.snapshot import capture
+from app.live.ui.visuals import VisualSettings, VisualsPanel
+from app.scenarios import SCENARIOS
+
+
+@dataclass
+class App:
+    """A running web app."""
+
+    server: viser.ViserServer
+    loop: SimLoop
+    publisher: Publisher
+    url: str
+    port: int
+    requested_port: int
+    panels: list[Any] = field(default_factory=list)
+    visual_settings: Any = None  # the Visuals panel's settings
+    stopped: bool = False
+    autogroup_niceness_before: int | None = None  # given back on stop when start_app raised it
+
+    def stop(self) -> None:
+        """Stop the publisher, the loop and the web server (again: nothing happens)."""
+        if self.stopped:
+            return
+        self.stopped = True
+        self.publisher.stop()
+        for panel in self.panels:
+            stop = getattr(panel, "stop", None)
+            if callable(stop):
+                stop()
+        self.loop.stop()
+        with contextlib.redirect_stdout(io.StringIO()):
+            self.server.stop()
+        if self.autogroup_niceness_before is not None:
+            set_autogroup_niceness(self.autogroup_niceness_before)
+
+
+def port_is_free(host: str, port: int) -> bool:
+    """True if a TCP server could bind (host, port) now."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        try:
+            sock.bind((host, port))
+        except (OSError, OverflowError):
+            return False
+    return True
+
+
+HANDSHAKE_FAILED = "opening handshake failed"  # the websocket server's record for a failed opening
+
+
+def not_a_failed_handshake(record: logging.LogRecord) -> bool:
+    """Logging filter: drop the websocket server's "opening handshake failed" record. Browsers open
+    spare connections to the page's origin and close them unused; viser drops these records itself,
+    but only once it has served its first request, so a fresh server printed a traceback for the
+    first one. Installed from the start, this does the same from the first connection on."""
+    return record.getMessage() != HANDSHAKE_FAILED
+
+
+def quiet_failed_handshakes() -> None:
+    """Install `not_a_failed_handshake` on the websocket server's logger (once)."""
+    logger = logging.getLogger("websockets.server")
+    if not_a_failed_handshake not in logger.filters:
+        logger.addFilter(not_a_failed_handshake)
+
+
+def start_app(
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    scenario: str = "polish",
+    robot: str | None = None,
+    executor: str | None = None,
+    running: bool = True,
+    verbose: bool = False,
+) -> App:
+    """Start loop, server, panels and scene; returns at once. `port=0` picks any free port."""
+    loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
+    quiet_failed_handshakes()
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
+        server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
+    server.gui.configure_theme(control_width="large")
+    server.gui.main_panel.dock_right()  # the 3D view is the canvas between the panels
+    actual = server.get_port()
+
+    extra = (robot,) if robot and robot not in ("rizon4s", "gen3") else ()
+    # The control panel as tabs: Run (preset, play, settings, status) · Tune (the controllers' knobs)
+    # · Visuals · Record.
+    tabs = server.gui.add_tab_group(order=0)
+    with tabs.add_tab("Run", viser.Icon.PLAYER_PLAY):
+        panels: list[Any] = [ScenarioPanel(server, loop, extra_robots=extra, order=0)]
+    with tabs.add_tab("Tune", viser.Icon.ADJUSTMENTS):
+        tune = [
+            MotionForcePanel(server, loop, order=1),
+            NullspacePanel(server, loop, order=2),
+            CompliancePanel(server, loop, order=3),
+            SafetyPanel(server, loop, order=4),
+        ]
+        panels += [*tune, MoreGainsPanel(server, loop, claimed=claimed_fields(ALL_FIELDS), order=4.5)]
+        panels.append(TuneOrder(tune, base_order=1.0))  # the running preset's folders first
+    visual_settings = VisualSettings()
+    with tabs.add_tab("Visuals", viser.Icon.EYE):
+        VisualsPanel(server.gui, visual_settings, order=5)
+    with tabs.add_tab("Record", viser.Icon.DOWNLOAD):
+        RecordPanel(server, loop, order=7)
+
+    def make_scene(robot_desc: Any) -> Any:
+        return SceneView(server, robot_desc, loop.submit, settings=visual_settings)
+
+    plots = Plots(server, n_joints=loop.session.robot.nq, order=6)
+
+    @server.on_client_disconnect
+    def _release_drag(client: viser.ClientHandle) -> None:
+        loop.submit(DragCommand("release", client_id=client.client_id))
+
+    publisher = Publisher(server, loop, panels, plots, make_scene)
+    scenario_panel = panels[0]
+    scenario_panel.on_frame = publisher.frame_view
+    add_hotkeys(server, loop, scenario_panel.toggle_run, scenario_panel.reset_preset, publisher.frame_view)
+    # Everything built so far lives as long as the app: keep it out of the garbage collector's
+    # full passes, which otherwise stop every thread for ~50 ms now and then.
+    gc.collect()
+    gc.freeze()
+    loop.start(running=running and scenario not in SHORT_PRESETS)  # a drop over in seconds waits for Play
+    publisher.start()
+    shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
+    app = App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)
+    # the server's session before the browser's in the CPU's division between sessions (app/live/priority.py)
+    app.autogroup_niceness_before = raise_autogroup_priority(SERVER_NICENESS)
+    atexit.register(app.stop)  # threads that step MuJoCo must end before the interpreter does
+    return app
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    """Signal handler: stop `serve` as Ctrl-C does."""
+    raise KeyboardInterrupt
+
+
+def _read_settings_file(path: str) -> str:
+    """The text of a settings file, checked as TOML; ValueError (one line) otherwise."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except OSError as exc:
+        raise ValueError(f"cannot read settings file {path}: {exc.strerror}") from None
+    _, problems = parse_settings(text)
+    if problems and problems[0].startswith("not a TOML"):
+        raise ValueError(f"{path}: {problems[0]}")
+    return text
+
+
+def serve(args: argparse.Namespace) -> int:
+    """`torquelab serve`: start the app, print the URL, run until Ctrl-C."""
+    scenario = args.scenario
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    robot = getattr(args, "urdf", None) or getattr(args, "robot", None)
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f"port must be 0…65535, got {args.port}")
+    if not port_is_free(args.host, 0):
+        raise ValueError(f"cannot listen on host {args.host!r} (not an address of this machine)")
+    if robot:
+        robots.load(robot)  # a wrong name or URDF path is a one-line error before anything starts
+    settings_file = getattr(args, "settings", None)
+    settings_text = _read_settings_file(settings_file) if settings_file else None
+    busy = args.port != 0 and not port_is_free(args.host, args.port)
+    print(f"torquelab: starting scenario {scenario!r} …", flush=True)
+    app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)
+    # a `kill` or a closed terminal stops the app as Ctrl-C does (the session's CPU share given back)
+    for signum in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if signum is not None:
+            signal.signal(signum, _interrupt)
+    try:
+        if settings_text is not None:
+            refused = load_settings_text(app.loop, settings_text)
+            for line in refused:
+                print(f"torquelab: {settings_file}: refused: {line}", flush=True)
+            print(f"torquelab: settings from {settings_file} applied ({len(refused)} refused)", flush=True)
+        if args.port == 0:
+            print(f"torquelab: --port 0: using free port {app.port}", flush=True)
+        elif busy or app.port != args.port:
+            print(f"torquelab: port {args.port} is busy; using port {app.port} instead", flush=True)
+        print(f"torquelab: open {app.url} in a browser (Ctrl-C to stop)", flush=True)
+        if args.host not in ("127.0.0.1", "localhost", "::1"):
+            print(f"torquelab: listening on {args.host}: reachable from other machines", flush=True)
+        while app.loop.alive:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        app.stop()
+    if app.loop.failure:
+        print(f"torquelab: error: the simulation loop stopped: {app.loop.failure}", file=sys.stderr, flush=True)
+        return 1
+    return 0

@@ -1,0 +1,375 @@
+"""Overlays at the tool: coupling ellipse, P Pᵀ ellipsoid, task inertia, force arrows, trail, path.
+
+The geometry is pure functions of arrays (tested in tests/test_scene.py); `Overlays` owns a
+dozen viser nodes created once and afterwards only moved, rescaled, recoloured or hidden.
+
+Coupling ellipse (DESIGN §6): the unit circle (sphere) of the translational motion axes is
+mapped by v ↦ (v, s·P v) — the motion components stay, the translational force axes get s·P v.
+It is a flat disc in the motion plane when P = 0 and tilts by atan(s·|P|) as coupling grows.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+import viser
+import viser.transforms as vtf
+
+from app.live.ui.node_writes import set_position, set_prop, set_wxyz
+from app.live.ui.snapshot import SceneSnapshot
+from app.live.ui.visuals import VisualSettings
+from control.coupling import Subspaces, coupled_response, coupling_ellipse, principal_axes
+
+FLAT_THICKNESS = 0.02  # relative thickness of a flat ellipsoid (so it stays visible edge-on)
+MIN_AXIS_M = 1e-3
+# semi-axis cap: no overlay is more than 1 m across (a huge P near a singularity would engulf the camera)
+MAX_AXIS_M = 0.5
+PAYLOAD_RADIUS_M = 0.04  # drawn size of an attached payload mass (the sphere its inertia assumes)
+# Coupling shapes sit 5 cm above the TCP so that a surface under the tool cannot hide them.
+LIFT_M = np.array([0.0, 0.0, 0.05])
+
+GREEN = np.array([60, 200, 90], dtype=float)
+YELLOW = np.array([240, 200, 40], dtype=float)
+RED = np.array([230, 50, 40], dtype=float)
+
+
+# ---- geometry ----------------------------------------------------------------------------------
+def coupling_map(P: np.ndarray, sub: Subspaces, scale: float) -> np.ndarray:
+    """(3, k) linear map from the k translational motion axes to world space: v ↦ (v, s·P v).
+
+    Columns are unit vectors of the motion axes plus s times the P entries on the translational
+    force axes. k = 0 (empty map) when no translational axis is in the motion subspace.
+    """
+    lin_m = [i for i, a in enumerate(sub.motion_axes) if a < 3]
+    L = np.zeros((3, len(lin_m)))
+    for col, i in enumerate(lin_m):
+        L[sub.motion_axes[i], col] = 1.0
+        for j, a in enumerate(sub.force_axes):
+            if a < 3:
+                L[a, col] = scale * P[j, i]
+    return L
+
+
+def ellipsoid_of_map(L: np.ndarray, thickness: float = FLAT_THICKNESS) -> tuple[np.ndarray, np.ndarray]:
+    """Semi-axes (3,) and rotation (3, 3, det +1) of the image of the unit ball under L (3, k).
+
+    Semi-axes are the singular values of L along its left singular vectors; missing axes
+    (k < 3) get `thickness` times the largest one so a flat ellipse stays a thin disc.
+    """
+    if L.shape[1] == 0:
+        return np.zeros(3), np.eye(3)
+    U, sv, _ = np.linalg.svd(L, full_matrices=True)
+    axes = np.zeros(3)
+    axes[: sv.size] = sv
+    largest = float(np.max(axes)) if np.max(axes) > 0 else 1.0
+    axes = np.maximum(axes, thickness * largest)
+    R = U.copy()
+    if np.linalg.det(R) < 0:
+        R[:, 2] = -R[:, 2]
+    return axes, R
+
+
+def tilt_rad(P: np.ndarray, sub: Subspaces, scale: float) -> float:
+    """Largest angle between the coupling ellipse's span and the motion subspace it lifts.
+
+    The largest principal angle between range(v ↦ (v, s·P v)) and range(v ↦ (v, 0)); for one
+    translational force axis it is atan(s·|P_t|), the tilt of the disc (0 when decoupled).
+    """
+    L = coupling_map(P, sub, scale)
+    if L.shape[1] == 0:
+        return 0.0
+    E = coupling_map(P, sub, 0.0)
+    Q, _ = np.linalg.qr(L)
+    cosines = np.linalg.svd(E.T @ Q, compute_uv=False)
+    return float(np.arccos(np.clip(np.min(cosines), -1.0, 1.0)))
+
+
+def translational_force_ellipsoid(P: np.ndarray, sub: Subspaces) -> tuple[np.ndarray, np.ndarray] | None:
+    """Semi-axes (3,) and rotation of the P Pᵀ ellipsoid [T21] on the translational force axes.
+
+    Uses the rows of P on translational force axes; semi-axes are √σ_i of P Pᵀ. None when fewer
+    than two translational force axes exist (one axis is a segment, drawn by the ellipse tilt).
+    """
+    rows = [j for j, a in enumerate(sub.force_axes) if a < 3]
+    if len(rows) < 2:
+        return None
+    sigma, V = principal_axes(P[rows, :])
+    E = np.zeros((3, len(rows)))  # embeds the force rows in world xyz
+    for col, j in enumerate(rows):
+        E[sub.force_axes[j], col] = 1.0
+    L = E @ V @ np.diag(np.sqrt(sigma))
+    return ellipsoid_of_map(L)
+
+
+def inertia_ellipsoid(Lambda_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal masses (kg, descending) and axes of the translational task inertia (3×3)."""
+    w, V = np.linalg.eigh(0.5 * (Lambda_t + Lambda_t.T))
+    order = np.argsort(w)[::-1]
+    R = V[:, order]
+    if np.linalg.det(R) < 0:
+        R[:, 2] = -R[:, 2]
+    return np.clip(w[order], 0.0, None), R
+
+
+def measured_coupled_response(snap: SceneSnapshot) -> np.ndarray:
+    """World vector (m/s²) of P_f F_m: force-axis acceleration from the measured motion wrench."""
+    sub = snap.subspaces
+    F_m = snap.wrench_measured[list(sub.motion_axes)]
+    accel = coupled_response(snap.P["P_f"], F_m)
+    out = np.zeros(3)
+    for j, a in enumerate(sub.force_axes):
+        if a < 3:
+            out[a] = accel[j]
+    return out
+
+
+def magnitude_color(x: float) -> tuple[int, int, int]:
+    """Green at 0, yellow at 0.5, red at ≥ 1 (x is a normalised magnitude)."""
+    x = float(np.clip(x, 0.0, 1.0)) if np.isfinite(x) else 1.0
+    c = GREEN + (YELLOW - GREEN) * (2 * x) if x < 0.5 else YELLOW + (RED - YELLOW) * (2 * x - 1)
+    return (round(float(c[0])), round(float(c[1])), round(float(c[2])))
+
+
+def margin_color(margin_rad: float, zone_rad: float) -> tuple[int, int, int]:
+    """Link colour for a joint `margin_rad` from its nearer limit: green outside d_i, red at the limit."""
+    if not np.isfinite(margin_rad) or zone_rad <= 0:
+        return magnitude_color(0.0)
+    return magnitude_color(1.0 - margin_rad / zone_rad)
+
+
+def wxyz_of(R: np.ndarray) -> np.ndarray:
+    """Quaternion (w, x, y, z) of a rotation matrix."""
+    return vtf.SO3.from_matrix(R).wxyz
+
+
+def arrow_points(origin: np.ndarray, vector: np.ndarray, scale: float) -> np.ndarray:
+    """(1, 2, 3) start/end of an arrow of `scale`·vector at origin."""
+    origin = np.asarray(origin, dtype=float)
+    return np.stack([origin, origin + scale * np.asarray(vector, dtype=float)])[None]
+
+
+def polyline_segments(points: np.ndarray) -> np.ndarray:
+    """(k-1, 2, 3) segments joining consecutive points."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(pts) < 2:
+        return np.zeros((1, 2, 3))
+    return np.stack([pts[:-1], pts[1:]], axis=1)
+
+
+# ---- scene nodes -------------------------------------------------------------------------------
+class Trail:
+    """Recent TCP positions, thinned to one point per 2 mm or 50 ms, at most `seconds` old."""
+
+    def __init__(self, max_points: int = 400):
+        self.points: deque[tuple[float, np.ndarray]] = deque(maxlen=max_points)
+
+    def add(self, t: float, p: np.ndarray, seconds: float) -> None:
+        """Append a sample (clears on a time jump backwards, i.e. a reset)."""
+        if self.points and t < self.points[-1][0]:
+            self.points.clear()
+        if not self.points or t - self.points[-1][0] > 0.05 or np.linalg.norm(p - self.points[-1][1]) > 2e-3:
+            self.points.append((t, np.array(p, dtype=float)))
+        while self.points and t - self.points[0][0] > seconds:
+            self.points.popleft()
+
+    def array(self) -> np.ndarray:
+        """(k, 3) positions, oldest first."""
+        return np.array([p for _, p in self.points]).reshape(-1, 3)
+
+
+class Overlays:
+    """The overlay nodes under /overlays; `update` sets only light properties."""
+
+    def __init__(self, server: viser.ViserServer, settings: VisualSettings, root: str = "/overlays"):
+        self.server = server
+        self.settings = settings
+        self.root = root
+        self.trail = Trail()
+        sc = server.scene
+        self.coupling_disc = sc.add_icosphere(
+            f"{root}/coupling_disc", radius=1.0, color=GREEN, subdivisions=3, opacity=0.45, side="double"
+        )
+        self.coupling_outline = sc.add_line_segments(
+            f"{root}/coupling_outline", np.zeros((1, 2, 3)), colors=(30, 30, 30), thickness=0.003
+        )
+        self.coupling_label = sc.add_label(f"{root}/coupling_label", "", font_screen_scale=0.9, anchor="bottom-left")
+        self.ppt = sc.add_icosphere(f"{root}/ppt", radius=1.0, color=(150, 90, 220), subdivisions=2, opacity=0.5)
+        self.inertia = sc.add_icosphere(
+            f"{root}/inertia", radius=1.0, color=(80, 140, 230), subdivisions=2, opacity=0.25, visible=False
+        )
+        self.drag_arrow = _add_arrow(sc, f"{root}/drag_force", (240, 140, 20))
+        self.measured_arrow = _add_arrow(sc, f"{root}/measured_force", (220, 30, 200))
+        self.response_arrow = _add_arrow(sc, f"{root}/coupled_response", (230, 40, 40))
+        self.spring = sc.add_line_segments(
+            f"{root}/drag_spring", np.zeros((1, 2, 3)), colors=(240, 140, 20), thickness=0.004
+        )
+        self.grab_point = sc.add_icosphere(f"{root}/grab_point", radius=0.012, color=(240, 140, 20), visible=False)
+        self.trail_line = sc.add_line_segments(
+            f"{root}/trail", np.zeros((1, 2, 3)), colors=(40, 120, 220), thickness=0.003
+        )
+        self.path_line = sc.add_line_segments(
+            f"{root}/path", np.zeros((1, 2, 3)), colors=(120, 120, 120), thickness=0.002
+        )
+        self.target = sc.add_icosphere(f"{root}/target", radius=0.008, color=(120, 120, 120), visible=False)
+        self.payload = sc.add_icosphere(f"{root}/payload", radius=PAYLOAD_RADIUS_M, color=(70, 70, 75), visible=False)
+        self.payload_label = sc.add_label(f"{root}/payload_label", "", font_screen_scale=0.8, visible=False)
+
+    def update(self, snap: SceneSnapshot) -> None:
+        """Move/rescale/recolour every overlay for one frame; hides them all on a non-finite state."""
+        s = self.settings
+        if not _finite(snap):  # a diverged simulation: show nothing rather than fail every frame
+            for node in self._nodes():
+                node.visible = False
+            return
+        try:
+            self._update_coupling(snap, s)
+            self._update_ppt(snap, s)
+            self._update_inertia(snap, s)
+        except (np.linalg.LinAlgError, ValueError):
+            self.coupling_disc.visible = self.coupling_outline.visible = self.coupling_label.visible = False
+            self.ppt.visible = self.inertia.visible = False
+        self._update_arrows(snap, s)
+        self._update_lines(snap, s)
+        self._update_payload(snap, s)
+
+    def _update_payload(self, snap: SceneSnapshot, s: VisualSettings) -> None:
+        p = snap.payload_position
+        shown = p is not None and bool(np.all(np.isfinite(p)))
+        self.payload.visible = shown
+        self.payload_label.visible = shown and s.labels
+        if p is not None and shown:
+            set_position(self.payload, p)
+            set_position(self.payload_label, p + np.array([0.0, 0.0, 1.5 * PAYLOAD_RADIUS_M]))
+            set_prop(self.payload_label, "text", f"{snap.payload_mass_kg:.2f} kg")
+
+    def _nodes(self) -> tuple[viser.SceneNodeHandle, ...]:
+        return (
+            self.coupling_disc,
+            self.coupling_outline,
+            self.coupling_label,
+            self.ppt,
+            self.inertia,
+            self.drag_arrow,
+            self.measured_arrow,
+            self.response_arrow,
+            self.spring,
+            self.grab_point,
+            self.trail_line,
+            self.path_line,
+            self.target,
+            self.payload,
+            self.payload_label,
+        )
+
+    def _update_coupling(self, snap: SceneSnapshot, s: VisualSettings) -> None:
+        sub = snap.subspaces
+        kind = s.projection_name(snap.objective)
+        P = snap.P[kind]
+        scale = s.coupling_scale(snap.objective)
+        L = coupling_map(P, sub, scale)
+        show = s.coupling and L.shape[1] > 0 and not snap.near_singular
+        self.coupling_disc.visible = show
+        self.coupling_outline.visible = show
+        self.coupling_label.visible = s.coupling and s.labels and L.shape[1] > 0
+        if snap.near_singular:
+            set_position(self.coupling_label, snap.tcp_position + LIFT_M)
+            set_prop(self.coupling_label, "text", "near a singularity: Λx ill-conditioned")
+        if not show:
+            return
+        radius = s.coupling_radius_m
+        center = snap.tcp_position + LIFT_M
+        axes, R = ellipsoid_of_map(L)
+        set_position(self.coupling_disc, center)
+        set_wxyz(self.coupling_disc, wxyz_of(R))
+        set_prop(self.coupling_disc, "scale", _triple(np.clip(radius * axes, MIN_AXIS_M, MAX_AXIS_M)))
+        set_prop(self.coupling_disc, "color", magnitude_color(np.tan(tilt_rad(P, sub, scale))))
+        outline = coupling_ellipse(P, sub, scale=scale, points=48)
+        outline = radius * outline
+        reach = np.linalg.norm(outline, axis=1, keepdims=True)
+        outline *= np.minimum(1.0, MAX_AXIS_M / np.maximum(reach, 1e-12))  # same cap as the disc, roughly
+        set_prop(self.coupling_outline, "points", polyline_segments(center + outline).astype(np.float32))
+        W = snap.W.get("W" + kind[1:], float("nan"))
+        set_position(self.coupling_label, center + np.array([0.0, 0.0, radius * 1.2]))
+        set_prop(self.coupling_label, "text", f"W{kind[1:]} = {W:.3g}")
+
+    def _update_ppt(self, snap: SceneSnapshot, s: VisualSettings) -> None:
+        kind = s.projection_name(snap.objective)
+        wanted = s.ppt_ellipsoid and not snap.near_singular
+        shape = translational_force_ellipsoid(snap.P[kind], snap.subspaces) if wanted else None
+        self.ppt.visible = shape is not None
+        if shape is None:
+            return
+        axes, R = shape
+        size = s.coupling_radius_m * s.coupling_scale(snap.objective)
+        set_position(self.ppt, snap.tcp_position + LIFT_M)
+        set_wxyz(self.ppt, wxyz_of(R))
+        set_prop(self.ppt, "scale", _triple(np.clip(size * axes, MIN_AXIS_M, MAX_AXIS_M)))
+
+    def _update_inertia(self, snap: SceneSnapshot, s: VisualSettings) -> None:
+        self.inertia.visible = s.inertia_ellipsoid and not snap.near_singular
+        if not self.inertia.visible:
+            return
+        masses, R = inertia_ellipsoid(snap.Lambda_translational)
+        set_position(self.inertia, snap.tcp_position)
+        set_wxyz(self.inertia, wxyz_of(R))
+        set_prop(self.inertia, "scale", _triple(np.clip(s.inertia_m_per_kg * masses, MIN_AXIS_M, MAX_AXIS_M)))
+
+    def _update_arrows(self, snap: SceneSnapshot, s: VisualSettings) -> None:
+        _set_arrow(self.drag_arrow, s.drag_force, snap.drag_point, snap.drag_force, s.force_m_per_n)
+        _set_arrow(self.measured_arrow, s.measured_force, snap.tcp_position, snap.wrench_measured[:3], s.force_m_per_n)
+        response = measured_coupled_response(snap) if s.coupled_response else None
+        _set_arrow(self.response_arrow, s.coupled_response, snap.tcp_position, response, s.response_m_per_mps2)
+
+    def _update_lines(self, snap: SceneSnapshot, s: VisualSettings) -> None:
+        point, target = snap.drag_point, snap.drag_target
+        dragging = point is not None and target is not None
+        self.spring.visible = dragging
+        self.grab_point.visible = dragging
+        if point is not None and target is not None:
+            set_prop(self.spring, "points", np.stack([point, target])[None].astype(np.float32))
+            set_position(self.grab_point, point)
+        self.trail.add(snap.t, snap.tcp_position, s.trail_seconds)
+        trail = self.trail.array()
+        self.trail_line.visible = s.trail and len(trail) >= 2
+        if self.trail_line.visible:
+            set_prop(self.trail_line, "points", polyline_segments(trail).astype(np.float32))
+        has_path = s.path and len(snap.path) >= 2
+        self.path_line.visible = has_path
+        if has_path:
+            set_prop(self.path_line, "points", polyline_segments(snap.path).astype(np.float32))
+        self.target.visible = s.path and snap.target_position is not None
+        if snap.target_position is not None and s.path:
+            set_position(self.target, snap.target_position)
+
+    def remove(self) -> None:
+        """Remove every overlay node."""
+        for node in self._nodes():
+            node.remove()
+
+
+def _finite(snap: SceneSnapshot) -> bool:
+    """True when everything the overlays compute with is finite."""
+    arrays = [snap.tcp_position, snap.Lambda_translational, snap.wrench_measured, *snap.P.values()]
+    return all(bool(np.all(np.isfinite(a))) for a in arrays)
+
+
+def _set_arrow(
+    handle: viser.ArrowsHandle, enabled: bool, origin: np.ndarray | None, vector: np.ndarray | None, scale: float
+) -> None:
+    """Show an arrow of scale·vector at origin, or hide it when off, absent or shorter than 2 mm."""
+    show = enabled and origin is not None and vector is not None and float(np.linalg.norm(vector)) * scale > 2e-3
+    handle.visible = bool(show)
+    if show:
+        assert origin is not None and vector is not None
+        set_prop(handle, "points", arrow_points(origin, vector, scale).astype(np.float32))
+
+
+def _add_arrow(scene: viser.SceneApi, name: str, color: tuple[int, int, int]) -> viser.ArrowsHandle:
+    return scene.add_arrows(
+        name, np.zeros((1, 2, 3)), colors=color, shaft_radius=0.006, head_radius=0.016, head_length=0.035
+    )
+
+
+def _triple(a: np.ndarray) -> tuple[float, float, float]:
+    return (float(a[0]), float(a[1]), float(a[2]))

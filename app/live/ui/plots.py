@@ -1,0 +1,482 @@
+"""Live plots (viser uPlot) in their own dockable panel, beside the control panel.
+
+Force error along the force axis (the twin's dashed when a twin runs); W_f, W_a, W_d (Fig. 8 of
+[T]) in three small single-axis plots; the (q, q̇) phase of one joint with its velocity limits,
+the plot's x range being the joint's position range (Fig. 2–4 of [C]); joint torques as a share of
+their limits; the real-time factor. A window of 10, 30 or 60 s of simulated time, a Freeze switch
+that holds the picture (the history keeps filling), vertical markers where the scenario's phase
+changes (polish segments S1…S6, a payload release) and the readouts the README quotes: force-error
+STD per polish segment (main and twin), peak joint torque and overshoot in the limit drop.
+
+Every y range is fixed per signal and widens in 1-2-5 steps when the data leave it; x is the time
+before now, so neither axis depends on uPlot's auto-ranging (which a series that is all NaN — the
+twin's error with no twin — turns into a blank plot). The data come from the loop's `PlotData`
+(the last 10 s, ≈ 50 samples per second); `SignalHistory` keeps the last 60 s of them here. The
+peak-torque and per-segment STD readouts use the loop's running figures over every 1 ms step instead.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import viser
+import viser.uplot as uplot
+
+from app.live.loop import PlotData
+
+COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2")
+MARKER_COLOR = "#7a7a7a"
+TWIN_COLOR = "#ff9f1c"  # the twin arm, here and in the 3D scene
+COUPLING_TITLE = "Coupling W_f, W_a, W_d [T22]"
+FORCE_TITLE = "Force error F̂_z − F_z"
+NO_SETPOINT_TITLE = "F̂_z − F_z: no force setpoint here, so this is minus the F/T reading"
+WINDOWS = {"10 s": 10.0, "30 s": 30.0, "60 s": 60.0}
+HISTORY_S = 60.0
+MAX_POINTS = 600  # per series sent to the browser, whatever the window
+SEGMENTS = 6  # polish zig-zag S1…S6
+FORCE_RANGE_N = 10.0  # ± N before any widening
+TORQUE_RANGE_PCT = 110.0
+RTF_RANGE = 1.2
+W_SERIES = (("W_f", "1/kg²", COLORS[0]), ("W_a", "kg²", COLORS[1]), ("W_d", "1", COLORS[2]))
+LEGEND = {"live": False}  # labels only: no "--" / "NaN" values beside them
+
+
+def nice_ceiling(value: float, floor: float) -> float:
+    """The smallest of floor·{1, 2, 5}·10^k that is ≥ value (floor itself for small values)."""
+    if not math.isfinite(value) or value <= floor:
+        return floor
+    k = math.floor(math.log10(value / floor))
+    for base in (1.0, 2.0, 5.0, 10.0):
+        candidate = floor * base * 10.0**k
+        if candidate >= value * (1 - 1e-12):
+            return candidate
+    return floor * 10.0 ** (k + 1)
+
+
+class SignalHistory:
+    """The last `seconds` of plot samples, by column, grown from overlapping `PlotData` windows.
+
+    Rows newer than the newest kept one are appended; a window that ends earlier than the history
+    (a reset, a new session) starts the history again."""
+
+    def __init__(self, seconds: float = HISTORY_S):
+        self.seconds = seconds
+        self.columns: dict[str, np.ndarray] = {}
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.columns.get("t", np.zeros(0))
+
+    def clear(self) -> None:
+        """Forget every sample."""
+        self.columns = {}
+
+    def add(self, columns: dict[str, np.ndarray]) -> None:
+        """Take in a window of samples (column "t" increasing)."""
+        t = columns.get("t")
+        if t is None or len(t) == 0:
+            return
+        old = self.t
+        if len(old) and t[-1] < old[-1] - 1e-9:
+            self.clear()
+            old = self.t
+        new = t > old[-1] + 1e-9 if len(old) else np.ones(len(t), dtype=bool)
+        if not np.any(new):
+            return
+        n_old = len(old)
+        merged: dict[str, np.ndarray] = {}
+        for key in set(self.columns) | set(columns):
+            before = self.columns.get(key, np.full(n_old, np.nan))
+            after = columns[key][new] if key in columns else np.full(int(new.sum()), np.nan)
+            merged[key] = np.concatenate([before, after])
+        keep = merged["t"] >= merged["t"][-1] - self.seconds
+        self.columns = {k: v[keep] for k, v in merged.items()}
+
+    def window(self, seconds: float) -> dict[str, np.ndarray]:
+        """The samples of the last `seconds` (views)."""
+        t = self.t
+        if len(t) == 0:
+            return {}
+        start = int(np.searchsorted(t, t[-1] - seconds))
+        return {k: v[start:] for k, v in self.columns.items()}
+
+
+@dataclass(frozen=True)
+class Marker:
+    """A phase change worth a vertical line: simulated time and a short name."""
+
+    t: float
+    label: str
+
+
+def phase_markers(columns: dict[str, np.ndarray]) -> list[Marker]:
+    """Where the scenario's phase changes in these samples: polish segments S1…S6 and their end
+    (signal "segment"), the mass drop's release (signal "mass_released" going to 1), a payload release
+    (signal "payload_attached" going to 0)."""
+    t = columns.get("t", np.zeros(0))
+    out: list[Marker] = []
+    seg = columns.get("segment")
+    if seg is not None and len(seg) == len(t):
+        idx = np.flatnonzero(np.diff(np.nan_to_num(seg, nan=-1.0)) != 0) + 1
+        for i in idx:
+            k = seg[i]
+            if np.isfinite(k) and 1 <= k <= SEGMENTS:
+                out.append(Marker(float(t[i]), f"S{int(k)}"))
+            elif np.isfinite(k) and k > SEGMENTS:
+                out.append(Marker(float(t[i]), "end"))
+    released = columns.get("mass_released")
+    if released is not None and len(released) == len(t):
+        idx = np.flatnonzero((released[:-1] < 0.5) & (released[1:] > 0.5)) + 1
+        out.extend(Marker(float(t[i]), "drop") for i in idx)
+    attached = columns.get("payload_attached")
+    if attached is not None and len(attached) == len(t):
+        idx = np.flatnonzero((attached[:-1] > 0.5) & (attached[1:] < 0.5)) + 1
+        out.extend(Marker(float(t[i]), "release") for i in idx)
+    return sorted(out, key=lambda m: m.t)
+
+
+def segment_std(columns: dict[str, np.ndarray], key: str) -> dict[int, float]:
+    """STD of column `key` over each polish segment present (segment index → N)."""
+    seg, values = columns.get("segment"), columns.get(key)
+    out: dict[int, float] = {}
+    if seg is None or values is None:
+        return out
+    for k in range(1, SEGMENTS + 1):
+        sel = (seg == k) & np.isfinite(values)
+        if np.count_nonzero(sel) >= 5:
+            out[k] = float(np.std(values[sel]))
+    return out
+
+
+def force_error(columns: dict[str, np.ndarray]) -> np.ndarray:
+    """F̂_z − F_z: the executor's own force error if it reports one, else from the logged wrenches."""
+    err = columns.get("force_error_n")
+    if err is None or not np.any(np.isfinite(err)):
+        err = columns["Fd_z"] - columns["F_z"]
+    return err
+
+
+def _series(label: str, color: str, **extra: Any) -> uplot.Series:
+    out: dict[str, Any] = {"label": label, "stroke": color, "width": 1.5, "spanGaps": True}
+    out.update(extra)
+    return out  # type: ignore[return-value]
+
+
+def _marker_series() -> uplot.Series:
+    return {"label": "phase", "stroke": MARKER_COLOR, "width": 1, "dash": (2.0, 3.0), "spanGaps": False}  # type: ignore[typeddict-item]
+
+
+def _empty(n: int) -> tuple[np.ndarray, ...]:
+    return tuple(np.zeros(2) for _ in range(n))
+
+
+def _stride(n: int) -> int:
+    return max(1, math.ceil(n / MAX_POINTS))
+
+
+def _with_markers(
+    x: np.ndarray, ys: list[np.ndarray], markers: list[Marker], now: float, lo: float, hi: float
+) -> tuple[np.ndarray, ...]:
+    """(x, *ys, marker series): three extra rows per marker at its time, a vertical line from lo up to
+    hi and back in the last series (uPlot joins across NaN, so the marker line runs along the bottom
+    edge between two markers), NaN in the other series (their lines join across those rows)."""
+    xm = [m.t - now for m in markers if m.t - now >= x[0]] if len(x) else []
+    if not xm:
+        return (x, *ys, np.full(len(x), np.nan))
+    mx = np.repeat(np.array(xm), 3)
+    my = np.tile([lo, hi, lo], len(xm))
+    all_x = np.concatenate([x, mx])
+    order = np.argsort(all_x, kind="stable")
+    pad = np.full(len(mx), np.nan)
+    out = [all_x[order]]
+    out += [np.concatenate([y, pad])[order] for y in ys]
+    out.append(np.concatenate([np.full(len(x), np.nan), my])[order])
+    return tuple(out)
+
+
+class Plots:
+    """The Plots panel (docked left of the 3D view) and its charts; see the module docstring."""
+
+    def __init__(self, server: viser.ViserServer, n_joints: int = 7, order: float | None = None):
+        self.n = n_joints
+        gui = server.gui
+        self.history = SignalHistory()
+        self.monitor = SignalHistory()
+        self.readouts: dict[str, float] = {}  # the numbers the readout line shows (tests read them)
+        self.markers: list[Marker] = []
+        self._ranges: dict[str, tuple[float, float]] = {}
+        self._twin_shown: bool | None = None
+        self._phase_range: tuple[float, float, float] | None = None
+        self._window_s = WINDOWS["10 s"]
+        self._last: PlotData | None = None
+        self._session: object = None
+        self._focus_joint: int | None = None  # the joint the preset is about (readouts)
+        self.panel = gui.add_panel(order=order)
+        with self.panel.add_tab("Plots", icon=viser.Icon.CHART_LINE):
+            self.window: Any = gui.add_dropdown(
+                "Window", tuple(WINDOWS), initial_value="10 s", hint="Simulated time shown, up to now"
+            )
+            self.freeze: Any = gui.add_checkbox("Freeze", False, hint="Hold the plots (the history keeps filling)")
+            self.readout = gui.add_markdown("")
+            self.force = gui.add_uplot(
+                _empty(4),
+                (
+                    {"label": "t − now (s)"},
+                    _series("F̂ − F (N)", COLORS[3]),
+                    _series("twin arm (N)", TWIN_COLOR, dash=(5.0, 3.0), show=False),
+                    _marker_series(),
+                ),
+                title=FORCE_TITLE,
+                scales=self._scales("force", (-FORCE_RANGE_N, FORCE_RANGE_N)),
+                legend=LEGEND,  # type: ignore[arg-type]
+                aspect=2.0,
+            )
+            self.coupling = gui.add_markdown(f"**{COUPLING_TITLE}**")
+            self.w_plots = {
+                name: gui.add_uplot(
+                    _empty(3),
+                    ({"label": "t − now (s)"}, _series(f"{name} ({unit})", color), _marker_series()),
+                    scales=self._scales(name, (0.0, 1.0)),
+                    legend=LEGEND,  # type: ignore[arg-type]
+                    aspect=4.0,
+                    padding=(10, 24, 0, 0),
+                )
+                for name, unit, color in W_SERIES
+            }
+            self.torque = gui.add_uplot(
+                _empty(self.n + 4),
+                (
+                    {"label": "t − now (s)"},
+                    *(_series(f"τ{i + 1}", COLORS[i % len(COLORS)], width=1) for i in range(self.n)),
+                    _series("+limit", "#888888", width=1, dash=(4.0, 4.0)),
+                    _series("−limit", "#888888", width=1, dash=(4.0, 4.0)),
+                    _marker_series(),
+                ),
+                title="Torques / limits (%)",
+                scales=self._scales("torque", (-TORQUE_RANGE_PCT, TORQUE_RANGE_PCT)),
+                legend=LEGEND,  # type: ignore[arg-type]
+                aspect=2.0,
+            )
+            self.joint: Any = gui.add_dropdown(
+                "Phase plot joint", tuple(str(i + 1) for i in range(n_joints)), initial_value="4"
+            )
+            self.phase = gui.add_uplot(
+                _empty(4),
+                (
+                    {"label": "q (rad)", "sorted": 0},
+                    _series("q̇ (rad/s)", COLORS[4], points={"show": False}, spanGaps=False),
+                    _series("+q̇max", "#888888", width=1, dash=(4.0, 4.0)),
+                    _series("−q̇max", "#888888", width=1, dash=(4.0, 4.0)),
+                ),
+                title="Joint phase (q, q̇); x range = position limits",
+                scales={"x": {"time": False, "auto": False, "range": (-1.0, 1.0)}},
+                legend=LEGEND,  # type: ignore[arg-type]
+                aspect=1.5,
+            )
+            self.rtf = gui.add_uplot(
+                _empty(2),
+                ({"label": "t − now (s)"}, _series("real-time factor", COLORS[5])),
+                title="Real-time factor",
+                scales=self._scales("rtf", (0.0, RTF_RANGE)),
+                legend=LEGEND,  # type: ignore[arg-type]
+                aspect=3.0,
+            )
+        self.panel.dock_left()
+        self.panel.set_width(400)
+        self.window.on_update(lambda _: self._on_window())
+        self.freeze.on_update(lambda _: self._redraw())
+        self.joint.on_update(lambda _: self._redraw())
+
+    # ---- ranges ---------------------------------------------------------------------------------
+    def _scales(self, key: str, y: tuple[float, float]) -> dict[str, uplot.Scale]:
+        self._ranges[key] = y
+        return {
+            "x": {"time": False, "auto": False, "range": (-self._window_s, 0.0)},
+            "y": {"auto": False, "range": y},
+        }
+
+    def _set_range(self, key: str, handle: Any, y: tuple[float, float], force: bool = False) -> None:
+        """Give a plot a new y range (a new range rebuilds the chart in the browser: only on change)."""
+        if force or self._ranges.get(key) != y:
+            handle.scales = self._scales(key, y)
+
+    def _on_window(self) -> None:
+        value = WINDOWS.get(str(self.window.value))
+        if value is None or value == self._window_s:
+            return
+        self._window_s = value
+        for key, handle in self._handles().items():
+            self._set_range(key, handle, self._ranges[key], force=True)
+        self._redraw()
+
+    def _handles(self) -> dict[str, Any]:
+        return {"force": self.force, "torque": self.torque, "rtf": self.rtf, **self.w_plots}
+
+    # ---- data -----------------------------------------------------------------------------------
+    def focus(self, joint: int | None) -> None:
+        """Show joint `joint` (0-based) in the phase plot and its readouts, e.g. the one a preset is
+        about; None keeps the phase plot's joint and drops the readouts."""
+        self._focus_joint = joint
+        if joint is not None and 0 <= joint < self.n and self.joint.value != str(joint + 1):
+            self.joint.value = str(joint + 1)
+
+    def update(self, plot: PlotData, session: object = None) -> None:
+        """Take in new plot data and redraw unless frozen (one message per chart); a new `session`
+        key (the loop's session id) starts the history again."""
+        if session != self._session:
+            self._session = session
+            self.history.clear()
+            self.monitor.clear()
+        self._last = plot
+        self.history.add(plot.columns)
+        self.monitor.add(plot.monitor)
+        self._redraw()
+
+    def _redraw(self) -> None:
+        plot = self._last
+        if plot is None:
+            return
+        c = self.history.window(self._window_s)
+        t = c.get("t", np.zeros(0))
+        if len(t) < 2 or "Fd_z" not in c:
+            return
+        self.markers = phase_markers(self.history.columns)
+        self._update_readouts(plot)
+        if self.freeze.value:
+            return
+        now = float(t[-1])
+        s = slice(None, None, _stride(len(t)))
+        x = t[s] - now
+        self._draw_force(c, s, x, now)
+        self._draw_torque(plot, c, s, x, now)
+        self._update_phase(plot)
+        m = self.monitor.window(self._window_s)
+        mt = m.get("t", np.zeros(0))
+        if len(mt) >= 2:
+            ms = slice(None, None, _stride(len(mt)))
+            mx = mt[ms] - now
+            singular = not np.any(np.isfinite(m["W_a"][-5:]))
+            title = COUPLING_TITLE + (": not shown near a singularity" if singular else "")
+            if self.coupling.content != f"**{title}**":
+                self.coupling.content = f"**{title}**"
+            for name, handle in self.w_plots.items():
+                w = m[name][ms]
+                top = float(np.nanmax(w)) if np.any(np.isfinite(w)) else 0.0
+                floor = 10.0 ** math.floor(math.log10(top)) if top > 0 else 1.0
+                hi = nice_ceiling(1.1 * top, floor)
+                self._set_range(name, handle, (0.0, hi))
+                handle.data = _with_markers(mx, [w], self.markers, now, 0.0, hi)
+            rtf = m["rtf"][ms]
+            top = float(np.nanmax(rtf)) if np.any(np.isfinite(rtf)) else 0.0
+            hi = nice_ceiling(1.1 * top, RTF_RANGE) if top > RTF_RANGE else RTF_RANGE
+            self._set_range("rtf", self.rtf, (0.0, hi))
+            self.rtf.data = (mx, rtf)
+
+    def _draw_force(self, c: dict[str, np.ndarray], s: slice, x: np.ndarray, now: float) -> None:
+        err = force_error(c)
+        twin = c.get("twin_force_error_n")
+        has_twin = twin is not None and bool(np.any(np.isfinite(twin)))
+        if has_twin != self._twin_shown:
+            self._twin_shown = has_twin
+            series = list(self.force.series)
+            series[2] = {**series[2], "show": has_twin}
+            self.force.series = tuple(series)
+        values = np.abs(err[np.isfinite(err)])
+        if has_twin and twin is not None:
+            values = np.concatenate([values, np.abs(twin[np.isfinite(twin)])])
+        top = float(values.max()) if values.size else 0.0
+        hi = nice_ceiling(1.1 * top, FORCE_RANGE_N)
+        self._set_range("force", self.force, (-hi, hi))
+        twin_y = twin[s] if has_twin and twin is not None else np.zeros(len(x))
+        self.force.data = _with_markers(x, [err[s], twin_y], self.markers, now, -hi, hi)
+        title = FORCE_TITLE if np.any(c["Fd_z"] != 0.0) else NO_SETPOINT_TITLE
+        if self.force.title != title:
+            self.force.title = title
+
+    def _draw_torque(self, plot: PlotData, c: dict[str, np.ndarray], s: slice, x: np.ndarray, now: float) -> None:
+        ratio = [100.0 * c[f"tau_{i + 1}"][s] / plot.tau_max[i] for i in range(self.n)]
+        finite = [np.abs(r[np.isfinite(r)]) for r in ratio]
+        top = max((float(r.max()) for r in finite if r.size), default=0.0)
+        hi = nice_ceiling(1.05 * top, TORQUE_RANGE_PCT) if top > TORQUE_RANGE_PCT else TORQUE_RANGE_PCT
+        self._set_range("torque", self.torque, (-hi, hi))
+        ones = np.full(len(x), 100.0)
+        self.torque.data = _with_markers(x, [*ratio, ones, -ones], self.markers, now, -hi, hi)
+
+    def _update_readouts(self, plot: PlotData) -> None:
+        """The numbers the README quotes, from the whole history (not just the window shown)."""
+        c = self.history.columns
+        out: dict[str, float] = {}
+        lines: list[str] = []
+        if "segment" in c and np.any(np.isfinite(c["segment"])):
+            # every 1 ms step since the reset when the loop counted them, else the plotted samples
+            main = plot.segment_std if plot.segment_std is not None else _std_by_segment(c, force_error(c))
+            twin: dict[int, float] = {}
+            if plot.twin_segment_std is not None:
+                twin = plot.twin_segment_std
+            elif "twin_force_error_n" in c:  # on the twin's own segments (its zig-zag may run at other times)
+                twin_seg = c["twin_segment"] if "twin_segment" in c else c["segment"]
+                twin = segment_std({"segment": twin_seg, "v": c["twin_force_error_n"]}, "v")
+            for k, v in main.items():
+                out[f"force_error_std_S{k}"] = v
+            for k, v in twin.items():
+                out[f"twin_force_error_std_S{k}"] = v
+            if main:
+                head = " · ".join(f"S{k} {v:.1f}" for k, v in main.items())
+                lines.append(f"Force-error STD (N): {head}")
+                if twin:
+                    lines.append("twin: " + " · ".join(f"S{k} {v:.1f}" for k, v in twin.items()))
+        joint = self._focus_joint
+        if "payload_attached" in c and joint is not None:
+            # from every 1 ms step since the reset (the loop's step log), not from the plotted samples
+            tau = plot.peak_abs_tau[joint] if plot.peak_abs_tau is not None else np.nan
+            q_max = plot.peak_q[joint] if plot.peak_q is not None else np.nan
+            if np.isfinite(tau):
+                peak = float(tau)
+                out["peak_torque_nm"] = peak
+                hi, lo = float(plot.q_upper[joint]), float(plot.q_lower[joint])
+                d_s = 0.01 * (hi - lo) if np.isfinite(hi - lo) else math.nan
+                over = float(q_max) - (hi - d_s) if np.isfinite(q_max) and math.isfinite(d_s) else math.nan
+                if math.isfinite(over):
+                    out["overshoot_beyond_ds_rad"] = over
+                text = f"Joint {joint + 1}: peak |τ| {peak:.1f} N m"
+                if math.isfinite(over):
+                    text += f" · beyond d_s {max(over, 0.0) * 1e3:.1f} mrad"
+                lines.append(text)
+        if self.markers:
+            lines.append("Markers: " + " · ".join(f"{m.label} {m.t:.1f} s" for m in self.markers[-8:]))
+        self.readouts = out
+        text = "  \n".join(lines)
+        if self.readout.content != text:
+            self.readout.content = text
+
+    def _update_phase(self, plot: PlotData) -> None:
+        j = int(self.joint.value) - 1
+        c = self.history.window(self._window_s)
+        q, dq = c[f"q_{j + 1}"], c[f"dq_{j + 1}"]
+        s = slice(None, None, _stride(len(q)))
+        q, dq = q[s], dq[s]
+        lo, hi = float(plot.q_lower[j]), float(plot.q_upper[j])
+        if not (np.isfinite(lo) and np.isfinite(hi)) or hi - lo > 4 * np.pi:  # endless joint: follow the data
+            lo, hi = float(np.nanmin(q)) - 0.1, float(np.nanmax(q)) + 0.1
+        vlim = float(plot.dq_max[j])
+        key = (lo, hi, vlim)
+        if self._phase_range != key:
+            self._phase_range = key
+            self.phase.scales = {
+                "x": {"time": False, "auto": False, "range": (lo, hi)},
+                "y": {"auto": False, "range": (-1.15 * vlim, 1.15 * vlim)},
+            }
+            self.phase.title = f"Joint {j + 1} phase (q, q̇); x range = limits [{lo:.2f}, {hi:.2f}] rad"
+        # two extra points at the position limits carry the velocity-limit lines across the whole
+        # width; the trajectory has no value there (NaN is not drawn)
+        x = np.concatenate([q, [lo, hi]])
+        traj = np.concatenate([dq, [np.nan, np.nan]])
+        vmax = np.full_like(x, vlim)
+        self.phase.data = (x, traj, vmax, -vmax)
+
+
+def _std_by_segment(columns: dict[str, np.ndarray], values: np.ndarray) -> dict[int, float]:
+    return segment_std({"segment": columns["segment"], "v": values}, "v")

@@ -1,0 +1,163 @@
+"""The publisher thread: shows the loop's frames in the browser.
+
+It waits for the newest `Frame` (30 Hz), updates the 3D scene inside `server.atomic()`, refreshes
+the panels' values and live numbers (~6 Hz), the plots (10 Hz), and turns the loop's notices into
+notifications. It rebuilds the scene view when the session's robot changes. It never touches the
+session: everything it shows is a copy the loop made between two steps.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import viser
+
+from app.live.loop import Frame, SimLoop, raise_thread_priority
+from app.live.ui.camera import frame_on_connect, frame_robot
+from app.live.ui.panels.base import notify
+from app.live.ui.plots import Plots
+
+LIVE_PERIOD_S = 0.15
+# Niceness of the publisher thread and of the server's event loop (Linux, where permitted): just below
+# the loop thread's (−10). At the default 0 they got a tenth of its weight in the server's share of
+# the CPU, and lost frames; it is also above Chromium's display threads (−8) where the browser runs
+# in the server's session.
+PUBLISHER_NICENESS = -9
+
+
+class Publisher:
+    """Consumes frames from a SimLoop (see the module docstring)."""
+
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        loop: SimLoop,
+        panels: Sequence[Any],
+        plots: Plots | None,
+        make_scene: Callable[[Any], Any] | None,
+    ):
+        self.server = server
+        self.loop = loop
+        self.panels = list(panels)
+        self.plots = plots
+        self.make_scene = make_scene
+        self.scene: Any = None
+        self.scene_session_id = -1
+        self.frames_shown = 0
+        self.scene_updates = 0
+        self.last_frame: Frame | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="torquelab-publisher", daemon=True)
+        self._settings_version = -1
+        self._plot_seq = -1
+        self._next_live = 0.0
+        self._live_state: tuple[bool, str, float, int, int] | None = None
+        self._frame_pending = True  # frame the robot once a new scene has a snapshot
+        # pages whose camera was framed on connect (client ids)
+        self.framed_clients = frame_on_connect(
+            server, lambda: self.last_frame.scene if self.last_frame is not None else None
+        )
+        self.niceness: int | None = None  # the publisher thread's, once it runs (None: not on Linux)
+        self.server_niceness: int | None = None  # the server event loop thread's, likewise
+
+    def start(self) -> None:
+        """Start the thread, and raise it and the server's event loop to PUBLISHER_NICENESS."""
+        self._thread.start()
+
+        def raise_server_priority() -> None:
+            self.server_niceness = raise_thread_priority(PUBLISHER_NICENESS)
+
+        self.server.get_event_loop().call_soon_threadsafe(raise_server_priority)
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop the thread and remove the scene view."""
+        self._stop.set()
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        self.niceness = raise_thread_priority(PUBLISHER_NICENESS)
+        seq = 0
+        while not self._stop.is_set():
+            for notice in self.loop.take_notices():
+                notify(self.server, notice.client_id, notice.title, notice.body, error=notice.level == "error")
+            frame = self.loop.wait_frame(seq, timeout=0.2)
+            if frame is None:
+                self._refresh_idle()
+                continue
+            seq = frame.seq
+            try:
+                self.show(frame)
+            except Exception:  # keep publishing whatever one widget does
+                traceback.print_exc()
+
+    def _refresh_idle(self) -> None:
+        """While no frames come (a paused loop publishes only when something changes), refresh the panels
+        from the last frame now and then, so an input a person touched shows the value in force once
+        its hold has passed."""
+        frame = self.last_frame
+        now = time.monotonic()
+        if frame is None or now < self._next_live:
+            return
+        self._next_live = now + LIVE_PERIOD_S
+        try:
+            with self.server.atomic():
+                for panel in self.panels:
+                    panel.refresh(frame.settings)
+        except Exception:
+            traceback.print_exc()
+
+    @property
+    def framing_pending(self) -> bool:
+        """True from a new scene until its first snapshot has framed every page's camera on the arm."""
+        return self._frame_pending
+
+    def frame_view(self, client: viser.ClientHandle | None = None) -> bool:
+        """Point one client's camera (every client's when None) at the arm of the newest frame."""
+        frame = self.last_frame
+        scene = frame.scene if frame is not None else None
+        return frame_robot(self.server, scene, None if client is None else [client])
+
+    def show(self, frame: Frame) -> None:
+        """Show one frame: its scene, panels and plots go out as one message batch (one wake-up of
+        the server's event loop per frame instead of one per changed property)."""
+        self.last_frame = frame
+        with self.server.atomic():
+            self._show(frame)
+        self.frames_shown += 1
+
+    def _show(self, frame: Frame) -> None:
+        if self.make_scene is not None and frame.session_id != self.scene_session_id:
+            if self.scene is not None:
+                self.scene.remove()
+                self.scene = None
+            self.scene = self.make_scene(frame.robot)
+            self.scene_session_id = frame.session_id
+            self._frame_pending = True
+            if self.plots is not None:
+                self.plots.focus(frame.status.focus_joint)
+        if self.scene is not None and frame.scene is not None:
+            self.scene.update(frame.scene)
+            self.scene_updates += 1
+            if self._frame_pending:
+                self._frame_pending = not frame_robot(self.server, frame.scene)
+        now = time.monotonic()
+        settings_changed = frame.settings.version != self._settings_version
+        if settings_changed or now >= self._next_live:
+            for panel in self.panels:
+                panel.refresh(frame.settings)
+            self._settings_version = frame.settings.version
+        # a paused loop publishes one last frame: show it at once, or the page keeps saying "running"
+        # (or shows the preset before a switch made while paused)
+        state = (frame.status.running, frame.status.halted, frame.status.t, frame.session_id, frame.settings.version)
+        if now >= self._next_live or (not frame.status.running and state != self._live_state):
+            self._next_live = now + LIVE_PERIOD_S
+            self._live_state = state
+            for panel in self.panels:
+                panel.live(frame)
+        if frame.plot is not None and self.plots is not None and frame.plot_seq != self._plot_seq:
+            self._plot_seq = frame.plot_seq  # a frame skipped while busy does not lose a plot update
+            self.plots.update(frame.plot, frame.session_id)
