@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The test command: bash scripts/test.sh [pytest args]
 # Creates or reuses .venv, installs torquelab with its test extras, makes sure a Chromium is
-# available for the browser tests, then runs ruff, mypy, pytest and the wheel smoke test
+# available for the browser tests, then runs ruff, mypy, the import contracts, pytest and the wheel smoke test
 # (scripts/wheel_smoke.sh: the built wheel installed in a throw-away venv; only without pytest
 # arguments). Exits non-zero on any failure.
 set -euo pipefail
@@ -41,6 +41,8 @@ echo "== ruff"
 .venv/bin/ruff format --check .
 echo "== mypy"
 .venv/bin/mypy
+echo "== import contracts (README, Architecture)"
+.venv/bin/lint-imports
 echo "== pytest"
 mkdir -p test-artifacts
 .venv/bin/python -m pytest "$@"
