@@ -110,7 +110,7 @@ def test_scene_takes_objective_split_coupling_and_zone_from_the_view(monkeypatch
 
 
 def test_snapshot_reads_the_executor_only_through_its_view():
-    text = (ROOT / "app" / "ui" / "snapshot.py").read_text()
+    text = (ROOT / "app" / "live" / "ui" / "snapshot.py").read_text()
     assert not re.search(r"getattr\([^)]*executor", text)
     uses = re.findall(r"executor\.(\w+)", text)
     assert uses == ["view"], uses
