@@ -19,7 +19,7 @@ are flagged; nothing raises inside `step`.
 
 `ComplianceQPExecutor._step_reference` states the step object by object; `step` runs the same
 step with the pose task, the posture task, the dampers and the torque rows in one compiled call
-(`control.kernels_qp.cqp_problem_fused`), tested equal to the reference to 1e-9.
+(`control.kernels.cqp.cqp_problem_fused`), tested equal to the reference to 1e-9.
 """
 
 from __future__ import annotations
@@ -45,14 +45,14 @@ from control.gains import (
     SolverParams,
     compliance_matrix,
 )
-from control.kernels import (
+from control.kernels.compliance import (
     add_task_rows_fused,
     inverse_dynamics_fused,
     pose_task_target_fused,
     posture_target_fused,
     torque_rows_fused,
 )
-from control.kernels_qp import cqp_problem_fused
+from control.kernels.cqp import cqp_problem_fused
 from control.model import Dynamics
 from control.params import expect
 
@@ -101,7 +101,7 @@ class PoseTask:
         """New gains / Γ (validated by the dataclass)."""
         self.gains = gains
         # K_p, K_d, Γ (rows 0, 1, 2–7; the attributes are views) and [weight, Γ ≠ 0] (row 8): the
-        # fused step's one argument for this task (`kernels_qp.cqp_problem_fused`)
+        # fused step's one argument for this task (`kernels.cqp.cqp_problem_fused`)
         packed = self.kernel_gains = np.zeros((9, 6))
         self.kp, self.kd, self.gamma = packed[0], packed[1], packed[2:8]
         self.kp[:] = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (6,))
@@ -161,7 +161,7 @@ class PostureTask:
         n = self.dim
         self.gains = gains
         # K_p, K_d, K_i, Γ₀ (rows 0, 1, 2, 3…; the attributes are views) and [weight, K_i ≠ 0,
-        # Γ₀ ≠ 0, δt, inertia metric]: the fused step's arguments (`kernels_qp.cqp_problem_fused`)
+        # Γ₀ ≠ 0, δt, inertia metric]: the fused step's arguments (`kernels.cqp.cqp_problem_fused`)
         packed = self.kernel_gains = np.zeros((3 + n, n))
         self.kp, self.kd, self.ki, self.gamma = packed[0], packed[1], packed[2], packed[3:]
         self.kp[:] = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (n,))
@@ -273,7 +273,7 @@ class AccelerationQP:
 
     def take_unconstrained_optimum(self, x: np.ndarray, solve_us: float) -> qp.QPResult:
         """The result for x = −P⁻¹q that the caller found feasible with the dense backend's exact
-        fast path (`kernels_qp.unconstrained_optimum_fused`, the fused [C] step): what `solve` would
+        fast path (`kernels.dense_qp.unconstrained_optimum_fused`, the fused [C] step): what `solve` would
         return; the backend's next DAQP solve starts afresh (all data, empty working set)."""
         if isinstance(self.primary, qp.DenseBackend):
             self.primary.forget_warm_start()
@@ -457,7 +457,7 @@ class ComplianceQPExecutor:
         """`_step_reference` with the estimate (once observer and sensor filter have started, when
         no task prepares itself on the step's inputs), the pose task (the first soft `PoseTask`),
         the posture task, the dampers and the torque rows in one compiled call
-        (`control.kernels_qp.cqp_problem_fused`); other tasks add their rows as in the reference.
+        (`control.kernels.cqp.cqp_problem_fused`); other tasks add their rows as in the reference.
         With the dense backend and the objective final in that call (no other task), the call also
         runs the backend's exact fast path and, when it holds, τ_d [C8]: the backend is not called
         (`qp_solve_us` is then the whole call's time)."""

@@ -21,13 +21,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from control.kernels import (
-    OBJECTIVE_CODES,
-    coupling_fused,
-    gradient_contraction_fused,
-    gradient_contraction_reference,
-    inertia_contraction_fused,
-)
+from control.kernels.chain import inertia_contraction_fused
+from control.kernels.coupling import coupling_fused
+from control.kernels.gradients import OBJECTIVE_CODES, gradient_contraction_fused, gradient_contraction_reference
 from control.model import Dynamics, RobotModel
 
 AXIS_NAMES = ("px", "py", "pz", "rx", "ry", "rz")

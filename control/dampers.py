@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from control.gains import DamperGains
-from control.kernels import acceleration_bounds_fused
+from control.kernels.compliance import acceleration_bounds_fused
 
 NO_BOUND = 1e9  # rad/s², stands for "unbounded" in the QP rows (OSQP treats ≥ 1e30 as inf)
 
@@ -77,7 +77,7 @@ class JointLimitDamper:
         self.kp = lam * lam / (4.0 * M * M)  # [C24] λ²/(4M²)
         self.xi = lam * (self.d_i - self.d_s) / (4.0 * M * M)  # [C23] solved for ξ (classic form)
         self.velocity_gain = lam if gains.form == "proposed" else 1.0 / self.dt
-        # the fused [C] step's arguments (`kernels_qp.cqp_problem_fused`): the per-joint rows as one
+        # the fused [C] step's arguments (`kernels.cqp.cqp_problem_fused`): the per-joint rows as one
         # array (the attributes are views of it) and the scalars
         rows = np.array([self.q_lower, self.q_upper, self.d_s, self.d_i, self.xi, self.dq_limit])
         self.kernel_rows = rows

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from control.gains import EstimatorGains
-from control.kernels import momentum_observer_fused, sensor_high_pass_fused
+from control.kernels.estimation import momentum_observer_fused, sensor_high_pass_fused
 from control.model import Dynamics
 
 
@@ -114,7 +114,7 @@ class ExternalTorqueEstimator:
         self.high_pass = HighPass(self.n, self.gains.observer_gain, self.dt)
         self.tau_s = np.zeros(self.n)
         self.estimate = np.zeros(self.n)
-        # [pole a, δt, source code] for the [C] executor's fused step (`kernels_qp.cqp_problem_fused`)
+        # [pole a, δt, source code] for the [C] executor's fused step (`kernels.cqp.cqp_problem_fused`)
         code = {"none": 0.0, "residual": 1.0, "fusion": 2.0}.get(self.gains.source, -1.0)
         self.kernel_constants = np.array([self.observer.a, self.dt, code])
 

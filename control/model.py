@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from control.kernels import chain_constants, snapshot_into, snapshot_reference, snapshot_work
+from control.kernels.chain import chain_constants
+from control.kernels.snapshot import snapshot_into, snapshot_reference, snapshot_work
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 

@@ -33,13 +33,13 @@ from control.coupling import (
 )
 from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
 from control.gains import MotionForceGains, NullspaceGains, SolverParams
-from control.kernels import (
-    OBJECTIVE_CODES,
+from control.kernels.chain import pack_chain
+from control.kernels.gradients import OBJECTIVE_CODES
+from control.kernels.law import (
     OBJECTIVE_J,
     damper_bounds_fused,
     joint_torque_fused,
     law_constants,
-    pack_chain,
     projection_step_fused,
     task_wrench_fused,
 )

@@ -27,7 +27,7 @@ import numpy as np
 
 from control import qp
 from control.gains import NullspaceGains
-from control.kernels import nullspace_line_qp_fused
+from control.kernels.line_qp import nullspace_line_qp_fused
 
 N_TASK = 6
 

@@ -34,7 +34,7 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
-from control import kernels_qp
+from control.kernels import dense_qp
 
 INF = 1e30  # what "no bound" becomes (OSQP_INFTY); callers may pass ±inf or ±INF
 
@@ -169,7 +169,7 @@ class DenseBackend:
     """DAQP's dense dual active-set solver on a workspace set up when first needed.
 
     The data is copied into one preallocated buffer [P, A, q, lower, upper] by one compiled call
-    (`control.kernels_qp.dense_qp_load_fused`), which also refuses NaN and crossed bounds and
+    (`control.dense_qp.dense_qp_load_fused`), which also refuses NaN and crossed bounds and
     tries the exact fast path: for P positive definite and no equality rows, the unconstrained
     minimiser −P⁻¹q, when it meets every bound and row to the primal tolerance, is the optimum
     (all multipliers zero) and is returned without DAQP (iterations 0). That is the test DAQP
@@ -190,8 +190,8 @@ class DenseBackend:
         self._model_current = False  # DAQP's workspace holds the data of the last solve
         self._sense = np.zeros(n + m, dtype=np.int32)
         self._sense[n + m - n_eq :] = 5  # DAQP: equality (active, immutable)
-        self._data = kernels_qp.dense_qp_buffer(n, m)
-        self._P, self._A, self._q, self._lo, self._hi = kernels_qp.dense_qp_views(self._data, n, m)
+        self._data = dense_qp.dense_qp_buffer(n, m)
+        self._P, self._A, self._q, self._lo, self._hi = dense_qp.dense_qp_views(self._data, n, m)
         self._P[:] = np.eye(n)  # P starts as the identity (as OSQP's pattern), A as zeros
         self._x = np.zeros(n)
 
@@ -206,15 +206,15 @@ class DenseBackend:
         t0 = time.perf_counter()
         args = (self._data, n, self.m, self.n_eq, P, q, A, l, u, lb, ub, INF, self.settings.eps, self._x)
         try:
-            code = kernels_qp.dense_qp_load_fused(*args)
+            code = dense_qp.dense_qp_load_fused(*args)
         except TypeError:  # arguments of other types than float arrays (the kernel's dispatch refuses)
-            code = kernels_qp.dense_qp_load_reference(*args)
-        if code == kernels_qp.FAST_SOLVED:
+            code = dense_qp.dense_qp_load_reference(*args)
+        if code == dense_qp.FAST_SOLVED:
             self._model_current = False
             return QPResult(self._x.copy(), SOLVED, 0, _us(t0), self.backend)
-        if code == kernels_qp.NON_FINITE_DATA:
+        if code == dense_qp.NON_FINITE_DATA:
             return QPResult(np.full(n, np.nan), NON_FINITE, 0, _us(t0), self.backend)
-        if code == kernels_qp.CROSSED_BOUNDS:  # DAQP would pick one side of a crossed row silently
+        if code == dense_qp.CROSSED_BOUNDS:  # DAQP would pick one side of a crossed row silently
             return QPResult(np.full(n, np.nan), INFEASIBLE, 0, _us(t0), self.backend)
         try:
             if self._model is None:

@@ -1,4 +1,4 @@
-"""The compiled kernels equal their plain-numpy references (control/kernels.py).
+"""The compiled kernels equal their plain-numpy references (control/kernels/).
 
 Relative tolerance 1e-10 on each output (max abs difference over max abs entry), at random states
 of both robots and at near-singular states where Λx reaches 1e5-1e6 (wrist singularity approached
@@ -19,8 +19,8 @@ import pinocchio as pin
 import pytest
 
 from control import kernels as K
-from control import kernels_qp as KQ
 from control.coupling import Subspaces, coupling_gradient, coupling_gradient_direct, terms_of
+from control.kernels import dense_qp as KQ
 from control.model import SINGULAR_EIGENVALUE, RobotModel
 from tests.conftest import random_configurations
 
@@ -458,7 +458,7 @@ def test_moved_wrench_equals_numpy_reference():
         assert _rel(K.move_wrench_fused(w, a, b), K.move_wrench_reference(w, a, b)) < 1e-14
 
 
-# ---- [C] QP kernels (control/kernels_qp.py) ---------------------------------------------------
+# ---- [C] QP kernels (control/kernels/dense_qp.py) ---------------------------------------------------
 def _qp_problem(rng: np.random.Generator, n: int, m: int, active: bool):
     """A strictly convex problem whose unconstrained optimum meets every bound and row (active
     False) or violates some (active True)."""

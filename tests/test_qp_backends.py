@@ -9,7 +9,7 @@ stalls on a few feasible problems (max iter, even at 20 000 iterations, where th
 the executor fell back too): those are counted and must stay under 10 %.
 
 The dense backend's fast path (the unconstrained optimum −P⁻¹q when it is feasible, no DAQP
-call: `control.kernels_qp`) is held to DAQP's own solve of the same problem (`daqp.solve`, fresh)
+call: `control.kernels.dense_qp`) is held to DAQP's own solve of the same problem (`daqp.solve`, fresh)
 to FAST_REL · max|x| and to OSQP as above, with and without active constraints, and along
 sequences that switch between the fast path and DAQP's warm-started solve.
 """

@@ -30,7 +30,7 @@ from app.scenarios import Environment, Scenario, Sensor, get_scenario
 from app.sim.drag import DragSpring
 from app.sim.world import World, WorldParams
 from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
-from control.kernels import move_wrench_fused
+from control.kernels.geometry import move_wrench_fused
 from control.model import Dynamics, RobotModel
 from control.params import ParamError, ParamGroup, expect, param, replaced, spec_of
 

@@ -32,7 +32,7 @@ from app.sim.world import World
 from control.coupling import POLISH_SUBSPACES, move_to_swivel, project_to_pose
 from control.executor import TaskTarget
 from control.gains import MotionForceGains
-from control.kernels import swivel_of_anchors_fused
+from control.kernels.geometry import swivel_of_anchors_fused
 from control.margin import ContactLoop, posture_margin
 from control.model import Dynamics, RobotModel
 from control.params import ParamGroup, expect, param, replaced

@@ -1,0 +1,170 @@
+"""The [C] executor's rows: task targets and the QP objective [C3-9], the torque rows [C10], the
+inverse dynamics [C8] and the joint-limit dampers as acceleration bounds [C13-24].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from control.kernels._linalg import _np_max
+from control.kernels.geometry import log3_fused
+
+
+@njit(cache=True)
+def pose_task_target_fused(
+    J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
+    target_acceleration, kp, kd, gamma, use_gamma, ddq_e,
+):  # fmt: skip
+    """Compiled `control.compliance_qp.PoseTask.rows_reference`'s right-hand side: b = ẍ° + ë* − J̇q̇
+    (+ Γ J q̈_e when Γ ≠ 0) [C4, C9], ë* = −K_d ė − K_p e [C3], e = [p − p°; log(R R°ᵀ)]."""
+    n = J.shape[1]
+    R = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = (
+                tcp_rotation[i, 0] * target_rotation[j, 0]
+                + tcp_rotation[i, 1] * target_rotation[j, 1]
+                + tcp_rotation[i, 2] * target_rotation[j, 2]
+            )
+    w = log3_fused(R)
+    b = np.empty(6)
+    for a in range(6):
+        v = 0.0
+        for j in range(n):
+            v += J[a, j] * dq[j]
+        e = tcp_position[a] - target_position[a] if a < 3 else w[a - 3]
+        b[a] = target_acceleration[a] + (-kd[a] * (v - target_velocity[a]) - kp[a] * e) - dJ_dq[a]
+    if use_gamma:
+        Jx = np.zeros(6)
+        for a in range(6):
+            for j in range(n):
+                Jx[a] += J[a, j] * ddq_e[j]
+        for a in range(6):
+            s = 0.0
+            for c in range(6):
+                s += gamma[a, c] * Jx[c]
+            b[a] += s
+    return b
+
+
+@njit(cache=True)
+def add_task_rows_fused(P, q, J, b, w):
+    """P += w JᵀJ and q −= w Jᵀb in place: one soft task's share of the [C9] objective
+    ½ q̈ᵀP q̈ + qᵀq̈ (identity metric)."""
+    m, n = J.shape
+    for i in range(n):
+        s = 0.0
+        for k in range(m):
+            s += J[k, i] * w * b[k]
+        q[i] -= s
+        for j in range(n):
+            s = 0.0
+            for k in range(m):
+                s += J[k, i] * w * J[k, j]
+            P[i, j] += s
+
+
+@njit(cache=True)
+def posture_target_fused(q, q_ref, dq, dq_ref, kp, kd, ki, use_ki, integral, dt, gamma, use_gamma, ddq_e):
+    """Compiled `control.compliance_qp.PostureTask.rows_reference`'s right-hand side: q̈*₀ =
+    −K_d (q̇ − q̇_ref) − K_p e − K_i ∫e, e = q − q_ref (the integral advanced in place when K_i ≠ 0),
+    plus Γ₀ q̈_e when Γ₀ ≠ 0 [C7, C9]."""
+    n = q.shape[0]
+    b = np.empty(n)
+    for i in range(n):
+        e = q[i] - q_ref[i]
+        if use_ki:
+            integral[i] += e * dt
+        b[i] = -kd[i] * (dq[i] - dq_ref[i]) - kp[i] * e - ki[i] * integral[i]
+    if use_gamma:
+        for i in range(n):
+            s = 0.0
+            for j in range(n):
+                s += gamma[i, j] * ddq_e[j]
+            b[i] += s
+    return b
+
+
+@njit(cache=True)
+def torque_rows_fused(M, h, tau_fb, tau_max, A, lower, upper, limits_on, no_bound):
+    """The [C10] rows of the acceleration QP in place: A[:n] = M, −τ_max − h + τ_fb ≤ M q̈ ≤ τ_max − h
+    + τ_fb (±`no_bound` when the torque limits are off)."""
+    n = M.shape[0]
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = M[i, j]
+        if limits_on:
+            lower[i] = -tau_max[i] - h[i] + tau_fb[i]
+            upper[i] = tau_max[i] - h[i] + tau_fb[i]
+        else:
+            lower[i] = -no_bound
+            upper[i] = no_bound
+
+
+@njit(cache=True)
+def inverse_dynamics_fused(M, ddq, h, tau_fb, tau_max, clip_desired):
+    """τ_d = M q̈ + h − τ_fb [C8] (clipped to ±τ_max when `clip_desired`: [C10] kept hard for an
+    approximate solution), the motors' command clip(τ_d, ±τ_max) and whether τ_d exceeds τ_max."""
+    n = M.shape[0]
+    tau = np.empty(n)
+    cmd = np.empty(n)
+    saturated = False
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += M[i, j] * ddq[j]
+        t = s + h[i] - tau_fb[i]
+        if clip_desired:
+            t = min(max(t, -tau_max[i]), tau_max[i])
+        tau[i] = t
+        cmd[i] = min(max(t, -tau_max[i]), tau_max[i])
+        if abs(t) > tau_max[i] + 1e-9:
+            saturated = True
+    return tau, cmd, saturated
+
+
+@njit(cache=True)
+def acceleration_bounds_fused(
+    q, dq, q_lower, q_upper, d_s, d_i, xi, kp, lam, velocity_gain, dq_limit, endless, proposed, dt, no_bound
+):
+    """Compiled `control.dampers.JointLimitDamper.bounds_reference`: (lower, upper, crossed).
+
+    Per joint and side (upper: e = q⁺ − q, ė = −q̇; lower: e = q − q⁻, ė = q̇): ë_p proposed [C24]
+    −λė − k_p(e − d_s) or classic [C15, C17] −(ė − ė_d)/δt below d_i, ë_v = −g(ė + q̇⁺) [C18, C20],
+    ë ≥ max(ë_p, ë_v) [C19] capped at `no_bound`; crossed rows go to their midpoint."""
+    n = q.shape[0]
+    lower = np.empty(n)
+    upper = np.empty(n)
+    crossed = False
+    for i in range(n):
+        for side in range(2):
+            if side == 0:
+                e, de = q_upper[i] - q[i], -dq[i]
+            else:
+                e, de = q[i] - q_lower[i], dq[i]
+            if endless[i]:
+                e_p = -no_bound
+            elif proposed:
+                e_p = (-lam) * de - kp * (e - d_s[i])  # [C24]
+            else:
+                de_d = (-xi[i]) * (e - d_s[i]) / (d_i[i] - d_s[i])  # [C15]
+                e_p = -(de - de_d) / dt if e < d_i[i] else -no_bound  # [C17]
+            e_v = (-velocity_gain) * (de + dq_limit[i])  # [C18]/[C20]
+            bound = _np_max(e_p, e_v)  # [C19]
+            if bound > no_bound:
+                bound = no_bound
+            if side == 0:
+                upper[i] = -bound
+            else:
+                lower[i] = bound
+    for i in range(n):
+        if lower[i] > upper[i]:
+            crossed = True
+    if crossed:
+        for i in range(n):
+            if lower[i] > upper[i]:
+                mid = 0.5 * (lower[i] + upper[i])
+                lower[i] = mid
+                upper[i] = mid
+    return lower, upper, crossed

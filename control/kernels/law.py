@@ -1,0 +1,336 @@
+"""The [T] law around the nullspace QP [T7, T9, T11-14, T17, T18, T22-27]: the task wrench, the joint
+torque, the velocity dampers' bounds, and the whole law (and step) in one compiled call.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from control.kernels.chain import _unpack_chain, inertia_contraction_fused
+from control.kernels.coupling import coupling_fused
+from control.kernels.geometry import log3_fused
+from control.kernels.gradients import gradient_contraction_fused
+from control.kernels.line_qp import nullspace_line_qp_fused
+
+
+def task_wrench_reference(
+    J: np.ndarray,
+    dq: np.ndarray,
+    e: np.ndarray,
+    target_velocity: np.ndarray,
+    target_acceleration: np.ndarray,
+    A: np.ndarray,
+    P_d: np.ndarray,
+    P_f: np.ndarray,
+    Lambda: np.ndarray,
+    dJ_dq: np.ndarray,
+    F_e: np.ndarray,
+    F_hat: np.ndarray,
+    u_f_extra: np.ndarray,
+    m_idx: np.ndarray,
+    f_idx: np.ndarray,
+    kp_m: np.ndarray,
+    kd_scale_m: np.ndarray,
+    force_kp: float,
+    force_kd: float,
+    shaping: bool,
+) -> tuple:
+    """(F [T7] before μx, F − Λx J̇q̇, coupled acceleration P_f F_m^e) of the [T] executor.
+
+    e: pose error [p° − p; log(R° Rᵀ)]; `u_f_extra`: the integral term K_f^i ∫e_f (or zeros).
+    """
+    v = J @ dq
+    de = target_velocity - v
+    kd_m = kd_scale_m * np.sqrt(A.diagonal())  # [T11] K_m^d = 2ζ√(K_m^p A_ii)
+    u_m = A @ target_acceleration[m_idx] + kd_m * de[m_idx] + kp_m * e[m_idx]  # [T11]
+    u_f = -F_hat + force_kp * (F_e[f_idx] - F_hat) - force_kd * v[f_idx] + u_f_extra  # [T12]
+    F = np.empty(6)
+    F[m_idx] = u_m
+    F[f_idx] = u_f + P_d @ (u_m + F_e[m_idx]) if shaping else u_f  # [T7] with Λ̂x [T9]
+    return F, F - Lambda @ dJ_dq, float(P_f[0] @ F_e[m_idx])
+
+
+@njit(cache=True)
+def task_wrench_fused(
+    J,
+    dq,
+    e,
+    target_velocity,
+    target_acceleration,
+    A,
+    P_d,
+    P_f,
+    Lambda,
+    dJ_dq,
+    F_e,
+    F_hat,
+    u_f_extra,
+    m_idx,
+    f_idx,
+    kp_m,
+    kd_scale_m,
+    force_kp,
+    force_kd,
+    shaping,
+):
+    """Compiled `task_wrench_reference` (same outputs, same order)."""
+    n = J.shape[1]
+    v = np.zeros(6)
+    for a in range(6):
+        s = 0.0
+        for j in range(n):
+            s += J[a, j] * dq[j]
+        v[a] = s
+    nm = m_idx.shape[0]
+    nf = f_idx.shape[0]
+    u_m = np.empty(nm)
+    for i in range(nm):
+        s = 0.0
+        for j in range(nm):
+            s += A[i, j] * target_acceleration[m_idx[j]]
+        mi = m_idx[i]
+        u_m[i] = s + kd_scale_m[i] * np.sqrt(A[i, i]) * (target_velocity[mi] - v[mi]) + kp_m[i] * e[mi]
+    F = np.empty(6)
+    for i in range(nm):
+        F[m_idx[i]] = u_m[i]
+    coupled = 0.0
+    for j in range(nm):
+        coupled += P_f[0, j] * F_e[m_idx[j]]
+    for r in range(nf):
+        fr = f_idx[r]
+        u_f = -F_hat[r] + force_kp * (F_e[fr] - F_hat[r]) - force_kd * v[fr] + u_f_extra[r]
+        if shaping:
+            for j in range(nm):
+                u_f += P_d[r, j] * (u_m[j] + F_e[m_idx[j]])
+        F[fr] = u_f
+    F_mu = F.copy()
+    for a in range(6):
+        s = 0.0
+        for b in range(6):
+            s += Lambda[a, b] * dJ_dq[b]
+        F_mu[a] -= s
+    return F, F_mu, coupled
+
+
+def joint_torque_reference(
+    J: np.ndarray,
+    F: np.ndarray,
+    N: np.ndarray,
+    Lambda_n: np.ndarray,
+    kn: np.ndarray,
+    dq_goal: np.ndarray,
+    dq: np.ndarray,
+    h: np.ndarray,
+) -> np.ndarray:
+    """τ = Jᵀ F + Nᵀ F_n + h [T14] with F_n = Λn K_n^d (q̂̇n − N q̇) [T13] (μn = h)."""
+    F_n = Lambda_n @ (kn * (dq_goal - N @ dq))  # [T13]
+    return J.T @ F + N.T @ F_n + h  # [T14]
+
+
+@njit(cache=True)
+def joint_torque_fused(J, F, N, Lambda_n, kn, dq_goal, dq, h):
+    """Compiled `joint_torque_reference`."""
+    n = J.shape[1]
+    y = np.empty(n)
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += N[i, j] * dq[j]
+        y[i] = kn[i] * (dq_goal[i] - s)
+    F_n = np.zeros(n)
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += Lambda_n[i, j] * y[j]
+        F_n[i] = s
+    tau = h.copy()
+    for i in range(n):
+        s = 0.0
+        for a in range(6):
+            s += J[a, i] * F[a]
+        for j in range(n):
+            s += N[j, i] * F_n[j]
+        tau[i] += s
+    return tau
+
+
+@njit(cache=True)
+def damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, influence, safety, speed):
+    """Compiled `control.nullspace.damper_bounds` (its numpy reference): (l, u) = ±dq_limit
+    tightened near the position limits to −ξ (d − d_s)/(d_i − d_s), never on endless joints."""
+    n = q.shape[0]
+    slope = speed / (influence - safety)
+    lower = np.empty(n)
+    upper = np.empty(n)
+    for i in range(n):
+        lo = -dq_limit[i]
+        up = dq_limit[i]
+        if not endless[i]:
+            d_low = q[i] - q_lower[i]
+            d_up = q_upper[i] - q[i]
+            if d_low < influence:
+                lo = max(lo, -slope * (d_low - safety))
+            if d_up < influence:
+                up = min(up, slope * (d_up - safety))
+        lower[i] = lo
+        upper[i] = up
+    return lower, upper
+
+
+OBJECTIVE_J = 3  # `projection_law_fused`'s code for W_j [T18] (0/1/2: f/a/d, `OBJECTIVE_CODES`)
+
+
+def law_constants(
+    objective: int,
+    perm: np.ndarray,
+    n_m: int,
+    kp_m: np.ndarray,
+    kd_scale_m: np.ndarray,
+    force_gains: tuple[float, float, float, float],
+    shaping: bool,
+    k0: float,
+    q_lower: np.ndarray,
+    q_upper: np.ndarray,
+    dq_limit: np.ndarray,
+    endless: np.ndarray,
+    damper: tuple[float, float, float],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What `projection_law_fused` reads that changes only with the gains, in three arrays (one
+    compiled call's argument checks cost per argument): (axes, gains, limits) =
+    ([objective, n_m, perm…] int64; [K_f^p, K_f^d, K_f^i, integral limit, shaping, k0, d_i, d_s, ξ,
+    K_m^p…, 2ζ√K_m^p…]; rows q⁻, q⁺, q̇ limit, endless (1/0)). `law_constants_unpacked` reads them back."""
+    axes = np.array([objective, n_m, *np.asarray(perm, dtype=np.int64)], dtype=np.int64)
+    gains = np.array([*force_gains, float(shaping), k0, *damper, *kp_m, *kd_scale_m], dtype=float)
+    limits = np.array([q_lower, q_upper, dq_limit, np.asarray(endless, dtype=float)], dtype=float)
+    return axes, gains, limits
+
+
+@njit(cache=True)
+def projection_law_fused(
+    q,
+    dq,
+    J,
+    M_inv,
+    Lambda,
+    Lambda_inv,
+    dJ_dq,
+    exact,
+    tcp_position,
+    tcp_rotation,
+    target_position,
+    target_rotation,
+    target_velocity,
+    target_acceleration,
+    target_wrench,
+    F_e,
+    force_integral,
+    q_d,
+    axes,
+    gains,
+    limits,
+    chain,
+    F_mu,
+    qp_data,
+):
+    """Everything the [T] executor computes before its nullspace QP, in one compiled call of the
+    kernels above (the same arithmetic as calling them one by one, as the executor's reference
+    path `ProjectionExecutor._step_reference` does):
+
+    the pose error e = [p° − p; log(R° Rᵀ)] (`log3_fused`); the force integral ∫e_f clamped to
+    ±limit/K_f^i (anti-windup, when K_f^i > 0) [T12]; `coupling_fused` (A, B, D, P, W [T6, T9,
+    T22]); the QP's linear term k0 ∇W with ∇W from `gradient_contraction_fused` and
+    `inertia_contraction_fused` [T24-27] (objective 0/1/2: f/a/d), or ∇W_j = q − q_d [T18]
+    (objective `OBJECTIVE_J`); `task_wrench_fused` [T7, T11-12]; `damper_bounds_fused` [T17].
+    `axes`, `gains`, `limits` are `law_constants(…)`, `chain` is `pack_chain(chain_constants(model))`
+    (a serial revolute chain).
+
+    Writes F − Λx J̇q̇ into `F_mu` (6,) and the QP's k0 ∇W, lower and upper bounds into the rows of
+    `qp_data` (3, n) (the caller's buffers: handing arrays back costs more); returns (F, new force
+    integral, W, W_f, W_a, W_d, P_f F_m^e, F̂_f[0] − F_f^e[0]).
+    """
+    objective, n_m = axes[0], axes[1]
+    perm = axes[2:]
+    m_idx, f_idx = perm[:n_m], perm[n_m:]
+    force_kp, force_kd, force_ki, force_integral_limit = gains[0], gains[1], gains[2], gains[3]
+    shaping, k0 = gains[4] != 0.0, gains[5]
+    kp_m, kd_scale_m = gains[9 : 9 + n_m], gains[9 + n_m : 9 + 2 * n_m]
+    q_lower, q_upper, dq_limit, endless = limits[0], limits[1], limits[2], limits[3] != 0.0
+    e = np.empty(6)  # [px py pz rx ry rz], world-aligned
+    R_err = np.empty((3, 3))
+    for i in range(3):
+        e[i] = target_position[i] - tcp_position[i]
+        for j in range(3):
+            R_err[i, j] = (
+                target_rotation[i, 0] * tcp_rotation[j, 0]
+                + target_rotation[i, 1] * tcp_rotation[j, 1]
+                + target_rotation[i, 2] * tcp_rotation[j, 2]
+            )
+    e[3:] = log3_fused(R_err)
+    nf = f_idx.shape[0]
+    F_hat = np.empty(nf)
+    integral = force_integral.copy()
+    u_f_extra = np.zeros(nf)
+    for r in range(nf):
+        F_hat[r] = target_wrench[f_idx[r]]
+        if force_ki > 0:
+            lim = force_integral_limit / force_ki
+            integral[r] = min(max(integral[r] + (F_e[f_idx[r]] - F_hat[r]) * 1e-3, -lim), lim)
+            u_f_extra[r] = force_ki * integral[r]
+    A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_fused(Lambda, Lambda_inv, perm, n_m, exact)
+    n = q.shape[0]
+    grad = np.empty(n)
+    if objective == OBJECTIVE_J:  # [T18] W_j = ½‖q − q_d‖²
+        W = 0.0
+        for i in range(n):
+            grad[i] = q[i] - q_d[i]
+            W += grad[i] * grad[i]
+        W *= 0.5
+    else:  # [T24-27] as `control.coupling.coupling_gradient_direct`
+        P = P_f if objective == 0 else (P_a if objective == 1 else P_d)
+        term_J, a_, b_ = gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m)
+        R_place, p_place, joint_axes, mass, lever, inertia = _unpack_chain(chain)
+        term_M = np.zeros(n)
+        for c in range(a_.shape[1]):
+            term_M += inertia_contraction_fused(
+                q, R_place, p_place, joint_axes, mass, lever, inertia, a_[:, c], b_[:, c]
+            )
+        W = W_f if objective == 0 else (W_a if objective == 1 else W_d)
+        for i in range(n):
+            grad[i] = -2.0 * (term_J[i] - term_M[i])
+    for i in range(n):
+        grad[i] = k0 * grad[i]
+    F, F_mu_, coupled = task_wrench_fused(
+        J, dq, e, target_velocity, target_acceleration, A, P_d, P_f, Lambda, dJ_dq, F_e, F_hat, u_f_extra,
+        m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, shaping,
+    )  # fmt: skip
+    lower, upper = damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, gains[6], gains[7], gains[8])
+    F_mu[:] = F_mu_
+    qp_data[0] = grad
+    qp_data[1] = lower
+    qp_data[2] = upper
+    return F, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]
+
+
+@njit(cache=True)
+def projection_step_fused(
+    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
+    target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
+    gains, limits, chain, F_mu, qp_data, closed_form, N, Lambda_n, kn, h, x, tau,
+):  # fmt: skip
+    """`projection_law_fused`, then, with `closed_form` (the nullspace QP's 7-joint line form applies),
+    the QP [T15-17] by `nullspace_line_qp_fused` into `x` and the torque [T13-14] by
+    `joint_torque_fused` into `tau`: the whole [T] step in one call. Returns the law's values and the
+    number of active bounds (0 or 1), or −1 when the QP was not solved here (`x`, `tau` untouched:
+    the caller solves it with its backend)."""
+    F, integral, W, W_f, W_a, W_d, coupled, force_error = projection_law_fused(
+        q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
+        target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
+        gains, limits, chain, F_mu, qp_data,
+    )  # fmt: skip
+    active = -1
+    if closed_form:
+        active = nullspace_line_qp_fused(J, qp_data[0], qp_data[1], qp_data[2], x)
+        if active >= 0:
+            tau[:] = joint_torque_fused(J, F_mu, N, Lambda_n, kn, x, dq, h)
+    return F, integral, W, W_f, W_a, W_d, coupled, force_error, active

@@ -1,0 +1,135 @@
+"""The dynamics snapshot [T2-5]: from M (upper triangle, as CRBA fills it) and the TCP Jacobian J:
+M⁻¹, Λx⁻¹, Λx [T3] (damped near singularities), J̄ [T2], N [T4], Λn [T5].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from control.kernels._linalg import (
+    _cholesky_into,
+    _matmul_bt_into,
+    _matmul_into,
+    _spd_inverse_into,
+    _sym_from_eig,
+    _symmetrise,
+)
+from control.kernels.chain import tcp_bias_acceleration_into
+
+
+def snapshot_reference(M_upper: np.ndarray, J: np.ndarray, singular_eig: float) -> tuple:
+    """(M, M⁻¹, Λx⁻¹, Λx, J̄, N, Λn, min eig Λx⁻¹, near_singular) from CRBA's upper triangle and J."""
+    n = J.shape[1]
+    M = np.triu(M_upper) + np.triu(M_upper, 1).T  # CRBA fills the upper triangle only
+    M_inv = np.linalg.inv(M)
+    M_inv = 0.5 * (M_inv + M_inv.T)
+    X = M_inv @ J.T  # (n, 6)
+    Lambda_inv = J @ X  # J M⁻¹ Jᵀ
+    Lambda_inv = 0.5 * (Lambda_inv + Lambda_inv.T)
+    w, V = np.linalg.eigh(Lambda_inv)
+    min_eig = float(w[0])
+    near_singular = min_eig < singular_eig
+    if near_singular:  # damped inverse w / (w² + ρ²): bounded as w → 0
+        Lambda = (V * (w / (w * w + singular_eig**2))) @ V.T
+    else:
+        Lambda = (V * (1.0 / w)) @ V.T  # [T3] Λx = (J M⁻¹ Jᵀ)⁻¹
+    J_bar = X @ Lambda  # [T2] J̄ = M⁻¹ Jᵀ Λx
+    N = np.eye(n) - J_bar @ J  # [T4] N = I − J̄ J
+    S = N @ M_inv @ N.T
+    Lambda_n = nullspace_inertia_reference(S)  # [T5] Λn = (N M⁻¹ Nᵀ)#
+    return M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular
+
+
+def nullspace_inertia_reference(S: np.ndarray) -> np.ndarray:
+    """(N M⁻¹ Nᵀ)# [T5]: rank n − 6; for one redundant joint S = σ u uᵀ, so S# = S / ‖S‖_F²."""
+    if S.shape[0] == 7:
+        return S / max(float(np.sum(S * S)), 1e-300)
+    w, V = np.linalg.eigh(S)
+    cutoff = 1e-8 * max(float(np.max(np.abs(w))), 1e-300)
+    w_inv = np.where(np.abs(w) > cutoff, 1.0 / np.where(w == 0, 1.0, w), 0.0)
+    return (V * w_inv) @ V.T
+
+
+@njit(cache=True)
+def snapshot_fused(M_upper, J, singular_eig):
+    """Compiled `snapshot_reference` (same outputs, same order)."""
+    n = J.shape[1]
+    M, M_inv, N, Lambda_n = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))
+    work = snapshot_work(n)
+    near_singular, min_eig = snapshot_into(
+        M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work, None, np.empty(6)
+    )
+    if not near_singular:  # `snapshot_into` leaves it to the caller away from a singularity
+        min_eig = np.linalg.eigvalsh(Lambda_inv)[0]
+    return M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular
+
+
+@njit(cache=True)
+def snapshot_work(n):
+    """Scratch space of `snapshot_into` for an n-joint arm (allocated once by its caller)."""
+    return np.empty((4, n, n))
+
+
+@njit(cache=True)
+def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work, dq, dJ_dq):
+    """`snapshot_fused` writing into arrays the caller allocated, with scratch `work`
+    (`snapshot_work(n)`), allocating nothing away from a singularity; with `dq` (a serial revolute
+    chain; None: the caller fills `dJ_dq`) also J̇q̇ into `dJ_dq` (`tcp_bias_acceleration_into`). Returns (near_singular,
+    min eig Λx⁻¹); the eigenvalue is computed only near a singularity, where the damping needs the
+    eigen-decomposition, and is NaN elsewhere: there positive definiteness of Λx⁻¹ − ρI, tested by
+    its Cholesky factorisation, decides that the smallest eigenvalue exceeds ρ."""
+    n = J.shape[1]
+    if dq is not None:
+        tcp_bias_acceleration_into(J, dq, dJ_dq)
+    L, Li, X, S = work[0], work[1], work[2, :, :6], work[3]
+    for i in range(n):
+        for j in range(i, n):
+            M[i, j] = M_upper[i, j]
+            M[j, i] = M_upper[i, j]
+    if not _spd_inverse_into(M, L, Li, M_inv):
+        M_inv[:, :] = np.nan
+    _matmul_bt_into(M_inv, J, X)  # X = M⁻¹ Jᵀ
+    _matmul_into(J, X, Lambda_inv)  # Λx⁻¹ = J M⁻¹ Jᵀ, symmetrised
+    _symmetrise(Lambda_inv)
+    L6, Li6 = L[:6, :6], Li[:6, :6]
+    near_singular = not _cholesky_into(Lambda_inv, singular_eig, L6)  # min eig ≤ ρ (or NaN)
+    min_eig = np.nan
+    if not near_singular:  # [T3] Λx = (J M⁻¹ Jᵀ)⁻¹, positive definite here: by Cholesky, as M⁻¹
+        near_singular = not _spd_inverse_into(Lambda_inv, L6, Li6, Lambda)
+    if near_singular:  # damped inverse w / (w² + ρ²) from the eigen-decomposition
+        w, V = np.linalg.eigh(Lambda_inv)
+        min_eig = w[0]
+        f = np.empty(6)
+        for i in range(6):
+            f[i] = w[i] / (w[i] * w[i] + singular_eig * singular_eig)
+        Lambda[:, :] = _sym_from_eig(V, f)
+    _matmul_into(X, Lambda, J_bar)  # [T2] J̄ = M⁻¹ Jᵀ Λx
+    _matmul_into(J_bar, J, N)  # [T4] N = I − J̄ J
+    for i in range(n):
+        for j in range(n):
+            N[i, j] = -N[i, j]
+        N[i, i] += 1.0
+    T = L  # N M⁻¹ (L is free again)
+    _matmul_into(N, M_inv, T)
+    _matmul_bt_into(T, N, S)  # S = N M⁻¹ Nᵀ, symmetrised
+    _symmetrise(S)
+    if n == 7:  # [T5] rank one: S# = S / ‖S‖_F²
+        ss = 0.0
+        for i in range(n):
+            for j in range(n):
+                ss += S[i, j] * S[i, j]
+        inv = 1.0 / max(ss, 1e-300)
+        for i in range(n):
+            for j in range(n):
+                Lambda_n[i, j] = S[i, j] * inv
+    else:
+        ws, Vs = np.linalg.eigh(S)
+        cutoff = 1e-8 * max(np.max(np.abs(ws)), 1e-300)
+        g = np.zeros(n)
+        for i in range(n):
+            if abs(ws[i]) > cutoff:
+                g[i] = 1.0 / ws[i]
+        Lambda_n[:, :] = _sym_from_eig(Vs, g)
+    return near_singular, min_eig
