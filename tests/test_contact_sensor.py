@@ -67,14 +67,21 @@ def test_sensor_noise_statistics_match_the_settings():
 
 
 def test_sensor_sinusoid_and_low_pass_response():
-    sensor = FTSensor(
-        np.random.default_rng(0), force_noise_var=0.0, torque_noise_var=0.0, sine_amplitude_n=2.0, cutoff_hz=0.0
+    sensor = FTSensor(  # the same-step reading (no sensing delay): the model's own response
+        np.random.default_rng(0),
+        force_noise_var=0.0,
+        torque_noise_var=0.0,
+        sine_amplitude_n=2.0,
+        cutoff_hz=0.0,
+        reading_delay_steps=0,
     )
     t = np.arange(2000) * 1e-3
     z = np.array([sensor.measure(np.zeros(6), ti)[2] for ti in t])
     np.testing.assert_allclose(z, 2.0 * np.sin(2 * np.pi * t), atol=1e-12)
     # step response of the 25 Hz filter reaches 1 − 1/e after one time constant 1/(2π·25) s
-    sensor = FTSensor(np.random.default_rng(0), force_noise_var=0.0, torque_noise_var=0.0, sine_amplitude_n=0.0)
+    sensor = FTSensor(
+        np.random.default_rng(0), force_noise_var=0.0, torque_noise_var=0.0, sine_amplitude_n=0.0, reading_delay_steps=0
+    )
     sensor.measure(np.zeros(6), 0.0)
     out = [sensor.measure(np.array([0, 0, 1.0, 0, 0, 0]), 1e-3 * (i + 1))[2] for i in range(50)]
     tau_steps = 1.0 / (2 * np.pi * 25.0) / 1e-3  # ≈ 6.4 steps

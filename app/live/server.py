@@ -33,6 +33,7 @@ from app.live.settings_io import load_settings_text
 from app.live.ui.keys import add_hotkeys
 from app.live.ui.panels import ALL_FIELDS
 from app.live.ui.panels.compliance import CompliancePanel
+from app.live.ui.panels.latency import LatencyPanel
 from app.live.ui.panels.more_gains import MoreGainsPanel, claimed_fields
 from app.live.ui.panels.motion_force import MotionForcePanel
 from app.live.ui.panels.nullspace import NullspacePanel
@@ -141,6 +142,7 @@ def start_app(
             NullspacePanel(server, loop, order=2),
             CompliancePanel(server, loop, order=3),
             SafetyPanel(server, loop, order=4),
+            LatencyPanel(server, loop, order=4.2),
         ]
         panels += [*tune, MoreGainsPanel(server, loop, claimed=claimed_fields(ALL_FIELDS), order=4.5)]
         panels.append(TuneOrder(tune, base_order=1.0))  # the running preset's folders first

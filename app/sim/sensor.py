@@ -6,7 +6,12 @@ reading = LPF(true wrench + Gaussian noise + sinusoid), all in world axes at the
   the 0.1 m tool lever);
 - a sinusoid of `sine_amplitude_n` (2 N) at `sine_hz` (1 Hz) on every force channel;
 - a first-order low-pass of cutoff `cutoff_hz` (25 Hz), discretised exactly for a zero-order
-  hold: y ← y + α (x − y), α = 1 − exp(−2π f_c Δt). cutoff_hz = 0 disables the filter.
+  hold: y ← y + α (x − y), α = 1 − exp(−2π f_c Δt). cutoff_hz = 0 disables the filter;
+- the reading's age `reading_delay_steps` (default 1 control period): the controller at step k
+  gets the reading of step k − d. A sampled loop reads, computes, then writes, so a torque can
+  answer a measurement one period after it was taken at the earliest; the external F/T sensor of
+  [C] §V (EtherCAT to a PC, then to the controller) delivers each sample "within 1 ms", one period
+  of the 1 kHz loop. 0 gives the ideal same-step reading (bit for bit the undelayed model).
 The random generator is passed in (seeded by the caller), so runs reproduce exactly.
 """
 
@@ -20,6 +25,9 @@ import numpy as np
 from numba import njit
 
 from control.params import ParamGroup, expect, param
+
+MAX_READING_DELAY_STEPS = 20  # the longest F/T reading age the simulation accepts, control periods
+DEFAULT_READING_DELAY_STEPS = 1  # one period: the reading of step k − 1 answers at step k (module doc)
 
 
 class Sensor:
@@ -66,6 +74,19 @@ class SensorParams(ParamGroup):
     cutoff_hz: float = param(
         25.0, label="Low-pass cutoff", unit="Hz", lo=0.0, hi=500.0, step=1.0, help="first-order low-pass (0: no filter)"
     )
+    reading_delay_steps: int = param(
+        DEFAULT_READING_DELAY_STEPS,
+        label="F/T reading age",
+        unit="periods",
+        lo=0,
+        hi=MAX_READING_DELAY_STEPS,
+        step=1,
+        help="sensing delay: the controller gets the reading of this many 1 ms control periods ago. "
+        "Default 1: a sampled loop reads, computes, then writes, so no torque answers a measurement "
+        "in the period it is taken ([C] §V: the F/T sample reaches the controller within 1 ms); "
+        "0 = the ideal same-step reading",
+        tag="[T] §IV-B",
+    )
 
 
 class FTSensor(Sensor):
@@ -81,10 +102,13 @@ class FTSensor(Sensor):
         cutoff_hz: float = 25.0,
         dt: float = 1e-3,
         noise: bool = True,
+        reading_delay_steps: int = DEFAULT_READING_DELAY_STEPS,
     ):
         self.rng = rng
         self._noise = np.empty(6)  # this step's draws (read at once by `_reading`)
         self.dt = float(dt)
+        self._ring: list[np.ndarray] = []  # the last d + 1 readings (a ring; `_delayed`)
+        self._head = 0  # ring slot of the newest reading
         self.set_params(
             "sensor",
             SensorParams(
@@ -94,6 +118,7 @@ class FTSensor(Sensor):
                 sine_amplitude_n=sine_amplitude_n,
                 sine_hz=sine_hz,
                 cutoff_hz=cutoff_hz,
+                reading_delay_steps=reading_delay_steps,
             ),
         )
         self.reset()
@@ -103,17 +128,28 @@ class FTSensor(Sensor):
         return {"sensor": self._params}
 
     def set_params(self, name: str, group: SensorParams) -> None:
-        """New noise/filter settings (validated by `SensorParams`); the filter state is kept."""
+        """New noise/filter/delay settings (validated by `SensorParams`); the filter state is kept, and
+        a new delay keeps the newest readings it has (a longer one repeats the oldest at first)."""
         self._params = p = expect(name, group, SensorParams if name == "sensor" else None)
         on = 1.0 if p.noise else 0.0
         self.force_noise_var, self.torque_noise_var = on * p.force_noise_var, on * p.torque_noise_var
         self.sine_amplitude_n, self.sine_hz, self.cutoff_hz = on * p.sine_amplitude_n, p.sine_hz, p.cutoff_hz
         self._std = np.array([np.sqrt(self.force_noise_var)] * 3 + [np.sqrt(self.torque_noise_var)] * 3)
         self.alpha = 1.0 - np.exp(-2.0 * np.pi * self.cutoff_hz * self.dt) if self.cutoff_hz > 0 else 1.0
+        self.reading_delay_steps = d = p.reading_delay_steps
+        if d == 0:  # the line is bypassed; a later delay starts from the reading of its first step
+            self._ring = []
+        elif self._ring and len(self._ring) != d + 1:  # oldest → newest, then padded (or cut) at the old end
+            n = len(self._ring)
+            ordered = [self._ring[(self._head + 1 + i) % n] for i in range(n)][-(d + 1) :]
+            self._ring = [ordered[0]] * (d + 1 - len(ordered)) + ordered
+            self._head = d
 
     def reset(self) -> None:
-        """Clear the filter state (the first reading initialises it)."""
+        """Clear the filter state and the delay line (the first reading initialises both)."""
         self._y: np.ndarray | None = None
+        self._ring = []
+        self._head = 0
 
     def measure(self, true_wrench: np.ndarray, t: float) -> np.ndarray:
         """The filtered reading for this step's true wrench [f; m] at time t."""
@@ -122,8 +158,25 @@ class FTSensor(Sensor):
         sine = self.sine_amplitude_n * math.sin(2.0 * math.pi * self.sine_hz * t) if add_sine else 0.0
         if self._y is None:
             self._y = np.empty(6)
-            return _reading(noise, self._std, true_wrench, add_sine, sine, False, self.alpha, self._y)
-        return _reading(noise, self._std, true_wrench, add_sine, sine, True, self.alpha, self._y)
+            reading = _reading(noise, self._std, true_wrench, add_sine, sine, False, self.alpha, self._y)
+        else:
+            reading = _reading(noise, self._std, true_wrench, add_sine, sine, True, self.alpha, self._y)
+        return reading if self.reading_delay_steps == 0 else self._delayed(reading)
+
+    def _delayed(self, reading: np.ndarray) -> np.ndarray:
+        """The reading of d steps ago, keeping this one (d ≥ 1): a ring of d + 1 arrays that takes
+        each new reading in place of the oldest, so nothing is allocated. Before d readings exist
+        the first one is repeated (the wrench taken as constant before the run started). The array
+        returned stays in the ring for d more steps: read it, do not change it."""
+        ring = self._ring
+        if not ring:
+            ring.extend([reading] * (self.reading_delay_steps + 1))
+            self._head = self.reading_delay_steps
+            return reading
+        n = len(ring)
+        self._head = head = (self._head + 1) % n
+        ring[head] = reading
+        return ring[(head + 1) % n]  # the oldest: d steps before `head`
 
 
 @njit(cache=True)

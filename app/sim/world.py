@@ -60,8 +60,10 @@ class WorldParams(ParamGroup):
         lo=0.0,
         hi=MAX_TORQUE_DELAY_MS,
         step=1.0,
-        help="actuator latency: the joints get each torque this late (rounded to whole steps); "
-        "a few ms make a high λ ring",
+        help="actuation delay: the joints get each torque this late (rounded to whole 1 ms steps). "
+        "Default 0: the one period a sampled loop needs end to end sits on the F/T reading "
+        "(sensor.reading_delay_steps); a drive that latches its command on the next bus cycle adds "
+        "1 ms here; a few ms make a high λ ring",
     )
     armature_scale: float = param(
         1.0,

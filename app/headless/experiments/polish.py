@@ -145,7 +145,8 @@ def simulate(spec: dict) -> dict:
 
     spec: objective ("j", "f", "a", "d", "planned", "planned_a"), mu, seed, start_swivel_deg,
     optional shaping, armature_scale, sander, sensor_cutoff_hz, converge_timeout_s (settle cap),
-    hold_swivel_deg, row, group, session_params ((group, field, value) set on the session)."""
+    hold_swivel_deg, row, group, reading_delay_steps (the F/T reading's age, control periods),
+    torque_delay_ms, session_params ((group, field, value) set on the session)."""
     from app.core.session import Session
     from control.coupling import swivel_angle
 
@@ -167,6 +168,10 @@ def simulate(spec: dict) -> dict:
         session.set_param("nullspace", "objective", objective)
     if spec.get("sensor_cutoff_hz") is not None:
         session.set_param("sensor", "cutoff_hz", float(spec["sensor_cutoff_hz"]))
+    if spec.get("reading_delay_steps") is not None:
+        session.set_param("sensor", "reading_delay_steps", int(spec["reading_delay_steps"]))
+    if spec.get("torque_delay_ms") is not None:
+        session.set_param("world", "torque_delay_ms", float(spec["torque_delay_ms"]))
     for group, name, value in spec.get("session_params", ()):  # e.g. ("nullspace", "k0_a", 0.5) from a sweep
         session.set_param(group, name, value)
     clock = session.environment.clock  # type: ignore[attr-defined]
@@ -208,6 +213,8 @@ def simulate(spec: dict) -> dict:
         "armature_scale": float(spec.get("armature_scale", 1.0)),
         "sander": bool(spec.get("sander", False)),
         "sensor_cutoff_hz": spec.get("sensor_cutoff_hz", scenario_module.SENSOR_CUTOFF_HZ),
+        "reading_delay_steps": int(session.params()["sensor"].reading_delay_steps),  # type: ignore[attr-defined]
+        "torque_delay_ms": float(session.params()["world"].torque_delay_ms),  # type: ignore[attr-defined]
         "converged": bool(clock.converged),
         "convergence_time_s": clock.convergence_time_s,
         "settle_cap_s": clock.timeout_s,

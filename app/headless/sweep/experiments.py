@@ -184,6 +184,14 @@ POLISH_KNOBS = (
     Knob("shaping", "motion_force", "shaping", "inertia shaping Λ̂x [T9] on/off"),
     Knob("sensor_cutoff", "sensor", "cutoff_hz", "F/T low-pass cutoff, Hz (0 = none)", ("cutoff_hz",)),
     Knob(
+        "reading_delay",
+        "sensor",
+        "reading_delay_steps",
+        "sensing delay: the F/T reading's age, control periods",
+        ("reading_delay_steps", "sensing_delay"),
+    ),
+    Knob("torque_delay_ms", "world", "torque_delay_ms", "actuation delay, ms", ("torque_delay",)),
+    Knob(
         "converge_timeout",
         RUN,
         "converge_timeout_s",
@@ -247,6 +255,10 @@ def polish_cell(values: dict, seed: int) -> dict:
         spec["armature_scale"] = float(values["armature_scale"])
     if "sensor_cutoff" in values:
         spec["sensor_cutoff_hz"] = float(values["sensor_cutoff"])
+    if "reading_delay" in values:
+        spec["reading_delay_steps"] = int(values["reading_delay"])
+    if "torque_delay_ms" in values:
+        spec["torque_delay_ms"] = float(values["torque_delay_ms"])
     if "converge_timeout" in values:
         spec["converge_timeout_s"] = float(values["converge_timeout"])
     knobs = {k.name: k for k in POLISH_KNOBS}

@@ -1,4 +1,4 @@
-"""GUI panels, one per file: Scenario, Motion–force, Nullspace, Compliance, Safety, Record/Export.
+"""GUI panels, one per file: Scenario, Motion–force, Nullspace, Compliance, Safety, Latency, Record/Export.
 
 Every panel only reads the loop's published frames and writes commands; none touches the session.
 A parameter panel is a list of "group.field" names (`app.live.ui.panels.base`); `ALL_FIELDS` lists
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from app.live.ui.panels.compliance import FIELDS as COMPLIANCE_FIELDS
 from app.live.ui.panels.compliance import JOINT_FIELDS
+from app.live.ui.panels.latency import FIELDS as LATENCY_FIELDS
 from app.live.ui.panels.motion_force import FIELDS as MOTION_FORCE_FIELDS
 from app.live.ui.panels.nullspace import FIELDS as NULLSPACE_FIELDS
 from app.live.ui.panels.safety import FIELDS as SAFETY_FIELDS
@@ -21,4 +22,5 @@ ALL_FIELDS: tuple[str, ...] = (
     *COMPLIANCE_FIELDS,
     *JOINT_FIELDS,
     *SAFETY_FIELDS,
+    *LATENCY_FIELDS,
 )

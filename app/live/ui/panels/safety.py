@@ -7,12 +7,12 @@ import viser
 from app.live.loop import SimLoop
 from app.live.ui.panels.base import KnobPanel
 
-SUMMARY = "[C17–24] Joint-limit dampers, velocity and torque limits, the simulated actuator latency."
+SUMMARY = "[C17–24] Joint-limit dampers, velocity and torque limits."
 INTRO = (
     "Near a joint limit the damper bounds the acceleration: proposed ë_p = −λė − λ²/(4M²)(e − d_s) "
     "[C24] or classic δt form [C17–19]; it acts inside d_i and stops at d_s. Torque limits add [C10]. "
     "For the projection executor the nullspace QP uses first-order dampers with d_i, d_s in rad. "
-    "Torque delay is the simulated actuator latency (0 = ideal torque source)."
+    "The simulated actuator latency (Torque delay) is in the Latency folder."
 )
 
 FIELDS: tuple[str, ...] = (
@@ -27,7 +27,6 @@ FIELDS: tuple[str, ...] = (
     "nullspace.velocity_scale",
     "compliance_qp.torque_limits",
     "solver.qp_backend",
-    "world.torque_delay_ms",
 )
 
 

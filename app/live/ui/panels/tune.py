@@ -12,9 +12,9 @@ from collections.abc import Sequence
 from typing import Any
 
 FIRST: dict[str, tuple[str, ...]] = {
-    "polish": ("Motion–force", "Nullspace"),
+    "polish": ("Motion–force", "Nullspace", "Latency"),
     "free": ("Nullspace", "Motion–force"),
-    "limit-drop": ("Safety", "Compliance"),
+    "limit-drop": ("Safety", "Latency", "Compliance"),
     "mass-drop": ("Compliance", "Safety"),
     "compliance": ("Compliance", "Safety"),
 }
