@@ -3,14 +3,15 @@
 The status line, the plot data and the scene capture are built here, between two steps on the
 loop thread, as copies the browser side can read without touching the Session. The scene capture
 is a function handed in by the server (`app.live.ui.snapshot.capture`); without one, frames carry no
-scene (tests, headless runs).
+scene (tests, headless runs). The capture, the twin's poses and the rest of the build are each an error
+boundary (`app.live.supervise`): a failing one is skipped for that frame, reported once per distinct
+error per minute (again at once after a preset switch), and tried again with the next frame.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import traceback
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -21,11 +22,17 @@ import numpy as np
 from app.core.session import Session
 from app.core.variants import variant_of
 from app.live.lab import Lab, Settings
+from app.live.supervise import Stages
 from app.scenarios.polish import settle_pending
 from control.executor import StepView
 
 PLOT_WINDOW_S = 10.0
 PLOT_POINTS = 500  # points per plotted series
+STAGE_TEXT = {  # what each loop-side stage of a frame does, for the notice
+    "capture": "capturing the scene",
+    "twin poses": "placing the twin arm",
+    "build": "building the frame",
+}
 
 
 @dataclass(frozen=True)
@@ -140,6 +147,27 @@ class FrameBuilder:
         self._next_plot = 0.0
         self._plot: PlotData | None = None
         self._plot_seq = 0
+        self._lab: Lab | None = None
+        self._session_id = -1
+        self.stages = Stages(self._report)  # capture, twin poses, build: one error boundary each
+
+    def _report(self, stage: str, text: str) -> None:
+        """A notice for a failing stage (the budget lets through one per distinct error per minute)."""
+        if self._lab is not None:
+            what = STAGE_TEXT.get(stage, stage)
+            self._lab.notify(
+                "warning",
+                "Display problem",
+                f"{what} failed ({text}); it is skipped until it works again, the simulation keeps running",
+            )
+
+    def publish(self, lab: Lab, now: float, rtf: float = 0.0, load: float = 0.0) -> Frame | None:
+        """`build` inside its error boundary: the frame, or None when building it failed."""
+        self._lab = lab
+        if lab.session_id != self._session_id:  # a preset switch re-arms every stage's report
+            self._session_id = lab.session_id
+            self.stages.rearm()
+        return self.stages.run("build", self.build, lab, now, rtf, load)
 
     def build(self, lab: Lab, now: float, rtf: float = 0.0, load: float = 0.0) -> Frame:
         """The next frame (`now`: wall time, for the plot rate)."""
@@ -168,24 +196,24 @@ class FrameBuilder:
     def _scene(self, lab: Lab) -> Any:
         if self.capture is None:
             return None
-        try:
-            scene = self.capture(lab.session)
-        except Exception:  # a drawing problem must not stop the simulation
-            traceback.print_exc()
-            self.capture = None
-            lab.notify("warning", "Scene disabled", "capturing the scene failed; see the server log")
-            return None
+        self._lab = lab
+        scene = self.stages.run("capture", self.capture, lab.session)  # None (no scene) while it fails
         twin = lab.twin
         if scene is not None and twin is not None:
-            positions, wxyz = twin.link_poses(scene.link_names)
-            scene = dataclasses.replace(
-                scene,
-                twin_link_positions=positions,
-                twin_link_wxyz=wxyz,
-                twin_objective=twin.objective,
-                twin_W=twin.W,
-            )
+            scene = self.stages.run("twin poses", _with_twin, scene, twin, default=scene)  # the arm without its twin
         return scene
+
+
+def _with_twin(scene: Any, twin: Any) -> Any:
+    """The scene snapshot with the twin arm's link poses, objective and W."""
+    positions, wxyz = twin.link_poses(scene.link_names)
+    return dataclasses.replace(
+        scene,
+        twin_link_positions=positions,
+        twin_link_wxyz=wxyz,
+        twin_objective=twin.objective,
+        twin_W=twin.W,
+    )
 
 
 def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]) -> PlotData:

@@ -6,8 +6,9 @@ It applies the commands other threads queue (`app.core.commands`) between two st
 jump the queue, and a single step runs in chunks of `STEP_CHUNK` steps with them applied between
 chunks, so a release waits for at most one chunk. "Settle now" runs unpaced in chunks too, with
 every command (Pause, Reset, a switch) applied between them. Unpaced, frames go out at 10 Hz. A
-failure while publishing is reported once and the loop goes on. Nothing outside this thread
-touches the Lab, except through `call()`, which runs a function here between two steps.
+failure while building a frame skips that frame's failing part (`app.live.frames`) and the loop
+goes on. Nothing outside this thread touches the Lab, except through `call()`, which runs a
+function here between two steps.
 
 On Linux the thread asks for a higher scheduling priority (niceness LOOP_NICENESS, this thread
 only) where the system allows it (root, or an RLIMIT_NICE that permits it): the server's other
@@ -147,7 +148,6 @@ class SimLoop:
         self._pacing_epoch = -1
         self._frame: Frame | None = None
         self._frame_cond = threading.Condition()
-        self._publish_errors: set[str] = set()
         self.status = make_status(self.lab)
 
     # ---- what the lab holds (read these on the loop thread, or through call()) ---------------------
@@ -380,18 +380,11 @@ class SimLoop:
         return self.status
 
     def _publish(self, now: float) -> None:
-        """Build and hand out a frame; a failure is reported once (per kind) and the loop goes on."""
+        """Build and hand out a frame; a failure skips it (reported by the frame builder's error
+        boundaries) and the loop goes on."""
         self.lab.dirty = False
-        try:
-            frame = self.frames.build(self.lab, now, self._meter.rtf, self._meter.load)
-        except Exception as exc:
-            kind = f"{type(exc).__name__}: {exc}"
-            if kind not in self._publish_errors:
-                self._publish_errors.add(kind)
-                traceback.print_exc()
-                self.lab.notify(
-                    "warning", "Display problem", f"showing the simulation failed ({kind}); it keeps running"
-                )
+        frame = self.frames.publish(self.lab, now, self._meter.rtf, self._meter.load)
+        if frame is None:
             return
         self.status = frame.status
         with self._frame_cond:

@@ -2,7 +2,8 @@
 
 `start_app(...)` starts everything without blocking and returns an `App` (tests use it
 in-process); `serve(args)` is the `torquelab serve` command: it starts the app, prints the URL
-and runs until Ctrl-C (exit 0), or until the simulation loop dies (exit 1, with the reason). The
+and runs until Ctrl-C (exit 0), or until the simulation loop dies or the publisher thread dies and
+cannot be restarted (exit 1, with the reason). The
 server binds 127.0.0.1 unless `--host` says otherwise; if the port is taken, the next free one is
 used, and `--port 0` picks any free port; the URL printed says which.
 """
@@ -30,6 +31,7 @@ from app.core.params import parse_settings
 from app.live.loop import SimLoop
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
 from app.live.settings_io import load_settings_text
+from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
 from app.live.ui.keys import add_hotkeys
 from app.live.ui.panels import ALL_FIELDS
 from app.live.ui.panels.compliance import CompliancePanel
@@ -64,6 +66,7 @@ class App:
     visual_settings: Any = None  # the Visuals panel's settings
     stopped: bool = False
     autogroup_niceness_before: int | None = None  # given back on stop when start_app raised it
+    input_guard: GuiUpdateGuard | None = None  # checks every GUI update a page sends
 
     def stop(self) -> None:
         """Stop the publisher, the loop and the web server (again: nothing happens)."""
@@ -126,6 +129,7 @@ def start_app(
     out = io.StringIO()
     with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
+    input_guard = guard_gui_updates(server)  # every GUI update checked on arrival
     server.gui.configure_theme(control_width="large")
     server.gui.main_panel.dock_right()  # the 3D view is the canvas between the panels
     actual = server.get_port()
@@ -173,6 +177,7 @@ def start_app(
     publisher.start()
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
     app = App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)
+    app.input_guard = input_guard
     # the server's session before the browser's in the CPU's division between sessions (app/live/priority.py)
     app.autogroup_niceness_before = raise_autogroup_priority(SERVER_NICENESS)
     atexit.register(app.stop)  # threads that step MuJoCo must end before the interpreter does
@@ -218,6 +223,7 @@ def serve(args: argparse.Namespace) -> int:
     for signum in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
         if signum is not None:
             signal.signal(signum, _interrupt)
+    display_failure = ""
     try:
         if settings_text is not None:
             refused = load_settings_text(app.loop, settings_text)
@@ -231,12 +237,16 @@ def serve(args: argparse.Namespace) -> int:
         print(f"torquelab: open {app.url} in a browser (Ctrl-C to stop)", flush=True)
         if args.host not in ("127.0.0.1", "localhost", "::1"):
             print(f"torquelab: listening on {args.host}: reachable from other machines", flush=True)
-        while app.loop.alive:
+        while app.loop.alive and not display_failure:
+            display_failure = app.publisher.supervise()  # a dead publisher thread is restarted
             time.sleep(0.5)
     except KeyboardInterrupt:
         pass
     finally:
         app.stop()
+    if display_failure:
+        print(f"torquelab: error: the page stopped updating: {display_failure}", file=sys.stderr, flush=True)
+        return 1
     if app.loop.failure:
         print(f"torquelab: error: the simulation loop stopped: {app.loop.failure}", file=sys.stderr, flush=True)
         return 1

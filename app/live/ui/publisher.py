@@ -4,19 +4,28 @@ It waits for the newest `Frame` (30 Hz), updates the 3D scene inside `server.ato
 the panels' values and live numbers (~6 Hz), the plots (10 Hz), and turns the loop's notices into
 notifications. It rebuilds the scene view when the session's robot changes. It never touches the
 session: everything it shows is a copy the loop made between two steps.
+
+Each stage of showing a frame (notify, scene, panels, plots) is an error boundary (`app.live.supervise`):
+a failing one is skipped for that frame, reported once per distinct error per minute (again at once
+after a preset switch) and tried again with the next frame, so the page keeps updating through it. If
+the thread dies anyway, `supervise()` (called by `serve` twice a second) restarts it, up to
+MAX_RESTARTS times a minute; beyond that it returns the reason, and `serve` exits non-zero with it.
 """
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import viser
 
 from app.live.loop import Frame, SimLoop, raise_thread_priority
+from app.live.supervise import Stages, error_text
 from app.live.ui.camera import frame_on_connect, frame_robot
 from app.live.ui.panels.base import notify
 from app.live.ui.plots import Plots
@@ -27,6 +36,14 @@ LIVE_PERIOD_S = 0.15
 # the CPU, and lost frames; it is also above Chromium's display threads (−8) where the browser runs
 # in the server's session.
 PUBLISHER_NICENESS = -9
+MAX_RESTARTS = 5  # restarts of a dead publisher thread within RESTART_WINDOW_S before giving up
+RESTART_WINDOW_S = 60.0
+STAGE_TEXT = {  # what each publisher stage does, for the notice
+    "notify": "showing the loop's notices",
+    "scene": "drawing the 3D scene",
+    "panels": "refreshing the panels",
+    "plots": "drawing the plots",
+}
 
 
 class Publisher:
@@ -51,7 +68,12 @@ class Publisher:
         self.scene_updates = 0
         self.last_frame: Frame | None = None
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="torquelab-publisher", daemon=True)
+        self._thread = self._new_thread()
+        self.stages = Stages(self._report)  # notify, scene, panels, plots: one error boundary each
+        self.failure = ""  # why the thread died last ("" while it runs)
+        self.restarts: deque[float] = deque(maxlen=MAX_RESTARTS)  # when the thread was restarted
+        self.plot_updates = 0  # plot data shown
+        self._scene_wanted = False  # a new session's scene view is still to be built
         self._settings_version = -1
         self._plot_seq = -1
         self._next_live = 0.0
@@ -63,6 +85,9 @@ class Publisher:
         )
         self.niceness: int | None = None  # the publisher thread's, once it runs (None: not on Linux)
         self.server_niceness: int | None = None  # the server event loop thread's, likewise
+
+    def _new_thread(self) -> threading.Thread:
+        return threading.Thread(target=self._run_guarded, name="torquelab-publisher", daemon=True)
 
     def start(self) -> None:
         """Start the thread, and raise it and the server's event loop to PUBLISHER_NICENESS."""
@@ -78,21 +103,62 @@ class Publisher:
         self._stop.set()
         self._thread.join(timeout)
 
+    @property
+    def alive(self) -> bool:
+        """True while the publisher thread runs."""
+        return self._thread.is_alive()
+
+    def supervise(self, now: float | None = None) -> str:
+        """Restart the thread if it died (not after `stop`); "" when it runs, else why it cannot be
+        restarted (it died MAX_RESTARTS times within RESTART_WINDOW_S, or would not start)."""
+        if self._stop.is_set() or self._thread.is_alive() or not self._thread.ident:
+            return ""
+        now = time.monotonic() if now is None else now
+        if len(self.restarts) == MAX_RESTARTS and now - self.restarts[0] < RESTART_WINDOW_S:
+            return f"the publisher thread died {MAX_RESTARTS + 1} times within {RESTART_WINDOW_S:g} s: {self.failure}"
+        try:
+            thread = self._new_thread()
+            thread.start()
+        except Exception as exc:
+            return f"the publisher thread died ({self.failure}) and cannot be restarted: {error_text(exc)}"
+        self._thread = thread
+        self.restarts.append(now)
+        print(f"torquelab: the publisher thread died ({self.failure}); restarted", file=sys.stderr, flush=True)
+        return ""
+
+    def _run_guarded(self) -> None:
+        try:
+            self._run()
+        except BaseException as exc:  # `supervise` restarts the thread and says why it died
+            traceback.print_exc()
+            self.failure = error_text(exc)
+
+    def _report(self, stage: str, text: str) -> None:
+        """A notice to every page for a failing stage (the budget lets through one per distinct error per minute)."""
+        what = STAGE_TEXT.get(stage, stage)
+        notify(
+            self.server,
+            None,
+            "Display problem",
+            f"{what} failed ({text}); it is skipped until it works again, the simulation keeps running",
+            error=False,
+        )
+
+    def _notify(self) -> None:
+        for notice in self.loop.take_notices():
+            notify(self.server, notice.client_id, notice.title, notice.body, error=notice.level == "error")
+
     def _run(self) -> None:
         self.niceness = raise_thread_priority(PUBLISHER_NICENESS)
-        seq = 0
+        seq = self.last_frame.seq if self.last_frame is not None else 0
         while not self._stop.is_set():
-            for notice in self.loop.take_notices():
-                notify(self.server, notice.client_id, notice.title, notice.body, error=notice.level == "error")
+            self.stages.run("notify", self._notify)
             frame = self.loop.wait_frame(seq, timeout=0.2)
             if frame is None:
                 self._refresh_idle()
                 continue
             seq = frame.seq
-            try:
-                self.show(frame)
-            except Exception:  # keep publishing whatever one widget does
-                traceback.print_exc()
+            self.show(frame)
 
     def _refresh_idle(self) -> None:
         """While no frames come (a paused loop publishes only when something changes), refresh the panels
@@ -103,12 +169,12 @@ class Publisher:
         if frame is None or now < self._next_live:
             return
         self._next_live = now + LIVE_PERIOD_S
-        try:
-            with self.server.atomic():
-                for panel in self.panels:
-                    panel.refresh(frame.settings)
-        except Exception:
-            traceback.print_exc()
+        with self.server.atomic():
+            self.stages.run("panels", self._refresh_panels, frame)
+
+    def _refresh_panels(self, frame: Frame) -> None:
+        for panel in self.panels:
+            panel.refresh(frame.settings)
 
     @property
     def framing_pending(self) -> bool:
@@ -130,20 +196,33 @@ class Publisher:
         self.frames_shown += 1
 
     def _show(self, frame: Frame) -> None:
-        if self.make_scene is not None and frame.session_id != self.scene_session_id:
+        """Each part in its own error boundary: a failing one is skipped for this frame only."""
+        if frame.session_id != self.scene_session_id:
+            self.stages.rearm()  # a preset switch: the next failure of every stage is reported at once
+        self.stages.run("scene", self._show_scene, frame)
+        self.stages.run("panels", self._show_panels, frame)
+        self.stages.run("plots", self._show_plots, frame)
+
+    def _show_scene(self, frame: Frame) -> None:
+        if frame.session_id != self.scene_session_id:
             if self.scene is not None:
-                self.scene.remove()
-                self.scene = None
-            self.scene = self.make_scene(frame.robot)
+                scene, self.scene = self.scene, None
+                scene.remove()
             self.scene_session_id = frame.session_id
             self._frame_pending = True
+            self._scene_wanted = self.make_scene is not None
             if self.plots is not None:
                 self.plots.focus(frame.status.focus_joint)
+        if self._scene_wanted and self.make_scene is not None:  # tried again each frame until it builds
+            self.scene = self.make_scene(frame.robot)
+            self._scene_wanted = False
         if self.scene is not None and frame.scene is not None:
             self.scene.update(frame.scene)
             self.scene_updates += 1
             if self._frame_pending:
                 self._frame_pending = not frame_robot(self.server, frame.scene)
+
+    def _show_panels(self, frame: Frame) -> None:
         now = time.monotonic()
         settings_changed = frame.settings.version != self._settings_version
         if settings_changed or now >= self._next_live:
@@ -158,6 +237,9 @@ class Publisher:
             self._live_state = state
             for panel in self.panels:
                 panel.live(frame)
+
+    def _show_plots(self, frame: Frame) -> None:
         if frame.plot is not None and self.plots is not None and frame.plot_seq != self._plot_seq:
             self._plot_seq = frame.plot_seq  # a frame skipped while busy does not lose a plot update
             self.plots.update(frame.plot, frame.session_id)
+            self.plot_updates += 1

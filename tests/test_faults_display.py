@@ -1,0 +1,234 @@
+"""Faults injected into the display path: each stage fails alone, is reported rarely and comes back."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from types import SimpleNamespace
+
+import msgspec
+import pytest
+import viser
+from websockets.sync.client import connect
+
+from app.core.commands import StepOnce, SwitchSession
+from app.live.frames import FrameBuilder
+from app.live.lab import Lab
+from app.live.server import start_app
+from app.live.supervise import ErrorBudget, Stages
+from app.live.ui.inputs import check_value
+
+# the loop thread is timed here: the kernels are compiled (or loaded) before, not inside it
+pytestmark = pytest.mark.usefixtures("warm_kernels")
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _wait(predicate, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def test_a_failing_stage_is_reported_once_per_distinct_error_per_minute_with_bounded_memory():
+    clock = Clock()
+    reports: list[str] = []
+    stages = Stages(lambda stage, text: reports.append(text), ErrorBudget(60.0, 32, clock))
+
+    def fail(text: str) -> None:
+        raise RuntimeError(text)
+
+    for _ in range(1000):  # the same error every frame for 33 s
+        stages.run("notify", fail, "the same")
+        clock.t += 1 / 30
+    assert len(reports) == 1 and stages.failures["notify"] == 1000
+    for i in range(3000):  # an error whose text varies every frame
+        stages.run("build", fail, f"frame {i}")
+    assert len(stages.budget) <= 32 and len(reports) <= 1 + 32
+    clock.t += 61.0  # a minute later the same error is reported again
+    n = len(reports)
+    stages.run("notify", fail, "the same")
+    assert len(reports) == n + 1
+    assert stages.run("notify", lambda: 7) == 7 and "notify" not in stages.failing  # back by itself
+    n = len(reports)
+    stages.run("notify", fail, "the same")
+    assert len(reports) == n  # within the minute: silent
+    stages.rearm()  # a preset switch
+    stages.run("notify", fail, "the same")
+    assert len(reports) == n + 1
+
+
+def test_a_capture_that_fails_for_a_while_comes_back_and_a_failing_twin_leaves_the_arm_drawn():
+    calls = {"n": 0}
+
+    def capture(session):
+        calls["n"] += 1
+        if calls["n"] <= 10:
+            raise RuntimeError("capture broke")
+        return SimpleNamespace(link_names=("a",), step=None)
+
+    lab = Lab("free")
+    frames = FrameBuilder(1 / 30, 0.1, capture)
+    built = [frames.publish(lab, now=0.1 * i) for i in range(15)]
+    assert all(f is not None for f in built)  # every frame went out
+    assert [f.scene is not None for f in built] == [False] * 10 + [True] * 5  # the scene came back
+    problems = [n for n in lab.notice_log if n.title == "Display problem"]
+    assert len(problems) == 1  # ten failures, one notice
+
+    class BrokenTwin:
+        objective = "j"
+        W = 0.0
+
+        def link_poses(self, names):
+            raise ValueError("twin poses broke")
+
+    stub = SimpleNamespace(session=lab.session, twin=BrokenTwin())
+    scene = frames._scene(stub)
+    assert scene is not None and scene.link_names == ("a",)  # the arm without its twin
+    assert frames.stages.failures["twin poses"] == 1
+
+
+@pytest.fixture(scope="module")
+def app():
+    a = start_app(port=0, scenario="free", running=False)
+    yield a
+    a.stop()
+
+
+def _shown_grows(app, attr: str = "frames_shown", timeout: float = 10.0) -> bool:
+    before = getattr(app.publisher, attr)
+    app.loop.submit(StepOnce(1))
+    return _wait(lambda: getattr(app.publisher, attr) > before, timeout)
+
+
+def test_the_page_keeps_updating_through_a_failing_notify_scene_or_plot_stage(app, monkeypatch):
+    pub = app.publisher
+    assert _wait(lambda: _shown_grows(app) and pub.scene is not None)
+    for stage, target, name in (
+        ("notify", app.loop, "take_notices"),
+        ("scene", pub.scene, "update"),
+        ("plots", pub.plots, "update"),
+    ):
+        calls = {"n": 0}
+        original = getattr(target, name)
+
+        def broken(*args, _orig=original, _calls=calls, _stage=stage, **kwargs):
+            _calls["n"] += 1
+            if _calls["n"] <= 5:
+                raise RuntimeError(f"{_stage} broke")
+            return _orig(*args, **kwargs)
+
+        monkeypatch.setattr(target, name, broken)
+        failures = pub.stages.failures[stage]
+        for _ in range(8):  # the stage fails five times, then works again
+            assert _shown_grows(app), stage
+        assert pub.alive, stage
+        assert pub.stages.failures[stage] - failures == 5, stage
+        assert stage not in pub.stages.failing, stage
+        monkeypatch.setattr(target, name, original)
+    assert _shown_grows(app, "scene_updates") and _shown_grows(app, "plot_updates")
+
+
+def test_a_dead_publisher_thread_is_restarted(app, monkeypatch):
+    pub = app.publisher
+
+    def die(frame):
+        raise SystemExit("the publisher broke")  # not an Exception: past every stage's boundary
+
+    monkeypatch.setattr(pub, "show", die)
+    app.loop.submit(StepOnce(1))
+    assert _wait(lambda: not pub.alive)
+    assert "the publisher broke" in pub.failure
+    monkeypatch.undo()
+    assert pub.supervise() == "" and pub.alive
+    assert _shown_grows(app)
+
+
+def test_serve_exits_non_zero_with_the_reason_when_the_publisher_cannot_be_restarted(monkeypatch, capsys):
+    from app.live.server import serve
+    from app.live.ui.publisher import Publisher
+
+    def always_dies(self):
+        raise SystemExit("the publisher always breaks")
+
+    monkeypatch.setattr(Publisher, "_run", always_dies)
+    args = argparse.Namespace(scenario="free", host="127.0.0.1", port=0, robot=None, urdf=None)
+    t0 = time.monotonic()
+    assert serve(args) == 1
+    assert time.monotonic() - t0 < 60.0
+    err = capsys.readouterr().err
+    assert "the page stopped updating: the publisher thread died 6 times" in err
+    assert "the publisher always breaks" in err
+
+
+def _camera_message() -> bytes:
+    return msgspec.msgpack.encode(
+        {
+            "type": "ViewerCameraMessage",
+            "wxyz": [1.0, 0.0, 0.0, 0.0],
+            "position": [1.5, 1.5, 1.0],
+            "fov": 0.9,
+            "near": 0.01,
+            "far": 100.0,
+            "image_height": 600,
+            "image_width": 800,
+            "look_at": [0.0, 0.0, 0.3],
+            "up_direction": [0.0, 0.0, 1.0],
+        }
+    )
+
+
+def test_junk_for_the_phase_joint_selector_is_one_notice_to_its_sender_and_the_plots_run_on(app):
+    joint = app.publisher.plots.joint
+    before = joint.value
+    guard = app.input_guard
+    refused, notified = guard.refused, dict(guard.notified)
+    sub = [f"viser-v{viser.__version__}"]
+    bystander = connect(f"ws://127.0.0.1:{app.port}", subprotocols=sub, open_timeout=10)
+    ws = connect(f"ws://127.0.0.1:{app.port}", subprotocols=sub, open_timeout=10)
+    try:
+        bystander.send(_camera_message())
+        ws.send(_camera_message())
+        junk = ("abc", "0", "99", 4, None, [1], "4.5", "")
+        for i in range(1000):
+            msg = {"type": "GuiUpdateMessage", "uuid": joint._impl.uuid, "updates": {"value": junk[i % len(junk)]}}
+            ws.send(msgspec.msgpack.encode(msg))
+        assert _wait(lambda: guard.refused - refused == 1000)
+    finally:
+        ws.close()
+        bystander.close()
+    assert joint.value == before  # the value every page sees is unchanged
+    new = {k: v - notified.get(k, 0) for k, v in guard.notified.items() if v - notified.get(k, 0)}
+    assert list(new.values()) == [1]  # one notice, to one client (the sender: the bystander sent no junk)
+    assert _shown_grows(app, "plot_updates")
+    assert "plots" not in app.publisher.stages.failing
+
+
+def test_the_check_accepts_what_a_page_sends_and_refuses_the_rest():
+    dropdown = SimpleNamespace(options=("1", "2"))
+    assert check_value("1", dropdown, "2") == ""
+    assert "one of 1, 2" in check_value("1", dropdown, "3")
+    assert check_value(1.0, None, 3) == "" and check_value(1.0, None, 10**400) != ""
+    assert check_value(1.0, None, float("nan")) != "" and check_value(1.0, None, "5") != ""
+    assert check_value(True, None, 1) != "" and check_value(True, None, False) == ""
+    assert check_value((0.0, 0.0, 0.0), None, [1, 2, 3]) == "" and check_value((0.0, 0.0, 0.0), None, [1, 2]) != ""
+
+
+def test_a_preset_switch_re_arms_the_display_reports(app):
+    frames = app.loop.frames
+    frames.stages.budget.should_report("capture: RuntimeError: old")
+    n = len(frames.stages.budget)
+    assert n >= 1
+    app.loop.submit(SwitchSession("compliance"))
+    assert _wait(lambda: app.loop.status.scenario == "compliance" or app.loop.sync().scenario == "compliance")
+    app.loop.submit(StepOnce(1))
+    assert _wait(lambda: len(frames.stages.budget) == 0)
