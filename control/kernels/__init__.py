@@ -21,13 +21,15 @@ Modules:
 - `dense_qp`: the dense QP backend's load and exact fast path.
 - `cqp`: the [C] executor's problem in one call.
 
-The names below are re-exported so that `control.kernels.X` reads as before the split.
+Every compiled kernel is paired with its reference in `registry.KERNELS` (a test enforces it). The
+names below are re-exported so that `control.kernels.X` reads as before the split.
 """
 
 from control.kernels.chain import (
     chain_constants,
     inertia_contraction_fused,
     inertia_contraction_reference,
+    inertia_contraction_rnea,
     kinematic_hessian_reference,
     pack_chain,
     tcp_bias_acceleration_into,
@@ -103,6 +105,7 @@ __all__ = [
     "gradient_contraction_reference",
     "inertia_contraction_fused",
     "inertia_contraction_reference",
+    "inertia_contraction_rnea",
     "inverse_dynamics_fused",
     "joint_torque_fused",
     "joint_torque_reference",

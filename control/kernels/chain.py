@@ -85,7 +85,7 @@ def chain_constants(model) -> tuple:
     return R, p, axes, mass, lever, inertia
 
 
-def inertia_contraction_reference(model, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def inertia_contraction_rnea(model, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """term_M[k] = aᵀ ∂M/∂q_k b from Pinocchio's RNEA derivatives at q̇ = 0 without gravity:
     ∂(M b)/∂q = ∂τ/∂q of RNEA(q, 0, b) (`model` gravity-free)."""
     import pinocchio as pin
@@ -97,7 +97,8 @@ def inertia_contraction_reference(model, q: np.ndarray, a: np.ndarray, b: np.nda
 
 @njit(cache=True)
 def inertia_contraction_fused(q, R_place, p_place, axes, mass, lever, inertia, a, b):
-    """Compiled aᵀ ∂M/∂q_k b for all k (`inertia_contraction_reference`), from the chain alone.
+    """Compiled aᵀ ∂M/∂q_k b for all k (`inertia_contraction_reference`, and Pinocchio's
+    `inertia_contraction_rnea`), from the chain alone.
 
     With S_i the joint axes as world twists [v; ω], V_j(x) = Σ_{i≤j} S_i x_i and I_j the world
     inertia of body j: aᵀMb = Σ_j V_j(a)ᵀ I_j V_j(b) (+ constant armature). Joint k moves the
@@ -191,3 +192,58 @@ def _unpack_chain(packed):
     R = np.ascontiguousarray(packed[:, 0:9]).reshape((n, 3, 3))
     inertia = np.ascontiguousarray(packed[:, 19:28]).reshape((n, 3, 3))
     return R, packed[:, 9:12], packed[:, 12:15], packed[:, 15], packed[:, 16:19], inertia
+
+
+def tcp_bias_acceleration_into_reference(J: np.ndarray, dq: np.ndarray, out: np.ndarray) -> None:
+    """`tcp_bias_acceleration_into` by `tcp_bias_acceleration_reference` (into `out`)."""
+    out[:] = tcp_bias_acceleration_reference(J, dq)
+
+
+def unpack_chain_reference(packed: np.ndarray) -> tuple:
+    """`pack_chain`'s inverse: the six arrays of `chain_constants` (`_unpack_chain` compiled)."""
+    n = packed.shape[0]
+    return (
+        packed[:, 0:9].reshape(n, 3, 3), packed[:, 9:12], packed[:, 12:15], packed[:, 15], packed[:, 16:19],
+        packed[:, 19:28].reshape(n, 3, 3),
+    )  # fmt: skip
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _motion_cross(S: np.ndarray) -> np.ndarray:
+    """The 6×6 spatial motion cross product S× for twists [v; ω]."""
+    X = np.zeros((6, 6))
+    X[:3, :3], X[:3, 3:], X[3:, 3:] = _skew(S[3:]), _skew(S[:3]), _skew(S[3:])
+    return X
+
+
+def inertia_contraction_reference(q, R_place, p_place, axes, mass, lever, inertia, a, b) -> np.ndarray:
+    """term_M[k] = aᵀ ∂M/∂q_k b from the chain's constants in 6×6 spatial algebra (world frame, twists
+    [v; ω] at the origin): M = Σ_j J_jᵀ I_j J_j with J_j = [S_0 … S_j 0 …], so aᵀMb = Σ_j V_j(a)ᵀ I_j
+    V_j(b), V_j(x) = Σ_{i≤j} S_i x_i; joint k turns the bodies j ≥ k: ∂V_j = S_k× (V_j − V_k) and
+    ∂I_j = −(S_k×)ᵀ I_j − I_j S_k×. The product rule summed term by term (no simplification: the
+    compiled `inertia_contraction_fused` uses the simplified sum)."""
+    n = q.shape[0]
+    R, p = np.eye(3), np.zeros(3)
+    S, inertia6 = np.zeros((n, 6)), np.zeros((n, 6, 6))
+    for i in range(n):  # oMi = oM(i-1) · placement_i · exp(axis_i q_i)
+        p = p + R @ p_place[i]
+        K = _skew(axes[i])
+        R = R @ R_place[i] @ (np.eye(3) + np.sin(q[i]) * K + (1.0 - np.cos(q[i])) * (K @ K))
+        w = R @ axes[i]
+        S[i, :3], S[i, 3:] = np.cross(p, w), w
+        c = p + R @ lever[i]
+        C = _skew(c)
+        Ic = R @ inertia[i] @ R.T
+        inertia6[i] = np.block([[mass[i] * np.eye(3), -mass[i] * C], [mass[i] * C, Ic - mass[i] * C @ C]])
+    Va, Vb = np.cumsum(S * a[:, None], axis=0), np.cumsum(S * b[:, None], axis=0)
+    out = np.zeros(n)
+    for k in range(n):
+        X = _motion_cross(S[k])
+        for j in range(k, n):
+            dVa, dVb = X @ (Va[j] - Va[k]), X @ (Vb[j] - Vb[k])
+            dI = -X.T @ inertia6[j] - inertia6[j] @ X
+            out[k] += dVa @ inertia6[j] @ Vb[j] + Va[j] @ dI @ Vb[j] + Va[j] @ inertia6[j] @ dVb
+    return out

@@ -8,7 +8,7 @@ import numpy as np
 from numba import njit
 
 from control.kernels._linalg import _np_max
-from control.kernels.geometry import log3_fused
+from control.kernels.geometry import log3_fused, log3_reference
 
 
 @njit(cache=True)
@@ -168,3 +168,73 @@ def acceleration_bounds_fused(
                 lower[i] = mid
                 upper[i] = mid
     return lower, upper, crossed
+
+
+def pose_task_target_reference(
+    J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
+    target_acceleration, kp, kd, gamma, use_gamma, ddq_e,
+) -> np.ndarray:  # fmt: skip
+    """b = ẍ° + ë* − J̇q̇ (+ Γ J q̈_e when `use_gamma`) [C4, C9], ë* = −K_d ė − K_p e [C3],
+    e = [p − p°; log(R R°ᵀ)], ė = J q̇ − ẋ°."""
+    e = np.concatenate([tcp_position - target_position, log3_reference(tcp_rotation @ target_rotation.T)])
+    b = target_acceleration + (-kd * (J @ dq - target_velocity) - kp * e) - dJ_dq
+    return b + gamma @ (J @ ddq_e) if use_gamma else b
+
+
+def add_task_rows_reference(P, q, J, b, w) -> None:
+    """P += w JᵀJ, q −= w Jᵀb in place: a soft task's share of the [C9] objective."""
+    P += w * (J.T @ J)
+    q -= w * (J.T @ b)
+
+
+def posture_target_reference(q, q_ref, dq, dq_ref, kp, kd, ki, use_ki, integral, dt, gamma, use_gamma, ddq_e):
+    """q̈*₀ = −K_d (q̇ − q̇_ref) − K_p e − K_i ∫e, e = q − q_ref (∫e advanced in place by e δt when
+    `use_ki`), + Γ₀ q̈_e when `use_gamma` [C7, C9]."""
+    e = q - q_ref
+    if use_ki:
+        integral += e * dt
+    b = -kd * (dq - dq_ref) - kp * e - ki * integral
+    return b + gamma @ ddq_e if use_gamma else b
+
+
+def torque_rows_reference(M, h, tau_fb, tau_max, A, lower, upper, limits_on, no_bound) -> None:
+    """A[:n] = M, −τ_max − h + τ_fb ≤ M q̈ ≤ τ_max − h + τ_fb [C10] (±`no_bound` without limits)."""
+    n = M.shape[0]
+    A[:n] = M
+    lower[:n] = -tau_max - h + tau_fb if limits_on else -no_bound
+    upper[:n] = tau_max - h + tau_fb if limits_on else no_bound
+
+
+def inverse_dynamics_reference(M, ddq, h, tau_fb, tau_max, clip_desired) -> tuple:
+    """(τ_d, clip(τ_d, ±τ_max), τ_d beyond τ_max): τ_d = M q̈ + h − τ_fb [C8], clipped first when
+    `clip_desired`."""
+    tau = M @ ddq + h - tau_fb
+    if clip_desired:
+        tau = np.clip(tau, -tau_max, tau_max)
+    return tau, np.clip(tau, -tau_max, tau_max), bool(np.any(np.abs(tau) > tau_max + 1e-9))
+
+
+def acceleration_bounds_reference(
+    q, dq, q_lower, q_upper, d_s, d_i, xi, kp, lam, velocity_gain, dq_limit, endless, proposed, dt, no_bound
+) -> tuple:
+    """(lower, upper, crossed) of the joint-limit dampers [C13-24] on both sides at once (upper
+    side: e = q⁺ − q, ė = −q̇; lower: e = q − q⁻, ė = q̇): ë ≥ max(ë_p, ë_v) [C19] capped at
+    `no_bound`, ë_p proposed [C24] or classic [C15, C17], ë_v [C18, C20]; crossed rows at their
+    midpoint."""
+    e = np.concatenate([q_upper - q, q - q_lower])
+    de = np.concatenate([-dq, dq])
+    d_s2, d_i2, xi2 = np.tile(d_s, 2), np.tile(d_i, 2), np.tile(xi, 2)
+    if proposed:
+        e_p = -lam * de - kp * (e - d_s2)  # [C24]
+    else:
+        de_d = -xi2 * (e - d_s2) / (d_i2 - d_s2)  # [C15]
+        e_p = np.where(e < d_i2, -(de - de_d) / dt, -no_bound)  # [C17]
+    e_p = np.where(np.tile(endless, 2), -no_bound, e_p)
+    e_v = -velocity_gain * (de + np.tile(dq_limit, 2))  # [C18]/[C20]
+    side = np.minimum(np.maximum(e_p, e_v), no_bound)  # [C19]
+    n = q.shape[0]
+    upper, lower = -side[:n], side[n:]
+    crossed = bool(np.any(lower > upper))
+    mid = 0.5 * (lower + upper)
+    swap = lower > upper
+    return np.where(swap, mid, lower), np.where(swap, mid, upper), crossed

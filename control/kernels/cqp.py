@@ -9,14 +9,25 @@ from numba import njit
 
 from control.kernels.compliance import (
     acceleration_bounds_fused,
+    acceleration_bounds_reference,
     add_task_rows_fused,
+    add_task_rows_reference,
     inverse_dynamics_fused,
+    inverse_dynamics_reference,
     pose_task_target_fused,
+    pose_task_target_reference,
     posture_target_fused,
+    posture_target_reference,
     torque_rows_fused,
+    torque_rows_reference,
 )
-from control.kernels.dense_qp import unconstrained_optimum_fused
-from control.kernels.estimation import momentum_observer_fused, sensor_high_pass_fused
+from control.kernels.dense_qp import unconstrained_optimum_fused, unconstrained_optimum_reference
+from control.kernels.estimation import (
+    momentum_observer_fused,
+    momentum_observer_reference,
+    sensor_high_pass_fused,
+    sensor_high_pass_reference,
+)
 
 
 @njit(cache=True)
@@ -126,6 +137,60 @@ def cqp_problem_fused(
         solved = unconstrained_optimum_fused(P, qv, A, lb, l, ub, u, tol, x)
     if solved:  # [C8] for an exact solution (no clipping of τ_d)
         tau, tau_cmd, saturated = inverse_dynamics_fused(M, x, h, tau_hat if feedback else np.zeros(n), tau_max, False)
+    else:
+        tau, tau_cmd, saturated = x, x, False
+    return crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated
+
+
+def cqp_problem_reference(
+    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation,
+    estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, estimator_constants,
+    feedback, tau_max, torque_limits,
+    pose_on, target_position, target_rotation, target_velocity, target_acceleration, pose_gains,
+    q_ref, dq_ref, posture_gains, integral, posture_constants,
+    damper_rows, endless, damper_constants,
+    objective, A, l, u, lb, ub, no_bound,
+    fast_on, tol,
+) -> tuple:  # fmt: skip
+    """`cqp_problem_fused` by the references of the kernels it calls, one by one (same arguments,
+    same buffers written, same values)."""
+    n = q.shape[0]
+    if estimate_on:
+        a, dt, source = estimator_constants[:3]
+        r = momentum_observer_reference(M_prev, dq, dq_prev, tau_prev, h_prev, dt, a, r)  # [C25]
+        tau_s, high = sensor_high_pass_reference(J, wrench, lp, a)
+        tau_hat = r.copy() if source == 1.0 else (r + high if source == 2.0 else np.zeros(n))  # [C26]
+    else:
+        tau_hat, tau_s = tau_hat_given, tau_hat_given
+    P, qv = objective[:n], objective[n]
+    P[:], qv[:] = 0.0, 0.0
+    ddq_e = M_inv @ tau_hat
+    if pose_on:  # [C3-4, C9]
+        b = pose_task_target_reference(
+            J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
+            target_acceleration, pose_gains[0], pose_gains[1], pose_gains[2:8], pose_gains[8, 1] != 0.0, ddq_e,
+        )  # fmt: skip
+        add_task_rows_reference(P, qv, J, b, pose_gains[8, 0])
+    w, use_ki, use_gamma, dt_posture, inertia_metric = posture_constants[:5]
+    b0 = posture_target_reference(
+        q, q_ref, dq, dq_ref, posture_gains[0], posture_gains[1], posture_gains[2], use_ki != 0.0, integral,
+        dt_posture, posture_gains[3:], use_gamma != 0.0, ddq_e,
+    )  # fmt: skip
+    metric = M if inertia_metric != 0.0 else np.eye(n)  # [C7] task 0 in the M or identity metric
+    P += w * metric
+    qv -= w * (metric @ b0)
+    lower, upper, crossed = acceleration_bounds_reference(
+        q, dq, damper_rows[0], damper_rows[1], damper_rows[2], damper_rows[3], damper_rows[4], damper_constants[0],
+        damper_constants[1], damper_constants[2], damper_rows[5], endless, damper_constants[3] != 0.0,
+        damper_constants[4], damper_constants[5],
+    )  # fmt: skip
+    lb[:], ub[:] = lower, upper
+    tau_fb = tau_hat if feedback else np.zeros(n)
+    torque_rows_reference(M, h, tau_fb, tau_max, A, l, u, torque_limits, no_bound)  # [C10]
+    x = np.zeros(n)
+    solved = bool(fast_on and not crossed and unconstrained_optimum_reference(P, qv, A, lb, l, ub, u, tol, x))
+    if solved:  # [C8]
+        tau, tau_cmd, saturated = inverse_dynamics_reference(M, x, h, tau_fb, tau_max, False)
     else:
         tau, tau_cmd, saturated = x, x, False
     return crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated

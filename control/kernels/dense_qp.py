@@ -227,3 +227,27 @@ def unconstrained_optimum_fused(P, q, A, lb, l, ub, u, tol, x):
     for i in range(n):
         x[i] = cand[i]
     return True
+
+
+def unconstrained_optimum_reference(P, q, A, lb, l, ub, u, tol, x) -> bool:
+    """`unconstrained_optimum_fused` in numpy: x = −P⁻¹q by Cholesky (lower triangle; every pivot
+    above PIVOT_FLOOR · max diag P) into `x` when finite and within lb, ub and l ≤ A x ≤ u (to `tol`);
+    NaN or a crossed bound refused."""
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(q)) and np.all(np.isfinite(A))):
+        return False
+    if not (np.all(lb <= ub) and np.all(l <= u)):
+        return False
+    try:
+        L = np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        return False
+    if not np.all(np.diag(L) ** 2 > PIVOT_FLOOR * max(float(np.max(np.diag(P))), 0.0)):
+        return False
+    cand = -np.linalg.solve(L.T, np.linalg.solve(L, q))
+    if not np.all(np.isfinite(cand)) or np.any(cand < lb - tol) or np.any(cand > ub + tol):
+        return False
+    rows = A @ cand
+    if np.any(rows < l - tol) or np.any(rows > u + tol):
+        return False
+    x[:] = cand
+    return True

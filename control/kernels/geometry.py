@@ -8,6 +8,21 @@ import numpy as np
 from numba import njit
 
 
+def log3_reference(R: np.ndarray) -> np.ndarray:
+    """log(R) as a rotation vector θ·axis [T11]: θ = atan2(‖v‖, (tr R − 1)/2) with v = (R − Rᵀ)∨/2
+    (= sin θ · axis); the axis from v away from π, from the symmetric part (R + Rᵀ)/2 − cos θ I =
+    (1 − cos θ) axis axisᵀ past π/2 (its sign from v)."""
+    v = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s, c = float(np.linalg.norm(v)), float(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))
+    theta = float(np.arctan2(s, c))
+    if c >= 0.0:
+        return v * (theta / s) if s > 0.0 else v
+    B = (0.5 * (R + R.T) - c * np.eye(3)) / (1.0 - c)
+    i = int(np.argmax(np.diag(B)))
+    axis = B[:, i] / np.sqrt(B[i, i])
+    return theta * (axis if axis @ v >= 0.0 else -axis)
+
+
 @njit(cache=True)
 def log3_fused(R):
     """log(R) ∈ so(3) as a rotation vector θ·axis, θ ∈ [0, π], from the unit quaternion of R
@@ -53,6 +68,20 @@ def move_wrench_fused(wrench, p_from, p_to):
     out[4] = wrench[4] + (r2 * f0 - r0 * f2)
     out[5] = wrench[5] + (r0 * f1 - r1 * f0)
     return out
+
+
+def swivel_of_anchors_reference(anchors: np.ndarray, shoulder: int, elbow: int, wrist: int) -> float:
+    """Elbow swivel (rad) of rows `shoulder`, `elbow`, `wrist` of (m, 3) points: the angle about
+    u = shoulder→wrist from r (world +z, or +x when u is vertical, made normal to u) to the elbow's
+    offset d normal to u, right-handed (`control.coupling.swivel_angle`'s formula)."""
+    s, e, w = anchors[shoulder], anchors[elbow], anchors[wrist]
+    u = (w - s) / np.linalg.norm(w - s)
+    r = np.array([0.0, 0.0, 1.0]) - u[2] * u
+    if np.linalg.norm(r) < 1e-9:
+        r = np.array([1.0, 0.0, 0.0]) - u[0] * u
+    r = r / np.linalg.norm(r)
+    d = (e - s) - ((e - s) @ u) * u
+    return float(np.arctan2(u @ np.cross(r, d), r @ d))
 
 
 @njit(cache=True)

@@ -7,11 +7,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from control.kernels.chain import _unpack_chain, inertia_contraction_fused
-from control.kernels.coupling import coupling_fused
-from control.kernels.geometry import log3_fused
-from control.kernels.gradients import gradient_contraction_fused
-from control.kernels.line_qp import nullspace_line_qp_fused
+from control.kernels.chain import (
+    _unpack_chain,
+    inertia_contraction_fused,
+    inertia_contraction_reference,
+    kinematic_hessian_reference,
+    unpack_chain_reference,
+)
+from control.kernels.coupling import coupling_fused, coupling_reference
+from control.kernels.geometry import log3_fused, log3_reference
+from control.kernels.gradients import gradient_contraction_fused, gradient_contraction_reference
+from control.kernels.line_qp import nullspace_line_qp_fused, nullspace_line_qp_into_reference
 
 
 def task_wrench_reference(
@@ -155,9 +161,19 @@ def joint_torque_fused(J, F, N, Lambda_n, kn, dq_goal, dq, h):
     return tau
 
 
+def damper_bounds_reference(q, q_lower, q_upper, dq_limit, endless, influence, safety, speed) -> tuple:
+    """Velocity bounds (l, u) [T17]: ±dq_limit tightened by first-order dampers inside the influence
+    distance d_i of a position limit, to ∓ξ (d − d_s)/(d_i − d_s) (never on endless joints)."""
+    slope = speed / (influence - safety)
+    d_low, d_up = q - q_lower, q_upper - q
+    lo = np.where((d_low < influence) & ~endless, -slope * (d_low - safety), -np.inf)
+    up = np.where((d_up < influence) & ~endless, slope * (d_up - safety), np.inf)
+    return np.maximum(-dq_limit, lo), np.minimum(dq_limit, up)
+
+
 @njit(cache=True)
 def damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, influence, safety, speed):
-    """Compiled `control.nullspace.damper_bounds` (its numpy reference): (l, u) = ±dq_limit
+    """Compiled `damper_bounds_reference` (`control.nullspace.damper_bounds`): (l, u) = ±dq_limit
     tightened near the position limits to −ξ (d − d_s)/(d_i − d_s), never on endless joints."""
     n = q.shape[0]
     slope = speed / (influence - safety)
@@ -199,7 +215,7 @@ def law_constants(
     """What `projection_law_fused` reads that changes only with the gains, in three arrays (one
     compiled call's argument checks cost per argument): (axes, gains, limits) =
     ([objective, n_m, perm…] int64; [K_f^p, K_f^d, K_f^i, integral limit, shaping, k0, d_i, d_s, ξ,
-    K_m^p…, 2ζ√K_m^p…]; rows q⁻, q⁺, q̇ limit, endless (1/0)). `law_constants_unpacked` reads them back."""
+    K_m^p…, 2ζ√K_m^p…]; rows q⁻, q⁺, q̇ limit, endless (1/0)), read back by `projection_law_fused`."""
     axes = np.array([objective, n_m, *np.asarray(perm, dtype=np.int64)], dtype=np.int64)
     gains = np.array([*force_gains, float(shaping), k0, *damper, *kp_m, *kd_scale_m], dtype=float)
     limits = np.array([q_lower, q_upper, dq_limit, np.asarray(endless, dtype=float)], dtype=float)
@@ -334,3 +350,75 @@ def projection_step_fused(
         if active >= 0:
             tau[:] = joint_torque_fused(J, F_mu, N, Lambda_n, kn, x, dq, h)
     return F, integral, W, W_f, W_a, W_d, coupled, force_error, active
+
+
+def projection_law_reference(
+    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
+    target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
+    gains, limits, chain, F_mu, qp_data,
+) -> tuple:  # fmt: skip
+    """`projection_law_fused` by the references one by one: e = [p° − p; log(R° Rᵀ)], the clamped
+    force integral [T12], `coupling_reference` [T6, T9, T22], k0 ∇W from
+    `gradient_contraction_reference` (∂J from `kinematic_hessian_reference`) and
+    `inertia_contraction_reference` [T24-27] or ∇W_j = q − q_d [T18], `task_wrench_reference`
+    [T7, T11-12] and `damper_bounds_reference` [T17]; the same buffers written, the same values."""
+    objective, n_m = int(axes[0]), int(axes[1])
+    perm = axes[2:]
+    m_idx, f_idx = perm[:n_m], perm[n_m:]
+    force_kp, force_kd, force_ki, force_integral_limit, shaping, k0, influence, safety, speed = gains[:9]
+    kp_m, kd_scale_m = gains[9 : 9 + n_m], gains[9 + n_m : 9 + 2 * n_m]
+    e = np.concatenate([target_position - tcp_position, log3_reference(target_rotation @ tcp_rotation.T)])
+    F_hat = target_wrench[f_idx]
+    integral, u_f_extra = force_integral.copy(), np.zeros(len(f_idx))
+    if force_ki > 0:  # [T12] anti-windup: |K_f^i ∫e_f| ≤ limit
+        lim = force_integral_limit / force_ki
+        integral = np.clip(integral + (F_e[f_idx] - F_hat) * 1e-3, -lim, lim)
+        u_f_extra = force_ki * integral
+    A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_reference(Lambda, Lambda_inv, perm, n_m, exact)
+    if objective == OBJECTIVE_J:  # [T18] W_j = ½‖q − q_d‖²
+        grad = q - q_d
+        W = 0.5 * float(grad @ grad)
+    else:  # [T24-27]
+        P = (P_f, P_a, P_d)[objective]
+        name = "fad"[objective]
+        term_J, a_, b_ = gradient_contraction_reference(
+            name, J, kinematic_hessian_reference(J), M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m
+        )
+        R_place, p_place, joint_axes, mass, lever, inertia = unpack_chain_reference(chain)
+        term_M = np.zeros(q.shape[0])
+        for c in range(a_.shape[1]):
+            term_M += inertia_contraction_reference(
+                q, R_place, p_place, joint_axes, mass, lever, inertia, a_[:, c], b_[:, c]
+            )
+        W = (W_f, W_a, W_d)[objective]
+        grad = -2.0 * (term_J - term_M)
+    F, F_mu_, coupled = task_wrench_reference(
+        J, dq, e, target_velocity, target_acceleration, A, P_d, P_f, Lambda, dJ_dq, F_e, F_hat, u_f_extra,
+        m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, shaping != 0.0,
+    )  # fmt: skip
+    F_mu[:] = F_mu_
+    qp_data[0] = k0 * grad
+    qp_data[1], qp_data[2] = damper_bounds_reference(
+        q, limits[0], limits[1], limits[2], limits[3] != 0.0, influence, safety, speed
+    )
+    return F, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]
+
+
+def projection_step_reference(
+    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
+    target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
+    gains, limits, chain, F_mu, qp_data, closed_form, N, Lambda_n, kn, h, x, tau,
+) -> tuple:  # fmt: skip
+    """`projection_step_fused` by `projection_law_reference`, `nullspace_line_qp_into_reference`
+    [T15-17] and `joint_torque_reference` [T13-14]."""
+    law = projection_law_reference(
+        q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
+        target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
+        gains, limits, chain, F_mu, qp_data,
+    )  # fmt: skip
+    active = -1
+    if closed_form:
+        active = nullspace_line_qp_into_reference(J, qp_data[0], qp_data[1], qp_data[2], x)
+        if active >= 0:
+            tau[:] = joint_torque_reference(J, F_mu, N, Lambda_n, kn, x, dq, h)
+    return (*law, active)

@@ -43,6 +43,18 @@ def nullspace_line_qp_reference(
     return t * z, int(t != t_free)
 
 
+def nullspace_line_qp_into_reference(
+    J: np.ndarray, g: np.ndarray, lower: np.ndarray, upper: np.ndarray, x: np.ndarray
+) -> int:
+    """`nullspace_line_qp_reference` as the compiled kernel reports it: x written, the number of
+    active bounds returned, or −1 (x untouched) where the closed form does not apply."""
+    out = nullspace_line_qp_reference(J, g, lower, upper)
+    if out is None:
+        return -1
+    x[:] = out[0]
+    return out[1]
+
+
 @njit(cache=True)
 def nullspace_line_qp_fused(J, g, lower, upper, x):
     """Compiled `nullspace_line_qp_reference`, z from a Householder QR of Jᵀ (z = H_1…H_6 e_7,

@@ -15,7 +15,7 @@ from control.kernels._linalg import (
     _sym_from_eig,
     _symmetrise,
 )
-from control.kernels.chain import tcp_bias_acceleration_into
+from control.kernels.chain import tcp_bias_acceleration_into, tcp_bias_acceleration_reference
 
 
 def snapshot_reference(M_upper: np.ndarray, J: np.ndarray, singular_eig: float) -> tuple:
@@ -57,7 +57,7 @@ def snapshot_fused(M_upper, J, singular_eig):
     n = J.shape[1]
     M, M_inv, N, Lambda_n = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
     Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))
-    work = snapshot_work(n)
+    work = np.empty((4, n, n))  # `snapshot_work(n)`
     near_singular, min_eig = snapshot_into(
         M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work, None, np.empty(6)
     )
@@ -66,8 +66,7 @@ def snapshot_fused(M_upper, J, singular_eig):
     return M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular
 
 
-@njit(cache=True)
-def snapshot_work(n):
+def snapshot_work(n: int) -> np.ndarray:
     """Scratch space of `snapshot_into` for an n-joint arm (allocated once by its caller)."""
     return np.empty((4, n, n))
 
@@ -133,3 +132,18 @@ def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar,
                 g[i] = 1.0 / ws[i]
         Lambda_n[:, :] = _sym_from_eig(Vs, g)
     return near_singular, min_eig
+
+
+def snapshot_into_reference(
+    M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work, dq, dJ_dq
+) -> tuple[bool, float]:
+    """`snapshot_into` by `snapshot_reference` (and J̇q̇ by `tcp_bias_acceleration_reference` when
+    `dq` is given): the same outputs written into the same arrays (`work` is scratch, not read),
+    the same (near_singular, min eig Λx⁻¹ or NaN away from a singularity)."""
+    out = snapshot_reference(M_upper, J, singular_eig)
+    for buffer, value in zip((M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n), out[:7], strict=True):
+        buffer[:] = value
+    if dq is not None:
+        dJ_dq[:] = tcp_bias_acceleration_reference(J, dq)
+    near_singular = bool(out[8])
+    return near_singular, (out[7] if near_singular else np.nan)

@@ -1,0 +1,634 @@
+"""Every compiled kernel with its plain-numpy reference and sample inputs: `KERNELS`.
+
+`KERNELS[name] = KernelPair(compiled, reference, samples, tolerance, scratch)`: `reference` takes
+the compiled kernel's arguments and returns the same outputs (and writes the same output buffers);
+`samples(rng)` gives argument tuples at states of the shipped Rizon 4s (random postures inside the
+limits, away from singularities: the near-singular states, where tolerances scale with the
+condition number, are `tests/test_kernels.py`'s); `tolerance(args)` is the relative tolerance of
+every output for those arguments; `scratch` names the argument positions that are work space.
+
+`tests/test_kernels.py` enumerates every numba dispatcher of the `control.kernels` modules: a
+compiled kernel that is not in this table fails, and every pair is held equal on its samples. A new
+kernel goes in its subject's module beside its reference, and here.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from control.kernels import _linalg as L
+from control.kernels import (
+    chain,
+    compliance,
+    coupling,
+    cqp,
+    dense_qp,
+    estimation,
+    geometry,
+    gradients,
+    law,
+    line_qp,
+    snapshot,
+)
+
+RTOL = 1e-10  # relative, on each output (max |a − b| over max |b|)
+EPS = float(np.finfo(float).eps)
+
+
+def _flat(args: tuple) -> float:
+    return RTOL
+
+
+class KernelPair(NamedTuple):
+    """A compiled kernel, its reference (same arguments, same outputs) and how to test the two."""
+
+    compiled: Any  # a numba dispatcher
+    reference: Callable[..., Any]
+    samples: Callable[[np.random.Generator], list[tuple]]
+    tolerance: Callable[[tuple], float] = _flat
+    scratch: tuple[int, ...] = ()  # argument positions the kernel uses as work space
+
+
+# ---- states of the shipped arm -------------------------------------------------------------------
+@functools.cache
+def _robot() -> tuple:
+    import robots
+    from control.model import RobotModel
+
+    robot = robots.load("rizon4s")
+    return robot, RobotModel(robot.model)
+
+
+def states(rng: np.random.Generator, count: int = 4) -> list:
+    """`Dynamics` snapshots of the Rizon 4s at random postures (margin 0.9 of the limits, min eig of
+    Λx⁻¹ above 1e-3) and velocities in ±1 rad/s."""
+    robot, model = _robot()
+    lo = np.where(robot.endless, -np.pi, robot.q_lower)
+    hi = np.where(robot.endless, np.pi, robot.q_upper)
+    mid, half = (lo + hi) / 2, (hi - lo) / 2 * 0.9
+    out: list = []
+    while len(out) < count:
+        dyn = model.compute(rng.uniform(mid - half, mid + half), rng.uniform(-1, 1, 7))
+        if dyn.min_eig_Lambda_inv > 1e-3:
+            out.append(dyn)
+    return out
+
+
+def lambda_tolerance(Lambda_inv: np.ndarray) -> float:
+    """max(1e-10, 100·eps·cond(Λx⁻¹)): outputs derived from Λx = (J M⁻¹ Jᵀ)⁻¹ agree to about eps·κ
+    when their inputs agree to eps (see `tests/test_kernels.py`)."""
+    w = np.linalg.eigvalsh(Lambda_inv)
+    return max(RTOL, 100 * EPS * w[-1] / max(w[0], 1e-300))
+
+
+def _rotation(rng: np.random.Generator, max_angle: float = 3.0) -> np.ndarray:
+    axis = rng.standard_normal(3)
+    axis /= np.linalg.norm(axis)
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    t = rng.uniform(0.0, max_angle)
+    return np.eye(3) + np.sin(t) * K + (1.0 - np.cos(t)) * (K @ K)
+
+
+def _spd(rng: np.random.Generator, n: int) -> np.ndarray:
+    G = rng.standard_normal((n, n))
+    return G @ G.T + n * np.eye(n)
+
+
+# ---- small helpers (control.kernels._linalg) -------------------------------------------------------
+def _matmul_into_ref(A, B, out):
+    out[:] = A @ B
+
+
+def _matmul_bt_into_ref(A, B, out):
+    out[:] = A @ B.T
+
+
+def _symmetrise_ref(A):
+    A[:] = 0.5 * (A + A.T)
+
+
+def _cholesky_into_ref(A, shift, Lout):
+    n = A.shape[0]
+    try:
+        factor = np.linalg.cholesky(A - shift * np.eye(n))
+    except np.linalg.LinAlgError:
+        return False
+    rows, cols = np.tril_indices(n)
+    Lout[rows, cols] = factor[rows, cols]
+    return True
+
+
+def _spd_inverse_into_ref(A, L_, Li, out):
+    out[:] = np.linalg.inv(A)
+    return True
+
+
+def _cross_ref(a, b, out):
+    out[:] = np.cross(a, b)
+
+
+def _mat3_vec_ref(A, x, out):
+    out[:] = A @ x
+
+
+def _mat3_mat_ref(A, B, out):
+    out[:] = A @ B
+
+
+def _pairs(rng, make, count=5):
+    return [make(rng) for _ in range(count)]
+
+
+def _linalg_entries() -> dict[str, KernelPair]:
+    def two(rng, m, k, n, bt=False, out=True):
+        A = rng.standard_normal((m, k))
+        B = rng.standard_normal((n, k) if bt else (k, n))
+        return (A, B, np.zeros((m, n))) if out else (A, B)
+
+    return {
+        "_matmul_into": KernelPair(L._matmul_into, _matmul_into_ref, lambda r: _pairs(r, lambda g: two(g, 6, 7, 6))),
+        "_matmul_bt_into": KernelPair(
+            L._matmul_bt_into, _matmul_bt_into_ref, lambda r: _pairs(r, lambda g: two(g, 7, 7, 6, bt=True))
+        ),
+        "_matmul": KernelPair(L._matmul, np.matmul, lambda r: _pairs(r, lambda g: two(g, 6, 7, 5, out=False))),
+        "_matmul_bt": KernelPair(
+            L._matmul_bt, lambda A, B: A @ B.T, lambda r: _pairs(r, lambda g: two(g, 7, 6, 6, bt=True, out=False))
+        ),
+        "_symmetrise": KernelPair(L._symmetrise, _symmetrise_ref, lambda r: _pairs(r, lambda g: (g.random((7, 7)),))),
+        "_sym_from_eig": KernelPair(
+            L._sym_from_eig,
+            lambda V, f: (V * f) @ V.T,
+            lambda r: _pairs(r, lambda g: (np.linalg.qr(g.standard_normal((6, 6)))[0], g.uniform(-2, 2, 6))),
+        ),
+        "_cholesky_into": KernelPair(
+            L._cholesky_into,
+            _cholesky_into_ref,
+            lambda r: _pairs(r, lambda g: (_spd(g, 7), float(g.uniform(0, 1)), np.zeros((7, 7)))),
+        ),
+        "_spd_inverse_into": KernelPair(
+            L._spd_inverse_into,
+            _spd_inverse_into_ref,
+            lambda r: _pairs(r, lambda g: (_spd(g, 7), np.zeros((7, 7)), np.zeros((7, 7)), np.zeros((7, 7)))),
+            scratch=(1, 2),
+        ),
+        "_inverse": KernelPair(L._inverse, np.linalg.inv, lambda r: _pairs(r, lambda g: (g.standard_normal((5, 5)),))),
+        "_sqnorm": KernelPair(
+            L._sqnorm, lambda P: float(np.sum(P * P)), lambda r: _pairs(r, lambda g: (g.standard_normal((2, 4)),))
+        ),
+        "_cross": KernelPair(
+            L._cross,
+            _cross_ref,
+            lambda r: _pairs(r, lambda g: (g.standard_normal(3), g.standard_normal(3), np.zeros(3))),
+        ),
+        "_mat3_vec": KernelPair(
+            L._mat3_vec,
+            _mat3_vec_ref,
+            lambda r: _pairs(r, lambda g: (g.standard_normal((3, 3)), g.standard_normal(3), np.zeros(3))),
+        ),
+        "_mat3_mat": KernelPair(
+            L._mat3_mat,
+            _mat3_mat_ref,
+            lambda r: _pairs(r, lambda g: (g.standard_normal((3, 3)), g.standard_normal((3, 3)), np.zeros((3, 3)))),
+        ),
+        "_np_max": KernelPair(
+            L._np_max,
+            lambda a, b: float(np.maximum(a, b)),
+            lambda r: [(1.0, 2.0), (-3.0, -4.0), (np.nan, 1.0), (1.0, np.nan), (np.inf, 0.0)],
+        ),
+    }
+
+
+# ---- the snapshot, the chain, coupling and gradients [T2-6, T9, T22, T24-27] ----------------------
+def _snapshot_samples(rng):
+    out = []
+    for dyn in states(rng, 3):
+        out.append((np.triu(dyn.M), dyn.J, 1e-6))
+    return out
+
+
+def _snapshot_into_samples(rng):
+    out = []
+    for k, (M_upper, J, rho) in enumerate(_snapshot_samples(rng)):
+        n = J.shape[1]
+        buffers = [np.zeros((n, n)), np.zeros((n, n)), np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((n, 6))]
+        buffers += [np.zeros((n, n)), np.zeros((n, n))]
+        dq = rng.uniform(-1, 1, n) if k % 2 == 0 else None
+        out.append((M_upper, J, rho, *buffers, snapshot.snapshot_work(n), dq, np.zeros(6)))
+    return out
+
+
+def _snapshot_tolerance(args) -> float:
+    M = np.triu(args[0]) + np.triu(args[0], 1).T
+    return lambda_tolerance(args[1] @ np.linalg.solve(M, args[1].T))
+
+
+def _chain_samples(rng):
+    _, model = _robot()
+    return [(dyn.q, *model.chain, rng.standard_normal(7), rng.standard_normal(7)) for dyn in states(rng, 3)]
+
+
+SUBSPACES = ((2,), (0, 5), (1, 2, 3))  # force axes (pz; px+rz; py+pz+rx)
+
+
+def _perm(force: tuple[int, ...]) -> tuple[np.ndarray, int]:
+    motion = [a for a in range(6) if a not in force]
+    return np.array(motion + list(force), dtype=np.int64), len(motion)
+
+
+def _coupling_samples(rng):
+    out = []
+    for dyn in states(rng, 2):
+        for force in SUBSPACES:
+            perm, n_m = _perm(force)
+            out += [(dyn.Lambda, dyn.Lambda_inv, perm, n_m, exact) for exact in (True, False)]
+    return out
+
+
+def _gradient_reference(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m):
+    name = "fad"[objective]
+    return gradients.gradient_contraction_reference(
+        name, J, chain.kinematic_hessian_reference(J), M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m
+    )
+
+
+def _gradient_samples(rng):
+    out = []
+    for dyn in states(rng, 2):
+        for force in SUBSPACES:
+            perm, n_m = _perm(force)
+            blocks = coupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, perm, n_m, True)
+            for objective in range(3):
+                P = blocks[5 + objective]
+                out.append((objective, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, blocks[3], perm, n_m))
+    return out
+
+
+def _pack_samples(rng):
+    return [(chain.pack_chain(_robot()[1].chain),)]
+
+
+# ---- the [T] law [T7, T11-18] ----------------------------------------------------------------------
+def _task_wrench_samples(rng):
+    out = []
+    for dyn in states(rng, 2):
+        for force in SUBSPACES:
+            perm, n_m = _perm(force)
+            n_f = 6 - n_m
+            blocks = coupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, perm, n_m, True)
+            for shaping in (True, False):
+                out.append((
+                    dyn.J, dyn.dq, rng.standard_normal(6), rng.standard_normal(6), rng.standard_normal(6),
+                    blocks[0], blocks[7], blocks[5], dyn.Lambda, dyn.dJ_dq, rng.standard_normal(6),
+                    rng.standard_normal(n_f), rng.standard_normal(n_f), perm[:n_m], perm[n_m:],
+                    rng.uniform(10, 4000, n_m), rng.uniform(0.5, 200, n_m), 0.5, 200.0, shaping,
+                ))  # fmt: skip
+    return out
+
+
+def _joint_torque_samples(rng):
+    return [
+        (
+            dyn.J,
+            rng.standard_normal(6),
+            dyn.N,
+            dyn.Lambda_n,
+            rng.uniform(1, 100, 7),
+            rng.standard_normal(7),
+            dyn.dq,
+            dyn.h,
+        )
+        for dyn in states(rng, 3)
+    ]
+
+
+def _damper_bounds_samples(rng):
+    robot, _ = _robot()
+    out = []
+    for _ in range(20):
+        edge = np.where(rng.random(7) < 0.5, robot.q_lower, robot.q_upper)
+        q = edge + rng.uniform(-0.35, 0.35, 7)  # outside, inside d_s, inside d_i, free
+        endless = np.asarray(robot.endless, dtype=bool)
+        out.append((q, robot.q_lower, robot.q_upper, 0.5 * robot.dq_max, endless, 0.2, 0.05, 0.5))
+    return out
+
+
+def _law_args(rng, dyn, objective: int, force: tuple[int, ...], ki: float) -> tuple:
+    robot, model = _robot()
+    perm, n_m = _perm(force)
+    axes, gains, limits = law.law_constants(
+        objective, perm, n_m, rng.uniform(100, 3000, n_m), rng.uniform(0.5, 2.0, n_m), (0.5, 0.01, ki, 20.0),
+        bool(rng.random() < 0.5), 30.0, robot.q_lower, robot.q_upper, 0.5 * robot.dq_max, robot.endless,
+        (0.2, 0.05, 0.5),
+    )  # fmt: skip
+    R = _rotation(rng, 0.3) @ dyn.tcp_rotation_world
+    return (
+        dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq, True, dyn.tcp_position_world,
+        dyn.tcp_rotation_world, dyn.tcp_position_world + 0.02 * rng.standard_normal(3), R, rng.standard_normal(6),
+        rng.standard_normal(6), np.r_[rng.standard_normal(3) * 5, 0, 0, 0], rng.standard_normal(6) * 10,
+        rng.standard_normal(6 - n_m), dyn.q + 0.1 * rng.standard_normal(7), axes, gains, limits,
+        chain.pack_chain(model.chain), np.zeros(6), np.zeros((3, 7)),
+    )  # fmt: skip
+
+
+def _law_samples(rng):
+    out = []
+    for k, dyn in enumerate(states(rng, 4)):
+        for objective in range(4):
+            out.append(_law_args(rng, dyn, objective, SUBSPACES[(k + objective) % 3], 5.0 if k % 2 else 0.0))
+    return out
+
+
+def _step_samples(rng):
+    _, model = _robot()
+    out = []
+    for args in _law_samples(rng):
+        dyn = model.compute(args[0], args[1])
+        closed_form = bool(rng.random() < 0.8)
+        out.append((*args, closed_form, dyn.N, dyn.Lambda_n, rng.uniform(1, 100, 7), dyn.h, np.zeros(7), np.zeros(7)))
+    return out
+
+
+def _law_tolerance(args) -> float:
+    return lambda_tolerance(args[5])
+
+
+def _line_qp_samples(rng):
+    out = []
+    for dyn in states(rng, 6):
+        g = rng.standard_normal(7) * rng.choice([0.01, 1.0, 30.0])
+        lower, upper = -rng.uniform(0.1, 2.0, 7), rng.uniform(0.1, 2.0, 7)
+        if rng.random() < 0.3:  # a damper pushing one joint out: 0 not in its box
+            k = rng.integers(7)
+            lower[k], upper[k] = 0.05, 1.0
+        out.append((dyn.J, g, lower, upper, np.zeros(7)))
+    return out
+
+
+def _line_qp_tolerance(args) -> float:
+    """The kernel line of J is known to about eps·cond(J) (QR against SVD)."""
+    sv = np.linalg.svd(args[0], compute_uv=False)
+    return max(RTOL, 100 * EPS * sv[0] / sv[-1])
+
+
+# ---- geometry ----------------------------------------------------------------------------------------
+def _log3_samples(rng):
+    return [(_rotation(rng),) for _ in range(20)] + [(_rotation(rng, 1e-6),) for _ in range(3)]
+
+
+def _swivel_samples(rng):
+    return [(rng.standard_normal((8, 3)), 2, 4, 6) for _ in range(10)]
+
+
+def _wrench_samples(rng):
+    return [(rng.normal(size=6) * 30, rng.normal(size=3), rng.normal(size=3)) for _ in range(10)]
+
+
+# ---- the [C] rows, estimate and problem [C3-26] -------------------------------------------------------
+def _pose_target_samples(rng):
+    out = []
+    for k, dyn in enumerate(states(rng, 3)):
+        gamma = 0.5 * np.eye(6) if k % 2 else np.zeros(6 * 6).reshape(6, 6)
+        out.append((
+            dyn.J, dyn.dq, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world,
+            dyn.tcp_position_world + 0.05 * rng.standard_normal(3), _rotation(rng, 0.3) @ dyn.tcp_rotation_world,
+            rng.standard_normal(6), rng.standard_normal(6), np.full(6, 400.0), np.full(6, 40.0), gamma, bool(k % 2),
+            rng.standard_normal(7),
+        ))  # fmt: skip
+    return out
+
+
+def _add_rows_samples(rng):
+    return [
+        (rng.standard_normal((7, 7)), rng.standard_normal(7), rng.standard_normal((6, 7)), rng.standard_normal(6), 3.0)
+    ]
+
+
+def _posture_samples(rng):
+    out = []
+    for k, dyn in enumerate(states(rng, 3)):
+        gamma = 0.3 * np.eye(7)
+        out.append((
+            dyn.q, dyn.q + 0.1 * rng.standard_normal(7), dyn.dq, rng.standard_normal(7), np.full(7, 30.0),
+            np.full(7, 8.0), np.full(7, 2.0 * (k % 2)), bool(k % 2), rng.standard_normal(7) * 0.01, 1e-3, gamma,
+            bool(k % 3), rng.standard_normal(7),
+        ))  # fmt: skip
+    return out
+
+
+def _torque_rows_samples(rng):
+    robot, _ = _robot()
+    return [
+        (dyn.M, dyn.h, rng.standard_normal(7) * 5, np.asarray(robot.tau_max, dtype=float), np.zeros((7, 7)),
+         np.zeros(7), np.zeros(7), on, 1e30)
+        for dyn, on in zip(states(rng, 2), (True, False), strict=True)
+    ]  # fmt: skip
+
+
+def _inverse_dynamics_samples(rng):
+    robot, _ = _robot()
+    tau_max = np.asarray(robot.tau_max, dtype=float)
+    return [
+        (dyn.M, rng.standard_normal(7) * 50, dyn.h, rng.standard_normal(7) * 5, tau_max, clip)
+        for dyn, clip in zip(states(rng, 2), (True, False), strict=True)
+    ]
+
+
+def _acceleration_bounds_samples(rng):
+    robot, _ = _robot()
+    span = robot.q_upper - robot.q_lower
+    out = []
+    for k in range(40):
+        edge = np.where(rng.random(7) < 0.5, robot.q_lower, robot.q_upper)
+        q = edge + rng.uniform(-0.3, 0.3, 7)
+        dq = rng.uniform(-3, 3, 7) * robot.dq_max
+        out.append((
+            q, dq, robot.q_lower, robot.q_upper, 0.01 * span, 0.1 * span, np.full(7, 0.5), 200.0, 30.0, 20.0,
+            np.asarray(robot.dq_max, dtype=float), np.asarray(robot.endless, dtype=bool), bool(k % 2), 1e-3, 1e30,
+        ))  # fmt: skip
+    return out
+
+
+def _observer_samples(rng):
+    out = []
+    for dyn in states(rng, 3):
+        out.append(
+            (
+                dyn.M,
+                dyn.dq,
+                rng.uniform(-1, 1, 7),
+                rng.standard_normal(7) * 10,
+                dyn.h,
+                1e-3,
+                0.95,
+                rng.standard_normal(7),
+            )
+        )
+    return out
+
+
+def _high_pass_samples(rng):
+    return [(dyn.J, rng.standard_normal(6) * 10, rng.standard_normal(7), 0.95) for dyn in states(rng, 3)]
+
+
+def qp_problem(rng: np.random.Generator, n: int, m: int, active: bool) -> tuple:
+    """(P, q, A, l, u, lb, ub): a strictly convex problem whose unconstrained optimum meets every bound
+    and row (active False) or violates some (active True)."""
+    P = _spd(rng, n) * 0.1 + 0.1 * np.eye(n)
+    x_unc = rng.normal(size=n)
+    q = -P @ x_unc
+    A = rng.normal(size=(m, n))
+    lb, ub = x_unc - rng.uniform(0.1, 1.0, n), x_unc + rng.uniform(0.1, 1.0, n)
+    l, u = A @ x_unc - rng.uniform(0.1, 1.0, m), A @ x_unc + rng.uniform(0.1, 1.0, m)
+    if active:
+        k = rng.integers(n + m)
+        if k < n:
+            ub[k] = x_unc[k] - 0.05
+            lb[k] = min(lb[k], ub[k] - 1.0)
+        else:
+            l[k - n] = (A @ x_unc)[k - n] + 0.05
+            u[k - n] = max(u[k - n], l[k - n] + 1.0)
+    return P, q, A, l, u, lb, ub
+
+
+def _dense_load_samples(rng):
+    out = []
+    for k in range(12):
+        n, m = (7, 7) if k % 3 else (5, 9)
+        P, q, A, l, u, lb, ub = qp_problem(rng, n, m, active=k % 4 == 0)
+        if k == 5:
+            q[0] = np.nan
+        if k == 7:
+            lb[2] = 1e200  # its square overflows: the bounds are clipped to ±1e30, then cross
+        if k == 9:
+            lb[3], ub[3] = 1.0, -1.0
+        n_eq = 2 if k == 10 else 0
+        out.append((dense_qp.dense_qp_buffer(n, m), n, m, n_eq, P, q, A, l, u, lb, ub, 1e30, 1e-6, np.zeros(n)))
+    return out
+
+
+def _unconstrained_samples(rng):
+    out = []
+    for k in range(10):
+        P, q, A, l, u, lb, ub = qp_problem(rng, 7, 7, active=k % 3 == 0)
+        if k == 4:
+            q[3] = np.nan
+        out.append((P, q, A, lb, l, ub, u, 1e-6, np.zeros(7)))
+    return out
+
+
+def _cqp_samples(rng):
+    from control.compliance_qp import PoseTask, PostureTask
+    from control.dampers import JointLimitDamper
+    from control.estimation import ExternalTorqueEstimator
+    from control.gains import DamperGains, EstimatorGains, PostureTaskGains
+
+    robot, model = _robot()
+    out = []
+    tau_max = np.asarray(robot.tau_max, dtype=float)
+    for k, dyn in enumerate(states(rng, 4)):
+        pose = PoseTask()
+        posture = PostureTask(
+            7, PostureTaskGains(integral=2.0 if k % 2 else 0.0, metric="inertia" if k % 3 else "identity")
+        )
+        damper = JointLimitDamper(robot.q_lower, robot.q_upper, robot.dq_max, robot.endless, DamperGains(), dt=1e-3)
+        est = ExternalTorqueEstimator(7, EstimatorGains(), dt=1e-3)
+        prev = model.compute(dyn.q - 1e-3 * dyn.dq, dyn.dq + 0.01 * rng.standard_normal(7))
+        n, m = 7, 7
+        out.append((
+            dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world,
+            k % 2 == 0, rng.standard_normal(7), prev.M, prev.dq, prev.h, rng.standard_normal(7) * 5,
+            rng.standard_normal(7), rng.standard_normal(6) * 5, rng.standard_normal(7), est.kernel_constants,
+            bool(k % 3 != 1), tau_max, True, k != 3, dyn.tcp_position_world + 0.02 * rng.standard_normal(3),
+            _rotation(rng, 0.2) @ dyn.tcp_rotation_world, rng.standard_normal(6), rng.standard_normal(6),
+            pose.kernel_gains, dyn.q + 0.1 * rng.standard_normal(7), np.zeros(7), posture.kernel_gains,
+            rng.standard_normal(7) * 0.01, posture.kernel_constants, damper.kernel_rows, damper.endless,
+            damper.kernel_constants, np.zeros((n + 1, n)), np.zeros((m, n)), np.zeros(m), np.zeros(m), np.zeros(n),
+            np.zeros(n), 1e30, k != 2, 1e-6,
+        ))  # fmt: skip
+    return out
+
+
+KERNELS: dict[str, KernelPair] = {
+    **_linalg_entries(),
+    "snapshot_fused": KernelPair(
+        snapshot.snapshot_fused, snapshot.snapshot_reference, _snapshot_samples, _snapshot_tolerance
+    ),
+    "snapshot_into": KernelPair(
+        snapshot.snapshot_into, snapshot.snapshot_into_reference, _snapshot_into_samples, _snapshot_tolerance, (10,)
+    ),
+    "tcp_bias_acceleration_into": KernelPair(
+        chain.tcp_bias_acceleration_into,
+        chain.tcp_bias_acceleration_into_reference,
+        lambda r: [(d.J, d.dq, np.zeros(6)) for d in states(r, 3)],
+    ),
+    "inertia_contraction_fused": KernelPair(
+        chain.inertia_contraction_fused, chain.inertia_contraction_reference, _chain_samples
+    ),
+    "_unpack_chain": KernelPair(chain._unpack_chain, chain.unpack_chain_reference, _pack_samples),
+    "coupling_fused": KernelPair(
+        coupling.coupling_fused, coupling.coupling_reference, _coupling_samples, lambda a: lambda_tolerance(a[1])
+    ),
+    "gradient_contraction_fused": KernelPair(
+        gradients.gradient_contraction_fused, _gradient_reference, _gradient_samples, lambda a: lambda_tolerance(a[4])
+    ),
+    "log3_fused": KernelPair(geometry.log3_fused, geometry.log3_reference, _log3_samples),
+    "move_wrench_fused": KernelPair(geometry.move_wrench_fused, geometry.move_wrench_reference, _wrench_samples),
+    "swivel_of_anchors_fused": KernelPair(
+        geometry.swivel_of_anchors_fused, geometry.swivel_of_anchors_reference, _swivel_samples
+    ),
+    "nullspace_line_qp_fused": KernelPair(
+        line_qp.nullspace_line_qp_fused,
+        line_qp.nullspace_line_qp_into_reference,
+        _line_qp_samples,
+        _line_qp_tolerance,
+    ),
+    "task_wrench_fused": KernelPair(
+        law.task_wrench_fused,
+        law.task_wrench_reference,
+        _task_wrench_samples,
+        lambda a: lambda_tolerance(np.linalg.inv(a[8])),
+    ),
+    "joint_torque_fused": KernelPair(law.joint_torque_fused, law.joint_torque_reference, _joint_torque_samples),
+    "damper_bounds_fused": KernelPair(law.damper_bounds_fused, law.damper_bounds_reference, _damper_bounds_samples),
+    "projection_law_fused": KernelPair(
+        law.projection_law_fused, law.projection_law_reference, _law_samples, _law_tolerance
+    ),
+    "projection_step_fused": KernelPair(
+        law.projection_step_fused, law.projection_step_reference, _step_samples, _law_tolerance
+    ),
+    "pose_task_target_fused": KernelPair(
+        compliance.pose_task_target_fused, compliance.pose_task_target_reference, _pose_target_samples
+    ),
+    "add_task_rows_fused": KernelPair(
+        compliance.add_task_rows_fused, compliance.add_task_rows_reference, _add_rows_samples
+    ),
+    "posture_target_fused": KernelPair(
+        compliance.posture_target_fused, compliance.posture_target_reference, _posture_samples
+    ),
+    "torque_rows_fused": KernelPair(
+        compliance.torque_rows_fused, compliance.torque_rows_reference, _torque_rows_samples
+    ),
+    "inverse_dynamics_fused": KernelPair(
+        compliance.inverse_dynamics_fused, compliance.inverse_dynamics_reference, _inverse_dynamics_samples
+    ),
+    "acceleration_bounds_fused": KernelPair(
+        compliance.acceleration_bounds_fused, compliance.acceleration_bounds_reference, _acceleration_bounds_samples
+    ),
+    "momentum_observer_fused": KernelPair(
+        estimation.momentum_observer_fused, estimation.momentum_observer_reference, _observer_samples
+    ),
+    "sensor_high_pass_fused": KernelPair(
+        estimation.sensor_high_pass_fused, estimation.sensor_high_pass_reference, _high_pass_samples
+    ),
+    "dense_qp_load_fused": KernelPair(
+        dense_qp.dense_qp_load_fused, dense_qp.dense_qp_load_reference, _dense_load_samples
+    ),
+    "unconstrained_optimum_fused": KernelPair(
+        dense_qp.unconstrained_optimum_fused, dense_qp.unconstrained_optimum_reference, _unconstrained_samples
+    ),
+    "cqp_problem_fused": KernelPair(cqp.cqp_problem_fused, cqp.cqp_problem_reference, _cqp_samples),
+}

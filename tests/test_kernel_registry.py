@@ -1,0 +1,84 @@
+"""Every compiled kernel has a plain-numpy reference, and the two agree (`control.kernels.registry`).
+
+The registry test enumerates every numba dispatcher defined in a `control.kernels` module: one that
+is not in `KERNELS` fails. Each pair runs on the same copies of its sample inputs; every output and
+every argument array the kernel writes (scratch excepted) is held to the entry's relative tolerance
+(1e-10, or max(1e-10, 100·eps·κ) for outputs derived from an ill-conditioned inverse: see
+`tests/test_kernels.py`); booleans, integers and NaN positions exactly.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import pkgutil
+import zlib
+
+import numpy as np
+import pytest
+from numba.core.registry import CPUDispatcher
+
+import control.kernels
+from control.kernels.registry import KERNELS
+
+
+def _dispatchers() -> dict[str, CPUDispatcher]:
+    found = {}
+    for info in pkgutil.iter_modules(control.kernels.__path__):
+        module = importlib.import_module(f"control.kernels.{info.name}")
+        for name, value in vars(module).items():
+            if isinstance(value, CPUDispatcher) and value.py_func.__module__ == module.__name__:
+                found[name] = value
+    return found
+
+
+def test_every_compiled_kernel_has_a_reference_in_the_registry():
+    dispatchers = _dispatchers()
+    assert len(dispatchers) >= 40
+    missing = sorted(set(dispatchers) - set(KERNELS))
+    assert not missing, f"compiled kernels without a reference in control.kernels.registry: {missing}"
+    for name, pair in KERNELS.items():
+        assert pair.compiled is dispatchers[name], name
+        assert not isinstance(pair.reference, CPUDispatcher), name
+
+
+def _leaves(value) -> list:
+    if isinstance(value, (tuple, list)):
+        return [leaf for item in value for leaf in _leaves(item)]
+    return [value]
+
+
+def _assert_close(a, b, tol: float, what: str) -> None:
+    if b is None or isinstance(b, (bool, np.bool_, int, np.integer)):
+        assert a == b, (what, a, b)
+        return
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    assert a.shape == b.shape, (what, a.shape, b.shape)
+    nan = np.isnan(b)
+    assert np.array_equal(np.isnan(a), nan), (what, "NaN positions differ")
+    a, b = a[~nan], b[~nan]
+    if b.size == 0:
+        return
+    inf = np.isinf(b)
+    assert np.array_equal(a[inf], b[inf]), what
+    err = float(np.max(np.abs(a[~inf] - b[~inf]), initial=0.0))
+    scale = max(float(np.max(np.abs(b[~inf]), initial=0.0)), 1e-300)
+    assert err <= tol * scale, (what, err / scale, tol)
+
+
+@pytest.mark.parametrize("name", sorted(KERNELS))
+def test_compiled_kernel_equals_its_reference(name):
+    pair = KERNELS[name]
+    samples = pair.samples(np.random.default_rng(zlib.crc32(name.encode())))
+    assert samples, name
+    for k, args in enumerate(samples):
+        compiled_args, reference_args = copy.deepcopy(args), copy.deepcopy(args)
+        out, ref = pair.compiled(*compiled_args), pair.reference(*reference_args)
+        tol = pair.tolerance(args)
+        out_leaves, ref_leaves = _leaves(out), _leaves(ref)
+        assert len(out_leaves) == len(ref_leaves), (name, k)
+        for i, (a, b) in enumerate(zip(out_leaves, ref_leaves, strict=True)):
+            _assert_close(a, b, tol, f"{name} sample {k} output {i}")
+        for i, (a, b) in enumerate(zip(compiled_args, reference_args, strict=True)):
+            if i not in pair.scratch and isinstance(b, np.ndarray):
+                _assert_close(a, b, tol, f"{name} sample {k} argument {i}")
