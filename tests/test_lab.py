@@ -12,7 +12,6 @@ from app.core.commands import DragCommand, Pause, Play, Reset, SetParam, SettleN
 from app.live.lab import OVERPOWERED_CHECK_STEPS, RECOVERY_STEPS, Lab
 from app.scenarios import Environment, Scenario
 from app.scenarios.free import FreeScenario
-from app.scenarios.polish import settle_pending
 from control.params import ParamGroup, expect, param
 
 
@@ -89,7 +88,7 @@ def test_settle_now_runs_the_settle_phase_in_chunks_then_goes_on_paced_and_pause
     while lab.settling and chunks < 200:  # 20 s simulated at most
         lab.settle_chunk(chunk)
         chunks += 1
-    assert not lab.settling and lab.running and not settle_pending(lab.session)
+    assert not lab.settling and lab.running and not lab.session.settle_pending()
     assert lab.pacing_epoch == epoch + 1
     start = lab.session.environment.clock.trajectory_start
     assert start is not None and 1.0 < start and 0.0 <= lab.session.world.time - start < chunk * lab.dt + 1e-9
@@ -100,7 +99,7 @@ def test_settle_now_runs_the_settle_phase_in_chunks_then_goes_on_paced_and_pause
     assert not lab.settling and len(lab.notice_log) == n + 1 and lab.notice_log[-1].title == "Refused"
 
     lab.apply(Reset())
-    assert settle_pending(lab.session)
+    assert lab.session.settle_pending()
     lab.apply(SettleNow())
     lab.settle_chunk(chunk)
     lab.apply(Pause())
@@ -298,3 +297,34 @@ def test_advance_looks_for_an_overpowered_joint_every_ten_steps_and_at_once_afte
     lab.apply(Reset())
     lab.advance(2)
     assert looks[-1] == 102 and len(looks) == 11
+
+
+def test_every_command_type_has_a_handler_and_an_unknown_one_is_refused_with_a_notice():
+    import typing
+
+    from app.core.commands import Command
+    from app.live.lab import HANDLERS
+
+    assert set(typing.get_args(Command)) == set(HANDLERS)
+    lab = _lab()
+    lab.apply(object())  # type: ignore[arg-type]
+    assert lab.notice_log[-1].title == "Refused" and "unknown command" in lab.notice_log[-1].body
+
+
+def test_the_session_is_the_one_store_of_overrides_and_a_rebuild_replays_it_in_order():
+    """The lab's overrides are the session's changes; a robot switch (a new session) gets them in
+    order, and `Session.overrides()` keeps each field's last value."""
+    lab = _lab()
+    lab.apply(SetParam("drag", "max_force_n", 40.0))
+    lab.apply(SetParam("joint_hold", "stiffness", 500.0))
+    lab.apply(SetParam("drag", "max_force_n", 42.0))
+    assert lab.overrides == lab.session.changes and len(lab.overrides) == 3
+    lab.apply(SwitchSession(robot="gen3"))
+    assert lab.session.robot.name == "gen3"
+    assert [(o.group, o.field, o.value) for o in lab.overrides] == [
+        ("drag", "max_force_n", 40.0),
+        ("joint_hold", "stiffness", 500.0),
+        ("drag", "max_force_n", 42.0),
+    ]
+    assert lab.session.drag.max_force_n == 42.0 and lab.session.params()["joint_hold"].stiffness == 500.0
+    assert lab.session.overrides() == {"drag": {"max_force_n": 42.0}, "joint_hold": {"stiffness": 500.0}}

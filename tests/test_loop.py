@@ -711,7 +711,7 @@ def test_a_switch_to_a_planned_case_plans_in_another_process_while_the_loop_runs
         assert f is not None and not f.status.running and lp.planner.busy
         status = lp.sync(timeout=180.0)  # queued behind the switch: answered once it applied
         assert status.variant == "planned W_a" and status.t == 0.0
-        assert any(n.title == "Planning the swivel path" for n in lp.notice_log)
+        assert any(n.title == "Preparing the preset" for n in lp.notice_log)
         ((key, plan),) = polish._PLAN_CACHE.items()
         robot = lp.call(lambda s: s.robot)
         here = polish.compute_plan(robot, key[1], key[2])
@@ -758,7 +758,7 @@ def test_a_calls_timeout_does_not_count_the_time_a_plan_is_computed(loop):
     waited = time.monotonic() - t0
     assert 0.9 <= waited < 10.0 and not loop.planner.busy
     assert status.variant != "planned W_a"  # (the stand-in plan failed: nothing switched)
-    assert any(n.title == "Planning failed" for n in loop.notice_log)
+    assert any(n.title == "Preparing the preset failed" for n in loop.notice_log)
     import threading
 
     busy = threading.Thread(target=lambda: loop.call(lambda s: time.sleep(1.0)))

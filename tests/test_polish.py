@@ -273,3 +273,22 @@ def test_armature_table_flags_runs_that_did_not_converge_or_lost_contact():
     assert _arm_ptp(doc, 0.0, "f") == "10.6 (-86°, contact lost)"
     assert _arm_ptp(doc, 0.0, "a") == "10.6 (-86°)"
     assert _arm_ptp(doc, 1.0, "a") == "-"
+
+
+def test_a_planned_case_names_its_work_and_a_deferred_session_raises_before_it_is_built(monkeypatch):
+    """`pending_work` names the plan while it is not cached; `Session(defer_work=True)` raises
+    WorkPending with it; once its result is stored the same session builds with that plan."""
+    from app.core.session import Session, WorkPending
+    from app.core.variants import make_variant
+
+    monkeypatch.setattr(P, "_PLAN_CACHE", {})
+    spec = make_variant("polish", "planned W_a")
+    with pytest.raises(WorkPending) as pending:
+        Session(spec, defer_work=True)
+    work = pending.value.work
+    assert work.compute is P.compute_plan and "swivel path" in work.what
+    plan = type("Plan", (), {"transfer_s": 0.5, "t": np.array([0.0, 1.0]), "q": np.zeros((2, 7))})()
+    work.store(plan)  # (a stand-in: the plan itself is tested in test_planner.py)
+    monkeypatch.setattr(P, "compute_plan", lambda *a, **k: pytest.fail("computed again"))
+    session = Session(spec, defer_work=True)
+    assert session.scenario.plan is plan and spec.pending_work(session.robot) is None

@@ -10,6 +10,10 @@
 `Session.run(seconds, until=…, record=…)` is the one run loop around it, with the one divergence
 check: the web app's loop and the headless experiments both run through it, so they agree step
 for step.
+
+The session is the one store of parameter changes: `set_param` keeps every accepted change in
+order (`changes`), re-applies them after a reset or an executor switch, and `replay` hands them to
+a new session (a rebuild, the twin arm).
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -25,8 +29,9 @@ import numpy as np
 import pinocchio as pin
 
 import robots
+from app.core.commands import SetParam
 from app.core.executors import make_executor
-from app.scenarios import Environment, Scenario, Sensor, get_scenario
+from app.scenarios import Environment, Scenario, Sensor, Work, get_scenario
 from app.sim.drag import DragSpring
 from app.sim.world import World, WorldParams
 from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
@@ -68,6 +73,16 @@ class _TargetOwner:
         p = expect(name, group, TargetParams if name == "target" and isinstance(self.wrench, np.ndarray) else None)
         assert isinstance(self.wrench, np.ndarray)
         self.wrench[2] = p.force_setpoint_n
+
+
+class WorkPending(Exception):
+    """Raised by `Session(..., defer_work=True)` before anything is built when the preset needs a
+    costly computation first (`work`, see `Scenario.pending_work`): do it (elsewhere), store it, and
+    build the session again."""
+
+    def __init__(self, work: Work):
+        super().__init__(f"{work.what} is not computed yet")
+        self.work = work
 
 
 @dataclass(frozen=True)
@@ -115,8 +130,10 @@ class Session:
         executor: str | None = None,
         seed: int = 0,
         q0: np.ndarray | None = None,
+        defer_work: bool = False,
     ):
-        self._overrides: dict[str, dict[str, Any]] = {}  # group -> field -> value set by set_param
+        # accepted set_param changes, oldest first, each with its field's whole value after it
+        self._changes: list[tuple[SetParam, Any]] = []
         # a copy: scenario parameters set on this session must not leak into the shared preset
         self._scenario_origin = get_scenario(scenario) if isinstance(scenario, str) else scenario
         self.scenario = copy.copy(self._scenario_origin)
@@ -124,6 +141,9 @@ class Session:
         prepare = getattr(self.scenario, "prepare_robot", None)
         if callable(prepare):  # e.g. a scaled armature, before the controller model and the world exist
             prepare(self.robot)
+        work = self.scenario.pending_work(self.robot)
+        if work is not None and defer_work:
+            raise WorkPending(work)
         self.model = RobotModel(self.robot.model)
         self.executor_name = executor or self.scenario.default_executor
         self.seed = seed
@@ -146,6 +166,7 @@ class Session:
         self.drag.release()
         rng = np.random.default_rng(self.seed)
         self.environment: Environment = self.scenario.make_environment(self.world, rng)
+        self.environment.connect(self.params)
         self.sensor: Sensor = self.scenario.make_sensor(rng)
         self.dyn: Dynamics = self.model.compute(self.world.q, self.world.dq)
         self.target_fn: Callable[[float], TaskTarget] = self.scenario.make_target(self.robot, self.model, self.dyn)
@@ -196,17 +217,41 @@ class Session:
         except ParamError as exc:
             raise ParamError(f"{group}.{exc}") from None
         owner.set_params(group, new)
-        self._overrides.setdefault(group, {})[field] = getattr(new, field)
+        self._changes.append((SetParam(group, field, value, index), getattr(new, field)))
         return new
 
+    @property
+    def changes(self) -> list[SetParam]:
+        """The changes `set_param` accepted since construction (or `restore_defaults`), oldest first."""
+        return [change for change, _ in self._changes]
+
+    def replay(self, changes: Iterable[SetParam]) -> list[int]:
+        """`set_param` each change in order (e.g. another session's `changes`); returns the positions
+        of those this session refuses (they are left out)."""
+        refused = []
+        for i, c in enumerate(changes):
+            try:
+                self.set_param(c.group, c.field, c.value, c.index)
+            except ParamError:
+                refused.append(i)
+        return refused
+
     def overrides(self) -> dict[str, dict[str, Any]]:
-        """The values set through `set_param` since construction (or `restore_defaults`), by group."""
-        return {g: dict(f) for g, f in self._overrides.items()}
+        """The values set through `set_param` since construction (or `restore_defaults`), by group:
+        each changed field's value after its last change."""
+        out: dict[str, dict[str, Any]] = {}
+        for change, value in self._changes:
+            out.setdefault(change.group, {})[change.field] = value
+        return out
+
+    def settle_pending(self) -> bool:
+        """True while the preset's settle phase has not ended (`Environment.settle_pending`)."""
+        return bool(self.environment.settle_pending())
 
     def restore_defaults(self) -> None:
         """Every parameter back to the preset's defaults (a fresh executor, world, drag and scenario
         copy), then `reset()`."""
-        self._overrides = {}
+        self._changes = []
         self.scenario = copy.copy(self._scenario_origin)
         self.world.set_params("world", WorldParams())
         self.drag = DragSpring()
@@ -235,7 +280,7 @@ class Session:
 
     def _reinstall(self, parts: tuple[str, ...]) -> None:
         """Re-apply remembered values to the groups of rebuilt parts (those they still have)."""
-        if not self._overrides:
+        if not self._changes:
             return
         owners = self._owners()
         objects = {
@@ -243,7 +288,7 @@ class Session:
             "sensor": self.sensor,
             "executor": self.executor,
         }
-        for group, fields in self._overrides.items():
+        for group, fields in self.overrides().items():
             owner = owners.get(group)
             if owner is None:
                 continue

@@ -23,7 +23,6 @@ from app.core.session import Session
 from app.core.variants import variant_of
 from app.live.lab import Lab, Settings
 from app.live.supervise import Stages
-from app.scenarios.polish import settle_pending
 from control.executor import StepView
 
 PLOT_WINDOW_S = 10.0
@@ -104,7 +103,7 @@ def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | 
     return LoopStatus(
         running=lab.running,
         settling=lab.settling,
-        can_settle=settle_pending(s),
+        can_settle=s.settle_pending(),
         t=s.world.time,
         steps=s.steps,
         speed=lab.speed,

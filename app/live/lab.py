@@ -1,11 +1,13 @@
 """The lab: one Session (and its twin arm) with everything a person changes about it — no threads.
 
 `Lab.apply(command)` applies one command of `app.core.commands` (a refused one becomes a `Notice`,
-nothing raises); `Lab.advance(n)` runs n steps through `Session.run`, logging each, and halts on
-divergence or a step error. The person's accepted changes are kept as `overrides`, replayed in
-order after a reset or a rebuild. After a halt, Reset recovers: if the preset with the current
+nothing raises); each command type has its handler in `HANDLERS`. `Lab.advance(n)` runs n steps
+through `Session.run`, logging each, and halts on divergence or a step error. The person's accepted
+changes are the session's (`Session.changes`, the one store, `overrides` here), replayed in order
+on a rebuilt session and on the twin. After a halt, Reset recovers: if the preset with the current
 overrides halts again within `RECOVERY_STEPS` steps, the overrides applied since the simulation
 last ran healthy are dropped, newest first, until it runs (each dropped one is named in a notice).
+The Lab names no preset: what it needs from one comes through the scenario hooks (`app.scenarios`).
 
 `app.live.loop.SimLoop` runs a Lab on its own thread (pacing, the command queue, publishing); tests
 drive a Lab directly.
@@ -38,13 +40,12 @@ from app.core.commands import (
     SwitchSession,
 )
 from app.core.executors import EXECUTORS
-from app.core.session import RunResult, Session, StepRecord
+from app.core.session import RunResult, Session, StepRecord, WorkPending
 from app.core.settings import finite_number, plain
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.core.variants import make_variant
 from app.scenarios import Scenario
-from app.scenarios.polish import PlanPending, plans_deferred, settle_pending
 from control.params import ParamError, ParamGroup
 
 UNPACED_SPEED = 1000.0  # a requested speed this high means "as fast as possible": every wake-up runs a full burst
@@ -103,7 +104,6 @@ class Lab:
         self._log_seconds = log_seconds
         self.log = StepLog(self.session.robot.nq, capacity=round(log_seconds / self.dt))
         self.twin: Twin | None = None  # a second session in lockstep with another objective (app.core.twin)
-        self.overrides: list[SetParam] = []  # accepted parameter changes, oldest first
         self._healthy = 0  # overrides[:_healthy] were all in force while the simulation ran healthy
         self._steps_since_change = 0  # steps run without a halt since the last override
         self.running = False
@@ -126,18 +126,27 @@ class Lab:
         self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice (for tests and logs)
         self.dirty = True  # something changed since the last frame
         self.settings = Settings(0, self._read_settings())
-        # a preset switch that needs a swivel plan not computed yet raises PlanPending from `apply`
-        # (nothing changed) instead of planning here; the app's loop plans elsewhere and applies it again
-        self.defer_plans = False
+        # a preset switch whose preset needs a costly computation first (a swivel plan) raises
+        # WorkPending from `apply` (nothing changed) instead of computing it here; the app's loop
+        # computes it elsewhere and applies the switch again
+        self.defer_work = False
+
+    @property
+    def overrides(self) -> list[SetParam]:
+        """The person's accepted parameter changes in force, oldest first (`Session.changes`)."""
+        return self.session.changes
 
     # ---- commands -------------------------------------------------------------------------------
     def apply(self, cmd: Command) -> None:
-        """Apply one command; a refused or failing one becomes a notice (never raises, but for
-        PlanPending with `defer_plans`)."""
+        """Apply one command through its handler (`HANDLERS`); a refused or failing one becomes a
+        notice (never raises, but for WorkPending with `defer_work`)."""
         try:
-            self._apply(cmd)
-        except PlanPending:
-            raise  # (only with defer_plans, before anything changed)
+            handler = HANDLERS.get(type(cmd))
+            if handler is None:
+                raise ValueError(f"unknown command {cmd!r}")
+            handler(self, cmd)
+        except WorkPending:
+            raise  # (only with defer_work, before anything changed)
         except (ValueError, KeyError) as exc:
             self.notify("error", "Refused", _reason(exc), getattr(cmd, "client_id", None))
         except Exception as exc:  # never let a command take the loop down
@@ -145,45 +154,28 @@ class Lab:
             self.notify("error", "Command failed", f"{type(exc).__name__}: {exc}")
         self.dirty = True
 
-    def _apply(self, cmd: Command) -> None:
-        if isinstance(cmd, DragCommand):
-            self._apply_drag(cmd)
-        elif isinstance(cmd, Play):
-            if self.halted:
-                self.notify("warning", "Cannot play", "The simulation diverged: press Reset first.")
-            elif not self.running:
-                self.running = True
-                self.pacing_epoch += 1
-        elif isinstance(cmd, Pause):
-            self.running = False
-            self.settling = False
-            self.pending_steps = 0
-        elif isinstance(cmd, StepOnce):
-            self.running = False
-            self.settling = False
-            if self.halted:
-                self.notify("warning", "Cannot step", "The simulation diverged: press Reset first.")
-                return
-            steps = None if isinstance(cmd.steps, str) else finite_number(cmd.steps)
-            if steps is None or steps != int(steps) or not 1 <= steps <= MAX_SINGLE_STEP:
-                raise ValueError(f"step count must be a whole number 1…{MAX_SINGLE_STEP}, got {cmd.steps!r}")
-            self.pending_steps += int(steps)
-        elif isinstance(cmd, SettleNow):
-            self._settle_now()
-        elif isinstance(cmd, Reset):
-            self.reset()
-        elif isinstance(cmd, SetSpeed):
-            self._set_speed(cmd.factor)
-        elif isinstance(cmd, SwitchSession):
-            self._switch(cmd)
-        elif isinstance(cmd, SetParam):
-            self._set_param(cmd)
-        elif isinstance(cmd, RestoreDefaults):
-            self._restore_defaults()
-        elif isinstance(cmd, SetTwin):
-            self._set_twin(cmd.objective)
-        else:
-            raise ValueError(f"unknown command {cmd!r}")
+    def _play(self, cmd: Play) -> None:
+        if self.halted:
+            self.notify("warning", "Cannot play", "The simulation diverged: press Reset first.")
+        elif not self.running:
+            self.running = True
+            self.pacing_epoch += 1
+
+    def _pause(self, cmd: Pause) -> None:
+        self.running = False
+        self.settling = False
+        self.pending_steps = 0
+
+    def _step_once(self, cmd: StepOnce) -> None:
+        self.running = False
+        self.settling = False
+        if self.halted:
+            self.notify("warning", "Cannot step", "The simulation diverged: press Reset first.")
+            return
+        steps = None if isinstance(cmd.steps, str) else finite_number(cmd.steps)
+        if steps is None or steps != int(steps) or not 1 <= steps <= MAX_SINGLE_STEP:
+            raise ValueError(f"step count must be a whole number 1…{MAX_SINGLE_STEP}, got {cmd.steps!r}")
+        self.pending_steps += int(steps)
 
     # ---- stepping -------------------------------------------------------------------------------
     def advance(self, n: int, until: Callable[[StepRecord], bool] | None = None) -> RunResult:
@@ -243,12 +235,12 @@ class Lab:
             self.pending_steps = 0
         return result
 
-    def _settle_now(self) -> None:
+    def _settle_now(self, cmd: SettleNow | None = None) -> None:
         """Start "Settle now" (see `SettleNow`); ValueError (a notice) when there is nothing to settle."""
         if self.halted:
             self.notify("warning", "Cannot settle", "The simulation diverged: press Reset first.")
             return
-        if not settle_pending(self.session):
+        if not self.session.settle_pending():
             raise ValueError("nothing to settle: the preset has no settle phase, or it has ended (Reset starts again)")
         self.settling = True
         self.running = True
@@ -262,7 +254,7 @@ class Lab:
         result = self.advance(int(chunk))
         if result.halted:
             self.settling = False
-        elif not settle_pending(self.session):
+        elif not self.session.settle_pending():
             self.settling = False
             self.pacing_epoch += 1
             self.notify("info", "Settled", f"the trajectory starts at t = {self.session.world.time:.3f} s; paced again")
@@ -277,7 +269,7 @@ class Lab:
         self.notify("error", "Simulation paused", f"{reason}. Press Reset to start again.")
 
     # ---- reset and recovery ---------------------------------------------------------------------
-    def reset(self) -> None:
+    def reset(self, cmd: Reset | None = None) -> None:
         """Back to t = 0 with the accepted settings; after a halt, recover (see the module docstring)."""
         if self.halted:
             self._recover()
@@ -285,7 +277,7 @@ class Lab:
             self.running = self._resume_after_reset
             self._resume_after_reset = False
         self.session.reset()  # the session re-applies its parameter overrides itself
-        self._after_rebuild(replay=False)
+        self._after_rebuild()
         if self.twin is not None:
             self.twin.reset()
 
@@ -293,18 +285,20 @@ class Lab:
         """Rebuild the session from scratch until the preset with the overrides runs RECOVERY_STEPS
         steps without a halt, dropping overrides (newest first, those since the last healthy run
         first) until it does."""
+        changes = self.overrides
         while True:
-            self._rebuild()
+            self._rebuild(changes)
             probe = self.session.run(steps=RECOVERY_STEPS)
             if not probe.halted:
                 return
-            if not self.overrides:
+            changes = self.overrides  # those the rebuilt session accepted
+            if not changes:
                 self.notify("error", "Preset halts", f"the preset itself halts within {RECOVERY_STEPS} steps")
                 return
-            newest = len(self.overrides) - 1
+            newest = len(changes) - 1
             recent = newest >= self._healthy
-            dropped = self.overrides.pop(newest)
-            self._healthy = min(self._healthy, len(self.overrides))
+            dropped = changes.pop(newest)
+            self._healthy = min(self._healthy, len(changes))
             since = "since the simulation last ran healthy" if recent else "earlier"
             self.notify(
                 "warning",
@@ -312,25 +306,26 @@ class Lab:
                 f"{label(dropped)} (applied {since}) is undone: with it the preset halts again ({probe.reason})",
             )
 
-    def _rebuild(self) -> None:
-        """A fresh session of the same preset, robot and executor (after a halt)."""
+    def _rebuild(self, changes: list[SetParam]) -> None:
+        """A fresh session of the same preset, robot and executor (after a halt), with `changes`."""
         s = self.session
-        self._install(Session(s.preset, robot=self.robot_choice or None, executor=s.executor_name, seed=self.seed))
+        new = Session(s.preset, robot=self.robot_choice or None, executor=s.executor_name, seed=self.seed)
+        self._install(new, changes)
 
-    def _install(self, session: Session) -> None:
-        """Make `session` the lab's, with every override it accepts; the twin follows."""
+    def _install(self, session: Session, changes: list[SetParam]) -> None:
+        """Make `session` the lab's, with every one of `changes` it accepts; the twin follows."""
         self.session = session
         self.session_id += 1
         self.log = StepLog(session.robot.nq, capacity=round(self._log_seconds / self.dt))
         twin, self.twin = self.twin, None  # the old twin belongs to the old session
-        self._after_rebuild(replay=True)
+        refused = session.replay(changes)
+        self._healthy -= sum(1 for i in refused if i < self._healthy)
+        self._after_rebuild()
         self.twin = twin
         self._rebuild_twin()
 
-    def _after_rebuild(self, replay: bool) -> None:
-        """After a reset or a new session: replay the overrides on a new session, clear logs and drag."""
-        if replay:
-            self._replay()
+    def _after_rebuild(self) -> None:
+        """After a reset or a new session: clear logs and drag."""
         self.drag_client = None
         self.settling = False
         self.overpowered = ""
@@ -344,19 +339,6 @@ class Lab:
         self.pacing_epoch += 1
         self._settings_changed()
 
-    def _replay(self) -> None:
-        """Apply the overrides in order; forget those the session no longer accepts."""
-        kept = []
-        for i, o in enumerate(self.overrides):
-            try:
-                self.session.set_param(o.group, o.field, o.value, o.index)
-            except ParamError:
-                if i < self._healthy:
-                    self._healthy -= 1
-                continue
-            kept.append(o)
-        self.overrides = kept
-
     # ---- parameters -----------------------------------------------------------------------------
     def _set_param(self, cmd: SetParam) -> None:
         """One parameter change, validated by its group's dataclass; refused: a notice, nothing changes."""
@@ -366,28 +348,26 @@ class Lab:
             self.notify("error", "Value refused", str(exc), cmd.client_id)
             self._settings_changed()  # the panels show the value that is still in force
             return
-        self.overrides.append(cmd)
         if self.twin is not None:
             self.twin.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
         self._steps_since_change = 0
         self._settings_changed()
 
-    def _restore_defaults(self) -> None:
+    def _restore_defaults(self, cmd: RestoreDefaults | None = None) -> None:
         """Every parameter of the preset back to its defaults; the run restarts (twin too)."""
-        self.overrides = []
         self._healthy = 0
         self.session.restore_defaults()
-        self._after_rebuild(replay=False)
+        self._after_rebuild()
         self._rebuild_twin()
         if self.halted:
             self.halted = ""
             self.running = self._resume_after_reset
             self._resume_after_reset = False
 
-    def _set_speed(self, factor: object) -> None:
-        value = finite_number(factor)
+    def _set_speed(self, cmd: SetSpeed) -> None:
+        value = finite_number(cmd.factor)
         if value is None or not SPEED_RANGE[0] <= value <= SPEED_RANGE[1]:
-            raise ValueError(f"speed must be between {SPEED_RANGE[0]} and {SPEED_RANGE[1]}, got {factor!r}")
+            raise ValueError(f"speed must be between {SPEED_RANGE[0]} and {SPEED_RANGE[1]}, got {cmd.factor!r}")
         self.speed = value
         self.pacing_epoch += 1
 
@@ -415,9 +395,10 @@ class Lab:
             spec = s.preset  # same scenario object, same case (robot switch; its parameters are replayed)
         else:
             spec = scenario
-        try:
-            with plans_deferred(self.defer_plans):  # raises PlanPending before anything changed
-                new = Session(spec, robot=robot_choice or None, executor=executor, seed=self.seed)
+        try:  # with defer_work, raises WorkPending before anything changed
+            new = Session(
+                spec, robot=robot_choice or None, executor=executor, seed=self.seed, defer_work=self.defer_work
+            )
         except ValueError as exc:
             if cmd.scenario is None or not robot_choice:
                 raise
@@ -425,11 +406,12 @@ class Lab:
             new = Session(spec, robot=None, executor=executor, seed=self.seed)
             self.notify("info", "Robot changed", f"{exc}. Using {new.robot.name}.")
             robot_choice = ""
+        changes = self.overrides
         if cmd.scenario is not None or cmd.variant is not None:  # a new preset starts from its defaults
-            self.overrides = [o for o in self.overrides if o.group in KEPT_ON_PRESET_SWITCH]
-            self._healthy = len(self.overrides)
+            changes = [o for o in changes if o.group in KEPT_ON_PRESET_SWITCH]
+            self._healthy = len(changes)
         self.robot_choice = robot_choice
-        self._install(new)
+        self._install(new, changes)
         self.halted = ""
 
     def _switch_executor(self, name: str) -> None:
@@ -446,8 +428,9 @@ class Lab:
         self._settings_changed()
 
     # ---- the twin arm ---------------------------------------------------------------------------
-    def _set_twin(self, objective: str | None) -> None:
+    def _set_twin(self, cmd: SetTwin) -> None:
         """Switch the twin off (None) or on with an objective; on restarts the scenario."""
+        objective = cmd.objective
         if objective is None or objective == "":
             self.twin = None
             return
@@ -537,6 +520,22 @@ class Lab:
             "seed": self.seed,
             "settings": plain(self.settings.values),
         }
+
+
+# the handler of each command type (a command the table lacks is refused with a notice)
+HANDLERS: dict[type, Callable[[Lab, Any], None]] = {
+    DragCommand: Lab._apply_drag,
+    Play: Lab._play,
+    Pause: Lab._pause,
+    StepOnce: Lab._step_once,
+    SettleNow: Lab._settle_now,
+    Reset: Lab.reset,
+    SetSpeed: Lab._set_speed,
+    SwitchSession: Lab._switch,
+    SetParam: Lab._set_param,
+    RestoreDefaults: Lab._restore_defaults,
+    SetTwin: Lab._set_twin,
+}
 
 
 def _vec3(value: object) -> np.ndarray | None:

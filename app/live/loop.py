@@ -32,14 +32,13 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from app.core.commands import Command, DragCommand, Pause, Play, StepOnce
-from app.core.session import Session
+from app.core.session import Session, WorkPending
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.live.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
 from app.live.lab import SPEED_RANGE, UNPACED_SPEED, Lab, Notice, Settings
 from app.live.pacing import Pacer, RateMeter, next_frame_due
 from app.live.plan_worker import BackgroundPlanner
-from app.scenarios.polish import PlanPending
 
 __all__ = ["SPEED_RANGE", "Frame", "LoopStatus", "Notice", "PlotData", "Settings", "SimLoop"]
 
@@ -131,7 +130,7 @@ class SimLoop:
         capture: Callable[[Session], Any] | None = None,
     ):
         self.lab = Lab(scenario, robot=robot, executor=executor, seed=seed, log_seconds=log_seconds)
-        self.lab.defer_plans = True  # a swivel plan is computed by `planner` while the loop runs on
+        self.lab.defer_work = True  # a preset's costly preparation (a swivel plan) runs in `planner` meanwhile
         self.planner = BackgroundPlanner()
         self._clock = clock
         self.publish_period = 1.0 / publish_hz
@@ -342,13 +341,13 @@ class SimLoop:
         their order behind it)."""
         lab = self.lab
         done = self.planner.take_done()
-        if done is not None:  # the plan a switch waited for: apply it first (its place in the order)
+        if done is not None:  # the work a switch waited for: apply it first (its place in the order)
             command, error = done
             if error is None:
                 self._apply(command)
             else:
-                lab.notify("error", "Planning failed", f"{type(error).__name__}: {error}")
-        # while a plan is computed only urgent commands apply (the rest keep their order behind the switch)
+                lab.notify("error", "Preparing the preset failed", f"{type(error).__name__}: {error}")
+        # while the work is computed only urgent commands apply (the rest keep their order behind the switch)
         while (item := self._queue.get(urgent_only=lab.pending_steps > 0 or self.planner.busy)) is not None:
             if isinstance(item, _Call):
                 try:
@@ -359,16 +358,16 @@ class SimLoop:
                 self._apply(item)
 
     def _apply(self, command: Command) -> None:
-        """`lab.apply`; a switch that needs a swivel plan not computed yet waits for `planner`."""
+        """`lab.apply`; a switch whose preset needs work not done yet (a swivel plan) waits for `planner`."""
         try:
             self.lab.apply(command)
-        except PlanPending as pending:
+        except WorkPending as pending:
             self.lab.notify(
                 "info",
-                "Planning the swivel path",
-                "The planned case starts once its path is planned (a few seconds); the current preset runs on.",
+                "Preparing the preset",
+                f"It starts once {pending.work.what} is computed (a few seconds); the current preset runs on.",
             )
-            self.planner.start(command, pending)
+            self.planner.start(command, pending.work)
 
     def _fail_queued_calls(self) -> None:
         while (item := self._queue.get()) is not None:

@@ -6,13 +6,17 @@ act (contact, sander, payload release) and which sensor model reads them. The `S
 the web app and the headless experiments both use the same Session, so they agree step for step.
 
 Each scenario module adds itself to `SCENARIOS` (name -> module under app.scenarios that defines
-`SCENARIO`, an instance of a `Scenario` subclass).
+`SCENARIO`, an instance of a `Scenario` subclass). What a runner needs from a preset comes through
+hooks every scenario may implement, so the runner names no preset: `Scenario.pending_work` (a
+computation to do, perhaps elsewhere, before the session is built), `Environment.settle_pending`
+(a settle phase is under way) and `Environment.connect` (the session's parameter groups, to read).
 """
 
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import mujoco
@@ -35,12 +39,34 @@ SCENARIOS: dict[str, str] = {
 }
 
 
+@dataclass(frozen=True)
+class Work:
+    """A computation a preset needs before its session is built (e.g. a planned swivel path):
+    `compute(*args)` may run in another process (a module-level function, picklable arguments);
+    `store(result)` then caches the result here, and building the session again finds it."""
+
+    what: str  # in words, for a notice
+    compute: Callable[..., Any]
+    args: tuple
+    store: Callable[[Any], None]
+
+
 class Environment:
     """Forces the surroundings apply each step (contact, sander, released masses...).
 
     `apply` is called once per step before the controller runs, with the world at the current
     state; it applies forces via `world.apply_force` and returns scalar signals for the logs.
     """
+
+    def connect(self, params: Callable[[], Mapping[str, ParamGroup]]) -> None:
+        """Called by the session once it has built the environment: `params()` gives the session's
+        parameter groups in force (read only), for an environment whose signals depend on the
+        controller's gains. Ignored by default."""
+
+    def settle_pending(self) -> bool:
+        """True while the preset's settle phase (before the task starts) has not ended; a preset
+        without one: False. "Settle now" runs while this holds."""
+        return False
 
     def apply(self, world: World, t: float) -> dict[str, float]:
         return {}
@@ -82,6 +108,11 @@ class Scenario:
     def set_params(self, name: str, group: Any) -> None:
         """Take a new validated "scenario" group; ParamError for a group it lacks."""
         expect(name, group, None)
+
+    def pending_work(self, robot: RobotDescription) -> Work | None:
+        """A costly computation this preset needs on `robot` (the session's, prepared) that is not
+        done yet, or None (the default). A session built without it computes it in place."""
+        return None
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         """Joint positions at t = 0."""

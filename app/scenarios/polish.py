@@ -13,18 +13,17 @@ the same line) and is not re-tuned to match the paper's tables.
 
 from __future__ import annotations
 
+import functools
 import math
-import threading
 from collections import deque
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import mujoco
 import numpy as np
 
-from app.scenarios import Environment, Scenario, Sensor
+from app.scenarios import Environment, Scenario, Sensor, Work
 from app.sim.contact import TableContact
 from app.sim.disturbances import Sander
 from app.sim.sensor import FTSensor
@@ -221,12 +220,20 @@ class PolishEnvironment(Environment):
         self._world: World | None = None
         self._joints: list[int] = []
         self.target: PolishTarget | None = None  # set by the scenario once the target exists
-        self.executor: object | None = None  # the executor whose gains the live margin uses
+        self._params: Callable[[], Mapping[str, Any]] | None = None  # the session's groups (the margin's gains)
         self._margin = float("nan")
         self._margin_at = -np.inf
         # seconds between live margin signals (the page's Nullspace panel reads them); inf: none, for
         # headless runs that do not read them (each costs about as much as a thousand steps)
         self.live_margin_every_s = LIVE_MARGIN_EVERY_S
+
+    def connect(self, params: Callable[[], Mapping[str, Any]]) -> None:
+        """Read the controller's gains for the live margin from the session's groups."""
+        self._params = params
+
+    def settle_pending(self) -> bool:
+        """True until the posture has converged (or the cap) and the zig-zag starts."""
+        return self.clock.trajectory_start is None
 
     def apply(self, world: World, t: float) -> dict[str, float]:
         """Contact and sander forces for this step, and the settle progress."""
@@ -277,7 +284,7 @@ class PolishEnvironment(Environment):
         """Force-loop margin (N s/m, `control.margin`) of the current posture: K_f^d minus the critical
         K_f^d over the stretching and retracting friction directions, at rest and at the segments'
         peak speed (a coarse version of the report's, cheap enough for once a second)."""
-        gains = getattr(self.executor, "gains", None)
+        gains = self._params().get("motion_force") if self._params is not None else None
         if self._world is None or not isinstance(gains, MotionForceGains):
             return float("nan")
         world = self._world
@@ -439,8 +446,6 @@ class PolishScenario(Scenario):
         if (self.hold_swivel_deg is not None or self.plan_cost is not None) and "nullspace" in groups:
             executor.set_params("nullspace", replaced(groups["nullspace"], "objective", "j"))  # type: ignore[attr-defined]
         self._executor = executor
-        if self._environment is not None:
-            self._environment.executor = executor
         k0_j = getattr(getattr(executor, "nullspace", None), "k0_j", 0.0)
         # W_j [T18] follows a moving q_d with the lag 1/k0_j: the target leads the plan by that much
         self._plan_lead_s = 1.0 / k0_j if k0_j > 0 else 0.0
@@ -465,6 +470,20 @@ class PolishScenario(Scenario):
         self.armature_scale = p.armature_scale
         if self.hold_swivel_deg is not None and self._executor is not None:
             self.configure_executor(self._executor, None)  # type: ignore[arg-type]  # holding runs W_j
+
+    def pending_work(self, robot: RobotDescription) -> Work | None:
+        """The planned swivel path of a planned case, while it is not cached."""
+        if self.plan_cost is None:
+            return None
+        key = _plan_key(robot, self.start_swivel_used_deg, self.plan_cost, self.armature_scale)
+        if key in _PLAN_CACHE:
+            return None
+        return Work(
+            f"the swivel path {self.plan_cost!r} for {robot.name}",
+            compute_plan,
+            (robot, self.start_swivel_used_deg, self.plan_cost),
+            functools.partial(store_plan, key),
+        )
 
     def start_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """TCP position and rotation at the start (2 mm above the table, tool down)."""
@@ -493,7 +512,6 @@ class PolishScenario(Scenario):
         # reset() builds the environment and then the target: the target reads this clock.
         self._clock = PhaseClock(timeout_s=self.converge_timeout_s)
         self._environment = PolishEnvironment(contact, sander, self._clock)
-        self._environment.executor = self._executor
         return self._environment
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
@@ -552,32 +570,6 @@ def friction_direction(tau: float) -> np.ndarray:
     return -d / np.linalg.norm(d)
 
 
-class PlanPending(Exception):
-    """Raised by `planned_path` inside `plans_deferred()` when the plan is not cached yet: the caller
-    computes it elsewhere (`compute_plan(*args)`, picklable arguments), stores it with
-    `store_plan(key, plan)`, and builds again."""
-
-    def __init__(self, key: tuple, args: tuple):
-        super().__init__(f"the swivel path {key[2]!r} for {key[0]} is not planned yet")
-        self.key = key
-        self.args = args
-
-
-_DEFER = threading.local()
-
-
-@contextmanager
-def plans_deferred(on: bool = True) -> Iterator[None]:
-    """Inside the block (this thread only), a plan that is not cached raises `PlanPending` instead of
-    being computed here: the app's loop thread plans in another process and keeps running meanwhile."""
-    before = getattr(_DEFER, "on", False)
-    _DEFER.on = on
-    try:
-        yield
-    finally:
-        _DEFER.on = before
-
-
 def _plan_key(robot: RobotDescription, start_swivel_deg: float, cost: str, armature_scale: float) -> tuple:
     return (robot.name, round(start_swivel_deg, 6), cost, armature_scale, PLAN_SAMPLE_S, PLAN_GRID_DEG)
 
@@ -600,7 +592,7 @@ def compute_plan(robot: RobotDescription, start_swivel_deg: float, cost: str, mo
 
 
 def store_plan(key: tuple, plan: Plan) -> None:
-    """Cache a plan computed elsewhere under the key its `PlanPending` named."""
+    """Cache a plan computed elsewhere under its key (`PolishScenario.pending_work`)."""
     _PLAN_CACHE[key] = plan
 
 
@@ -608,12 +600,9 @@ def planned_path(
     robot: RobotDescription, model: RobotModel, start_swivel_deg: float, cost: str, armature_scale: float = 1.0
 ) -> Plan:
     """The swivel path planned over the zig-zag (cached per robot, start, cost and armature); `model`
-    is `RobotModel(robot.model)`. Inside `plans_deferred()` a plan not cached yet raises
-    `PlanPending`."""
+    is `RobotModel(robot.model)`."""
     key = _plan_key(robot, start_swivel_deg, cost, armature_scale)
     if key not in _PLAN_CACHE:
-        if getattr(_DEFER, "on", False):
-            raise PlanPending(key, (robot, start_swivel_deg, cost))
         _PLAN_CACHE[key] = compute_plan(robot, start_swivel_deg, cost, model)
     return _PLAN_CACHE[key]
 
@@ -693,13 +682,6 @@ class PolishTarget:
         return float(np.rad2deg(np.interp(self.plan_time(t), self.plan.t, psi)))
 
 
-def settle_pending(session) -> bool:
-    """True while a polish session's settle phase (contact, then the posture converging) has not
-    ended; False for any other scenario. The app's "Settle now" runs while this holds."""
-    clock = getattr(session.environment, "clock", None)
-    return isinstance(clock, PhaseClock) and clock.trajectory_start is None
-
-
 def settle_now(session) -> object:
     """Run the settle phase of a polish session unpaced (as fast as the machine allows) until the
     posture has converged or the cap is reached: `Session.run` with the settle criterion as its
@@ -707,7 +689,7 @@ def settle_now(session) -> object:
     had already ended or there is nothing to settle). The app runs the same phase in chunks on its
     loop (`Lab.settle_chunk`) so Pause and Reset act during it."""
     clock = getattr(session.environment, "clock", None)
-    if not settle_pending(session):
+    if not session.settle_pending():
         return session.run(steps=0)
     assert isinstance(clock, PhaseClock)
     remaining = CONTACT_TIME_S + clock.timeout_s - session.world.time + 2 * session.world.model.opt.timestep
