@@ -11,19 +11,38 @@ import robots
 
 
 def _robot_arg(parser: argparse.ArgumentParser) -> None:
+    add_robot_args(parser)
+
+
+def add_robot_args(parser: argparse.ArgumentParser) -> None:
+    """--robot NAME | --urdf PATH, and the chain and package options of a URDF."""
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--robot", default=None, help=f"shipped robot: {', '.join(robots.available())}")
-    group.add_argument("--urdf", default=None, help="path to any 7-DOF serial URDF (sidecar .toml optional)")
+    names = ", ".join((*robots.BUILTIN, *robots.EXTERNAL))
+    group.add_argument("--robot", default=None, help=f"robot by name: {names} (panda needs the robots extra)")
+    group.add_argument("--urdf", default=None, help="path to a URDF holding a 7-DOF arm (sidecar .toml optional)")
+    parser.add_argument("--base", default=None, metavar="LINK", help="with --urdf: the arm's base link (default: root)")
+    parser.add_argument(
+        "--tip", default=None, metavar="LINK", help="with --urdf: the arm's tip link (default: the only 7-joint chain)"
+    )
+    parser.add_argument(
+        "--package-path",
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="with --urdf: a folder holding package NAME of package://NAME/... meshes (repeatable)",
+    )
 
 
 def _robot_name(args: argparse.Namespace, default: str = robots.DEFAULT_ROBOT) -> str:
-    return args.urdf or args.robot or default
+    return robots.spec_from_args(args) or default
 
 
 def cmd_check(args: argparse.Namespace) -> int:
     from app.tools.check import cross_check
 
     names = [_robot_name(args)] if (args.robot or args.urdf) else list(robots.available())
+    if not (args.robot or args.urdf):
+        _robot_name(args)  # --base/--tip without --urdf is refused
     reports = [cross_check(robots.load(n), samples=args.samples) for n in names]
     if args.json:
         print(json.dumps(reports, indent=2))

@@ -1,9 +1,17 @@
 """Robot descriptions shipped with torquelab and the loader that reads them.
 
-`load(name_or_path)` returns a `RobotDescription`: the URDF path, a Pinocchio model with the TCP
-and sensor frames added and the rotor armature set, joint limits and named postures. A sidecar
-TOML next to the URDF (same stem) adds what URDF cannot hold; for a foreign URDF without one,
-sensible defaults are used (flange = last link, TCP = flange, no armature).
+`load(name_or_path)` returns a `RobotDescription`: the URDF path, a Pinocchio model of the arm
+with the TCP and sensor frames added and the rotor armature set, joint limits and named postures.
+A sidecar TOML next to the URDF (same stem) adds what URDF cannot hold; for a foreign URDF without
+one, defaults are used and listed in `guessed` (flange = the chain's tip, TCP = flange, no armature).
+
+The arm is the 7-joint chain between a base and a tip link (`robots.chain`): every other joint of
+the URDF (fingers, a second arm) is locked, in Pinocchio with `buildReducedModel` and in MuJoCo by
+`app.sim.world`. Mesh names (`package://`...) resolve with `robots.packages`. The Franka Panda
+loads by name from the optional `example-robot-data` package (`robots.external`).
+
+A robot is named by one string everywhere (sessions, worker processes): a shipped name, a URDF
+path, or a URDF path with options `PATH#base=LINK&tip=LINK&package_path=DIR` (`robot_spec`).
 """
 
 from __future__ import annotations
@@ -15,9 +23,14 @@ import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from urllib.parse import parse_qs, urlencode
 
 import numpy as np
 import pinocchio as pin
+
+from robots import external
+from robots.chain import Chain, ChainError, read_chain
+from robots.packages import MeshNotFound, PackageResolver
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -26,6 +39,7 @@ else:  # pragma: no cover
 
 ROBOTS_DIR = Path(__file__).resolve().parent
 BUILTIN = ("rizon4s", "gen3")
+EXTERNAL = ("panda",)  # loaded from an optional package (robots.external)
 DEFAULT_ROBOT = "rizon4s"
 N_JOINTS = 7
 TCP_FRAME = "tcp"
@@ -55,6 +69,12 @@ class RobotDescription:
     sensor_frame: str  # the link frame the sensor is attached to (its pose = the `ft_sensor` frame)
     postures: dict[str, np.ndarray] = field(default_factory=dict)
     link_names: tuple[str, ...] = ()
+    base_link: str = ""
+    tip_link: str = ""
+    locked: dict[str, float] = field(default_factory=dict)  # joint -> position it is locked at (rad or m)
+    package_paths: tuple[Path, ...] = ()
+    guessed: dict[str, str] = field(default_factory=dict)  # value -> why it is a guess (no sidecar entry)
+    spec: str = ""  # the string `load` takes to build this description again (robot_spec)
 
     @property
     def nq(self) -> int:
@@ -70,32 +90,77 @@ class RobotDescription:
 
 
 def available() -> tuple[str, ...]:
-    """Names of the robots shipped in this package."""
-    return BUILTIN
+    """Names of the robots that load by name here: the shipped ones, and the Panda when its optional
+    package is installed."""
+    return BUILTIN + tuple(n for n in EXTERNAL if external.installed(n))
 
 
-def load(name_or_path: str | Path = DEFAULT_ROBOT) -> RobotDescription:
-    """Load a shipped robot by name (`rizon4s`, `gen3`) or any 7-DOF serial URDF by path."""
+def robot_spec(
+    urdf: str | Path, base: str | None = None, tip: str | None = None, package_paths: tuple[str, ...] | list[str] = ()
+) -> str:
+    """The one string that names a URDF with its chain and package options (what `load` takes)."""
+    query = [(k, v) for k, v in (("base", base), ("tip", tip)) if v]
+    query += [("package_path", str(Path(p).expanduser().resolve())) for p in package_paths]
+    path = str(Path(urdf).expanduser())
+    return f"{path}#{urlencode(query)}" if query else path
+
+
+def spec_from_args(args: object) -> str | None:
+    """The robot string of parsed --robot / --urdf [--base --tip --package-path] options (None when
+    neither is given); ValueError for chain options without --urdf."""
+    urdf = getattr(args, "urdf", None)
+    base, tip = getattr(args, "base", None), getattr(args, "tip", None)
+    packages = list(getattr(args, "package_path", None) or [])
+    if urdf:
+        return robot_spec(urdf, base, tip, packages)
+    if base or tip or packages:
+        raise ValueError("--base, --tip and --package-path go with --urdf PATH")
+    return getattr(args, "robot", None)
+
+
+def load(
+    name_or_path: str | Path = DEFAULT_ROBOT,
+    base: str | None = None,
+    tip: str | None = None,
+    package_paths: tuple[str | Path, ...] | list[str | Path] = (),
+) -> RobotDescription:
+    """Load a robot by name (`rizon4s`, `gen3`, `panda`), or any 7-DOF arm inside a URDF by path
+    (optionally `PATH#base=..&tip=..&package_path=..`, see `robot_spec`; the keyword arguments
+    override those)."""
     text = str(name_or_path)
+    path_text, _, query = text.partition("#")
+    options = parse_qs(query)
+    base = base or next(iter(options.get("base", [])), None)
+    tip = tip or next(iter(options.get("tip", [])), None)
+    packages = tuple(Path(p) for p in (*package_paths, *options.get("package_path", [])))
     if text in BUILTIN:
-        urdf = ROBOTS_DIR / f"{text}.urdf"
-    elif text.endswith(".urdf") or "/" in text or Path(text).suffix:
-        urdf = Path(text).expanduser()
+        urdf, sidecar_path, name = ROBOTS_DIR / f"{text}.urdf", ROBOTS_DIR / f"{text}.toml", text
+    elif text in EXTERNAL:
+        try:
+            urdf = external.urdf_path(text)
+        except external.NotInstalled as exc:
+            raise RobotLoadError(str(exc)) from None
+        sidecar_path, name = ROBOTS_DIR / f"{text}.toml", text
+    elif path_text.endswith(".urdf") or "/" in path_text or Path(path_text).suffix:
+        urdf = Path(path_text).expanduser()
         if not urdf.is_file():
             raise RobotLoadError(f"URDF file not found: {urdf}")
+        sidecar_path, name = urdf.with_suffix(".toml"), urdf.stem
     else:
-        raise RobotLoadError(f"unknown robot {text!r}; choose one of {', '.join(BUILTIN)} or give a URDF path")
-    sidecar_path = urdf.with_suffix(".toml")
+        names = ", ".join((*BUILTIN, *EXTERNAL))
+        raise RobotLoadError(f"unknown robot {text!r}; choose one of {names} or give a URDF path")
     sidecar: dict = {}
     if sidecar_path.is_file():
         try:
             sidecar = tomllib.loads(sidecar_path.read_text())
         except tomllib.TOMLDecodeError as exc:
             raise RobotLoadError(f"cannot read sidecar {sidecar_path}: {exc}") from None
-    return _build(urdf.stem if text not in BUILTIN else text, urdf.resolve(), sidecar)
+    spec = text if text in BUILTIN + EXTERNAL else robot_spec(urdf, base, tip, [str(p) for p in packages])
+    return _build(name, urdf.resolve(), sidecar, base, tip, packages, spec, has_sidecar=bool(sidecar))
 
 
-def _build(name: str, urdf: Path, sidecar: dict) -> RobotDescription:
+def _parse_full_model(urdf: Path) -> pin.Model:
+    """Pinocchio's model of the whole URDF (every joint); RobotLoadError with the parser's own words."""
     error = ""
     with _captured_stderr() as parser_says:
         try:
@@ -107,7 +172,65 @@ def _build(name: str, urdf: Path, sidecar: dict) -> RobotDescription:
         raise RobotLoadError(f"cannot parse URDF {urdf}: {detail}")
     if parser_says:  # warnings of a model that loaded: pass them on
         print("\n".join(parser_says), file=sys.stderr)
+    return model
+
+
+def _reduced(model: pin.Model, chain: Chain, urdf: Path) -> pin.Model:
+    """The arm alone: every joint not in the chain locked at its stated position [buildReducedModel]."""
+    if not chain.locked:
+        return model
+    q_ref = pin.neutral(model)
+    lock_ids = []
+    for name, value in chain.locked.items():
+        if not model.existJointName(name):
+            raise RobotLoadError(f"{urdf.name}: Pinocchio did not build joint {name!r}")
+        jid = model.getJointId(name)
+        joint = model.joints[jid]
+        if joint.nq == 1:
+            q_ref[joint.idx_q] = value
+        lock_ids.append(jid)
+    return pin.buildReducedModel(model, sorted(lock_ids), q_ref)
+
+
+def _check_meshes(urdf: Path, resolver: PackageResolver) -> None:
+    """Every visual mesh of the URDF resolves to a file (one line naming the first that does not)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.parse(urdf).getroot()
+    except ET.ParseError:
+        return  # the URDF parser has said so already
+    for mesh in root.iterfind("./link/visual/geometry/mesh"):
+        filename = mesh.get("filename", "")
+        try:
+            resolver.resolve(filename)
+        except MeshNotFound as exc:
+            raise RobotLoadError(f"{urdf.name}: {exc}") from None
+
+
+def _build(
+    name: str,
+    urdf: Path,
+    sidecar: dict,
+    base: str | None = None,
+    tip: str | None = None,
+    package_paths: tuple[Path, ...] = (),
+    spec: str = "",
+    has_sidecar: bool = True,
+) -> RobotDescription:
+    locked_given = sidecar.get("locked", {})
+    if not isinstance(locked_given, dict) or not all(isinstance(v, (int, float)) for v in locked_given.values()):
+        raise RobotLoadError(f"{name}: sidecar `locked` must be a table of joint = position")
+    full = _parse_full_model(urdf)  # first: urdfdom's own words on a URDF that does not parse
+    try:
+        _, chain = read_chain(urdf, base or sidecar.get("base_link"), tip or sidecar.get("tip_link"), locked_given)
+    except ChainError as exc:
+        raise RobotLoadError(f"{urdf.name}: {exc}") from None
+    _check_meshes(urdf, PackageResolver(urdf, package_paths))
+    model = _reduced(full, chain, urdf)
     joint_names = tuple(model.names[1:])
+    if model.nv == N_JOINTS and joint_names != chain.arm_joints:
+        raise RobotLoadError(f"{urdf.name}: Pinocchio ordered the arm's joints as {', '.join(joint_names)}")
     if model.nv != N_JOINTS:
         raise RobotLoadError(f"{urdf.name} has {model.nv} degrees of freedom; torquelab needs a 7-DOF serial arm")
     if model.nq != model.nv:
@@ -123,7 +246,7 @@ def _build(name: str, urdf: Path, sidecar: dict) -> RobotDescription:
             raise RobotLoadError(f"{urdf.name}: joint {model.names[j]!r} is not revolute or prismatic")
 
     frames = [f.name for f in model.frames]
-    flange = sidecar.get("flange_frame") or _last_body_frame(model)
+    flange = sidecar.get("flange_frame") or chain.tip
     sensor = sidecar.get("sensor_frame", flange)
     for key, frame in (("flange_frame", flange), ("sensor_frame", sensor)):
         if frame not in frames:
@@ -163,6 +286,19 @@ def _build(name: str, urdf: Path, sidecar: dict) -> RobotDescription:
         postures["home"] = np.clip(np.zeros(N_JOINTS), lower, upper)
 
     link_names = tuple(f.name for f in model.frames if f.type == pin.FrameType.BODY)
+    guessed = {}
+    if "armature" not in sidecar:
+        guessed["armature"] = (
+            "zero (no sidecar value): the rotor inertia adds to M's diagonal, so Λx, the nullspace inertia"
+            " and every coupling metric (W_a, W_f, P_d·f̂) differ from the real arm's"
+        )
+    if "tcp_offset_xyz" not in sidecar and "flange_frame" not in sidecar:
+        guessed["tcp"] = (
+            f"at the chain's tip {chain.tip!r} (no sidecar TCP): the contact point, the task inertia Λx"
+            " and the coupling seen there move with the tool"
+        )
+    if not has_sidecar:
+        guessed["postures"] = "from the arm's reach (no sidecar postures): the polish start is searched, not chosen"
     return RobotDescription(
         name=name,
         urdf_path=urdf,
@@ -179,6 +315,12 @@ def _build(name: str, urdf: Path, sidecar: dict) -> RobotDescription:
         sensor_frame=sensor,
         postures=postures,
         link_names=link_names,
+        base_link=chain.base,
+        tip_link=chain.tip,
+        locked=dict(chain.locked),
+        package_paths=package_paths,
+        guessed=guessed,
+        spec=spec or str(urdf),
     )
 
 
@@ -198,11 +340,6 @@ def _captured_stderr() -> Iterator[list[str]]:
             os.close(saved)
             tmp.seek(0)
             lines.extend(ln for ln in tmp.read().decode(errors="replace").splitlines() if ln.strip())
-
-
-def _last_body_frame(model: pin.Model) -> str:
-    bodies = [f for f in model.frames if f.type == pin.FrameType.BODY]
-    return bodies[-1].name
 
 
 def _se3(xyz, rpy) -> pin.SE3:

@@ -12,8 +12,8 @@ if [ ! -x .venv/bin/python ]; then
     echo "== creating .venv"
     "$PYTHON" -m venv .venv
 fi
-echo "== installing torquelab[test] into .venv"
-.venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test]'
+echo "== installing torquelab[test,robots] into .venv"
+.venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test,robots]'
 
 find_chromium() {
     for c in "${TORQUELAB_CHROMIUM:-}" /usr/bin/chromium /usr/bin/chromium-browser /usr/bin/google-chrome; do

@@ -12,7 +12,7 @@ import robots
 from control.model import RobotModel
 
 
-@pytest.fixture(scope="session", params=list(robots.available()))
+@pytest.fixture(scope="session", params=list(robots.BUILTIN))
 def robot(request):
     return robots.load(request.param)
 

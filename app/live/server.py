@@ -207,7 +207,7 @@ def serve(args: argparse.Namespace) -> int:
     scenario = args.scenario
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
-    robot = getattr(args, "urdf", None) or getattr(args, "robot", None)
+    robot = robots.spec_from_args(args)
     if not 0 <= args.port <= 65535:
         raise ValueError(f"port must be 0…65535, got {args.port}")
     if not port_is_free(args.host, 0):

@@ -367,6 +367,12 @@ class PolishParams(ParamGroup):
     )
 
 
+def ik_seed(robot: RobotDescription) -> np.ndarray:
+    """Where the start pose's IK begins: the robot's `polish_start` posture if its sidecar names one,
+    else its home posture."""
+    return np.array(robot.postures.get("polish_start", robot.home), dtype=float)
+
+
 class PolishScenario(Scenario):
     """Scenario 1 of DESIGN §5 with its settings: friction μ, sander, start swivel."""
 
@@ -495,7 +501,7 @@ class PolishScenario(Scenario):
         if key not in self._q0_cache:
             model = RobotModel(robot.model)
             p, R = self.start_pose()
-            q = project_to_pose(model, robot.home, p, R, iters=200)
+            q = project_to_pose(model, ik_seed(robot), p, R, iters=200)
             q = move_to_swivel(model, q, np.deg2rad(self.start_swivel_used_deg))
             self._q0_cache[key] = q
         return self._q0_cache[key].copy()
@@ -580,7 +586,7 @@ def compute_plan(robot: RobotDescription, start_swivel_deg: float, cost: str, mo
     `RobotModel(robot.model)`, built here when not given."""
     model = RobotModel(robot.model) if model is None else model
     p0, R0 = np.array([*START_XY_M, TABLE_HEIGHT_M]), TOOL_DOWN.copy()
-    q0 = move_to_swivel(model, project_to_pose(model, robot.home, p0, R0, iters=200), np.deg2rad(start_swivel_deg))
+    q0 = move_to_swivel(model, project_to_pose(model, ik_seed(robot), p0, R0, iters=200), np.deg2rad(start_swivel_deg))
     times = np.arange(0.0, trajectory_duration() + 1e-9, PLAN_SAMPLE_S)
     positions = np.array([[*trajectory_state(t)[0], TABLE_HEIGHT_M] for t in times])
     loops = loops_along(model, q0, positions, R0, robot.q_lower, robot.q_upper, np.deg2rad(PLAN_GRID_DEG))

@@ -5,11 +5,20 @@ MuJoCo's own contacts are disabled: the table contact of [T] Fig. 4 is a point s
 by `app.sim.contact` with `mj_applyFT`, and drag forces, sanders and payload forces are applied
 the same way. Every external force applied during a step is recorded so the F/T sensor model can
 compute the true wrench at the flange.
+
+So MuJoCo gets no link geometry at all: the URDF's visual and collision elements are dropped
+before import (`simulation_urdf`), which spares it the meshes' cost (a real arm's visual meshes
+are megabytes, in formats MuJoCo does not read) and their `package://` names; masses come from
+the URDF's inertials only, as in Pinocchio. The page draws the visual meshes itself
+(app.live.ui.scene). Joints outside the arm's chain (fingers, a second arm) are removed from the
+spec with their bodies welded at the locked position (`lock_joint`), as Pinocchio's reduced model
+has them.
 """
 
 from __future__ import annotations
 
 import math
+import xml.etree.ElementTree as ET
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -86,11 +95,60 @@ class AppliedForce:
     torque_world: np.ndarray
 
 
+def simulation_urdf(urdf_text: str) -> str:
+    """The URDF without its links' visual and collision elements (what MuJoCo imports)."""
+    root = ET.fromstring(urdf_text)
+    for link in root.iter("link"):
+        for tag in ("visual", "collision"):
+            for element in link.findall(tag):
+                link.remove(element)
+    return ET.tostring(root, encoding="unicode")
+
+
+def lock_joint(spec: mujoco.MjSpec, name: str, value: float) -> None:
+    """Weld a joint's body to its parent at joint position `value` (rad or m) and remove the joint:
+    the body's pose becomes its pose with the joint at `value` (a rotation about, or a slide along,
+    the joint axis through the joint's anchor)."""
+    joint = spec.joint(name)
+    if joint is None:
+        raise ValueError(f"MuJoCo import lost joint {name!r}")
+    body = joint.parent
+    if value != 0.0:
+        axis = np.asarray(joint.axis, dtype=float)
+        axis = axis / np.linalg.norm(axis)
+        anchor = np.asarray(joint.pos, dtype=float)
+        rot_flat = np.empty(9)
+        mujoco.mju_quat2Mat(rot_flat, np.asarray(body.quat, dtype=float))
+        rot_body = rot_flat.reshape(3, 3)
+        if joint.type == mujoco.mjtJoint.mjJNT_SLIDE:
+            body.pos = np.asarray(body.pos, dtype=float) + rot_body @ (axis * value)
+        elif joint.type == mujoco.mjtJoint.mjJNT_HINGE:
+            turn = np.empty(4)
+            mujoco.mju_axisAngle2Quat(turn, axis, value)
+            rot_turn = np.empty(9)
+            mujoco.mju_quat2Mat(rot_turn, turn)
+            # parent ← body: T_b · (anchor) · R(axis, value) · (−anchor)
+            body.pos = np.asarray(body.pos, dtype=float) + rot_body @ (anchor - rot_turn.reshape(3, 3) @ anchor)
+            quat = np.empty(4)
+            mujoco.mju_mulQuat(quat, np.asarray(body.quat, dtype=float), turn)
+            body.quat = quat
+        else:
+            raise ValueError(f"joint {name!r} can only be locked at its zero")
+    spec.delete(joint)
+
+
 def build_spec(robot: RobotDescription, table_height: float | None = None) -> mujoco.MjSpec:
-    """MjSpec of the arm: torque motors at the URDF limits, armature, floor, table, TCP/sensor sites."""
-    spec = mujoco.MjSpec.from_file(str(robot.urdf_path))
+    """MjSpec of the arm: torque motors at the URDF limits, armature, floor, table, TCP/sensor sites;
+    the URDF's other joints locked (`lock_joint`), no link geometry (`simulation_urdf`)."""
+    spec = mujoco.MjSpec.from_string(simulation_urdf(robot.urdf_path.read_text()))
     spec.compiler.fusestatic = False
     spec.compiler.discardvisual = False
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+    for eq in list(spec.equalities):  # a URDF <mimic> between locked joints: they are fixed now
+        if eq.type == mujoco.mjtEq.mjEQ_JOINT and (eq.name1 in robot.locked or eq.name2 in robot.locked):
+            spec.delete(eq)
+    for name, value in robot.locked.items():
+        lock_joint(spec, name, float(value))
     spec.option.timestep = TIMESTEP_S
     spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     spec.option.gravity = [0.0, 0.0, -9.81]

@@ -23,6 +23,7 @@ from contextlib import contextmanager
 from dataclasses import fields
 from typing import Any
 
+import robots
 from app.core.commands import Play, Reset, SetParam, SetTwin
 from app.live.loop import LOOP_NICENESS
 from app.live.server import start_app
@@ -210,7 +211,7 @@ def cmd_bench_serve(args: argparse.Namespace) -> int:
     report = run_serve_bench(
         scenario=args.scenario,
         seconds=args.seconds,
-        robot=getattr(args, "urdf", None) or getattr(args, "robot", None),
+        robot=robots.spec_from_args(args),
         twin=getattr(args, "twin", None),
     )
     if args.json:

@@ -1,0 +1,181 @@
+"""The arm inside a real URDF: chain selection, locked joints in Pinocchio and MuJoCo, package://
+mesh resolution, and a one-line error for every bad case (URDFs of our own, tests/urdf_fixtures)."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import robots
+from app.sim.world import World
+from app.tools.check import cross_check
+from control.model import RobotModel
+from robots.packages import PackageResolver
+from tests import urdf_fixtures as fx
+
+CHECK_TOLERANCE = 1e-9
+
+
+def _one_line(exc: pytest.ExceptionInfo) -> str:
+    text = str(exc.value)
+    assert text and "\n" not in text
+    return text
+
+
+def _body_poses_agree(robot: robots.RobotDescription, q: np.ndarray) -> float:
+    """Worst position error between MuJoCo's body poses and Pinocchio's link frames at q (m)."""
+    world = World(robot)
+    world.set_state(q, np.zeros(7))
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, q)
+    worst = 0.0
+    for name in robot.link_names:
+        oMf = data.oMf[robot.model.getFrameId(name)]
+        bid = mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_BODY, name)
+        assert bid >= 0, name
+        worst = max(worst, float(np.max(np.abs(world.data.xpos[bid] - oMf.translation))))
+        worst = max(worst, float(np.max(np.abs(world.data.xmat[bid].reshape(3, 3) - oMf.rotation))))
+    return worst
+
+
+def test_gripper_arm_is_the_seven_joint_chain_with_the_fingers_locked(tmp_path):
+    path = fx.write(tmp_path / "gripper_arm.urdf", fx.gripper_arm())
+    r = robots.load(str(path))
+    assert r.joint_names == tuple(f"a_joint{i}" for i in range(1, 8))
+    assert r.tip_link == "a_flange" and r.base_link == "world_base"
+    assert r.locked == {"a_left_finger_joint": 0.0, "a_right_finger_joint": 0.0}
+    assert "a_left_finger" in r.link_names  # drawn, at its locked position
+    rep = cross_check(r, samples=20)
+    assert max(rep["worst_relative_error"].values()) <= CHECK_TOLERANCE
+
+
+def test_locked_positions_from_the_sidecar_are_where_both_models_put_the_links(tmp_path):
+    path = fx.write(tmp_path / "two_arms.urdf", fx.two_arms())
+    (tmp_path / "two_arms.toml").write_text(
+        'base_link = "torso"\ntip_link = "left_flange"\n'
+        "[locked]\nwaist = 0.4\nright_joint2 = 0.7\nright_joint4 = -1.1\nleft_left_finger_joint = 0.03\n"
+    )
+    r = robots.load(str(path))
+    assert r.joint_names == tuple(f"left_joint{i}" for i in range(1, 8))
+    assert r.locked["waist"] == 0.4 and r.locked["right_joint4"] == -1.1
+    assert r.locked["left_left_finger_joint"] == 0.03 and r.locked["right_joint1"] == 0.0
+    q = np.linspace(-0.8, 0.9, 7)
+    assert _body_poses_agree(r, q) <= 1e-12
+    rep = cross_check(r, samples=20)
+    assert max(rep["worst_relative_error"].values()) <= CHECK_TOLERANCE
+    # the locked waist turns the whole torso: the left arm's base is rotated by 0.4 rad about z
+    data = r.model.createData()
+    pin.framesForwardKinematics(r.model, data, np.zeros(7))
+    torso = data.oMf[r.model.getFrameId("torso")]
+    np.testing.assert_allclose(pin.rpy.matrixToRpy(torso.rotation), [0, 0, 0.4], atol=1e-12)
+
+
+def test_two_arms_without_a_tip_are_refused_with_the_candidate_tips(tmp_path):
+    path = fx.write(tmp_path / "two_arms.urdf", fx.two_arms())
+    with pytest.raises(robots.RobotLoadError) as exc:
+        robots.load(str(path))  # from the root: waist + 7 arm joints, no 7-joint chain
+    assert "no 7-DOF arm (a chain of 7 revolute joints) starts at link 'world_base'" in _one_line(exc)
+    with pytest.raises(robots.RobotLoadError) as exc:
+        robots.load(str(path), base="torso")
+    text = _one_line(exc)
+    assert "choose one with --tip" in text and "left_flange" in text and "right_flange" in text
+    r = robots.load(robots.robot_spec(path, base="torso", tip="right_flange"))
+    assert r.joint_names[0] == "right_joint1" and "left_joint1" in r.locked
+    assert r.spec == robots.robot_spec(path, base="torso", tip="right_flange")
+
+
+@pytest.mark.parametrize(
+    ("base", "tip", "words"),
+    [
+        ("torso", "nowhere", "no link 'nowhere' (--tip)"),
+        ("nowhere", None, "no link 'nowhere' (--base)"),
+        ("left_link3", "right_flange", "is not below link 'left_link3'"),
+        ("left_link2", "left_flange", "has 5 movable joints"),
+    ],
+)
+def test_bad_base_or_tip_is_one_line(tmp_path, base, tip, words):
+    path = fx.write(tmp_path / "two_arms.urdf", fx.two_arms())
+    with pytest.raises(robots.RobotLoadError) as exc:
+        robots.load(str(path), base=base, tip=tip)
+    assert words in _one_line(exc)
+
+
+def test_a_sidecar_locking_an_arm_joint_or_an_unknown_joint_is_refused(tmp_path):
+    path = fx.write(tmp_path / "gripper_arm.urdf", fx.gripper_arm())
+    for body, words in (("a_joint3 = 0.2", "one of the arm's joints"), ("nope = 0.1", "which the URDF lacks")):
+        (tmp_path / "gripper_arm.toml").write_text(f"[locked]\n{body}\n")
+        with pytest.raises(robots.RobotLoadError) as exc:
+            robots.load(str(path))
+        assert words in _one_line(exc)
+
+
+# ---- package:// ------------------------------------------------------------------------------
+def test_package_uri_resolves_from_an_ancestor_folder_named_like_the_package(tmp_path):
+    fx.box_mesh(tmp_path / "my_arm" / "meshes" / "link.stl")
+    path = fx.write(tmp_path / "my_arm" / "urdf" / "arm.urdf", fx.gripper_arm("package://my_arm/meshes/link.stl"))
+    r = robots.load(str(path))
+    assert PackageResolver(r.urdf_path).resolve("package://my_arm/meshes/link.stl") == (
+        tmp_path / "my_arm" / "meshes" / "link.stl"
+    )
+
+
+def test_package_uri_resolves_from_package_path_then_ros_package_path(tmp_path, monkeypatch):
+    fx.box_mesh(tmp_path / "elsewhere" / "my_arm" / "meshes" / "link.stl")
+    fx.box_mesh(tmp_path / "ros" / "my_arm" / "meshes" / "link.stl")
+    path = fx.write(tmp_path / "desc" / "arm.urdf", fx.gripper_arm("package://my_arm/meshes/link.stl"))
+    monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
+    with pytest.raises(robots.RobotLoadError) as exc:
+        robots.load(str(path))
+    text = _one_line(exc)
+    assert "package://my_arm/meshes/link.stl" in text and "--package-path" in text
+    # --package-path DIR (DIR/NAME inside, or DIR named NAME itself)
+    for given in (tmp_path / "elsewhere", tmp_path / "elsewhere" / "my_arm"):
+        r = robots.load(robots.robot_spec(path, package_paths=[str(given)]))
+        found = PackageResolver(r.urdf_path, r.package_paths).resolve("package://my_arm/meshes/link.stl")
+        assert found == tmp_path / "elsewhere" / "my_arm" / "meshes" / "link.stl"
+    # ROS_PACKAGE_PATH comes after --package-path
+    monkeypatch.setenv("ROS_PACKAGE_PATH", f"{tmp_path / 'nothing'}:{tmp_path / 'ros'}")
+    resolver = PackageResolver(path)
+    assert resolver.resolve("package://my_arm/meshes/link.stl") == tmp_path / "ros" / "my_arm" / "meshes" / "link.stl"
+    resolver = PackageResolver(path, [tmp_path / "elsewhere"])
+    assert resolver.resolve("package://my_arm/meshes/link.stl").parts[-4] == "elsewhere"
+
+
+def test_missing_package_mesh_names_the_folders_searched(tmp_path, monkeypatch):
+    monkeypatch.setenv("ROS_PACKAGE_PATH", str(tmp_path / "ros"))
+    path = fx.write(tmp_path / "my_arm" / "urdf" / "arm.urdf", fx.gripper_arm("package://my_arm/meshes/gone.stl"))
+    with pytest.raises(robots.RobotLoadError) as exc:
+        robots.load(robots.robot_spec(path, package_paths=[str(tmp_path / "pp")]))
+    text = _one_line(exc)
+    for folder in (tmp_path / "my_arm", tmp_path / "pp" / "my_arm", tmp_path / "ros" / "my_arm"):
+        assert str(folder) in text
+
+
+def test_relative_mesh_name_is_relative_to_the_urdf(tmp_path):
+    fx.box_mesh(tmp_path / "meshes" / "link.obj")
+    path = fx.write(tmp_path / "arm.urdf", fx.gripper_arm("meshes/link.obj"))
+    r = robots.load(str(path))
+    assert PackageResolver(r.urdf_path).resolve("meshes/link.obj") == tmp_path / "meshes" / "link.obj"
+    path = fx.write(tmp_path / "arm2.urdf", fx.gripper_arm("meshes/none.obj"))
+    with pytest.raises(robots.RobotLoadError) as exc:
+        robots.load(str(path))
+    assert "mesh meshes/none.obj not found" in _one_line(exc)
+
+
+def test_the_arm_model_is_the_reduced_model_of_the_whole_urdf(tmp_path):
+    """Pinocchio's M of the 7 arm joints equals the arm block of the full model's M with the
+    locked joints at their positions (the fingers' mass rides on link 7)."""
+    path = fx.write(tmp_path / "gripper_arm.urdf", fx.gripper_arm())
+    (tmp_path / "gripper_arm.toml").write_text("[locked]\na_left_finger_joint = 0.02\n")
+    r = robots.load(str(path))
+    full = pin.buildModelFromUrdf(str(path))
+    q_full = pin.neutral(full)
+    q = np.linspace(0.3, -0.5, 7)
+    q_full[:7] = q
+    q_full[full.joints[full.getJointId("a_left_finger_joint")].idx_q] = 0.02
+    M_full = pin.crba(full, full.createData(), q_full)
+    M_full = np.triu(M_full) + np.triu(M_full, 1).T
+    M = RobotModel(r.model).mass_matrix(q)
+    np.testing.assert_allclose(M, M_full[:7, :7], atol=1e-12)
