@@ -179,3 +179,43 @@ def test_the_arm_model_is_the_reduced_model_of_the_whole_urdf(tmp_path):
     M_full = np.triu(M_full) + np.triu(M_full, 1).T
     M = RobotModel(r.model).mass_matrix(q)
     np.testing.assert_allclose(M, M_full[:7, :7], atol=1e-12)
+
+
+# ---- visual meshes ------------------------------------------------------------------------------
+def test_visual_meshes_of_package_uris_are_read_once_and_cached(tmp_path, monkeypatch):
+    from robots import meshes
+
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
+    fx.box_mesh(tmp_path / "my_arm" / "meshes" / "link.stl")
+    path = fx.write(tmp_path / "my_arm" / "urdf" / "arm.urdf", fx.gripper_arm("package://my_arm/meshes/link.stl"))
+    r = robots.load(str(path))
+    first = meshes.link_meshes(r.urdf_path, r.package_paths)
+    assert set(first) == {f"a_link{i}" for i in range(8)}
+    np.testing.assert_allclose(first["a_link3"].extents, [0.05, 0.05, 0.1], atol=1e-6)
+    assert len(list((tmp_path / "cache" / "meshes").glob("arm-*.npz"))) == 1
+    meshes._MEMORY.clear()  # a new process: the disk cache, not the mesh files
+    monkeypatch.setattr(meshes, "read_mesh_file", lambda *a: pytest.fail("mesh file read again"))
+    again = meshes.link_meshes(r.urdf_path, r.package_paths)
+    np.testing.assert_allclose(again["a_link3"].vertices, first["a_link3"].vertices, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "words"),
+    [
+        ("link.stl", b"solid nothing here\nendsolid\n", "mesh meshes/link.stl"),  # an empty or broken STL
+        ("link.xyz", b"1 2 3\n4 5 6\n", "holds no triangles"),  # a point cloud, not a mesh
+        ("link.foo", b"1 2 3", "trimesh cannot read .foo files"),
+        ("link.obj", bytes(range(256)) * 4, "mesh meshes/link.obj"),  # binary noise
+    ],
+)
+def test_a_mesh_file_that_is_not_a_mesh_is_one_line(tmp_path, monkeypatch, name, content, words):
+    from robots import meshes
+
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / name).write_bytes(content)
+    path = fx.write(tmp_path / "arm.urdf", fx.gripper_arm(f"meshes/{name}"))
+    r = robots.load(str(path))  # the file exists: the model loads
+    with pytest.raises(meshes.MeshError) as exc:
+        meshes.link_meshes(r.urdf_path)
+    assert words in _one_line(exc) and f"meshes/{name}" in str(exc.value)

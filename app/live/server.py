@@ -26,6 +26,7 @@ from typing import Any
 import viser
 
 import robots
+import robots.meshes
 from app.core.commands import DragCommand
 from app.core.params import parse_settings
 from app.live.loop import SimLoop
@@ -213,7 +214,9 @@ def serve(args: argparse.Namespace) -> int:
     if not port_is_free(args.host, 0):
         raise ValueError(f"cannot listen on host {args.host!r} (not an address of this machine)")
     if robot:
-        robots.load(robot)  # a wrong name or URDF path is a one-line error before anything starts
+        described = robots.load(robot)  # a wrong name or URDF path is a one-line error before anything starts
+        # the visual meshes read (or taken from the cache) now: a bad mesh file is one line too
+        robots.meshes.link_meshes(described.urdf_path, described.package_paths)
     settings_file = getattr(args, "settings", None)
     settings_text = _read_settings_file(settings_file) if settings_file else None
     busy = args.port != 0 and not port_is_free(args.host, args.port)

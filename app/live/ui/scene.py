@@ -1,7 +1,8 @@
 """The 3D scene: one draggable mesh per robot link, a floor, the table, and the overlays.
 
 Every link is a frame `/robot/<link>` (moved each visual frame to the simulated body pose) with
-a mesh child built from the URDF's primitive visuals in the link's own frame. Each mesh has an
+a mesh child built from the URDF's visuals (primitives and mesh files, `robots.meshes`, cached) in
+the link's own frame, in the link's own colour when limit colours do not apply. Each mesh has an
 `on_drag` binding: a left-drag on any link becomes `DragCommand`s (grab → move… → release) for
 the simulation loop, which applies the spring every step (DESIGN §4, §6). The callbacks are
 `async` so viser runs them in order on its event loop; they only hand a command to `drag_sink`.
@@ -14,8 +15,8 @@ from collections.abc import Callable
 import numpy as np
 import trimesh
 import viser
-import yourdfpy
 
+import robots.meshes
 from app.core.commands import DragCommand
 from app.live.ui.node_writes import set_pose, set_position, set_prop
 from app.live.ui.overlays import Overlays, margin_color
@@ -33,45 +34,10 @@ CAMERA_POSITION = (1.55, -1.35, 1.05)
 CAMERA_LOOK_AT = (0.25, 0.0, 0.4)
 
 
-def link_meshes(urdf_path: str) -> dict[str, trimesh.Trimesh]:
-    """One mesh per URDF link from its visuals (cylinders, spheres, boxes, mesh files), in the link frame."""
-    urdf = yourdfpy.URDF.load(urdf_path, build_scene_graph=False, load_meshes=False)
-    out: dict[str, trimesh.Trimesh] = {}
-    for link in urdf.robot.links:
-        parts = []
-        for visual in link.visuals:
-            part = _visual_mesh(visual.geometry, urdf_path)
-            if part is None:
-                continue
-            if visual.origin is not None:
-                part.apply_transform(np.asarray(visual.origin, dtype=float))
-            parts.append(part)
-        if parts:
-            merged = trimesh.util.concatenate(parts)
-            if isinstance(merged, trimesh.Trimesh):
-                out[link.name] = merged
-    return out
-
-
-def _visual_mesh(geometry, urdf_path: str) -> trimesh.Trimesh | None:
-    if geometry.cylinder is not None:
-        return trimesh.creation.cylinder(radius=geometry.cylinder.radius, height=geometry.cylinder.length, sections=24)
-    if geometry.sphere is not None:
-        return trimesh.creation.icosphere(subdivisions=2, radius=geometry.sphere.radius)
-    if geometry.box is not None:
-        return trimesh.creation.box(extents=np.asarray(geometry.box.size, dtype=float))
-    if geometry.mesh is not None:
-        try:
-            path = yourdfpy.filename_handler_relative_to_urdf_file(geometry.mesh.filename, urdf_path)
-            loaded = trimesh.load(path, force="mesh")
-        except (OSError, ValueError):
-            return None  # a missing mesh file is rendered as nothing, the link stays draggable elsewhere
-        if not isinstance(loaded, trimesh.Trimesh):
-            return None
-        if geometry.mesh.scale is not None:
-            loaded.apply_scale(np.asarray(geometry.mesh.scale, dtype=float))
-        return loaded
-    return None
+def link_meshes(urdf_path: str, package_paths: tuple = ()) -> dict[str, trimesh.Trimesh]:
+    """One mesh per URDF link from its visuals (cylinders, spheres, boxes, mesh files), in the link
+    frame, its colour in metadata["color"]: `robots.meshes.link_meshes` (read once, cached)."""
+    return robots.meshes.link_meshes(urdf_path, tuple(package_paths))
 
 
 def add_ghost_arm(
@@ -144,7 +110,8 @@ class SceneView:
         self.settings = settings or VisualSettings()
         self.root = root
         self.joint_of = link_joint_indices(robot)
-        meshes = link_meshes(str(robot.urdf_path))
+        meshes = link_meshes(str(robot.urdf_path), robot.package_paths)
+        self._link_shapes = meshes
         self.frames: dict[str, viser.FrameHandle] = {}
         self.meshes: dict[str, viser.MeshHandle] = {}
         for name in robot.link_names:
@@ -154,7 +121,7 @@ class SceneView:
                 continue
             mesh = meshes[name]
             handle = server.scene.add_mesh_simple(
-                f"{root}/{name}/mesh", mesh.vertices, mesh.faces, color=NEUTRAL, flat_shading=False
+                f"{root}/{name}/mesh", mesh.vertices, mesh.faces, color=self._base_color(name), flat_shading=False
             )
             handle.on_drag("left")(self._drag_callback(name))
             self.meshes[name] = handle
@@ -168,9 +135,14 @@ class SceneView:
         server.initial_camera.look_at = CAMERA_LOOK_AT
         server.initial_camera.up = (0.0, 0.0, 1.0)
         self._colors: dict[str, tuple[int, int, int]] = {}
-        self._link_shapes = meshes
         self.twin_meshes: dict[str, viser.MeshHandle] = {}
         self.twin_label: viser.LabelHandle | None = None
+
+    def _base_color(self, link: str) -> tuple[int, int, int]:
+        """A link's own colour (URDF material or mesh file), NEUTRAL without one."""
+        shape = self._link_shapes.get(link)
+        color = None if shape is None else shape.metadata.get("color")
+        return NEUTRAL if color is None else (int(color[0]), int(color[1]), int(color[2]))
 
     # ---- interaction --------------------------------------------------------------------------
     def _drag_callback(self, link: str):
@@ -229,7 +201,7 @@ class SceneView:
         for name, mesh in self.meshes.items():
             j = self.joint_of.get(name, -1)
             if not s.limit_colors or j < 0:
-                color = NEUTRAL
+                color = self._base_color(name)
             else:
                 zone = s.limit_zone_rad if snap.limit_zone is None else float(snap.limit_zone[j])
                 color = margin_color(float(snap.joint_margins[j]), zone)

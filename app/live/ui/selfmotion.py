@@ -274,7 +274,7 @@ class SelfMotionPreview:
     def _build_ghost(self, robot: RobotDescription) -> None:
         for handle in self._ghost.values():
             handle.remove()
-        shapes = link_meshes(str(robot.urdf_path))
+        shapes = link_meshes(str(robot.urdf_path), robot.package_paths)
         self._ghost = add_ghost_arm(self.server, "/ghost", shapes, GHOST_COLOR, GHOST_OPACITY, visible=False)
         self._ghost_robot = str(robot.urdf_path)
 
