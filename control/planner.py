@@ -130,20 +130,23 @@ def _wrap_array(a: np.ndarray) -> np.ndarray:
 
 
 # ---- costs -----------------------------------------------------------------------------------
-PLAN_COSTS = ("a", "d", "directional")
+PLAN_COSTS = ("a", "d", "directional", "signed")
 
 
 def cost_map(model: RobotModel, loops: LoopGrid, cost: str, friction_dirs: np.ndarray | None = None) -> np.ndarray:
     """(k, m) cost at every sample and grid posture (inf where infeasible).
 
     "a", "d": W_a, W_d = ‖P‖²_F [T22]; "directional": (P_d·f̂)² [T10] with f̂ (k, 2) the unit friction
-    direction in world xy at each sample (zero rows: no sliding, cost 0).
+    direction in world xy at each sample (zero rows: no sliding, cost 0); "signed": max(P_d·f̂, 0)²,
+    the directional coupling only where its sign feeds the friction back into the force loop
+    (P_d·f̂ > 0 raises the K_f^d the loop needs, `control.margin`; P_d·f̂ < 0 lowers it), each
+    sample along its own stroke's friction direction.
     """
     if cost not in PLAN_COSTS:
         raise ValueError(f"unknown plan cost {cost!r}; choose one of {', '.join(PLAN_COSTS)}")
     k, m = loops.feasible.shape
-    if cost == "directional" and (friction_dirs is None or np.shape(friction_dirs) != (k, 2)):
-        raise ValueError("the directional cost needs one friction direction per sample")
+    if cost in ("directional", "signed") and (friction_dirs is None or np.shape(friction_dirs) != (k, 2)):
+        raise ValueError(f"the {cost} cost needs one friction direction per sample")
     out = np.full((k, m), np.inf)
     zeros = np.zeros(loops.q.shape[2])
     for i in range(k):
@@ -157,7 +160,8 @@ def cost_map(model: RobotModel, loops: LoopGrid, cost: str, friction_dirs: np.nd
                 out[i, j] = float(np.sum(terms.P_d**2))
             else:
                 assert friction_dirs is not None
-                out[i, j] = float(terms.P_d[0, :2] @ friction_dirs[i]) ** 2
+                p_d = float(terms.P_d[0, :2] @ friction_dirs[i])  # [T10] along f̂
+                out[i, j] = p_d**2 if cost == "directional" else max(p_d, 0.0) ** 2
     return out
 
 
@@ -237,15 +241,17 @@ def plan(
 ) -> Plan:
     """The planned path from the start swivel through the trajectory samples (see module docstring).
 
-    rate_weight defaults to 0.1·median(feasible cost)/rate_max²: moving at the maximum rate costs
-    a tenth of a typical stage cost. transfer_s defaults to the time for half a turn at rate_max
+    rate_weight defaults to 0.1·median(feasible cost)/rate_max² (the median of the positive costs
+    where some are 0, e.g. the signed cost): moving at the maximum rate costs a tenth of a typical
+    stage cost. transfer_s defaults to the time for half a turn at rate_max
     plus 1 s. The start swivel is rounded to the nearest grid point.
     """
     grid = loops.swivel_rad
     finite = costs[np.isfinite(costs)]
     if finite.size == 0:
         raise ValueError("no feasible posture along the trajectory")
-    w = rate_weight if rate_weight is not None else 0.1 * float(np.median(finite)) / rate_max_rad_s**2
+    typical = float(np.median(finite[finite > 0])) if np.any(finite > 0) else 1.0
+    w = rate_weight if rate_weight is not None else 0.1 * typical / rate_max_rad_s**2
     T_tr = transfer_s if transfer_s is not None else np.pi / rate_max_rad_s + 1.0
     n_tr = int(np.ceil(T_tr / dt))
     start = int(np.argmin(np.abs(_wrap_array(grid - start_swivel_rad))))

@@ -130,3 +130,25 @@ def test_executed_swivel_follows_the_plan(monkeypatch):
     assert clock.convergence_time_s >= plan.transfer_s
     session.run(P.SEGMENT_DURATION_S, record=record)
     assert max(errors) < 6.0 and float(np.mean(errors)) < 2.0
+
+
+def test_signed_cost_charges_only_the_destabilising_sign_of_the_directional_coupling(start_loops):
+    """max(P_d·f̂, 0)²: equal to (P_d·f̂)² where the coupling feeds friction into the force loop and 0
+    where it opposes it; reversing f̂ swaps the two. At the start pose no posture of the self-motion
+    loop has P_d·f̂ ≤ 0 along the stretching friction. Costs of 0 do not zero the
+    default rate penalty: the plan still moves the swivel no faster than it must."""
+    model, _, _, _, loops = start_loops
+    k = loops.feasible.shape[0]
+    f_hat = np.tile([-1.0, 0.0], (k, 1))  # the friction of a stretching (+X) stroke
+    sq = cost_map(model, loops, "directional", f_hat)
+    signed = cost_map(model, loops, "signed", f_hat)
+    flipped = cost_map(model, loops, "signed", -f_hat)
+    ok = loops.feasible
+    assert np.all(np.isinf(signed[~ok]))
+    both = signed[ok] + flipped[ok]
+    np.testing.assert_allclose(both, sq[ok], rtol=1e-12)  # one of the two is 0, the other the square
+    assert np.all(np.minimum(signed[ok], flipped[ok]) == 0.0)
+    # at the start pose the stretching coupling has one sign around the whole self-motion loop
+    assert np.count_nonzero(signed[ok]) == ok.sum() and np.count_nonzero(flipped[ok]) == 0
+    p = plan(loops, signed, 0.5, 0.0, rate_max_rad_s=np.deg2rad(20.0))
+    assert np.all(np.isfinite(p.cost)) and p.total_cost < 1e9

@@ -185,7 +185,7 @@ def test_polish_cases_pick_the_mirror_start_or_a_planned_path():
     assert variant_of(P.SCENARIO).options == P.MODES
     assert make_variant("polish", "mirror start").start_swivel_deg == P.MIRROR_START_DEG
     assert make_variant("polish", "planned W_a").plan_cost == "a"
-    assert make_variant("polish", "planned (P_d·f̂)²").plan_cost == "directional"
+    assert make_variant("polish", "planned max(P_d·f̂, 0)²").plan_cost == "signed"
     with pytest.raises(ValueError, match="unknown polish case"):
         P.PolishScenario(mode="x")
 
@@ -253,6 +253,10 @@ def test_a_quick_one_row_experiment_writes_a_report_from_its_own_runs(tmp_path):
     assert f"<td>{fe['ma']:.1f}</td><td>{fe['ptp']:.1f}</td><td>{fe['std']:.1f}</td>" in page
     assert f"MA {fe['ma']:.1f} vs 5.9" in page
     assert len(list((out / "runs").glob("*.json"))) == 1
+    # the margin along the strokes: six strokes, and the report's row carries the run's own values
+    assert [s["segment"] for s in run["stroke_margin"]] == [1, 2, 3, 4, 5, 6]
+    pd = run["stroke"]["stretch_pd_fhat"]
+    assert f"<td>{pd['mean']:+.3f}</td><td>{pd['max']:+.3f}</td>" in page and "Agreement " in page
 
 
 def test_armature_table_flags_runs_that_did_not_converge_or_lost_contact():

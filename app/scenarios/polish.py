@@ -56,8 +56,9 @@ HOLD_AFTER_S = 0.5  # rest at the end so the last segment's transient is recorde
 
 MIRROR_START_DEG = -30.0  # just across the W_a ridge (≈ −31° on the scan) from the Fig. 6a start: the other basin
 # The app's cases: the gradient flow of the chosen objective from the Fig. 6a start, the same from the
-# mirror start, or the globally planned swivel path with cost W_a or the directional coupling (P_d·f̂)².
-MODES = ("flow", "mirror start", "planned W_a", "planned (P_d·f̂)²")
+# mirror start, or the globally planned swivel path with cost W_a or the directional coupling where its sign
+# destabilises the force loop, max(P_d·f̂, 0)² (control.planner "signed").
+MODES = ("flow", "mirror start", "planned W_a", "planned max(P_d·f̂, 0)²")
 
 # ---- phases ---------------------------------------------------------------------------------
 CONTACT_TIME_S = 1.0  # approach + 20 N settle (force loop settles in ~0.1 s)
@@ -408,7 +409,7 @@ class PolishScenario(Scenario):
         if mode == "mirror start":
             start_swivel_deg = MIRROR_START_DEG
         elif mode.startswith("planned"):
-            plan_cost = "a" if mode == "planned W_a" else "directional"
+            plan_cost = "a" if mode == "planned W_a" else "signed"
         if not np.isfinite(mu) or mu < 0:
             raise ValueError(f"friction coefficient mu must be finite and non-negative, got {mu!r}")
         self.mu = float(mu)

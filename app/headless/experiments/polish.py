@@ -25,6 +25,7 @@ import numpy as np
 from app.core.provenance import code_version
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
+from app.scenarios.polish_margin import MARGIN_SAMPLE_S
 
 PAPER_TABLE_III = {  # [T] Table III: force error MA / PTP / STD (N)
     0.25: {"j": (2.3, 18.2, 2.8), "f": (2.5, 17.4, 3.1), "a": (1.5, 10.5, 1.8), "d": (1.6, 12.2, 2.0)},
@@ -35,10 +36,10 @@ OBJECTIVE_NAMES = {
     "f": "W_f",
     "a": "W_a",
     "d": "W_d",
-    "planned": "planned (P_d·f̂)²",
+    "planned": "planned max(P_d·f̂, 0)²",
     "planned_a": "planned W_a",
 }
-PLAN_COST_OF = {"planned": "directional", "planned_a": "a"}
+PLAN_COST_OF = {"planned": "signed", "planned_a": "a"}
 MIRROR_START_DEG = scenario_module.MIRROR_START_DEG
 DEFAULT_SEEDS = 5
 ARMATURE_SCALES = (0.0, 0.5, 1.0, 2.0)  # item 6: the armature is not published (robots/rizon4s.toml)
@@ -146,7 +147,8 @@ def simulate(spec: dict) -> dict:
     spec: objective ("j", "f", "a", "d", "planned", "planned_a"), mu, seed, start_swivel_deg,
     optional shaping, armature_scale, sander, sensor_cutoff_hz, converge_timeout_s (settle cap),
     hold_swivel_deg, row, group, reading_delay_steps (the F/T reading's age, control periods),
-    torque_delay_ms, session_params ((group, field, value) set on the session)."""
+    torque_delay_ms, strokes (run only the first n segments), session_params ((group, field, value) set
+    on the session)."""
     from app.core.session import Session
     from control.coupling import swivel_angle
 
@@ -181,9 +183,13 @@ def simulate(spec: dict) -> dict:
     cols = ("t", "force_error", "force_error_true", "W_f", "W_a", "W_d", "segment", "swivel", "swivel_plan")
     rec: dict[str, list[float]] = {k: [] for k in cols}
     q_converged: list[np.ndarray] = []
+    stroke_q: list[tuple[float, np.ndarray]] = []  # (trajectory time, q) every MARGIN_SAMPLE_S on the strokes
+    margin_every = max(1, round(MARGIN_SAMPLE_S / session.world.model.opt.timestep))
 
     def record(r) -> None:
         sig = r.signals
+        if 1 <= sig["segment"] <= N_SEGMENTS and len(rec["t"]) % margin_every == 0:
+            stroke_q.append((r.t - float(clock.trajectory_start), r.q.copy()))
         if not q_converged and clock.trajectory_start is not None:
             q_converged.append(r.q.copy())
         rec["t"].append(r.t)
@@ -196,12 +202,14 @@ def simulate(spec: dict) -> dict:
         rec["swivel"].append(sig["swivel_deg"])
         rec["swivel_plan"].append(target.planned_swivel_deg(r.t) if plan_cost else np.nan)  # type: ignore[attr-defined]
 
-    result_run = session.run(SAFETY_CAP_S, until=lambda r: clock.finished(r.t), record=record)
+    strokes = int(spec.get("strokes", N_SEGMENTS))  # the first this many segments (a shorter stability map)
+    result_run = session.run(SAFETY_CAP_S, until=lambda r: _run_over(clock, r.t, strokes), record=record)
     series = {k: np.asarray(v, dtype=float) for k, v in rec.items()}
     qc = q_converged[0] if q_converged else session.world.q.copy()
     model = session.model
     traj = (series["segment"] >= 1) & (series["segment"] <= N_SEGMENTS)
     posture = posture_figures(session, qc, float(spec["mu"]), bool(spec.get("shaping", True)))
+    stroke = stroke_margin_figures(session, stroke_q, bool(spec.get("shaping", True)))
     result: dict[str, Any] = {
         "row": spec.get("row", OBJECTIVE_NAMES.get(objective, objective)),
         "group": spec.get("group", "table"),
@@ -227,6 +235,7 @@ def simulate(spec: dict) -> dict:
         "run_stop": result_run.stop,
         "diverged": result_run.stop == "diverged",
         "per_segment": [],
+        **stroke,
         "q_start": [float(x) for x in q_start],
         "q_converged": [float(x) for x in qc],
     }
@@ -280,6 +289,8 @@ def posture_figures(session, q: np.ndarray, mu: float, shaping: bool) -> dict:
         speed_m_s=peak_speed(),
         v_eps_m_per_s=session.environment.contact.v_eps_m_per_s,
         sensor_cutoff_hz=session.sensor.cutoff_hz,
+        sensing_delay_steps=int(getattr(session.sensor, "reading_delay_steps", 0)),
+        actuation_delay_steps=int(getattr(session.world, "torque_delay_steps", 0)),
     )
     pm = posture_margin(dyn.Lambda, POLISH_SUBSPACES, gains, loop, [dirs["stretch"], dirs["retract"]])
     return {
@@ -293,6 +304,38 @@ def posture_figures(session, q: np.ndarray, mu: float, shaping: bool) -> dict:
             "kd_critical_retract": _finite_or_none(pm.kd_critical_per_direction[1]),
             "worst_direction": ("stretch", "retract")[pm.worst_direction],
             "worst_speed_m_s": pm.worst_speed_m_s,
+        },
+    }
+
+
+def _run_over(clock, t: float, strokes: int) -> bool:
+    """The trajectory and its final hold are over, or the first `strokes` segments are."""
+    start = clock.trajectory_start
+    return clock.finished(t) or (
+        strokes < N_SEGMENTS and start is not None and t >= start + strokes * scenario_module.SEGMENT_DURATION_S
+    )
+
+
+def stroke_margin_figures(session, stroke_q: list[tuple[float, np.ndarray]], shaping: bool) -> dict:
+    """The force-loop margin along the executed strokes (`app.scenarios.polish_margin`) from the
+    postures sampled on them, with the run's contact, sensor and latency: "stroke_margin" per
+    segment (worst σ and K_f^d margin, growth, P_d·f̂ mean and max) and "stroke" over all strokes."""
+    from dataclasses import replace
+
+    from app.scenarios import polish_margin as PM
+
+    gains = replace(session.executor.gains, shaping=shaping)  # type: ignore[attr-defined]
+    loop = PM.contact_loop(session.environment.contact, session.sensor, session.world)  # type: ignore[attr-defined]
+    n = len(session.world.q)
+    taus = np.array([tau for tau, _ in stroke_q])
+    samples = [PM.sample(session.model.compute(q, np.zeros(n)).Lambda, gains, loop, tau) for tau, q in stroke_q]
+    strokes = PM.per_stroke(taus, samples)
+    return {
+        "stroke_margin": strokes,
+        "stroke": PM.summary(strokes),
+        "stroke_loop": {
+            "sensing_delay_steps": loop.sensing_delay_steps,
+            "actuation_delay_steps": loop.actuation_delay_steps,
         },
     }
 

@@ -22,7 +22,14 @@ COLORS = {
     "planned": "tab:purple",
     "planned_a": "tab:orange",
 }
-NAMES = {"j": "W_j", "f": "W_f", "a": "W_a", "d": "W_d", "planned": "planned (P_d·f̂)²", "planned_a": "planned W_a"}
+NAMES = {
+    "j": "W_j",
+    "f": "W_f",
+    "a": "W_a",
+    "d": "W_d",
+    "planned": "planned max(P_d·f̂, 0)²",
+    "planned_a": "planned W_a",
+}
 # robots/rizon4s.toml: armature = rotor inertia × gear ratio², neither published for the Rizon 4s
 ROTOR_INERTIA_KG_M2 = (4e-5, 4e-5, 2e-5, 2e-5, 1e-5, 1e-5, 1e-5)  # harmonic-drive motors for 123 / 64 / 39 N m joints
 GEAR_RATIO = 100.0
@@ -372,6 +379,7 @@ stretching (S2) and a retracting (S1) segment. "margin" is K_f^d minus the criti
 force loop (contact stiffness, K_f^p, K_f^d, the 25 Hz sensor lag, the shaping term BᵀA⁻¹, friction, the 1 ms
 step; worst over both directions and the speeds of a segment): negative means the loop is predicted to lose
 contact. "stable": no divergence and the TCP never left the table in the six segments.</p>
+{stroke_margin_html(doc)}
 <h2>Findings (computed from this run)</h2>
 <ul>{findings}</ul>
 <h2>Armature sensitivity</h2>
@@ -387,6 +395,13 @@ ends along the swivel scan with the armature scaled (model and simulation alike)
 </body></html>
 """
     (out / "report.html").write_text(page)
+
+
+def stroke_margin_html(doc: dict) -> str:
+    """The section on the margin along the strokes (`polish_calibration.report_section`) over the table's runs."""
+    from app.headless.experiments.polish_calibration import report_section
+
+    return report_section(doc.get("runs", []))
 
 
 def _arm_ptp(doc: dict, scale: float, objective: str) -> str:

@@ -12,6 +12,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from app.headless.experiments.polish_calibration import calibration_metrics
 from app.headless.sweep.grid import SweepError
 from app.headless.sweep.knobs import RUN, Knob, positive
 from app.headless.sweep.overlays import polish_notes, polish_overlay
@@ -177,7 +178,7 @@ POLISH_KNOBS = (
         "objective",
         RUN,
         "objective",
-        "nullspace objective W_j/W_f/W_a/W_d [T15], or track the planned path (directional or W_a cost)",
+        "nullspace objective W_j/W_f/W_a/W_d [T15], or track the planned path (signed directional or W_a cost)",
         kind=("j", "f", "a", "d", "planned", "planned_a"),
     ),
     Knob("armature_scale", "scenario", "armature_scale", "armature × this, robot and model alike"),
@@ -199,6 +200,14 @@ POLISH_KNOBS = (
         check=lambda v: _polish(converge_timeout_s=v),
     ),
     Knob("sander", "sander", "enabled", "7000 RPM sander disturbance"),
+    Knob(
+        "strokes",
+        RUN,
+        "strokes",
+        "run the first this many of the six strokes (1-6), e.g. S1 and S2 for a quicker stability map",
+        kind="int",
+        check=lambda v: _strokes(v),
+    ),
     *(
         Knob(
             f"k0_{o}",
@@ -217,6 +226,13 @@ def _polish(**values):
     from app.scenarios.polish import PolishScenario
 
     return PolishScenario(**values)
+
+
+def _strokes(value: int) -> None:
+    from app.scenarios.polish import N_SEGMENTS
+
+    if not 1 <= int(value) <= N_SEGMENTS:
+        raise ValueError(f"strokes must be 1 to {N_SEGMENTS}, got {value}")
 
 
 def _held_swivel(value: float) -> None:
@@ -265,10 +281,12 @@ def polish_cell(values: dict, seed: int) -> dict:
     spec["session_params"] = [
         (knobs[name].group, knobs[name].field, float(values[name])) for name in POLISH_SESSION_KNOBS if name in values
     ]
+    if "strokes" in values:
+        spec["strokes"] = int(values["strokes"])
     r = simulate(spec)["result"]
-    drop = ("per_segment", "q_start", "q_converged", "posture_change_deg", "plan")
+    drop = ("per_segment", "q_start", "q_converged", "posture_change_deg", "plan", "stroke_margin")
     keep = {k: v for k, v in r.items() if k not in drop}
-    return {"metrics": _scalars(keep), "stable": bool(r["stable"])}
+    return {"metrics": {**_scalars(keep), **calibration_metrics(r)}, "stable": bool(r["stable"])}
 
 
 EXPERIMENTS: dict[str, SweepExperiment] = {

@@ -17,6 +17,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from app.headless.experiments.polish_calibration import sweep_section
 from app.headless.sweep.grid import Axis
 
 SWIVEL_AXES = ("swivel", "hold_swivel")
@@ -42,7 +43,7 @@ def wa_basins() -> dict:
     return {"minima": minima, "ridges": ridges, "infeasible": infeasible}
 
 
-PLAN_STYLES = {"directional": ("(P_d·f̂)²", "tab:green", "////"), "a": ("W_a", "tab:orange", "\\\\")}
+PLAN_STYLES = {"signed": ("max(P_d·f̂, 0)²", "tab:green", "////"), "a": ("W_a", "tab:orange", "\\\\")}
 
 
 @lru_cache(maxsize=1)
@@ -236,6 +237,7 @@ def polish_notes(axes: list[Axis], records: list[dict]) -> str:
             + ("; the dotted line is its zero over (held swivel, μ)." if axes[0].name == "hold_swivel" else ".")
             + "</p>"
         )
+    text += sweep_section([a.name for a in axes], records)
     ended = [
         r["metrics"].get("converged_swivel_deg")
         for r in records

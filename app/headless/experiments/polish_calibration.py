@@ -1,0 +1,212 @@
+"""Is the force-loop margin a prediction? Its sign along the strokes against what the run did.
+
+Predicted unstable: the worst decay rate σ of the linearised force loop over the six strokes
+(`app.scenarios.polish_margin`, with the run's μ, sensor and latency) is negative.
+Simulated unstable: the run diverged, lost contact during the strokes (true contact force ≤ 0 for
+at least one 1 ms step), or oscillated: some stroke's force-error STD is at least
+`OSCILLATION_FACTOR` times the noise floor, the STD that the sensor's noise and sinusoid alone give
+after its low-pass (√(σ_n² α/(2 − α) + A²/2)).
+"""
+
+from __future__ import annotations
+
+import html
+import math
+
+OSCILLATION_FACTOR = 3.0  # calm strokes sit at 1.2-1.5x the floor, the S2/S4/S6 limit cycles at 6-8x (issue 24)
+NOISE_VAR_N2, SINE_AMPLITUDE_N, CUTOFF_HZ, DT_S = 5.0, 2.0, 25.0, 1e-3  # the polish sensor's defaults ([T] §IV-A)
+
+
+def noise_floor_std_n(
+    noise_var_n2: float = NOISE_VAR_N2, sine_n: float = SINE_AMPLITUDE_N, cutoff_hz: float = CUTOFF_HZ, dt: float = DT_S
+) -> float:
+    """STD (N) of the reading's noise and sinusoid after the first-order low-pass ([T] §IV-A): white
+    noise of variance σ² leaves σ² α/(2 − α); a slow sinusoid of amplitude A passes with A²/2."""
+    alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz * dt) if cutoff_hz > 0 else 1.0
+    return math.sqrt(noise_var_n2 * alpha / (2.0 - alpha) + 0.5 * sine_n**2)
+
+
+def oscillation_threshold_n(cutoff_hz: float | None = None) -> float:
+    """The stroke force-error STD (N) from which a stroke counts as oscillating."""
+    return OSCILLATION_FACTOR * noise_floor_std_n(cutoff_hz=CUTOFF_HZ if cutoff_hz is None else float(cutoff_hz))
+
+
+def outcome(result: dict) -> dict:
+    """What the run did: unstable (bool) and why ("diverged", "contact lost", "oscillation", "" when
+    stable), the largest stroke STD and the threshold it was held against."""
+    stds = [s["force_error"]["std"] for s in result.get("per_segment", []) if s["force_error"]["std"] is not None]
+    worst = max(stds) if stds else None
+    limit = oscillation_threshold_n(result.get("sensor_cutoff_hz"))
+    why = (
+        "diverged"
+        if result.get("diverged")
+        else "contact lost"
+        if result.get("contact_lost_ms", 0) > 0
+        else "oscillation"
+        if worst is not None and worst >= limit
+        else ""
+    )
+    return {"unstable": bool(why), "why": why, "stroke_std_max_n": worst, "threshold_n": limit}
+
+
+def predicted_unstable(result: dict) -> bool | None:
+    """The margin's verdict: the worst σ over the strokes is negative (None without stroke samples)."""
+    rate = (result.get("stroke") or {}).get("rate_min_per_s")
+    return None if rate is None else bool(rate < 0.0)
+
+
+def confusion(pairs: list[tuple[bool, bool]]) -> dict:
+    """Counts of (predicted unstable, simulated unstable) and the agreement share."""
+    c = {"tp": 0, "fp": 0, "fn": 0, "tn": 0}
+    for pred, sim in pairs:
+        c[("t" if pred == sim else "f") + ("p" if pred else "n")] += 1
+    n = sum(c.values())
+    return {**c, "n": n, "agreement": (c["tp"] + c["tn"]) / n if n else None}
+
+
+def confusion_table_html(c: dict) -> str:
+    """The 2 × 2 table (rows: predicted, columns: simulated) with the agreement."""
+    agree = "-" if c["agreement"] is None else f"{100 * c['agreement']:.0f} %"
+    return (
+        "<table><tr><th></th><th>simulated unstable</th><th>simulated stable</th></tr>"
+        f"<tr><th>predicted unstable (σ_min &lt; 0)</th><td>{c['tp']}</td><td>{c['fp']}</td></tr>"
+        f"<tr><th>predicted stable (σ_min ≥ 0)</th><td>{c['fn']}</td><td>{c['tn']}</td></tr></table>"
+        f"<p>Agreement {c['tp'] + c['tn']} of {c['n']} ({agree}).</p>"
+    )
+
+
+def _f(x, digits: int = 1) -> str:
+    return "-" if x is None else f"{x:+.{digits}f}"
+
+
+def per_row(runs: list[dict]) -> list[dict]:
+    """Per (row, μ), mean over its seeds: P_d·f̂ mean and max over the stretching strokes, P_d·f̂ at
+    the start (stretching direction), the worst σ over the strokes; in the runs' order."""
+    keys: list[tuple[str, float]] = []
+    for r in runs:
+        if (r["row"], r["mu"]) not in keys:
+            keys.append((r["row"], r["mu"]))
+    out = []
+    for row, mu in keys:
+        rs = [r for r in runs if r["row"] == row and r["mu"] == mu]
+        pds = [r["stroke"]["stretch_pd_fhat"] for r in rs if r["stroke"].get("stretch_pd_fhat")]
+        rates = [r["stroke"]["rate_min_per_s"] for r in rs if r["stroke"].get("rate_min_per_s") is not None]
+        start = [r["Pd_fhat"]["stretch"] for r in rs if r.get("Pd_fhat")]
+        out.append(
+            {
+                "row": row,
+                "mu": mu,
+                "n": len(rs),
+                "pd_start": sum(start) / len(start) if start else None,
+                "pd_stretch_mean": sum(p["mean"] for p in pds) / len(pds) if pds else None,
+                "pd_stretch_max": sum(p["max"] for p in pds) / len(pds) if pds else None,
+                "rate_min_per_s": sum(rates) / len(rates) if rates else None,
+            }
+        )
+    return out
+
+
+def report_section(runs: list[dict]) -> str:
+    """HTML: per run, the worst σ of each stroke, the stretching strokes' P_d·f̂, the verdicts; then
+    the confusion table over the runs. Empty when no run carries stroke samples."""
+    runs = [r for r in runs if r.get("stroke_margin")]
+    if not runs:
+        return ""
+    rows, pairs = [], []
+    for r in runs:
+        seg = {s["segment"]: s for s in r["stroke_margin"]}
+        o = outcome(r)
+        pred = predicted_unstable(r)
+        if pred is not None:
+            pairs.append((pred, o["unstable"]))
+        pd = r["stroke"].get("stretch_pd_fhat") or {}
+        cells = "".join(f"<td>{_f(seg[k]['rate_min_per_s']) if k in seg else '-'}</td>" for k in range(1, 7))
+        verdict = "-" if pred is None else ("unstable" if pred else "stable")
+        sim = o["why"] or "stable"
+        mark = "" if pred is None or pred == o["unstable"] else " style='background:#fdd'"
+        rows.append(
+            f"<tr{mark}><td>{html.escape(str(r['row']))}</td><td>{r['mu']:g}</td><td>{r['seed']}</td>{cells}"
+            f"<td>{_f(r['stroke'].get('kd_margin_min'), 0)}</td><td>{r['stroke']['growth_max_np']:.1f}</td>"
+            f"<td>{_f(pd.get('mean'), 3)}</td><td>{_f(pd.get('max'), 3)}</td><td>{verdict}</td>"
+            f"<td>{sim} ({_f(o['stroke_std_max_n'])} N)</td></tr>"
+        )
+    loops = {(r["stroke_loop"]["sensing_delay_steps"], r["stroke_loop"]["actuation_delay_steps"]) for r in runs}
+    latency = "; ".join(f"d_s = {ds}, d_a = {da} periods" for ds, da in sorted(loops))
+    limit = oscillation_threshold_n(runs[0].get("sensor_cutoff_hz"))
+    row_table = "".join(
+        f"<tr><td>{html.escape(str(e['row']))}</td><td>{e['mu']:g}</td><td>{e['n']}</td>"
+        f"<td>{_f(e['pd_start'], 3)}</td><td>{_f(e['pd_stretch_mean'], 3)}</td>"
+        f"<td>{_f(e['pd_stretch_max'], 3)}</td><td>{_f(e['rate_min_per_s'])}</td></tr>"
+        for e in per_row(runs)
+    )
+    return (
+        "<h2>Force-loop margin along the strokes</h2>"
+        "<p>Per row (mean over its seeds): the directional coupling P_d·f̂ [T10] at the trajectory start and "
+        "its mean and max over the stretching strokes as executed, and the worst σ (1/s) over all strokes.</p>"
+        "<table><tr><th>row</th><th>μ</th><th>runs</th><th>P_d·f̂ start</th><th>P_d·f̂ stretch mean</th>"
+        f"<th>P_d·f̂ stretch max</th><th>worst σ</th></tr>{row_table}</table>"
+        "<p>σ = −ln ρ(Φ)/Δt (1/s) of the linearised force loop (contact stiffness, friction, the shaped "
+        "inertia along z, K_f^p, K_f^d, K_f^i, the sensor's low-pass, the reading d_s periods late and the "
+        f"torque d_a periods late; {html.escape(latency)}) at each posture the run passed through every "
+        "25 ms, linearised about the commanded sliding speed and the segment's friction direction; each "
+        "cell is a stroke's worst value (negative: a mode grows). K_f^d margin: the worst over all strokes "
+        "(N s/m). G: the largest growth (nepers) the rates accumulate on a stroke. P_d·f̂: mean and max "
+        "over the stretching strokes S2, S4, S6. Predicted unstable when the worst σ is negative; simulated "
+        f"unstable when the run diverged, lost contact, or a stroke's force-error STD reached {limit:.1f} N "
+        f"({OSCILLATION_FACTOR:g}× the sensor's noise floor). Red rows disagree.</p>"
+        "<table><tr><th>row</th><th>μ</th><th>seed</th>"
+        + "".join(f"<th>σ S{k}</th>" for k in range(1, 7))
+        + "<th>K_f^d margin</th><th>G</th><th>P_d·f̂ mean</th><th>P_d·f̂ max</th><th>predicted</th>"
+        "<th>simulated (max stroke STD)</th></tr>" + "".join(rows) + "</table>" + confusion_table_html(confusion(pairs))
+    )
+
+
+def calibration_metrics(result: dict) -> dict:
+    """A sweep cell's scalars for the calibration: the margin's verdict and the run's outcome."""
+    o = outcome(result)
+    return {
+        "predicted_unstable": predicted_unstable(result),
+        "simulated_unstable": o["unstable"],
+        "outcome": o["why"] or "stable",
+        "stroke_std_max_n": o["stroke_std_max_n"],
+    }
+
+
+def sweep_section(names: list[str], records: list[dict]) -> str:
+    """HTML for a polish sweep: the confusion table over its runs (one per cell and seed) and every run
+    where the margin's sign and the outcome disagree, by its swept values. Empty without verdicts."""
+    runs = [
+        r for r in records if r.get("status") == "ok" and (r.get("metrics") or {}).get("predicted_unstable") is not None
+    ]
+    if not runs:
+        return ""
+    pairs = [(bool(r["metrics"]["predicted_unstable"]), bool(r["metrics"]["simulated_unstable"])) for r in runs]
+    c = confusion(pairs)
+    bad = [r for r, (p, s) in zip(runs, pairs, strict=True) if p != s]
+    rows = "".join(
+        "<tr>"
+        + "".join(f"<td>{html.escape(str(r['params'].get(n)))}</td>" for n in names)
+        + f"<td>{r.get('seed', '-')}</td><td>{_f(m.get('stroke_rate_min_per_s'), 2)}</td>"
+        f"<td>{_f(m.get('stroke_growth_max_np'), 1)}</td>"
+        f"<td>{'unstable' if m['predicted_unstable'] else 'stable'}</td><td>{html.escape(str(m['outcome']))}</td>"
+        f"<td>{_f(m.get('stroke_std_max_n'), 1)}</td><td>{m.get('contact_lost_ms', '-')}</td></tr>"
+        for r in bad
+        for m in [r["metrics"]]
+    )
+    limit = oscillation_threshold_n()
+    head = "".join(f"<th>{html.escape(n)}</th>" for n in names)
+    return (
+        "<h3>Calibration of the force-loop margin</h3>"
+        "<p>Predicted unstable: the worst decay rate σ of the linearised force loop over the six strokes, "
+        "evaluated along each run's executed postures with its μ and latency, is negative. Simulated "
+        "unstable: the run diverged, lost contact, or a stroke's force-error STD reached "
+        f"{limit:.1f} N ({OSCILLATION_FACTOR:g}× the noise floor of the default sensor).</p>"
+        + confusion_table_html(c)
+        + (
+            f"<p>Disagreeing runs ({len(bad)}):</p><table><tr>{head}<th>seed</th><th>σ_min (1/s)</th><th>G (Np)</th>"
+            "<th>predicted</th><th>simulated</th><th>max stroke STD (N)</th>"
+            f"<th>contact lost (ms)</th></tr>{rows}</table>"
+            if bad
+            else "<p>No run disagrees.</p>"
+        )
+    )

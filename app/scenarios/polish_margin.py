@@ -1,0 +1,132 @@
+"""The force-loop margin along the polish stroke (`control.margin` with the run's own latency).
+
+The margin of one posture is the decay rate σ = −ln ρ(Φ)/Δt (1/s) of the linearised force loop
+(`control.margin`) at that posture's Λx, linearised about the stroke's nominal state at that
+instant: sliding at the zig-zag's commanded speed ‖ṗ°_xy‖ (minimum jerk: 0 at the corners,
+≈ 0.16 m/s mid-stroke) against the friction direction f̂ of the segment, with the contact's μ,
+stiffness and v_ε, the sensor's cutoff and reading age d_s and the world's torque delay d_a.
+Besides σ it gives the K_f^d margin (K_f^d minus the lowest stable K_f^d, N s/m) and the signed
+directional coupling P_d·f̂ [T10] there. Evaluated on samples of the executed trajectory, each
+stroke keeps its worst (smallest) σ and K_f^d margin, the mean and max of P_d·f̂, and the growth
+G (nepers) that the frozen-posture rates accumulate over the stroke: G_k = max(0, G_{k−1} − σ_k Δt),
+the log of how much a disturbance at the noise level can be amplified before the stroke ends.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.scenarios import polish as P
+from control.coupling import POLISH_SUBSPACES
+from control.gains import MotionForceGains
+from control.margin import ContactLoop, force_loop_margin
+
+MARGIN_SAMPLE_S = 0.025  # 100 samples per 2.5 s stroke: finer than the ≈ 0.3 s the rates change over
+
+
+def contact_loop(contact: object, sensor: object, world: object, speed_m_s: float = 0.0) -> ContactLoop:
+    """The `ContactLoop` of a polish run: its contact (μ, stiffness, v_ε), the sensor's low-pass and
+    reading age (an ideal sensor: no filter, no delay), the world's torque delay and step."""
+    model = getattr(world, "model", None)
+    dt = float(model.opt.timestep) if model is not None else 1e-3
+    return ContactLoop(
+        stiffness_n_per_m=float(getattr(contact, "stiffness_n_per_m", P.CONTACT_STIFFNESS_N_PER_M)),
+        mu=float(getattr(contact, "mu", 0.0)),
+        normal_force_n=P.DESIRED_FORCE_N,
+        speed_m_s=float(speed_m_s),
+        v_eps_m_per_s=float(getattr(contact, "v_eps_m_per_s", P.FRICTION_V_EPS_M_PER_S)),
+        sensor_cutoff_hz=float(getattr(sensor, "cutoff_hz", 0.0)),
+        dt=dt,
+        sensing_delay_steps=int(getattr(sensor, "reading_delay_steps", 0)),
+        actuation_delay_steps=int(getattr(world, "torque_delay_steps", 0)),
+    )
+
+
+def operating_point(tau: float) -> tuple[float, np.ndarray]:
+    """(commanded sliding speed m/s, unit friction direction f̂ in xy) at trajectory time tau."""
+    _, v, _ = P.trajectory_state(tau)
+    return float(np.hypot(*v)), P.friction_direction(tau)
+
+
+@dataclass(frozen=True)
+class MarginSample:
+    """The margin at one instant of the stroke."""
+
+    rate_per_s: float  # σ, > 0 decays
+    kd_margin: float  # N s/m; −inf when no K_f^d up to 2000 N s/m is stable
+    pd_fhat: float  # P_d·f̂ [T10] along the segment's friction direction
+
+
+def sample(
+    Lambda: np.ndarray, gains: MotionForceGains, loop: ContactLoop, tau: float, find_kd: bool = True
+) -> MarginSample:
+    """The margin of the posture with this Λx at trajectory time tau (module docstring)."""
+    speed, f_hat = operating_point(tau)
+    m = force_loop_margin(Lambda, POLISH_SUBSPACES, gains, _at_speed(loop, speed), f_hat, find_kd=find_kd)
+    kd = math.nan if not find_kd else (-math.inf if m.kd_critical is None else gains.force_kd - m.kd_critical)
+    return MarginSample(m.rate_per_s, kd, m.directional_coupling)
+
+
+def _at_speed(loop: ContactLoop, speed: float) -> ContactLoop:
+    from dataclasses import replace
+
+    return replace(loop, speed_m_s=speed)
+
+
+def per_stroke(taus: np.ndarray, samples: list[MarginSample]) -> list[dict]:
+    """Per segment 1..6: the worst σ (and when), the worst K_f^d margin, P_d·f̂ mean and max, the
+    growth G (module docstring); segments without samples are left out."""
+    taus = np.asarray(taus, dtype=float)
+    out = []
+    for k in range(1, P.N_SEGMENTS + 1):
+        sel = np.flatnonzero((taus >= (k - 1) * P.SEGMENT_DURATION_S) & (taus < k * P.SEGMENT_DURATION_S))
+        if sel.size == 0:
+            continue
+        rate = np.array([samples[i].rate_per_s for i in sel])
+        kd = np.array([samples[i].kd_margin for i in sel])
+        pd = np.array([samples[i].pd_fhat for i in sel])
+        dts = np.diff(np.concatenate([[taus[sel[0]]], taus[sel]]))
+        dts[0] = MARGIN_SAMPLE_S if sel.size == 1 else dts[1]
+        g = 0.0
+        growth = 0.0
+        for r, dt in zip(rate, dts, strict=True):
+            g = max(0.0, g - r * dt)
+            growth = max(growth, g)
+        worst = int(np.argmin(rate))
+        out.append(
+            {
+                "segment": k,
+                "direction": "retract (-X)" if k % 2 == 1 else "stretch (+X)",
+                "rate_min_per_s": float(rate[worst]),
+                "rate_min_at_s": float(taus[sel[worst]] - (k - 1) * P.SEGMENT_DURATION_S),
+                "kd_margin_min": float(np.min(kd)) if np.all(np.isfinite(kd)) else None,
+                "negative_share": float(np.mean(rate < 0.0)),
+                "growth_np": float(growth),
+                "pd_fhat_mean": float(np.mean(pd)),
+                "pd_fhat_max": float(np.max(pd)),
+            }
+        )
+    return out
+
+
+def summary(strokes: list[dict]) -> dict:
+    """Over all strokes: worst σ and K_f^d margin, largest growth, and P_d·f̂ over the stretching
+    strokes (the mean of the stroke means, the max of the maxima)."""
+    if not strokes:
+        return {"rate_min_per_s": None, "kd_margin_min": None, "growth_max_np": None, "stretch_pd_fhat": None}
+    kds = [s["kd_margin_min"] for s in strokes]
+    stretch = [s for s in strokes if s["segment"] % 2 == 0]
+    return {
+        "rate_min_per_s": min(s["rate_min_per_s"] for s in strokes),
+        "kd_margin_min": None if any(k is None for k in kds) else min(kds),
+        "growth_max_np": max(s["growth_np"] for s in strokes),
+        "stretch_pd_fhat": None
+        if not stretch
+        else {
+            "mean": float(np.mean([s["pd_fhat_mean"] for s in stretch])),
+            "max": float(max(s["pd_fhat_max"] for s in stretch)),
+        },
+    }

@@ -1,0 +1,82 @@
+"""The margin along the polish strokes (app.scenarios.polish_margin) and its calibration report
+(app.headless.experiments.polish_calibration)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.headless.experiments import polish_calibration as C
+from app.scenarios import polish as P
+from app.scenarios import polish_margin as PM
+
+
+def _samples(rates, pds):
+    return [PM.MarginSample(r, 10.0 * r, p) for r, p in zip(rates, pds, strict=True)]
+
+
+def test_per_stroke_keeps_each_strokes_worst_rate_its_coupling_and_the_growth_it_accumulates():
+    """Two strokes sampled every 25 ms: S1 decays everywhere (G = 0), S2 grows at 2/s for 1 s in the
+    middle and decays at 1/s after it: G = 2 Np; worst σ, P_d·f̂ mean/max and the share negative are
+    each stroke's own."""
+    T, dt = P.SEGMENT_DURATION_S, PM.MARGIN_SAMPLE_S
+    taus = np.arange(0.0, 2 * T - 1e-9, dt)
+    rates = np.where(taus < T, 3.0, np.where((taus >= T + 0.5) & (taus < T + 1.5), -2.0, 1.0))
+    pds = np.where(taus < T, -1.0, np.linspace(0.5, 1.0, taus.size))
+    strokes = PM.per_stroke(taus, _samples(rates, pds))
+    s1, s2 = strokes
+    assert (s1["segment"], s2["segment"]) == (1, 2) and s2["direction"].startswith("stretch")
+    assert s1["rate_min_per_s"] == 3.0 and s1["growth_np"] == 0.0 and s1["negative_share"] == 0.0
+    assert s2["rate_min_per_s"] == -2.0 and s2["growth_np"] == pytest.approx(2.0, abs=1e-9)
+    assert s2["negative_share"] == pytest.approx(1.0 / T, abs=dt / T)
+    assert s2["kd_margin_min"] == -20.0 and s2["pd_fhat_max"] == pytest.approx(1.0)
+    assert s2["pd_fhat_mean"] == pytest.approx(np.mean(pds[taus >= T]))
+    total = PM.summary(strokes)
+    assert total["rate_min_per_s"] == -2.0 and total["growth_max_np"] == pytest.approx(2.0)
+    assert total["stretch_pd_fhat"] == {"mean": pytest.approx(s2["pd_fhat_mean"]), "max": pytest.approx(1.0)}
+
+
+def test_the_operating_point_is_the_commanded_speed_against_the_segments_friction_direction():
+    """At a corner the commanded speed is 0, mid-stroke it is the minimum-jerk peak; f̂ opposes the motion."""
+    speed0, f0 = PM.operating_point(0.0)
+    mid, f_mid = PM.operating_point(1.5 * P.SEGMENT_DURATION_S)
+    assert speed0 == pytest.approx(0.0, abs=1e-12) and mid == pytest.approx(P.PEAK_SPEED_M_S, rel=1e-9)
+    assert f0[0] > 0.9 and f_mid[0] < -0.9  # S1 retracts along −X (friction +X), S2 stretches along +X
+
+
+def _run(stds, lost=0, rate=-1.0):
+    return {
+        "row": "W_j",
+        "mu": 1.0,
+        "seed": 0,
+        "diverged": False,
+        "contact_lost_ms": lost,
+        "per_segment": [{"force_error": {"std": s}} for s in stds],
+        "stroke": {"rate_min_per_s": rate},
+    }
+
+
+def test_outcome_is_contact_loss_or_a_stroke_std_above_three_noise_floors():
+    """The noise floor of the default sensor is √(5 α/(2 − α) + 2) N; a stroke at 3× it oscillates."""
+    a = 1.0 - np.exp(-2.0 * np.pi * 25.0 * 1e-3)
+    floor = np.sqrt(5.0 * a / (2.0 - a) + 2.0)
+    assert C.noise_floor_std_n() == pytest.approx(floor, rel=1e-12)
+    limit = 3.0 * floor
+    assert C.outcome(_run([1.8, limit * 0.99]))["why"] == ""
+    assert C.outcome(_run([1.8, limit * 1.01]))["why"] == "oscillation"
+    assert C.outcome(_run([1.8, 1.9], lost=3))["why"] == "contact lost"
+    assert C.predicted_unstable(_run([1.0], rate=-0.1)) and not C.predicted_unstable(_run([1.0], rate=0.1))
+
+
+def test_confusion_counts_and_the_report_names_the_disagreeing_runs():
+    pairs = [(True, True), (True, False), (False, False), (False, False), (False, True)]
+    c = C.confusion(pairs)
+    assert (c["tp"], c["fp"], c["tn"], c["fn"], c["n"]) == (1, 1, 2, 1, 5) and c["agreement"] == pytest.approx(0.6)
+    records = [
+        {"status": "ok", "params": {"hold_swivel": sw, "mu": 1.0}, "seed": 0, "metrics": m}
+        for sw, (p, s) in zip((-80, -40, 0, 20, 40), pairs, strict=True)
+        for m in [{"predicted_unstable": p, "simulated_unstable": s, "outcome": "oscillation" if s else "stable"}]
+    ]
+    page = C.sweep_section(["hold_swivel", "mu"], records)
+    assert "Agreement 3 of 5 (60 %)" in page and "Disagreeing runs (2)" in page
+    assert "<td>-40</td>" in page and "<td>40</td>" in page and "<td>20</td>" not in page
