@@ -93,10 +93,12 @@ def test_step_matrix_columns_are_single_state_steps(rizon, shaping):
             assert np.max(np.abs(phi @ s - ref)) <= 1e-12 * np.max(np.abs(ref))
 
 
-def _loses_contact(swivel_deg: float, kd: float) -> bool:
-    """Hold the posture (W_j on it), press 20 N at μ = 1, then S1 (retract) and S2 (stretch)."""
+def _loses_contact(swivel_deg: float, kd: float, delay: int) -> bool:
+    """Hold the posture (W_j on it), press 20 N at μ = 1 with the F/T reading `delay` periods old,
+    then S1 (retract) and S2 (stretch)."""
     session = Session(P.PolishScenario(mu=1.0, hold_swivel_deg=swivel_deg), seed=0)
     session.set_param("motion_force", "force_kd", kd)
+    session.set_param("sensor", "reading_delay_steps", delay)
     clock = session.environment.clock  # type: ignore[attr-defined]
     lost = []
     session.run(P.CONTACT_TIME_S + 0.3, record=lambda r: lost.append(r.signals["contact_force_n"] <= 0 and r.t > 0.5))
@@ -105,16 +107,16 @@ def _loses_contact(swivel_deg: float, kd: float) -> bool:
     return res.stop == "diverged" or any(lost)
 
 
-@pytest.mark.parametrize("swivel_deg", [0.0, -82.3])
-def test_margin_sign_predicts_contact_loss_within_15_percent_of_the_boundary(rizon, swivel_deg):
+@pytest.mark.parametrize(("swivel_deg", "delay"), [(0.0, 0), (-82.3, 0), (0.0, 1)])
+def test_margin_sign_predicts_contact_loss_within_15_percent_of_the_boundary(rizon, swivel_deg, delay):
     """Sweep K_f^d through the predicted boundary at two postures (the Fig. 6a start, where the
     stretching segment decides, and the mirror W_a minimum, where the rest at the segment ends
-    decides): 15 % below it the short run loses contact, 15 % above it it stays on the table."""
+    decides), with the same-step reading and, at the start, one period of sensing delay (the
+    boundary moves up with it): 15 % below it the short run loses contact, 15 % above it it stays
+    on the table."""
     L = _lambda(rizon, swivel_deg)
-    pm = posture_margin(
-        L, POLISH_SUBSPACES, MotionForceGains(), ContactLoop(mu=1.0, speed_m_s=peak_speed()), [STRETCH, RETRACT]
-    )
-    boundary = pm.kd_critical
-    assert 100.0 < boundary < 250.0
-    assert _loses_contact(swivel_deg, 0.85 * boundary)
-    assert not _loses_contact(swivel_deg, 1.15 * boundary)
+    loop = ContactLoop(mu=1.0, speed_m_s=peak_speed(), sensing_delay_steps=delay)
+    boundary = posture_margin(L, POLISH_SUBSPACES, MotionForceGains(), loop, [STRETCH, RETRACT]).kd_critical
+    assert 100.0 < boundary < 300.0
+    assert _loses_contact(swivel_deg, 0.85 * boundary, delay)
+    assert not _loses_contact(swivel_deg, 1.15 * boundary, delay)
