@@ -293,3 +293,66 @@ def test_polish_map_marks_the_planned_paths_over_the_swivels_they_visit():
         assert np.all((p["swivel_deg"] >= p["lo"]) & (p["swivel_deg"] <= p["hi"]))
     assert "Planned nullspace paths" in polish_notes(axes, [])
     plt.close(fig)
+
+
+def test_a_polish_cell_sets_its_session_parameters_only_through_the_parameter_path(monkeypatch):
+    """Every session knob of a polish cell (μ, start swivel, k0…) reaches `simulate` as a
+    (group, field, value) for `Session.set_param`; only the run's own arguments are spec fields."""
+    from app.headless.experiments import polish as polish_experiment
+    from app.headless.sweep import experiments as sweep_experiments
+
+    seen: list[dict] = []
+
+    def fake(spec: dict) -> dict:
+        seen.append(spec)
+        return {"result": {"stable": True}}
+
+    monkeypatch.setattr(polish_experiment, "simulate", fake)
+    values = {"mu": 1.0, "swivel": 30.0, "k0_a": 0.5, "sander": True, "objective": "d", "converge_timeout": 20.0}
+    sweep_experiments.polish_cell(values, seed=3)
+    (spec,) = seen
+    assert sorted(spec["session_params"]) == sorted(
+        [
+            ("contact", "mu", 1.0),
+            ("scenario", "start_swivel_deg", 30.0),
+            ("nullspace", "k0_a", 0.5),
+            ("sander", "enabled", True),
+        ]
+    )
+    assert not {"mu", "start_swivel_deg", "sander"} & set(spec)
+    assert spec["objective"] == "d" and spec["converge_timeout_s"] == 20.0 and spec["seed"] == 3
+
+
+def test_session_changes_put_scenario_values_in_force_from_t0_and_the_rest_after_the_build():
+    """`Session(changes=…)`: a start swivel is the start posture's, μ is the contact's, and both stay
+    after a reset; a refused value raises ParamError naming the field."""
+    from app.core.commands import SetParam
+    from app.core.session import Session
+    from app.scenarios.polish import PolishScenario
+    from control.coupling import swivel_angle
+    from control.params import ParamError
+
+    changes = [SetParam("contact", "mu", 1.0), SetParam("scenario", "start_swivel_deg", 30.0)]
+    s = Session(PolishScenario(), changes=changes)
+    assert s.environment.contact.mu == 1.0  # type: ignore[attr-defined]
+    assert abs(np.rad2deg(swivel_angle(s.model, s.world.q)) - 30.0) < 0.5
+    s.reset()
+    assert s.environment.contact.mu == 1.0 and s.overrides()["scenario"] == {"start_swivel_deg": 30.0}  # type: ignore[attr-defined]
+    with pytest.raises(ParamError, match=r"contact\.mu"):
+        Session(PolishScenario(), changes=[SetParam("contact", "mu", -1.0)])
+
+
+def test_experiments_map_their_runs_on_the_sweeps_engine_and_keep_the_order(monkeypatch):
+    """`run_parallel` (the [C] experiments) opens its processes through `open_executor`, as sweeps do."""
+    from app.headless.experiments import c_common
+
+    opened = []
+    real = c_common.open_executor
+
+    def spy(cluster, jobs):
+        opened.append((cluster, jobs))
+        return real(cluster, jobs)
+
+    monkeypatch.setattr(c_common, "open_executor", spy)
+    assert c_common.run_parallel(abs, [(-3,), (-1,), (-2,)], 2, "abs") == [3, 1, 2]
+    assert opened == [(None, 2)]

@@ -132,3 +132,50 @@ def test_the_twins_link_poses_are_copies_of_its_bodies():
     lab.advance(50)
     np.testing.assert_array_equal(positions, expected)
     assert not np.array_equal(twin.link_poses(names)[0], expected)
+
+
+def test_a_twin_that_raises_stops_alone_with_its_own_reason_and_the_main_arm_goes_on(monkeypatch):
+    """A twin exception (injected into its step) stops the twin with the exception as its reason;
+    the main arm runs every step asked, is not halted, and says nothing of a divergence."""
+    from app.live.lab import Lab
+
+    lab = Lab("polish")
+    lab.apply(SetTwin("j"))
+    assert lab.twin is not None
+    twin_session = lab.twin.session
+    real_step, calls = twin_session.step, []
+
+    def failing_step():
+        calls.append(1)
+        if len(calls) == 30:
+            raise RuntimeError("injected twin failure")
+        return real_step()
+
+    monkeypatch.setattr(twin_session, "step", failing_step)
+    result = lab.advance(100)
+    assert result.stop == "done" and result.steps == 100 and not lab.halted
+    (twin_result,) = result.lockstep
+    assert twin_result.stop == "error" and twin_result.steps == 29 and "injected twin failure" in twin_result.reason
+    assert lab.twin is None and len(calls) == 30
+    notice = lab.notice_log[-1]
+    assert notice.title == "Twin arm off" and "injected twin failure" in notice.body
+    assert lab.advance(10).steps == 10 and lab.session.steps == 110
+
+
+def test_a_lockstep_session_that_diverges_stops_there_and_the_main_run_goes_on():
+    """Session.run with a lockstep member whose state turns NaN: that member's result says diverged
+    at its step; the main run completes."""
+    from app.core.session import Lockstep, Session
+
+    main, other = Session("free"), Session("free")
+    seen: list[float] = []
+
+    def poison(rec) -> None:
+        seen.append(rec.t)
+        if len(seen) == 5:
+            other.world.data.qvel[0] = np.nan
+
+    result = main.run(steps=20, lockstep=(Lockstep(other, poison),))
+    assert result.stop == "done" and result.steps == 20 and main.steps == 20
+    (r,) = result.lockstep
+    assert r.stop == "diverged" and r.steps == 5 and other.steps == 5 and "diverged" in r.reason

@@ -19,6 +19,7 @@ a new session (a rebuild, the twin arm).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import math
 from collections.abc import Callable, Iterable
@@ -98,11 +99,21 @@ class RunResult:
     stop: str
     reason: str = ""
     error: BaseException | None = None
+    lockstep: tuple[RunResult, ...] = ()  # one per session stepped in lockstep (`Lockstep`), in order
 
     @property
     def halted(self) -> bool:
         """True when the run ended on divergence or an error."""
         return self.stop in ("diverged", "error")
+
+
+@dataclass(frozen=True)
+class Lockstep:
+    """A session `Session.run` steps right after its own at every step (the twin arm), with its own
+    `record`. Its divergence or error stops it alone, with its own result; the main run goes on."""
+
+    session: Session
+    record: Callable[[StepRecord], None] | None = None
 
 
 @dataclass
@@ -131,12 +142,20 @@ class Session:
         seed: int = 0,
         q0: np.ndarray | None = None,
         defer_work: bool = False,
+        changes: Iterable[SetParam] = (),
     ):
+        """`changes` are `set_param` calls made as the session is built: those of the "scenario"
+        group on its copy of the scenario before anything else is (so a start swivel or an armature
+        scale is in force from t = 0), the others once it is built; a refused one raises ParamError."""
         # accepted set_param changes, oldest first, each with its field's whole value after it
         self._changes: list[tuple[SetParam, Any]] = []
         # a copy: scenario parameters set on this session must not leak into the shared preset
         self._scenario_origin = get_scenario(scenario) if isinstance(scenario, str) else scenario
         self.scenario = copy.copy(self._scenario_origin)
+        changes = list(changes)
+        for c in changes:
+            if c.group == "scenario":
+                self._set_scenario_param(c)
         self.robot = robots.load(robot or self.scenario.default_robot)
         prepare = getattr(self.scenario, "prepare_robot", None)
         if callable(prepare):  # e.g. a scaled armature, before the controller model and the world exist
@@ -157,6 +176,9 @@ class Session:
         self._configure_executor_for_scenario()
         self._q0_override = q0
         self.reset()
+        for c in changes:
+            if c.group != "scenario":
+                self.set_param(c.group, c.field, c.value, c.index)
 
     # ---- lifecycle ----------------------------------------------------------------------------
     def reset(self) -> None:
@@ -219,6 +241,18 @@ class Session:
         owner.set_params(group, new)
         self._changes.append((SetParam(group, field, value, index), getattr(new, field)))
         return new
+
+    def _set_scenario_param(self, c: SetParam) -> None:
+        """A "scenario" change on the scenario copy alone (the rest of the session is not built yet)."""
+        groups = self.scenario.params()
+        if "scenario" not in groups:
+            raise ParamError(f"the {self.scenario.name} scenario has no parameter group 'scenario'")
+        try:
+            new = replaced(groups["scenario"], c.field, c.value, c.index)
+        except ParamError as exc:
+            raise ParamError(f"scenario.{exc}") from None
+        self.scenario.set_params("scenario", new)
+        self._changes.append((SetParam(c.group, c.field, c.value, c.index), getattr(new, c.field)))
 
     @property
     def changes(self) -> list[SetParam]:
@@ -348,22 +382,41 @@ class Session:
         steps: int | None = None,
         until: Callable[[StepRecord], bool] | None = None,
         record: Callable[[StepRecord], None] | None = None,
+        lockstep: tuple[Lockstep, ...] = (),
     ) -> RunResult:
         """Step for `seconds` of simulated time (or `steps` steps): the one run loop of the app and
-        the experiments. After each step `record(rec)` is called, then the state is checked for
-        divergence, then `until(rec)` may end the run early. An exception from a step (or from
-        `record`) ends the run too; it is returned in the result, not raised."""
+        the experiments. After each step `record(rec)` is called, then each `lockstep` session steps
+        (and records), then the state is checked for divergence, then `until(rec)` may end the run
+        early. An exception from a step (or from `record`) ends the run too; it is returned in the
+        result, not raised. A lockstep session that diverges or raises stops there with its own
+        result (`RunResult.lockstep`, stop "diverged" or "error"); the others go on; one still
+        stepping when the run ends has stop "done"."""
         if steps is None:
             if seconds is None:
                 raise ValueError("run needs seconds or steps")
             steps = round(seconds / self.world.model.opt.timestep)
+        if not lockstep:
+            return self._run(int(steps), until, record, None)
+        group = _Group(lockstep)
+        result = self._run(int(steps), until, record, group)
+        return dataclasses.replace(result, lockstep=group.results())
+
+    def _run(
+        self,
+        steps: int,
+        until: Callable[[StepRecord], bool] | None,
+        record: Callable[[StepRecord], None] | None,
+        group: _Group | None,
+    ) -> RunResult:
         done = 0
         try:
-            for _ in range(int(steps)):
+            for _ in range(steps):
                 rec = self.step()
                 done += 1
                 if record is not None:
                     record(rec)
+                if group is not None and group.active:
+                    group.step()
                 if self.world.diverged():
                     return RunResult(done, self.world.time, "diverged", self._divergence_reason())
                 if until is not None and until(rec):
@@ -404,3 +457,41 @@ class Session:
     @functools.cached_property
     def _sensor_frame_id(self) -> int:
         return self.model.model.getFrameId(robots.SENSOR_FRAME)  # a name lookup: once per session
+
+
+class _Group:
+    """The lockstep sessions of one `Session.run`: which still step, and each one's result."""
+
+    def __init__(self, members: tuple[Lockstep, ...]):
+        self.members = members
+        self.done = [0] * len(members)
+        self.stopped: list[RunResult | None] = [None] * len(members)
+        self.active = list(range(len(members)))
+
+    def step(self) -> None:
+        """One step of every member still stepping; a divergence or an error stops that member."""
+        for i in tuple(self.active):
+            member = self.members[i]
+            world = member.session.world
+            try:
+                rec = member.session.step()
+                self.done[i] += 1
+                if member.record is not None:
+                    member.record(rec)
+                if world.diverged():
+                    self._stop(i, RunResult(self.done[i], world.time, "diverged", member.session._divergence_reason()))
+            except Exception as exc:
+                reason = f"the simulation step raised {type(exc).__name__}: {exc}"
+                self._stop(i, RunResult(self.done[i], world.time, "error", reason, exc))
+
+    def _stop(self, i: int, result: RunResult) -> None:
+        self.stopped[i] = result
+        self.active.remove(i)
+
+    def results(self) -> tuple[RunResult, ...]:
+        """Each member's result: how it stopped, or "done" if it stepped to the end of the run."""
+        out = []
+        for i, member in enumerate(self.members):
+            stopped = self.stopped[i]
+            out.append(stopped if stopped is not None else RunResult(self.done[i], member.session.world.time, "done"))
+        return tuple(out)

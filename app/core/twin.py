@@ -1,7 +1,8 @@
 """The twin arm: the same scenario run a second time, in lockstep, with another nullspace objective.
 
 The twin is a second `Session` (its own MuJoCo world, controller model, executor and sensor noise
-with the same seed) that the loop steps right after the main session. It gets every setting the
+with the same seed) that the main session's `run` steps right after its own (`Lockstep`): a twin
+that diverges or raises stops alone, with its own reason. It gets every setting the
 person changes except the objective, never the drag spring. With the same objective it repeats the
 main arm step for step (a test checks this), so any difference on screen comes from the objective.
 It costs a second control step per millisecond: the status line shows when that is too much.
@@ -71,14 +72,6 @@ class Twin:
         """Back to t = 0 with the main session (the session keeps its parameter overrides)."""
         self.session.reset()
         self.log.clear()
-
-    def step(self) -> None:
-        """One control period, in lockstep with the main session."""
-        self.log.append(self.session.step())
-
-    def diverged(self) -> bool:
-        """NaN or runaway state in the twin's simulation."""
-        return self.session.diverged()
 
     def columns_at(self, t: np.ndarray) -> dict[str, np.ndarray]:
         """The twin's logged columns at the main log's times `t` (NaN where it has no sample)."""

@@ -40,7 +40,7 @@ from app.core.commands import (
     SwitchSession,
 )
 from app.core.executors import EXECUTORS
-from app.core.session import RunResult, Session, StepRecord, WorkPending
+from app.core.session import Lockstep, RunResult, Session, StepRecord, WorkPending
 from app.core.settings import finite_number, plain
 from app.core.steplog import StepLog
 from app.core.twin import Twin
@@ -189,20 +189,20 @@ class Lab:
             self.total_steps += 1
             if rec.fallback:
                 self.fallback_steps += 1
-            if twin is not None:
-                twin.step()
 
-        result = self.session.run(steps=n, record=record, until=until)
-        if result.error is not None:  # a bug or numerical failure must not kill the server
-            traceback.print_exception(result.error)
+        group = () if twin is None else (Lockstep(twin.session, twin.log.append),)
+        result = self.session.run(steps=n, record=record, until=until, lockstep=group)
+        for r in (result, *result.lockstep):
+            if r.error is not None:  # a bug or numerical failure must not kill the server
+                traceback.print_exception(r.error)
+        if twin is not None and result.lockstep[0].halted:  # the twin stops alone, with its own reason
+            self._drop_twin(f"the twin arm (W_{twin.objective}) is switched off: {result.lockstep[0].reason}")
         if result.halted:
             self._halt(result.reason)
         else:
             self._steps_since_change += result.steps
             if self._steps_since_change >= RECOVERY_STEPS:
                 self._healthy = len(self.overrides)
-            if twin is not None and twin.diverged():
-                self._drop_twin(f"the twin arm (W_{twin.objective}) diverged; it is switched off")
             if self.total_steps >= self._overpowered_check_at:
                 self._overpowered_check_at = self.total_steps + OVERPOWERED_CHECK_STEPS
                 self._check_overpowered()

@@ -7,7 +7,6 @@ import html
 import json
 import os
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +14,7 @@ from tqdm import tqdm
 
 from app.core.executors import EXECUTORS
 from app.core.session import Session
+from app.headless.sweep.engine import open_executor
 from app.scenarios import Scenario
 from control.compliance_qp import ComplianceQPExecutor, make_compliance_qp
 
@@ -30,7 +30,8 @@ def qp_session(scenario: Scenario, seed: int = 0) -> Session:
 
 
 def run_parallel(fn: Callable, jobs_args: list, jobs: int, desc: str) -> list:
-    """Map fn over the argument tuples, in `jobs` processes, with a progress bar; keeps order."""
+    """Map fn over the argument tuples, in `jobs` processes of the sweeps' engine
+    (`app.headless.sweep.engine`), with a progress bar; keeps order."""
     jobs = max(1, min(int(jobs), os.cpu_count() or 1, len(jobs_args) or 1))
     results: list = [None] * len(jobs_args)
     with tqdm(total=len(jobs_args), desc=desc, unit="run") as bar:
@@ -39,7 +40,7 @@ def run_parallel(fn: Callable, jobs_args: list, jobs: int, desc: str) -> list:
                 results[i] = fn(*a)
                 bar.update()
         else:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
+            with open_executor(None, jobs) as (pool, _):  # the sweeps' engine
                 futures = {pool.submit(fn, *a): i for i, a in enumerate(jobs_args)}
                 for fut in _as_completed(futures):
                     results[futures[fut]] = fut.result()

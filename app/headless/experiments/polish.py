@@ -16,13 +16,14 @@ import hashlib
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from app.core.provenance import code_version
+from app.headless.sweep.engine import open_executor
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
 from app.scenarios.polish_margin import MARGIN_SAMPLE_S
@@ -148,7 +149,10 @@ def simulate(spec: dict) -> dict:
     optional shaping, armature_scale, sander, sensor_cutoff_hz, converge_timeout_s (settle cap),
     hold_swivel_deg, row, group, reading_delay_steps (the F/T reading's age, control periods),
     torque_delay_ms, strokes (run only the first n segments), session_params ((group, field, value) set
-    on the session)."""
+    on the session after the others; a sweep's session parameters come this way). Every session
+    parameter goes through the parameter path (`Session(changes=…)`); the result reports the values
+    the session ran with."""
+    from app.core.commands import SetParam
     from app.core.session import Session
     from control.coupling import swivel_angle
 
@@ -156,26 +160,27 @@ def simulate(spec: dict) -> dict:
     objective = str(spec["objective"])
     plan_cost = PLAN_COST_OF.get(objective)
     scenario = PolishScenario(
-        mu=float(spec["mu"]),
-        sander=bool(spec.get("sander", False)),
-        start_swivel_deg=float(spec.get("start_swivel_deg", 0.0)),
         converge_timeout_s=float(spec.get("converge_timeout_s", scenario_module.CONVERGE_TIMEOUT_S)),
         hold_swivel_deg=spec.get("hold_swivel_deg"),
-        armature_scale=float(spec.get("armature_scale", 1.0)),
         plan_cost=plan_cost,
     )
-    session = Session(scenario, seed=int(spec["seed"]))
-    session.set_param("motion_force", "shaping", bool(spec.get("shaping", True)))
+    optional = (
+        ("mu", "contact", "mu"),
+        ("sander", "sander", "enabled"),
+        ("armature_scale", "scenario", "armature_scale"),
+        ("shaping", "motion_force", "shaping"),
+        ("sensor_cutoff_hz", "sensor", "cutoff_hz"),
+        ("reading_delay_steps", "sensor", "reading_delay_steps"),
+        ("torque_delay_ms", "world", "torque_delay_ms"),
+    )
+    changes = [SetParam(g, f, spec[key]) for key, g, f in optional if spec.get(key) is not None]
+    if spec.get("hold_swivel_deg") is None and spec.get("start_swivel_deg") is not None:
+        changes.append(SetParam("scenario", "start_swivel_deg", spec["start_swivel_deg"]))
     if plan_cost is None and spec.get("hold_swivel_deg") is None:
-        session.set_param("nullspace", "objective", objective)
-    if spec.get("sensor_cutoff_hz") is not None:
-        session.set_param("sensor", "cutoff_hz", float(spec["sensor_cutoff_hz"]))
-    if spec.get("reading_delay_steps") is not None:
-        session.set_param("sensor", "reading_delay_steps", int(spec["reading_delay_steps"]))
-    if spec.get("torque_delay_ms") is not None:
-        session.set_param("world", "torque_delay_ms", float(spec["torque_delay_ms"]))
-    for group, name, value in spec.get("session_params", ()):  # e.g. ("nullspace", "k0_a", 0.5) from a sweep
-        session.set_param(group, name, value)
+        changes.append(SetParam("nullspace", "objective", objective))
+    changes += [SetParam(g, f, v) for g, f, v in spec.get("session_params", ())]  # e.g. ("nullspace", "k0_a", 0.5)
+    session = Session(scenario, seed=int(spec["seed"]), changes=changes)
+    ran = session.params()  # the groups the run is made with
     clock = session.environment.clock  # type: ignore[attr-defined]
     session.environment.live_margin_every_s = float("inf")  # type: ignore[attr-defined]  # a page signal only
     target = session.target_fn
@@ -208,21 +213,22 @@ def simulate(spec: dict) -> dict:
     qc = q_converged[0] if q_converged else session.world.q.copy()
     model = session.model
     traj = (series["segment"] >= 1) & (series["segment"] <= N_SEGMENTS)
-    posture = posture_figures(session, qc, float(spec["mu"]), bool(spec.get("shaping", True)))
-    stroke = stroke_margin_figures(session, stroke_q, bool(spec.get("shaping", True)))
+    mu, shaping = float(ran["contact"].mu), bool(ran["motion_force"].shaping)  # type: ignore[attr-defined]
+    posture = posture_figures(session, qc, mu, shaping)
+    stroke = stroke_margin_figures(session, stroke_q, shaping)
     result: dict[str, Any] = {
         "row": spec.get("row", OBJECTIVE_NAMES.get(objective, objective)),
         "group": spec.get("group", "table"),
         "objective": objective,
-        "mu": float(spec["mu"]),
+        "mu": mu,
         "seed": int(spec["seed"]),
         "start_swivel_deg": float(np.rad2deg(swivel_angle(model, q_start))),
-        "shaping": bool(spec.get("shaping", True)),
-        "armature_scale": float(spec.get("armature_scale", 1.0)),
-        "sander": bool(spec.get("sander", False)),
-        "sensor_cutoff_hz": spec.get("sensor_cutoff_hz", scenario_module.SENSOR_CUTOFF_HZ),
-        "reading_delay_steps": int(session.params()["sensor"].reading_delay_steps),  # type: ignore[attr-defined]
-        "torque_delay_ms": float(session.params()["world"].torque_delay_ms),  # type: ignore[attr-defined]
+        "shaping": shaping,
+        "armature_scale": float(ran["scenario"].armature_scale),  # type: ignore[attr-defined]
+        "sander": bool(ran["sander"].enabled),  # type: ignore[attr-defined]
+        "sensor_cutoff_hz": float(ran["sensor"].cutoff_hz),  # type: ignore[attr-defined]
+        "reading_delay_steps": int(ran["sensor"].reading_delay_steps),  # type: ignore[attr-defined]
+        "torque_delay_ms": float(ran["world"].torque_delay_ms),  # type: ignore[attr-defined]
         "converged": bool(clock.converged),
         "convergence_time_s": clock.convergence_time_s,
         "settle_cap_s": clock.timeout_s,
@@ -637,7 +643,7 @@ def _map(
         for done, i in enumerate(todo):
             finished(done, i, fn(specs[i]))
     else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with open_executor(None, jobs) as (pool, _):  # the sweeps' engine
             futures = {pool.submit(fn, specs[i]): i for i in todo}
             for done, fut in enumerate(as_completed(futures)):
                 finished(done, futures[fut], fut.result())

@@ -218,7 +218,6 @@ POLISH_KNOBS = (
         for o in ("j", "f", "a", "d")
     ),
 )
-POLISH_SESSION_KNOBS = ("k0_j", "k0_f", "k0_a", "k0_d")  # set on the session as they are (group, field)
 
 
 def _polish(**values):
@@ -253,33 +252,19 @@ def polish_groups() -> dict:
 
 
 def polish_cell(values: dict, seed: int) -> dict:
-    """One polish run (`polish.simulate`); stable = never diverged and never lost contact."""
+    """One polish run (`polish.simulate`); stable = never diverged and never lost contact. The cell's
+    session parameters (μ, start swivel, k0…) reach the run only through the parameter path
+    (`session_params`, set by `Session.set_param` as the GUI's are); the run's own arguments (objective,
+    a held swivel, the settle cap) are the spec's."""
     from app.headless.experiments.polish import simulate
 
-    spec: dict = {
-        "mu": float(values.get("mu", 0.25)),
-        "sander": bool(values.get("sander", False)),
-        "seed": int(seed),
-        "objective": str(values.get("objective", "a")),
-        "start_swivel_deg": float(values.get("swivel", 0.0)),
-        "shaping": bool(values.get("shaping", True)),
-        "group": "sweep",
-    }
+    spec: dict = {"seed": int(seed), "objective": str(values.get("objective", "a")), "group": "sweep"}
     if "hold_swivel" in values:  # the nullspace holds the start posture (W_j on it): no flow
         spec["hold_swivel_deg"] = float(values["hold_swivel"])
-    if "armature_scale" in values:
-        spec["armature_scale"] = float(values["armature_scale"])
-    if "sensor_cutoff" in values:
-        spec["sensor_cutoff_hz"] = float(values["sensor_cutoff"])
-    if "reading_delay" in values:
-        spec["reading_delay_steps"] = int(values["reading_delay"])
-    if "torque_delay_ms" in values:
-        spec["torque_delay_ms"] = float(values["torque_delay_ms"])
     if "converge_timeout" in values:
         spec["converge_timeout_s"] = float(values["converge_timeout"])
-    knobs = {k.name: k for k in POLISH_KNOBS}
     spec["session_params"] = [
-        (knobs[name].group, knobs[name].field, float(values[name])) for name in POLISH_SESSION_KNOBS if name in values
+        (k.group, k.field, values[k.name]) for k in POLISH_KNOBS if k.group != RUN and k.name in values
     ]
     if "strokes" in values:
         spec["strokes"] = int(values["strokes"])
