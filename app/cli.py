@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 
@@ -161,6 +162,40 @@ def _add_sweep(sub) -> None:
     add_parser(sub)
 
 
+# The counts and durations any command takes, and their least value: checked once, before the command runs
+# (zero samples used to print "ok", zero repeats ended in a traceback).
+COUNTS: dict[str, tuple[str, int]] = {
+    "samples": ("--samples", 1),
+    "repeats": ("--repeats", 1),
+    "seeds": ("--seeds", 1),
+    "jobs": ("--jobs", 1),
+    "repetitions": ("--repetitions", 1),
+    "held_repetitions": ("--held-repetitions", 0),
+    "first_seed": ("--first-seed", 0),
+}
+DURATIONS: dict[str, str] = {"seconds": "--seconds", "duration": "--duration"}
+MAX_COUNT = 10**7  # more than any run needs: a larger count is a typo, refused before it allocates
+
+
+def check_counts(args: argparse.Namespace) -> None:
+    """ValueError (one line) for a count below its least value or absurdly large, or a duration that is
+    not a positive finite number."""
+    for attr, (flag, least) in COUNTS.items():
+        value = getattr(args, attr, None)
+        if value is None:
+            continue
+        if value < least:
+            raise ValueError(f"{flag} must be at least {least}, got {value}")
+        if value > MAX_COUNT:
+            raise ValueError(f"{flag} must be at most {MAX_COUNT:,}, got {value}")
+    for attr, flag in DURATIONS.items():
+        value = getattr(args, attr, None)
+        if value is None:
+            continue
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{flag} must be a positive number of seconds, got {value:g}")
+
+
 def error_reason(exc: BaseException) -> str:
     """One non-empty line saying why a command failed (an empty message falls back to the type)."""
     text = " ".join(str(exc).split())
@@ -180,6 +215,11 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 0
+    try:
+        check_counts(args)
+    except ValueError as exc:
+        print(f"torquelab: error: {exc}", file=sys.stderr)
+        return 2
     if getattr(args, "qp_backend", None):
         from control.qp import BACKEND_ENV
 

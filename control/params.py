@@ -188,7 +188,10 @@ def _number(spec: ParamSpec, name: str, value: Any, i: int = 0, where: str = "")
         value = value.item()
     if not isinstance(value, (int, float, np.integer, np.floating)):
         raise ParamError(f"{label} must be a number {spec.range_text(i)}, got {_short(value)}")
-    x = float(value)
+    try:
+        x = float(value)
+    except OverflowError:  # an integer beyond any float (10**400)
+        raise ParamError(f"{label} must be a number {spec.range_text(i)}, got an integer too large") from None
     if not math.isfinite(x):
         raise ParamError(f"{label} must be a finite number {spec.range_text(i)}, got {value!r}")
     lo, hi = spec.element(spec.lo, i), spec.element(spec.hi, i)

@@ -156,6 +156,8 @@ def load_settings(session: Session, text: str) -> list[str]:
             session.set_param(group, field, value)
         except ParamError as exc:
             refused.append(str(exc))
+        except Exception as exc:  # whatever an entry does, the others still apply
+            refused.append(f"{group}.{field}: {type(exc).__name__}: {exc}")
     return refused
 
 
@@ -173,6 +175,9 @@ def settings_commands(groups: dict[str, ParamGroup], text: str) -> tuple[list[Se
             groups[group] = replaced(groups[group], field, value)
         except ParamError as exc:
             refused.append(f"{group}.{exc}")
+            continue
+        except Exception as exc:  # whatever an entry does, the others still apply
+            refused.append(f"{group}.{field}: {type(exc).__name__}: {exc}")
             continue
         commands.append(SetParam(group, field, value))
     return commands, refused

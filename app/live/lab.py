@@ -151,7 +151,7 @@ class Lab:
             self.notify("error", "Refused", _reason(exc), getattr(cmd, "client_id", None))
         except Exception as exc:  # never let a command take the loop down
             traceback.print_exc()
-            self.notify("error", "Command failed", f"{type(exc).__name__}: {exc}")
+            self.notify("error", "Command failed", f"{type(exc).__name__}: {exc}", getattr(cmd, "client_id", None))
         self.dirty = True
 
     def _play(self, cmd: Play) -> None:

@@ -1,15 +1,19 @@
 """Grid axes from the command line: `NAME=a:b:n` (linspace), `NAME=a,b,c` (list) or `NAME=v`.
 
 Values stay text here; each experiment's knob table (`app.headless.sweep.knobs`) types and validates them.
-Errors are `SweepError` with a one-line message naming the offending item.
+Errors are `SweepError` with a one-line message naming the offending item. A grid of more than
+MAX_CELLS cells (axes × seeds) is refused before anything is allocated.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+MAX_CELLS = 100_000  # cells a sweep may have (each one a simulated run of seconds: more is a typo)
 
 
 class SweepError(ValueError):
@@ -41,6 +45,8 @@ def _linspace(name: str, text: str) -> list[str]:
         raise SweepError(f"{name}={text}: the number of values n must be a whole number") from None
     if n < 1:
         raise SweepError(f"{name}={text}: the number of values n must be at least 1")
+    if n > MAX_CELLS:
+        raise SweepError(f"{name}={text}: {n:,} values is more than a sweep's {MAX_CELLS:,} cells")
     if not (np.isfinite(a) and np.isfinite(b)):
         raise SweepError(f"{name}={text}: range ends must be finite")
     return [repr(float(x)) for x in np.linspace(a, b, n)]
@@ -79,6 +85,17 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
 
 
 def cells(axes: list[Axis], seeds: int) -> list[tuple[dict, int]]:
-    """The Cartesian product of the axes (first axis slowest) × seeds 0 … seeds−1."""
+    """The Cartesian product of the axes (first axis slowest) × seeds 0 … seeds−1; SweepError beyond
+    MAX_CELLS cells (counted before the list is built)."""
+    check_size(axes, seeds)
     combos = itertools.product(*(a.values for a in axes))
     return [(dict(zip((a.name for a in axes), combo, strict=True)), seed) for combo in combos for seed in range(seeds)]
+
+
+def check_size(axes: list[Axis], seeds: int) -> int:
+    """The number of cells of a grid; SweepError (one line) when it exceeds MAX_CELLS."""
+    n = math.prod(len(a) for a in axes) * max(int(seeds), 0)
+    if n > MAX_CELLS:
+        sizes = " × ".join(str(len(a)) for a in axes)
+        raise SweepError(f"the grid has {n:,} cells ({sizes} × {seeds} seeds): at most {MAX_CELLS:,}")
+    return n
