@@ -121,14 +121,11 @@ class PoseTask:
 
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
         """`rows_reference` in one compiled call (`control.kernels.pose_task_target_fused`)."""
-        try:
-            b = pose_task_target_fused(
-                dyn.J, dyn.dq, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world, target.position,
-                target.rotation, target.velocity, target.acceleration, self.kp, self.kd, self.gamma,
-                self._use_gamma, ddq_e,
-            )  # fmt: skip
-        except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
-            return self.rows_reference(dyn, target, ddq_e)
+        b = pose_task_target_fused(
+            dyn.J, dyn.dq, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world, target.position,
+            target.rotation, target.velocity, target.acceleration, self.kp, self.kd, self.gamma,
+            self._use_gamma, ddq_e,
+        )  # fmt: skip
         return TaskRows(dyn.J, b, self.gains.weight, None)
 
     def rows_reference(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
@@ -179,6 +176,10 @@ class PostureTask:
         self.q_hold = dyn.q.copy() if target.q_posture is None else np.array(target.q_posture, dtype=float)
         self.integral = np.zeros(self.dim)
 
+    def velocity_reference(self) -> np.ndarray:
+        """q̇_ref of this step: `dq_ref` when set, else zeros (the array the compiled rows read)."""
+        return self._zeros if self.dq_ref is None else self.dq_ref
+
     def reference(self, dyn: Dynamics, target: TaskTarget) -> np.ndarray:
         """q̈*₀ = −K_d (q̇ − q̇_ref) − K_p (q − q_ref) − K_i ∫(q − q_ref)."""
         q_ref = self.q_hold if target.q_posture is None else target.q_posture
@@ -191,14 +192,11 @@ class PostureTask:
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
         """`rows_reference` in one compiled call (`control.kernels.posture_target_fused`)."""
         q_ref = self.q_hold if target.q_posture is None else target.q_posture
-        dq_ref = self._zeros if self.dq_ref is None else self.dq_ref
-        try:
-            b = posture_target_fused(
-                dyn.q, q_ref, dyn.dq, dq_ref, self.kp, self.kd, self.ki, self._use_ki, self.integral, self.dt,
-                self.gamma, self._use_gamma, ddq_e,
-            )  # fmt: skip
-        except TypeError:  # a posture of other types than float arrays (the kernel's dispatch refuses)
-            return self.rows_reference(dyn, target, ddq_e)
+        dq_ref = self.velocity_reference()
+        b = posture_target_fused(
+            dyn.q, q_ref, dyn.dq, dq_ref, self.kp, self.kd, self.ki, self._use_ki, self.integral, self.dt,
+            self.gamma, self._use_gamma, ddq_e,
+        )  # fmt: skip
         metric = dyn.M if self.gains.metric == "inertia" else None
         return TaskRows(self._eye, b, self.gains.weight, metric)
 
@@ -271,14 +269,17 @@ class AccelerationQP:
         self.ub2 = np.full(2 * n, qp.INF)
         self._last = np.zeros(n)
 
+    @property
+    def fast_path(self) -> bool:
+        """The primary backend tries the unconstrained optimum first (`control.qp.QP.fast_path`)."""
+        return self.primary.fast_path
+
     def take_unconstrained_optimum(self, x: np.ndarray, solve_us: float) -> qp.QPResult:
         """The result for x = −P⁻¹q that the caller found feasible with the dense backend's exact
         fast path (`kernels.dense_qp.unconstrained_optimum_fused`, the fused [C] step): what `solve` would
         return; the backend's next DAQP solve starts afresh (all data, empty working set)."""
-        if isinstance(self.primary, qp.DenseBackend):
-            self.primary.forget_warm_start()
         self._last = x
-        return qp.QPResult(x, qp.SOLVED, 0, solve_us, self.backend)
+        return self.primary.take_fast_path(x, solve_us)
 
     def solve(self, P: np.ndarray, q: np.ndarray) -> qp.QPResult:
         """Solve with the current A, l, u, lb, ub; fall back as described in the class docstring."""
@@ -377,9 +378,9 @@ class ComplianceQPExecutor:
         self._fused_pose = next((t for t in self.soft_tasks if type(t) is PoseTask), None)
         self._other_soft_tasks = [t for t in self.soft_tasks if t is not self._fused_pose]
         self._prepared_tasks = [t for t in self.tasks if getattr(t, "prepare", None) is not None]
-        # the fused step may run the dense backend's exact fast path itself (the objective is final there)
-        self._fast_qp = self.qp_backend == "dense" and not self.strict_tasks and not self._other_soft_tasks
         self.qp = AccelerationQP(self.n, sum(t.dim for t in self.strict_tasks), self.settings, self.qp_backend)
+        # the fused step may run the backend's exact fast path itself (the objective is final there)
+        self._fast_qp = self.qp.fast_path and not self.strict_tasks and not self._other_soft_tasks
 
     # ---- Executor protocol --------------------------------------------------------------------
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
@@ -464,40 +465,34 @@ class ComplianceQPExecutor:
         target = inputs.target
         est = self.estimator
         observer, high_pass = est.observer, est.high_pass
-        M_prev, lp, wrench = observer._M_prev, high_pass.lp, inputs.wrench_tcp
+        previous, lp, wrench = observer.previous, high_pass.lp, inputs.wrench_tcp
         estimate_on = (
-            M_prev is not None and lp is not None and wrench is not None and est.kernel_constants[2] >= 0.0
+            previous is not None and lp is not None and wrench is not None and est.kernel_constants[2] >= 0.0
         ) and not self._prepared_tasks
         if estimate_on:  # the call computes the estimate (`tau_hat` is not read)
             tau_hat = self._zeros
-            wrench = np.asarray(wrench, dtype=float)
+            assert previous is not None
+            M_prev, dq_prev, h_prev = previous
         else:  # the estimate is given (the observer's and the filter's arguments are not read)
             tau_hat = self._estimate(dyn, inputs)
-            M_prev, lp, wrench = dyn.M, self._zeros, self._zeros6
+            (M_prev, dq_prev, h_prev), lp, wrench = (dyn.M, dyn.dq, dyn.h), self._zeros, self._zeros6
         pose, posture, damper, aqp, settings = self._fused_pose, self.posture, self.damper, self.qp, self.settings
         P, q = self._P, self._q
         q_ref = posture.q_hold if target.q_posture is None else target.q_posture
-        dq_ref = posture._zeros if posture.dq_ref is None else posture.dq_ref
+        dq_ref = posture.velocity_reference()
         t0 = time.perf_counter()
-        try:
-            crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated = cqp_problem_fused(
-                dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world,
-                dyn.tcp_rotation_world, estimate_on, tau_hat, M_prev, observer._dq_prev, observer._h_prev,
-                self.tau_prev, observer.r, wrench, lp, est.kernel_constants, settings.feedback, self.tau_max,
-                settings.torque_limits, pose is not None, target.position, target.rotation, target.velocity,
-                target.acceleration, self._pose_unused if pose is None else pose.kernel_gains, q_ref, dq_ref,
-                posture.kernel_gains, posture.integral, posture.kernel_constants, damper.kernel_rows, damper.endless,
-                damper.kernel_constants, self._objective, aqp.A, aqp.l, aqp.u, aqp.lb, aqp.ub, qp.INF,
-                self._fast_qp, settings.eps,
-            )  # fmt: skip
-        except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
-            if estimate_on:
-                tau_hat = self._estimate(dyn, inputs)
-            P, q, crossed = self._problem_reference(dyn, target, tau_hat)
-            return self._solve_and_torque(dyn, P, q, tau_hat, crossed)
+        crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated = cqp_problem_fused(
+            dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world,
+            dyn.tcp_rotation_world, estimate_on, tau_hat, M_prev, dq_prev, h_prev,
+            self.tau_prev, observer.r, wrench, lp, est.kernel_constants, settings.feedback, self.tau_max,
+            settings.torque_limits, pose is not None, target.position, target.rotation, target.velocity,
+            target.acceleration, self._pose_unused if pose is None else pose.kernel_gains, q_ref, dq_ref,
+            posture.kernel_gains, posture.integral, posture.kernel_constants, damper.kernel_rows, damper.endless,
+            damper.kernel_constants, self._objective, aqp.A, aqp.l, aqp.u, aqp.lb, aqp.ub, qp.INF,
+            self._fast_qp, settings.eps,
+        )  # fmt: skip
         if estimate_on:  # the estimator's state, as its `update` leaves it
-            observer.r = r
-            observer._store(dyn)
+            observer.take_step(dyn, r)
             est.tau_s, est.estimate, self.tau_hat = tau_s, tau_hat, tau_hat
         if solved:  # the unconstrained optimum is feasible: the QP's solution, τ_d computed with it
             res = aqp.take_unconstrained_optimum(x, (time.perf_counter() - t0) * 1e6)

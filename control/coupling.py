@@ -320,13 +320,9 @@ def swivel_angle(model: RobotModel, q: np.ndarray) -> float:
     the world +z direction projected on the plane normal to the shoulder→wrist axis, positive
     by the right-hand rule about that axis.
     """
-    import pinocchio as pin
 
-    data = model._data_hessian
-    pin.forwardKinematics(model.model, data, np.asarray(q, dtype=float))
-    s = data.oMi[2].translation
-    e = data.oMi[4].translation
-    w = data.oMi[6].translation
+    origins = model.joint_origins(q)
+    s, e, w = origins[2], origins[4], origins[6]
     u = w - s
     u = u / np.linalg.norm(u)
     ref = np.array([0.0, 0.0, 1.0]) - u[2] * u
@@ -530,7 +526,6 @@ def coupling_gradient_direct(
     compiled kernels (`control.kernels`, each tested against its reference: Pinocchio's Hessian and
     RNEA derivatives).
     """
-    import pinocchio as pin
 
     P = projection(terms, objective)  # [T25-27]: left and right factors are built in the kernel
     if model.revolute_chain:  # compiled, ∂J from J itself
@@ -547,9 +542,6 @@ def coupling_gradient_direct(
         if model.revolute_chain:  # compiled, from the chain's kinematics and inertias
             term_M += inertia_contraction_fused(dyn.q, *model.chain, A_[:, c], B_[:, c])  # type: ignore[call-arg]
         else:  # RNEA derivatives at q̇ = 0, no gravity
-            dtau_dq = pin.computeRNEADerivatives(
-                model._model_no_gravity, model._data_no_gravity, dyn.q, model._zeros, B_[:, c]
-            )[0]
-            term_M += dtau_dq.T @ A_[:, c]
+            term_M += model.mass_matrix_derivative_times(dyn.q, B_[:, c]).T @ A_[:, c]
     pr = P.ravel()
     return float(pr @ pr), -2.0 * (term_J - term_M)

@@ -51,6 +51,27 @@ class MomentumObserver:
         self._dq_prev = dyn.dq
         self._h_prev = dyn.h
 
+    @property
+    def previous(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(M, q̇, h) of the last stored state, what the next step integrates from; None before the
+        first update (then the next update only stores)."""
+        return None if self._M_prev is None else (self._M_prev, self._dq_prev, self._h_prev)
+
+    def take_step(self, dyn: Dynamics, r: np.ndarray) -> None:
+        """Take the residual r that a compiled step computed from `previous` and `dyn` (as `update`
+        would), and store `dyn` for the next step."""
+        self.r = r
+        self._store(dyn)
+
+    def continue_from(self, other: MomentumObserver) -> None:
+        """Carry another observer's residual and stored state over (a new gain keeps running)."""
+        self.r = other.r.copy()
+        previous = other.previous
+        if previous is None:
+            self._M_prev = None
+        else:
+            self._M_prev, self._dq_prev, self._h_prev = previous
+
     def update(self, dyn: Dynamics, tau_prev: np.ndarray) -> np.ndarray:
         """`update_reference` in one compiled call (`control.kernels.momentum_observer_fused`)."""
         if self._M_prev is None:
@@ -120,12 +141,10 @@ class ExternalTorqueEstimator:
 
     def configure(self, gains: EstimatorGains) -> None:
         """New source or K_I; the observer keeps running from its current residual."""
-        r = self.observer.r.copy()
-        M, dq, h = self.observer._M_prev, self.observer._dq_prev, self.observer._h_prev
+        old = self.observer
         self.gains = gains
         self._build()
-        self.observer.r = r
-        self.observer._M_prev, self.observer._dq_prev, self.observer._h_prev = M, dq, h
+        self.observer.continue_from(old)
 
     def reset(self, dyn: Dynamics | None = None) -> None:
         """Clear observer and filter states."""

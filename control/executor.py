@@ -7,6 +7,7 @@ the measured (q, q̇), the filtered F/T reading, the task target, and the time. 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -17,10 +18,36 @@ import numpy as np
 from control.model import Dynamics
 from control.params import ParamGroup
 
+FINITE_LIMIT = 1e150  # |entries| a target may hold: its squared norm stays finite (the cheap check)
+
+
+def float_array(owner: str, name: str, value: object, shape: tuple[int, ...] | None, finite: bool = True) -> np.ndarray:
+    """`value` as a writeable C-contiguous float64 array of `shape` (None: any 1-D length), its entries
+    finite and below `FINITE_LIMIT` in magnitude when `finite`: the one type the compiled kernels are
+    compiled for. A value that is not one raises ValueError naming `owner.name`, in one line."""
+    a = value
+    if not (type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable):
+        try:
+            a = np.array(value, dtype=np.float64)  # a copy: never a view of the caller's array
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{owner}.{name} must be an array of numbers, got {value!r:.60}") from err
+    wrong = a.shape != shape if shape is not None else (a.ndim != 1 or a.shape[0] == 0)
+    if wrong:
+        want = "a non-empty vector" if shape is None else f"shape {shape}"
+        raise ValueError(f"{owner}.{name} must have {want}, got shape {a.shape}")
+    flat = a.reshape(-1)
+    if finite and not math.isfinite(float(flat @ flat)):
+        raise ValueError(f"{owner}.{name} must be finite (|x| < {FINITE_LIMIT:.0e}), got {a.tolist()}")
+    return a
+
 
 @dataclass
 class TaskTarget:
-    """Desired TCP motion and contact force, world-aligned axes [px py pz rx ry rz]."""
+    """Desired TCP motion and contact force, world-aligned axes [px py pz rx ry rz].
+
+    Every field is coerced at construction to a float64 array of its shape with finite entries
+    (`float_array`): a bad one is a ValueError here, never a recompilation or a type error inside
+    a compiled step."""
 
     position: np.ndarray  # (3,) m
     rotation: np.ndarray  # (3, 3) world ← tcp
@@ -28,6 +55,15 @@ class TaskTarget:
     acceleration: np.ndarray = field(default_factory=lambda: np.zeros(6))  # (6,)
     wrench: np.ndarray = field(default_factory=lambda: np.zeros(6))  # (6,) desired F^e (force on the robot)
     q_posture: np.ndarray | None = None  # (n,) desired joint posture for posture/nullspace tasks
+
+    def __post_init__(self) -> None:
+        self.position = float_array("TaskTarget", "position", self.position, (3,))
+        self.rotation = float_array("TaskTarget", "rotation", self.rotation, (3, 3))
+        self.velocity = float_array("TaskTarget", "velocity", self.velocity, (6,))
+        self.acceleration = float_array("TaskTarget", "acceleration", self.acceleration, (6,))
+        self.wrench = float_array("TaskTarget", "wrench", self.wrench, (6,))
+        if self.q_posture is not None:
+            self.q_posture = float_array("TaskTarget", "q_posture", self.q_posture, None)
 
 
 @dataclass
@@ -38,6 +74,13 @@ class ControlInputs:
     target: TaskTarget
     wrench_tcp: np.ndarray  # (6,) filtered F/T reading mapped to the TCP: F^e [f; m], world axes
     tau_ext_oracle: np.ndarray | None = None  # (n,) true external torque: only for source "oracle"
+
+    def __post_init__(self) -> None:
+        """The reading as float64 (6,) (NaN kept: a faulty sensor is the executor's to survive)."""
+        if self.wrench_tcp is not None:
+            self.wrench_tcp = float_array("ControlInputs", "wrench_tcp", self.wrench_tcp, (6,), False)
+        if self.tau_ext_oracle is not None:
+            self.tau_ext_oracle = float_array("ControlInputs", "tau_ext_oracle", self.tau_ext_oracle, None, False)
 
 
 @dataclass

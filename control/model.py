@@ -176,6 +176,19 @@ class RobotModel:
         M[self._lower] = M.T[self._lower]
         return M
 
+    def joint_origins(self, q: np.ndarray) -> np.ndarray:
+        """(njoints, 3) world positions of the joint frames' origins at q (row 0: the universe)."""
+        data = self._data_hessian
+        pin.forwardKinematics(self.model, data, np.asarray(q, dtype=float))
+        return np.array([data.oMi[j].translation for j in range(self.model.njoints)])
+
+    def mass_matrix_derivative_times(self, q: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """(n, n) ∂(M b)/∂q at q: RNEA's ∂τ/∂q at q̇ = 0 and q̈ = b without gravity (armature is
+        constant); aᵀ ∂M/∂q_k b = (∂(M b)/∂q)ᵀ a."""
+        return np.asarray(
+            pin.computeRNEADerivatives(self._model_no_gravity, self._data_no_gravity, q, self._zeros, b)[0]
+        )
+
     # ---- ∂Λx/∂q ---------------------------------------------------------------------------
     def dLambda_dq(self, dyn: Dynamics) -> np.ndarray:
         """(n, 6, 6) analytic ∂Λx/∂q_k.

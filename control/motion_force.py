@@ -221,17 +221,14 @@ class ProjectionExecutor:
         q_d = target.q_posture if target.q_posture is not None else self.q_posture
         qp_ = self.qp
         x, tau = np.empty(self.n), np.empty(self.n)
-        try:
-            F_mu, qp_data = self._F_mu, self._qp_data  # filled by the kernel, read in this step only
-            F, integral, W_obj, W_f, W_a, W_d, coupled, force_error, active = projection_step_fused(
-                dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq, not dyn.near_singular,
-                dyn.tcp_position_world, dyn.tcp_rotation_world, target.position, target.rotation,
-                target.velocity, target.acceleration, target.wrench, F_e, self.force_integral,
-                dyn.q if q_d is None else q_d, *self._law_constants, self._chain, F_mu, qp_data,
-                qp_.closed_form, dyn.N, dyn.Lambda_n, self._kn, dyn.h, x, tau,
-            )  # fmt: skip
-        except TypeError:  # a target of other types than float arrays (the kernel's dispatch refuses)
-            return self._step_reference(dyn, inputs)
+        F_mu, qp_data = self._F_mu, self._qp_data  # filled by the kernel, read in this step only
+        F, integral, W_obj, W_f, W_a, W_d, coupled, force_error, active = projection_step_fused(
+            dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq, not dyn.near_singular,
+            dyn.tcp_position_world, dyn.tcp_rotation_world, target.position, target.rotation,
+            target.velocity, target.acceleration, target.wrench, F_e, self.force_integral,
+            dyn.q if q_d is None else q_d, *self._law_constants, self._chain, F_mu, qp_data,
+            qp_.closed_form, dyn.N, dyn.Lambda_n, self._kn, dyn.h, x, tau,
+        )  # fmt: skip
         self.force_integral = integral
         self._last_q, self._last_q_d = dyn.q, q_d  # for W_j in the view
         self.last_wrench = F

@@ -10,7 +10,7 @@ bound at the upper limit. Endless joints get no damper.
 The QP is set up once through `control.qp` (dense active-set backend by default, OSQP with a
 fixed sparsity pattern as the reference) and updated in place each step (warm-started). For a
 7-joint arm the kernel of J is a line, and the dense backend solves the QP in closed form on it
-(`control.kernels.nullspace_line_qp_fused`: the same optimum, without a solver call); where that
+(`control.qp.solve_line_qp`: the same optimum, without a solver call); where that
 does not apply (J rank deficient, no point of the line meets the box) the active-set solver
 decides as for any other arm. When the
 solver does not return a solution or the bounds are inconsistent, the step falls back to the
@@ -21,13 +21,11 @@ bounds. It never raises.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
 from control import qp
 from control.gains import NullspaceGains
-from control.kernels.line_qp import nullspace_line_qp_fused
 
 N_TASK = 6
 
@@ -100,7 +98,7 @@ class NullspaceQP:
         self.n = n
         self.backend = qp.check_backend(backend or qp.default_backend())
         # dense backend, 7 joints: the one-dimensional kernel's closed form first (module docstring)
-        self.closed_form = bool(closed_form) and self.backend == "dense" and n == N_TASK + 1
+        self.closed_form = bool(closed_form) and qp.line_qp_applies(self.backend, n, N_TASK)
         self._qp = qp.make_qp(
             self.backend,
             n,
@@ -115,12 +113,10 @@ class NullspaceQP:
     def solve(self, J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> NullspaceResult:
         """Goal nullspace velocity for q = k0 ∇W (`gradient_step`), J x = 0 and l ≤ x ≤ u."""
         if self.closed_form:
-            t0 = time.perf_counter()
-            x = np.empty(self.n)
-            active = nullspace_line_qp_fused(J, gradient_step, lower, upper, x)
-            if active >= 0:  # iterations: the active bounds (0 or 1)
-                self.last = NullspaceResult(x, qp.SOLVED, active, (time.perf_counter() - t0) * 1e6, self.backend)
-                return self.last
+            line = qp.solve_line_qp(J, gradient_step, lower, upper, self.backend)
+            if line is not None:  # iterations: the active bounds (0 or 1)
+                self.last = line
+                return line
         res = self._qp.solve(None, gradient_step, J, self._zero, self._zero, lower, upper)
         if res.solved:
             self.last = res
@@ -137,7 +133,7 @@ class NullspaceQP:
     def closed_form_result(self, x: np.ndarray, active: int) -> NullspaceResult:
         """The result of a closed-form solve done by the caller's compiled step (see `solve`):
         `active` bounds (0 or 1); its time is part of that call, so `solve_us` is NaN."""
-        self.last = NullspaceResult(x, qp.SOLVED, int(active), math.nan, self.backend)
+        self.last = qp.line_qp_result(x, active, self.backend)
         return self.last
 
     def _fallback(

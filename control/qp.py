@@ -18,6 +18,15 @@ Backends (`BACKENDS`):
 - "osqp": OSQP with an explicit fixed sparsity pattern (zeros kept, so updates may fill them;
   DESIGN §9), updated with Px/Ax in that CSC order: the reference backend.
 
+Closed forms (this module is the one door to every way a QP is solved; the executors ask it and
+never test a backend's type):
+- the dense backend's fast path (above), also run inside the [C] executor's compiled step on its
+  objective: a backend says whether it has one (`QP.fast_path`) and takes the optimum the caller
+  found with it (`QP.take_fast_path`), so its warm start stays consistent;
+- the 7-joint nullspace QP [T15-17] on the dense backend: its kernel is a line, the optimum a
+  clipped projection (`line_qp_applies`, `solve_line_qp`; the [T] executor's compiled step solves
+  it inside the law when `line_qp_applies` and hands the result back through `line_qp_result`).
+
 OSQP's private extension object (`OSQP._solver`) is used only here, only on the OSQP versions it
 was checked on (`OSQP_INTERNAL_VERSIONS`), and tests compare it with the public
 `update`/`solve` path. A solve never raises on bad numbers: its `status` says what happened and
@@ -35,6 +44,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from control.kernels import dense_qp
+from control.kernels.line_qp import nullspace_line_qp_fused
 
 INF = 1e30  # what "no bound" becomes (OSQP_INFTY); callers may pass ±inf or ±INF
 
@@ -98,6 +108,13 @@ class QP(Protocol):
     backend: str
     n: int
     m: int
+    fast_path: bool  # the backend tries x = −P⁻¹q first (exact when feasible; see DenseBackend)
+
+    def take_fast_path(self, x: np.ndarray, solve_us: float) -> QPResult:
+        """The result for the optimum x = −P⁻¹q a caller found feasible with this backend's fast path
+        (`kernels.dense_qp.unconstrained_optimum_fused`): what `solve` would have returned; the
+        backend's next solve starts as after its own fast path."""
+        ...
 
     def solve(
         self,
@@ -179,6 +196,7 @@ class DenseBackend:
     """
 
     backend = "dense"
+    fast_path = True
 
     def __init__(self, n: int, m: int, n_eq: int, settings: QPSettings):
         import daqp  # the dense backend's one dependency
@@ -195,20 +213,18 @@ class DenseBackend:
         self._P[:] = np.eye(n)  # P starts as the identity (as OSQP's pattern), A as zeros
         self._x = np.zeros(n)
 
-    def forget_warm_start(self) -> None:
-        """The next DAQP solve loads all data and starts from an empty working set, as after a
-        fast-path solve (for a caller that ran the fast path itself)."""
+    def take_fast_path(self, x: np.ndarray, solve_us: float) -> QPResult:
+        """`QP.take_fast_path`: the next DAQP solve loads all data and starts from an empty working
+        set, as after its own fast-path solve."""
         self._model_current = False
+        return QPResult(x, SOLVED, 0, solve_us, self.backend)
 
     def solve(self, P, q, A, l, u, lb, ub) -> QPResult:
         """Update and solve (see `QP.solve`)."""
         n = self.n
         t0 = time.perf_counter()
         args = (self._data, n, self.m, self.n_eq, P, q, A, l, u, lb, ub, INF, self.settings.eps, self._x)
-        try:
-            code = dense_qp.dense_qp_load_fused(*args)
-        except TypeError:  # arguments of other types than float arrays (the kernel's dispatch refuses)
-            code = dense_qp.dense_qp_load_reference(*args)
+        code = dense_qp.dense_qp_load_fused(*args)
         if code == dense_qp.FAST_SOLVED:
             self._model_current = False
             return QPResult(self._x.copy(), SOLVED, 0, _us(t0), self.backend)
@@ -272,6 +288,7 @@ class OSQPBackend:
     """OSQP over the constraint matrix [I; A] with a fixed CSC pattern (DESIGN §9)."""
 
     backend = "osqp"
+    fast_path = False  # OSQP iterates from its warm start; `take_fast_path` is never asked of it
     _EXT_API = ("update_data_vec", "update_data_mat", "solve", "info", "solution")
 
     def __init__(self, n, m, n_eq, P_pattern, A_pattern, settings: QPSettings, internal: bool | None):
@@ -333,6 +350,10 @@ class OSQPBackend:
         """True when solves go through OSQP's extension object (skips ~20–40 µs of wrapper)."""
         return self._ext is not None
 
+    def take_fast_path(self, x: np.ndarray, solve_us: float) -> QPResult:
+        """`QP.take_fast_path` (OSQP has no fast path: the result only, its warm start unchanged)."""
+        return QPResult(x, SOLVED, 0, solve_us, self.backend)
+
     def solve(self, P, q, A, l, u, lb, ub) -> QPResult:
         """Update (Px/Ax in the fixed CSC order) and solve (see `QP.solve`)."""
         n = self.n
@@ -375,3 +396,29 @@ class OSQPBackend:
         if status not in (*USABLE, MAX_ITER):  # an infeasible problem's iterates diverge: start afresh
             self._solver.warm_start(x=np.zeros(n), y=np.zeros(n + self.m))
         return QPResult(x, status, iters, _us(t0), self.backend)
+
+
+# ---- closed forms ------------------------------------------------------------------------------------
+def line_qp_applies(backend: str, n: int, n_eq: int) -> bool:
+    """The nullspace QP min ½‖x‖² + gᵀx s.t. J x = 0, l ≤ x ≤ u [T15-17] has a closed form here: the
+    dense backend (its exact answer, not OSQP's iterate) and a one-dimensional kernel (n − n_eq = 1,
+    the 7-joint arm with a 6-row task)."""
+    return backend == "dense" and n - n_eq == 1
+
+
+def solve_line_qp(J: np.ndarray, g: np.ndarray, lower: np.ndarray, upper: np.ndarray, backend: str) -> QPResult | None:
+    """The closed form of `line_qp_applies` (`kernels.line_qp.nullspace_line_qp_fused`): the optimum
+    t z on the kernel line z of J, t = −gᵀz clipped to the box [T17]; iterations = active bounds (0 or
+    1); None when it does not apply (J rank deficient, no point of the line in the box, NaN)."""
+    t0 = time.perf_counter()
+    x = np.empty(J.shape[1])
+    active = nullspace_line_qp_fused(J, g, lower, upper, x)
+    if active < 0:
+        return None
+    return QPResult(x, SOLVED, int(active), _us(t0), backend)
+
+
+def line_qp_result(x: np.ndarray, active: int, backend: str) -> QPResult:
+    """The result of the closed form of `solve_line_qp` when a compiled step solved it inside its own
+    call (`kernels.law.projection_step_fused`): its time is part of that call's, so NaN here."""
+    return QPResult(x, SOLVED, int(active), math.nan, backend)

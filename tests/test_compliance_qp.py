@@ -237,20 +237,3 @@ def test_fused_step_equals_the_reference_step(rizon, case):
         assert n_fast == 0
     else:
         assert n_fast >= 250, n_fast
-
-
-def test_fused_step_accepts_targets_of_other_dtypes(rizon):
-    """A target of float32 and integer arrays gives the same step as the reference."""
-    model, (fused, ref) = _twin_executors(rizon, "default")
-    dyn = model.compute(rizon.home, np.full(7, 0.1))
-    target = TaskTarget(
-        (dyn.tcp_position_world + 0.01).astype(np.float32),
-        np.eye(3, dtype=int),
-        velocity=np.zeros(6, dtype=np.float32),
-        q_posture=rizon.home.astype(np.float32),
-    )
-    for ex in (fused, ref):
-        ex.reset(dyn, target)
-    for k in range(5):
-        inputs = ControlInputs(1e-3 * k, target, np.ones(6))
-        np.testing.assert_allclose(fused.step(dyn, inputs).tau, ref.step(dyn, inputs).tau, rtol=1e-12)

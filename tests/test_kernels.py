@@ -241,7 +241,7 @@ def test_inertia_contraction_kernel_equals_rnea_derivatives(robot):
     rng = np.random.default_rng(21)
     for q in _states(robot, seed=22):
         a, b = rng.standard_normal(7), rng.standard_normal(7)
-        ref = K.inertia_contraction_rnea(model._model_no_gravity, q, a, b)
+        ref = model.mass_matrix_derivative_times(q, b).T @ a
         assert _rel(K.inertia_contraction_fused(q, *model.chain, a, b), ref) < RTOL
 
 

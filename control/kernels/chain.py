@@ -85,20 +85,10 @@ def chain_constants(model) -> tuple:
     return R, p, axes, mass, lever, inertia
 
 
-def inertia_contraction_rnea(model, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """term_M[k] = aᵀ ∂M/∂q_k b from Pinocchio's RNEA derivatives at q̇ = 0 without gravity:
-    ∂(M b)/∂q = ∂τ/∂q of RNEA(q, 0, b) (`model` gravity-free)."""
-    import pinocchio as pin
-
-    data = model.createData()
-    dtau_dq = pin.computeRNEADerivatives(model, data, q, np.zeros(model.nv), b)[0]
-    return np.asarray(dtau_dq).T @ a
-
-
 @njit(cache=True)
 def inertia_contraction_fused(q, R_place, p_place, axes, mass, lever, inertia, a, b):
-    """Compiled aᵀ ∂M/∂q_k b for all k (`inertia_contraction_reference`, and Pinocchio's
-    `inertia_contraction_rnea`), from the chain alone.
+    """Compiled aᵀ ∂M/∂q_k b for all k (`inertia_contraction_reference`; tested also against
+    Pinocchio's RNEA derivatives, `RobotModel.mass_matrix_derivative_times`), from the chain alone.
 
     With S_i the joint axes as world twists [v; ω], V_j(x) = Σ_{i≤j} S_i x_i and I_j the world
     inertia of body j: aᵀMb = Σ_j V_j(a)ᵀ I_j V_j(b) (+ constant armature). Joint k moves the
@@ -187,7 +177,7 @@ def pack_chain(chain: tuple) -> np.ndarray:
 
 
 @njit(cache=True)
-def _unpack_chain(packed):
+def unpack_chain_fused(packed):
     n = packed.shape[0]
     R = np.ascontiguousarray(packed[:, 0:9]).reshape((n, 3, 3))
     inertia = np.ascontiguousarray(packed[:, 19:28]).reshape((n, 3, 3))
@@ -200,7 +190,7 @@ def tcp_bias_acceleration_into_reference(J: np.ndarray, dq: np.ndarray, out: np.
 
 
 def unpack_chain_reference(packed: np.ndarray) -> tuple:
-    """`pack_chain`'s inverse: the six arrays of `chain_constants` (`_unpack_chain` compiled)."""
+    """`pack_chain`'s inverse: the six arrays of `chain_constants` (`unpack_chain_fused` compiled)."""
     n = packed.shape[0]
     return (
         packed[:, 0:9].reshape(n, 3, 3), packed[:, 9:12], packed[:, 12:15], packed[:, 15], packed[:, 16:19],

@@ -8,10 +8,10 @@ import numpy as np
 from numba import njit
 
 from control.kernels.chain import (
-    _unpack_chain,
     inertia_contraction_fused,
     inertia_contraction_reference,
     kinematic_hessian_reference,
+    unpack_chain_fused,
     unpack_chain_reference,
 )
 from control.kernels.coupling import coupling_fused, coupling_reference
@@ -305,7 +305,7 @@ def projection_law_fused(
     else:  # [T24-27] as `control.coupling.coupling_gradient_direct`
         P = P_f if objective == 0 else (P_a if objective == 1 else P_d)
         term_J, a_, b_ = gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m)
-        R_place, p_place, joint_axes, mass, lever, inertia = _unpack_chain(chain)
+        R_place, p_place, joint_axes, mass, lever, inertia = unpack_chain_fused(chain)
         term_M = np.zeros(n)
         for c in range(a_.shape[1]):
             term_M += inertia_contraction_fused(

@@ -568,7 +568,7 @@ KERNELS: dict[str, KernelPair] = {
     "inertia_contraction_fused": KernelPair(
         chain.inertia_contraction_fused, chain.inertia_contraction_reference, _chain_samples
     ),
-    "_unpack_chain": KernelPair(chain._unpack_chain, chain.unpack_chain_reference, _pack_samples),
+    "unpack_chain_fused": KernelPair(chain.unpack_chain_fused, chain.unpack_chain_reference, _pack_samples),
     "coupling_fused": KernelPair(
         coupling.coupling_fused, coupling.coupling_reference, _coupling_samples, lambda a: lambda_tolerance(a[1])
     ),
