@@ -205,6 +205,15 @@ def _step_map(
     return lambda force_kd: phi0 + force_kd * slope
 
 
+def loop_rate(
+    Lambda: np.ndarray, sub: Subspaces, gains: MotionForceGains, loop: ContactLoop, friction_dir: np.ndarray
+) -> float:
+    """σ = −ln ρ(Φ)/Δt (1/s) of the loop at the gains' own K_f^d: one map and one eigenvalue problem
+    (the cheap figure the page recomputes ten times a simulated second)."""
+    parts = force_loop_parts(Lambda, sub, gains, loop, friction_dir)
+    return decay_rate(delayed_loop(parts, loop.sensing_delay_steps, loop.actuation_delay_steps), loop.dt)
+
+
 def directional_coupling(Lambda: np.ndarray, sub: Subspaces, friction_dir: np.ndarray) -> float:
     """P_d·f̂ [T10]: the force-subspace wrench shaping adds per unit friction wrench along f̂ (xy)."""
     terms = coupling_terms(Lambda, np.linalg.inv(Lambda), sub, exact_inverse=False)

@@ -612,7 +612,7 @@ def param(app: Any, group: str, field: str) -> Any:
     return app.loop.call(lambda s: getattr(s.params()[group], field))
 
 
-TOUR_WJ_MARGIN = 5.0  # README tour step 2: W_j at μ = 1, force-loop margin at rest, N s/m ("about +5")
+TOUR_WJ_MARGIN = -30.0  # tour step 2: W_j at μ = 1, force-loop margin at rest (one period of sensing delay), N s/m
 TOUR_MARGIN_TOLERANCE = 5.0
 TOUR_WJ_STD = {2: 1.84, 4: 3.58, 6: 2.42}  # W_j at μ = 1: force-error STD (N) of the forward strokes, ± 0.15
 TOUR_WA_SWIVEL, TOUR_WA_SETTLE_S = 75.0, 54.7  # W_a flows to about +75° in close to a minute

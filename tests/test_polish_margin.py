@@ -80,3 +80,33 @@ def test_confusion_counts_and_the_report_names_the_disagreeing_runs():
     page = C.sweep_section(["hold_swivel", "mu"], records)
     assert "Agreement 3 of 5 (60 %)" in page and "Disagreeing runs (2)" in page
     assert "<td>-40</td>" in page and "<td>40</td>" in page and "<td>20</td>" not in page
+
+
+def test_the_live_rate_is_recomputed_every_100_steps_from_the_logged_posture_and_shown(rizon):
+    """The page's σ: updated every 0.1 s of simulated time (ten values in one second), each the offline
+    margin (`polish_margin.sample`) of the posture of the step that logged it, with the session's
+    sensing delay; the Nullspace panel prints it."""
+    from app.core.session import Session
+    from app.live.ui.panels.nullspace import _polish_lines
+    from control.gains import MotionForceGains
+    from control.model import RobotModel
+
+    session = Session(P.PolishScenario(mu=1.0), seed=0)
+    session.set_param("nullspace", "objective", "j")
+    session.run(1.0)
+    env = session.environment
+    rates, qs = [], []
+    session.run(1.0, record=lambda r: (rates.append(r.signals["margin_rate"]), qs.append(r.q.copy())))
+    rates_a = np.array(rates)
+    changes = np.flatnonzero(np.diff(rates_a) != 0.0) + 1
+    assert 9 <= changes.size <= 10 and np.all(np.diff(changes) == 100)
+    model = RobotModel(rizon.model)
+    groups = session.params()
+    loop = PM.contact_loop(env.contact, groups["sensor"], session.world)  # type: ignore[attr-defined]
+    assert loop.sensing_delay_steps == groups["sensor"].reading_delay_steps  # type: ignore[attr-defined]
+    gains = groups["motion_force"]
+    assert isinstance(gains, MotionForceGains)
+    for i in changes[:3]:
+        offline = PM.sample(model.compute(qs[i], np.zeros(7)).Lambda, gains, loop, 0.0, find_kd=False).rate_per_s
+        assert rates_a[i] == pytest.approx(offline, rel=0.02, abs=0.05)
+    assert f"{rates_a[-1]:+.1f} 1/s now" in _polish_lines({"margin_rate": rates_a[-1]})

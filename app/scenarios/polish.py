@@ -73,6 +73,7 @@ SETTLE_W_RTOL = 1e-3  # |W(t) − W(t − 1 s)| ≤ rtol·|W| + atol: W changes 
 SETTLE_W_ATOL = 1e-6  # absolute floor for W → 0 (W_j, rad²: ‖q − q_d‖ ≈ 1.4 mrad)
 CONVERGE_TIMEOUT_S = 120.0  # safety cap of the settle phase; a run that reaches it is reported as not converged
 LIVE_MARGIN_EVERY_S = 1.0  # the live force-loop margin signal is recomputed once a simulated second
+LIVE_RATE_EVERY_S = 0.1  # the live decay rate σ at the step's posture and stroke state: 10 Hz of simulated time
 
 # ---- contact, sensor, disturbance -------------------------------------------------------------
 DESIRED_FORCE_N = 20.0  # Table II
@@ -227,6 +228,13 @@ class PolishEnvironment(Environment):
         # seconds between live margin signals (the page's Nullspace panel reads them); inf: none, for
         # headless runs that do not read them (each costs about as much as a thousand steps)
         self.live_margin_every_s = LIVE_MARGIN_EVERY_S
+        # the decay rate σ (1/s) of the force loop at the step's posture and stroke state, every
+        # live_rate_every_s while live_margin_every_s is finite, and its worst value on this stroke so far
+        self.live_rate_every_s = LIVE_RATE_EVERY_S
+        self._rate = float("nan")
+        self._rate_at = -np.inf
+        self._rate_segment = -1
+        self._rate_stroke_min = float("nan")
 
     def connect(self, params: Callable[[], Mapping[str, Any]]) -> None:
         """Read the controller's gains for the live margin from the session's groups."""
@@ -270,37 +278,86 @@ class PolishEnvironment(Environment):
         if self._world is not None and t - self._margin_at >= self.live_margin_every_s:
             self._margin_at = t
             self._margin = self.live_margin(t)
+        if (
+            self._world is not None
+            and self.live_margin_every_s < np.inf
+            and t - self._rate_at >= self.live_rate_every_s - 1e-9
+        ):
+            self._rate_at = t
+            self._update_rate(t)
         target = self.target
         return {
             "swivel_deg": swivel,
             "swivel_plan_deg": target.planned_swivel_deg(t) if target is not None else float("nan"),
             "margin_kd": self._margin,
+            "margin_rate": self._rate,
+            "margin_rate_stroke_min": self._rate_stroke_min,
             "settle_s": max(t - CONTACT_TIME_S, 0.0) if settling else float(clock.convergence_time_s or 0.0),
             "settle_converged": float("nan") if settling else float(clock.converged),
             "settle_quiet_s": quiet if settling else float("nan"),
             "settle_dW_rel": dw if settling else float("nan"),
         }
 
+    def _update_rate(self, t: float) -> None:
+        """σ now, and the worst σ of the current stroke (NaN outside the six strokes)."""
+        self._rate = self.live_rate(t)
+        segment, _ = self.clock.segment(t)
+        if segment != self._rate_segment:
+            self._rate_segment = segment
+            self._rate_stroke_min = float("nan")
+        if 1 <= segment <= N_SEGMENTS and math.isfinite(self._rate):
+            prev = self._rate_stroke_min
+            self._rate_stroke_min = self._rate if not math.isfinite(prev) else min(prev, self._rate)
+
+    def _contact_loop(self, speed_m_s: float, groups: Mapping[str, Any] | None = None) -> ContactLoop:
+        """The run's `ContactLoop`: this contact, the session's sensor group (cutoff, reading age) and
+        the world's torque delay (`app.scenarios.polish_margin.contact_loop`)."""
+        from app.scenarios.polish_margin import contact_loop
+
+        if groups is None:
+            groups = self._params() if self._params is not None else {}
+        return contact_loop(self.contact, groups.get("sensor"), self._world, speed_m_s)
+
+    def _lambda(self) -> np.ndarray | None:
+        world = self._world
+        if world is None:
+            return None
+        J = world.tcp_jacobian()
+        try:
+            return np.linalg.inv(J @ np.linalg.solve(world.mass_matrix(), J.T))
+        except np.linalg.LinAlgError:
+            return None
+
+    def live_rate(self, t: float) -> float:
+        """Decay rate σ (1/s, `app.scenarios.polish_margin`) of the force loop at the current posture,
+        linearised about the stroke's commanded speed and friction direction at t (at rest before
+        the strokes), with the run's latency: < 0 when a mode grows."""
+        from app.scenarios.polish_margin import sample
+
+        groups = self._params() if self._params is not None else {}
+        gains = groups.get("motion_force")
+        Lambda = self._lambda()
+        if Lambda is None or not isinstance(gains, MotionForceGains):
+            return float("nan")
+        start = self.clock.trajectory_start
+        loop = self._contact_loop(0.0, groups)
+        try:
+            return sample(Lambda, gains, loop, 0.0 if start is None else t - start, find_kd=False).rate_per_s
+        except (ValueError, np.linalg.LinAlgError):
+            return float("nan")
+
     def live_margin(self, t: float) -> float:
         """Force-loop margin (N s/m, `control.margin`) of the current posture: K_f^d minus the critical
         K_f^d over the stretching and retracting friction directions, at rest and at the segments'
-        peak speed (a coarse version of the report's, cheap enough for once a second)."""
+        peak speed, with the run's latency (a coarse version of the report's, cheap enough for once a
+        second)."""
         gains = self._params().get("motion_force") if self._params is not None else None
         if self._world is None or not isinstance(gains, MotionForceGains):
             return float("nan")
-        world = self._world
-        J = world.tcp_jacobian()
-        try:
-            Lambda = np.linalg.inv(J @ np.linalg.solve(world.mass_matrix(), J.T))
-        except np.linalg.LinAlgError:
+        Lambda = self._lambda()
+        if Lambda is None:
             return float("nan")
-        loop = ContactLoop(
-            stiffness_n_per_m=self.contact.stiffness_n_per_m,
-            mu=self.contact.mu,
-            normal_force_n=DESIRED_FORCE_N,
-            speed_m_s=PEAK_SPEED_M_S,
-            v_eps_m_per_s=self.contact.v_eps_m_per_s,
-        )
+        loop = self._contact_loop(PEAK_SPEED_M_S)
         dirs = [friction_direction(1.5 * SEGMENT_DURATION_S), friction_direction(0.5 * SEGMENT_DURATION_S)]
         try:
             pm = posture_margin(

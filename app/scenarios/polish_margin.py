@@ -22,7 +22,7 @@ import numpy as np
 from app.scenarios import polish as P
 from control.coupling import POLISH_SUBSPACES
 from control.gains import MotionForceGains
-from control.margin import ContactLoop, force_loop_margin
+from control.margin import ContactLoop, force_loop_margin, loop_rate
 
 MARGIN_SAMPLE_S = 0.025  # 100 samples per 2.5 s stroke: finer than the ≈ 0.3 s the rates change over
 
@@ -63,8 +63,12 @@ class MarginSample:
 def sample(
     Lambda: np.ndarray, gains: MotionForceGains, loop: ContactLoop, tau: float, find_kd: bool = True
 ) -> MarginSample:
-    """The margin of the posture with this Λx at trajectory time tau (module docstring)."""
+    """The margin of the posture with this Λx at trajectory time tau (module docstring); without
+    `find_kd` only σ (the K_f^d margin and P_d·f̂ NaN)."""
     speed, f_hat = operating_point(tau)
+    if not find_kd:  # the rate alone: one map, one eigenvalue problem
+        rate = loop_rate(Lambda, POLISH_SUBSPACES, gains, _at_speed(loop, speed), f_hat)
+        return MarginSample(rate, math.nan, math.nan)
     m = force_loop_margin(Lambda, POLISH_SUBSPACES, gains, _at_speed(loop, speed), f_hat, find_kd=find_kd)
     kd = math.nan if not find_kd else (-math.inf if m.kd_critical is None else gains.force_kd - m.kd_critical)
     return MarginSample(m.rate_per_s, kd, m.directional_coupling)

@@ -77,6 +77,7 @@ BENCHES: dict[str, Callable] = {
     "tang_step_W_j": lambda robot: _tang_step(robot, "j"),
     "tang_session_step_W_a": lambda robot: _tang_session_step(robot),
     "polish_live_margin": lambda robot: _polish_live_margin(robot),
+    "polish_live_rate": lambda robot: _polish_live_rate(robot),
     "app_step_polish_W_a": lambda robot: _app_step(robot),
 }
 
@@ -197,7 +198,8 @@ def _tang_session_step(robot):
 def _app_step(robot):
     """One step as the app's loop runs it, in a burst of a 30 Hz frame's 33 steps (`Lab.advance`:
     the Session steps, the step log, the divergence check), polish with W_a in contact; always the
-    Rizon 4s. The live margin (`polish_live_margin`) comes on top once per simulated second."""
+    Rizon 4s. The live margin (`polish_live_margin`) comes on top once per simulated second, the live
+    rate (`polish_live_rate`) ten times."""
     from app.live.lab import Lab
 
     lab = Lab("polish")
@@ -223,6 +225,20 @@ def _polish_live_margin(robot):
     session.run(0.3)
     env, t = session.environment, session.world.time
     return lambda: env.live_margin(t)  # type: ignore[attr-defined]
+
+
+def _polish_live_rate(robot):
+    """The polish scenario's live decay rate σ (`live_rate`: Λx of the posture, one map of the force
+    loop with its latency, one eigenvalue problem), which runs ten times per simulated second (every
+    100 steps); always the Rizon 4s, at the posture of `polish_live_margin`."""
+    from app.core.session import Session
+    from app.scenarios.polish import PolishScenario
+
+    session = Session(PolishScenario(mu=0.25))
+    session.set_param("nullspace", "objective", "a")
+    session.run(0.3)
+    env, t = session.environment, session.world.time
+    return lambda: env.live_rate(t)  # type: ignore[attr-defined]
 
 
 # ---- the QP solve alone (control/qp.py), per backend, on problems the executors built ----------

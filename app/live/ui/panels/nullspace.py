@@ -121,6 +121,12 @@ def _polish_lines(sig: dict) -> str:
     if margin is not None and margin == margin:  # not NaN
         verdict = "stays on the table" if margin > 0 else "predicted to lose contact when sliding"
         out += f"  \n**Force-loop margin:** {margin:+.0f} N s/m (K_f^d − critical K_f^d; {verdict})"
+    rate = sig.get("margin_rate")
+    if rate is not None and rate == rate:
+        worst = sig.get("margin_rate_stroke_min")
+        stroke = f", worst on this stroke {worst:+.1f} 1/s" if worst is not None and worst == worst else ""
+        state = "decays" if rate > 0 else "grows"
+        out += f"  \n**Force-loop decay rate σ:** {rate:+.1f} 1/s now (a disturbance {state}){stroke}"
     settle = sig.get("settle_s")
     if settle is not None:
         converged = sig.get("settle_converged")
