@@ -78,8 +78,10 @@ def test_confusion_counts_and_the_report_names_the_disagreeing_runs():
         for m in [{"predicted_unstable": p, "simulated_unstable": s, "outcome": "oscillation" if s else "stable"}]
     ]
     page = C.sweep_section(["hold_swivel", "mu"], records)
-    assert "Agreement 3 of 5 (60 %)" in page and "Disagreeing runs (2)" in page
+    assert "Agreement 3 of 5 (60 %)" in page and "Disagreeing runs by the sign of σ (2)" in page
     assert "<td>-40</td>" in page and "<td>40</td>" in page and "<td>20</td>" not in page
+    assert "by the growth" not in page  # these records carry no growth verdict
+    assert C.growth_limit_np() == pytest.approx(np.log(20.0 / C.noise_floor_std_n()))
 
 
 def test_the_live_rate_is_recomputed_every_100_steps_from_the_logged_posture_and_shown(rizon):

@@ -49,6 +49,18 @@ def outcome(result: dict) -> dict:
     return {"unstable": bool(why), "why": why, "stroke_std_max_n": worst, "threshold_n": limit}
 
 
+def growth_limit_np(force_n: float = 20.0) -> float:
+    """ln(F̂ / noise floor) (nepers): the growth that takes a disturbance at the noise floor to the
+    desired force itself, i.e. to contact loss ([T] Table II F̂ = 20 N)."""
+    return math.log(force_n / noise_floor_std_n())
+
+
+def predicted_unstable_by_growth(result: dict) -> bool | None:
+    """The margin's second verdict: some stroke accumulates a growth G ≥ `growth_limit_np`."""
+    g = (result.get("stroke") or {}).get("growth_max_np")
+    return None if g is None else bool(g >= growth_limit_np())
+
+
 def predicted_unstable(result: dict) -> bool | None:
     """The margin's verdict: the worst σ over the strokes is negative (None without stroke samples)."""
     rate = (result.get("stroke") or {}).get("rate_min_per_s")
@@ -64,13 +76,13 @@ def confusion(pairs: list[tuple[bool, bool]]) -> dict:
     return {**c, "n": n, "agreement": (c["tp"] + c["tn"]) / n if n else None}
 
 
-def confusion_table_html(c: dict) -> str:
+def confusion_table_html(c: dict, unstable: str = "σ_min &lt; 0", stable: str = "σ_min ≥ 0") -> str:
     """The 2 × 2 table (rows: predicted, columns: simulated) with the agreement."""
     agree = "-" if c["agreement"] is None else f"{100 * c['agreement']:.0f} %"
     return (
         "<table><tr><th></th><th>simulated unstable</th><th>simulated stable</th></tr>"
-        f"<tr><th>predicted unstable (σ_min &lt; 0)</th><td>{c['tp']}</td><td>{c['fp']}</td></tr>"
-        f"<tr><th>predicted stable (σ_min ≥ 0)</th><td>{c['fn']}</td><td>{c['tn']}</td></tr></table>"
+        f"<tr><th>predicted unstable ({unstable})</th><td>{c['tp']}</td><td>{c['fp']}</td></tr>"
+        f"<tr><th>predicted stable ({stable})</th><td>{c['fn']}</td><td>{c['tn']}</td></tr></table>"
         f"<p>Agreement {c['tp'] + c['tn']} of {c['n']} ({agree}).</p>"
     )
 
@@ -157,7 +169,16 @@ def report_section(runs: list[dict]) -> str:
         "<table><tr><th>row</th><th>μ</th><th>seed</th>"
         + "".join(f"<th>σ S{k}</th>" for k in range(1, 7))
         + "<th>K_f^d margin</th><th>G</th><th>P_d·f̂ mean</th><th>P_d·f̂ max</th><th>predicted</th>"
-        "<th>simulated (max stroke STD)</th></tr>" + "".join(rows) + "</table>" + confusion_table_html(confusion(pairs))
+        "<th>simulated (max stroke STD)</th></tr>"
+        + "".join(rows)
+        + "</table>"
+        + confusion_table_html(confusion(pairs))
+        + f"<p>By the growth G ≥ ln(F̂ / noise floor) = {growth_limit_np():.2f} Np instead:</p>"
+        + confusion_table_html(
+            confusion([(bool(predicted_unstable_by_growth(r)), outcome(r)["unstable"]) for r in runs]),
+            "G ≥ limit",
+            "G &lt; limit",
+        )
     )
 
 
@@ -166,6 +187,7 @@ def calibration_metrics(result: dict) -> dict:
     o = outcome(result)
     return {
         "predicted_unstable": predicted_unstable(result),
+        "predicted_unstable_growth": predicted_unstable_by_growth(result),
         "simulated_unstable": o["unstable"],
         "outcome": o["why"] or "stable",
         "stroke_std_max_n": o["stroke_std_max_n"],
@@ -182,6 +204,10 @@ def sweep_section(names: list[str], records: list[dict]) -> str:
         return ""
     pairs = [(bool(r["metrics"]["predicted_unstable"]), bool(r["metrics"]["simulated_unstable"])) for r in runs]
     c = confusion(pairs)
+    grown = [r for r in runs if r["metrics"].get("predicted_unstable_growth") is not None]
+    c_growth = confusion(
+        [(bool(r["metrics"]["predicted_unstable_growth"]), bool(r["metrics"]["simulated_unstable"])) for r in grown]
+    )
     bad = [r for r, (p, s) in zip(runs, pairs, strict=True) if p != s]
     rows = "".join(
         "<tr>"
@@ -203,7 +229,15 @@ def sweep_section(names: list[str], records: list[dict]) -> str:
         f"{limit:.1f} N ({OSCILLATION_FACTOR:g}× the noise floor of the default sensor).</p>"
         + confusion_table_html(c)
         + (
-            f"<p>Disagreeing runs ({len(bad)}):</p><table><tr>{head}<th>seed</th><th>σ_min (1/s)</th><th>G (Np)</th>"
+            "<p>The same runs judged by the growth G a stroke accumulates (G ≥ ln(F̂ / noise floor) = "
+            f"{growth_limit_np():.2f} Np: a disturbance at the noise floor grows to the desired force):</p>"
+            + confusion_table_html(c_growth, "G ≥ limit", "G &lt; limit")
+            if grown
+            else ""
+        )
+        + (
+            f"<p>Disagreeing runs by the sign of σ ({len(bad)}):</p>"
+            f"<table><tr>{head}<th>seed</th><th>σ_min (1/s)</th><th>G (Np)</th>"
             "<th>predicted</th><th>simulated</th><th>max stroke STD (N)</th>"
             f"<th>contact lost (ms)</th></tr>{rows}</table>"
             if bad
