@@ -136,19 +136,6 @@ class JointLimitDamper:
             return AccelerationBounds(lower, upper, True)
         return AccelerationBounds(lower, upper, False)
 
-    def position_violation(self, q: np.ndarray) -> np.ndarray:
-        """Per joint, how far q is beyond its position limit (rad, > 0 = violated, endless → 0)."""
-        v = np.maximum(q - self.q_upper, self.q_lower - q)
-        return np.where(self.has_position, v, -np.inf)
-
-    def saturated_response(self, e0: float, de0: float, t: np.ndarray) -> np.ndarray:
-        """e(t) − d_s of [C21–22] for the proposed form, from (e0 − d_s, ė0) at t = 0.
-
-        ẍ + λẋ + λ²/(4M²) x = 0, x = e − d_s: ω_n = λ/(2M), ζ = M (closed form per damping case).
-        """
-        lam, M = self.gains.lambda_, self.gains.M
-        return second_order_response(lam / (2.0 * M), M, e0, de0, t)
-
 
 def second_order_response(omega_n: float, zeta: float, x0: float, v0: float, t: np.ndarray) -> np.ndarray:
     """Free response x(t) of ẍ + 2ζω ẋ + ω² x = 0 from x(0) = x0, ẋ(0) = v0 [C22]."""

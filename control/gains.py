@@ -8,7 +8,6 @@ value: the result is validated again and the old group stays as it was.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,14 +18,9 @@ from control.qp import BACKENDS, DEFAULT_BACKEND
 TASK_AXES = ("px", "py", "pz", "rx", "ry", "rz")
 JOINTS7 = tuple(f"joint {i + 1}" for i in range(7))
 GAMMA_MAX = 1.2  # Γ 0 … 1.2 like the authors' own GUI (DESIGN §3)
-
-
-def is_finite_number(x) -> bool:
-    """True for a real, finite number."""
-    try:
-        return math.isfinite(float(x))
-    except (TypeError, ValueError):
-        return False
+CONTROL_PERIOD_S = (
+    1e-3  # s, the controller's sampling period (1 kHz: one MuJoCo step), e.g. of the [T12] force integral
+)
 
 
 # ---- [T] projection executor: motion/force law and nullspace QP -------------------------------

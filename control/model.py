@@ -53,11 +53,6 @@ class Dynamics:
             self.min_eig_known = float(np.linalg.eigvalsh(self.Lambda_inv)[0])
         return self.min_eig_known
 
-    @property
-    def tcp_velocity(self) -> np.ndarray:
-        """TCP twist [v; ω] in LOCAL_WORLD_ALIGNED."""
-        return self.J @ self.dq
-
 
 class RobotModel:
     """Pinocchio model of the arm with a TCP frame; computes `Dynamics` snapshots and ∂Λx/∂q."""
@@ -141,11 +136,6 @@ class RobotModel:
         data = self.model.createData()
         pin.framesForwardKinematics(self.model, data, q)
         return data.oMf[self.model.getFrameId(frame)].copy()
-
-    def frame_jacobian(self, q: np.ndarray, frame: str) -> np.ndarray:
-        """(6, n) LOCAL_WORLD_ALIGNED Jacobian of a named frame at q."""
-        data = self.model.createData()
-        return pin.computeFrameJacobian(self.model, data, q, self.model.getFrameId(frame), LWA)
 
     def tcp_jacobian(self, q: np.ndarray) -> np.ndarray:
         """(6, n) TCP Jacobian at q (LOCAL_WORLD_ALIGNED)."""

@@ -32,7 +32,7 @@ from control.coupling import (
     terms_and_values,
 )
 from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
-from control.gains import MotionForceGains, NullspaceGains, SolverParams
+from control.gains import CONTROL_PERIOD_S, MotionForceGains, NullspaceGains, SolverParams
 from control.kernels.chain import pack_chain
 from control.kernels.gradients import OBJECTIVE_CODES
 from control.kernels.law import (
@@ -274,7 +274,7 @@ class ProjectionExecutor:
         # [T12] clamped force integral (anti-windup)
         F_hat = target.wrench[self._f]
         if g.force_ki > 0:
-            self.force_integral += (F_e[self._f] - F_hat) * 1e-3
+            self.force_integral += (F_e[self._f] - F_hat) * CONTROL_PERIOD_S
             lim = g.force_integral_limit_n / g.force_ki
             np.clip(self.force_integral, -lim, lim, out=self.force_integral)
             u_f_extra = g.force_ki * self.force_integral

@@ -84,10 +84,6 @@ class RobotDescription:
     def home(self) -> np.ndarray:
         return self.postures["home"].copy()
 
-    def last_joint_id(self) -> int:
-        """Pinocchio id of the 7th (last) joint, the body the flange is welded to."""
-        return self.model.njoints - 1
-
 
 def available() -> tuple[str, ...]:
     """Names of the robots that load by name here: the shipped ones, and the Panda when its optional

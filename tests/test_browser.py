@@ -396,9 +396,14 @@ def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page,
         wait_for(lambda: app.loop.status.twin == "", 20, "the twin to stop")
 
 
-def test_screenshot_of_the_running_app_is_saved(app, page):
-    """test-artifacts/app.png; copied to static/screenshot.png (the README's) when that is missing
-    or TORQUELAB_UPDATE_SCREENSHOT=1."""
+@pytest.mark.skipif(
+    os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") != "1" and README_SCREENSHOT.exists(),
+    reason="writes the README's screenshot: run with TORQUELAB_UPDATE_SCREENSHOT=1 (the drawn arm is "
+    "checked at its projected pixels by test_page_loads_and_draws_the_robot_where_the_camera_projects_it)",
+)
+def test_the_readme_screenshot_is_written_on_request(app, page):
+    """test-artifacts/app.png at the README's viewport, copied to static/screenshot.png (the README's)
+    when that is missing or TORQUELAB_UPDATE_SCREENSHOT=1."""
     from app.live.ui.panels.nullspace import NullspacePanel
     from app.live.ui.selfmotion import GHOST_CHOICES
 
@@ -436,9 +441,7 @@ def test_screenshot_of_the_running_app_is_saved(app, page):
 
     image = np.asarray(Image.open(shot).convert("RGB")).astype(int)
     assert image.shape[:2] == (SCREENSHOT_VIEWPORT["height"], SCREENSHOT_VIEWPORT["width"])
-    assert image[:, : SCREENSHOT_VIEWPORT["width"] - PANEL_WIDTH_PX].std() > 10  # a drawn scene beside the panel
-    if not README_SCREENSHOT.exists() or os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") == "1":
-        shutil.copyfile(shot, README_SCREENSHOT)
+    shutil.copyfile(shot, README_SCREENSHOT)
 
 
 def test_compliance_and_damper_sliders_appear_with_the_qp_executor(app, page, paused):

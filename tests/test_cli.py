@@ -1,4 +1,7 @@
-"""Bad input at the command line: one clear line on stderr, non-zero exit, no traceback."""
+"""Bad input at the command line: one clear line on stderr, non-zero exit, no traceback.
+
+The commands run in this process (`main(argv)`, stderr captured at the file descriptor, so a C
+library's or parser's own noise would show); one smoke test starts the real `python -m app.cli`."""
 
 from __future__ import annotations
 
@@ -11,8 +14,21 @@ import pytest
 import robots
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "app.cli", *args], capture_output=True, text=True, timeout=120)
+@pytest.fixture
+def run_cli(capfd):
+    """`torquelab ARGS` in this process: (exit code, stdout, stderr); an argparse exit counts as its code."""
+    from app.cli import main
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        capfd.readouterr()
+        try:
+            code = main(list(args))
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else 2
+        out, err = capfd.readouterr()
+        return subprocess.CompletedProcess(list(args), code, out, err)
+
+    return run
 
 
 def six_dof_urdf(tmp_path):
@@ -34,7 +50,7 @@ def six_dof_urdf(tmp_path):
         (["bench", "--only", "mj_step", "--repeats", "5", "--vs-placo", "/no/such/python"], "could not run placo"),
     ],
 )
-def test_bad_robot_gives_one_line_error(args, needle):
+def test_bad_robot_gives_one_line_error(run_cli, args, needle):
     res = run_cli(*args)
     assert res.returncode != 0
     assert "Traceback" not in res.stderr
@@ -42,21 +58,21 @@ def test_bad_robot_gives_one_line_error(args, needle):
     assert len(lines) == 1 and needle in lines[0]
 
 
-def test_six_dof_urdf_is_refused(tmp_path):
+def test_six_dof_urdf_is_refused(run_cli, tmp_path):
     res = run_cli("check", "--urdf", str(six_dof_urdf(tmp_path)))
     assert res.returncode != 0
     assert "Traceback" not in res.stderr
     assert "7-DOF" in res.stderr and len(res.stderr.strip().splitlines()) == 1
 
 
-def test_check_passes_for_shipped_robots():
+def test_check_passes_for_shipped_robots(run_cli):
     res = run_cli("check", "--samples", "20", "--json")
     assert res.returncode == 0, res.stderr
     assert res.stdout.count('"ok": true') == len(robots.available())  # the Panda too with the robots extra
 
 
 @pytest.mark.parametrize("jobs", ["0", "-2"])
-def test_jobs_below_one_is_refused_in_one_line(jobs, tmp_path):
+def test_jobs_below_one_is_refused_in_one_line(run_cli, jobs, tmp_path):
     res = run_cli("experiment", "compliance", "--jobs", jobs, "--out", str(tmp_path / "out"))
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert res.returncode == 2 and lines == [f"torquelab: error: --jobs must be at least 1, got {jobs}"]
@@ -75,7 +91,7 @@ def test_jobs_below_one_is_refused_in_one_line(jobs, tmp_path):
         ("not xml at all", "XML_ERROR_PARSING_TEXT"),
     ],
 )
-def test_a_urdf_that_does_not_parse_gives_one_line_with_its_path_and_no_parser_noise(tmp_path, text, needle):
+def test_a_urdf_that_does_not_parse_gives_one_line_with_its_path_and_no_parser_noise(run_cli, tmp_path, text, needle):
     path = tmp_path / "broken.urdf"
     path.write_text(text)
     res = run_cli("check", "--urdf", str(path))
@@ -85,6 +101,7 @@ def test_a_urdf_that_does_not_parse_gives_one_line_with_its_path_and_no_parser_n
 
 
 def test_port_zero_serves_on_a_free_port_and_says_which():
+    """The smoke test of the real command (`python -m app.cli`): it serves, and exits 0 on Ctrl-C."""
     import signal
     import urllib.request
 

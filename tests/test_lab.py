@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from app.core.commands import DragCommand, Pause, Play, Reset, SetParam, SettleNow, StepOnce, SwitchSession
+from app.core.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, SettleNow, StepOnce, SwitchSession
 from app.live.lab import OVERPOWERED_CHECK_STEPS, RECOVERY_STEPS, Lab
 from app.scenarios import Environment, Scenario
 from app.scenarios.free import FreeScenario
@@ -163,17 +163,57 @@ def test_reset_without_a_halt_keeps_every_override():
     assert len(lab.overrides) == 2 and lab.session.environment.blow_at_s == 0.5 and lab.session.drag.max_force_n == 42
 
 
-def test_a_release_is_applied_whatever_the_state_and_a_reset_releases_the_drag():
+def test_the_drag_belongs_to_the_client_that_grabbed_it_and_a_reset_releases_it():
     lab = _lab()
     s = lab.session
     body = s.world.model.body(s.world.wrist_body).name
     p0 = tuple(s.world.site_pose(s.world.tcp_site)[0])
     lab.apply(DragCommand("grab", client_id=4, body_name=body, point_world=p0))
-    lab.apply(DragCommand("move", client_id=4, target_world=(0.3, 0.2, 0.3)))
-    lab.advance(10)
+    lab.apply(DragCommand("move", client_id=2, target_world=(0.0, 0.0, 0.0)))  # not the holder: ignored
+    lab.apply(DragCommand("release", client_id=2))
     assert s.drag.active and lab.drag_client == 4
+    np.testing.assert_allclose(s.drag.target_world, p0)
+    lab.apply(DragCommand("move", client_id=4, target_world=(0.3, 0.2, 0.3)))
+    lab.advance(20)
+    assert s.drag.state is not None and np.linalg.norm(s.drag.state.force_world) > 1.0
+    lab.apply(DragCommand("release", client_id=4))
+    assert not s.drag.active and lab.drag_client is None
+    lab.apply(DragCommand("grab", client_id=3, body_name=body, point_world=p0))
     lab.apply(Reset())
     assert not lab.session.drag.active and lab.drag_client is None
+
+
+def test_the_torque_delay_is_a_world_setting_that_survives_a_reset_and_a_refused_one_changes_nothing():
+    lab = _lab()
+    lab.apply(SetParam("world", "torque_delay_ms", 5.0, client_id=7))
+    lab.apply(Reset())
+    assert lab.session.world.torque_delay_steps == 5
+    assert lab.settings.values["world"]["torque_delay_ms"] == pytest.approx(5.0)
+    n0 = len(lab.notice_log)
+    lab.apply(SetParam("world", "torque_delay_ms", 1e9, client_id=7))
+    assert len(lab.notice_log) == n0 + 1 and lab.session.world.torque_delay_steps == 5
+
+
+def test_an_executor_switch_keeps_the_simulation_state():
+    lab = _lab()
+    lab.advance(10)
+    t, q = lab.session.world.time, lab.session.world.q.copy()
+    lab.apply(SwitchSession(executor="joint-hold"))
+    assert lab.session.executor_name == "joint-hold" and lab.session.world.time == t
+    np.testing.assert_array_equal(lab.session.world.q, q)
+
+
+def test_the_speed_is_limited_to_a_hundredth_to_unpaced():
+    from app.live.lab import SPEED_RANGE
+
+    lab = _lab()
+    lab.apply(SetSpeed(0.25))
+    assert lab.speed == 0.25
+    for bad in (0.005, SPEED_RANGE[1] * 2, float("nan"), "fast"):
+        lab.apply(SetSpeed(bad))  # type: ignore[arg-type]
+        assert lab.speed == 0.25 and lab.notice_log[-1].title == "Refused"
+    lab.apply(SetSpeed(0.01))
+    assert lab.speed == 0.01
 
 
 JUNK = (

@@ -346,12 +346,6 @@ class World:
         G = None if x is None else jacp.dot(x.T)
         return self.data.site_xpos[site_id].copy(), velocity, G
 
-    def body_point_velocity(self, body_id: int, point_world: np.ndarray) -> np.ndarray:
-        """Linear velocity of a world point rigidly attached to a body."""
-        jacp = np.zeros((3, self.model.nv))
-        mujoco.mj_jac(self.model, self.data, jacp, None, np.asarray(point_world, dtype=float), body_id)
-        return jacp @ self.data.qvel
-
     # ---- forces -----------------------------------------------------------------------------
     def apply_force(
         self,

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from control.gains import CONTROL_PERIOD_S
 from control.kernels.chain import (
     inertia_contraction_fused,
     inertia_contraction_reference,
@@ -291,7 +292,7 @@ def projection_law_fused(
         F_hat[r] = target_wrench[f_idx[r]]
         if force_ki > 0:
             lim = force_integral_limit / force_ki
-            integral[r] = min(max(integral[r] + (F_e[f_idx[r]] - F_hat[r]) * 1e-3, -lim), lim)
+            integral[r] = min(max(integral[r] + (F_e[f_idx[r]] - F_hat[r]) * CONTROL_PERIOD_S, -lim), lim)
             u_f_extra[r] = force_ki * integral[r]
     A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_fused(Lambda, Lambda_inv, perm, n_m, exact)
     n = q.shape[0]
@@ -372,7 +373,7 @@ def projection_law_reference(
     integral, u_f_extra = force_integral.copy(), np.zeros(len(f_idx))
     if force_ki > 0:  # [T12] anti-windup: |K_f^i ∫e_f| ≤ limit
         lim = force_integral_limit / force_ki
-        integral = np.clip(integral + (F_e[f_idx] - F_hat) * 1e-3, -lim, lim)
+        integral = np.clip(integral + (F_e[f_idx] - F_hat) * CONTROL_PERIOD_S, -lim, lim)
         u_f_extra = force_ki * integral
     A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_reference(Lambda, Lambda_inv, perm, n_m, exact)
     if objective == OBJECTIVE_J:  # [T18] W_j = ½‖q − q_d‖²
