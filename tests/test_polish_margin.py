@@ -112,3 +112,25 @@ def test_the_live_rate_is_recomputed_every_100_steps_from_the_logged_posture_and
         offline = PM.sample(model.compute(qs[i], np.zeros(7)).Lambda, gains, loop, 0.0, find_kd=False).rate_per_s
         assert rates_a[i] == pytest.approx(offline, rel=0.02, abs=0.05)
     assert f"{rates_a[-1]:+.1f} 1/s now" in _polish_lines({"margin_rate": rates_a[-1]})
+
+
+@pytest.mark.slow
+def test_the_margins_verdicts_agree_with_the_simulation_on_a_small_grid():
+    """Held swivel × μ × sensing delay, S1 and S2 of the sweep's polish cell: the coupled elbow-up
+    posture at μ = 1 with one period of delay loses contact on S2 and σ and G say so; the mirror W_a
+    minimum (−82°) and μ = 0.25 stay calm and both verdicts say so; at −40°, μ = 0.5 with two periods
+    σ dips below 0 for too short a time to matter: G agrees with the outcome in every cell, the sign
+    of σ in at least three of the four."""
+    from app.headless.sweep.experiments import get
+
+    cell = get("polish").cell
+    grid = [(0.0, 1.0, 1), (-82.0, 1.0, 1), (0.0, 0.25, 1), (-40.0, 0.5, 2)]
+    sign = growth = 0
+    outcomes = []
+    for swivel, mu, delay in grid:
+        m = cell({"hold_swivel": swivel, "mu": mu, "reading_delay": delay, "strokes": 2}, 0)["metrics"]
+        outcomes.append(m["simulated_unstable"])
+        sign += m["predicted_unstable"] == m["simulated_unstable"]
+        growth += m["predicted_unstable_growth"] == m["simulated_unstable"]
+    assert outcomes == [True, False, False, False]
+    assert growth == len(grid) and sign >= len(grid) - 1

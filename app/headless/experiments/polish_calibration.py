@@ -204,9 +204,10 @@ def sweep_section(names: list[str], records: list[dict]) -> str:
         return ""
     pairs = [(bool(r["metrics"]["predicted_unstable"]), bool(r["metrics"]["simulated_unstable"])) for r in runs]
     c = confusion(pairs)
-    grown = [r for r in runs if r["metrics"].get("predicted_unstable_growth") is not None]
+    grown = [r for r in runs if r["metrics"].get("stroke_growth_max_np") is not None]
+    limit_np = growth_limit_np()
     c_growth = confusion(
-        [(bool(r["metrics"]["predicted_unstable_growth"]), bool(r["metrics"]["simulated_unstable"])) for r in grown]
+        [(r["metrics"]["stroke_growth_max_np"] >= limit_np, bool(r["metrics"]["simulated_unstable"])) for r in grown]
     )
     bad = [r for r, (p, s) in zip(runs, pairs, strict=True) if p != s]
     rows = "".join(
