@@ -135,7 +135,21 @@ def build_parser() -> argparse.ArgumentParser:
     for name, command in sub.choices.items():
         if name != "check":
             _qp_backend_arg(command)
+        if name in ("experiment", "sweep"):
+            _leaves(command, add_robot_args)
     return parser
+
+
+def _leaves(parser: argparse.ArgumentParser, add) -> None:
+    """`add(parser)` on each leaf command under `parser` (a leaf's default would override a parent's)."""
+    nested = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not nested:
+        if not any("--robot" in a.option_strings for a in parser._actions):
+            add(parser)
+        return
+    for action in nested:
+        for command in action.choices.values():
+            _leaves(command, add)
 
 
 def _qp_backend_arg(parser: argparse.ArgumentParser) -> None:
@@ -220,6 +234,15 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"torquelab: error: {exc}", file=sys.stderr)
         return 2
+    if args.command in ("experiment", "sweep"):  # the arm of every session these build, workers included
+        try:
+            spec = robots.spec_from_args(args)
+            if spec:
+                robots.load(spec)  # a wrong name or URDF is one line before any run starts
+                os.environ[robots.ROBOT_ENV] = spec
+        except (robots.RobotLoadError, ValueError) as exc:
+            print(f"torquelab: error: {error_reason(exc)}", file=sys.stderr)
+            return 2
     if getattr(args, "qp_backend", None):
         from control.qp import BACKEND_ENV
 

@@ -101,6 +101,23 @@ def robot_spec(
     return f"{path}#{urlencode(query)}" if query else path
 
 
+ROBOT_ENV = "TORQUELAB_ROBOT"  # the robot of headless commands (experiment, sweep), workers included
+
+
+def chosen(default: str) -> str:
+    """The robot a headless command was given (`--robot` / `--urdf` set ROBOT_ENV), else `default`
+    (the scenario's own arm)."""
+    return os.environ.get(ROBOT_ENV) or default
+
+
+def guessed_text(robot: RobotDescription) -> str:
+    """One paragraph naming the values `robot` had to guess and why each matters ("" when none)."""
+    if not robot.guessed:
+        return ""
+    parts = [f"{key}: {why}" for key, why in robot.guessed.items()]
+    return f"{robot.name} has no sidecar values for these, guessed: " + "; ".join(parts) + "."
+
+
 def spec_from_args(args: object) -> str | None:
     """The robot string of parsed --robot / --urdf [--base --tip --package-path] options (None when
     neither is given); ValueError for chain options without --urdf."""
@@ -294,7 +311,10 @@ def _build(
             " and the coupling seen there move with the tool"
         )
     if not has_sidecar:
-        guessed["postures"] = "from the arm's reach (no sidecar postures): the polish start is searched, not chosen"
+        guessed["postures"] = (
+            "home is the zero posture clipped into the limits and the polish start is searched over the arm's"
+            " self-motion (app/scenarios/reach.py), not chosen; limit-drop and mass-drop need sidecar postures"
+        )
     return RobotDescription(
         name=name,
         urdf_path=urdf,

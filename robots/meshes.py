@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import hashlib
 import os
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -233,3 +235,37 @@ def _write_cache(path: Path, meshes: dict[str, trimesh.Trimesh]) -> None:
         tmp.replace(path)
     except OSError:
         pass
+
+
+def warm_in_background(names: tuple[str, ...]) -> subprocess.Popen | None:
+    """Convert the meshes of the robots `names` into the disk cache in a niced child process (the
+    app's loop keeps its core; a robot switch in the page then reads the cache). None when there is
+    nothing to do or no child could be started."""
+    if not names:
+        return None
+    try:
+        return subprocess.Popen(
+            [sys.executable, "-m", "robots.meshes", *names],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            preexec_fn=(lambda: os.nice(10)) if hasattr(os, "nice") else None,
+        )
+    except OSError:
+        return None
+
+
+def main(argv: list[str]) -> int:
+    """`python -m robots.meshes NAME...`: fill the disk cache for these robots (errors skipped)."""
+    import robots
+
+    for name in argv:
+        try:
+            robot = robots.load(name)
+            link_meshes(robot.urdf_path, robot.package_paths)
+        except (robots.RobotLoadError, MeshError, OSError):
+            continue
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

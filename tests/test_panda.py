@@ -66,3 +66,90 @@ def test_panda_without_the_extra_is_one_line_with_the_install_command(monkeypatc
         robots.load("panda")
     text = str(exc.value)
     assert "\n" not in text and "pip install 'torquelab[robots]'" in text
+
+
+PRESETS = ("free", "polish", "compliance", "limit-drop", "mass-drop")
+DRAG_N = 300.0  # the GUI's largest drag
+# How far the Panda may sink into a stop under that drag. MuJoCo's stop (app.sim.world HARD_STOP_SOLREF,
+# the shortest time constant it recommends) is a spring whose stiffness scales with the joint's
+# effective inertia; 300 N at the TCP puts ~70 N m on the Panda's joint 6 (a 12 N m motor, light wrist
+# links) and sinks it ~23 mrad into its stop, past the 20 mrad HARD_STOP_GIVE_RAD that holds on the
+# shipped arms. 30 mrad (1.7°) bounds it with room for the executors' differences.
+PANDA_STOP_GIVE_RAD = 0.03
+
+
+def _drag_run(session, seconds: float, where: str | None, pull: tuple[float, float, float]):
+    """Run `seconds` with a 300 N-capped drag at the TCP or the elbow (None: no drag); the worst
+    excursion beyond a position limit (rad) and the run's result."""
+    robot, w = session.robot, session.world
+    if where is not None:
+        body = w.wrist_body if where == "tcp" else int(w.model.jnt_bodyid[w.model.joint(robot.joint_names[3]).id])
+        p0 = w.site_pose(w.tcp_site)[0] if where == "tcp" else w.data.xpos[body].copy()
+        session.drag.grab(w, body, p0)
+        session.drag.move(p0 + 2.0 * np.array(pull))
+    worst = np.full(robot.nq, -np.inf)
+
+    def track(rec):
+        np.maximum(worst, np.maximum(rec.q - robot.q_upper, robot.q_lower - rec.q), out=worst)
+
+    result = session.run(seconds, record=track)
+    session.drag.release()
+    return float(np.max(worst)), result
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("executor", ["projection", "compliance-qp"])
+@pytest.mark.parametrize("scenario", PRESETS)
+def test_every_preset_runs_ten_seconds_on_the_panda_with_a_300_newton_drag(scenario, executor):
+    """10 simulated seconds: 2 s free, 3 s pulled 300 N at the TCP (−x), 1 s free, 3 s pulled 300 N
+    down at the elbow, 1 s free; no divergence and no joint deeper into its mechanical stop than
+    PANDA_STOP_GIVE_RAD."""
+    from app.core.session import Session
+    from app.sim.world import HARD_STOP_BEYOND_RAD
+
+    session = Session(scenario, robot="panda", executor=executor)
+    session.drag.set_params("drag", replace_drag(session.drag.params()["drag"], DRAG_N))
+    worst = -np.inf
+    for seconds, where, pull in (
+        (2.0, None, (0, 0, 0)),
+        (3.0, "tcp", (-1.0, 0.0, 0.0)),
+        (1.0, None, (0, 0, 0)),
+        (3.0, "elbow", (0.0, 0.0, -1.0)),
+        (1.0, None, (0, 0, 0)),
+    ):
+        beyond, result = _drag_run(session, seconds, where, pull)
+        assert not result.halted, (scenario, executor, where, result.reason)
+        worst = max(worst, beyond)
+    assert session.world.time == pytest.approx(10.0, abs=2e-3)
+    print(f"{scenario} {executor}: worst {worst - HARD_STOP_BEYOND_RAD:+.4f} rad into a stop")
+    assert worst <= HARD_STOP_BEYOND_RAD + PANDA_STOP_GIVE_RAD, worst
+
+
+def replace_drag(group, force_n: float):
+    from control.params import replaced
+
+    return replaced(group, "max_force_n", force_n)
+
+
+def test_a_urdf_without_sidecar_polishes_from_a_searched_start_and_the_page_says_what_was_guessed():
+    """The Panda's URDF alone (no sidecar next to it): armature zero, TCP at the tip, the polish
+    start found by the reach search inside the joint limits; the lab's notice and status say so."""
+    from app.live.frames import make_status
+    from app.live.lab import Lab
+    from app.scenarios.polish import PolishScenario
+
+    path = external.urdf_path("panda")
+    r = robots.load(str(path))
+    assert set(r.guessed) == {"armature", "tcp", "postures"} and np.all(r.armature == 0)
+    lab = Lab("polish", robot=str(path))
+    q0 = lab.session.world.q
+    assert np.all(q0 >= r.q_lower) and np.all(q0 <= r.q_upper)
+    p, R = PolishScenario().start_pose()
+    tcp = RobotModel(lab.session.robot.model).frame_pose(q0, "tcp")
+    np.testing.assert_allclose(tcp.translation, p, atol=1e-6)
+    np.testing.assert_allclose(tcp.rotation, R, atol=1e-6)
+    said = [n for n in lab.notice_log if n.title == "Guessed robot values"]
+    assert len(said) == 1 and "armature" in said[0].body and "coupling" in said[0].body
+    assert "guessed" in make_status(lab).robot
+    result = lab.advance(1500)  # approach, contact and the first half second of settling
+    assert not result.halted, result.reason

@@ -156,7 +156,7 @@ class Session:
         for c in changes:
             if c.group == "scenario":
                 self._set_scenario_param(c)
-        self.robot = robots.load(robot or self.scenario.default_robot)
+        self.robot = robots.load(robot or robots.chosen(self.scenario.default_robot))
         prepare = getattr(self.scenario, "prepare_robot", None)
         if callable(prepare):  # e.g. a scaled armature, before the controller model and the world exist
             prepare(self.robot)

@@ -116,7 +116,7 @@ def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | 
         variants=variant.options if variant else (),
         focus_joint=s.scenario.focus_joint,
         twin=lab.twin.objective if lab.twin is not None else "",
-        robot=s.robot.name,
+        robot=s.robot.name + (f" (guessed: {', '.join(s.robot.guessed)})" if s.robot.guessed else ""),
         executor=s.executor_name,
         halted=lab.halted,
         overpowered=lab.overpowered,

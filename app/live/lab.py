@@ -47,6 +47,7 @@ from app.core.twin import Twin
 from app.core.variants import make_variant
 from app.scenarios import Scenario
 from control.params import ParamError, ParamGroup
+from robots import guessed_text
 
 UNPACED_SPEED = 1000.0  # a requested speed this high means "as fast as possible": every wake-up runs a full burst
 SPEED_RANGE = (0.01, UNPACED_SPEED)
@@ -130,6 +131,14 @@ class Lab:
         # WorkPending from `apply` (nothing changed) instead of computing it here; the app's loop
         # computes it elsewhere and applies the switch again
         self.defer_work = False
+        self._say_guessed()
+
+    def _say_guessed(self) -> None:
+        """A notice naming the robot values its description had to guess (a URDF without a sidecar)."""
+        self._guessed_said_for = self.session.robot.name
+        text = guessed_text(self.session.robot)
+        if text:
+            self.notify("warning", "Guessed robot values", text)
 
     @property
     def overrides(self) -> list[SetParam]:
@@ -323,6 +332,8 @@ class Lab:
         self._after_rebuild()
         self.twin = twin
         self._rebuild_twin()
+        if session.robot.name != getattr(self, "_guessed_said_for", None):
+            self._say_guessed()
 
     def _after_rebuild(self) -> None:
         """After a reset or a new session: clear logs and drag."""

@@ -135,7 +135,7 @@ def start_app(
     server.gui.main_panel.dock_right()  # the 3D view is the canvas between the panels
     actual = server.get_port()
 
-    extra = (robot,) if robot and robot not in ("rizon4s", "gen3") else ()
+    extra = (robot,) if robot and robot not in robots.available() else ()
     # The control panel as tabs: Run (preset, play, settings, status) · Tune (the controllers' knobs)
     # · Visuals · Record.
     tabs = server.gui.add_tab_group(order=0)
@@ -217,6 +217,8 @@ def serve(args: argparse.Namespace) -> int:
         described = robots.load(robot)  # a wrong name or URDF path is a one-line error before anything starts
         # the visual meshes read (or taken from the cache) now: a bad mesh file is one line too
         robots.meshes.link_meshes(described.urdf_path, described.package_paths)
+    # the other robots of the page's selector converted in a niced child: a switch reads the cache
+    robots.meshes.warm_in_background(tuple(n for n in robots.available() if n != robot))
     settings_file = getattr(args, "settings", None)
     settings_text = _read_settings_file(settings_file) if settings_file else None
     busy = args.port != 0 and not port_is_free(args.host, args.port)

@@ -23,7 +23,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from app.scenarios import Environment, Scenario, Sensor, Work
+from app.scenarios import Environment, Scenario, Sensor, Work, reach
 from app.sim.contact import TableContact
 from app.sim.disturbances import Sander
 from app.sim.sensor import FTSensor
@@ -561,6 +561,14 @@ class PolishScenario(Scenario):
             p, R = self.start_pose()
             q = project_to_pose(model, ik_seed(robot), p, R, iters=200)
             q = move_to_swivel(model, q, np.deg2rad(self.start_swivel_used_deg))
+            if not reach.inside(robot, q):  # an arm without a sidecar start: search (app.scenarios.reach)
+                found = reach.search_posture(model, robot, p, R, np.deg2rad(self.start_swivel_used_deg), q)
+                if found is None:
+                    raise ValueError(
+                        f"{robot.name} cannot reach the polish start ({p[0]:.2f}, {p[1]:.2f}, {p[2]:.2f}) m tool"
+                        f" down at swivel {self.start_swivel_used_deg:g}° inside its joint limits"
+                    )
+                q = found
             self._q0_cache[key] = q
         return self._q0_cache[key].copy()
 

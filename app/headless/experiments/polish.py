@@ -590,7 +590,11 @@ RUNS_DIR = "runs"  # one file pair per finished run: <key>.json (spec and result
 
 def run_key(spec: dict) -> str:
     """A run's file name in runs/: a hash of its spec."""
-    return hashlib.sha1(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+    import robots
+
+    robot = robots.chosen("")  # another arm's runs are other runs (the default arm keeps its keys)
+    keyed = {**spec, "robot": robot} if robot else spec
+    return hashlib.sha1(json.dumps(keyed, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def save_run(runs_dir: Path, spec: dict, output: dict) -> None:
@@ -680,9 +684,14 @@ def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
 
 
 def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
+    import robots
+
     s = scenario_module
+    robot = robots.chosen("")
     return {
+        "robot": robot or PolishScenario.default_robot,
         "command": "torquelab experiment polish"
+        + (f" --robot {robot}" if robot in robots.available() else f" --urdf {robot}" if robot else "")
         + (" --quick" if quick else f" --seeds {args.seeds}")
         + (f" --rows {args.rows}" if getattr(args, "rows", None) else "")
         + f" --mu {','.join(f'{m:g}' for m in mus)}",

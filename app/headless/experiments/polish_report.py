@@ -43,13 +43,15 @@ PAPER_STABLE_MU1 = {"j": False, "f": False, "a": True, "d": True}  # [T] Fig. 9:
 
 # ---- swivel scan at the start pose (DESIGN §8) -----------------------------------------------------
 def scan_at_start(armature_scale: float = 1.0) -> dict:
-    """W_f, W_a, W_d along the self-motion loop at the polish start pose (Rizon 4s), the basin
-    each gradient flow from the Fig. 6a start reaches, and the W_a ridge between the two basins."""
+    """W_f, W_a, W_d along the self-motion loop at the polish start pose (the run's arm: the Rizon 4s
+    unless --robot/--urdf chose another), the basin each gradient flow from the Fig. 6a start
+    reaches, the W_a ridge between the basins, and P_d·f̂ [T10] for the stretching friction
+    direction along the loop and at each W_a basin (does a basin decouple that friction?)."""
     import robots
-    from control.coupling import POLISH_SUBSPACES, flow_minimum, swivel_scan
+    from control.coupling import POLISH_SUBSPACES, flow_minimum, swivel_scan, terms_of
     from control.model import RobotModel
 
-    robot = robots.load("rizon4s")
+    robot = robots.load(robots.chosen("rizon4s"))
     scenario = PolishScenario(armature_scale=armature_scale)
     scenario.prepare_robot(robot)
     model = RobotModel(robot.model)
@@ -57,14 +59,24 @@ def scan_at_start(armature_scale: float = 1.0) -> dict:
     scan = swivel_scan(model, q0, POLISH_SUBSPACES, robot.q_lower, robot.q_upper, step_rad=np.deg2rad(1.0))
     psi = (np.rad2deg(scan.swivel_rad) + 180.0) % 360.0 - 180.0
     order = np.argsort(psi)
+    stretch = scenario_module.friction_direction(1.5 * scenario_module.SEGMENT_DURATION_S)  # S2: +X motion
+    pd_stretch = np.array(
+        [float(terms_of(model.compute(q, np.zeros(len(q))), POLISH_SUBSPACES).P_d[0, :2] @ stretch) for q in scan.q]
+    )  # [T10] the normal force disturbance per unit stretching friction
     data = {
         "swivel_deg": psi[order],
         "W_f": scan.W_f[order],
         "W_a": scan.W_a[order],
         "W_d": scan.W_d[order],
+        "Pd_fhat_stretch": pd_stretch[order],
         "feasible": scan.within_limits[order],
     }
-    summary: dict = {"closed_loop": bool(scan.closed), "points": len(psi), "armature_scale": armature_scale}
+    summary: dict = {
+        "robot": robot.name,
+        "closed_loop": bool(scan.closed),
+        "points": len(psi),
+        "armature_scale": armature_scale,
+    }
     start = int(np.argmin(np.abs(data["swivel_deg"])))
     for w in ("W_f", "W_a", "W_d"):
         vals = np.where(data["feasible"], data[w], np.inf)
@@ -80,7 +92,27 @@ def scan_at_start(armature_scale: float = 1.0) -> dict:
             "flow_from_start_value": float(data[w][reached]),
         }
     summary["W_a"]["ridge_swivel_deg"] = _ridge(data, start, "W_a")
+    summary["W_a"]["basins"] = [
+        {
+            "swivel_deg": round(float(data["swivel_deg"][i]), 1),
+            "W_a": float(data["W_a"][i]),
+            "Pd_fhat_stretch": float(data["Pd_fhat_stretch"][i]),
+        }
+        for i in _local_minimum_indices(data["W_a"], data["feasible"])
+    ]
+    feasible_pd = np.where(data["feasible"], np.abs(data["Pd_fhat_stretch"]), np.inf)
+    i = int(np.argmin(feasible_pd))
+    summary["Pd_fhat_stretch"] = {
+        "at_start": float(data["Pd_fhat_stretch"][start]),
+        "feasible_min_abs": float(feasible_pd[i]),
+        "feasible_min_abs_swivel_deg": float(data["swivel_deg"][i]),
+        "feasible_max_abs": float(np.max(np.where(data["feasible"], np.abs(data["Pd_fhat_stretch"]), -np.inf))),
+    }
     return {"data": data, "summary": summary}
+
+
+def _local_minimum_indices(w: np.ndarray, feas: np.ndarray) -> list[int]:
+    return [i for i in range(len(w)) if feas[i] and w[i] < w[i - 1] and w[i] < w[(i + 1) % len(w)]]
 
 
 def _ridge(data: dict, start: int, w: str) -> float | None:
@@ -209,7 +241,7 @@ def _plan_figure(out: Path, planned: list[tuple[dict, dict]], plt) -> None:
     import robots
     from control.model import RobotModel
 
-    robot = robots.load("rizon4s")
+    robot = robots.load(robots.chosen("rizon4s"))
     model = RobotModel(robot.model)
     fig, axes = plt.subplots(len(planned), 1, figsize=(10, 3.6 * len(planned)), squeeze=False)
     for ax, (r, s) in zip(axes[:, 0], planned, strict=True):
@@ -264,7 +296,7 @@ def _posture_figure(out: Path, runs: list[dict], plt) -> None:
 
     import robots
 
-    robot = robots.load("rizon4s")
+    robot = robots.load(robots.chosen("rizon4s"))
     model = robot.model
     data = model.createData()
 
@@ -484,6 +516,17 @@ def findings_in_words(doc: dict) -> list[str]:
             f"the feasible minimum is at {wa['feasible_min_swivel_deg']:+.0f}° (W_a {wa['feasible_min']:.3f}) "
             f"and the ridge between the "
             f"basins at {_fmt(wa.get('ridge_swivel_deg'), 0)}°. {txt}."
+        )
+    pd = scan.get("Pd_fhat_stretch")
+    if wa.get("basins") and pd:
+        basins = "; ".join(
+            f"{b['swivel_deg']:+.0f}°: W_a {b['W_a']:.3f}, P_d·f̂ {b['Pd_fhat_stretch']:+.3f}" for b in wa["basins"]
+        )
+        out.append(
+            f"Stretching friction along the loop ({scan.get('robot', '')}): P_d·f̂ is {pd['at_start']:+.3f} at the "
+            "start, "
+            f"|P_d·f̂| runs from {pd['feasible_min_abs']:.3f} (at {pd['feasible_min_abs_swivel_deg']:+.0f}°) to "
+            f"{pd['feasible_max_abs']:.3f} over the feasible loop; at the W_a basins: {basins}."
         )
     for e in summary:
         if e["mu"] != hi or e["Pd_fhat_stretch"]["mean"] is None:

@@ -54,7 +54,7 @@ def planned_swivels() -> dict[str, dict]:
     from app.scenarios.polish import PolishScenario, planned_path
     from control.model import RobotModel
 
-    robot = robots.load("rizon4s")
+    robot = robots.load(robots.chosen("rizon4s"))
     PolishScenario().prepare_robot(robot)
     model = RobotModel(robot.model)
     out: dict[str, dict] = {}
@@ -88,7 +88,7 @@ def _loop_postures() -> tuple[np.ndarray, np.ndarray]:
     from control.coupling import POLISH_SUBSPACES, swivel_scan
     from control.model import RobotModel
 
-    robot = robots.load("rizon4s")
+    robot = robots.load(robots.chosen("rizon4s"))
     model = RobotModel(robot.model)
     q0 = PolishScenario().initial_q(robot)
     scan = swivel_scan(
