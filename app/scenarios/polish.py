@@ -555,7 +555,7 @@ class PolishScenario(Scenario):
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         """Posture at the start pose with the chosen swivel (elbow up at 0°), from the home posture."""
-        key = (robot.name, self.start_swivel_used_deg)
+        key = (robot.spec or robot.name, self.start_swivel_used_deg)  # spec: two URDFs may share a stem
         if key not in self._q0_cache:
             model = RobotModel(robot.model)
             p, R = self.start_pose()
@@ -643,7 +643,7 @@ def friction_direction(tau: float) -> np.ndarray:
 
 
 def _plan_key(robot: RobotDescription, start_swivel_deg: float, cost: str, armature_scale: float) -> tuple:
-    return (robot.name, round(start_swivel_deg, 6), cost, armature_scale, PLAN_SAMPLE_S, PLAN_GRID_DEG)
+    return (robot.spec or robot.name, round(start_swivel_deg, 6), cost, armature_scale, PLAN_SAMPLE_S, PLAN_GRID_DEG)
 
 
 def compute_plan(robot: RobotDescription, start_swivel_deg: float, cost: str, model: RobotModel | None = None) -> Plan:
