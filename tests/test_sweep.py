@@ -86,6 +86,10 @@ def test_grid_values_as_linspace_list_or_single():
         (["mass-drop", "--grid", "controller=magic"], "choose from position"),
         (["mass-drop", "--grid", "K_I=0"], "observer_gain must be between 1 and 1000"),
         (["polish", "--grid", "k0_a=2"], "k0_a must be between 0 and 1"),
+        (["polish", "--grid", "nullspace.k0_a=2"], "k0_a must be between 0 and 1"),
+        (["polish", "--grid", "nullspace.no_such=1"], "has no parameter 'no_such'"),
+        (["polish", "--grid", "nowhere.x=1"], "no parameter group 'nowhere'"),
+        (["limit-drop", "--grid", "damper.lambda_=100"], "unknown parameter 'damper.lambda_'"),
         (["juggle", "--grid", "x=1"], "unknown experiment 'juggle'"),
         (["limit-drop", "--grid", "M=2", "--seeds", "0"], "--seeds"),
         (["limit-drop", "--grid", "M=2", "--jobs", "0"], "--jobs"),
@@ -309,6 +313,7 @@ def test_a_polish_cell_sets_its_session_parameters_only_through_the_parameter_pa
 
     monkeypatch.setattr(polish_experiment, "simulate", fake)
     values = {"mu": 1.0, "swivel": 30.0, "k0_a": 0.5, "sander": True, "objective": "d", "converge_timeout": 20.0}
+    values["motion_force.force_kd"] = 150.0  # any session parameter by GROUP.FIELD
     sweep_experiments.polish_cell(values, seed=3)
     (spec,) = seen
     assert sorted(spec["session_params"]) == sorted(
@@ -317,6 +322,7 @@ def test_a_polish_cell_sets_its_session_parameters_only_through_the_parameter_pa
             ("scenario", "start_swivel_deg", 30.0),
             ("nullspace", "k0_a", 0.5),
             ("sander", "enabled", True),
+            ("motion_force", "force_kd", 150.0),
         ]
     )
     assert not {"mu", "start_swivel_deg", "sander"} & set(spec)
@@ -356,3 +362,18 @@ def test_experiments_map_their_runs_on_the_sweeps_engine_and_keep_the_order(monk
     monkeypatch.setattr(c_common, "open_executor", spy)
     assert c_common.run_parallel(abs, [(-3,), (-1,), (-2,)], 2, "abs") == [3, 1, 2]
     assert opened == [(None, 2)]
+
+
+def test_a_group_field_name_is_typed_by_its_fields_metadata():
+    """`motion_force.shaping=off,on` is a bool axis and `nullspace.k0_j=0.5` a float one, as their
+    fields declare; no knob table names them."""
+    from app.headless.sweep.experiments import get
+
+    polish = get("polish")
+    axes = build_axes(
+        polish.knobs,
+        [("motion_force.shaping", ["off", "on"]), ("nullspace.k0_j", ["0.5"])],
+        polish.groups,
+        polish.any_param,
+    )
+    assert [(a.name, a.values) for a in axes] == [("motion_force.shaping", (False, True)), ("nullspace.k0_j", (0.5,))]

@@ -19,7 +19,12 @@ from app.headless.sweep.runner import run_sweep
 def add_parser(sub) -> None:
     """Add the `sweep` sub-command to the top-level parser's sub-parsers."""
     names = ", ".join(experiments.EXPERIMENTS)
-    knob_help = "; ".join(f"{e.name}: {', '.join(k.name for k in e.knobs)}" for e in experiments.EXPERIMENTS.values())
+    knob_help = "; ".join(
+        e.name
+        + ": "
+        + ", ".join([k.name for k in e.knobs] + (["GROUP.FIELD (any session parameter)"] if e.any_param else []))
+        for e in experiments.EXPERIMENTS.values()
+    )
     p = sub.add_parser(
         "sweep",
         help="run an experiment over a parameter grid and map the results",
@@ -52,7 +57,7 @@ def add_parser(sub) -> None:
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Validate everything, run the missing cells, write cells.csv and report.html."""
     exp = experiments.get(args.experiment)
-    axes = build_axes(exp.knobs, parse_grid(args.grid), exp.groups)
+    axes = build_axes(exp.knobs, parse_grid(args.grid), exp.groups, exp.any_param)
     exp.check_combination([a.name for a in axes])
     if args.seeds < 1:
         raise SweepError(f"--seeds must be at least 1, got {args.seeds}")

@@ -31,6 +31,7 @@ class SweepExperiment:
     groups: Callable[[], dict] | None = None  # the default session's parameter groups by name
     overlay: Callable | None = None  # (ax, axes, records) → extra layers on its maps
     report_notes: Callable | None = None  # (axes, records) → HTML paragraph for the report
+    any_param: bool = False  # "GROUP.FIELD" sweeps any session parameter (the cell sets it by set_param)
 
     def check_combination(self, names: list[str]) -> None:
         """SweepError for knobs that cannot be swept together."""
@@ -265,7 +266,7 @@ def polish_cell(values: dict, seed: int) -> dict:
         spec["converge_timeout_s"] = float(values["converge_timeout"])
     spec["session_params"] = [
         (k.group, k.field, values[k.name]) for k in POLISH_KNOBS if k.group != RUN and k.name in values
-    ]
+    ] + [(*name.split("."), value) for name, value in values.items() if "." in name]  # GROUP.FIELD knobs
     if "strokes" in values:
         spec["strokes"] = int(values["strokes"])
     r = simulate(spec)["result"]
@@ -299,6 +300,7 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         ("stable", "force_error_ptp", "force_error_ma", "contact_lost_ms", "converged_swivel_deg"),
         "no divergence and no contact loss during the six segments",
         groups=polish_groups,
+        any_param=True,
         overlay=polish_overlay,
         report_notes=polish_notes,
     ),

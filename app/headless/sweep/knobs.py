@@ -78,30 +78,37 @@ def _param_kind(group: object, field: str) -> str | tuple[str, ...]:
     return "float"  # a vector field swept as one number for every element
 
 
-def find(knobs: tuple[Knob, ...], name: str) -> Knob:
-    """The knob called `name` (or one of its aliases); SweepError naming the choices otherwise."""
+def find(knobs: tuple[Knob, ...], name: str, any_param: bool = False) -> Knob:
+    """The knob called `name` (or one of its aliases); with `any_param`, "GROUP.FIELD" names any field
+    of the session's parameter groups (checked against them by `build_axes`); SweepError naming the
+    choices otherwise."""
     for k in knobs:
         if name == k.name or name in k.aliases:
             return k
-    raise SweepError(f"unknown parameter {name!r}; this experiment sweeps {', '.join(k.name for k in knobs)}")
+    if any_param and name.count(".") == 1 and all(name.split(".")):
+        group, field = name.split(".")
+        return Knob(name, group, field, "a session parameter (its group's metadata)")
+    more = ", or GROUP.FIELD of any session parameter" if any_param else ""
+    raise SweepError(f"unknown parameter {name!r}; this experiment sweeps {', '.join(k.name for k in knobs)}{more}")
 
 
 def build_axes(
     knobs: tuple[Knob, ...],
     items: list[tuple[str, list[str]]],
     groups: Callable[[], dict[str, Any]] | None = None,
+    any_param: bool = False,
 ) -> list[Axis]:
     """Typed, validated axes from parsed grid items (canonical knob names; SweepError if refused).
 
     groups: the experiment's default parameter groups by name (built only if a parameter knob is
-    swept)."""
-    from control.params import replaced
+    swept); any_param: "GROUP.FIELD" names any of their fields (`find`)."""
+    from control.params import ParamError, replaced, spec_of
 
     axes: list[Axis] = []
     seen: set[str] = set()
     defaults: dict[str, Any] | None = None
     for name, texts in items:
-        knob = find(knobs, name)
+        knob = find(knobs, name, any_param)
         if knob.name in seen:
             raise SweepError(f"{knob.name} is given twice in --grid")
         seen.add(knob.name)
@@ -112,6 +119,10 @@ def build_axes(
                 defaults = groups() if groups is not None else {}
             if knob.group not in defaults:
                 raise SweepError(f"{knob.name}: this experiment has no parameter group {knob.group!r}")
+            try:
+                spec_of(defaults[knob.group], knob.field)
+            except ParamError as exc:
+                raise SweepError(f"{knob.name}: {_one_line(exc)}") from None
             kind = _param_kind(defaults[knob.group], knob.field)
         values = []
         for text in texts:
