@@ -41,3 +41,12 @@ def test_limit_drop_phase_is_the_drop_while_the_joint_moves_and_done_once_it_res
     assert all(t.startswith("drop") for t in texts[:5])
     assert texts[-1] == "done: joint 4 at rest"
     assert reader.text(_status("free", 1.0)) == ""
+
+
+def test_the_drops_start_paused_by_their_own_flag_and_an_unknown_preset_does_not():
+    """The app starts a preset paused when the scenario says it is over in seconds (the two drops)."""
+    from app.live.ui.phase import starts_paused
+    from app.scenarios import SCENARIOS
+
+    assert {name for name in SCENARIOS if starts_paused(name)} == {"limit-drop", "mass-drop"}
+    assert not starts_paused("no-such-preset")

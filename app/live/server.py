@@ -44,7 +44,7 @@ from app.live.ui.panels.record import RecordPanel
 from app.live.ui.panels.safety import SafetyPanel
 from app.live.ui.panels.scenario import ScenarioPanel
 from app.live.ui.panels.tune import TuneOrder
-from app.live.ui.phase import SHORT_PRESETS
+from app.live.ui.phase import starts_paused
 from app.live.ui.plots import Plots
 from app.live.ui.publisher import Publisher
 from app.live.ui.scene import SceneView
@@ -174,7 +174,7 @@ def start_app(
     # full passes, which otherwise stop every thread for ~50 ms now and then.
     gc.collect()
     gc.freeze()
-    loop.start(running=running and scenario not in SHORT_PRESETS)  # a drop over in seconds waits for Play
+    loop.start(running=running and not starts_paused(scenario))  # a drop over in seconds waits for Play
     publisher.start()
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
     app = App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)

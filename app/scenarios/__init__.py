@@ -97,6 +97,7 @@ class Scenario:
     default_executor = "joint-hold"
     table_height: float | None = None
     focus_joint: int | None = None  # 0-based joint the phase plot should show when the preset starts
+    starts_paused = False  # over in seconds: the app starts it paused (and after Reset) until Play
     cases: tuple[str, ...] = ()  # the cases the preset can run in (app.core.variants), () if it has none
     case_arg = ""  # the constructor argument (and attribute) that picks the case
 

@@ -56,6 +56,7 @@ class LimitDropScenario(Scenario):
     default_robot = "gen3"
     default_executor = "compliance-qp"
     focus_joint = FALLING_JOINT
+    starts_paused = True  # the drop is over in seconds
 
     def __init__(self, limit: str = "position"):
         if limit not in ("position", "velocity"):

@@ -243,6 +243,7 @@ class MassDropScenario(Scenario):
         "deflection, stabilisation time and residual error of the TCP."
     )
     default_robot = "gen3"
+    starts_paused = True  # the release is over in seconds
     default_executor = "compliance-qp"
 
     def __init__(self, mode: str = "torque-fusion", case: str = "rope-drop", params: MassDropParams | None = None):

@@ -3,7 +3,8 @@
 polish: contact, settling (objective W, swivel, seconds), S1…S6, done (signals "segment",
 "settle_s", "swivel_deg"); mass-drop: holding, dropped (signal "mass_released"); limit-drop: the
 drop while the falling joint moves, at rest once it has stopped (its speed, from the posture of
-successive frames). Presets that are over in a few seconds start paused (`SHORT_PRESETS`).
+successive frames). Presets that are over in a few seconds start paused (`starts_paused`, the
+scenario's own flag).
 """
 
 from __future__ import annotations
@@ -13,10 +14,17 @@ from typing import Any
 
 import numpy as np
 
-SHORT_PRESETS = frozenset({"limit-drop", "mass-drop"})  # over in seconds: start paused, Reset re-arms
+from app.scenarios import SCENARIOS, get_scenario
+
 POLISH_CONTACT_S = 1.0  # app.scenarios.polish.CONTACT_TIME_S: approach and 20 N press
 SEGMENTS = 6
 REST_SPEED_RAD_S = 0.02  # a falling joint slower than this counts as at rest
+
+
+def starts_paused(preset: str) -> bool:
+    """True for a preset that is over in seconds (`Scenario.starts_paused`): it starts paused, and
+    Reset re-arms it."""
+    return preset in SCENARIOS and get_scenario(preset).starts_paused
 
 
 class PhaseReader:

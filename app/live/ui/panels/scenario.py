@@ -16,7 +16,7 @@ from app.live.lab import UNPACED_SPEED
 from app.live.loop import Frame, LoopStatus, SimLoop
 from app.live.ui.panels.base import KnobPanel, notify
 from app.live.ui.panels.settings import SettingsButtons
-from app.live.ui.phase import SHORT_PRESETS, PhaseReader
+from app.live.ui.phase import PhaseReader, starts_paused
 from app.scenarios import SCENARIOS
 
 DEFAULT_ROBOT = "scenario default"
@@ -118,13 +118,13 @@ class ScenarioPanel(KnobPanel):
             notify(self.server, event.client_id, "Refused", f"unknown preset {name!r}")
             return
         self.loop.submit(SwitchSession(scenario=name))
-        if name in SHORT_PRESETS:
+        if starts_paused(name):
             self.loop.submit(Pause())  # over in seconds: wait for Play
 
     def reset_preset(self) -> None:
         """Reset (the button and R); a preset that is over in seconds waits for Play after it."""
         self.loop.submit(Reset())
-        if self.loop.status.scenario in SHORT_PRESETS:
+        if starts_paused(self.loop.status.scenario):
             self.loop.submit(Pause())
 
     def _on_case(self, event: viser.GuiEvent) -> None:
@@ -213,7 +213,7 @@ class ScenarioPanel(KnobPanel):
         phase = self._phase.text(st, frame.scene)
         if phase:
             status += f"  \n**Phase:** {phase}"
-        if not st.running and st.scenario in SHORT_PRESETS and st.t < 1e-6 and not st.halted:
+        if not st.running and starts_paused(st.scenario) and st.t < 1e-6 and not st.halted:
             status += "  \n**Press Play** (or Space) to start."
         if st.drag_client is not None:
             status += f" · dragging ({st.signals.get('drag_force_n', 0.0):.0f} N)"
