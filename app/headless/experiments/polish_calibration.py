@@ -195,53 +195,57 @@ def calibration_metrics(result: dict) -> dict:
 
 
 def sweep_section(names: list[str], records: list[dict]) -> str:
-    """HTML for a polish sweep: the confusion table over its runs (one per cell and seed) and every run
-    where the margin's sign and the outcome disagree, by its swept values. Empty without verdicts."""
+    """HTML for a polish sweep: the confusion tables over its runs (one per cell and seed) of both
+    verdicts, and every run where a verdict and the outcome disagree, by its swept values. Empty
+    without verdicts."""
     runs = [
         r for r in records if r.get("status") == "ok" and (r.get("metrics") or {}).get("predicted_unstable") is not None
     ]
     if not runs:
         return ""
-    pairs = [(bool(r["metrics"]["predicted_unstable"]), bool(r["metrics"]["simulated_unstable"])) for r in runs]
-    c = confusion(pairs)
-    grown = [r for r in runs if r["metrics"].get("stroke_growth_max_np") is not None]
-    limit_np = growth_limit_np()
-    c_growth = confusion(
-        [(r["metrics"]["stroke_growth_max_np"] >= limit_np, bool(r["metrics"]["simulated_unstable"])) for r in grown]
-    )
-    bad = [r for r, (p, s) in zip(runs, pairs, strict=True) if p != s]
-    rows = "".join(
-        "<tr>"
-        + "".join(f"<td>{html.escape(str(r['params'].get(n)))}</td>" for n in names)
-        + f"<td>{r.get('seed', '-')}</td><td>{_f(m.get('stroke_rate_min_per_s'), 2)}</td>"
-        f"<td>{_f(m.get('stroke_growth_max_np'), 1)}</td>"
-        f"<td>{'unstable' if m['predicted_unstable'] else 'stable'}</td><td>{html.escape(str(m['outcome']))}</td>"
-        f"<td>{_f(m.get('stroke_std_max_n'), 1)}</td><td>{m.get('contact_lost_ms', '-')}</td></tr>"
-        for r in bad
-        for m in [r["metrics"]]
-    )
+    sim = [bool(r["metrics"]["simulated_unstable"]) for r in runs]
+    by_sign = [bool(r["metrics"]["predicted_unstable"]) for r in runs]
+    grown = [r["metrics"].get("stroke_growth_max_np") for r in runs]
     limit = oscillation_threshold_n()
-    head = "".join(f"<th>{html.escape(n)}</th>" for n in names)
-    return (
+    text = (
         "<h3>Calibration of the force-loop margin</h3>"
         "<p>Predicted unstable: the worst decay rate σ of the linearised force loop over the six strokes, "
         "evaluated along each run's executed postures with its μ and latency, is negative. Simulated "
         "unstable: the run diverged, lost contact, or a stroke's force-error STD reached "
         f"{limit:.1f} N ({OSCILLATION_FACTOR:g}× the noise floor of the default sensor).</p>"
-        + confusion_table_html(c)
-        + (
+        + confusion_table_html(confusion(list(zip(by_sign, sim, strict=True))))
+        + _disagreeing(names, runs, by_sign, sim, "the sign of σ")
+    )
+    if all(g is not None for g in grown):
+        by_growth = [bool(g >= growth_limit_np()) for g in grown]
+        text += (
             "<p>The same runs judged by the growth G a stroke accumulates (G ≥ ln(F̂ / noise floor) = "
             f"{growth_limit_np():.2f} Np: a disturbance at the noise floor grows to the desired force):</p>"
-            + confusion_table_html(c_growth, "G ≥ limit", "G &lt; limit")
-            if grown
-            else ""
+            + confusion_table_html(confusion(list(zip(by_growth, sim, strict=True))), "G ≥ limit", "G &lt; limit")
+            + _disagreeing(names, runs, by_growth, sim, "the growth G")
         )
-        + (
-            f"<p>Disagreeing runs by the sign of σ ({len(bad)}):</p>"
-            f"<table><tr>{head}<th>seed</th><th>σ_min (1/s)</th><th>G (Np)</th>"
-            "<th>predicted</th><th>simulated</th><th>max stroke STD (N)</th>"
-            f"<th>contact lost (ms)</th></tr>{rows}</table>"
-            if bad
-            else "<p>No run disagrees.</p>"
-        )
+    return text
+
+
+def _disagreeing(names: list[str], runs: list[dict], predicted: list[bool], sim: list[bool], verdict: str) -> str:
+    """The table of the runs whose `predicted` differs from `sim`, or a sentence that none does."""
+    bad = [(r, p) for r, p, s in zip(runs, predicted, sim, strict=True) if p != s]
+    if not bad:
+        return f"<p>No run disagrees with {verdict}.</p>"
+    head = "".join(f"<th>{html.escape(n)}</th>" for n in names)
+    rows = "".join(
+        "<tr>"
+        + "".join(f"<td>{html.escape(str(r['params'].get(n)))}</td>" for n in names)
+        + f"<td>{r.get('seed', '-')}</td><td>{_f(m.get('stroke_rate_min_per_s'), 2)}</td>"
+        f"<td>{_f(m.get('stroke_growth_max_np'), 1)}</td>"
+        f"<td>{'unstable' if p else 'stable'}</td><td>{html.escape(str(m['outcome']))}</td>"
+        f"<td>{_f(m.get('stroke_std_max_n'), 1)}</td><td>{m.get('contact_lost_ms', '-')}</td></tr>"
+        for r, p in bad
+        for m in [r["metrics"]]
+    )
+    return (
+        f"<p>Disagreeing runs by {verdict} ({len(bad)}):</p>"
+        f"<table><tr>{head}<th>seed</th><th>σ_min (1/s)</th><th>G (Np)</th>"
+        "<th>predicted</th><th>simulated</th><th>max stroke STD (N)</th>"
+        f"<th>contact lost (ms)</th></tr>{rows}</table>"
     )
