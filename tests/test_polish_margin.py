@@ -134,3 +134,22 @@ def test_the_margins_verdicts_agree_with_the_simulation_on_a_small_grid():
         growth += m["predicted_unstable_growth"] == m["simulated_unstable"]
     assert outcomes == [True, False, False, False]
     assert growth == len(grid) and sign >= len(grid) - 1
+
+
+def test_stretch_floor_is_the_loops_least_positive_coupling_on_the_stretching_samples():
+    """From a signed-cost map: per stretching sample the square root of the smallest cost over the
+    swivel grid, and the plan's own stage costs there; retracting samples are left out."""
+    from control.planner import Plan
+
+    times = np.arange(0.0, 5.0 + 1e-9, 0.5)  # S1 at 0…2.0 s, S2 at 2.5…4.5 s, 5.0 s starts S3
+    costs = np.full((times.size, 3), np.inf)
+    costs[:, 0] = 0.04  # 0.2²
+    costs[:, 1] = np.linspace(0.0, 0.01, times.size)  # ≤ 0.1²
+    stage = costs[:, 0]
+    plan = Plan(times, np.zeros(times.size), np.zeros((times.size, 7)), stage, 0.0, 0.3, 0.0, np.zeros(3), costs)
+    f = PM.stretch_floor(plan)
+    stretch = (times >= 2.5) & (times < 5.0)
+    assert f is not None
+    assert f["loop_best_mean"] == pytest.approx(np.mean(np.sqrt(costs[stretch, 1])))
+    assert f["loop_best_max"] == pytest.approx(np.sqrt(costs[stretch, 1]).max())
+    assert f["plan_mean"] == pytest.approx(0.2) and f["plan_max"] == pytest.approx(0.2)

@@ -23,6 +23,7 @@ from app.scenarios import polish as P
 from control.coupling import POLISH_SUBSPACES
 from control.gains import MotionForceGains
 from control.margin import ContactLoop, force_loop_margin, loop_rate
+from control.planner import Plan
 
 MARGIN_SAMPLE_S = 0.025  # 100 samples per 2.5 s stroke: finer than the ≈ 0.3 s the rates change over
 
@@ -133,4 +134,27 @@ def summary(strokes: list[dict]) -> dict:
             "mean": float(np.mean([s["pd_fhat_mean"] for s in stretch])),
             "max": float(max(s["pd_fhat_max"] for s in stretch)),
         },
+    }
+
+
+def stretch_floor(plan: Plan) -> dict | None:
+    """For a plan with the signed cost max(P_d·f̂, 0)² (`control.planner`): the smallest max(P_d·f̂, 0)
+    that any feasible posture of the self-motion loop reaches at each stretching-stroke sample, its
+    mean and max over those samples, and the plan's own values there — how far the plan is from the
+    best the loop allows. None for a plan without trajectory samples."""
+    t = np.asarray(plan.t)
+    costs = np.asarray(plan.cost_map)
+    stage = np.asarray(plan.cost)[t >= 0.0]
+    times = t[t >= 0.0]
+    if times.size == 0 or costs.shape[0] != times.size:
+        return None
+    segment = np.minimum((times // P.SEGMENT_DURATION_S).astype(int), P.N_SEGMENTS - 1) + 1
+    stretch = segment % 2 == 0
+    best = np.sqrt(np.min(costs[stretch], axis=1))
+    own = np.sqrt(stage[stretch])
+    return {
+        "loop_best_mean": float(np.mean(best)),
+        "loop_best_max": float(np.max(best)),
+        "plan_mean": float(np.mean(own)),
+        "plan_max": float(np.max(own)),
     }

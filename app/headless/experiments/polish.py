@@ -251,6 +251,10 @@ def simulate(spec: dict) -> dict:
         assert plan is not None
         result["plan_cost"] = plan.total_cost
         result["plan_cost_kind"] = plan_cost
+        if plan_cost == "signed":  # the best max(P_d·f̂, 0) the self-motion loop allows on the stretching strokes
+            from app.scenarios.polish_margin import stretch_floor
+
+            result["plan_stretch_floor"] = stretch_floor(plan)
         sel = traj | ((series["segment"] == 0) & (series["t"] >= scenario_module.CONTACT_TIME_S + plan.transfer_s))
         err = np.abs((series["swivel"][sel] - series["swivel_plan"][sel] + 180.0) % 360.0 - 180.0)
         result["plan_tracking_deg"] = {"mean": _mean(err), "max": float(np.max(err)) if err.size else None}

@@ -104,6 +104,7 @@ def per_row(runs: list[dict]) -> list[dict]:
         pds = [r["stroke"]["stretch_pd_fhat"] for r in rs if r["stroke"].get("stretch_pd_fhat")]
         rates = [r["stroke"]["rate_min_per_s"] for r in rs if r["stroke"].get("rate_min_per_s") is not None]
         start = [r["Pd_fhat"]["stretch"] for r in rs if r.get("Pd_fhat")]
+        floor = next((r["plan_stretch_floor"] for r in rs if r.get("plan_stretch_floor")), None)
         out.append(
             {
                 "row": row,
@@ -113,9 +114,16 @@ def per_row(runs: list[dict]) -> list[dict]:
                 "pd_stretch_mean": sum(p["mean"] for p in pds) / len(pds) if pds else None,
                 "pd_stretch_max": sum(p["max"] for p in pds) / len(pds) if pds else None,
                 "rate_min_per_s": sum(rates) / len(rates) if rates else None,
+                "loop_best": floor,  # a signed-cost plan: the least max(P_d·f̂, 0) the loop allows on the stretches
             }
         )
     return out
+
+
+def _floor(x: dict | None) -> str:
+    if not x:
+        return "-"
+    return f"{x['loop_best_mean']:.3f} ({x['loop_best_max']:.3f}) / {x['plan_mean']:.3f} ({x['plan_max']:.3f})"
 
 
 def report_section(runs: list[dict]) -> str:
@@ -148,7 +156,7 @@ def report_section(runs: list[dict]) -> str:
     row_table = "".join(
         f"<tr><td>{html.escape(str(e['row']))}</td><td>{e['mu']:g}</td><td>{e['n']}</td>"
         f"<td>{_f(e['pd_start'], 3)}</td><td>{_f(e['pd_stretch_mean'], 3)}</td>"
-        f"<td>{_f(e['pd_stretch_max'], 3)}</td><td>{_f(e['rate_min_per_s'])}</td></tr>"
+        f"<td>{_f(e['pd_stretch_max'], 3)}</td><td>{_f(e['rate_min_per_s'])}</td><td>{_floor(e['loop_best'])}</td></tr>"
         for e in per_row(runs)
     )
     return (
@@ -156,7 +164,8 @@ def report_section(runs: list[dict]) -> str:
         "<p>Per row (mean over its seeds): the directional coupling P_d·f̂ [T10] at the trajectory start and "
         "its mean and max over the stretching strokes as executed, and the worst σ (1/s) over all strokes.</p>"
         "<table><tr><th>row</th><th>μ</th><th>runs</th><th>P_d·f̂ start</th><th>P_d·f̂ stretch mean</th>"
-        f"<th>P_d·f̂ stretch max</th><th>worst σ</th></tr>{row_table}</table>"
+        f"<th>P_d·f̂ stretch max</th><th>worst σ</th><th>plan: loop's best / plan's own max(P_d·f̂, 0), "
+        f"stretch mean (max)</th></tr>{row_table}</table>"
         "<p>σ = −ln ρ(Φ)/Δt (1/s) of the linearised force loop (contact stiffness, friction, the shaped "
         "inertia along z, K_f^p, K_f^d, K_f^i, the sensor's low-pass, the reading d_s periods late and the "
         f"torque d_a periods late; {html.escape(latency)}) at each posture the run passed through every "
