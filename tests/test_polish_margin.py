@@ -153,3 +153,16 @@ def test_stretch_floor_is_the_loops_least_positive_coupling_on_the_stretching_sa
     assert f["loop_best_mean"] == pytest.approx(np.mean(np.sqrt(costs[stretch, 1])))
     assert f["loop_best_max"] == pytest.approx(np.sqrt(costs[stretch, 1]).max())
     assert f["plan_mean"] == pytest.approx(0.2) and f["plan_max"] == pytest.approx(0.2)
+
+
+def test_recomputed_run_margins_use_each_runs_own_sensing_delay(rizon):
+    """`--combine` recomputes the start margin of earlier runs: with the reading delay each run
+    recorded (none recorded: the same-step reading of the runs made before it existed)."""
+    from app.headless.experiments.polish import _recompute_margins
+
+    q = P.PolishScenario().initial_q(rizon)
+    base = {"armature_scale": 1.0, "q_converged": [float(x) for x in q], "mu": 1.0, "shaping": True}
+    runs = [dict(base), {**base, "reading_delay_steps": 0}, {**base, "reading_delay_steps": 1}]
+    _recompute_margins(runs)
+    old, zero, one = (r["margin"] for r in runs)
+    assert old == zero and one < zero - 10.0

@@ -576,7 +576,11 @@ def _recompute_margins(results: list[dict]) -> None:
         scale = float(r["armature_scale"])
         if scale not in sessions:
             sessions[scale] = Session(PolishScenario(armature_scale=scale), seed=0)
-        r.update(posture_figures(sessions[scale], np.array(r["q_converged"]), float(r["mu"]), bool(r["shaping"])))
+        session = sessions[scale]
+        # the run's own latency (runs made before it was recorded had none)
+        session.set_param("sensor", "reading_delay_steps", int(r.get("reading_delay_steps", 0)))
+        session.set_param("world", "torque_delay_ms", float(r.get("torque_delay_ms", 0.0)))
+        r.update(posture_figures(session, np.array(r["q_converged"]), float(r["mu"]), bool(r["shaping"])))
 
 
 def _is_fig6a_start(r: dict, mus: list[float]) -> bool:
