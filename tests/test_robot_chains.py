@@ -219,3 +219,40 @@ def test_a_mesh_file_that_is_not_a_mesh_is_one_line(tmp_path, monkeypatch, name,
     with pytest.raises(meshes.MeshError) as exc:
         meshes.link_meshes(r.urdf_path)
     assert words in _one_line(exc) and f"meshes/{name}" in str(exc.value)
+
+
+# ---- the command line -----------------------------------------------------------------------------
+@pytest.fixture
+def cli(capfd, monkeypatch):
+    """`torquelab ARGS` in this process: (exit code, stderr lines); the robot choice is not kept."""
+    from app.cli import main
+
+    monkeypatch.delenv(robots.ROBOT_ENV, raising=False)
+
+    def run(*args: str) -> tuple[int, list[str]]:
+        capfd.readouterr()
+        try:
+            code = main(list(args))
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else 2
+        err = capfd.readouterr().err
+        return code, [ln for ln in err.splitlines() if ln.strip()]
+
+    return run
+
+
+def test_chain_and_robot_errors_at_the_command_line_are_one_line(cli, tmp_path):
+    path = fx.write(tmp_path / "two_arms.urdf", fx.two_arms())
+    code, lines = cli("check", "--urdf", str(path), "--base", "torso")
+    assert code == 2 and len(lines) == 1 and "choose one with --tip" in lines[0]
+    code, lines = cli("check", "--base", "torso")
+    assert code == 2 and lines == ["torquelab: error: --base, --tip and --package-path go with --urdf PATH"]
+    code, lines = cli("experiment", "polish", "--robot", "nope", "--out", str(tmp_path / "out"))
+    assert code == 2 and len(lines) == 1 and "unknown robot 'nope'" in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_check_takes_the_chain_options(cli, tmp_path):
+    path = fx.write(tmp_path / "two_arms.urdf", fx.two_arms())
+    code, lines = cli("check", "--urdf", str(path), "--base", "torso", "--tip", "left_flange", "--samples", "10")
+    assert code == 0 and lines == []
