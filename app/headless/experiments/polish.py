@@ -12,6 +12,7 @@ figures and report.html; runs/ keeps each run as it finishes (`--resume` reuses 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import sys
@@ -48,6 +49,16 @@ V_EPS_CHECK_M_PER_S = (0.001, 0.002, 0.01)  # friction regularisation re-measure
 V_EPS_HOLD_S = 3.0
 RECORD_EVERY = 5  # time series kept at 200 Hz for the figures
 SAFETY_CAP_S = scenario_module.CONVERGE_TIMEOUT_S + scenario_module.CONTACT_TIME_S + 20.0  # settle cap + trajectory
+# The latency table: each stage of the loop's latency alone (the other at 0), at μ = 1, seed 0.
+LATENCY_ROWS = ("j", "f", "a", "d", "mirror", "planned_a", "planned")
+LATENCY_QUICK_ROWS = ("j", "a")
+LATENCY_SENSING_STEPS = (0, 1, 2, 3, 4)  # F/T reading age, control periods
+LATENCY_TORQUE_MS = (0.0, 1.0, 2.0, 3.0, 4.0)  # actuation delay
+LATENCY_QUICK_MAX = 2  # --quick: delays up to this many periods (ms)
+LATENCY_MU = 1.0
+# "Oscillates or leaves the table": contact lost, a divergence, or a segment whose force-error STD is
+# at least this many times the median segment STD of the same row with no latency at all.
+OSCILLATION_STD_FACTOR = 3.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -72,6 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="reuse the runs an earlier (interrupted) invocation with the same --out already finished "
         "(runs/ in --out: each run is saved as it finishes) with the same code version",
     )
+    parser.add_argument("--no-latency", action="store_true", help="skip the latency table's runs")
     parser.add_argument(
         "--rows", default=None, help=f"only these rows of the table, comma separated ({', '.join(ROW_KEYS)})"
     )
@@ -139,6 +151,91 @@ def armature_specs(mu: float = 1.0) -> list[dict]:
         if scale != 1.0
         for o in ("j", "f", "a", "d")
     ]
+
+
+def latency_specs(quick: bool = False, only: list[str] | None = None, mu: float = LATENCY_MU) -> list[dict]:
+    """The latency table's runs: per row, the F/T reading age over `LATENCY_SENSING_STEPS` with no
+    torque delay, and the torque delay over `LATENCY_TORQUE_MS` with a same-step reading (each stage
+    alone; both 0 is the zero-latency reference); seed 0, μ = 1. `quick`: W_j and W_a, delays up to
+    `LATENCY_QUICK_MAX`; `only` keeps the rows among these keys."""
+    keys = [k for k in (LATENCY_QUICK_ROWS if quick else LATENCY_ROWS) if not only or k in only]
+    cap = LATENCY_QUICK_MAX if quick else None
+    pairs = [(d, 0.0) for d in LATENCY_SENSING_STEPS if cap is None or d <= cap]
+    pairs += [(0, ms) for ms in LATENCY_TORQUE_MS if ms > 0 and (cap is None or ms <= cap)]
+    base = {"sander": False, "start_swivel_deg": 0.0, "shaping": True, "armature_scale": 1.0, "group": "latency"}
+    return [
+        {**base, **ROWS[k], "mu": mu, "seed": 0, "reading_delay_steps": d, "torque_delay_ms": ms}
+        for k in keys
+        for d, ms in pairs
+    ]
+
+
+def latency_table(runs: list[dict]) -> dict:
+    """Per row of the latency runs: the smallest F/T reading age and the smallest torque delay at which
+    the run oscillates or leaves the table (`oscillates`), with each run's worst segment STD ratio to
+    the row's zero-latency reference and its lost contact. None: no delay tried did it."""
+    rows: list[dict] = []
+    for name in dict.fromkeys(r["row"] for r in runs):
+        rs = [r for r in runs if r["row"] == name]
+        ref = next((r for r in rs if r["reading_delay_steps"] == 0 and r["torque_delay_ms"] == 0.0), None)
+        ref_std = _median_segment_std(ref) if ref is not None else None
+        cells = []
+        for r in sorted(rs, key=lambda x: (x["torque_delay_ms"], x["reading_delay_steps"])):
+            ratio = None if ref_std is None else _worst_segment_std(r) / ref_std
+            cells.append(
+                {
+                    "reading_delay_steps": r["reading_delay_steps"],
+                    "torque_delay_ms": r["torque_delay_ms"],
+                    "std_ratio": ratio,
+                    "contact_lost_ms": r["contact_lost_ms"],
+                    "diverged": r["diverged"],
+                    "ptp": r["force_error"]["ptp"],
+                    "oscillates": oscillates(r, ref_std),
+                    "converged_swivel_deg": r["converged_swivel_deg"],
+                }
+            )
+        sensing = [c for c in cells if c["torque_delay_ms"] == 0.0]
+        torque = [c for c in cells if c["reading_delay_steps"] == 0]
+        rows.append(
+            {
+                "row": name,
+                "objective": rs[0]["objective"],
+                "reference_median_segment_std": ref_std,
+                "swivel_deg": ref["converged_swivel_deg"] if ref is not None else None,
+                "smallest_sensing_delay_steps": next(
+                    (c["reading_delay_steps"] for c in sensing if c["oscillates"]), None
+                ),
+                "smallest_torque_delay_ms": next((c["torque_delay_ms"] for c in torque if c["oscillates"]), None),
+                "sensing_tried": [c["reading_delay_steps"] for c in sensing],
+                "torque_tried": [c["torque_delay_ms"] for c in torque],
+                "cells": cells,
+            }
+        )
+    return {"criterion": {"std_factor": OSCILLATION_STD_FACTOR}, "mu": runs[0]["mu"] if runs else None, "rows": rows}
+
+
+def oscillates(r: dict, reference_median_std: float | None) -> bool:
+    """The latency table's criterion: the run diverged, lost contact, or has a segment whose
+    force-error STD is ≥ OSCILLATION_STD_FACTOR × the reference's median segment STD."""
+    if r["diverged"] or r["contact_lost_ms"] > 0:
+        return True
+    if reference_median_std is None or reference_median_std <= 0.0:
+        return False
+    return _worst_segment_std(r) >= OSCILLATION_STD_FACTOR * reference_median_std
+
+
+def _segment_stds(r: dict) -> list[float]:
+    return [s["force_error"]["std"] for s in r["per_segment"] if s["force_error"]["std"] is not None]
+
+
+def _median_segment_std(r: dict) -> float | None:
+    stds = _segment_stds(r)
+    return float(np.median(stds)) if stds else None
+
+
+def _worst_segment_std(r: dict) -> float:
+    stds = _segment_stds(r)
+    return float(max(stds)) if stds else float("nan")
 
 
 # ---- one run ------------------------------------------------------------------------------------
@@ -229,6 +326,12 @@ def simulate(spec: dict) -> dict:
         "sensor_cutoff_hz": float(ran["sensor"].cutoff_hz),  # type: ignore[attr-defined]
         "reading_delay_steps": int(ran["sensor"].reading_delay_steps),  # type: ignore[attr-defined]
         "torque_delay_ms": float(ran["world"].torque_delay_ms),  # type: ignore[attr-defined]
+        "sensor": dataclasses.asdict(ran["sensor"]),  # type: ignore[call-overload]
+        "contact": {
+            **dataclasses.asdict(ran["contact"]),  # type: ignore[call-overload]
+            "implicit_friction": bool(session.environment.contact.implicit),  # type: ignore[attr-defined]
+        },
+        "timestep_s": float(session.world.model.opt.timestep),
         "converged": bool(clock.converged),
         "convergence_time_s": clock.convergence_time_s,
         "settle_cap_s": clock.timeout_s,
@@ -461,6 +564,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if not quick and not args.no_armature:
         specs += armature_specs(max(mus))
+    if not getattr(args, "no_latency", False) and not getattr(args, "only_armature", False):
+        specs += latency_specs(quick, only)
     t0 = time.perf_counter()
     print(f"polish: {len(specs)} runs on {jobs} process(es)", file=sys.stderr, flush=True)
     outputs, reused = _map(simulate, specs, jobs, t0, out / RUNS_DIR, bool(getattr(args, "resume", False)))
@@ -487,6 +592,9 @@ def run(args: argparse.Namespace) -> int:
         "v_eps": v_eps,
         "swivel_scan": scan["summary"],
     }
+    latency_runs = [r for r in results if r["group"] == "latency"]
+    if latency_runs:
+        doc["latency"] = {**latency_table(latency_runs), "runs": latency_runs}
     doc["wall_s"] = time.perf_counter() - t0
     (out / "polish.json").write_text(json.dumps(doc, indent=2))
     np.savez_compressed(
@@ -499,6 +607,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=2))
     else:
         print(format_table(doc["summary"]))
+        if "latency" in doc:
+            print(format_latency(doc["latency"]))
         print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} in {doc['wall_s']:.0f} s")
     return 0
 
@@ -517,10 +627,11 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
     seen: set[tuple] = set()
     results, series = [], []
     for doc, npz in zip(docs, series_files, strict=True):
-        for r in doc["runs"] + [x for x in doc["armature"]["runs"] if x["group"] == "armature"]:
+        latency_runs = doc.get("latency", {}).get("runs", [])
+        for r in doc["runs"] + [x for x in doc["armature"]["runs"] if x["group"] == "armature"] + latency_runs:
             if r.get("margin") is not None and not np.isfinite(r["margin"]):
                 r["margin"] = None  # older outputs wrote ±inf for "no K_f^d stabilises"
-            key = (r["row"], r["mu"], r["seed"], r["armature_scale"])
+            key = (r["row"], r["mu"], r["seed"], r["armature_scale"], r["group"], _latency_of(r))
             if key in seen:
                 continue
             seen.add(key)
@@ -552,6 +663,9 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
         "wall_s": float(sum(d["wall_s"] for d in docs)),
         "combined_from": [str(d) for d in dirs],
     }
+    latency_runs = [r for r in results if r["group"] == "latency"]
+    if latency_runs:
+        doc["latency"] = {**latency_table(latency_runs), "runs": latency_runs}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "polish.json").write_text(json.dumps(doc, indent=2))
@@ -562,6 +676,8 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
     write_figures(out, results, series, scan)
     write_report(out, doc)
     print(format_table(doc["summary"]))
+    if "latency" in doc:
+        print(format_latency(doc["latency"]))
     print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} from {len(dirs)} directories")
     return 0
 
@@ -581,6 +697,11 @@ def _recompute_margins(results: list[dict]) -> None:
         session.set_param("sensor", "reading_delay_steps", int(r.get("reading_delay_steps", 0)))
         session.set_param("world", "torque_delay_ms", float(r.get("torque_delay_ms", 0.0)))
         r.update(posture_figures(session, np.array(r["q_converged"]), float(r["mu"]), bool(r["shaping"])))
+
+
+def _latency_of(r: dict) -> tuple:
+    """(F/T reading age, torque delay) of a run; (None, None) for runs made before they were recorded."""
+    return (r.get("reading_delay_steps"), r.get("torque_delay_ms"))
 
 
 def _is_fig6a_start(r: dict, mus: list[float]) -> bool:
@@ -669,6 +790,8 @@ def _label(r: dict) -> str:
         label += "_noshaping"
     if r["armature_scale"] != 1.0:
         label += f"_arm{r['armature_scale']:g}"
+    if r.get("group") == "latency":
+        label += f"_latency_ds{r['reading_delay_steps']}_da{r['torque_delay_ms']:g}"
     return label
 
 
@@ -751,4 +874,33 @@ def format_table(summary: list[dict]) -> str:
             f"{paper:>15s} {'-' if sw is None else f'{sw:+.0f}°':>8s} {'-' if mg is None else f'{mg:+.0f}':>8s} "
             f"{e['converged']}/{e['n']} {e['stable']}/{e['n']}"
         )
+    return "\n".join(lines)
+
+
+def format_latency(latency: dict) -> str:
+    """The latency table as text: per row, the smallest F/T reading age and torque delay at which the
+    run oscillates or leaves the table, and each delay's worst segment STD ratio (! = oscillates)."""
+
+    def smallest(x, unit: str, tried: list) -> str:
+        return f"{x:g} {unit}" if x is not None else f"none ≤ {max(tried):g} {unit}" if tried else "-"
+
+    lines = [
+        f"latency at μ = {latency['mu']:g}: oscillates = contact lost, diverged, or a segment force-error STD ≥ "
+        f"{latency['criterion']['std_factor']:g}× the row's zero-latency median segment STD",
+        f"{'row':22s} {'swivel':>7s} {'sensing':>14s} {'torque':>14s}  STD ratio per delay (sensing | torque)",
+    ]
+    for e in latency["rows"]:
+
+        def ratios(cells: list) -> str:
+            return " ".join(
+                "-" if c["std_ratio"] is None else f"{c['std_ratio']:.1f}{'!' if c['oscillates'] else ''}"
+                for c in cells
+            )
+
+        sensing = [c for c in e["cells"] if c["torque_delay_ms"] == 0.0]
+        torque = [c for c in e["cells"] if c["reading_delay_steps"] == 0]
+        sw = "-" if e["swivel_deg"] is None else f"{e['swivel_deg']:+.0f}°"
+        first_s = smallest(e["smallest_sensing_delay_steps"], "periods", e["sensing_tried"])
+        first_t = smallest(e["smallest_torque_delay_ms"], "ms", e["torque_tried"])
+        lines.append(f"{e['row']:22s} {sw:>7s} {first_s:>14s} {first_t:>14s}  {ratios(sensing)} | {ratios(torque)}")
     return "\n".join(lines)
