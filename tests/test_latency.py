@@ -92,3 +92,125 @@ def test_a_session_sets_the_reading_delay_and_refuses_a_bad_one_in_one_line():
     assert "sensor.reading_delay_steps" in str(err.value) and "\n" not in str(err.value)
     session.reset()  # the sensor is rebuilt: the value set is re-applied
     assert session.sensor.reading_delay_steps == 3  # type: ignore[attr-defined]
+
+
+# ---- the polish experiment's latency table ------------------------------------------------------------
+def _run(row: str, ds: int, da: float, stds: list[float], lost: int = 0) -> dict:
+    """A polish run record with only what the latency table reads."""
+    return {
+        "row": row,
+        "objective": "j",
+        "mu": 1.0,
+        "seed": 0,
+        "reading_delay_steps": ds,
+        "torque_delay_ms": da,
+        "per_segment": [{"force_error": {"std": s}} for s in stds],
+        "contact_lost_ms": lost,
+        "diverged": False,
+        "force_error": {"ptp": 10.0},
+        "converged_swivel_deg": 0.0,
+        "Pd_fhat": {"stretch": 0.8 if row == "coupled" else 0.03},
+    }
+
+
+def test_the_latency_table_gives_the_smallest_delay_that_oscillates_or_loses_contact():
+    from app.headless.experiments.polish import OSCILLATION_STD_FACTOR, latency_table
+
+    calm = [2.0, 2.0, 2.0, 2.0, 2.0, 2.0]  # median 2 N: the reference
+    loud = [2.0, 2.0 * OSCILLATION_STD_FACTOR, 2.0, 2.0, 2.0, 2.0]  # one segment at exactly the factor
+    just_under = [2.0, 2.0 * OSCILLATION_STD_FACTOR * 0.99, 2.0, 2.0, 2.0, 2.0]
+    runs = [
+        _run("coupled", 0, 0.0, calm),
+        _run("coupled", 1, 0.0, just_under),
+        _run("coupled", 2, 0.0, loud),
+        _run("coupled", 0, 1.0, calm, lost=3),  # contact lost counts whatever the STD
+        _run("decoupled", 0, 0.0, calm),
+        _run("decoupled", 1, 0.0, calm),
+        _run("decoupled", 0, 1.0, just_under),
+    ]
+    table = latency_table(runs)
+    by = {e["row"]: e for e in table["rows"]}
+    assert by["coupled"]["smallest_sensing_delay_steps"] == 2 and by["coupled"]["smallest_torque_delay_ms"] == 1.0
+    assert by["decoupled"]["smallest_sensing_delay_steps"] is None
+    assert by["decoupled"]["smallest_torque_delay_ms"] is None
+    assert by["coupled"]["reference_median_segment_std"] == 2.0
+    assert table["criterion"]["std_factor"] == OSCILLATION_STD_FACTOR
+
+
+def test_latency_runs_vary_one_stage_at_a_time_at_mu_1():
+    from app.headless.experiments.polish import LATENCY_ROWS, LATENCY_SENSING_STEPS, LATENCY_TORQUE_MS, latency_specs
+
+    specs = latency_specs()
+    assert {s["mu"] for s in specs} == {1.0} and {s["seed"] for s in specs} == {0}
+    assert all(s["reading_delay_steps"] == 0 or s["torque_delay_ms"] == 0.0 for s in specs)
+    per_row = len(LATENCY_SENSING_STEPS) + len(LATENCY_TORQUE_MS) - 1  # (0, 0) once
+    assert len(specs) == len(LATENCY_ROWS) * per_row
+    assert len({(s["row"], s["reading_delay_steps"], s["torque_delay_ms"]) for s in specs}) == len(specs)
+
+
+def test_the_latency_report_states_the_criterion_of_the_run_and_the_order_only_as_it_holds():
+    from app.headless.experiments.polish import latency_table
+    from app.headless.experiments.polish_report import latency_findings, latency_html
+
+    calm, loud = [2.0] * 6, [2.0, 9.0, 2.0, 9.0, 2.0, 9.0]
+    runs = [
+        _run("coupled", 0, 0.0, calm),
+        _run("coupled", 1, 0.0, loud),
+        _run("decoupled", 0, 0.0, calm),
+        _run("decoupled", 1, 0.0, calm),
+    ]
+    doc = {"latency": {**latency_table(runs), "runs": runs}}
+    doc["latency"]["criterion"]["std_factor"] = 2.5  # as a sweep that changed it would record
+    text = latency_html(doc)
+    assert "at least 2.5× the median segment STD" in text and "3×" not in text
+    assert latency_findings(doc)[0].startswith("Every more decoupled posture tolerates")
+    swapped = [dict(r, Pd_fhat={"stretch": 0.03 if r["row"] == "coupled" else 0.8}) for r in runs]
+    doc = {"latency": {**latency_table(swapped), "runs": swapped}}
+    assert latency_findings(doc)[0].startswith("The order by coupling does not hold for 1 of 1 pairs")
+
+
+def test_the_polish_report_reads_the_loop_and_sensor_from_its_runs():
+    from app.headless.experiments.polish_report import _loop_text
+
+    sensor = dict(
+        noise=True,
+        force_noise_var=8.0,
+        torque_noise_var=0.05,
+        sine_amplitude_n=3.0,
+        sine_hz=2.0,
+        cutoff_hz=40.0,
+        reading_delay_steps=2,
+    )
+    contact = {"stiffness_n_per_m": 12000.0, "v_eps_m_per_s": 0.004, "mu": 1.0, "implicit_friction": False}
+    run = {"timestep_s": 5e-4, "sensor": sensor, "contact": contact, "torque_delay_ms": 3.0}
+    text = _loop_text({"runs": [run, dict(run)]})
+    for part in ("2000 Hz", "12,000 N/m", "4 mm/s", "explicitly", "8 N² + 3 N at 2 Hz", "40 Hz low-pass"):
+        assert part in text, (part, text)
+    assert "2 control period(s) old" in text and "3 ms after" in text
+    assert "5 N²" not in text and "25 Hz" not in text
+    other = dict(run, sensor=dict(sensor, cutoff_hz=25.0))
+    assert "F/T settings differ between runs" in _loop_text({"runs": [run, other]})
+
+
+def test_the_w_d_flip_explanation_is_printed_only_when_w_d_did_not_flip():
+    from app.headless.experiments.polish_report import _w_d_flip
+
+    scan = {
+        "W_d": {
+            "at_start": 13.3,
+            "local_minima_swivel_deg": [-83.7, 77.3],
+            "feasible_min_swivel_deg": 77.3,
+            "feasible_min": 11.47,
+            "feasible_max": 16.45,
+            "ridge_swivel_deg": -23.4,
+        },
+        "inverted": {"swivel_deg": 180.0, "feasible": False, "infeasible_within_deg": 5.0, "W_d": 16.0},
+    }
+
+    def doc(swivel: float) -> dict:
+        row = {"objective": "d", "mu": 1.0, "converged_swivel_deg": {"mean": swivel}}
+        return {"summary": [row], "swivel_scan": scan, "armature": {"basins": []}}
+
+    (text,) = _w_d_flip(doc(78.0))
+    assert "+78°" in text and "outside the joint limits" in text and "not a minimum" in text
+    assert _w_d_flip(doc(-170.0)) == []

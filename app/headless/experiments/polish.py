@@ -47,6 +47,7 @@ DEFAULT_SEEDS = 5
 ARMATURE_SCALES = (0.0, 0.5, 1.0, 2.0)  # item 6: the armature is not published (robots/rizon4s.toml)
 V_EPS_CHECK_M_PER_S = (0.001, 0.002, 0.01)  # friction regularisation re-measured each run (W_j hold, μ = 1)
 V_EPS_HOLD_S = 3.0
+V_EPS_MU = 1.0  # the friction coefficient of that check
 RECORD_EVERY = 5  # time series kept at 200 Hz for the figures
 SAFETY_CAP_S = scenario_module.CONVERGE_TIMEOUT_S + scenario_module.CONTACT_TIME_S + 20.0  # settle cap + trajectory
 # The latency table: each stage of the loop's latency alone (the other at 0), at μ = 1, seed 0.
@@ -473,10 +474,10 @@ def _mean(x: np.ndarray) -> float | None:
 
 
 def v_eps_check(v_eps: float, seed: int = 0) -> dict:
-    """Force-error STD (true contact force) of a W_j hold at μ = 1 with friction regularised at v_ε."""
+    """Force-error STD (true contact force) of a W_j hold at μ = V_EPS_MU with friction regularised at v_ε."""
     from app.core.session import Session
 
-    session = Session(PolishScenario(mu=1.0), seed=seed)
+    session = Session(PolishScenario(mu=V_EPS_MU), seed=seed)
     session.set_param("nullspace", "objective", "j")
     session.set_param("contact", "v_eps_m_per_s", v_eps)
     f: list[float] = []
@@ -490,6 +491,8 @@ def v_eps_check(v_eps: float, seed: int = 0) -> dict:
         "force_std_n": float(np.std(arr)),
         "lost_ms": int(np.sum(arr <= 0)),
         "stop": res.stop,
+        "mu": V_EPS_MU,
+        "hold_s": V_EPS_HOLD_S,
     }
 
 
@@ -847,7 +850,8 @@ def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
         },
         "plan": {"sample_s": s.PLAN_SAMPLE_S, "grid_deg": s.PLAN_GRID_DEG, "rate_max_deg_s": s.PLAN_RATE_MAX_DEG_S},
         "friction_v_eps_m_per_s": s.FRICTION_V_EPS_M_PER_S,
-        "force_error": "20 N minus the filtered F/T reading along z, over the six segments",
+        "force_error": f"{s.DESIRED_FORCE_N:g} N minus the filtered F/T reading along z, over the six segments",
+        "desired_force_n": s.DESIRED_FORCE_N,
     }
 
 

@@ -34,10 +34,20 @@ NAMES = {
 ROTOR_INERTIA_KG_M2 = (4e-5, 4e-5, 2e-5, 2e-5, 1e-5, 1e-5, 1e-5)  # harmonic-drive motors for 123 / 64 / 39 N m joints
 GEAR_RATIO = 100.0
 MATCH_REL = 0.25  # "matches the paper": within 25 % of its value or 2 sd of our seeds, whichever is larger
-V_EPS_HEAD = (
-    "<h2>Friction regularisation (W_j hold, μ = 1, 3 s)</h2><table><tr><th>v_ε (mm/s)</th>"
-    "<th>contact force STD (N)</th><th>contact lost (ms)</th></tr>"
-)
+
+
+def _v_eps_head(v_eps: list[dict]) -> str:
+    """The friction-regularisation table's heading, with the hold's μ and length as the check ran them."""
+    from app.headless.experiments.polish import V_EPS_HOLD_S, V_EPS_MU
+
+    mu = v_eps[0].get("mu", V_EPS_MU) if v_eps else V_EPS_MU
+    hold = v_eps[0].get("hold_s", V_EPS_HOLD_S) if v_eps else V_EPS_HOLD_S
+    return (
+        f"<h2>Friction regularisation (W_j hold, μ = {mu:g}, {hold:g} s)</h2><table><tr><th>v_ε (mm/s)</th>"
+        "<th>contact force STD (N)</th><th>contact lost (ms)</th></tr>"
+    )
+
+
 PAPER_STABLE_MU1 = {"j": False, "f": False, "a": True, "d": True}  # [T] Fig. 9: W_j/W_f oscillate at μ = 1
 
 
@@ -108,11 +118,33 @@ def scan_at_start(armature_scale: float = 1.0) -> dict:
         "feasible_min_abs_swivel_deg": float(data["swivel_deg"][i]),
         "feasible_max_abs": float(np.max(np.where(data["feasible"], np.abs(data["Pd_fhat_stretch"]), -np.inf))),
     }
+    summary["W_d"]["ridge_swivel_deg"] = _ridge(data, start, "W_d")
+    inverted = int(np.argmax(np.abs(data["swivel_deg"])))  # the elbow turned over: the swivel nearest ±180°
+    summary["inverted"] = {
+        "swivel_deg": float(data["swivel_deg"][inverted]),
+        "feasible": bool(data["feasible"][inverted]),
+        "infeasible_within_deg": _infeasible_span(data),
+        **{w: float(data[w][inverted]) for w in ("W_f", "W_a", "W_d")},
+    }
     return {"data": data, "summary": summary}
 
 
 def _local_minimum_indices(w: np.ndarray, feas: np.ndarray) -> list[int]:
     return [i for i in range(len(w)) if feas[i] and w[i] < w[i - 1] and w[i] < w[(i + 1) % len(w)]]
+
+
+def _infeasible_span(data: dict) -> float:
+    """How far from ±180° (degrees) the run of swivels outside the joint limits around the inverted
+    elbow reaches (0 when the inverted elbow itself is within the limits)."""
+    psi, feas = data["swivel_deg"], data["feasible"]
+    off = 180.0 - np.abs(psi)  # 0 at the inverted elbow
+    order = np.argsort(off)
+    span = 0.0
+    for i in order:
+        if feas[i]:
+            break
+        span = float(off[i])
+    return span
 
 
 def _ridge(data: dict, start: int, w: str) -> float | None:
@@ -195,7 +227,7 @@ def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict
                 t, sel = _trajectory_time(s)
                 ax.plot(t, s["force_error"][sel], color=COLORS[r["objective"]], lw=0.8, label=NAMES[r["objective"]])
         _shade_segments(ax, labels=True)
-        ax.set_ylabel("20 N − filtered force (N)")
+        ax.set_ylabel(f"{scenario_module.DESIRED_FORCE_N:g} N − filtered force (N)")
         ax.set_title(f"force error, μ = {mu:g}, seed 0 (grey: stretching segments S2, S4, S6)", pad=14)
         ax.legend(fontsize=7, ncol=3, loc="lower left")
     axes[-1][0].set_xlabel("time since trajectory start (s)")
@@ -344,6 +376,128 @@ def _fmt(x, digits: int = 2) -> str:
     return "-" if x is None else f"{x:.{digits}f}"
 
 
+def _common(runs: list[dict], key: str):
+    """runs[i][key] when every run has the same value (None when they differ or none has it)."""
+    values = [r.get(key) for r in runs]
+    if not values or any(v is None or v != values[0] for v in values):
+        return None
+    return values[0]
+
+
+def _loop_text(doc: dict) -> str:
+    """The simulated loop, contact and F/T sensor as the table's runs had them (from their records)."""
+    runs = doc["runs"]
+    dt = _common(runs, "timestep_s")
+    contact, sensor = _common(runs, "contact"), _common(runs, "sensor")
+    parts = [f"{1.0 / dt:g} Hz" if dt else "control period not recorded"]
+    if contact:
+        way = "implicitly (backward Euler)" if contact.get("implicit_friction") else "explicitly"
+        parts.append(
+            f"table contact {contact['stiffness_n_per_m']:,.0f} N/m with Coulomb friction regularised at "
+            f"v_ε = {contact['v_eps_m_per_s'] * 1000:g} mm/s and integrated {way}"
+        )
+    else:
+        parts.append("contact settings differ between runs or were not recorded")
+    if sensor:
+        noise = (
+            f"F/T noise {sensor['force_noise_var']:g} N² + {sensor['sine_amplitude_n']:g} N at {sensor['sine_hz']:g} Hz"
+            if sensor["noise"]
+            else "no F/T noise"
+        )
+        lp = f"{sensor['cutoff_hz']:g} Hz low-pass" if sensor["cutoff_hz"] > 0 else "no low-pass"
+        age = sensor["reading_delay_steps"]
+        parts.append(f"{noise}, {lp}, the reading {age} control period(s) old when the controller uses it")
+    else:
+        parts.append("F/T settings differ between runs or were not recorded")
+    delay = _common(runs, "torque_delay_ms")
+    if delay is not None:
+        parts.append(f"torque applied {delay:g} ms after it is computed")
+    return ", ".join(parts)
+
+
+def latency_html(doc: dict) -> str:
+    """The latency table: per row, the smallest F/T reading age and torque delay at which the run
+    oscillates or leaves the table, and each delay's worst segment STD over the row's zero-latency
+    median segment STD (bold: oscillates), with the contact it lost."""
+    lat = doc.get("latency")
+    if not lat or not lat["rows"]:
+        return ""
+    sensing = sorted({c["reading_delay_steps"] for e in lat["rows"] for c in e["cells"] if c["torque_delay_ms"] == 0})
+    torque = sorted({c["torque_delay_ms"] for e in lat["rows"] for c in e["cells"] if c["reading_delay_steps"] == 0})
+
+    def cell(e: dict, ds: int, da: float) -> str:
+        c = next((x for x in e["cells"] if x["reading_delay_steps"] == ds and x["torque_delay_ms"] == da), None)
+        if c is None:
+            return "<td>-</td>"
+        ratio = "-" if c["std_ratio"] is None else f"{c['std_ratio']:.1f}×"
+        lost = f", {c['contact_lost_ms']} ms lost" if c["contact_lost_ms"] else ""
+        text = f"{ratio}{lost}{', diverged' if c['diverged'] else ''}"
+        return f"<td><b>{text}</b></td>" if c["oscillates"] else f"<td>{text}</td>"
+
+    def first(x, unit: str, tried: list) -> str:
+        return f"{x:g} {unit}" if x is not None else (f"none up to {max(tried):g} {unit}" if tried else "-")
+
+    head = "".join(f"<th>F/T {d} period(s)</th>" for d in sensing) + "".join(f"<th>τ {m:g} ms</th>" for m in torque)
+    body = "".join(
+        f"<tr><td>{html.escape(e['row'])}</td><td>{_fmt(e['swivel_deg'], 0)}°</td>"
+        f"<td>{first(e['smallest_sensing_delay_steps'], 'period(s)', e['sensing_tried'])}</td>"
+        f"<td>{first(e['smallest_torque_delay_ms'], 'ms', e['torque_tried'])}</td>"
+        + "".join(cell(e, d, 0.0) for d in sensing)
+        + "".join(cell(e, 0, m) for m in torque)
+        + "</tr>"
+        for e in lat["rows"]
+    )
+    runs = lat.get("runs", [])
+    seeds = sorted({r["seed"] for r in runs})
+    return f"""<h2>Latency: how much delay each posture tolerates at μ = {lat["mu"]:g}</h2>
+<p>Each stage of the loop's latency alone, the other at 0: the F/T reading's age in control periods (torque
+delay 0) and the torque delay in ms (reading age 0); seed(s) {", ".join(str(x) for x in seeds)}. A run
+<b>oscillates or leaves the table</b> when it diverges, loses contact, or has a segment whose force-error STD
+is at least {lat["criterion"]["std_factor"]:g}× the median segment STD of the same row with no latency at all.
+Cells: the worst segment's STD over that reference median (bold: oscillates).</p>
+<table><tr><th>row</th><th>swivel (no latency)</th><th>smallest F/T age</th><th>smallest torque delay</th>
+{head}</tr>{body}</table>
+<ul>{"".join(f"<li>{html.escape(t)}</li>" for t in latency_findings(doc))}</ul>"""
+
+
+def latency_findings(doc: dict) -> list[str]:
+    """Whether the more decoupled postures (smaller P_d·f̂ along the stretching friction at the start
+    of the trajectory) tolerate more latency in this run; printed only as the numbers say."""
+    lat = doc.get("latency")
+    if not lat:
+        return []
+    runs = lat.get("runs", [])
+    out: list[str] = []
+    known: list[tuple[str, float, float, float]] = []  # (row, P_d·f̂ stretch, sensing score, torque score)
+    for e in lat["rows"]:
+        ref = next(
+            (r for r in runs if r["row"] == e["row"] and r["reading_delay_steps"] == 0 and r["torque_delay_ms"] == 0),
+            None,
+        )
+        pd = None if ref is None else ref.get("Pd_fhat", {}).get("stretch")
+        s_first, t_first = e["smallest_sensing_delay_steps"], e["smallest_torque_delay_ms"]
+        s_score = s_first if s_first is not None else max(e["sensing_tried"], default=0) + 1
+        t_score = t_first if t_first is not None else max(e["torque_tried"], default=0) + 1
+        if pd is not None:
+            known.append((e["row"], float(pd), float(s_score), float(t_score)))
+    if len(known) >= 2:
+        pairs = [(a, b) for a in known for b in known if a[1] < b[1]]  # a more decoupled than b
+        worse = [(a, b) for a, b in pairs if a[2] < b[2] or a[3] < b[3]]
+        listing = "; ".join(f"{r} (P_d·f̂ {pd:.3f})" for r, pd, _, _ in sorted(known, key=lambda x: x[1]))
+        if not worse:
+            out.append(
+                "Every more decoupled posture tolerates at least as much sensing and torque delay as every more "
+                f"coupled one (ordered by P_d·f̂ along the stretching friction at the trajectory start: {listing})."
+            )
+        else:
+            out.append(
+                f"The order by coupling does not hold for {len(worse)} of {len(pairs)} pairs: "
+                + "; ".join(f"{a[0]} (P_d·f̂ {a[1]:.3f}) oscillates earlier than {b[0]} ({b[1]:.3f})" for a, b in worse)
+                + "."
+            )
+    return out
+
+
 def write_report(out: Path, doc: dict) -> None:
     """report.html: Table III (mean ± sd) beside the paper's, the computed findings, figures."""
     s = doc["settings"]
@@ -392,9 +546,8 @@ th{{background:#eee}}img{{max-width:100%}}</style></head><body>
 <h1>Polishing with nullspace coupling optimization — simulation study of [T] §IV-B</h1>
 <p>Run: <code>{html.escape(s["command"])}</code> ({s["seeds"]} seed(s) per cell, {s["jobs"]} process(es), wall time
 {doc["wall_s"]:.0f} s{_reused(s)}, code version {html.escape(str(s.get("code", "not recorded")))}).
-Rizon 4s model, 1 kHz, table contact 30 000 N/m with Coulomb friction regularised at
-v_ε = {s["friction_v_eps_m_per_s"] * 1000:g} mm/s and integrated implicitly, F/T noise 5 N² + 2 N at 1 Hz,
-25 Hz low-pass; Table II gains; start elbow up (swivel 0°); six segments of {s["segment_dx_m"]:.2f} m in X and
+Rizon 4s model, {_loop_text(doc)}; Table II gains; start elbow up (swivel {s["start_swivel_deg"]:g}°);
+six segments of {s["segment_dx_m"]:.2f} m in X and
 {s["segment_dy_m"]:.2f} m in Y, {s["segment_duration_s"]:.1f} s each. The settle phase ends when the QP's goal
 nullspace speed stayed below {s["settle"]["speed_tol_rad_s"]:g} rad/s and W changed by less than
 {s["settle"]["w_rtol"]:g}·|W| + {s["settle"]["w_atol"]:g} over the last {s["settle"]["window_s"]:g} s (cap
@@ -408,12 +561,13 @@ nullspace speed stayed below {s["settle"]["speed_tol_rad_s"]:g} rad/s and W chan
 {"".join(rows)}</table>
 <p>W, P_f·f̂ (m/s² per N) and P_d·f̂ (N per N) at the trajectory start, f̂ the unit friction direction of a
 stretching (S2) and a retracting (S1) segment. "margin" is K_f^d minus the critical K_f^d of the linearised
-force loop (contact stiffness, K_f^p, K_f^d, the 25 Hz sensor lag, the shaping term BᵀA⁻¹, friction, the 1 ms
-step; worst over both directions and the speeds of a segment): negative means the loop is predicted to lose
+force loop (contact stiffness, K_f^p, K_f^d, the sensor's low-pass, the shaping term BᵀA⁻¹, friction, the
+control period; worst over both directions and the speeds of a segment): negative means the loop is predicted to lose
 contact. "stable": no divergence and the TCP never left the table in the six segments.</p>
 {stroke_margin_html(doc)}
 <h2>Findings (computed from this run)</h2>
 <ul>{findings}</ul>
+{latency_html(doc)}
 <h2>Armature sensitivity</h2>
 <p>The Rizon 4s armature is not published; robots/rizon4s.toml sets rotor inertia × gear ratio² with
 a ratio of {GEAR_RATIO:.0f}: {arithmetic} kg m². Basins below are where each gradient flow from the Fig. 6a start
@@ -421,7 +575,7 @@ ends along the swivel scan with the armature scaled (model and simulation alike)
 μ = {max(s["mu"]):g} force-error PTP (seed 0) where that run was made.</p>
 <table><tr><th>armature</th><th>W_f flow</th><th>W_a flow</th><th>W_d flow</th><th>W_a ridge</th>
 <th>W_j PTP</th><th>W_f PTP</th><th>W_a PTP</th><th>W_d PTP</th></tr>{arm_rows}</table>
-{V_EPS_HEAD + v_rows + "</table>" if v_rows else ""}
+{_v_eps_head(doc.get("v_eps", [])) + v_rows + "</table>" if v_rows else ""}
 <h2>Figures</h2>
 {"".join(f'<h3>{f}</h3><img src="{f}.png">' for f in figs)}
 </body></html>
@@ -445,6 +599,59 @@ def _arm_ptp(doc: dict, scale: float, objective: str) -> str:
                 f"{r['force_error']['ptp']:.1f} ({r['converged_swivel_deg']:+.0f}°{''.join(', ' + f for f in flags)})"
             )
     return "-"
+
+
+FLIPPED_WITHIN_DEG = 30.0  # a posture this close to ±180° swivel counts as the inverted elbow of [T] Fig. 6d
+
+
+def _w_d_flip(doc: dict) -> list[str]:
+    """Why W_d does not invert the elbow as [T] Fig. 6d does: the basin it reaches, whether the
+    inverted elbow is a minimum and within the joint limits, and the armature scales' W_d basins;
+    printed only when no W_d row of the table ended near ±180°."""
+    rows = [e for e in doc["summary"] if e["objective"] == "d" and e["converged_swivel_deg"]["mean"] is not None]
+    scan = doc.get("swivel_scan", {})
+    wd, inv = scan.get("W_d"), scan.get("inverted")
+    if not rows or not wd or not inv:
+        return []
+    if any(180.0 - abs(e["converged_swivel_deg"]["mean"]) <= FLIPPED_WITHIN_DEG for e in rows):
+        return []
+    reached = ", ".join(f"μ = {e['mu']:g}: {e['converged_swivel_deg']['mean']:+.0f}°" for e in rows)
+    where = (
+        f"outside the joint limits (every swivel within {inv['infeasible_within_deg']:.0f}° of ±180° is)"
+        if not inv["feasible"]
+        else "within the joint limits"
+    )
+    is_min = any(180.0 - abs(m) <= FLIPPED_WITHIN_DEG for m in wd["local_minima_swivel_deg"])
+    text = (
+        f"W_d does not invert the elbow as [T] Fig. 6d does (ours reaches {reached}). Along the self-motion loop "
+        f"at the start pose W_d has its local minima at {wd['local_minima_swivel_deg']}° and its feasible minimum "
+        f"at {wd['feasible_min_swivel_deg']:+.0f}° (W_d {wd['feasible_min']:.2f}); the flow from the start "
+        f"({wd['at_start']:.2f} at 0°) ends there"
+        + (
+            f", the ridge to the other basin is at {wd['ridge_swivel_deg']:+.0f}°"
+            if wd.get("ridge_swivel_deg") is not None
+            else ""
+        )
+        + f". The inverted elbow ({inv['swivel_deg']:+.0f}°) is {where} and has W_d {inv['W_d']:.2f} "
+        f"(feasible maximum {wd['feasible_max']:.2f})"
+        + (": a minimum there, unreachable from this start." if is_min else ": not a minimum of this model's W_d.")
+    )
+    basins = doc.get("armature", {}).get("basins", [])
+    if basins:
+        flips = [
+            b for b in basins if b["W_d_flow_deg"] is not None and 180.0 - abs(b["W_d_flow_deg"]) <= FLIPPED_WITHIN_DEG
+        ]
+        text += (
+            " With the armature scaled the W_d flow from the start ends at "
+            + ", ".join(f"×{b['armature_scale']:g}: {_fmt(b['W_d_flow_deg'], 0)}°" for b in basins)
+            + ("; none of these inverts the elbow." if not flips else "; ")
+            + (
+                ""
+                if not flips
+                else "the inverted elbow is reached at ×" + ", ×".join(f"{b['armature_scale']:g}" for b in flips) + "."
+            )
+        )
+    return [text]
 
 
 def findings_in_words(doc: dict) -> list[str]:
@@ -528,6 +735,7 @@ def findings_in_words(doc: dict) -> list[str]:
             f"|P_d·f̂| runs from {pd['feasible_min_abs']:.3f} (at {pd['feasible_min_abs_swivel_deg']:+.0f}°) to "
             f"{pd['feasible_max_abs']:.3f} over the feasible loop; at the W_a basins: {basins}."
         )
+    out += _w_d_flip(doc)
     for e in summary:
         if e["mu"] != hi or e["Pd_fhat_stretch"]["mean"] is None:
             continue
