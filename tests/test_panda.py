@@ -153,3 +153,42 @@ def test_a_urdf_without_sidecar_polishes_from_a_searched_start_and_the_page_says
     assert "guessed" in make_status(lab).robot
     result = lab.advance(1500)  # approach, contact and the first half second of settling
     assert not result.halted, result.reason
+
+
+def test_the_page_draws_the_panda_with_its_meshes_at_the_simulated_poses_and_they_drag(server):
+    """Every Panda link with a visual (fingers included, at their locked position) is a mesh of the
+    real DAE (thousands of faces, the file's colour), posed at the simulated body; a drag on one
+    becomes grab / move / release commands."""
+    import asyncio
+    import types
+
+    from app.core.commands import DragCommand
+    from app.core.session import Session
+    from app.live.ui.scene import NEUTRAL, SceneView
+    from app.live.ui.snapshot import capture
+    from app.live.ui.visuals import VisualSettings
+
+    session = Session("free", robot="panda")
+    sent: list[DragCommand] = []
+    view = SceneView(server, session.robot, sent.append, VisualSettings(limit_colors=False))
+    try:
+        visual_links = {f"panda_link{i}" for i in range(8)} | {"panda_hand", "panda_leftfinger", "panda_rightfinger"}
+        assert set(view.meshes) == visual_links
+        assert all(len(view._link_shapes[name].faces) > 500 for name in visual_links)
+        snap = capture(session)
+        with server.atomic():
+            view.update(snap)
+        i = snap.link_index("panda_leftfinger")
+        assert np.allclose(view.frames["panda_leftfinger"].position, snap.link_positions[i])
+        body = session.world.model.body("panda_leftfinger").id
+        np.testing.assert_allclose(snap.link_positions[i], session.world.data.xpos[body], atol=1e-9)
+        assert tuple(view.meshes["panda_link3"].color) != NEUTRAL  # the DAE's own colour
+        cb = view._drag_callback("panda_link5")
+        for phase in ("start", "update", "end"):
+            event = types.SimpleNamespace(
+                phase=phase, client_id=3, start_position=(0.1, 0, 0.5), end_position=(0.2, 0, 0.5)
+            )
+            asyncio.run(cb(event))
+        assert [c.kind for c in sent] == ["grab", "move", "release"] and sent[0].body_name == "panda_link5"
+    finally:
+        view.remove()
