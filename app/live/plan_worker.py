@@ -7,12 +7,18 @@ drag. With `Lab.defer_work` the switch raises `WorkPending` instead (nothing cha
 loop hands the work to `BackgroundPlanner`, keeps running the current preset, applies only urgent
 commands (drag, Pause), and applies the switch again once the result is stored. The work is the
 same function of the same arguments in either process.
+
+The worker process comes back: when it dies (killed, out of memory) the pool is thrown away, a new one
+is started and the work under way is submitted again (once: work that kills its worker twice fails
+with a notice). Nothing is ever computed on the loop thread: where no worker process can start at
+all, the work runs in a thread of its own.
 """
 
 from __future__ import annotations
 
 import os
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from typing import Any
 
@@ -29,50 +35,74 @@ def _app_niceness() -> int:
 
 
 class BackgroundPlanner:
-    """One piece of work at a time in a spawned worker process (started on first use, kept for the next)."""
+    """One piece of work at a time in a spawned worker process (started on first use, kept for the
+    next, rebuilt when it dies; see the module docstring)."""
 
     def __init__(self) -> None:
-        self._pool: ProcessPoolExecutor | None = None
+        self._pool: Executor | None = None
         self._job: tuple[Future, Work, Any] | None = None
+        self._retried = False  # the work under way was submitted again after its worker died
+        self.rebuilds = 0  # pools started after a worker died
 
     @property
     def busy(self) -> bool:
         """True while work is being computed."""
         return self._job is not None
 
-    def start(self, command: Any, work: Work) -> None:
-        """Compute `work`; `command` is handed back by `take_done` once its result is stored. Where no
-        worker process can start, the work is computed here (and is done at once)."""
+    def _new_pool(self) -> Executor:
         try:
-            if self._pool is None:
-                # at the app's priority: spawned from the loop thread, it would inherit that thread's
-                self._pool = ProcessPoolExecutor(
-                    max_workers=1,
-                    mp_context=get_context("spawn"),
-                    initializer=set_process_niceness,
-                    initargs=(_app_niceness(),),
-                )
-            future = self._pool.submit(work.compute, *work.args)
-        except Exception:  # no worker process here: compute in this thread, as without deferral
-            future = Future()
-            future.set_result(work.compute(*work.args))
-        self._job = (future, work, command)
+            # at the app's priority: spawned from the loop thread, it would inherit that thread's
+            return ProcessPoolExecutor(
+                max_workers=1,
+                mp_context=get_context("spawn"),
+                initializer=set_process_niceness,
+                initargs=(_app_niceness(),),
+            )
+        except Exception:  # no worker process here: a thread, never the loop thread itself
+            return ThreadPoolExecutor(max_workers=1, thread_name_prefix="torquelab-work")
+
+    def _submit(self, work: Work) -> Future:
+        """Submit to the pool, rebuilding it once if it is broken (its worker died while idle)."""
+        if self._pool is None:
+            self._pool = self._new_pool()
+        try:
+            return self._pool.submit(work.compute, *work.args)
+        except (BrokenProcessPool, RuntimeError):
+            self._discard_pool()
+            self.rebuilds += 1
+            self._pool = self._new_pool()
+            return self._pool.submit(work.compute, *work.args)
+
+    def _discard_pool(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
+    def start(self, command: Any, work: Work) -> None:
+        """Compute `work`; `command` is handed back by `take_done` once its result is stored."""
+        self._retried = False
+        self._job = (self._submit(work), work, command)
 
     def take_done(self) -> tuple[Any, BaseException | None] | None:
         """(command, None) once its work's result is stored, (command, error) if the work failed; None
-        while it is still being computed or when nothing is."""
+        while it is still being computed (a dead worker's work is submitted again to a new pool) or
+        when nothing is."""
         if self._job is None or not self._job[0].done():
             return None
         future, work, command = self._job
-        self._job = None
         error = future.exception()
+        if isinstance(error, BrokenProcessPool) and not self._retried:
+            self._discard_pool()  # the worker died under the work: a new one computes it again
+            self.rebuilds += 1
+            self._retried = True
+            self._job = (self._submit(work), work, command)
+            return None
+        self._job = None
         if error is None:
             work.store(future.result())
         return command, error
 
     def stop(self) -> None:
         """End the worker process (work under way is abandoned)."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
+        self._discard_pool()
         self._job = None

@@ -32,6 +32,7 @@ from robots import RobotDescription
 
 __all__ = ["Preview", "SelfMotionPreview", "link_poses", "preview_objective", "scan_preview"]
 
+MAX_POOL_FAILURES = 3  # scan-process failures in a row before scans run in this thread
 PREVIEW_PERIOD_S = 1.0  # s between two scans while the preview is on (a scan takes ~0.1 s)
 PLANNED_SIGNAL = "swivel_plan_deg"  # the polish scenario's planned swivel, when it runs a planned path
 GHOST_COLOR = (110, 130, 255)
@@ -120,7 +121,9 @@ class SelfMotionPreview:
         self._stop = threading.Event()
         self._models: dict[str, RobotModel] = {}
         self._pool: ProcessPoolExecutor | None = None
-        self._in_process = True  # off after the scan process failed once: scans then run in this thread
+        self._in_process = True  # off after MAX_POOL_FAILURES failures in a row: scans then run in this thread
+        self._pool_failures = 0  # scan-process failures in a row (a dead worker: the pool is rebuilt)
+        self.pool_rebuilds = 0  # scan processes started again after one died
         self._ghost: dict[str, viser.MeshHandle] = {}
         self._ghost_robot: str | None = None
         self.ghost_q: np.ndarray | None = None  # the posture the ghost was last drawn at (tests read it)
@@ -211,9 +214,10 @@ class SelfMotionPreview:
         self._show_ghost(robot, None if index is None else result.q[index])
 
     def _scan(self, robot: RobotDescription, q: np.ndarray, sub: Subspaces, objective: str) -> Preview:
-        """One scan in the scan process (started on first use; this thread waits without the GIL),
-        or here if that process cannot run."""
-        if self._in_process:
+        """One scan in the scan process (started on first use; this thread waits without the GIL). A
+        process that died is replaced by a new one, which scans again; after MAX_POOL_FAILURES
+        failures in a row (no process can run here) scans run in this thread."""
+        while self._in_process:
             try:
                 if self._pool is None:
                     self._pool = scan_pool()
@@ -221,10 +225,20 @@ class SelfMotionPreview:
                     scan_in_worker, str(robot.urdf_path), robot.model, robot.q_lower, robot.q_upper, q,
                     sub.force_axes, objective,
                 )  # fmt: skip
-                return job.result(timeout=60.0)
-            except Exception as exc:  # a broken or missing process: say so once, then scan in this thread
-                print(f"torquelab: self-motion scan process failed ({exc!r}); scanning in the server process")
-                self._in_process = False
+                result = job.result(timeout=60.0)
+            except Exception as exc:  # a dead or missing process: a new one
+                self._pool_failures += 1
+                if self._pool is not None:
+                    self._pool.shutdown(wait=False, cancel_futures=True)
+                    self._pool = None
+                if self._pool_failures >= MAX_POOL_FAILURES:
+                    print(f"torquelab: self-motion scan process failed ({exc!r}); scanning in the server process")
+                    self._in_process = False
+                else:
+                    self.pool_rebuilds += 1
+                continue
+            self._pool_failures = 0
+            return result
         return scan_preview(self._model_for(robot), robot, q, sub, objective)
 
     def _model_for(self, robot: RobotDescription) -> RobotModel:
