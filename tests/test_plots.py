@@ -71,7 +71,7 @@ def test_every_plot_has_a_finite_y_range_and_data_with_no_twin(server, polish, d
     plots = Plots(server)
     for session, plot in enumerate((polish, drop)):
         plots.update(plot, session=session)
-        for handle in (plots.force, plots.torque, plots.rtf, *plots.w_plots.values()):
+        for handle in (plots.force, plots.rate, plots.torque, plots.rtf, *plots.w_plots.values()):
             lo, hi = handle.scales["y"]["range"]
             assert np.isfinite(lo) and np.isfinite(hi) and hi > lo
         lo, hi = plots.force.scales["y"]["range"]
@@ -221,3 +221,17 @@ def test_segment_std_comes_from_every_step_for_the_main_arm_and_the_twin():
     assert {1, 2} <= set(main) and {1, 2} <= set(twin)
     plot = plot_data(lab, deque())
     assert plot.segment_std == main and plot.twin_segment_std == twin
+
+
+def test_the_rate_plot_shows_the_logged_decay_rate_of_the_polish_force_loop(server, polish, drop):
+    """Polish logs σ every 100 steps (finite, within the plot's range); the limit drop has none and
+    its rate plot stays empty with its fixed range."""
+    plots = Plots(server)
+    plots.update(polish, session=1)
+    rate = np.asarray(plots.rate.data[1], dtype=float)
+    logged = polish.columns["margin_rate"]
+    assert np.any(np.isfinite(rate)) and np.all(np.isin(rate[np.isfinite(rate)], logged))
+    lo, hi = plots.rate.scales["y"]["range"]
+    assert lo == -hi and np.nanmax(np.abs(rate)) <= hi
+    plots.update(drop, session=2)
+    assert not np.any(np.isfinite(np.asarray(plots.rate.data[1], dtype=float)))

@@ -1,6 +1,7 @@
 """Live plots (viser uPlot) in their own dockable panel, beside the control panel.
 
-Force error along the force axis (the twin's dashed when a twin runs); W_f, W_a, W_d (Fig. 8 of
+Force error along the force axis (the twin's dashed when a twin runs); the polish force loop's decay
+rate σ (`app.scenarios.polish_margin`, < 0 where a mode grows); W_f, W_a, W_d (Fig. 8 of
 [T]) in three small single-axis plots; the (q, q̇) phase of one joint with its velocity limits,
 the plot's x range being the joint's position range (Fig. 2–4 of [C]); joint torques as a share of
 their limits; the real-time factor. A window of 10, 30 or 60 s of simulated time, a Freeze switch
@@ -40,6 +41,8 @@ SEGMENTS = 6  # polish zig-zag S1…S6
 FORCE_RANGE_N = 10.0  # ± N before any widening
 TORQUE_RANGE_PCT = 110.0
 RTF_RANGE = 1.2
+RATE_RANGE_PER_S = 10.0  # ± 1/s of the force loop's decay rate before any widening
+RATE_TITLE = "Force-loop decay rate σ (1/s; < 0: a mode grows)"
 W_SERIES = (("W_f", "1/kg²", COLORS[0]), ("W_a", "kg²", COLORS[1]), ("W_d", "1", COLORS[2]))
 LEGEND = {"live": False}  # labels only: no "--" / "NaN" values beside them
 
@@ -234,6 +237,19 @@ class Plots:
                 legend=LEGEND,  # type: ignore[arg-type]
                 aspect=2.0,
             )
+            self.rate = gui.add_uplot(
+                _empty(4),
+                (
+                    {"label": "t − now (s)"},
+                    _series("σ (1/s)", COLORS[6]),
+                    _series("0", "#888888", width=1, dash=(4.0, 4.0)),
+                    _marker_series(),
+                ),
+                title=RATE_TITLE,
+                scales=self._scales("rate", (-RATE_RANGE_PER_S, RATE_RANGE_PER_S)),
+                legend=LEGEND,  # type: ignore[arg-type]
+                aspect=4.0,
+            )
             self.coupling = gui.add_markdown(f"**{COUPLING_TITLE}**")
             self.w_plots = {
                 name: gui.add_uplot(
@@ -313,7 +329,7 @@ class Plots:
         self._redraw()
 
     def _handles(self) -> dict[str, Any]:
-        return {"force": self.force, "torque": self.torque, "rtf": self.rtf, **self.w_plots}
+        return {"force": self.force, "rate": self.rate, "torque": self.torque, "rtf": self.rtf, **self.w_plots}
 
     # ---- data -----------------------------------------------------------------------------------
     def focus(self, joint: int | None) -> None:
@@ -351,6 +367,7 @@ class Plots:
         s = slice(None, None, _stride(len(t)))
         x = t[s] - now
         self._draw_force(c, s, x, now)
+        self._draw_rate(c, s, x, now)
         self._draw_torque(plot, c, s, x, now)
         self._update_phase(plot)
         m = self.monitor.window(self._window_s)
@@ -395,6 +412,16 @@ class Plots:
         title = FORCE_TITLE if np.any(c["Fd_z"] != 0.0) else NO_SETPOINT_TITLE
         if self.force.title != title:
             self.force.title = title
+
+    def _draw_rate(self, c: dict[str, np.ndarray], s: slice, x: np.ndarray, now: float) -> None:
+        """The polish preset's live σ (signal "margin_rate", recomputed every 0.1 s of simulated time
+        from the logged step's posture); all NaN elsewhere."""
+        rate = c.get("margin_rate")
+        rate = np.full(len(c["t"]), np.nan) if rate is None else rate
+        values = np.abs(rate[np.isfinite(rate)])
+        hi = nice_ceiling(1.1 * float(values.max()), RATE_RANGE_PER_S) if values.size else RATE_RANGE_PER_S
+        self._set_range("rate", self.rate, (-hi, hi))
+        self.rate.data = _with_markers(x, [rate[s], np.zeros(len(x))], self.markers, now, -hi, hi)
 
     def _draw_torque(self, plot: PlotData, c: dict[str, np.ndarray], s: slice, x: np.ndarray, now: float) -> None:
         ratio = [100.0 * c[f"tau_{i + 1}"][s] / plot.tau_max[i] for i in range(self.n)]
