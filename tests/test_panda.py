@@ -192,3 +192,38 @@ def test_the_page_draws_the_panda_with_its_meshes_at_the_simulated_poses_and_the
         assert [c.kind for c in sent] == ["grab", "move", "release"] and sent[0].body_name == "panda_link5"
     finally:
         view.remove()
+
+
+@pytest.mark.slow
+def test_a_smaller_arm_without_sidecar_gets_the_table_and_start_scaled_to_its_reach(tmp_path):
+    """The Panda's URDF with every joint offset ×0.6 (a smaller arm) and no sidecar: the paper's
+    table and start are out of its reach, so the polish is placed at the first scale it reaches
+    (start and every zig-zag corner tool down inside the limits); the guessed values say so and the
+    first 1.5 s run."""
+    import re
+
+    from app.core.session import Session
+    from app.scenarios.polish import START_XY_M, TABLE_HEIGHT_M, segment_waypoints
+
+    text = external.urdf_path("panda").read_text()
+
+    def shrink(m: re.Match) -> str:
+        return m.group(1) + 'xyz="' + " ".join(f"{0.6 * float(v):.6f}" for v in m.group(2).split()) + '"'
+
+    small = re.sub(r'(<joint[^>]*>\s*(?:<[^>]*>\s*)*?<origin[^>]*?)xyz="([^"]*)"', shrink, text)
+    path = tmp_path / "small_arm.urdf"
+    path.write_text(small)
+    share = external.urdf_path("panda").parents[4]  # the folder holding example-robot-data/
+    session = Session("polish", robot=robots.robot_spec(path, package_paths=[str(share)]))
+    sc, r = session.scenario, session.robot
+    scale = sc.table_height / TABLE_HEIGHT_M
+    assert scale < 1.0 and sc.start_xy == pytest.approx((START_XY_M[0] * scale, START_XY_M[1] * scale))
+    assert "placement" in r.guessed and f"×{scale:g}" in r.guessed["placement"]
+    q0 = session.world.q
+    assert np.all(q0 >= r.q_lower) and np.all(q0 <= r.q_upper)
+    tcp = RobotModel(r.model).frame_pose(q0, "tcp").translation
+    np.testing.assert_allclose(tcp, [*sc.start_xy, sc.table_height + 0.002], atol=1e-6)
+    assert len(segment_waypoints(sc.start_xy)) == 7
+    result = session.run(1.5)
+    assert not result.halted, result.reason
+    assert session.last is not None and session.last.signals["contact_force_n"] > 5.0  # pressing on the table

@@ -54,6 +54,8 @@ N_SEGMENTS = 6
 PEAK_SPEED_M_S = 1.875 * float(np.hypot(SEGMENT_DX_M, SEGMENT_DY_M)) / SEGMENT_DURATION_S  # minimum-jerk peak
 HOLD_AFTER_S = 0.5  # rest at the end so the last segment's transient is recorded
 
+# an arm without sidecar postures: the paper's table and start scaled by the first of these it reaches
+PLACEMENT_SCALES = (1.0, 0.9, 1.1, 0.8, 1.2, 0.7, 1.3, 0.6, 1.4, 0.5)
 MIRROR_START_DEG = -30.0  # just across the W_a ridge (≈ −31° on the scan) from the Fig. 6a start: the other basin
 # The app's cases: the gradient flow of the chosen objective from the Fig. 6a start, the same from the
 # mirror start, or the globally planned swivel path with cost W_a or the directional coupling where its sign
@@ -425,6 +427,13 @@ class PolishParams(ParamGroup):
     )
 
 
+def _chain_length(robot: RobotDescription) -> float:
+    """Sum of the distances between the joints from joint 2 to the TCP (m): the arm's size."""
+    model = robot.model
+    length = sum(float(np.linalg.norm(model.jointPlacements[j].translation)) for j in range(2, model.njoints))
+    return length + float(np.linalg.norm(model.frames[model.getFrameId("tcp")].placement.translation))
+
+
 def ik_seed(robot: RobotDescription) -> np.ndarray:
     """Where the start pose's IK begins: the robot's `polish_start` posture if its sidecar names one,
     else its home posture."""
@@ -486,7 +495,9 @@ class PolishScenario(Scenario):
         if plan_cost is not None and plan_cost not in PLAN_COSTS:
             raise ValueError(f"unknown plan cost {plan_cost!r}; choose one of {', '.join(PLAN_COSTS)}")
         self.plan_cost = plan_cost  # "planned" objective: track the globally planned swivel path
-        self._q0_cache: dict[tuple[str, float], np.ndarray] = {}
+        self._q0_cache: dict[tuple[str, float, float], np.ndarray] = {}
+        self.table_height = TABLE_HEIGHT_M  # the paper's geometry; moved for an arm without a sidecar (_place)
+        self.start_xy = START_XY_M
         self._clock: PhaseClock | None = None
         self.plan: Plan | None = None
         self._plan_lead_s = 0.0
@@ -499,10 +510,54 @@ class PolishScenario(Scenario):
         return self.start_swivel_deg if self.hold_swivel_deg is None else self.hold_swivel_deg
 
     def prepare_robot(self, robot: RobotDescription) -> None:
-        """Scale the armature of the controller model and the simulated arm (before either is built)."""
+        """Scale the armature of the controller model and the simulated arm (before either is built);
+        for an arm without sidecar postures, place the table and the start from its reach."""
         if self.armature_scale != 1.0:
             robot.armature[:] = robot.armature * self.armature_scale  # a fresh description per session
             robot.model.armature = robot.armature.copy()
+        if "postures" in robot.guessed:
+            self._place(robot)
+
+    def _place(self, robot: RobotDescription) -> None:
+        """The table height and start XY for an arm without a sidecar: the paper's geometry scaled by
+        the first of PLACEMENT_SCALES (1 first, then those nearest the arm's size beside the Rizon's)
+        at which the start and every zig-zag corner are reached tool
+        down inside the joint limits (`reach.search_posture`, then IK along the corners)."""
+        model = RobotModel(robot.model)
+        swivel = np.deg2rad(self.start_swivel_used_deg)
+        import robots
+
+        # the paper's geometry first, then the scales nearest this arm's size beside the Rizon 4s's
+        ratio = _chain_length(robot) / _chain_length(robots.load(PolishScenario.default_robot))
+        for scale in (1.0, *sorted((s for s in PLACEMENT_SCALES if s != 1.0), key=lambda s: abs(s - ratio))):
+            xy = (START_XY_M[0] * scale, START_XY_M[1] * scale)
+            height = TABLE_HEIGHT_M * scale
+            start = np.array([*xy, height + START_GAP_M])
+            q = reach.search_posture(model, robot, start, TOOL_DOWN, swivel, ik_seed(robot))
+            if q is None or not self._corners_reached(model, robot, q, xy, height):
+                continue
+            self.table_height, self.start_xy = height, xy
+            self._q0_cache[(robot.spec or robot.name, self.start_swivel_used_deg, height)] = q
+            if scale != 1.0:
+                robot.guessed["placement"] = (
+                    f"the table at {height:.2f} m and the start at ({xy[0]:.2f}, {xy[1]:.2f}) m: the paper's"
+                    f" geometry scaled ×{scale:g} to this arm's reach; the force and coupling results are for"
+                    " that workspace"
+                )
+            return
+        raise ValueError(
+            f"{robot.name} reaches the polish start tool down inside its joint limits at no table placement"
+            f" (the paper's geometry scaled ×{min(PLACEMENT_SCALES):g}–×{max(PLACEMENT_SCALES):g})"
+        )
+
+    @staticmethod
+    def _corners_reached(model: RobotModel, robot: RobotDescription, q: np.ndarray, xy, height: float) -> bool:
+        for corner in segment_waypoints(xy):
+            p = np.array([corner[0], corner[1], height])
+            q = project_to_pose(model, q, p, TOOL_DOWN, iters=200)
+            if float(np.max(np.abs(model.frame_pose(q, "tcp").translation - p))) > 1e-6 or not reach.inside(robot, q):
+                return False
+        return True
 
     def configure_executor(self, executor: object, robot: RobotDescription) -> None:
         """Holding a swivel or following a plan runs the W_j objective [T18] on the target's posture."""
@@ -551,11 +606,11 @@ class PolishScenario(Scenario):
 
     def start_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """TCP position and rotation at the start (2 mm above the table, tool down)."""
-        return np.array([START_XY_M[0], START_XY_M[1], TABLE_HEIGHT_M + START_GAP_M]), TOOL_DOWN.copy()
+        return np.array([self.start_xy[0], self.start_xy[1], self.table_height + START_GAP_M]), TOOL_DOWN.copy()
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         """Posture at the start pose with the chosen swivel (elbow up at 0°), from the home posture."""
-        key = (robot.spec or robot.name, self.start_swivel_used_deg)  # spec: two URDFs may share a stem
+        key = (robot.spec or robot.name, self.start_swivel_used_deg, self.table_height)  # spec: URDFs share stems
         if key not in self._q0_cache:
             model = RobotModel(robot.model)
             p, R = self.start_pose()
@@ -575,7 +630,7 @@ class PolishScenario(Scenario):
     def make_environment(self, world: World, rng: np.random.Generator) -> Environment:
         """Table contact (μ of this scenario), sander if enabled, and a fresh phase clock."""
         contact = TableContact(
-            TABLE_HEIGHT_M,
+            self.table_height,
             stiffness_n_per_m=CONTACT_STIFFNESS_N_PER_M,
             mu=self.mu,
             v_eps_m_per_s=FRICTION_V_EPS_M_PER_S,
@@ -597,6 +652,8 @@ class PolishScenario(Scenario):
         q_posture = dyn0.q.copy()
         self.plan = None
         if self.plan_cost is not None:
+            if self.table_height != TABLE_HEIGHT_M or self.start_xy != START_XY_M:
+                raise ValueError("the planned cases plan on the paper's table; this arm's table was moved to its reach")
             self.plan = planned_path(robot, model, self.start_swivel_used_deg, self.plan_cost, self.armature_scale)
             clock.earliest_end_s = CONTACT_TIME_S + self.plan.transfer_s
         target = PolishTarget(p0, R0, q_posture, clock, self.plan, self._plan_lead_s)

@@ -2,7 +2,7 @@
 would seed it (a foreign URDF): a documented search, not a choice.
 
 The search: IK (`control.coupling.project_to_pose`, damped Gauss-Newton) from each seed in turn —
-the given seed (the sidecar's or home posture), the middle of the joint ranges, then 24 postures
+the given seed (the sidecar's or home posture), the middle of the joint ranges, then 12 postures
 drawn uniformly inside the limits with a fixed seed (so every run finds the same one) — each
 solution moved along its self-motion loop to the wanted swivel (`move_to_swivel`) and kept when it
 reaches the pose within `POSE_TOL` and every joint is inside its limits (an angle may move by ±2π).
@@ -18,7 +18,7 @@ from control.model import RobotModel
 from robots import RobotDescription
 
 POSE_TOL = 1e-6  # m and rad: what counts as reaching the pose
-RANDOM_SEEDS = 24
+RANDOM_SEEDS = 12
 SEARCH_SEED = 0
 
 
@@ -50,6 +50,11 @@ def _into_limits(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
     return out
 
 
+def _pose_error(model: RobotModel, q: np.ndarray, position: np.ndarray, rotation: np.ndarray) -> float:
+    pose = model.frame_pose(q, "tcp")
+    return max(float(np.max(np.abs(pose.translation - position))), float(np.max(np.abs(pose.rotation - rotation))))
+
+
 def search_posture(
     model: RobotModel,
     robot: RobotDescription,
@@ -65,6 +70,8 @@ def search_posture(
     best, best_margin = None, -np.inf
     for seed in seeds:
         q = project_to_pose(model, seed, position, rotation, iters=200)
+        if _pose_error(model, q, position, rotation) > POSE_TOL:
+            continue  # this seed's IK did not reach the pose: no swivel to look for
         try:
             q = _into_limits(robot, move_to_swivel(model, q, swivel_rad))
         except ValueError:  # the swivel is not reached from this seed
