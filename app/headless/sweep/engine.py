@@ -5,11 +5,21 @@ This is the only place that knows the engines. `open_executor(None, jobs)` is a
 executor of a `distributed.Client` connected to that scheduler; `open_executor("local", jobs)`
 starts a `distributed.LocalCluster` of `jobs` one-thread worker processes for trying it on one
 machine. Dask is the optional extra `torquelab[cluster]`.
+
+Local pool workers end with their parent: on Linux each asks the kernel for SIGKILL when the parent
+dies (`prctl(PR_SET_PDEATHSIG)`), elsewhere a thread in each worker ends it once its parent is
+gone, so a sweep killed with `kill -9` leaves no worker computing on (they held ~170 MB each).
 """
 
 from __future__ import annotations
 
+import ctypes
+import os
 import re
+import signal
+import sys
+import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
 from contextlib import contextmanager
@@ -18,6 +28,31 @@ from app.headless.sweep.grid import SweepError
 
 ADDRESS = re.compile(r"^(tcp|tls|ws|wss|inproc)://[^\s/:]+(:\d+)?/?$")
 CONNECT_TIMEOUT_S = 30
+
+
+PARENT_POLL_S = 1.0  # how often a worker without PR_SET_PDEATHSIG looks whether its parent lives
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent_pid: int | None = None) -> None:
+    """Pool initializer: end this worker when its parent process dies (see the module docstring)."""
+    parent = parent_pid if parent_pid is not None else os.getppid()
+    if sys.platform == "linux":
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0:
+                if os.getppid() != parent:  # the parent died before the request took effect
+                    os._exit(1)
+                return
+        except (OSError, AttributeError):
+            pass
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="torquelab-parent-watch", daemon=True).start()
 
 
 def check_cluster(cluster: str | None) -> None:
@@ -41,7 +76,7 @@ def open_executor(cluster: str | None, jobs: int) -> Iterator[tuple[Executor, st
     """(executor, one-line description) for the engine chosen; shuts it down on exit."""
     check_cluster(cluster)
     if cluster is None:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with ProcessPoolExecutor(max_workers=jobs, initializer=die_with_parent, initargs=(os.getpid(),)) as pool:
             yield pool, f"local process pool, {jobs} process{'es' if jobs > 1 else ''}"
         return
     distributed = _distributed()

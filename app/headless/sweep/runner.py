@@ -120,6 +120,8 @@ def run_sweep(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     store = CellStore(out / "cells.jsonl")
+    if store.torn:
+        print(f"{out / 'cells.jsonl'}: dropped a half-written last record ({store.torn} bytes): that cell runs again")
     code = code_version()
     keyed = [(cell_key(experiment, params, seed), params, seed) for params, seed in cells]
     spread = coarse_to_fine([p for p, _ in cells])

@@ -2,7 +2,9 @@
 
 A line is appended (and flushed to disk) as soon as a cell finishes, so a killed sweep keeps
 everything it finished; a re-run reads the file and skips those cells. A half-written last line
-(the process died while writing) is ignored. `write_csv` flattens the records for pandas.
+(the process died while writing: no newline at its end) is cut off the file when it is opened, so
+the next record starts on a line of its own, and that cell runs again. `write_csv` flattens the
+records for pandas.
 """
 
 from __future__ import annotations
@@ -26,7 +28,9 @@ class CellStore:
     def __init__(self, path: Path):
         self.path = Path(path)
         self.records: dict[str, dict] = {}
+        self.torn = 0  # bytes of a half-written last line cut off when the file was opened
         if self.path.exists():
+            self._cut_torn_tail()
             for line in self.path.read_text().splitlines():
                 try:
                     rec = json.loads(line)
@@ -34,6 +38,18 @@ class CellStore:
                     continue  # a line cut short by a kill
                 if isinstance(rec, dict) and "key" in rec:
                     self.records[rec["key"]] = rec  # the latest record of a key wins
+
+    def _cut_torn_tail(self) -> None:
+        """Truncate the file after its last newline (a kill during a write leaves a line without one)."""
+        data = self.path.read_bytes()
+        if not data or data.endswith(b"\n"):
+            return
+        keep = data.rfind(b"\n") + 1
+        with self.path.open("r+b") as f:
+            f.truncate(keep)
+            f.flush()
+            os.fsync(f.fileno())
+        self.torn = len(data) - keep
 
     def finished(self, key: str, retry_failed: bool) -> bool:
         """True when the cell need not run again (done, or failed and failures are not retried)."""
