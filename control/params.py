@@ -58,6 +58,9 @@ class ParamSpec:
     size: int | None = None
     axes: tuple[str, ...] = ()  # element names of a vector ("px", "joint 1"...)
     choice_labels: tuple[str, ...] = ()  # what a dropdown shows for each choice (default: the choice)
+    # why the field reaches neither τ, the world nor the scenario (shown, logged or read by tools
+    # only); empty for every field that acts: `tests/test_knobs_reach.py` holds each to it
+    display_only: str = ""
 
     def element(self, which: Bound | None, i: int) -> float | None:
         """A per-element bound/step (tuples give one per element)."""
@@ -101,6 +104,7 @@ def param(
     kind: str | None = None,
     axes: Sequence[str] = (),
     choice_labels: Sequence[str] = (),
+    display_only: str = "",
 ) -> Any:
     """A dataclass field with parameter metadata; `kind` is inferred from the default when omitted
     (bool → "bool", int → "int", float → "float", str with choices → "choice", tuple → "vector")."""
@@ -137,6 +141,7 @@ def param(
         size=size,
         axes=tuple(axes),
         choice_labels=tuple(choice_labels),
+        display_only=display_only,
     )
     if spec.choice_labels and len(spec.choice_labels) != len(spec.choices):
         raise ValueError(f"{label}: one choice label per choice")
