@@ -418,7 +418,7 @@ class Session:
                 if group is not None and group.active:
                     group.step()
                 if self.world.diverged():
-                    return RunResult(done, self.world.time, "diverged", self._divergence_reason())
+                    return RunResult(done, self.world.divergence_time, "diverged", self._divergence_reason())
                 if until is not None and until(rec):
                     return RunResult(done, self.world.time, "until")
         except Exception as exc:  # a bug or numerical failure ends the run; the caller decides
@@ -432,7 +432,7 @@ class Session:
         return self.world.diverged()
 
     def _divergence_reason(self) -> str:
-        return f"the simulation diverged at t = {self.world.time:.3f} s (NaN or runaway velocity)"
+        return f"the simulation diverged at t = {self.world.divergence_time:.3f} s (NaN or runaway velocity)"
 
     # ---- helpers ------------------------------------------------------------------------------
     def _safe_step(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
@@ -479,7 +479,8 @@ class _Group:
                 if member.record is not None:
                     member.record(rec)
                 if world.diverged():
-                    self._stop(i, RunResult(self.done[i], world.time, "diverged", member.session._divergence_reason()))
+                    reason = member.session._divergence_reason()
+                    self._stop(i, RunResult(self.done[i], world.divergence_time, "diverged", reason))
             except Exception as exc:
                 reason = f"the simulation step raised {type(exc).__name__}: {exc}"
                 self._stop(i, RunResult(self.done[i], world.time, "error", reason, exc))

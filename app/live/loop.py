@@ -56,6 +56,7 @@ URGENT = (DragCommand, Pause)  # commands that jump the queue
 BURST_SLACK = 0.5  # a burst begun once its frame is due may delay that frame by this share of a period
 UNPACED_PUBLISH_S = 0.1  # frame period while running unpaced (10 Hz instead of 30)
 CALL_POLL_S = 0.1  # `call` looks this often whether a plan is being computed (its time is not counted)
+DRAG_TIMEOUT_S = 20.0  # a drag with no update from its client for this long is released (a silent tab)
 LOOP_NICENESS = -10  # the loop thread's niceness where the system allows it (below Chromium's −8)
 
 
@@ -147,6 +148,7 @@ class SimLoop:
         self._pacing_epoch = -1
         self._frame: Frame | None = None
         self._frame_cond = threading.Condition()
+        self._drag_seen: dict[int, float] = {}  # client id → wall time of its last grab or move
         self.status = make_status(self.lab)
 
     # ---- what the lab holds (read these on the loop thread, or through call()) ---------------------
@@ -214,6 +216,8 @@ class SimLoop:
 
     def submit(self, cmd: Command) -> None:
         """Queue a command; the loop applies it between two steps (thread-safe, never blocks)."""
+        if isinstance(cmd, DragCommand) and cmd.kind in ("grab", "move"):
+            self._drag_seen[cmd.client_id] = self._clock()
         self._queue.put(cmd)
         self._wake.set()
 
@@ -296,6 +300,7 @@ class SimLoop:
                     lab.dirty = True
             now = self._clock()
             if now >= next_publish:
+                self._release_silent_drag(now)
                 if lab.dirty or lab.running:
                     self._publish(now)
                 next_publish = next_frame_due(next_publish, now, self._publish_period())
@@ -313,6 +318,21 @@ class SimLoop:
             self._wake.clear()
             if timeout > 2e-4 and self._queue.empty():
                 self._wake.wait(timeout)
+
+    def _release_silent_drag(self, now: float) -> None:
+        """Release the drag of a client that sent no grab or move for DRAG_TIMEOUT_S (a tab that went
+        silent without closing keeps no spring on the arm), with a notice to it."""
+        client = self.lab.drag_client
+        if client is None:
+            return
+        seen = self._drag_seen.get(client)
+        if seen is None or now - seen <= DRAG_TIMEOUT_S:
+            return
+        self._drag_seen.pop(client, None)
+        self.lab.apply(DragCommand("release", client_id=client))
+        self.lab.notify(
+            "warning", "Drag released", f"no drag update came for {DRAG_TIMEOUT_S:g} s: the spring is let go", client
+        )
 
     def _publish_period(self) -> float:
         """Seconds to the next frame: `publish_period`, or UNPACED_PUBLISH_S while running unpaced

@@ -242,6 +242,7 @@ class World:
         self._jacr = np.zeros((3, self.model.nv))
         self._solve_buf = np.zeros((3, self.model.nv))
         self._tau_min = -np.asarray(robot.tau_max, dtype=float)
+        self.reset_at: float | None = None  # simulated time at which MuJoCo reset an unstable state
         self._warning_counts = self.data.warning.number  # a live view of MjData's warning counters
         # live views of the MjData arrays read or written every step (MjData's buffers never move;
         # each attribute read would build a new array object)
@@ -286,6 +287,13 @@ class World:
         self.data.qfrc_applied[:] = 0.0
         self._tau_pipeline.clear()
         self._acc_valid = False
+        self.reset_at = None
+
+    @property
+    def divergence_time(self) -> float:
+        """The simulated time of a divergence (s): when MuJoCo reset an unstable state (which zeroes
+        `time`), else the time now."""
+        return self.reset_at if self.reset_at is not None else self.time
 
     # ---- settings ---------------------------------------------------------------------------
     def params(self) -> dict[str, WorldParams]:
@@ -454,8 +462,12 @@ class World:
         # mj_step1 then computes the kinematics (site poses, Jacobians, M) of the new state, so
         # the next step's contact and drag forces see the current position, not the previous
         # one (a one-step-late contact spring acts like a negative damper of k·Δt).
+        t_before = self.data.time
         mujoco.mj_step2(self.model, self.data)
         mujoco.mj_step1(self.model, self.data)
+        if self.data.time < t_before and self.reset_at is None:
+            # MuJoCo reset an unstable state (time back to 0): keep when it happened
+            self.reset_at = t_before + self.model.opt.timestep
         if self.carried:
             # body accelerations (cacc) for the sensor's inertial load: the acceleration of the
             # step just taken, on the kinematics of the new state (a sensor sampled once a step)

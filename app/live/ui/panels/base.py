@@ -171,6 +171,9 @@ def notify(server: viser.ViserServer, client_id: int | None, title: str, body: s
             pass
 
 
+ECHO_TIMEOUT_S = 2.0  # the longest a panel callback waits for the loop to apply a change
+
+
 class KnobPanel:
     """A folder of generated knobs (see the module docstring). Knobs whose group the running
     session lacks are hidden (greyed out instead when `hide_missing` is False).
@@ -269,8 +272,16 @@ class KnobPanel:
     def echo(self, k: Knob, handle: Any, typed: Any, client_id: int | None, before: Any = None) -> Any:
         """After a person's change is applied, put the value in force back into the input at once when
         it differs from what arrived (refused, clamped or coerced; a number box sends only what the
-        browser parsed) and say so (a refusal already has its notice). Returns the value in force."""
-        self.loop.sync()
+        browser parsed) and say so (a refusal already has its notice). Returns the value in force, or
+        None when the loop is busy (a preset's work under way, or no answer within ECHO_TIMEOUT_S): this
+        runs in viser's thread pool, which must not wait on the loop; the panels' refresh shows the
+        value in force later anyway."""
+        if self.loop.planner.busy:
+            return None
+        try:
+            self.loop.sync(timeout=ECHO_TIMEOUT_S)
+        except (TimeoutError, RuntimeError):
+            return None
         try:
             in_force = self.shown_value(k, self.loop.settings)
         except (KeyError, TypeError, ValueError, IndexError, AttributeError):

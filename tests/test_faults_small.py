@@ -1,0 +1,79 @@
+"""The small faults: divergence time, a silent client's drag, a panel callback that must not wait on the loop."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from app.core.commands import DragCommand
+from app.core.session import Session
+from app.live import loop as loop_module
+from app.live.loop import SimLoop
+
+
+def test_a_divergence_is_reported_at_its_time_not_at_the_zero_mujocos_reset_leaves():
+    s = Session("free")
+    assert s.run(steps=1500).stop == "done"
+    s.world.data.qvel[:] = 1e11  # MuJoCo resets such a state (time back to 0) and counts a warning
+    result = s.run(steps=10)
+    assert result.stop == "diverged"
+    assert "t = 1.501 s" in result.reason and abs(result.t - 1.501) < 1e-9
+
+
+@pytest.mark.usefixtures("warm_kernels")
+def test_a_silent_clients_drag_is_released_after_the_timeout_with_a_notice_to_it(monkeypatch):
+    monkeypatch.setattr(loop_module, "DRAG_TIMEOUT_S", 0.5)
+    lp = SimLoop("free", capture=lambda s: None)
+    lp.start(running=True)
+    try:
+        link = lp.call(lambda s: s.robot.link_names[-1])
+        lp.submit(DragCommand("grab", 5, body_name=link, point_world=(0.4, 0.0, 0.6)))
+        lp.submit(DragCommand("move", 5, body_name=link, target_world=(0.5, 0.0, 0.5)))
+        assert lp.sync().drag_client == 5
+        t0 = time.monotonic()
+        while lp.sync().drag_client is not None and time.monotonic() - t0 < 30.0:
+            time.sleep(0.05)
+        held = time.monotonic() - t0
+    finally:
+        lp.stop()
+    assert lp.status.drag_client is None and held < 10.0
+    notices = [n for n in lp.notice_log if n.title == "Drag released"]
+    assert len(notices) == 1 and notices[0].client_id == 5
+
+
+def test_a_moving_drag_is_kept(monkeypatch):
+    monkeypatch.setattr(loop_module, "DRAG_TIMEOUT_S", 0.5)
+    lp = SimLoop("free", capture=lambda s: None)
+    lp.start(running=False)
+    try:
+        link = lp.call(lambda s: s.robot.link_names[-1])
+        lp.submit(DragCommand("grab", 5, body_name=link, point_world=(0.4, 0.0, 0.6)))
+        for i in range(15):  # a move every 0.1 s for 1.5 s: three timeouts long
+            lp.submit(DragCommand("move", 5, body_name=link, target_world=(0.5, 0.0, 0.5 + 0.001 * i)))
+            time.sleep(0.1)
+        assert lp.sync().drag_client == 5
+    finally:
+        lp.stop()
+
+
+def test_a_panel_echo_does_not_wait_on_a_loop_busy_with_a_presets_work():
+    from types import SimpleNamespace
+
+    from app.live.ui.panels.base import KnobPanel
+
+    calls = []
+    loop = SimpleNamespace(planner=SimpleNamespace(busy=True), sync=lambda timeout=10.0: calls.append(timeout))
+    panel = KnobPanel.__new__(KnobPanel)
+    panel.loop = loop
+    t0 = time.perf_counter()
+    assert panel.echo(None, None, 1.0, 3) is None
+    assert time.perf_counter() - t0 < 0.1 and calls == []
+
+    def slow(timeout=10.0):
+        calls.append(timeout)
+        raise TimeoutError
+
+    loop.planner.busy = False
+    loop.sync = slow
+    assert panel.echo(None, None, 1.0, 3) is None and calls == [2.0]  # bounded wait, then no echo
