@@ -59,6 +59,10 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if getattr(args, "soak", None) is not None:
+        from app.tools.soak import cmd_soak
+
+        return cmd_soak(args)
     if getattr(args, "serve", False):
         from app.tools.bench_serve import cmd_bench_serve
 
@@ -101,6 +105,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--settings", default=None, metavar="FILE", help="TOML settings file to apply at start (one table per group)"
     )
+    p.add_argument(
+        "--no-warmup",
+        dest="warm",
+        action="store_false",
+        help="skip compiling every kernel before the URL (the first steps then compile on the loop thread)",
+    )
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("check", help="cross-check Pinocchio against MuJoCo")
@@ -115,6 +125,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only", nargs="*", default=None, help="benchmark names to run")
     p.add_argument("--serve", action="store_true", help="real-time factor of the web app with one headless browser")
     p.add_argument("--scenario", default="polish", help="scenario for --serve (default polish)")
+    p.add_argument(
+        "--soak",
+        type=float,
+        default=None,
+        metavar="MINUTES",
+        help="memory slope of the web app over MINUTES with preset switches, drags and a headless browser",
+    )
+    p.add_argument("--no-browser", action="store_true", help="with --soak: no browser")
     p.add_argument("--seconds", type=float, default=20.0, help="measuring time for --serve (wall seconds)")
     p.add_argument(
         "--twin", choices=("j", "f", "a", "d"), default=None, help="with --serve: also run a twin arm with this W"
@@ -187,7 +205,11 @@ COUNTS: dict[str, tuple[str, int]] = {
     "held_repetitions": ("--held-repetitions", 0),
     "first_seed": ("--first-seed", 0),
 }
-DURATIONS: dict[str, str] = {"seconds": "--seconds", "duration": "--duration"}
+DURATIONS: dict[str, tuple[str, str]] = {
+    "seconds": ("--seconds", "seconds"),
+    "duration": ("--duration", "seconds"),
+    "soak": ("--soak", "minutes"),
+}
 MAX_COUNT = 10**7  # more than any run needs: a larger count is a typo, refused before it allocates
 
 
@@ -202,12 +224,12 @@ def check_counts(args: argparse.Namespace) -> None:
             raise ValueError(f"{flag} must be at least {least}, got {value}")
         if value > MAX_COUNT:
             raise ValueError(f"{flag} must be at most {MAX_COUNT:,}, got {value}")
-    for attr, flag in DURATIONS.items():
+    for attr, (flag, unit) in DURATIONS.items():
         value = getattr(args, attr, None)
         if value is None:
             continue
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{flag} must be a positive number of seconds, got {value:g}")
+            raise ValueError(f"{flag} must be a positive number of {unit}, got {value:g}")
 
 
 def error_reason(exc: BaseException) -> str:

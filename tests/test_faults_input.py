@@ -72,6 +72,7 @@ def test_a_failing_command_keeps_its_client_for_the_notice(monkeypatch):
         (["experiment", "polish", "--seeds", "0"], "--seeds must be"),
         (["experiment", "polish", "--jobs", "-1"], "--jobs must be"),
         (["check", "--samples", str(10**30)], "--samples must be at most 10,000,000"),
+        (["bench", "--soak", "0"], "--soak must be a positive number of minutes"),
     ],
 )
 def test_a_zero_negative_or_absurd_count_is_one_line_and_exit_2(argv, says, capsys):

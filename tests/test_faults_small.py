@@ -77,3 +77,13 @@ def test_a_panel_echo_does_not_wait_on_a_loop_busy_with_a_presets_work():
     loop.planner.busy = False
     loop.sync = slow
     assert panel.echo(None, None, 1.0, 3) is None and calls == [2.0]  # bounded wait, then no echo
+
+
+def test_the_soak_slope_is_the_least_squares_line_in_mb_per_minute():
+    import numpy as np
+
+    from app.tools.soak import slope_mb_per_min
+
+    t = np.arange(0.0, 600.0, 5.0)
+    assert abs(slope_mb_per_min(t, 300.0 + 0.5 * t / 60.0) - 0.5) < 1e-9
+    assert np.isnan(slope_mb_per_min(t[:2], t[:2]))

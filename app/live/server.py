@@ -50,6 +50,7 @@ from app.live.ui.publisher import Publisher
 from app.live.ui.scene import SceneView
 from app.live.ui.snapshot import capture
 from app.live.ui.visuals import VisualSettings, VisualsPanel
+from app.live.warmup import warm_up
 from app.scenarios import SCENARIOS
 
 
@@ -185,6 +186,18 @@ def start_app(
     return app
 
 
+def _progress_line(line: str) -> None:
+    """A warm-up progress line: each on its own line, but the per-preset steps overwrite one another
+    on a terminal."""
+    if line.startswith("["):
+        if sys.stdout.isatty():
+            print(f"\rtorquelab: {line}\033[K", end="", flush=True)
+        return
+    if sys.stdout.isatty():
+        print("\r\033[K", end="")
+    print(f"torquelab: {line}", flush=True)
+
+
 def _interrupt(signum: int, frame: Any) -> None:
     """Signal handler: stop `serve` as Ctrl-C does."""
     raise KeyboardInterrupt
@@ -222,6 +235,9 @@ def serve(args: argparse.Namespace) -> int:
     settings_file = getattr(args, "settings", None)
     settings_text = _read_settings_file(settings_file) if settings_file else None
     busy = args.port != 0 and not port_is_free(args.host, args.port)
+    if getattr(args, "warm", False):  # the CLI's default (--no-warmup skips it); tests warm elsewhere
+        took = warm_up(robot, _progress_line)
+        print(f"torquelab: kernels ready in {took:.1f} s", flush=True)
     print(f"torquelab: starting scenario {scenario!r} …", flush=True)
     app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)
     # a `kill` or a closed terminal stops the app as Ctrl-C does (the session's CPU share given back)
