@@ -87,3 +87,30 @@ def test_the_soak_slope_is_the_least_squares_line_in_mb_per_minute():
     t = np.arange(0.0, 600.0, 5.0)
     assert abs(slope_mb_per_min(t, 300.0 + 0.5 * t / 60.0) - 0.5) < 1e-9
     assert np.isnan(slope_mb_per_min(t[:2], t[:2]))
+
+
+def test_a_joint_in_its_stop_for_one_step_between_two_looks_is_reported():
+    import numpy as np
+
+    import robots
+    from app.sim.world import HARD_STOP_BEYOND_RAD, World
+
+    robot = robots.load("rizon4s")
+    world = World(robot)
+    j = next(i for i in range(7) if not robot.endless[i])
+    q = np.array(robot.home, dtype=float)
+    world.reset(q)
+    world.step(np.zeros(7))
+    assert world.overpowered(None) == ""
+    inside = q.copy()
+    inside[j] = robot.q_upper[j] + HARD_STOP_BEYOND_RAD + 0.005  # 5 mrad into the stop for one step
+    world.data.qpos[world.qpos_adr] = inside
+    world.step(np.zeros(7))
+    world.data.qpos[world.qpos_adr] = q  # back well inside before anybody looks
+    world.data.qvel[:] = 0.0
+    for _ in range(20):
+        world.step(np.zeros(7))
+    said = world.overpowered(None)
+    assert f"joint {j + 1} is pressed against its hard stop" in said
+    assert float(world.stop_depth[j]) > 0.004
+    assert world.overpowered(None) == ""  # the next look covers only the steps since

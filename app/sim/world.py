@@ -249,6 +249,13 @@ class World:
         self._qfrc_applied = self.data.qfrc_applied
         self._views = all(isinstance(at, slice) for at in (self._qpos_at, self._qvel_at, self._ctrl_at))  # else copies
         self._tau_max = np.asarray(robot.tau_max, dtype=float).copy()
+        # the deepest each joint went into its mechanical stop (rad, ≤ 0: short of it) at any step since
+        # `take_stop_depth` last read it: checked every step, not sampled when someone looks
+        bounded = ~np.asarray(robot.endless, dtype=bool)
+        self._stop_lo = np.where(bounded, np.asarray(robot.q_lower, dtype=float) - HARD_STOP_BEYOND_RAD, -np.inf)
+        self._stop_hi = np.where(bounded, np.asarray(robot.q_upper, dtype=float) + HARD_STOP_BEYOND_RAD, np.inf)
+        self._stop_recent = np.full(len(robot.joint_names), -np.inf)  # since `take_stop_depth` last read it
+        self.stop_depth = np.full(len(robot.joint_names), -np.inf)  # since the last reset (peak)
         if self._views:
             self._ctrl_arm = self.data.ctrl[self._ctrl_at]
             self._qpos_arm, self._qvel_arm = self.data.qpos[self._qpos_at], self.data.qvel[self._qvel_at]
@@ -288,6 +295,8 @@ class World:
         self._tau_pipeline.clear()
         self._acc_valid = False
         self.reset_at = None
+        self.stop_depth.fill(-np.inf)
+        self._stop_recent.fill(-np.inf)
 
     @property
     def divergence_time(self) -> float:
@@ -465,6 +474,9 @@ class World:
         t_before = self.data.time
         mujoco.mj_step2(self.model, self.data)
         mujoco.mj_step1(self.model, self.data)
+        track_stop_depth(
+            self.data.qpos, self.qpos_adr, self._stop_lo, self._stop_hi, self._stop_recent, self.stop_depth
+        )
         if self.data.time < t_before and self.reset_at is None:
             # MuJoCo reset an unstable state (time back to 0): keep when it happened
             self.reset_at = t_before + self.model.opt.timestep
@@ -492,16 +504,21 @@ class World:
         """Joints the surroundings overpower, in words ("" if none): an external torque |τ_ext| beyond
         the motor's torque limit, or the joint pressed against its mechanical stop."""
         robot = self.robot
-        q = self.data.qpos[self.qpos_adr]
-        beyond = HARD_STOP_BEYOND_RAD - 1e-3  # at (or into) the stop, not merely near the software limit
+        depth = self.take_stop_depth()  # every step since the last look, not this step alone
         parts = []
         for j in range(len(robot.joint_names)):
             tau = 0.0 if tau_ext is None else abs(float(tau_ext[j]))
             if tau > robot.tau_max[j]:
                 parts.append(f"joint {j + 1}: external torque {tau:.0f} N·m > its {robot.tau_max[j]:.0f} N·m limit")
-            elif not robot.endless[j] and (q[j] > robot.q_upper[j] + beyond or q[j] < robot.q_lower[j] - beyond):
-                parts.append(f"joint {j + 1} is pressed against its hard stop")
+            elif depth[j] > -1e-3:  # at (or into) the stop, not merely near the software limit
+                parts.append(f"joint {j + 1} is pressed against its hard stop ({1e3 * max(depth[j], 0.0):.1f} mrad in)")
         return "; ".join(parts)
+
+    def take_stop_depth(self) -> np.ndarray:
+        """The deepest each joint went into its stop (rad) at any step since the last call; starts over."""
+        out = self._stop_recent.copy()
+        self._stop_recent.fill(-np.inf)
+        return out
 
     def diverged(self) -> bool:
         """True when the state holds NaN/inf or a runaway velocity (‖q̇‖ > 1e3), or MuJoCo had to reset
@@ -537,6 +554,18 @@ class World:
         self.data.qpos[self.qpos_adr] = q
         self.data.qvel[self.dof_adr] = dq
         mujoco.mj_forward(self.model, self.data)
+
+
+@njit(cache=True)
+def track_stop_depth(qpos, adr, stop_lo, stop_hi, recent, peak):
+    """recent[j], peak[j] = their max with how far joint j is past its stop now (rad; < 0: short of it)."""
+    for j in range(adr.shape[0]):
+        q = qpos[adr[j]]
+        d = max(q - stop_hi[j], stop_lo[j] - q)
+        if d > recent[j]:
+            recent[j] = d
+        if d > peak[j]:
+            peak[j] = d
 
 
 @njit(cache=True)
