@@ -21,6 +21,23 @@ echo "== torquelab check --robot gen3 (from the wheel)"
 echo "== torquelab experiment compliance (from the wheel)"
 "$WORK/venv/bin/torquelab" experiment compliance --out "$WORK/compliance"
 test -s "$WORK/compliance/report.html"
+echo "== the first served step comes within seconds of the URL (kernels compiled before it)"
+"$WORK/venv/bin/python" - <<'PY'
+import time
+from app.live.server import start_app
+from app.live.warmup import warm_up
+took = warm_up(None, lambda line: print("==", line, flush=True))
+app = start_app(port=0, scenario="free", running=True)
+at_url = time.monotonic()  # where `serve` prints the URL
+try:
+    while app.loop.sync(timeout=60.0).steps == 0:
+        time.sleep(0.01)
+    first = time.monotonic() - at_url
+finally:
+    app.stop()
+print(f"== first served step {first:.2f} s after the URL (warm-up {took:.1f} s before it)")
+assert first < 5.0, f"the first step came {first:.1f} s after the URL"
+PY
 "$WORK/venv/bin/python" - <<'PY'
 import app, pathlib, robots, static
 for mod in (app, robots, static):
