@@ -31,8 +31,21 @@ from control.params import ParamError, ParamSpec, specs
 PRESETS = (("polish", None), ("limit-drop", None), ("mass-drop", None), ("free", None))
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _no_live_margin():
+    """The polish page's live force-loop margin (a display signal the headless runs switch off too)
+    is off here: with a long torque delay one evaluation costs seconds, and every change below
+    restarts the preset. What these tests check is the parameter path, not that signal."""
+    from app.scenarios import polish
+
+    before = polish.LIVE_MARGIN_EVERY_S
+    polish.LIVE_MARGIN_EVERY_S = math.inf
+    yield
+    polish.LIVE_MARGIN_EVERY_S = before
+
+
 @pytest.fixture(scope="module")
-def sessions() -> dict[str, Session]:
+def sessions(_no_live_margin) -> dict[str, Session]:
     out = {f"{p}/{e}": Session(p, executor=e) for p, e in PRESETS}
     covered = {g for s in out.values() for g in s.params()}
     assert covered == set(GROUP_TYPES), f"groups no preset has: {set(GROUP_TYPES) - covered}"

@@ -297,3 +297,13 @@ def test_a_planned_case_names_its_work_and_a_deferred_session_raises_before_it_i
     monkeypatch.setattr(P, "compute_plan", lambda *a, **k: pytest.fail("computed again"))
     session = Session(spec, defer_work=True)
     assert session.scenario.plan is plan and spec.pending_work(session.robot) is None
+
+
+def test_a_run_without_the_live_margin_computes_none_not_even_at_the_start(monkeypatch):
+    """`live_margin_every_s = inf` (headless runs) means no live margin: the first step computes
+    none either (with a long torque delay one costs seconds), and the signal stays NaN."""
+    session = Session(P.PolishScenario())
+    session.environment.live_margin_every_s = float("inf")  # type: ignore[attr-defined]
+    monkeypatch.setattr(P.PolishEnvironment, "live_margin", lambda self, t: pytest.fail("computed"))
+    session.run(steps=5)
+    assert np.isnan(session.last.signals["margin_kd"])

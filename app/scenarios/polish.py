@@ -277,14 +277,11 @@ class PolishEnvironment(Environment):
             if self._world is not None
             else float("nan")
         )
-        if self._world is not None and t - self._margin_at >= self.live_margin_every_s:
+        live = self.live_margin_every_s < np.inf  # inf: no live margin at all (at t = 0 neither)
+        if self._world is not None and live and t - self._margin_at >= self.live_margin_every_s:
             self._margin_at = t
             self._margin = self.live_margin(t)
-        if (
-            self._world is not None
-            and self.live_margin_every_s < np.inf
-            and t - self._rate_at >= self.live_rate_every_s - 1e-9
-        ):
+        if self._world is not None and live and t - self._rate_at >= self.live_rate_every_s - 1e-9:
             self._rate_at = t
             self._update_rate(t)
         target = self.target
