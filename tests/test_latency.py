@@ -188,6 +188,7 @@ def test_the_polish_report_reads_the_loop_and_sensor_from_its_runs():
         assert part in text, (part, text)
     assert "2 control period(s) old" in text and "3 ms after" in text
     assert "5 N²" not in text and "25 Hz" not in text
+    assert "12,000 N/m" in _loop_text({"runs": [run, dict(run, contact=dict(contact, mu=0.25))]})  # μ is a column
     other = dict(run, sensor=dict(sensor, cutoff_hz=25.0))
     assert "F/T settings differ between runs" in _loop_text({"runs": [run, other]})
 

@@ -388,7 +388,11 @@ def _loop_text(doc: dict) -> str:
     """The simulated loop, contact and F/T sensor as the table's runs had them (from their records)."""
     runs = doc["runs"]
     dt = _common(runs, "timestep_s")
-    contact, sensor = _common(runs, "contact"), _common(runs, "sensor")
+    sensor = _common(runs, "sensor")
+    # μ is a column of the table; the rest of the contact is the same for every row or it is said to differ
+    contact = _common(
+        [{"contact": {k: v for k, v in r.get("contact", {}).items() if k != "mu"} or None} for r in runs], "contact"
+    )
     parts = [f"{1.0 / dt:g} Hz" if dt else "control period not recorded"]
     if contact:
         way = "implicitly (backward Euler)" if contact.get("implicit_friction") else "explicitly"
