@@ -158,6 +158,20 @@ class StepLog:
         self.columns.append(key)
         return idx
 
+    def signal(self, names: tuple[str, ...]) -> dict[str, np.ndarray] | None:
+        """Every row since the last clear (as far as the capacity holds) of the columns `names` and "t";
+        None when one of them was never logged."""
+        cols = [0]
+        for name in names:
+            idx = self._signal_col.get(name)
+            if idx is None:
+                return None
+            cols.append(idx)
+        rows = min(self.count, self.capacity)
+        idx_rows = np.arange(self.count - rows, self.count) % self.capacity
+        block = self._data[np.ix_(idx_rows, np.array(cols, dtype=np.intp))]
+        return {name: block[:, i] for i, name in enumerate(("t", *names))}
+
     def window(self, seconds: float, dt: float, every: int = 1) -> dict[str, np.ndarray]:
         """The last `seconds` of rows (every `every`-th row, ending at the newest), by column."""
         rows = min(self.count, self.capacity, max(1, round(seconds / dt)))

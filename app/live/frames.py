@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from app.core.session import Session
+from app.core.steplog import StepLog
 from app.core.variants import variant_of
 from app.live.lab import Lab, Settings
 from app.live.supervise import Stages
@@ -78,6 +79,7 @@ class PlotData:
     peak_q: np.ndarray | None = None  # max q_i per joint over every step since the reset
     segment_std: dict[int, float] | None = None  # force-error STD per polish segment, every step since the reset
     twin_segment_std: dict[int, float] | None = None  # the same for the twin arm, over its own segments
+    deflection: dict[str, float] | None = None  # the deflection readouts over every step (`deflection_readouts`)
 
 
 @dataclass(frozen=True)
@@ -92,6 +94,7 @@ class Frame:
     scene: Any = None  # SceneSnapshot, if a capture function was handed in
     plot: PlotData | None = None  # the newest plot data (kept in later frames until replaced)
     plot_seq: int = 0  # grows when `plot` is new data
+    restarts: int = 0  # grows at every reset or rebuild of the lab (a new run: its plots start empty)
 
 
 def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | None = None) -> LoopStatus:
@@ -190,6 +193,7 @@ class FrameBuilder:
             scene=scene,
             plot=self._plot,
             plot_seq=self._plot_seq,
+            restarts=lab.restarts,
         )
 
     def _scene(self, lab: Lab) -> Any:
@@ -229,6 +233,7 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
     peak_abs_tau, peak_q = lab.log.extremes()
     segment_std = lab.log.segment_force_error_std()
     twin_segment_std = lab.twin.log.segment_force_error_std() if lab.twin is not None else None
+    deflection = deflection_readouts(lab.log, lab.session.scenario)
     mon = np.array(monitor) if monitor else np.zeros((0, 5))
     series = {k: mon[:, i].copy() for i, k in enumerate(("t", "rtf", "W_f", "W_a", "W_d"))}
     r = lab.session.robot
@@ -243,7 +248,14 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
         peak_q,
         segment_std,
         twin_segment_std,
+        deflection,
     )
+
+
+def deflection_readouts(log: StepLog, scenario: Any) -> dict[str, float] | None:
+    """The scenario's deflection readouts (mass drop: peak, stabilisation time, residual error of the TCP;
+    compliance: TCP and elbow under each push) over every logged step since the reset; None elsewhere."""
+    return scenario.deflection_readouts(log.signal) if getattr(scenario, "logs_deflection", False) else None
 
 
 def _with_posture_objective(

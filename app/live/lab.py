@@ -54,6 +54,7 @@ SPEED_RANGE = (0.01, UNPACED_SPEED)
 MAX_SINGLE_STEP = 10_000  # steps one StepOnce may ask for
 RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
 KEPT_ON_PRESET_SWITCH = ("drag",)  # parameter groups a new preset keeps from the old one
+ELBOW_JOINT = 3  # 0-based: the body carrying joint 4 is the elbow of a 7-DOF arm (deflection signals)
 OVERPOWERED_NOTICE_S = 2.0  # simulated time between two "overpowered" notices
 OVERPOWERED_CHECK_STEPS = 10  # steps between two looks for an overpowered joint (a look costs ~10 µs)
 
@@ -126,6 +127,9 @@ class Lab:
         self.notices: deque[Notice] = deque(maxlen=100)  # not yet taken by the publisher
         self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice (for tests and logs)
         self.dirty = True  # something changed since the last frame
+        self.defaults = self.session.params()  # the preset's (and case's) own values, before any change
+        self._deflection: tuple[np.ndarray, np.ndarray, int] | None = None  # (TCP, elbow at t = 0, elbow body)
+        self._arm_deflection()
         self.settings = Settings(0, self._read_settings())
         # a preset switch whose preset needs a costly computation first (a swivel plan) raises
         # WorkPending from `apply` (nothing changed) instead of computing it here; the app's loop
@@ -192,8 +196,14 @@ class Lab:
         `until`, asked after each step (as in `Session.run`), may end the run early."""
         cpu0 = time.thread_time()
         log, twin = self.log, self.twin
+        deflection, session = self._deflection, self.session
 
         def record(rec: StepRecord) -> None:
+            if deflection is not None:  # the scenario's `logs_deflection`: distances from the t = 0 pose
+                tcp0, elbow0, elbow_body = deflection
+                rec.signals["tcp_dev_mm"] = 1e3 * float(np.linalg.norm(session.dyn.tcp_position_world - tcp0))
+                elbow = session.world.data.xpos[elbow_body]
+                rec.signals["elbow_dev_mm"] = 1e3 * float(np.linalg.norm(elbow - elbow0))
             log.append(rec)
             self.total_steps += 1
             if rec.fallback:
@@ -325,6 +335,7 @@ class Lab:
         """Make `session` the lab's, with every one of `changes` it accepts; the twin follows."""
         self.session = session
         self.session_id += 1
+        self.defaults = session.params()
         self.log = StepLog(session.robot.nq, capacity=round(self._log_seconds / self.dt))
         twin, self.twin = self.twin, None  # the old twin belongs to the old session
         refused = session.replay(changes)
@@ -346,6 +357,7 @@ class Lab:
         self._steps_since_change = 0
         self.pending_steps = 0
         self.log.clear()
+        self._arm_deflection()
         self.restarts += 1
         self.pacing_epoch += 1
         self._settings_changed()
@@ -418,12 +430,50 @@ class Lab:
             self.notify("info", "Robot changed", f"{exc}. Using {new.robot.name}.")
             robot_choice = ""
         changes = self.overrides
-        if cmd.scenario is not None or cmd.variant is not None:  # a new preset starts from its defaults
+        reset_by_case: list[SetParam] = []
+        case_switch = cmd.variant is not None and (cmd.scenario is None or cmd.scenario == s.scenario.name)
+        if case_switch:
+            # a case switch keeps the person's values of every field the case does not own (one whose
+            # default the new case changes); those it owns go back to the new case's value
+            owned = owned_fields(self.defaults, new.params())
+            reset_by_case = [o for o in changes if (o.group, o.field) in owned]
+            changes = [o for o in changes if (o.group, o.field) not in owned]
+            self._healthy = min(self._healthy, len(changes))
+        elif cmd.scenario is not None or cmd.variant is not None:  # a new preset starts from its defaults
             changes = [o for o in changes if o.group in KEPT_ON_PRESET_SWITCH]
             self._healthy = len(changes)
         self.robot_choice = robot_choice
         self._install(new, changes)
         self.halted = ""
+        if case_switch and cmd.variant is not None:
+            self._notify_case_switch(cmd.variant, changes, reset_by_case)
+
+    def _notify_case_switch(self, case: str, kept: list[SetParam], reset: list[SetParam]) -> None:
+        """One notice after a case switch: the values it kept and those the case owns and reset."""
+        in_force = self.overrides
+        refused = [o for o in kept if o not in in_force]  # the new session did not accept them
+        parts = []
+        if reset:
+            names = sorted({f"{o.group}.{o.field}" for o in reset})
+            parts.append(f"reset to the case's own value: {', '.join(names)}")
+        if refused:
+            parts.append(f"not in this case: {', '.join(sorted({f'{o.group}.{o.field}' for o in refused}))}")
+        if in_force:
+            parts.append(f"kept {len(in_force)} value(s) you set")
+        if parts:
+            self.notify("info", f"Case {case}", "; ".join(parts))
+
+    def _arm_deflection(self) -> None:
+        """Take the TCP's and the elbow's positions now (t = 0) as the reference of the deflection signals,
+        in the presets that log them (`Scenario.logs_deflection`)."""
+        s = self.session
+        if not getattr(s.scenario, "logs_deflection", False):
+            self._deflection = None
+            return
+        model = s.world.model
+        elbow_body = int(model.jnt_bodyid[model.joint(s.robot.joint_names[ELBOW_JOINT]).id])
+        tcp0 = np.array(s.dyn.tcp_position_world, dtype=float)
+        self._deflection = (tcp0, s.world.data.xpos[elbow_body].copy(), elbow_body)
 
     def _switch_executor(self, name: str) -> None:
         if name not in EXECUTORS:
@@ -547,6 +597,32 @@ HANDLERS: dict[type, Callable[[Lab, Any], None]] = {
     RestoreDefaults: Lab._restore_defaults,
     SetTwin: Lab._set_twin,
 }
+
+
+def owned_fields(before: dict[str, ParamGroup], after: dict[str, ParamGroup]) -> set[tuple[str, str]]:
+    """(group, field) pairs a case owns: those whose default differs between two cases' parameter
+    groups, and every field of a group only one of them has."""
+    out: set[tuple[str, str]] = set()
+    for name in set(before) | set(after):
+        a, b = before.get(name), after.get(name)
+        if a is None or b is None:
+            out |= {(name, f) for f in (a or b).values()}  # type: ignore[union-attr]
+            continue
+        va, vb = a.values(), b.values()
+        for f in set(va) | set(vb):
+            if not _same(va.get(f), vb.get(f)):
+                out.add((name, f))
+    return out
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal values (arrays element-wise, None only with None)."""
+    if a is None or b is None:
+        return a is b
+    try:
+        return bool(np.array_equal(np.asarray(a), np.asarray(b)))
+    except (TypeError, ValueError):
+        return a == b
 
 
 def _vec3(value: object) -> np.ndarray | None:

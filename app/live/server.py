@@ -37,6 +37,7 @@ from app.live.ui.keys import add_hotkeys
 from app.live.ui.panels import ALL_FIELDS
 from app.live.ui.panels.compliance import CompliancePanel
 from app.live.ui.panels.latency import LatencyPanel
+from app.live.ui.panels.lessons import LessonsPanel
 from app.live.ui.panels.more_gains import MoreGainsPanel, claimed_fields
 from app.live.ui.panels.motion_force import MotionForcePanel
 from app.live.ui.panels.nullspace import NullspacePanel
@@ -45,8 +46,9 @@ from app.live.ui.panels.safety import SafetyPanel
 from app.live.ui.panels.scenario import ScenarioPanel
 from app.live.ui.panels.tune import TuneOrder
 from app.live.ui.phase import starts_paused
-from app.live.ui.plots import Plots
+from app.live.ui.plots import STATUS_ORDER, Plots
 from app.live.ui.publisher import Publisher
+from app.live.ui.replay import ReplayPanel
 from app.live.ui.scene import SceneView
 from app.live.ui.snapshot import capture
 from app.live.ui.visuals import VisualSettings, VisualsPanel
@@ -137,11 +139,18 @@ def start_app(
     actual = server.get_port()
 
     extra = (robot,) if robot and robot not in robots.available() else ()
-    # The control panel as tabs: Run (preset, play, settings, status) · Tune (the controllers' knobs)
+    # The control panel as tabs: Lessons · Run (preset, play, settings) · Tune (the controllers' knobs)
     # · Visuals · Record.
+    # The plots docked left; at their top, under the replay controls, the status line (time, real-time
+    # factor, phase, the latest notice): in view whichever tab of the control panel is open.
+    plots = Plots(server, n_joints=loop.session.robot.nq, order=6)
+    with plots.panel_tab:
+        status_box = server.gui.add_folder(None, order=STATUS_ORDER)
     tabs = server.gui.add_tab_group(order=0)
+    with tabs.add_tab("Lessons", viser.Icon.SCHOOL):  # the first thing a newcomer sees
+        lessons = LessonsPanel(server, loop, order=0)
     with tabs.add_tab("Run", viser.Icon.PLAYER_PLAY):
-        panels: list[Any] = [ScenarioPanel(server, loop, extra_robots=extra, order=0)]
+        panels: list[Any] = [ScenarioPanel(server, loop, extra_robots=extra, order=0, status_box=status_box)]
     with tabs.add_tab("Tune", viser.Icon.ADJUSTMENTS):
         tune = [
             MotionForcePanel(server, loop, order=1),
@@ -157,17 +166,20 @@ def start_app(
         VisualsPanel(server.gui, visual_settings, order=5)
     with tabs.add_tab("Record", viser.Icon.DOWNLOAD):
         RecordPanel(server, loop, order=7)
+    panels.append(lessons)
 
     def make_scene(robot_desc: Any) -> Any:
         return SceneView(server, robot_desc, loop.submit, settings=visual_settings)
-
-    plots = Plots(server, n_joints=loop.session.robot.nq, order=6)
 
     @server.on_client_disconnect
     def _release_drag(client: viser.ClientHandle) -> None:
         loop.submit(DragCommand("release", client_id=client.client_id))
 
+    replay = ReplayPanel(server, loop, plots, order=0.4)
+    panels.append(replay)
     publisher = Publisher(server, loop, panels, plots, make_scene)
+    publisher.replay = replay
+    replay.publisher = publisher
     scenario_panel = panels[0]
     scenario_panel.on_frame = publisher.frame_view
     add_hotkeys(server, loop, scenario_panel.toggle_run, scenario_panel.reset_preset, publisher.frame_view)

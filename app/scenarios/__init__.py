@@ -100,6 +100,9 @@ class Scenario:
     starts_paused = False  # over in seconds: the app starts it paused (and after Reset) until Play
     cases: tuple[str, ...] = ()  # the cases the preset can run in (app.core.variants), () if it has none
     case_arg = ""  # the constructor argument (and attribute) that picks the case
+    # a preset whose lesson is how far the arm is pushed off its pose: the live lab logs the TCP's and the
+    # elbow's distance from where they stood at t = 0 ("tcp_dev_mm", "elbow_dev_mm")
+    logs_deflection = False
 
     def params(self) -> dict[str, ParamGroup]:
         """The scenario's own parameters (e.g. the polish start swivel) as group "scenario", if any;
@@ -109,6 +112,13 @@ class Scenario:
     def set_params(self, name: str, group: Any) -> None:
         """Take a new validated "scenario" group; ParamError for a group it lacks."""
         expect(name, group, None)
+
+    def deflection_readouts(
+        self, signal: Callable[[tuple[str, ...]], Mapping[str, np.ndarray] | None]
+    ) -> dict[str, float] | None:
+        """The preset's deflection numbers over every logged step since the reset, from `signal(names)`
+        (the step log's columns `names` and "t", None if one was never logged); None: it has none."""
+        return None
 
     def pending_work(self, robot: RobotDescription) -> Work | None:
         """A costly computation this preset needs on `robot` (the session's, prepared) that is not

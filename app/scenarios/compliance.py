@@ -16,6 +16,7 @@ Constants, chosen once, not tuned afterwards:
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -74,6 +75,7 @@ class ComplianceScenario(Scenario):
     )
     default_robot = "gen3"
     default_executor = "compliance-qp"
+    logs_deflection = True
 
     def __init__(self, mode: str = "nullspace"):
         if mode not in MODES:
@@ -82,6 +84,19 @@ class ComplianceScenario(Scenario):
 
     def make_environment(self, world: World, rng: np.random.Generator) -> Environment:
         return ScriptedPushes(world)
+
+    def deflection_readouts(self, signal: Any) -> dict[str, float] | None:
+        """The TCP's and the elbow's largest deflection (mm) during each push, over every logged step."""
+        c = signal(("tcp_dev_mm", "elbow_dev_mm", "push_tcp", "push_elbow"))
+        if c is None:
+            return None
+        out: dict[str, float] = {}
+        for push in ("tcp", "elbow"):
+            during = c[f"push_{push}"] > 0.5
+            if np.any(during):
+                out[f"{push}_push_tcp_mm"] = float(np.max(c["tcp_dev_mm"][during]))
+                out[f"{push}_push_elbow_mm"] = float(np.max(c["elbow_dev_mm"][during]))
+        return out
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         return wrist_ft_sensor(rng)

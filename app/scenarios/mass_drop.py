@@ -66,6 +66,28 @@ FORCE_NOISE_STD = 0.1  # N
 TORQUE_NOISE_STD = 0.005  # N m (sensor moment channels)
 ACTUATOR_RIPPLE_STD = 0.05  # N m
 STABLE_BAND_M = 1e-3
+RESIDUAL_WINDOW_S = 0.5  # the residual error is the mean deviation over the last 0.5 s of the window
+
+
+def drop_metrics(t: np.ndarray, deviation_m: np.ndarray) -> dict:
+    """Peak deflection, stabilisation time (after the release, the last exit from the STABLE_BAND_M
+    band; the time of the last sample if it never came back) and residual error (the mean deviation
+    over the last RESIDUAL_WINDOW_S) of the TCP after the release — the mass-drop experiment's and the
+    app's. Empty before the release."""
+    after = t >= RELEASE_TIME_S - 1e-9
+    if not np.any(after):
+        return {}
+    ta, da = t[after] - RELEASE_TIME_S, deviation_m[after]
+    outside = np.flatnonzero(da > STABLE_BAND_M)
+    settle = float(ta[outside[-1] + 1]) if outside.size and outside[-1] + 1 < ta.size else 0.0
+    if outside.size and outside[-1] + 1 >= ta.size:
+        settle = float(ta[-1])  # never settled within the window
+    tail = ta >= ta[-1] - RESIDUAL_WINDOW_S
+    return {
+        "peak_deflection_mm": 1e3 * float(np.max(da)),
+        "stabilization_time_s": settle,
+        "residual_error_mm": 1e3 * float(np.mean(da[tail])),
+    }
 
 
 @dataclass(frozen=True)
@@ -245,6 +267,7 @@ class MassDropScenario(Scenario):
     default_robot = "gen3"
     starts_paused = True  # the release is over in seconds
     default_executor = "compliance-qp"
+    logs_deflection = True
 
     def __init__(self, mode: str = "torque-fusion", case: str = "rope-drop", params: MassDropParams | None = None):
         if mode not in MODES:
@@ -254,6 +277,14 @@ class MassDropScenario(Scenario):
         self.mode = mode
         self.case = case
         self.rig = params or MassDropParams()  # not `params`: that is the Scenario's parameter groups
+
+    def deflection_readouts(self, signal: Any) -> dict[str, float] | None:
+        """The TCP's peak deflection, stabilisation time and residual error after the release (`drop_metrics`,
+        as the experiment measures them), over every logged step."""
+        c = signal(("tcp_dev_mm",))
+        if c is None or not len(c["t"]):
+            return None
+        return drop_metrics(c["t"], 1e-3 * c["tcp_dev_mm"])
 
     def params(self) -> dict[str, ParamGroup]:
         """ "scenario": the rig (rope, drop height, mass error), used from the next reset."""

@@ -26,16 +26,17 @@ from app.scenarios.mass_drop import (
     MODES,
     PAYLOAD_KG,
     RELEASE_TIME_S,
+    RESIDUAL_WINDOW_S,
     STABLE_BAND_M,
     WINDOW_S,
     MassDropParams,
     MassDropScenario,
+    drop_metrics,
 )
 
 METRICS = ("peak_deflection_mm", "stabilization_time_s", "residual_error_mm")
 CONTEXT = ("peak_rope_tension_n", "saturated_steps", "relaxed_steps")
 LABELS = {"position": "Position", "torque-residual": "Torque + Residual", "torque-fusion": "Torque + Fusion"}
-RESIDUAL_WINDOW_S = 0.5  # the residual error is the mean deviation over the last 0.5 s of the window
 DROP_SPREAD_M = 0.01  # a hand lifts the mass to the attachment point within ±1 cm
 STIFFNESS_SPREAD = 0.2  # cord and knot: ±20 % of the nominal stiffness
 MASS_SPREAD = 0.1  # the true mass within ±10 % of the nominal 1.25 kg
@@ -62,22 +63,6 @@ def draw_rig(seed: int, nominal: MassDropParams | None = None) -> MassDropParams
         drop_height_m=base.drop_height + rng.uniform(-DROP_SPREAD_M, DROP_SPREAD_M),
         payload_mass_error=base.payload_mass_error + rng.uniform(-MASS_SPREAD, MASS_SPREAD),
     )
-
-
-def drop_metrics(t: np.ndarray, deviation_m: np.ndarray) -> dict:
-    """Peak deflection, stabilisation time (last exit from the band) and residual error after the release."""
-    after = t >= RELEASE_TIME_S - 1e-9
-    ta, da = t[after] - RELEASE_TIME_S, deviation_m[after]
-    outside = np.flatnonzero(da > STABLE_BAND_M)
-    settle = float(ta[outside[-1] + 1]) if outside.size and outside[-1] + 1 < ta.size else 0.0
-    if outside.size and outside[-1] + 1 >= ta.size:
-        settle = float(ta[-1])  # never settled within the window
-    tail = ta >= ta[-1] - RESIDUAL_WINDOW_S
-    return {
-        "peak_deflection_mm": 1e3 * float(np.max(da)),
-        "stabilization_time_s": settle,
-        "residual_error_mm": 1e3 * float(np.mean(da[tail])),
-    }
 
 
 def run_mass_drop(

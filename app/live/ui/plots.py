@@ -19,6 +19,8 @@ peak-torque and per-segment STD readouts use the loop's running figures over eve
 from __future__ import annotations
 
 import math
+import threading
+import traceback
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,6 +47,42 @@ RATE_RANGE_PER_S = 10.0  # ± 1/s of the force loop's decay rate before any wide
 RATE_TITLE = "Force-loop decay rate σ (1/s; < 0: a mode grows)"
 W_SERIES = (("W_f", "1/kg²", COLORS[0]), ("W_a", "kg²", COLORS[1]), ("W_d", "1", COLORS[2]))
 LEGEND = {"live": False}  # labels only: no "--" / "NaN" values beside them
+DEFLECTION_RANGE_MM = 10.0
+X_LABEL = "t − now (s)"
+Y_LABELS = {
+    "force": "F̂ − F (N)",
+    "torque": "τ / τmax (%)",
+    "rtf": "× real time",
+    "deflection": "deflection (mm)",
+    "rate": "σ (1/s)",
+    **{name: f"{name} ({unit})" for name, unit, _ in W_SERIES},
+}
+LIMIT_COLOR, DS_COLOR, DI_COLOR = "#555555", "#d62728", "#ff9f1c"
+PREVIOUS_COLOR = "rgba(90, 90, 90, 0.35)"  # the run before this one, faint, for A/B
+PHASE_MARGIN = 0.06  # the phase plot's x range reaches this share of the joint's range beyond each limit
+# The charts, each in its own folder of the Plots tab; a preset shows its lesson's charts first (LAYOUTS)
+# and the others only with "Show all plots".
+CHARTS = ("force", "coupling", "torque", "phase", "deflection", "rtf")
+CHART_TITLES = {
+    "force": "Force error",
+    "coupling": "Coupling W",
+    "torque": "Torques",
+    "phase": "Joint phase",
+    "deflection": "Deflection",
+    "rtf": "Real-time factor",
+}
+LAYOUTS: dict[str, tuple[str, ...]] = {
+    "polish": ("force", "coupling", "torque"),
+    "free": ("coupling", "torque", "force"),
+    "limit-drop": ("phase", "torque"),
+    "mass-drop": ("deflection", "torque"),
+    "compliance": ("deflection", "torque"),
+}
+NEW_RUN = "*A new run: its plots start at t = 0.*"
+STATUS_ORDER = 0.45  # the app's status line: after the Window, Freeze and Replay controls, before the readouts
+RESEND_AFTER_CONNECT_S = (2.0, 6.0, 15.0)  # a new page's charts get their axes again after these seconds
+RESEND_AFTER_SHOW_S = (1.0, 4.0)
+MIN_PREVIOUS_SAMPLES = 50  # a run this long (≈ 1 s of plot samples) is kept as the previous run
 
 
 def nice_ceiling(value: float, floor: float) -> float:
@@ -57,6 +95,46 @@ def nice_ceiling(value: float, floor: float) -> float:
         if candidate >= value * (1 - 1e-12):
             return candidate
     return floor * 10.0 ** (k + 1)
+
+
+def tick_step(span: float, ticks: int = 4) -> float:
+    """A 1-2-5 step that cuts `span` into about `ticks` intervals."""
+    if not math.isfinite(span) or span <= 0:
+        return 1.0
+    raw = span / ticks
+    k = math.floor(math.log10(raw))
+    for base in (1.0, 2.0, 5.0, 10.0):
+        if base * 10.0**k >= raw * (1 - 1e-9):
+            return base * 10.0**k
+    return 10.0 ** (k + 1)
+
+
+def tick_text(value: float, step: float) -> str:
+    """A tick as the browser writes it (uPlot's default: the locale's number format, thousands grouped,
+    at most three decimals, no trailing zeros), for sizing the axis."""
+    decimals = min(3, max(0, -math.floor(math.log10(step)))) if step < 1 else 0
+    text = f"{value:,.{decimals}f}"
+    if "." in text:
+        text = text.rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
+
+
+def y_axis(label: str, lo: float, hi: float) -> uplot.Axis:
+    """A y axis with its label (with the unit) and explicit ticks inside (lo, hi), none at the top edge
+    (where it would hide under the title), and as wide as its longest tick needs (uPlot's default width
+    clipped "10,000" to "0,000")."""
+    step = tick_step(hi - lo)
+    first = math.ceil(lo / step - 1e-9) * step
+    splits = [first + i * step for i in range(int((hi - first) / step + 1e-9) + 1)]
+    splits = [0.0 if abs(v) < 1e-9 * step else v for v in splits if v < hi - 0.04 * (hi - lo)]
+    width = 16 + 7 * max((len(tick_text(v, step)) for v in splits), default=1)
+    axis = {"label": label, "labelSize": 18, "splits": tuple(splits), "size": width}
+    return axis  # type: ignore[return-value]
+
+
+def x_axis(label: str = X_LABEL) -> uplot.Axis:
+    """The x axis with its label."""
+    return {"label": label, "labelSize": 16}
 
 
 class SignalHistory:
@@ -181,14 +259,21 @@ def _stride(n: int) -> int:
 
 
 def _with_markers(
-    x: np.ndarray, ys: list[np.ndarray], markers: list[Marker], now: float, lo: float, hi: float
+    x: np.ndarray,
+    ys: list[np.ndarray],
+    markers: list[Marker],
+    now: float,
+    lo: float,
+    hi: float,
+    after: list[np.ndarray] | None = None,
 ) -> tuple[np.ndarray, ...]:
-    """(x, *ys, marker series): three extra rows per marker at its time, a vertical line from lo up to
-    hi and back in the last series (uPlot joins across NaN, so the marker line runs along the bottom
-    edge between two markers), NaN in the other series (their lines join across those rows)."""
+    """(x, *ys, marker series, *after): three extra rows per marker at its time, a vertical line from lo
+    up to hi and back in the marker series (uPlot joins across NaN, so the marker line runs along the
+    bottom edge between two markers), NaN in the other series (their lines join across those rows)."""
+    after = after or []
     xm = [m.t - now for m in markers if m.t - now >= x[0]] if len(x) else []
     if not xm:
-        return (x, *ys, np.full(len(x), np.nan))
+        return (x, *ys, np.full(len(x), np.nan), *after)
     mx = np.repeat(np.array(xm), 3)
     my = np.tile([lo, hi, lo], len(xm))
     all_x = np.concatenate([x, mx])
@@ -197,6 +282,7 @@ def _with_markers(
     out = [all_x[order]]
     out += [np.concatenate([y, pad])[order] for y in ys]
     out.append(np.concatenate([np.full(len(x), np.nan), my])[order])
+    out += [np.concatenate([y, pad])[order] for y in after]
     return tuple(out)
 
 
@@ -212,99 +298,174 @@ class Plots:
         self.markers: list[Marker] = []
         self._ranges: dict[str, tuple[float, float]] = {}
         self._twin_shown: bool | None = None
-        self._phase_range: tuple[float, float, float] | None = None
+        self._phase_range: tuple[float, ...] | None = None
         self._window_s = WINDOWS["10 s"]
         self._last: PlotData | None = None
         self._session: object = None
+        self._blank = False  # the charts show a new run's empty axes
+        self._settings: Any = None
         self._focus_joint: int | None = None  # the joint the preset is about (readouts)
+        self.layout: tuple[str, ...] = LAYOUTS["polish"]
         self.panel = gui.add_panel(order=order)
-        with self.panel.add_tab("Plots", icon=viser.Icon.CHART_LINE):
+        self.replay_t: float | None = None  # while replaying: the instant the plots end at
+        self.previous: dict[str, np.ndarray] | None = None  # the run before, drawn faint until cleared
+        self.panel_tab = self.panel.add_tab("Plots", icon=viser.Icon.CHART_LINE)
+        with self.panel_tab:
             self.window: Any = gui.add_dropdown(
-                "Window", tuple(WINDOWS), initial_value="10 s", hint="Simulated time shown, up to now"
+                "Window", tuple(WINDOWS), initial_value="10 s", hint="Simulated time shown, up to now", order=0.1
             )
-            self.freeze: Any = gui.add_checkbox("Freeze", False, hint="Hold the plots (the history keeps filling)")
-            self.readout = gui.add_markdown("")
-            self.force = gui.add_uplot(
-                _empty(4),
-                (
-                    {"label": "t − now (s)"},
-                    _series("F̂ − F (N)", COLORS[3]),
-                    _series("twin arm (N)", TWIN_COLOR, dash=(5.0, 3.0), show=False),
-                    _marker_series(),
-                ),
-                title=FORCE_TITLE,
-                scales=self._scales("force", (-FORCE_RANGE_N, FORCE_RANGE_N)),
-                legend=LEGEND,  # type: ignore[arg-type]
-                aspect=2.0,
+            self.freeze: Any = gui.add_checkbox(
+                "Freeze", False, hint="Hold the plots (the history keeps filling)", order=0.2
             )
-            self.rate = gui.add_uplot(
-                _empty(4),
-                (
-                    {"label": "t − now (s)"},
-                    _series("σ (1/s)", COLORS[6]),
-                    _series("0", "#888888", width=1, dash=(4.0, 4.0)),
-                    _marker_series(),
-                ),
-                title=RATE_TITLE,
-                scales=self._scales("rate", (-RATE_RANGE_PER_S, RATE_RANGE_PER_S)),
-                legend=LEGEND,  # type: ignore[arg-type]
-                aspect=4.0,
+            self.show_all: Any = gui.add_checkbox(
+                "Show all plots", False, hint="Off: only the preset's own plots, its lesson's on top", order=0.3
             )
-            self.coupling = gui.add_markdown(f"**{COUPLING_TITLE}**")
-            self.w_plots = {
-                name: gui.add_uplot(
-                    _empty(3),
-                    ({"label": "t − now (s)"}, _series(f"{name} ({unit})", color), _marker_series()),
-                    scales=self._scales(name, (0.0, 1.0)),
+            self.readout = gui.add_markdown("", order=0.5)
+            self.folders = {name: gui.add_folder(CHART_TITLES[name], order=1.0 + i) for i, name in enumerate(CHARTS)}
+            with self.folders["force"]:
+                self.force = gui.add_uplot(
+                    _empty(5),
+                    (
+                        {"label": X_LABEL},
+                        _series("F̂ − F (N)", COLORS[3]),
+                        _series("twin arm (N)", TWIN_COLOR, dash=(5.0, 3.0), show=False),
+                        _marker_series(),
+                        _series("previous run (N)", PREVIOUS_COLOR, width=1),
+                    ),
+                    title=FORCE_TITLE,
+                    scales=self._scales("force", (-FORCE_RANGE_N, FORCE_RANGE_N)),
+                    axes=(x_axis(), y_axis(Y_LABELS["force"], -FORCE_RANGE_N, FORCE_RANGE_N)),
                     legend=LEGEND,  # type: ignore[arg-type]
-                    aspect=4.0,
-                    padding=(10, 24, 0, 0),
+                    aspect=2.0,
+                    padding=(24, 12, 0, 0),
                 )
-                for name, unit, color in W_SERIES
-            }
-            self.torque = gui.add_uplot(
-                _empty(self.n + 4),
-                (
-                    {"label": "t − now (s)"},
-                    *(_series(f"τ{i + 1}", COLORS[i % len(COLORS)], width=1) for i in range(self.n)),
-                    _series("+limit", "#888888", width=1, dash=(4.0, 4.0)),
-                    _series("−limit", "#888888", width=1, dash=(4.0, 4.0)),
-                    _marker_series(),
-                ),
-                title="Torques / limits (%)",
-                scales=self._scales("torque", (-TORQUE_RANGE_PCT, TORQUE_RANGE_PCT)),
-                legend=LEGEND,  # type: ignore[arg-type]
-                aspect=2.0,
-            )
-            self.joint: Any = gui.add_dropdown(
-                "Phase plot joint", tuple(str(i + 1) for i in range(n_joints)), initial_value="4"
-            )
-            self.phase = gui.add_uplot(
-                _empty(4),
-                (
-                    {"label": "q (rad)", "sorted": 0},
-                    _series("q̇ (rad/s)", COLORS[4], points={"show": False}, spanGaps=False),
-                    _series("+q̇max", "#888888", width=1, dash=(4.0, 4.0)),
-                    _series("−q̇max", "#888888", width=1, dash=(4.0, 4.0)),
-                ),
-                title="Joint phase (q, q̇); x range = position limits",
-                scales={"x": {"time": False, "auto": False, "range": (-1.0, 1.0)}},
-                legend=LEGEND,  # type: ignore[arg-type]
-                aspect=1.5,
-            )
-            self.rtf = gui.add_uplot(
-                _empty(2),
-                ({"label": "t − now (s)"}, _series("real-time factor", COLORS[5])),
-                title="Real-time factor",
-                scales=self._scales("rtf", (0.0, RTF_RANGE)),
-                legend=LEGEND,  # type: ignore[arg-type]
-                aspect=3.0,
-            )
+                self.sensor_note = gui.add_markdown("")
+                self.rate = gui.add_uplot(
+                    _empty(4),
+                    (
+                        {"label": X_LABEL},
+                        _series("σ (1/s)", COLORS[6]),
+                        _series("0", "#888888", width=1, dash=(4.0, 4.0)),
+                        _marker_series(),
+                    ),
+                    title=RATE_TITLE,
+                    scales=self._scales("rate", (-RATE_RANGE_PER_S, RATE_RANGE_PER_S)),
+                    axes=(x_axis(), y_axis(Y_LABELS["rate"], -RATE_RANGE_PER_S, RATE_RANGE_PER_S)),
+                    legend=LEGEND,  # type: ignore[arg-type]
+                    aspect=3.0,
+                    padding=(24, 12, 0, 0),
+                )
+            with self.folders["coupling"]:
+                self.coupling = gui.add_markdown(f"**{COUPLING_TITLE}**")
+                self.w_plots = {
+                    name: gui.add_uplot(
+                        _empty(3),
+                        ({"label": X_LABEL}, _series(f"{name} ({unit})", color), _marker_series()),
+                        scales=self._scales(name, (0.0, 1.0)),
+                        axes=(x_axis(""), y_axis(Y_LABELS[name], 0.0, 1.0)),
+                        legend=LEGEND,  # type: ignore[arg-type]
+                        aspect=2.6,
+                        padding=(10, 12, 0, 0),
+                    )
+                    for name, unit, color in W_SERIES
+                }
+            with self.folders["torque"]:
+                self.torque = gui.add_uplot(
+                    _empty(self.n + 4),
+                    (
+                        {"label": X_LABEL},
+                        *(_series(f"τ{i + 1}", COLORS[i % len(COLORS)], width=1) for i in range(self.n)),
+                        _series("+limit", "#888888", width=1, dash=(4.0, 4.0)),
+                        _series("−limit", "#888888", width=1, dash=(4.0, 4.0)),
+                        _marker_series(),
+                    ),
+                    title="Torques / limits (%)",
+                    scales=self._scales("torque", (-TORQUE_RANGE_PCT, TORQUE_RANGE_PCT)),
+                    axes=(x_axis(), y_axis(Y_LABELS["torque"], -TORQUE_RANGE_PCT, TORQUE_RANGE_PCT)),
+                    legend=LEGEND,  # type: ignore[arg-type]
+                    aspect=2.0,
+                    padding=(24, 12, 0, 0),
+                )
+            with self.folders["phase"]:
+                self.joint: Any = gui.add_dropdown(
+                    "Phase plot joint", tuple(str(i + 1) for i in range(n_joints)), initial_value="4"
+                )
+                self.phase = gui.add_uplot(
+                    _empty(7),
+                    (
+                        {"label": "q (rad)", "sorted": 0},
+                        _series("q̇ (rad/s)", COLORS[4], points={"show": False}, spanGaps=False),
+                        _series("±q̇max", "#888888", width=1, dash=(4.0, 4.0)),
+                        _series("−q̇max", "#888888", width=1, dash=(4.0, 4.0)),
+                        _series("limit", LIMIT_COLOR, width=2, spanGaps=False),
+                        _series("d_s", DS_COLOR, width=1, dash=(3.0, 3.0), spanGaps=False),
+                        _series("d_i", DI_COLOR, width=1, dash=(6.0, 3.0), spanGaps=False),
+                    ),
+                    title="Joint phase (q, q̇)",
+                    scales={"x": {"time": False, "auto": False, "range": (-1.0, 1.0)}},
+                    axes=(x_axis("q (rad)"), y_axis("q̇ (rad/s)", -1.0, 1.0)),
+                    legend=LEGEND,  # type: ignore[arg-type]
+                    aspect=1.5,
+                    padding=(24, 12, 0, 0),
+                )
+            with self.folders["deflection"]:
+                self.deflection = gui.add_uplot(
+                    _empty(5),
+                    (
+                        {"label": X_LABEL},
+                        _series("TCP (mm)", COLORS[0]),
+                        _series("elbow (mm)", COLORS[2]),
+                        _marker_series(),
+                        _series("TCP, previous run (mm)", PREVIOUS_COLOR, width=1),
+                    ),
+                    title="Deflection from the start pose (mm)",
+                    scales=self._scales("deflection", (0.0, DEFLECTION_RANGE_MM)),
+                    axes=(x_axis(), y_axis(Y_LABELS["deflection"], 0.0, DEFLECTION_RANGE_MM)),
+                    legend=LEGEND,  # type: ignore[arg-type]
+                    aspect=2.0,
+                    padding=(24, 12, 0, 0),
+                )
+            with self.folders["rtf"]:
+                self.rtf = gui.add_uplot(
+                    _empty(2),
+                    ({"label": X_LABEL}, _series("real-time factor", COLORS[5])),
+                    title="Real-time factor",
+                    scales=self._scales("rtf", (0.0, RTF_RANGE)),
+                    axes=(x_axis(), y_axis(Y_LABELS["rtf"], 0.0, RTF_RANGE)),
+                    legend=LEGEND,  # type: ignore[arg-type]
+                    aspect=3.0,
+                    padding=(24, 12, 0, 0),
+                )
         self.panel.dock_left()
         self.panel.set_width(400)
         self.window.on_update(lambda _: self._on_window())
         self.freeze.on_update(lambda _: self._redraw())
         self.joint.on_update(lambda _: self._redraw())
+        self.show_all.on_update(lambda _: self.arrange(None))
+        self.arrange("polish")
+        server.on_client_connect(lambda _: self._resend_later(*RESEND_AFTER_CONNECT_S))
+
+    # ---- layout ---------------------------------------------------------------------------------
+    def arrange(self, scenario: str | None) -> None:
+        """Put the preset's charts first (its lesson's metric on top) and show the others only with
+        "Show all plots"; None keeps the preset and applies the switch."""
+        if scenario is not None:
+            self.layout = LAYOUTS.get(scenario, LAYOUTS["polish"])
+        show_all = bool(self.show_all.value)
+        rest = [c for c in CHARTS if c not in self.layout]
+        changed = False
+        for i, name in enumerate((*self.layout, *rest)):
+            folder = self.folders[name]
+            order = 1.0 + i
+            visible = show_all or name in self.layout
+            if folder.order != order:
+                folder.order = order
+            if folder.visible != visible:
+                folder.visible = visible
+                if visible:
+                    changed = True
+        if changed or scenario is not None:  # shown charts, or a new preset's first frames
+            self._resend_later(*RESEND_AFTER_SHOW_S)
 
     # ---- ranges ---------------------------------------------------------------------------------
     def _scales(self, key: str, y: tuple[float, float]) -> dict[str, uplot.Scale]:
@@ -315,9 +476,12 @@ class Plots:
         }
 
     def _set_range(self, key: str, handle: Any, y: tuple[float, float], force: bool = False) -> None:
-        """Give a plot a new y range (a new range rebuilds the chart in the browser: only on change)."""
+        """Give a plot a new y range and its ticks (a new range rebuilds the chart in the browser: only
+        on change)."""
         if force or self._ranges.get(key) != y:
             handle.scales = self._scales(key, y)
+            x_label = "" if key.startswith("W_") else X_LABEL  # three small plots: one x label is enough
+            handle.axes = (x_axis(x_label), y_axis(Y_LABELS[key], *y))
 
     def _on_window(self) -> None:
         value = WINDOWS.get(str(self.window.value))
@@ -329,36 +493,128 @@ class Plots:
         self._redraw()
 
     def _handles(self) -> dict[str, Any]:
-        return {"force": self.force, "rate": self.rate, "torque": self.torque, "rtf": self.rtf, **self.w_plots}
+        return {
+            "force": self.force,
+            "rate": self.rate,
+            "torque": self.torque,
+            "rtf": self.rtf,
+            "deflection": self.deflection,
+            **self.w_plots,
+        }
 
     # ---- data -----------------------------------------------------------------------------------
-    def focus(self, joint: int | None) -> None:
+    def focus(self, joint: int | None, scenario: str | None = None) -> None:
         """Show joint `joint` (0-based) in the phase plot and its readouts, e.g. the one a preset is
-        about; None keeps the phase plot's joint and drops the readouts."""
+        about; None keeps the phase plot's joint and drops the readouts. With `scenario`, arrange the
+        charts for that preset."""
         self._focus_joint = joint
         if joint is not None and 0 <= joint < self.n and self.joint.value != str(joint + 1):
             self.joint.value = str(joint + 1)
+        if scenario is not None:
+            self.arrange(scenario)
 
-    def update(self, plot: PlotData, session: object = None) -> None:
+    def update(self, plot: PlotData, session: object = None, settings: Any = None) -> None:
         """Take in new plot data and redraw unless frozen (one message per chart); a new `session`
-        key (the loop's session id) starts the history again."""
+        key (the loop's session id and restart count) starts the history again and blanks the charts
+        and readouts of the old run. `settings` (the parameters in force) name the sensor model's
+        disturbances under the force plot."""
         if session != self._session:
             self._session = session
+            old = self.history.columns
+            if len(old.get("t", ())) >= MIN_PREVIOUS_SAMPLES:
+                self.previous = {k: v.copy() for k, v in old.items()}
+                if "Fd_z" in old:
+                    self.previous["force_error"] = force_error(old).copy()
+            self.replay_t = None
             self.history.clear()
             self.monitor.clear()
+            self.markers = []
+            self.readouts = {}
+            self._blank = False
         self._last = plot
+        if settings is not None and settings is not self._settings:
+            self._settings = settings
+            self._show_sensor_note(settings)
         self.history.add(plot.columns)
         self.monitor.add(plot.monitor)
         self._redraw()
+
+    def _show_sensor_note(self, settings: Any) -> None:
+        """Under the force plot: whether the F/T model's sinusoid and noise are in the reading."""
+        sensor = getattr(settings, "groups", {}).get("sensor")
+        text = ""
+        if sensor is not None and getattr(sensor, "noise", False):
+            amp, hz = float(sensor.sine_amplitude_n), float(sensor.sine_hz)
+            text = (
+                f"*Sensor model on: a {hz:g} Hz, ±{amp:g} N sinusoid and noise ({float(sensor.force_noise_var):g} N²) "
+                "are in the F/T reading — not the arm's motion (Tune → Sensor noise off removes them).*"
+            )
+        elif sensor is not None:
+            text = "*Sensor model off: the F/T reading is the ideal filtered force.*"
+        if self.sensor_note.content != text:
+            self.sensor_note.content = text
+
+    def _clear_charts(self) -> None:
+        """A new run with no samples yet: empty charts (their axes stay) and no readouts of the old run."""
+        if self._blank:
+            return
+        self._blank = True
+        nan2 = np.full(2, np.nan)
+        x = np.array([-self._window_s, 0.0])
+        self.force.data = (x, nan2, nan2, nan2, nan2)
+        self.torque.data = (x, *([nan2] * (self.n + 3)))
+        self.deflection.data = (x, nan2, nan2, nan2, nan2)
+        self.rtf.data = (x, nan2)
+        self.rate.data = (x, nan2, nan2, nan2)
+        for handle in self.w_plots.values():
+            handle.data = (x, nan2, nan2)
+        self.phase.data = (np.array([-1.0, 1.0]), *([nan2] * 6))
+        self.readouts = {}
+        if self.readout.content != NEW_RUN:
+            self.readout.content = NEW_RUN
+
+    def clear_previous(self) -> None:
+        """Forget the previous run's trace."""
+        self.previous = None
+        self.redraw()
+
+    def redraw(self) -> None:
+        """Draw again from the history (e.g. at a new replay instant)."""
+        self._redraw()
+
+    def _window(self, history: SignalHistory) -> dict[str, np.ndarray]:
+        """The shown window of a history: up to now, or while replaying up to the chosen instant."""
+        if self.replay_t is None:
+            return history.window(self._window_s)
+        t = history.t
+        end = int(np.searchsorted(t, self.replay_t, side="right"))
+        start = int(np.searchsorted(t, self.replay_t - self._window_s))
+        return {k: v[start:end] for k, v in history.columns.items()}
+
+    def _previous_at(self, key: str, t: np.ndarray) -> np.ndarray:
+        """The previous run's signal `key` at the simulated times t (NaN where it has none)."""
+        prev = self.previous
+        if prev is None or key not in prev or "t" not in prev or not len(t):
+            return np.full(len(t), np.nan)
+        pt, pv = prev["t"], prev[key]
+        ok = np.isfinite(pv)
+        if np.count_nonzero(ok) < 2:
+            return np.full(len(t), np.nan)
+        out = np.interp(t, pt[ok], pv[ok])
+        out[(t < pt[ok][0]) | (t > pt[ok][-1])] = np.nan
+        return out
 
     def _redraw(self) -> None:
         plot = self._last
         if plot is None:
             return
-        c = self.history.window(self._window_s)
+        c = self._window(self.history)
         t = c.get("t", np.zeros(0))
         if len(t) < 2 or "Fd_z" not in c:
+            if not self.freeze.value:
+                self._clear_charts()
             return
+        self._blank = False
         self.markers = phase_markers(self.history.columns)
         self._update_readouts(plot)
         if self.freeze.value:
@@ -369,8 +625,9 @@ class Plots:
         self._draw_force(c, s, x, now)
         self._draw_rate(c, s, x, now)
         self._draw_torque(plot, c, s, x, now)
+        self._draw_deflection(c, s, x, now)
         self._update_phase(plot)
-        m = self.monitor.window(self._window_s)
+        m = self._window(self.monitor)
         mt = m.get("t", np.zeros(0))
         if len(mt) >= 2:
             ms = slice(None, None, _stride(len(mt)))
@@ -408,7 +665,8 @@ class Plots:
         hi = nice_ceiling(1.1 * top, FORCE_RANGE_N)
         self._set_range("force", self.force, (-hi, hi))
         twin_y = twin[s] if has_twin and twin is not None else np.zeros(len(x))
-        self.force.data = _with_markers(x, [err[s], twin_y], self.markers, now, -hi, hi)
+        prev = self._previous_at("force_error", c["t"][s])
+        self.force.data = _with_markers(x, [err[s], twin_y], self.markers, now, -hi, hi, after=[prev])
         title = FORCE_TITLE if np.any(c["Fd_z"] != 0.0) else NO_SETPOINT_TITLE
         if self.force.title != title:
             self.force.title = title
@@ -431,6 +689,21 @@ class Plots:
         self._set_range("torque", self.torque, (-hi, hi))
         ones = np.full(len(x), 100.0)
         self.torque.data = _with_markers(x, [*ratio, ones, -ones], self.markers, now, -hi, hi)
+
+    def _draw_deflection(self, c: dict[str, np.ndarray], s: slice, x: np.ndarray, now: float) -> None:
+        """TCP and elbow distance from their start (signals "tcp_dev_mm", "elbow_dev_mm"), when logged."""
+        if "tcp_dev_mm" not in c:
+            return
+        tcp = c["tcp_dev_mm"][s]
+        elbow = c["elbow_dev_mm"][s] if "elbow_dev_mm" in c else np.full(len(x), np.nan)
+        both = np.concatenate([tcp[np.isfinite(tcp)], elbow[np.isfinite(elbow)]])
+        top = float(both.max()) if both.size else 0.0
+        hi = nice_ceiling(1.1 * top, DEFLECTION_RANGE_MM) if top > 0 else DEFLECTION_RANGE_MM
+        if top > 0 and top < 0.5 * DEFLECTION_RANGE_MM:  # small deflections get a finer range
+            hi = nice_ceiling(1.1 * top, 10.0 ** math.floor(math.log10(top)))
+        self._set_range("deflection", self.deflection, (0.0, hi))
+        prev = self._previous_at("tcp_dev_mm", c["t"][s])
+        self.deflection.data = _with_markers(x, [tcp, elbow], self.markers, now, 0.0, hi, after=[prev])
 
     def _update_readouts(self, plot: PlotData) -> None:
         """The numbers the README quotes, from the whole history (not just the window shown)."""
@@ -464,7 +737,7 @@ class Plots:
                 peak = float(tau)
                 out["peak_torque_nm"] = peak
                 hi, lo = float(plot.q_upper[joint]), float(plot.q_lower[joint])
-                d_s = 0.01 * (hi - lo) if np.isfinite(hi - lo) else math.nan
+                d_s = self._damper_fraction("safety_fraction", 0.01) * (hi - lo) if np.isfinite(hi - lo) else math.nan
                 over = float(q_max) - (hi - d_s) if np.isfinite(q_max) and math.isfinite(d_s) else math.nan
                 if math.isfinite(over):
                     out["overshoot_beyond_ds_rad"] = over
@@ -472,6 +745,21 @@ class Plots:
                 if math.isfinite(over):
                     text += f" · beyond d_s {max(over, 0.0) * 1e3:.1f} mrad"
                 lines.append(text)
+        d = plot.deflection or {}
+        if "peak_deflection_mm" in d:
+            out.update(d)
+            lines.append(
+                f"TCP after the drop: peak {d['peak_deflection_mm']:.1f} mm · settled after "
+                f"{d['stabilization_time_s']:.2f} s · residual {d['residual_error_mm']:.2f} mm"
+            )
+        for push in ("tcp", "elbow"):
+            if f"{push}_push_tcp_mm" in d:
+                out[f"{push}_push_tcp_mm"] = d[f"{push}_push_tcp_mm"]
+                out[f"{push}_push_elbow_mm"] = d[f"{push}_push_elbow_mm"]
+                lines.append(
+                    f"Push at the {'TCP' if push == 'tcp' else 'elbow'}: TCP moved {d[f'{push}_push_tcp_mm']:.1f} mm, "
+                    f"elbow {d[f'{push}_push_elbow_mm']:.1f} mm"
+                )
         if self.markers:
             lines.append("Markers: " + " · ".join(f"{m.label} {m.t:.1f} s" for m in self.markers[-8:]))
         self.readouts = out
@@ -479,30 +767,79 @@ class Plots:
         if self.readout.content != text:
             self.readout.content = text
 
+    def _damper_fraction(self, field: str, default: float) -> float:
+        """A field of the damper group in force (d_s, d_i as shares of the range), or `default`."""
+        damper = getattr(self._settings, "groups", {}).get("damper") if self._settings is not None else None
+        value = getattr(damper, field, None)
+        return float(value) if value is not None else default
+
     def _update_phase(self, plot: PlotData) -> None:
         j = int(self.joint.value) - 1
-        c = self.history.window(self._window_s)
+        c = self._window(self.history)
         q, dq = c[f"q_{j + 1}"], c[f"dq_{j + 1}"]
         s = slice(None, None, _stride(len(q)))
         q, dq = q[s], dq[s]
         lo, hi = float(plot.q_lower[j]), float(plot.q_upper[j])
-        if not (np.isfinite(lo) and np.isfinite(hi)) or hi - lo > 4 * np.pi:  # endless joint: follow the data
+        limited = np.isfinite(lo) and np.isfinite(hi) and hi - lo <= 4 * np.pi
+        if not limited:  # endless joint: follow the data
             lo, hi = float(np.nanmin(q)) - 0.1, float(np.nanmax(q)) + 0.1
         vlim = float(plot.dq_max[j])
-        key = (lo, hi, vlim)
+        top = 1.15 * vlim
+        pad = PHASE_MARGIN * (hi - lo)  # the stop is inside the plot, not on its edge
+        d_s = self._damper_fraction("safety_fraction", math.nan) * (hi - lo) if limited else math.nan
+        d_i = self._damper_fraction("influence_fraction", math.nan) * (hi - lo) if limited else math.nan
+        key = (lo, hi, vlim, d_s, d_i, j)
         if self._phase_range != key:
             self._phase_range = key
             self.phase.scales = {
-                "x": {"time": False, "auto": False, "range": (lo, hi)},
-                "y": {"auto": False, "range": (-1.15 * vlim, 1.15 * vlim)},
+                "x": {"time": False, "auto": False, "range": (lo - pad, hi + pad)},
+                "y": {"auto": False, "range": (-top, top)},
             }
-            self.phase.title = f"Joint {j + 1} phase (q, q̇); x range = limits [{lo:.2f}, {hi:.2f}] rad"
-        # two extra points at the position limits carry the velocity-limit lines across the whole
-        # width; the trajectory has no value there (NaN is not drawn)
-        x = np.concatenate([q, [lo, hi]])
-        traj = np.concatenate([dq, [np.nan, np.nan]])
-        vmax = np.full_like(x, vlim)
-        self.phase.data = (x, traj, vmax, -vmax)
+            self.phase.axes = (x_axis("q (rad)"), y_axis("q̇ (rad/s)", -top, top))
+            zones = " · d_s dotted red, d_i dashed orange" if math.isfinite(d_s) else ""
+            self.phase.title = f"Joint {j + 1} phase (q, q̇): limits [{lo:.2f}, {hi:.2f}] rad{zones}"
+        # rows after the trajectory: two carry the velocity limits across the whole width, then for each
+        # of limit, d_s and d_i its two vertical lines, joined far above the plot (uPlot joins across NaN,
+        # so the join runs outside the drawn range instead)
+        xs = [*q, lo - pad, hi + pad]
+        ys: list[list[float]] = [[math.nan] * len(xs) for _ in range(6)]  # series 1…6
+        ys[0][: len(q)] = dq.tolist()
+        ys[1][len(q) :] = [vlim, vlim]
+        ys[2][len(q) :] = [-vlim, -vlim]
+        lines: dict[int, tuple[float, float]] = {4: (lo, hi)} if limited else {}  # series → its two q
+        if math.isfinite(d_s):
+            lines |= {5: (lo + d_s, hi - d_s), 6: (lo + d_i, hi - d_i)}
+        far = 3.0 * top
+        for series, (left, right) in lines.items():
+            for xv, y in ((left, -top), (left, far), (right, far), (right, -top)):
+                xs.append(xv)
+                for k in range(6):
+                    ys[k].append(y if k == series - 1 else math.nan)
+        self.phase.data = (np.array(xs), *(np.array(y) for y in ys))
+
+    def resend_axes(self) -> None:
+        """Send every chart's scales and axes again: a chart the page built before its panel had its
+        size draws no ticks until its options change (viser 1.1.1 with uPlot)."""
+        for key, handle in self._handles().items():
+            self._set_range(key, handle, self._ranges[key], force=True)
+        scales, axes = self.phase.scales, self.phase.axes
+        if scales is not None:
+            self.phase.scales = dict(scales)
+        if axes is not None:
+            self.phase.axes = tuple(axes)
+
+    def _resend_later(self, *delays_s: float) -> None:
+        """`resend_axes` after each delay (a page just connected, or charts were just shown)."""
+        for delay in delays_s:
+            timer = threading.Timer(delay, self._safe_resend)
+            timer.daemon = True
+            timer.start()
+
+    def _safe_resend(self) -> None:
+        try:
+            self.resend_axes()
+        except Exception:  # a chart being rebuilt meanwhile: the next resend fixes it
+            traceback.print_exc()
 
 
 def _std_by_segment(columns: dict[str, np.ndarray], values: np.ndarray) -> dict[int, float]:

@@ -63,6 +63,7 @@ class Publisher:
         self.plots = plots
         self.make_scene = make_scene
         self.scene: Any = None
+        self.replay: Any = None  # the Replay fold (app.live.ui.replay): it may show a logged instant instead
         self.scene_session_id = -1
         self.frames_shown = 0
         self.scene_updates = 0
@@ -212,12 +213,13 @@ class Publisher:
             self._frame_pending = True
             self._scene_wanted = self.make_scene is not None
             if self.plots is not None:
-                self.plots.focus(frame.status.focus_joint)
+                self.plots.focus(frame.status.focus_joint, frame.status.scenario)
         if self._scene_wanted and self.make_scene is not None:  # tried again each frame until it builds
             self.scene = self.make_scene(frame.robot)
             self._scene_wanted = False
         if self.scene is not None and frame.scene is not None:
-            self.scene.update(frame.scene)
+            snap = frame.scene if self.replay is None else self.replay.scene_for(frame.scene, frame.session_id)
+            self.scene.update(snap)
             self.scene_updates += 1
             if self._frame_pending:
                 self._frame_pending = not frame_robot(self.server, frame.scene)
@@ -241,5 +243,5 @@ class Publisher:
     def _show_plots(self, frame: Frame) -> None:
         if frame.plot is not None and self.plots is not None and frame.plot_seq != self._plot_seq:
             self._plot_seq = frame.plot_seq  # a frame skipped while busy does not lose a plot update
-            self.plots.update(frame.plot, frame.session_id)
+            self.plots.update(frame.plot, (frame.session_id, frame.restarts), frame.settings)
             self.plot_updates += 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from collections import deque
@@ -30,6 +31,8 @@ SPEEDS[UNPACED] = UNPACED_SPEED
 RTF_WINDOW_S = 2.0  # the status line's real-time factor: simulated over wall time across this many seconds
 SLOW_WARNING = 0.95  # say so when the real-time factor stays below this share of the requested speed
 FALLBACK_SHOW_S = 2.0  # keep the fallback badge up this long after the last fallback step
+NOTICE_SHOW_S = 20.0  # the status line repeats the newest notice this long
+NOTICE_CHARS = 160
 
 SUMMARY = "Preset, case, arm and controller; run, step, reset, speed. Drag any link to push it."
 INTRO = (
@@ -43,12 +46,22 @@ FIELDS: tuple[str, ...] = ("drag.max_force_n",)
 class ScenarioPanel(KnobPanel):
     """The Scenario folder (see the module docstring)."""
 
-    def __init__(self, server: viser.ViserServer, loop: SimLoop, extra_robots: tuple[str, ...] = (), order=None):
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        loop: SimLoop,
+        extra_robots: tuple[str, ...] = (),
+        order=None,
+        status_box: Any = None,
+    ):
         self._extra_robots = extra_robots
+        self._status_box = status_box  # where the status line goes (the top of the plots); None: this folder
         self._last_fallback_wall = -1e9
         self._seen_fallback_steps = 0
         self._rtf = AveragedRate()
         self._phase = PhaseReader()
+        self._notice: Any = None
+        self._notice_wall = 0.0
         super().__init__(server, loop, "Scenario", INTRO, FIELDS, order=order, summary=SUMMARY)
 
     def has_content(self, settings: Any) -> bool:
@@ -93,11 +106,12 @@ class ScenarioPanel(KnobPanel):
             "Speed", tuple(SPEEDS), initial_value="1×", hint="Simulated time per wall second; the last runs unpaced"
         )
         self.settings = SettingsButtons(self.server, self.loop)
-        self.status_md = gui.add_markdown("")
-        self.fallback_md = gui.add_markdown(
-            "**QP fallback!** A QP failed in the last seconds; a fallback torque was used.", visible=False
-        )
-        self.halted_md = gui.add_markdown("", visible=False)
+        with self._status_box if self._status_box is not None else contextlib.nullcontext():
+            self.status_md = gui.add_markdown("")
+            self.fallback_md = gui.add_markdown(
+                "**QP fallback!** A QP failed in the last seconds; a fallback torque was used.", visible=False
+            )
+            self.halted_md = gui.add_markdown("", visible=False)
 
         self.preset.on_update(self._on_preset)
         self.case.on_update(self._on_case)
@@ -223,6 +237,9 @@ class ScenarioPanel(KnobPanel):
         slow = paced and rtf is not None and 0.0 < rtf < SLOW_WARNING * st.speed
         if slow:
             status += "  \n**Slower than requested:** this machine cannot keep up right now."
+        notice = self._latest_notice()
+        if notice:
+            status += f"  \n**Latest notice:** {notice}"
         if self.status_md.content != status:
             self.status_md.content = status
         now = time.time()
@@ -241,6 +258,21 @@ class ScenarioPanel(KnobPanel):
             self.halted_md.content = halted
         if self.halted_md.visible != bool(halted):
             self.halted_md.visible = bool(halted)
+
+    def _latest_notice(self) -> str:
+        """The newest notice of the last NOTICE_SHOW_S wall seconds, as "title: body" (shown in the status
+        line, so it stays readable after its pop-up has closed)."""
+        try:
+            newest = self.loop.lab.notice_log[-1]
+        except (IndexError, RuntimeError):
+            return ""
+        now = time.monotonic()
+        if newest is not self._notice:
+            self._notice, self._notice_wall = newest, now
+        if now - self._notice_wall > NOTICE_SHOW_S:
+            return ""
+        body = newest.body if len(newest.body) <= NOTICE_CHARS else newest.body[: NOTICE_CHARS - 1] + "…"
+        return f"{newest.title}: {body}"
 
     def _show_settle(self, st: LoopStatus) -> None:
         """ "Settle now" shows while the preset has a settle phase to run; it reads "Settling unpaced…"

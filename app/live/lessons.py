@@ -1,0 +1,419 @@
+"""Guided lessons: short sequences of steps that set up a preset, say what to do and watch, and after
+the step say what the student saw — with this run's numbers, measured from the step log.
+
+A `Lesson` is a title, one line of purpose and its `Step`s. A step has the commands that set it up
+(`setup(lab_defaults)`: preset, parameters, reset and play, as a person would with the panels), one
+or two sentences of what to do and watch, a condition on the loop's status that says the step has
+run far enough (`ready`), and a `claim`: a sentence built from `measure(lab)`'s numbers of this run
+and of the lesson's earlier steps. Nothing in a claim is a fixed number; where a step has too little
+data to say something, the claim says that.
+
+`measure(lab)` runs on the loop thread (`SimLoop.call`): it reads every logged 1 ms step since the
+last reset (`StepLog`), so its numbers are those of the run the student just watched.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.core.commands import Command, Play, RestoreDefaults, SetParam, SettleNow, SwitchSession
+from app.core.params import field_spec
+from app.live.frames import LoopStatus, deflection_readouts
+from app.live.lab import Lab
+
+Obs = dict[str, float]  # one step's measured numbers
+Memo = dict[str, Obs]  # the lesson's earlier steps' numbers, by step key
+
+POLISH_END_SEGMENT = 7  # the polish phase signal after S6 (the rest at the end)
+SEGMENTS = 6
+DROP_WATCH_S = 3.0  # a limit drop is over after this much simulated time (joint 4 at rest or chattering)
+THRASH_WATCH_S = 16.0  # the delayed λ = 500 drop: the thrashing lasts about 12 s, then τ₄ chatters
+THRASH_SPEED_RAD_S = 0.5  # a joint other than the falling one moving faster than this counts as thrashing
+CHATTER_WINDOW_S = 2.0  # reversals of q̇₄ are counted over the last seconds of the run
+PUSH_DONE_S = 4.0  # the compliance preset's two pushes are over (compliance.DURATION_S)
+FALLING_JOINT = 3  # 0-based: joint 4 of the limit drop
+LESSON_DELAY_MS = 5.0  # the torque delay of the dampers lesson (a real arm's motor driver and bus)
+HIGH_LAMBDA = 500.0
+FRICTION_MU = 1.0
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step of a lesson (see the module docstring)."""
+
+    key: str
+    title: str
+    todo: str  # what to do and what to watch, one or two sentences
+    setup: Callable[[Lab | None], list[Command]]  # the commands that set the step up
+    ready: Callable[[LoopStatus], bool]  # the step has run far enough to be measured
+    claim: Callable[[Obs, Memo], str]  # what the student saw, from this run's numbers
+
+
+@dataclass(frozen=True)
+class Lesson:
+    """A guided lesson: a title, its purpose in one line and its steps."""
+
+    key: str
+    title: str
+    purpose: str
+    steps: tuple[Step, ...] = field(default_factory=tuple)
+
+
+# ---- measurements (loop thread) -------------------------------------------------------------------
+def velocity_reversals(dq: np.ndarray, floor: float = 1e-3) -> int:
+    """Sign changes of a joint velocity, ignoring |q̇| ≤ `floor` rad/s (at rest)."""
+    signs = np.sign(dq[np.abs(dq) > floor])
+    return int(np.count_nonzero(np.diff(signs) != 0))
+
+
+def measure(lab: Lab) -> Obs:
+    """The numbers of the run since the last reset that the lessons' claims use (every 1 ms step)."""
+    s = lab.session
+    out: Obs = {"t": float(s.world.time), "fallback_steps": float(lab.fallback_steps)}
+    c = lab.log.window(lab.log.capacity * lab.dt, lab.dt)
+    t = c.get("t", np.zeros(0))
+    if not len(t):
+        return out
+    name = s.scenario.name
+    if name == "polish":
+        for k, v in lab.log.segment_force_error_std().items():
+            out[f"std_S{k}"] = v
+        found = delay_field()
+        if found is not None and found[0] in s.params():
+            out["reading_delay"] = float(getattr(s.params()[found[0]], found[1]))
+    n = s.robot.nq
+    for j in range(n):
+        q = c[f"q_{j + 1}"]
+        out[f"swing_{j + 1}"] = float(np.nanmax(q) - np.nanmin(q))
+        out[f"peak_tau_{j + 1}"] = float(np.nanmax(np.abs(c[f"tau_{j + 1}"])))
+        out[f"tau_max_{j + 1}"] = float(s.robot.tau_max[j])
+    if name == "limit-drop":
+        j = FALLING_JOINT
+        dq = c[f"dq_{j + 1}"]
+        out["reversals_first_3s"] = float(velocity_reversals(dq[t <= t[0] + DROP_WATCH_S]))
+        late = t >= t[-1] - CHATTER_WINDOW_S
+        out["reversals_late"] = float(velocity_reversals(dq[late]))
+        out["late_peak_tau"] = float(np.nanmax(np.abs(c[f"tau_{j + 1}"][late])))
+        hi, lo = float(s.robot.q_upper[j]), float(s.robot.q_lower[j])
+        damper = s.params().get("damper")
+        d_s = float(getattr(damper, "safety_fraction", 0.01)) * (hi - lo)
+        out["beyond_ds_mrad"] = 1e3 * max(0.0, float(np.nanmax(c[f"q_{j + 1}"])) - (hi - d_s))
+        # the arm thrashing: any joint but the falling one faster than THRASH_SPEED_RAD_S
+        others = np.vstack([np.abs(c[f"dq_{i + 1}"]) for i in range(n) if i != j])
+        fast = np.flatnonzero(np.nanmax(others, axis=0) > THRASH_SPEED_RAD_S)
+        out["thrash_end_s"] = float(t[fast[-1]] - t[0]) if fast.size else 0.0
+        out["tcp_height_m"] = float(s.dyn.tcp_position_world[2])
+        biggest = max((i for i in range(n) if i != j), key=lambda i: out[f"swing_{i + 1}"])
+        out["widest_joint"] = float(biggest + 1)
+    d = deflection_readouts(lab.log, s.scenario)
+    if d:
+        out.update(d)
+    return out
+
+
+# ---- what a claim says -----------------------------------------------------------------------------
+def _strokes(o: Obs) -> tuple[list[float], list[float]] | None:
+    """(S2, S4, S6) and (S1, S3, S5) force-error STDs, or None while a segment is missing."""
+    if not all(f"std_S{k}" in o for k in range(1, SEGMENTS + 1)):
+        return None
+    return [o[f"std_S{k}"] for k in (2, 4, 6)], [o[f"std_S{k}"] for k in (1, 3, 5)]
+
+
+def _fmt(values: list[float]) -> str:
+    return "/".join(f"{v:.1f}" for v in values)
+
+
+def strokes_claim(label: str) -> Callable[[Obs, Memo], str]:
+    """The polish claim: the stretching strokes' STD against the others', with this run's numbers."""
+
+    def claim(o: Obs, memo: Memo) -> str:
+        s = _strokes(o)
+        if s is None:
+            return "The zig-zag has not run through S6 since the last reset: no per-stroke numbers yet."
+        forward, back = s
+        ratio = o["std_S4"] / o["std_S3"] if o["std_S3"] > 0 else math.inf
+        delay = (
+            f" (F/T reading {o['reading_delay']:g} period(s) late)"
+            if "reading_delay" in o
+            else " (this build has no F/T reading delay to set)"
+        )
+        return (
+            f"{label}{delay}: the stretching strokes S2/S4/S6 had a force-error STD of {_fmt(forward)} N against "
+            f"{_fmt(back)} N on S1/S3/S5 — S4's {o['std_S4']:.1f} N is {ratio:.1f}× S3's {o['std_S3']:.1f} N."
+        )
+
+    return claim
+
+
+def compare_strokes(label: str, other_key: str, other_label: str) -> Callable[[Obs, Memo], str]:
+    """The polish claim of a second run, compared stroke by stroke with an earlier step's."""
+    own = strokes_claim(label)
+
+    def claim(o: Obs, memo: Memo) -> str:
+        text = own(o, memo)
+        other = memo.get(other_key)
+        if _strokes(o) is None or other is None or _strokes(other) is None:
+            return text + (f" (Run the step “{other_label}” to compare.)" if other is None else "")
+        mean_here = float(np.mean(_strokes(o)[0]))  # type: ignore[index]
+        mean_there = float(np.mean(_strokes(other)[0]))  # type: ignore[index]
+        return text + (
+            f" Over the stretching strokes that is a mean STD of {mean_here:.1f} N against {mean_there:.1f} N "
+            f"with {other_label} ({mean_here / mean_there:.2f}×)."
+        )
+
+    return claim
+
+
+def drop_claim(label: str, baseline: str | None = None) -> Callable[[Obs, Memo], str]:
+    """The limit-drop claim: joint 4's peak torque, how far it went beyond d_s and its reversals."""
+
+    def claim(o: Obs, memo: Memo) -> str:
+        if "peak_tau_4" not in o:
+            return "Nothing logged since the last reset: press Play."
+        text = (
+            f"{label}: joint 4 peaked at |τ₄| = {o['peak_tau_4']:.1f} N m (limit {o['tau_max_4']:.0f} N m), "
+            f"went {o['beyond_ds_mrad']:.1f} mrad beyond d_s and reversed its velocity "
+            f"{o['reversals_first_3s']:.0f} times in the first 3 s."
+        )
+        before = memo.get(baseline) if baseline else None
+        if before is not None and "peak_tau_4" in before:
+            text += f" That is {o['peak_tau_4'] / before['peak_tau_4']:.1f}× the peak torque of λ = 100."
+        return text
+
+    return claim
+
+
+def thrash_claim(o: Obs, memo: Memo) -> str:
+    """The delayed λ = 500 drop as it happens: the whole arm first, then τ₄'s chatter."""
+    if "peak_tau_4" not in o:
+        return "Nothing logged since the last reset: press Play."
+    n = sum(1 for k in o if k.startswith("swing_"))
+    swings = ", ".join(f"joint {i} {o[f'swing_{i}']:.2f} rad" for i in range(1, n + 1) if i != 4)
+    widest = int(o["widest_joint"])
+    fallback = (
+        f"the QP fell back to its safe solution in {o['fallback_steps']:.0f} steps"
+        if o["fallback_steps"] > 0
+        else "the QP never fell back"
+    )
+    thrash = (
+        f"For {o['thrash_end_s']:.1f} s the whole arm thrashed (a joint other than 4 faster than "
+        f"{THRASH_SPEED_RAD_S:g} rad/s): joint {widest} swung {o[f'swing_{widest}']:.2f} rad; all swings: {swings}; "
+        if o["thrash_end_s"] > 0
+        else f"No joint other than 4 moved faster than {THRASH_SPEED_RAD_S:g} rad/s; swings: {swings}; "
+    )
+    return (
+        thrash + f"{fallback}; the tool ended {o['tcp_height_m']:.2f} m above the floor. "
+        f"In the last {CHATTER_WINDOW_S:g} s τ₄ reached {o['late_peak_tau']:.1f} N m "
+        f"(limit {o['tau_max_4']:.0f} N m) and q̇₄ reversed {o['reversals_late']:.0f} times."
+    )
+
+
+def push_claim(label: str) -> Callable[[Obs, Memo], str]:
+    """The compliance claim: how far TCP and elbow moved under each push, and against the other modes."""
+
+    def claim(o: Obs, memo: Memo) -> str:
+        if "tcp_push_tcp_mm" not in o or "elbow_push_tcp_mm" not in o:
+            return "The two pushes (TCP at 0.5 s, elbow at 2 s) have not both happened since the last reset."
+        text = (
+            f"{label}: under the push at the TCP the TCP moved {o['tcp_push_tcp_mm']:.1f} mm and the elbow "
+            f"{o['tcp_push_elbow_mm']:.1f} mm; under the push at the elbow the TCP moved "
+            f"{o['elbow_push_tcp_mm']:.1f} mm and the elbow {o['elbow_push_elbow_mm']:.1f} mm."
+        )
+        others = [
+            (k, v) for k, v in memo.items() if k.startswith("gamma-") and "elbow_push_elbow_mm" in v and v is not o
+        ]
+        if others:
+            text += " Elbow under the elbow push in the other modes: " + ", ".join(
+                f"{k.removeprefix('gamma-')} {v['elbow_push_elbow_mm']:.1f} mm" for k, v in others
+            )
+            text += "."
+        return text
+
+    return claim
+
+
+# ---- set-ups ------------------------------------------------------------------------------------
+READING_DELAY = ("sensor", "reading_delay_steps")  # the F/T reading's age in control periods
+
+
+def delay_field(lab: Lab | None = None) -> tuple[str, str] | None:
+    """(group, field) of the F/T reading's delay in control periods, if this build models it."""
+    try:
+        field_spec(*READING_DELAY)
+    except (KeyError, ValueError):
+        return None
+    return READING_DELAY
+
+
+def polish_setup(objective: str, delay: str = "default") -> Callable[[Lab | None], list[Command]]:
+    """Polish from its defaults, μ = 1, the objective, the F/T delay (default / zero), Settle now."""
+
+    def setup(lab: Lab | None) -> list[Command]:
+        cmds: list[Command] = [
+            RestoreDefaults(),  # first: the switch then keeps nothing of the person's earlier values
+            SwitchSession(scenario="polish", robot="", variant="flow"),
+            SetParam("contact", "mu", FRICTION_MU),
+            SetParam("nullspace", "objective", objective),
+        ]
+        found = delay_field()
+        if delay == "zero" and found is not None:
+            cmds.append(SetParam(found[0], found[1], 0))
+        cmds.append(SettleNow())
+        return cmds
+
+    return setup
+
+
+def drop_setup(lambda_: float, delay_ms: float) -> Callable[[Lab | None], list[Command]]:
+    """The limit drop from its defaults with λ and the torque delay, then Play."""
+
+    def setup(lab: Lab | None) -> list[Command]:
+        return [
+            RestoreDefaults(),
+            SwitchSession(scenario="limit-drop", robot="", variant="position"),
+            SetParam("damper", "lambda_", lambda_),
+            SetParam("world", "torque_delay_ms", delay_ms),
+            Play(),
+        ]
+
+    return setup
+
+
+def compliance_setup(mode: str) -> Callable[[Lab | None], list[Command]]:
+    """The compliance preset in one Γ mode, from its defaults, then Play."""
+
+    def setup(lab: Lab | None) -> list[Command]:
+        return [RestoreDefaults(), SwitchSession(scenario="compliance", robot="", variant=mode), Play()]
+
+    return setup
+
+
+def polish_done(st: LoopStatus) -> bool:
+    """The zig-zag has run through S6."""
+    return st.scenario == "polish" and st.signals.get("segment", 0.0) >= POLISH_END_SEGMENT
+
+
+def after(scenario: str, seconds: float) -> Callable[[LoopStatus], bool]:
+    """The preset has run `seconds` of simulated time since its reset."""
+    return lambda st: st.scenario == scenario and st.t >= seconds
+
+
+LESSONS: tuple[Lesson, ...] = (
+    Lesson(
+        "posture",
+        "Posture and friction",
+        "Which elbow posture the nullspace picks decides whether friction shakes the contact force ([T] §IV-B).",
+        (
+            Step(
+                "wj",
+                "W_j at μ = 1",
+                "The polish preset with friction μ = 1 and the joint-space objective W_j; Settle now runs the "
+                "settle phase, then the zig-zag S1…S6. Watch the force-error plot on the stretching strokes "
+                "S2, S4, S6.",
+                polish_setup("j"),
+                polish_done,
+                strokes_claim("W_j, μ = 1"),
+            ),
+            Step(
+                "wa",
+                "W_a at μ = 1",
+                "The same with the dynamic-coupling objective W_a: the elbow flows to another posture first "
+                "(almost a minute of simulated time; Settle now runs it fast). Compare the stretching strokes.",
+                polish_setup("a"),
+                polish_done,
+                compare_strokes("W_a, μ = 1", "wj", "W_j"),
+            ),
+        ),
+    ),
+    Lesson(
+        "latency",
+        "Latency",
+        "A sampled controller answers a force reading at least one period late; that delay is what makes a "
+        "coupled posture oscillate.",
+        (
+            Step(
+                "delay0",
+                "No sensing delay",
+                "W_j at μ = 1 with the F/T reading's delay set to 0 periods (an ideal, instantaneous loop). "
+                "Watch S2, S4, S6.",
+                polish_setup("j", delay="zero"),
+                polish_done,
+                strokes_claim("W_j, μ = 1, no sensing delay"),
+            ),
+            Step(
+                "delay1",
+                "The default delay",
+                "The same with the reading's default delay back. Compare the stretching strokes with the step before.",
+                polish_setup("j"),
+                polish_done,
+                compare_strokes("W_j, μ = 1, default sensing delay", "delay0", "no delay"),
+            ),
+        ),
+    ),
+    Lesson(
+        "dampers",
+        "Dampers at the joint limit",
+        "Joint 4 falls into its limit under an unknown 1.25 kg; the [C24] damper's λ and the motors' delay "
+        "decide how it stops.",
+        (
+            Step(
+                "l100",
+                "λ = 100, ideal motors",
+                "The limit drop with the default damper. Press Play if it waits; watch the phase plot of joint 4 "
+                "reach d_s (dotted) before the limit.",
+                drop_setup(100.0, 0.0),
+                after("limit-drop", DROP_WATCH_S),
+                drop_claim("λ = 100"),
+            ),
+            Step(
+                "l500",
+                "λ = 500, ideal motors",
+                "A five times stiffer damper: the joint brakes later and harder. Watch the torque plot.",
+                drop_setup(HIGH_LAMBDA, 0.0),
+                after("limit-drop", DROP_WATCH_S),
+                drop_claim("λ = 500", baseline="l100"),
+            ),
+            Step(
+                "l500d",
+                "λ = 500 with 5 ms of torque delay",
+                "The motors now answer 5 ms late, as a real arm's drivers do. Watch the whole arm, not only "
+                "joint 4, for about 15 s.",
+                drop_setup(HIGH_LAMBDA, LESSON_DELAY_MS),
+                after("limit-drop", THRASH_WATCH_S),
+                thrash_claim,
+            ),
+            Step(
+                "l100d",
+                "λ = 100 with the same delay",
+                "The default damper with the same 5 ms delay. Watch joint 4's phase plot.",
+                drop_setup(100.0, LESSON_DELAY_MS),
+                after("limit-drop", DROP_WATCH_S),
+                drop_claim("λ = 100, 5 ms delay"),
+            ),
+        ),
+    ),
+    Lesson(
+        "compliance",
+        "Compliance under a push",
+        "One pose task and one posture task; only Γ changes. 5 N pushes the TCP at 0.5 s and the elbow at 2 s ([C9]).",
+        tuple(
+            Step(
+                f"gamma-{mode}",
+                title,
+                f"Case {mode}: {what} Watch the deflection plot: TCP (blue) and elbow (green).",
+                compliance_setup(mode),
+                after("compliance", PUSH_DONE_S),
+                push_claim(title),
+            )
+            for mode, title, what in (
+                ("stiff", "Γ = 0, stiff", "the arm resists both pushes."),
+                ("nullspace", "Γ₀ = I, nullspace-compliant", "the TCP holds, the elbow may yield."),
+                ("full", "Γ = I, fully compliant", "the whole arm may move with the hand."),
+            )
+        ),
+    ),
+)

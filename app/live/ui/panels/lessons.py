@@ -1,0 +1,124 @@
+"""The Lessons tab: pick a lesson, take its steps one by one, read what this run showed.
+
+"Set up" sends the step's commands (as the panels would: preset, parameters, Settle now or Play).
+While the step runs the panel watches the loop's status; when the step has run far enough it
+measures the run on the loop thread (`app.live.lessons.measure`), pauses the simulation there (the
+picture freezes at the end of the step, for a look and a replay) and shows the step's claim, built
+from those numbers. The numbers of each step are kept (`results`), so a later step can compare.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import viser
+
+from app.core.commands import Pause
+from app.live.lessons import LESSONS, Lesson, Memo, Obs, Step, measure
+from app.live.loop import Frame, SimLoop
+
+INTRO = (
+    "**Start here.** Each lesson sets up a preset for you, says what to do and watch, and after each step "
+    "says what you saw, with this run's numbers. The plots on the left show the step's signal on top."
+)
+WAITING = "*Running… the result appears here when the step is over (the simulation then pauses).*"
+
+
+class LessonsPanel:
+    """The Lessons tab's content (see the module docstring); the publisher calls it like a panel."""
+
+    def __init__(self, server: viser.ViserServer, loop: SimLoop, order: float | None = None):
+        self.server = server
+        self.loop = loop
+        gui = server.gui
+        self.lesson: Lesson = LESSONS[0]
+        self.index = 0
+        self.armed: tuple[str, str] | None = None  # (lesson, step) set up and not yet measured
+        self._armed_restarts = -1  # the lab's restart count once the step's set-up had been applied
+        self.results: dict[str, Memo] = {}  # lesson key → step key → numbers
+        self.claims: dict[tuple[str, str], str] = {}  # what each step showed (tests read them)
+        self._lock = threading.Lock()
+        self.folder = gui.add_folder("Lessons", order=order)
+        with self.folder:
+            gui.add_markdown(INTRO)
+            self.choice: Any = gui.add_dropdown("Lesson", tuple(lesson.title for lesson in LESSONS))
+            self.purpose = gui.add_markdown("")
+            self.step_md = gui.add_markdown("")
+            self.setup = gui.add_button("Set up this step", icon=viser.Icon.PLAYER_PLAY, color="green")
+            self.nav = gui.add_button_group("Step", ("◀ Back", "Next ▶"))
+            self.result_md = gui.add_markdown("")
+        self.choice.on_update(self._on_choice)
+        self.setup.on_click(lambda e: self.start_step())
+        self.nav.on_click(self._on_nav)
+        self._show()
+
+    # ---- callbacks --------------------------------------------------------------------------------
+    def _on_choice(self, event: viser.GuiEvent) -> None:
+        lesson = next((x for x in LESSONS if x.title == event.target.value), None)
+        if lesson is None or lesson is self.lesson:
+            return
+        self.select(lesson.key)
+
+    def _on_nav(self, event: viser.GuiEvent) -> None:
+        step = self.index + (1 if str(event.target.value).startswith("Next") else -1)
+        self.select(self.lesson.key, step)
+
+    def select(self, lesson_key: str, step: int = 0) -> None:
+        """Show step `step` of lesson `lesson_key` (nothing is set up until "Set up this step")."""
+        lesson = next(x for x in LESSONS if x.key == lesson_key)
+        self.lesson = lesson
+        self.index = max(0, min(step, len(lesson.steps) - 1))
+        if self.choice.value != lesson.title:
+            self.choice.value = lesson.title
+        self._show()
+
+    @property
+    def step(self) -> Step:
+        """The step shown."""
+        return self.lesson.steps[self.index]
+
+    def start_step(self) -> None:
+        """Send the shown step's set-up commands and watch for its end."""
+        step = self.step
+        for cmd in step.setup(self.loop.lab):
+            self.loop.submit(cmd)
+        status = self.loop.sync(timeout=60.0)  # a preset switch may take a while
+        with self._lock:
+            self.armed = (self.lesson.key, step.key)
+            self._armed_restarts = self.loop.lab.restarts
+        self.claims.pop((self.lesson.key, step.key), None)
+        self.result_md.content = WAITING
+        del status
+
+    # ---- live -------------------------------------------------------------------------------------
+    def refresh(self, settings: Any) -> None:
+        """Nothing: the lessons follow the run, not the parameters."""
+
+    def live(self, frame: Frame) -> None:
+        """When the armed step has run far enough: measure it, pause there and show the claim."""
+        with self._lock:
+            armed = self.armed
+            if armed is None or frame.restarts < self._armed_restarts:
+                return
+            lesson = next(x for x in LESSONS if x.key == armed[0])
+            step = next(s for s in lesson.steps if s.key == armed[1])
+            if not step.ready(frame.status):
+                return
+            self.armed = None
+        self.loop.submit(Pause())
+        obs: Obs = self.loop.call(lambda s: measure(self.loop.lab), timeout=30.0)
+        memo = self.results.setdefault(lesson.key, {})
+        memo[step.key] = obs
+        text = step.claim(obs, memo)
+        self.claims[(lesson.key, step.key)] = text
+        if self.lesson is lesson and self.step is step:
+            self.result_md.content = f"**What you saw.** {text}"
+
+    def _show(self) -> None:
+        lesson, step = self.lesson, self.step
+        self.purpose.content = f"*{lesson.purpose}*"
+        self.step_md.content = f"**Step {self.index + 1} of {len(lesson.steps)}: {step.title}.** {step.todo}"
+        claim = self.claims.get((lesson.key, step.key))
+        waiting = self.armed == (lesson.key, step.key)
+        self.result_md.content = f"**What you saw.** {claim}" if claim else (WAITING if waiting else "")
