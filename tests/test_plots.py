@@ -235,3 +235,16 @@ def test_the_rate_plot_shows_the_logged_decay_rate_of_the_polish_force_loop(serv
     assert lo == -hi and np.nanmax(np.abs(rate)) <= hi
     plots.update(drop, session=2)
     assert not np.any(np.isfinite(np.asarray(plots.rate.data[1], dtype=float)))
+
+
+def test_a_redraw_with_nothing_new_sends_no_chart_options_again(server, polish, drop):
+    """Options (scales, axes, title) rebuild a chart in the browser: a second redraw of the same data,
+    with or without a damper group (NaN d_s, d_i), must not send any of them again."""
+    for plot in (polish, drop):
+        plots = Plots(server)
+        plots.update(plot, session=1)
+        handles = {"phase": plots.phase, **plots._handles()}
+        before = {k: (h.scales, h.axes, h.title) for k, h in handles.items()}
+        plots.redraw()
+        after = {k: (h.scales, h.axes, h.title) for k, h in handles.items()}
+        assert all(before[k][i] is after[k][i] for k in handles for i in range(3)), plot

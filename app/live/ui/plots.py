@@ -298,7 +298,7 @@ class Plots:
         self.markers: list[Marker] = []
         self._ranges: dict[str, tuple[float, float]] = {}
         self._twin_shown: bool | None = None
-        self._phase_range: tuple[float, ...] | None = None
+        self._phase_range: tuple[float | int | None, ...] | None = None
         self._window_s = WINDOWS["10 s"]
         self._last: PlotData | None = None
         self._session: object = None
@@ -788,7 +788,8 @@ class Plots:
         pad = PHASE_MARGIN * (hi - lo)  # the stop is inside the plot, not on its edge
         d_s = self._damper_fraction("safety_fraction", math.nan) * (hi - lo) if limited else math.nan
         d_i = self._damper_fraction("influence_fraction", math.nan) * (hi - lo) if limited else math.nan
-        key = (lo, hi, vlim, d_s, d_i, j)
+        # NaN-free (NaN != NaN would send the chart's options again at every redraw, rebuilding it)
+        key = (*(v if math.isfinite(v) else None for v in (lo, hi, vlim, d_s, d_i)), j)
         if self._phase_range != key:
             self._phase_range = key
             self.phase.scales = {
