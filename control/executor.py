@@ -18,6 +18,16 @@ import numpy as np
 from control.model import Dynamics
 from control.params import ParamGroup
 
+_ARRAY = np.ndarray
+_F64 = np.dtype(np.float64)
+
+
+def _plain(a: np.ndarray) -> bool:
+    """C-contiguous and writeable (a read-only or strided array is another type to numba)."""
+    flags = a.flags
+    return bool(flags.c_contiguous and flags.writeable)
+
+
 FINITE_LIMIT = 1e150  # |entries| a target may hold: its squared norm stays finite (the cheap check)
 
 
@@ -26,7 +36,7 @@ def float_array(owner: str, name: str, value: object, shape: tuple[int, ...] | N
     finite and below `FINITE_LIMIT` in magnitude when `finite`: the one type the compiled kernels are
     compiled for. A value that is not one raises ValueError naming `owner.name`, in one line."""
     a = value
-    if not (type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable):
+    if not (type(a) is np.ndarray and a.dtype == np.float64 and _plain(a)):
         try:
             a = np.array(value, dtype=np.float64)  # a copy: never a view of the caller's array
         except (TypeError, ValueError) as err:
@@ -57,6 +67,27 @@ class TaskTarget:
     q_posture: np.ndarray | None = None  # (n,) desired joint posture for posture/nullspace tasks
 
     def __post_init__(self) -> None:
+        p, R, v, a, w, qp = self.position, self.rotation, self.velocity, self.acceleration, self.wrench, self.q_posture
+        # the per-step case first (float64 arrays of the right shape, not read-only: one combined
+        # finiteness check); anything else takes `float_array`, field by field
+        if (
+            type(p) is _ARRAY and type(R) is _ARRAY and type(v) is _ARRAY and type(a) is _ARRAY and type(w) is _ARRAY
+            and p.dtype is _F64 and R.dtype is _F64 and v.dtype is _F64 and a.dtype is _F64 and w.dtype is _F64
+            and p.shape == (3,) and R.shape == (3, 3) and v.shape == (6,) and a.shape == (6,) and w.shape == (6,)
+            and (qp is None or (type(qp) is _ARRAY and qp.dtype is _F64 and qp.ndim == 1 and qp.shape[0] > 0))
+            and _plain(p) and _plain(R) and _plain(v) and _plain(a) and _plain(w) and (qp is None or _plain(qp))
+        ):  # fmt: skip
+            s = (
+                float(p @ p)
+                + float(v @ v)
+                + float(a @ a)
+                + float(w @ w)
+                + float(R[0] @ R[0] + R[1] @ R[1] + R[2] @ R[2])
+            )
+            if qp is not None:
+                s += float(qp @ qp)
+            if math.isfinite(s):
+                return
         self.position = float_array("TaskTarget", "position", self.position, (3,))
         self.rotation = float_array("TaskTarget", "rotation", self.rotation, (3, 3))
         self.velocity = float_array("TaskTarget", "velocity", self.velocity, (6,))
@@ -77,10 +108,11 @@ class ControlInputs:
 
     def __post_init__(self) -> None:
         """The reading as float64 (6,) (NaN kept: a faulty sensor is the executor's to survive)."""
-        if self.wrench_tcp is not None:
-            self.wrench_tcp = float_array("ControlInputs", "wrench_tcp", self.wrench_tcp, (6,), False)
-        if self.tau_ext_oracle is not None:
-            self.tau_ext_oracle = float_array("ControlInputs", "tau_ext_oracle", self.tau_ext_oracle, None, False)
+        w, tau = self.wrench_tcp, self.tau_ext_oracle
+        if w is not None and not (type(w) is _ARRAY and w.dtype is _F64 and w.shape == (6,) and _plain(w)):
+            self.wrench_tcp = float_array("ControlInputs", "wrench_tcp", w, (6,), False)
+        if tau is not None and not (type(tau) is _ARRAY and tau.dtype is _F64 and tau.ndim == 1 and _plain(tau)):
+            self.tau_ext_oracle = float_array("ControlInputs", "tau_ext_oracle", tau, None, False)
 
 
 @dataclass
