@@ -688,8 +688,8 @@ _PHASE_LAST_JS = """() => {
 
 
 def test_replay_moves_the_arm_and_the_plots_to_the_same_instant(app, page):
-    """The limit drop runs 3 s; Replay (Plots panel) pauses it; At t = 0.4 s (joint 4 still falling): every
-    link of the 3D arm stands where the logged joint positions of t ≈ 0.4 s put it (MuJoCo kinematics,
+    """The limit drop runs 3 s; Replay (Plots panel) pauses it; At t = 0.2 s (joint 4 still falling): every
+    link of the 3D arm stands where the logged joint positions of t ≈ 0.2 s put it (MuJoCo kinematics,
     ≤ 1 mm), and the phase plot in the page ends at the plots' last sample at or before that instant
     (< 30 ms before it, joint 4 within 0.05 rad of the arm's); turning Replay off shows the live view again."""
     import mujoco
@@ -706,8 +706,8 @@ def test_replay_moves_the_arm_and_the_plots_to_the_same_instant(app, page):
         box.scroll_into_view_if_needed()
         box.check()
         wait_for(lambda: replay.t is not None and not app.loop.status.running, 30, "the replay to start, paused")
-        type_number(pg, r"^At t \(s\)", "0.4")
-        wait_for(lambda: replay.t is not None and abs(replay.t - 0.4) < 0.003, 20, "the replay instant t = 0.4 s")
+        type_number(pg, r"^At t \(s\)", "0.2")
+        wait_for(lambda: replay.t is not None and abs(replay.t - 0.2) < 0.003, 20, "the replay instant t = 0.2 s")
         cols = replay.columns
         i = int(np.clip(np.searchsorted(cols["t"], replay.t), 0, len(cols["t"]) - 1))  # the sample it shows
         q = np.array([cols[f"q_{j + 1}"][i] for j in range(7)])
@@ -724,7 +724,7 @@ def test_replay_moves_the_arm_and_the_plots_to_the_same_instant(app, page):
             shown = np.array([np.asarray(frames[n].position) for n in names if n in frames])
             return shown.shape == expected.shape and float(np.max(np.abs(shown - expected))) < 1e-3
 
-        wait_for(arm_at_instant, 20, "the arm at the logged posture of t = 0.4 s")
+        wait_for(arm_at_instant, 20, "the arm at the logged posture of t = 0.2 s")
         live_q4 = app.loop.call(lambda s: float(s.world.q[3]))
         assert abs(live_q4 - q[3]) > 0.02  # the instant differs from the live posture (joint 4 fell since)
 
@@ -738,7 +738,7 @@ def test_replay_moves_the_arm_and_the_plots_to_the_same_instant(app, page):
             last = pg.evaluate(_PHASE_LAST_JS)
             return last is not None and abs(last[0] - q4) < 1e-6 and abs(last[1] - dq4) < 1e-6
 
-        wait_for(phase_at_instant, 20, "the page's phase plot to end at joint 4's (q, q̇) of t = 0.4 s")
+        wait_for(phase_at_instant, 20, "the page's phase plot to end at joint 4's (q, q̇) of t = 0.2 s")
         box.uncheck()
         wait_for(lambda: replay.t is None, 20, "the live view")
     finally:
