@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from app.core.provenance import code_version
+from app.headless.experiments.polish_calibration import runs_by_row
 from app.headless.sweep.engine import open_executor
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
@@ -499,13 +500,8 @@ def v_eps_check(v_eps: float, seed: int = 0) -> dict:
 # ---- summary ------------------------------------------------------------------------------------
 def summarise(runs: list[dict]) -> list[dict]:
     """Mean ± sd per row and μ (the JSON's `summary`)."""
-    keys: list[tuple[str, float]] = []
-    for r in runs:
-        if (r["row"], r["mu"]) not in keys:
-            keys.append((r["row"], r["mu"]))
     out = []
-    for row, mu in keys:
-        rs = [r for r in runs if r["row"] == row and r["mu"] == mu]
+    for (row, mu), rs in runs_by_row(runs):
         entry: dict[str, Any] = {
             "row": row,
             "objective": rs[0]["objective"],

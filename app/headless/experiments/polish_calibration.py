@@ -91,16 +91,19 @@ def _f(x, digits: int = 1) -> str:
     return "-" if x is None else f"{x:+.{digits}f}"
 
 
+def runs_by_row(runs: list[dict]) -> list[tuple[tuple[str, float], list[dict]]]:
+    """The runs grouped by (row, μ), groups and runs in the order the runs come."""
+    groups: dict[tuple[str, float], list[dict]] = {}
+    for r in runs:
+        groups.setdefault((r["row"], r["mu"]), []).append(r)
+    return list(groups.items())
+
+
 def per_row(runs: list[dict]) -> list[dict]:
     """Per (row, μ), mean over its seeds: P_d·f̂ mean and max over the stretching strokes, P_d·f̂ at
     the start (stretching direction), the worst σ over the strokes; in the runs' order."""
-    keys: list[tuple[str, float]] = []
-    for r in runs:
-        if (r["row"], r["mu"]) not in keys:
-            keys.append((r["row"], r["mu"]))
     out = []
-    for row, mu in keys:
-        rs = [r for r in runs if r["row"] == row and r["mu"] == mu]
+    for (row, mu), rs in runs_by_row(runs):
         pds = [r["stroke"]["stretch_pd_fhat"] for r in rs if r["stroke"].get("stretch_pd_fhat")]
         rates = [r["stroke"]["rate_min_per_s"] for r in rs if r["stroke"].get("rate_min_per_s") is not None]
         start = [r["Pd_fhat"]["stretch"] for r in rs if r.get("Pd_fhat")]
