@@ -215,3 +215,46 @@ def test_the_w_d_flip_explanation_is_printed_only_when_w_d_did_not_flip():
     (text,) = _w_d_flip(doc(78.0))
     assert "+78°" in text and "outside the joint limits" in text and "not a minimum" in text
     assert _w_d_flip(doc(-170.0)) == []
+
+
+def test_a_hold_that_oscillates_or_loses_contact_has_its_verdict_and_a_calm_one_has_none():
+    """The latency runs stop while held once the verdict is known (`HoldWatch`): the STD over the last
+    window against the threshold, looked at every `every` steps; contact lost at its first step."""
+    from app.headless.experiments.polish import HoldWatch, latency_table
+
+    rng = np.random.default_rng(0)
+    t = 1e-3 * np.arange(3000)
+    calm = HoldWatch(threshold_n=4.0, window=1000, dt=1e-3, every=100)
+    assert all(calm.add(tk, e, e, 20.0) is None for tk, e in zip(t, rng.normal(0.0, 1.5, t.size), strict=True))
+    assert calm.verdict is None and calm.window_std_n is not None and 1.3 < calm.window_std_n < 1.7
+    assert calm.result(stopped=False) == {
+        "verdict": None,
+        "at_s": None,
+        "window_std_n": calm.window_std_n,
+        "threshold_n": 4.0,
+        "window_s": 1.0,
+        "contact_lost_ms": 0,
+        "stopped": False,
+    }
+    loud = HoldWatch(threshold_n=4.0, window=1000, dt=1e-3, every=100)
+    wave = 6.0 * np.sin(2 * np.pi * 30.0 * t)  # STD 4.24 N ≥ 4 N
+    verdicts = [loud.add(tk, e, e, 20.0) for tk, e in zip(t, wave, strict=True)]
+    first = next(k for k, v in enumerate(verdicts) if v)
+    assert first == 999 and loud.verdict == "oscillation" and abs(loud.window_std_n - 6.0 / np.sqrt(2)) < 0.05
+    lost = HoldWatch(threshold_n=4.0, window=1000, dt=1e-3)
+    assert lost.add(0.5, 1.0, 19.0, 20.0) is None
+    assert lost.add(0.501, 1.0, 20.0, 20.0) == "contact lost" and lost.at_s == 0.501 and lost.contact_lost_ms == 1
+    # a run stopped while held oscillates in the latency table, whatever its (absent) strokes say
+    ref = _run("row", 0, 0.0, [2.0] * 6)
+    held = dict(_run("row", 3, 0.0, []), held=loud.result(stopped=True))
+    table = latency_table([ref, held])
+    assert table["rows"][0]["smallest_sensing_delay_steps"] == 3
+    assert table["criterion"]["held_std_n"] == 4.0 and table["criterion"]["held_window_s"] == 1.0
+    assert [c["held"] for c in table["rows"][0]["cells"]] == [None, "oscillation"]
+
+
+def test_only_the_latency_runs_stop_at_a_verdict_while_held():
+    from app.headless.experiments.polish import latency_specs, table_specs
+
+    assert all(s["stop_on_verdict"] for s in latency_specs())
+    assert not any(s.get("stop_on_verdict") for s in table_specs([1.0], 1, quick=False))

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from app.core.provenance import code_version
-from app.headless.experiments.polish_calibration import runs_by_row
+from app.headless.experiments.polish_calibration import OSCILLATION_FACTOR, oscillation_threshold_n, runs_by_row
 from app.headless.sweep.engine import open_executor
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
@@ -61,6 +61,10 @@ LATENCY_MU = 1.0
 # "Oscillates or leaves the table": contact lost, a divergence, or a segment whose force-error STD is
 # at least this many times the median segment STD of the same row with no latency at all.
 OSCILLATION_STD_FACTOR = 3.0
+# A latency run whose force loop already oscillates or loses contact while the TCP is held (the settle
+# phase, before the strokes) has its verdict there and stops (`HoldWatch`): at 3-4 periods of delay the
+# hold oscillates, W never settles and the run would otherwise sit out the settle cap.
+HOLD_CHECK_EVERY = 100  # steps between two looks at the hold's last second
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -164,7 +168,14 @@ def latency_specs(quick: bool = False, only: list[str] | None = None, mu: float 
     cap = LATENCY_QUICK_MAX if quick else None
     pairs = [(d, 0.0) for d in LATENCY_SENSING_STEPS if cap is None or d <= cap]
     pairs += [(0, ms) for ms in LATENCY_TORQUE_MS if ms > 0 and (cap is None or ms <= cap)]
-    base = {"sander": False, "start_swivel_deg": 0.0, "shaping": True, "armature_scale": 1.0, "group": "latency"}
+    base = {
+        "sander": False,
+        "start_swivel_deg": 0.0,
+        "shaping": True,
+        "armature_scale": 1.0,
+        "group": "latency",
+        "stop_on_verdict": True,
+    }
     return [
         {**base, **ROWS[k], "mu": mu, "seed": 0, "reading_delay_steps": d, "torque_delay_ms": ms}
         for k in keys
@@ -193,6 +204,9 @@ def latency_table(runs: list[dict]) -> dict:
                     "diverged": r["diverged"],
                     "ptp": r["force_error"]["ptp"],
                     "oscillates": oscillates(r, ref_std),
+                    "held": (r.get("held") or {}).get("verdict"),
+                    "held_std_n": (r.get("held") or {}).get("window_std_n"),
+                    "converged": r.get("converged"),
                     "converged_swivel_deg": r["converged_swivel_deg"],
                 }
             )
@@ -213,17 +227,72 @@ def latency_table(runs: list[dict]) -> dict:
                 "cells": cells,
             }
         )
-    return {"criterion": {"std_factor": OSCILLATION_STD_FACTOR}, "mu": runs[0]["mu"] if runs else None, "rows": rows}
+    held = next((r["held"] for r in runs if r.get("held")), None)
+    criterion = {
+        "std_factor": OSCILLATION_STD_FACTOR,
+        "held_std_n": None if held is None else held["threshold_n"],
+        "held_floor_factor": OSCILLATION_FACTOR,  # held_std_n is this many noise floors
+        "held_window_s": None if held is None else held["window_s"],
+        "settle_cap_s": next((r["settle_cap_s"] for r in runs if r.get("settle_cap_s") is not None), None),
+    }
+    return {"criterion": criterion, "mu": runs[0]["mu"] if runs else None, "rows": rows}
 
 
 def oscillates(r: dict, reference_median_std: float | None) -> bool:
-    """The latency table's criterion: the run diverged, lost contact, or has a segment whose
-    force-error STD is ≥ OSCILLATION_STD_FACTOR × the reference's median segment STD."""
-    if r["diverged"] or r["contact_lost_ms"] > 0:
+    """The latency table's criterion: the run diverged, lost contact, oscillated or lost contact while
+    held (`HoldWatch`), or has a segment whose force-error STD is ≥ OSCILLATION_STD_FACTOR × the
+    reference's median segment STD."""
+    if r["diverged"] or r["contact_lost_ms"] > 0 or (r.get("held") or {}).get("verdict"):
         return True
     if reference_median_std is None or reference_median_std <= 0.0:
         return False
     return _worst_segment_std(r) >= OSCILLATION_STD_FACTOR * reference_median_std
+
+
+class HoldWatch:
+    """What the force loop does while the TCP is held (the settle phase): the verdict "contact lost"
+    at the first step whose true contact force is ≤ 0, or "oscillation" once the force-error STD over
+    the last `window` steps is at least `threshold_n` (looked at every `every` steps; the polish
+    threshold is `OSCILLATION_FACTOR` × the sensor's noise floor, `oscillation_threshold_n`)."""
+
+    def __init__(self, threshold_n: float, window: int, dt: float, every: int = HOLD_CHECK_EVERY):
+        from collections import deque
+
+        self.threshold_n, self.window, self.every = float(threshold_n), max(1, int(window)), max(1, int(every))
+        self.window_s = self.window * float(dt)
+        self._errors: deque[float] = deque(maxlen=self.window)
+        self._n = 0
+        self.verdict: str | None = None
+        self.at_s: float | None = None
+        self.window_std_n: float | None = None  # the STD that gave the verdict, else the largest seen
+        self.contact_lost_ms = 0
+
+    def add(self, t: float, force_error_n: float, true_error_n: float, desired_n: float) -> str | None:
+        """One held step: the filtered and the true force error (N). Returns the verdict (None: none yet)."""
+        if true_error_n >= desired_n:
+            self.contact_lost_ms += 1
+            if self.verdict is None:
+                self.verdict, self.at_s = "contact lost", float(t)
+        self._errors.append(force_error_n)
+        self._n += 1
+        if self.verdict is None and len(self._errors) == self.window and self._n % self.every == 0:
+            std = float(np.std(self._errors))
+            self.window_std_n = std if self.window_std_n is None else max(self.window_std_n, std)
+            if std >= self.threshold_n:
+                self.verdict, self.at_s, self.window_std_n = "oscillation", float(t), std
+        return self.verdict
+
+    def result(self, stopped: bool) -> dict:
+        """The hold's record in a run's result."""
+        return {
+            "verdict": self.verdict,
+            "at_s": self.at_s,
+            "window_std_n": self.window_std_n,
+            "threshold_n": self.threshold_n,
+            "window_s": self.window_s,
+            "contact_lost_ms": self.contact_lost_ms,
+            "stopped": bool(stopped),
+        }
 
 
 def _segment_stds(r: dict) -> list[float]:
@@ -247,8 +316,9 @@ def simulate(spec: dict) -> dict:
     spec: objective ("j", "f", "a", "d", "planned", "planned_a"), mu, seed, start_swivel_deg,
     optional shaping, armature_scale, sander, sensor_cutoff_hz, converge_timeout_s (settle cap),
     hold_swivel_deg, row, group, reading_delay_steps (the F/T reading's age, control periods),
-    torque_delay_ms, strokes (run only the first n segments), session_params ((group, field, value) set
-    on the session after the others; a sweep's session parameters come this way). Every session
+    torque_delay_ms, strokes (run only the first n segments), stop_on_verdict (end the run at a verdict
+    while the TCP is held: `HoldWatch`; the latency table's runs), session_params ((group, field, value)
+    set on the session after the others; a sweep's session parameters come this way). Every session
     parameter goes through the parameter path (`Session(changes=…)`); the result reports the values
     the session ran with."""
     from app.core.commands import SetParam
@@ -288,10 +358,20 @@ def simulate(spec: dict) -> dict:
     rec: dict[str, list[float]] = {k: [] for k in cols}
     q_converged: list[np.ndarray] = []
     stroke_q: list[tuple[float, np.ndarray]] = []  # (trajectory time, q) every MARGIN_SAMPLE_S on the strokes
-    margin_every = max(1, round(MARGIN_SAMPLE_S / session.world.model.opt.timestep))
+    dt = float(session.world.model.opt.timestep)
+    margin_every = max(1, round(MARGIN_SAMPLE_S / dt))
+    hold = HoldWatch(
+        oscillation_threshold_n(float(ran["sensor"].cutoff_hz)),  # type: ignore[attr-defined]
+        round(scenario_module.SETTLE_WINDOW_S / dt),
+        dt,
+    )
+    stop_on_verdict = bool(spec.get("stop_on_verdict", False))
 
     def record(r) -> None:
         sig = r.signals
+        if clock.trajectory_start is None and r.t >= scenario_module.CONTACT_TIME_S:  # held, settling
+            desired = scenario_module.DESIRED_FORCE_N
+            hold.add(r.t, desired - r.wrench_tcp[2], desired - sig["contact_force_n"], desired)
         if 1 <= sig["segment"] <= N_SEGMENTS and len(rec["t"]) % margin_every == 0:
             stroke_q.append((r.t - float(clock.trajectory_start), r.q.copy()))
         if not q_converged and clock.trajectory_start is not None:
@@ -307,7 +387,12 @@ def simulate(spec: dict) -> dict:
         rec["swivel_plan"].append(target.planned_swivel_deg(r.t) if plan_cost else np.nan)  # type: ignore[attr-defined]
 
     strokes = int(spec.get("strokes", N_SEGMENTS))  # the first this many segments (a shorter stability map)
-    result_run = session.run(SAFETY_CAP_S, until=lambda r: _run_over(clock, r.t, strokes), record=record)
+    result_run = session.run(
+        SAFETY_CAP_S,
+        until=lambda r: _run_over(clock, r.t, strokes) or (stop_on_verdict and hold.verdict is not None),
+        record=record,
+    )
+    held = hold.result(stop_on_verdict and hold.verdict is not None)
     series = {k: np.asarray(v, dtype=float) for k, v in rec.items()}
     qc = q_converged[0] if q_converged else session.world.q.copy()
     model = session.model
@@ -345,6 +430,7 @@ def simulate(spec: dict) -> dict:
         "contact_lost_ms": int(np.sum(series["force_error_true"][traj] >= scenario_module.DESIRED_FORCE_N)),
         "run_stop": result_run.stop,
         "diverged": result_run.stop == "diverged",
+        "held": held,
         "per_segment": [],
         **stroke,
         "q_start": [float(x) for x in q_start],
@@ -800,7 +886,14 @@ def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
     r = output["result"]
     fe = r["force_error"]
     ma = "-" if fe["ma"] is None else f"{fe['ma']:.1f}/{fe['ptp']:.1f}/{fe['std']:.1f}"
-    conv = f"converged in {r['convergence_time_s']:.1f} s" if r["converged"] else "NOT converged"
+    held = r.get("held") or {}
+    conv = (
+        f"stopped while held at {held['at_s']:.1f} s ({held['verdict']})"
+        if held.get("stopped")
+        else f"converged in {r['convergence_time_s']:.1f} s"
+        if r["converged"]
+        else "NOT converged"
+    )
     swivel = "-" if r.get("converged_swivel_deg") is None else f"{r['converged_swivel_deg']:+.0f}°"
     # margin None: no K_f^d stabilises the linearised loop
     margin = "none (no K_f^d stabilises)" if r.get("margin") is None else f"{r['margin']:+.0f} N s/m"
@@ -877,6 +970,16 @@ def format_table(summary: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _held_rule(criterion: dict) -> str:
+    """The hold's stop rule of a latency table, as text ("" for tables made without it)."""
+    if criterion.get("held_std_n") is None:
+        return ""
+    return (
+        f"; held: a run that loses contact or whose force-error STD over {criterion['held_window_s']:g} s reaches "
+        f"{criterion['held_std_n']:.2f} N while the TCP is held stops there with that verdict"
+    )
+
+
 def format_latency(latency: dict) -> str:
     """The latency table as text: per row, the smallest F/T reading age and torque delay at which the
     run oscillates or leaves the table, and each delay's worst segment STD ratio (! = oscillates)."""
@@ -886,14 +989,19 @@ def format_latency(latency: dict) -> str:
 
     lines = [
         f"latency at μ = {latency['mu']:g}: oscillates = contact lost, diverged, or a segment force-error STD ≥ "
-        f"{latency['criterion']['std_factor']:g}× the row's zero-latency median segment STD",
+        f"{latency['criterion']['std_factor']:g}× the row's zero-latency median segment STD"
+        + _held_rule(latency["criterion"]),
         f"{'row':22s} {'swivel':>7s} {'sensing':>14s} {'torque':>14s}  STD ratio per delay (sensing | torque)",
     ]
     for e in latency["rows"]:
 
         def ratios(cells: list) -> str:
             return " ".join(
-                "-" if c["std_ratio"] is None else f"{c['std_ratio']:.1f}{'!' if c['oscillates'] else ''}"
+                f"held:{c['held']}!"
+                if c.get("held")
+                else "-"
+                if c["std_ratio"] is None
+                else f"{c['std_ratio']:.1f}{'!' if c['oscillates'] else ''}"
                 for c in cells
             )
 

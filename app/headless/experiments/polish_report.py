@@ -436,6 +436,11 @@ def latency_html(doc: dict) -> str:
         ratio = "-" if c["std_ratio"] is None else f"{c['std_ratio']:.1f}×"
         lost = f", {c['contact_lost_ms']} ms lost" if c["contact_lost_ms"] else ""
         text = f"{ratio}{lost}{', diverged' if c['diverged'] else ''}"
+        if c.get("held"):  # stopped while held (the settle phase): no strokes run
+            std = "" if c.get("held_std_n") is None else f", {c['held_std_n']:.1f} N"
+            text = f"held: {c['held']}{std}"
+        elif c.get("converged") is False:
+            text += ", settle not converged"
         return f"<td><b>{text}</b></td>" if c["oscillates"] else f"<td>{text}</td>"
 
     def first(x, unit: str, tried: list) -> str:
@@ -458,10 +463,24 @@ def latency_html(doc: dict) -> str:
 delay 0) and the torque delay in ms (reading age 0); seed(s) {", ".join(str(x) for x in seeds)}. A run
 <b>oscillates or leaves the table</b> when it diverges, loses contact, or has a segment whose force-error STD
 is at least {lat["criterion"]["std_factor"]:g}× the median segment STD of the same row with no latency at all.
-Cells: the worst segment's STD over that reference median (bold: oscillates).</p>
+{_held_html(lat["criterion"])}Cells: the worst segment's STD over that reference median (bold: oscillates).</p>
 <table><tr><th>row</th><th>swivel (no latency)</th><th>smallest F/T age</th><th>smallest torque delay</th>
 {head}</tr>{body}</table>
 <ul>{"".join(f"<li>{html.escape(t)}</li>" for t in latency_findings(doc))}</ul>"""
+
+
+def _held_html(criterion: dict) -> str:
+    """The latency runs' stop rule while the TCP is held, from the table's criterion ("" without it)."""
+    if criterion.get("held_std_n") is None:
+        return ""
+    cap = criterion.get("settle_cap_s")
+    return (
+        "A run that loses contact, or whose force-error STD over the last "
+        f"{criterion['held_window_s']:g} s reaches {criterion['held_std_n']:.2f} N "
+        f"({criterion.get('held_floor_factor', float('nan')):g}× the sensor's noise floor) "
+        "while the TCP is still held before the strokes, stops there with that verdict (cell <i>held</i>)"
+        + (f"; a settle that has not converged after {cap:g} s starts its strokes and says so. " if cap else ". ")
+    )
 
 
 def latency_findings(doc: dict) -> list[str]:
