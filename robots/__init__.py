@@ -84,6 +84,15 @@ class RobotDescription:
     def home(self) -> np.ndarray:
         return self.postures["home"].copy()
 
+    def set_armature(self, armature: np.ndarray) -> None:
+        """Set the rotor armature (kg m², one per joint) of this description and of its controller
+        model: a `RobotModel` built on `model` includes it in M from its next snapshot."""
+        armature = np.asarray(armature, dtype=float)
+        if armature.shape != self.armature.shape or not np.all(np.isfinite(armature)) or np.any(armature < 0):
+            raise ValueError(f"armature must be {self.armature.size} finite non-negative numbers, got {armature!r}")
+        self.armature[:] = armature
+        self.model.armature = self.armature.copy()
+
 
 def available() -> tuple[str, ...]:
     """Names of the robots that load by name here: the shipped ones, and the Panda when its optional

@@ -10,11 +10,6 @@ reaches none in any context fails, unless its metadata says why it is display-on
 
 Contexts (`_contexts`): every preset with every executor for `STEPS` steps (polish through its
 contact at 1 s, mass drop through its release), and the conditions some fields act in only.
-
-Known gap (strict xfail, so fixing it fails here until the mark goes): the polish preset's
-`armature_scale` acts through the scenario's constructor (`prepare_robot`, before the world and the
-controller model exist) and not through `Session.set_param`: set on a running session it changes
-nothing (issue 23: sweep values applied through a constructor).
 """
 
 from __future__ import annotations
@@ -174,19 +169,7 @@ def test_the_baseline_is_deterministic():
     np.testing.assert_array_equal(np.array([_signature(again) for _ in range(1300)]), _baseline(context))
 
 
-KNOWN_GAPS = {("scenario", "PolishParams", "armature_scale")}
-
-
-def _params() -> list:
-    return [
-        pytest.param(g, c, n, marks=pytest.mark.xfail(strict=True, reason="applied by a constructor only"))
-        if (g, c.__name__, n) in KNOWN_GAPS
-        else (g, c, n)
-        for g, c, n in _fields()
-    ]
-
-
-@pytest.mark.parametrize(("group", "cls", "name"), _params(), ids=lambda v: getattr(v, "__name__", v))
+@pytest.mark.parametrize(("group", "cls", "name"), _fields(), ids=lambda v: getattr(v, "__name__", v))
 def test_every_parameter_reaches_tau_the_world_or_the_scenario(group, cls, name):
     spec = spec_of(cls, name)
     reached, tried = _reaches(group, cls, name)

@@ -307,3 +307,24 @@ def test_a_run_without_the_live_margin_computes_none_not_even_at_the_start(monke
     monkeypatch.setattr(P.PolishEnvironment, "live_margin", lambda self, t: pytest.fail("computed"))
     session.run(steps=5)
     assert np.isnan(session.last.signals["margin_kd"])
+
+
+def test_the_armature_scale_set_on_a_running_session_reaches_the_world_and_the_model_at_reset():
+    """The polish armature scale goes the parameter path: after `set_param` and a reset the simulated arm's
+    armature, the controller model's and the joint inertia M both carry it; a world armature scale
+    multiplies the simulated one on top."""
+    session = Session("polish", seed=0)
+    nominal = session.robot.armature.copy()
+    M0 = session.dyn.M.copy()
+    session.set_param("scenario", "armature_scale", 2.0)
+    session.reset()
+    dof = session.world.dof_adr
+    np.testing.assert_allclose(session.world.model.dof_armature[dof], 2.0 * nominal, rtol=1e-12)
+    np.testing.assert_allclose(session.robot.model.armature, 2.0 * nominal, rtol=1e-12)
+    np.testing.assert_allclose(np.diag(session.dyn.M) - np.diag(M0), nominal, rtol=1e-9, atol=1e-12)
+    session.set_param("world", "armature_scale", 1.5)
+    np.testing.assert_allclose(session.world.model.dof_armature[dof], 3.0 * nominal, rtol=1e-12)
+    np.testing.assert_allclose(session.robot.model.armature, 2.0 * nominal, rtol=1e-12)  # the model: no
+    session.restore_defaults()
+    np.testing.assert_allclose(session.world.model.dof_armature[dof], nominal, rtol=1e-12)
+    np.testing.assert_allclose(session.robot.model.armature, nominal, rtol=1e-12)

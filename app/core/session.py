@@ -157,9 +157,11 @@ class Session:
             if c.group == "scenario":
                 self._set_scenario_param(c)
         self.robot = robots.load(robot or robots.chosen(self.scenario.default_robot))
+        self._armature_nominal = self.robot.armature.copy()  # what `Scenario.armature` scales
         prepare = getattr(self.scenario, "prepare_robot", None)
-        if callable(prepare):  # e.g. a scaled armature, before the controller model and the world exist
+        if callable(prepare):  # e.g. the table placed for an arm without sidecar postures
             prepare(self.robot)
+        self.robot.set_armature(self.scenario.armature(self._armature_nominal))  # before model and world
         work = self.scenario.pending_work(self.robot)
         if work is not None and defer_work:
             raise WorkPending(work)
@@ -183,6 +185,9 @@ class Session:
     # ---- lifecycle ----------------------------------------------------------------------------
     def reset(self) -> None:
         """Back to t = 0: initial posture, fresh environment/sensor noise (same seed), no drag."""
+        armature = self.scenario.armature(self._armature_nominal)  # a "scenario" change may have set it
+        self.robot.set_armature(armature)
+        self.world.set_armature(armature)
         q0 = self._q0_override if self._q0_override is not None else self.scenario.initial_q(self.robot)
         self.world.reset(np.asarray(q0, dtype=float))
         self.drag.release()

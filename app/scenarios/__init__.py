@@ -125,6 +125,11 @@ class Scenario:
         done yet, or None (the default). A session built without it computes it in place."""
         return None
 
+    def armature(self, nominal: np.ndarray) -> np.ndarray:
+        """The rotor armature (kg m², per joint) the controller model and the simulated arm run with,
+        from the robot's `nominal` one; the Session sets it at every reset. Default: the nominal."""
+        return nominal
+
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         """Joint positions at t = 0."""
         return robot.home

@@ -20,7 +20,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import mujoco
 import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor, Work, reach
@@ -507,11 +506,7 @@ class PolishScenario(Scenario):
         return self.start_swivel_deg if self.hold_swivel_deg is None else self.hold_swivel_deg
 
     def prepare_robot(self, robot: RobotDescription) -> None:
-        """Scale the armature of the controller model and the simulated arm (before either is built);
-        for an arm without sidecar postures, place the table and the start from its reach."""
-        if self.armature_scale != 1.0:
-            robot.armature[:] = robot.armature * self.armature_scale  # a fresh description per session
-            robot.model.armature = robot.armature.copy()
+        """For an arm without sidecar postures, place the table and the start from its reach."""
         if "postures" in robot.guessed:
             self._place(robot)
 
@@ -566,9 +561,13 @@ class PolishScenario(Scenario):
         # W_j [T18] follows a moving q_d with the lag 1/k0_j: the target leads the plan by that much
         self._plan_lead_s = 1.0 / k0_j if k0_j > 0 else 0.0
 
+    def armature(self, nominal: np.ndarray) -> np.ndarray:
+        """The nominal armature × `armature_scale`, for the controller model and the simulated arm alike
+        (the armature is a guess: robots/rizon4s.toml)."""
+        return nominal * self.armature_scale
+
     def params(self) -> dict[str, ParamGroup]:
-        """ "scenario": the start swivel, holding it, the armature scale (used at the next reset; the
-        armature when the session is rebuilt, since the model and the world are built with it)."""
+        """ "scenario": the start swivel, holding it, the armature scale (used at the next reset)."""
         held = self.hold_swivel_deg is not None
         return {
             "scenario": PolishParams(
@@ -657,11 +656,6 @@ class PolishScenario(Scenario):
         if self._environment is not None:
             self._environment.target = target
         return target
-
-    def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
-        """The simulated armature follows the (scaled) robot description."""
-        for name, arm in zip(robot.joint_names, robot.armature, strict=True):
-            spec.joint(name).armature = float(arm)
 
 
 # ---- the planned nullspace path (control.planner) --------------------------------------------------

@@ -319,6 +319,12 @@ class World:
             self._tau_pipeline.popleft()
         self.model.dof_armature[self.dof_adr] = self._armature_nominal * p.armature_scale
 
+    def set_armature(self, armature: np.ndarray) -> None:
+        """The simulated arm's nominal rotor armature (kg m², one per joint; what the world group's
+        `armature_scale` multiplies), written into the MuJoCo model at once."""
+        self._armature_nominal = np.array(armature, dtype=float)
+        self.model.dof_armature[self.dof_adr] = self._armature_nominal * self.world_params.armature_scale
+
     def site_pose(self, site_id: int) -> tuple[np.ndarray, np.ndarray]:
         """(position, rotation matrix) of a site in the world."""
         return self.data.site_xpos[site_id].copy(), self.data.site_xmat[site_id].reshape(3, 3).copy()

@@ -64,6 +64,7 @@ def scan_at_start(armature_scale: float = 1.0) -> dict:
     robot = robots.load(robots.chosen("rizon4s"))
     scenario = PolishScenario(armature_scale=armature_scale)
     scenario.prepare_robot(robot)
+    robot.set_armature(scenario.armature(robot.armature))
     model = RobotModel(robot.model)
     q0 = scenario.initial_q(robot)
     scan = swivel_scan(model, q0, POLISH_SUBSPACES, robot.q_lower, robot.q_upper, step_rad=np.deg2rad(1.0))
