@@ -96,3 +96,24 @@ def test_rope_drop_orders_the_three_controllers_by_peak_deflection():
 def test_unknown_mode_is_rejected():
     with pytest.raises(ValueError, match="mode"):
         MassDropScenario("hydraulic")
+
+
+def test_a_rig_set_through_the_parameter_path_steps_as_one_built_with_it():
+    """A drawn rig set by `set_param` (as a sweep cell and the GUI set it) and a reset step exactly as
+    a session built with that rig: the mass's constants MuJoCo derives at compile time follow it."""
+    import dataclasses
+
+    from app.headless.experiments.c_common import qp_session
+    from app.scenarios.mass_drop import MassDropScenario
+
+    rig = draw_rig(1)
+    built = qp_session(MassDropScenario("torque-residual", "rope-drop", rig), seed=1)
+    built.reset()
+    set_ = qp_session(MassDropScenario("torque-residual", "rope-drop"), seed=1)
+    for f in dataclasses.fields(rig):
+        set_.set_param("scenario", f.name, getattr(rig, f.name))
+    set_.reset()
+    for _ in range(round((RELEASE_TIME_S + 0.2) / 1e-3)):  # the rope goes taut 0.1 s after the release
+        a, b = built.step(), set_.step()
+        np.testing.assert_array_equal(a.q, b.q)
+        np.testing.assert_array_equal(a.tau, b.tau)

@@ -329,6 +329,59 @@ def test_a_polish_cell_sets_its_session_parameters_only_through_the_parameter_pa
     assert spec["objective"] == "d" and spec["converge_timeout_s"] == 20.0 and spec["seed"] == 3
 
 
+def test_limit_drop_and_mass_drop_cells_set_their_session_values_only_through_the_parameter_path(monkeypatch):
+    """λ, M, the form, the feedback, K_I and the delay of a limit-drop cell, and the rig drawn around a
+    mass-drop cell's nominal with its K_I, reach the run as (group, field, value) for `Session.set_param`;
+    only the run knobs (limit, duration; controller, case, window) are arguments."""
+    from app.headless.experiments import limit_drop, mass_drop
+    from app.headless.sweep import experiments as sweep_experiments
+    from app.scenarios.mass_drop import MassDropParams
+
+    seen: list[tuple[tuple, dict]] = []
+
+    def fake(*args, **kwargs) -> dict:
+        seen.append((args, kwargs))
+        return {"max_violation": 0.0, "stop": "done", "stabilization_time_s": 0.0}
+
+    monkeypatch.setattr(limit_drop, "run_drop", fake)
+    monkeypatch.setattr(mass_drop, "run_mass_drop", fake)
+    values = {"lambda": 300.0, "M": 3.0, "form": "classic", "feedback": False, "K_I": 200.0, "torque_delay_ms": 2.0}
+    sweep_experiments.limit_drop_cell({**values, "limit": "velocity", "duration": 1.5}, seed=0)
+    args, kwargs = seen.pop()
+    assert args == () and kwargs.pop("limit") == "velocity" and kwargs.pop("duration") == 1.5
+    assert kwargs == {
+        "session_params": [
+            ("damper", "lambda_", 300.0),
+            ("damper", "M", 3.0),
+            ("damper", "form", "classic"),
+            ("compliance_qp", "feedback", False),
+            ("world", "torque_delay_ms", 2.0),
+            ("estimator", "observer_gain", 200.0),
+        ]
+    }
+    sweep_experiments.mass_drop_cell({"rope_stiffness": 800.0, "K_I": 40.0, "controller": "position"}, seed=4)
+    args, kwargs = seen.pop()
+    assert args == ("position", 4) and kwargs.pop("case") == "rope-drop" and "window_s" in kwargs
+    drawn = mass_drop.draw_rig(4, MassDropParams(rope_stiffness_n_per_m=800.0))
+    assert kwargs["session_params"][-1] == ("estimator", "observer_gain", 40.0)
+    rig = dict((f, v) for g, f, v in kwargs["session_params"][:-1] if g == "scenario")
+    assert MassDropParams(**rig) == drawn and len(kwargs["session_params"]) == len(rig) + 1
+    assert set(kwargs) == {"window_s", "session_params"}
+
+
+def test_a_drops_settings_are_the_sessions_after_the_parameter_path():
+    """What a drop reports as its damper, feedback, K_I and delay is what its session ran with."""
+    from app.headless.experiments.limit_drop import run_drop
+
+    r = run_drop(
+        limit="position",
+        duration=0.05,
+        session_params=[("damper", "lambda_", 300.0), ("compliance_qp", "feedback", False)],
+        delay_steps=2,
+    )
+    assert (r["lambda"], r["M"], r["feedback"], r["torque_delay_ms"]) == (300.0, 2.0, False, 2.0)
+
+
 def test_session_changes_put_scenario_values_in_force_from_t0_and_the_rest_after_the_build():
     """`Session(changes=…)`: a start swivel is the start posture's, μ is the contact's, and both stay
     after a reset; a refused value raises ParamError naming the field."""

@@ -204,6 +204,7 @@ class RopeDrop(Environment):
         self.mass_kg = params.mass_kg
         world.model.body_mass[self.body_id] = self.mass_kg  # the rig's mass applies from this reset on
         world.model.body_inertia[self.body_id] = 0.4 * self.mass_kg * MASS_RADIUS_M**2
+        world.refresh_constants()  # as if compiled with this mass (a rig set by set_param steps as one built with it)
         self.attached = True  # on its rope for the whole run (the scene draws it at its body)
         self.released = False
         self.tension = 0.0

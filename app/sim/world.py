@@ -325,6 +325,17 @@ class World:
         self._armature_nominal = np.array(armature, dtype=float)
         self.model.dof_armature[self.dof_adr] = self._armature_nominal * self.world_params.armature_scale
 
+    def refresh_constants(self) -> None:
+        """Recompute the constants MuJoCo derives from masses and inertias at compile time (`mj_setConst`:
+        subtree masses, M at qpos0 and the inverse weights) after a body's mass or inertia was
+        changed, keeping the state (positions, velocities); for use between steps, e.g. at a reset.
+        Without it a mass set on the compiled model steps otherwise than the same mass compiled in."""
+        qpos, qvel = self.data.qpos.copy(), self.data.qvel.copy()
+        mujoco.mj_setConst(self.model, self.data)
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = qvel
+        mujoco.mj_forward(self.model, self.data)
+
     def site_pose(self, site_id: int) -> tuple[np.ndarray, np.ndarray]:
         """(position, rotation matrix) of a site in the world."""
         return self.data.site_xpos[site_id].copy(), self.data.site_xmat[site_id].reshape(3, 3).copy()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -70,33 +71,42 @@ def count_oscillations(dq: np.ndarray, hysteresis: float = VELOCITY_HYSTERESIS) 
 
 
 def run_drop(
-    form: str,
-    lam: float,
-    M: float,
-    feedback: bool,
-    limit: str,
+    form: str | None = None,
+    lam: float | None = None,
+    M: float | None = None,
+    feedback: bool | None = None,
+    limit: str = "position",
     duration: float = DURATION_S,
     observer_gain: float | None = None,
     delay_steps: int = 0,
     source: str | None = None,
     until_stopped: bool = True,
+    session_params: Iterable[tuple[str, str, object]] = (),
 ) -> dict:
     """One drop, until joint 4 has stopped (fallen ≥ FALLEN_RAD, then slower than STOP_SPEED for
     STOP_HOLD_S) or `duration` s (the cap); returns the
-    metrics of limit_drop.json and the joint-4 trace. `source` overrides the τ̂_e source (fusion)."""
+    metrics of limit_drop.json and the joint-4 trace. `source` overrides the τ̂_e source (fusion).
+
+    Every setting reaches the run through `Session.set_param`, as the GUI's do: the damper form, λ,
+    M, the feedback switch, K_I, τ̂_e's source and the torque delay (None / 0: the preset's own), then
+    `session_params` (group, field, value) in order; a refused one raises ParamError."""
     scenario = LimitDropScenario(limit)
     session = qp_session(scenario)
     robot = session.robot
-    gains = DamperGains(form=form, lambda_=lam, M=M)
     executor = session.executor
     assert isinstance(executor, ComplianceQPExecutor)
-    scenario.configure_executor(executor, robot, gains, feedback=feedback)
-    if observer_gain is not None:
-        session.set_param("estimator", "observer_gain", observer_gain)
-    if source is not None:
-        session.set_param("estimator", "source", source)
-    if delay_steps > 0:  # actuator latency in the simulation (the app's Safety → Torque delay)
-        session.set_param("world", "torque_delay_ms", delay_steps * 1e3 * session.world.model.opt.timestep)
+    named = [
+        ("damper", "form", form),
+        ("damper", "lambda_", lam),
+        ("damper", "M", M),
+        ("compliance_qp", "feedback", feedback),
+        ("estimator", "observer_gain", observer_gain),
+        ("estimator", "source", source),
+        # actuator latency in the simulation (the app's Safety → Torque delay)
+        ("world", "torque_delay_ms", delay_steps * 1e3 * session.world.model.opt.timestep if delay_steps else None),
+    ]
+    for group, name, value in [*((g, f, v) for g, f, v in named if v is not None), *session_params]:
+        session.set_param(group, name, value)
     session.reset()
     j = FALLING_JOINT
     dt = session.world.model.opt.timestep
@@ -139,11 +149,12 @@ def run_drop(
         violation = float(np.max(q) - q_up)
     else:
         violation = float(np.max(dq) - dq_lim)
+    damper = executor.damper.gains  # the values in force
     return {
-        "form": form,
-        "lambda": lam,
-        "M": M,
-        "feedback": bool(feedback),
+        "form": damper.form,
+        "lambda": damper.lambda_,
+        "M": damper.M,
+        "feedback": bool(executor.settings.feedback),
         "limit": limit,
         "max_violation": violation,
         "overshoot_beyond_ds": float(np.max(q) - (q_up - d_s)),
@@ -156,7 +167,7 @@ def run_drop(
         "source": str(executor.estimator.gains.source),
         "stop": result.stop,  # "until": joint 4 stopped; "done": still moving at the cap
         "duration_s": steps * dt,
-        "torque_delay_ms": delay_steps * 1e3 * session.world.model.opt.timestep,
+        "torque_delay_ms": session.world.torque_delay_steps * 1e3 * dt,  # in force (whole steps)
         "final_margin": float(q_up - q[-1]),
         "relaxed_steps": relaxed,
         "other_joints_drift": drift_max,

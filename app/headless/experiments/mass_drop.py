@@ -12,9 +12,11 @@ Writes mass_drop.json, fig5.png and report.html.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -72,17 +74,27 @@ def run_mass_drop(
     params: MassDropParams | None = None,
     window_s: float = WINDOW_S,
     observer_gain: float | None = None,
+    session_params: Iterable[tuple[str, str, object]] = (),
 ) -> dict:
     """One release (noise seed `seed`, rig `params`, default: `draw_rig(seed)`); the metrics, the rig
     and a down-sampled deviation trace (mm). Ends early, with `stop` saying why, if the run diverges.
-    observer_gain: the momentum observer's K_I [C25] (default: the scenario's, `OBSERVER_GAIN`)."""
+    observer_gain: the momentum observer's K_I [C25] (default: the scenario's, `OBSERVER_GAIN`).
+
+    Every setting reaches the run through `Session.set_param`, as the GUI's do: the rig's fields
+    (group "scenario"), K_I after the mode's own estimator settings, then `session_params` (group,
+    field, value) in order; a refused one raises ParamError."""
     rig = params if params is not None else draw_rig(seed)
-    scenario = MassDropScenario(mode, case, rig)
+    scenario = MassDropScenario(mode, case)
     session = qp_session(scenario, seed=seed)
     scenario.configure_executor(session.executor, session.robot)
-    if observer_gain is not None:  # after the mode's own estimator settings
-        session.set_param("estimator", "observer_gain", float(observer_gain))
+    changes = [("scenario", f.name, getattr(rig, f.name)) for f in dataclasses.fields(rig)]
+    if observer_gain is not None:
+        changes.append(("estimator", "observer_gain", float(observer_gain)))
+    for group, name, value in [*changes, *session_params]:
+        session.set_param(group, name, value)
     session.reset()
+    in_force = session.params()["scenario"]  # the rig as it runs
+    assert isinstance(in_force, MassDropParams)
     target = session.target_fn(0.0).position
     tau_max = session.robot.tau_max - 1e-9
     t: list[float] = []
@@ -108,9 +120,9 @@ def run_mass_drop(
             "seed": seed,
             "stop": result.stop,
             "peak_rope_tension_n": float(max(tension)),
-            "drop_height_m": rig.drop_height,
-            "rope_stiffness_n_per_m": rig.rope_stiffness_n_per_m,
-            "mass_kg": rig.mass_kg,
+            "drop_height_m": in_force.drop_height,
+            "rope_stiffness_n_per_m": in_force.rope_stiffness_n_per_m,
+            "mass_kg": in_force.mass_kg,
         }
     )
     k0 = int(np.searchsorted(ta, RELEASE_TIME_S - 0.1))

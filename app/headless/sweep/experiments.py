@@ -2,7 +2,9 @@
 
 A cell calls the experiment's own single-run function (`run_drop`, `run_mass_drop`,
 `polish.simulate`) with the cell's values over the experiment's defaults, and returns its
-scalar metrics and whether the run was stable (the meaning is stated per experiment).
+scalar metrics and whether the run was stable (the meaning is stated per experiment). A cell's
+session values reach the run only through the parameter path (`session_params`: (group, field,
+value) for `Session.set_param`, as the GUI sets them); only run knobs are the function's arguments.
 Cell functions live at module level so that any `concurrent.futures.Executor` can ship them.
 """
 
@@ -55,6 +57,13 @@ def _scalars(d: dict, prefix: str = "") -> dict:
     return out
 
 
+def session_params(knobs: tuple[Knob, ...], values: dict) -> list[tuple[str, str, object]]:
+    """The cell's session values as (group, field, value) for `Session.set_param`: its parameter knobs
+    (not the RUN ones) in knob order, then any "GROUP.FIELD" names in the cell's order."""
+    named = [(k.group, k.field, values[k.name]) for k in knobs if k.group != RUN and k.name in values]
+    return named + [(*name.split("."), value) for name, value in values.items() if "." in name]  # type: ignore[misc]
+
+
 # ---- limit-drop [C] §IV-B–C -------------------------------------------------------------------
 LIMIT_DROP_KNOBS = (
     Knob("lambda", "damper", "lambda_", "damper gain λ (1/s) [C24]", ("lam", "λ", "lambda_")),
@@ -84,20 +93,15 @@ def limit_drop_groups() -> dict:
 
 
 def limit_drop_cell(values: dict, seed: int) -> dict:
-    """One drop of limit-drop (`run_drop`); stable = joint 4 stays inside its limit."""
+    """One drop of limit-drop (`run_drop`); stable = joint 4 stays inside its limit. λ, M, the form,
+    the feedback, K_I and the torque delay go the parameter path (`session_params`)."""
     from app.headless.experiments.limit_drop import run_drop
     from app.scenarios.limit_drop import DURATION_S
 
-    delay_ms = float(values.get("torque_delay_ms", 0.0))
     r = run_drop(
-        str(values.get("form", "proposed")),
-        float(values.get("lambda", 100.0)),
-        float(values.get("M", 2.0)),
-        bool(values.get("feedback", True)),
-        str(values.get("limit", "position")),
+        limit=str(values.get("limit", "position")),
         duration=float(values.get("duration", DURATION_S)),
-        observer_gain=values.get("K_I"),
-        delay_steps=round(delay_ms),  # the Gen3 world steps at 1 ms
+        session_params=session_params(LIMIT_DROP_KNOBS, values),
     )
     metrics = _scalars({k: v for k, v in r.items() if not k.startswith("trace")})
     return {"metrics": metrics, "stable": bool(r["max_violation"] <= 0.0)}
@@ -129,7 +133,6 @@ MASS_DROP_KNOBS = (
 
 
 SETTLED_FOR_S = 0.1  # "settled": inside the band for at least the last 0.1 s of the window
-RIG_FIELDS = {"payload_mass_error": "payload_mass_error", "rope_stiffness": "rope_stiffness_n_per_m"}
 
 
 def mass_drop_groups() -> dict:
@@ -143,21 +146,23 @@ def mass_drop_groups() -> dict:
 def mass_drop_cell(values: dict, seed: int) -> dict:
     """One release of mass-drop (`run_mass_drop`) on the rig drawn for this seed around the nominal the
     cell sets; stable = the run completes and the TCP is inside the 1 mm band for the window's last 0.1 s
-    or longer."""
+    or longer. The drawn rig and K_I go the parameter path (`session_params`)."""
+    import dataclasses
+
     from app.headless.experiments.mass_drop import draw_rig, run_mass_drop
     from app.scenarios.mass_drop import WINDOW_S, MassDropParams
 
-    nominal = {field: float(values[name]) for name, field in RIG_FIELDS.items() if name in values}
-    if "drop_height" in values:
-        nominal["drop_height_m"] = float(values["drop_height"])
+    nominal = {k.field: float(values[k.name]) for k in MASS_DROP_KNOBS if k.group == "scenario" and k.name in values}
+    rig = draw_rig(seed, MassDropParams(**nominal))  # type: ignore[arg-type]
+    drawn = [("scenario", f.name, getattr(rig, f.name)) for f in dataclasses.fields(rig)]
+    others = [p for p in session_params(MASS_DROP_KNOBS, values) if p[0] != "scenario"]
     window = float(values.get("window", WINDOW_S))
     r = run_mass_drop(
         str(values.get("controller", "torque-fusion")),
         seed,
         case=str(values.get("case", "rope-drop")),
-        params=draw_rig(seed, MassDropParams(**nominal)),
         window_s=window,
-        observer_gain=values.get("K_I"),
+        session_params=drawn + others,
     )
     metrics = _scalars({k: v for k, v in r.items() if not k.startswith("trace")})
     stable = r.get("stop", "done") == "done" and r["stabilization_time_s"] < window - SETTLED_FOR_S
@@ -264,9 +269,7 @@ def polish_cell(values: dict, seed: int) -> dict:
         spec["hold_swivel_deg"] = float(values["hold_swivel"])
     if "converge_timeout" in values:
         spec["converge_timeout_s"] = float(values["converge_timeout"])
-    spec["session_params"] = [
-        (k.group, k.field, values[k.name]) for k in POLISH_KNOBS if k.group != RUN and k.name in values
-    ] + [(*name.split("."), value) for name, value in values.items() if "." in name]  # GROUP.FIELD knobs
+    spec["session_params"] = session_params(POLISH_KNOBS, values)
     if "strokes" in values:
         spec["strokes"] = int(values["strokes"])
     r = simulate(spec)["result"]
