@@ -13,9 +13,9 @@ Constraints: joint position/velocity dampers [C17–24] as bounds on q̈; torque
 The QP is set up once through `control.qp` (dense active-set backend by default, OSQP as the
 reference) and updated in place every step (warm-started). If it has no solution (torque limits
 and dampers cannot hold together) the damper bounds are softened with penalised slacks while the
-torque limits — which the motors enforce anyway by saturation — stay hard (`AccelerationQP`); if
-that fails too, the tasks' unconstrained optimum clipped to the damper bounds is used. Both cases
-are flagged; nothing raises inside `step`.
+torque limits — which the motors enforce anyway by saturation — stay hard (`AccelerationQP`; its
+status says which damper gave way, `slack_reason`); if that fails too, the tasks' unconstrained
+optimum clipped to the damper bounds is used. Both cases are flagged; nothing raises inside `step`.
 
 `ComplianceQPExecutor._step_reference` states the step object by object; `step` runs the same
 step with the pose task, the posture task, the dampers and the torque rows in one compiled call
@@ -300,7 +300,7 @@ class AccelerationQP:
             res2 = self.fallback.solve(self.P2, self.q2, self.A2, self.l2, self.u2, self.lb2, self.ub2)
             if res2.solved:
                 self._last = res2.x[:n].copy()
-                return res2._replace(x=self._last, fallback=True)
+                return res2._replace(x=self._last, status=slack_reason(res2.x[n:]), fallback=True)
             status, it = res2.status, res2.iterations
         except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
             status, it = f"{qp.FAILED}: {exc}", 0
@@ -313,6 +313,17 @@ class AccelerationQP:
         if not np.all(np.isfinite(x)):
             x = np.zeros(n)
         return qp.QPResult(x, status, it, res.solve_us, self.backend, fallback=True)
+
+
+def slack_reason(slack: np.ndarray) -> str:
+    """The status of a step solved with softened dampers: the joint whose damper gave way most (its
+    slack s, rad/s²; 1-based) and what the step does instead."""
+    k = int(np.argmax(slack))
+    return (
+        f"{qp.RELAXED}: the torque limits cannot give joint {k + 1} the acceleration its limit damper asks "
+        f"(short by {float(slack[k]):.3g} rad/s²: the drag overpowers the motors); the torque limits are "
+        "kept and the dampers give way"
+    )
 
 
 class ComplianceQPExecutor:

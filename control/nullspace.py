@@ -12,10 +12,16 @@ fixed sparsity pattern as the reference) and updated in place each step (warm-st
 7-joint arm the kernel of J is a line, and the dense backend solves the QP in closed form on it
 (`control.qp.solve_line_qp`: the same optimum, without a solver call); where that
 does not apply (J rank deficient, no point of the line meets the box) the active-set solver
-decides as for any other arm. When the
-solver does not return a solution or the bounds are inconsistent, the step falls back to the
-bounded minimum-norm solution: the gradient step projected on the kernel of J, scaled into the
-bounds. It never raises.
+decides as for any other arm.
+
+The QP has no solution by construction when a joint is inside its damper's safety distance d_s
+(its bound excludes 0: it must move out) and no nullspace motion moves it out fast enough within
+the other joints' bounds, as under a hard drag that pins the joint in its stop zone. The step then
+takes the least-violation solution (`RelaxedNullspaceQP`): J x = 0 [T16] is softened with a
+penalty ρ‖J x‖² while the bounds [T17], which protect the joints, stay hard; the status says which
+joint and why (`relaxed_reason`). Only when that fails too, or the bounds are inconsistent, the
+step falls back to the bounded minimum-norm solution: the gradient step projected on the kernel
+of J, scaled into the bounds. Both are flagged `fallback`. It never raises.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from control import qp
 from control.gains import NullspaceGains
 
 N_TASK = 6
+RELAX_WEIGHT = 1e4  # ρ of the least-violation problem: ‖J x‖² weighs this much more than ½‖x‖²
 
 
 # One QP solve: x is q̂̇n (rad/s); `fallback` when the QP failed or the bounds are inconsistent
@@ -80,6 +87,45 @@ def min_norm_fallback(J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarra
     return np.clip(x, lower, upper)
 
 
+def relaxed_reason(lower: np.ndarray, upper: np.ndarray) -> str:
+    """The status of a relaxed step: the joints whose bounds exclude 0 (inside their safety distance,
+    the damper asks them to move out) and what the step does instead; 1-based joint numbers."""
+    pinned = [i + 1 for i in range(lower.size) if lower[i] > 0.0 or upper[i] < 0.0]
+    joints = ", ".join(str(i) for i in pinned) or "?"
+    which = "joint" if len(pinned) == 1 else "joints"
+    return (
+        f"{qp.RELAXED}: {which} {joints} in the limit's safety zone and no nullspace motion within the "
+        f"speed limits moves {'it' if len(pinned) == 1 else 'them'} out; the arm keeps the tool's task "
+        "and asks the nullspace for the nearest motion that does (J x = 0 softened, the limit bounds kept)"
+    )
+
+
+class RelaxedNullspaceQP:
+    """The least-violation form of the [T15-17] QP when it has no feasible point:
+
+        min_x ½ xᵀx + k0 ∇Wᵀx + ½ ρ ‖J x‖²   s.t.  l ≤ x ≤ u [T17]
+
+    (P = I + ρ JᵀJ, ρ = `RELAX_WEIGHT`): the bounds stay hard and, among the points of the box, the
+    one nearest the kernel of J (J x = 0 [T16]) in the ρ-weighted sense. Set up once (`control.qp`,
+    one free dummy row: a box-only problem).
+    """
+
+    def __init__(self, n: int, backend: str, eps: float, max_iter: int):
+        self.n = n
+        self._qp = qp.make_qp(backend, n, 1, settings=qp.QPSettings(eps=eps, max_iter=max_iter))
+        self._P = np.empty((n, n))
+        self._eye = np.eye(n)
+        self._A = np.zeros((1, n))
+        self._lo, self._hi = np.full(1, -qp.INF), np.full(1, qp.INF)
+
+    def solve(self, J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> qp.QPResult:
+        """The relaxed optimum (status and x as the backend returned them)."""
+        np.matmul(J.T, J, out=self._P)
+        self._P *= RELAX_WEIGHT
+        self._P += self._eye
+        return self._qp.solve(self._P, gradient_step, self._A, self._lo, self._hi, lower, upper)
+
+
 class NullspaceQP:
     """The [T15-17] QP for an n-joint arm, set up once (`control.qp`) and updated every step.
 
@@ -108,6 +154,7 @@ class NullspaceQP:
             settings=qp.QPSettings(eps=eps, max_iter=max_iter, polish=polish),
         )
         self._zero = np.zeros(N_TASK)
+        self._relaxed = RelaxedNullspaceQP(n, self.backend, eps, max_iter)
         self.last: NullspaceResult | None = None
 
     def solve(self, J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> NullspaceResult:
@@ -128,6 +175,13 @@ class NullspaceQP:
             return self._fallback(np.zeros((N_TASK, n)), np.zeros(n), lower, upper, "non-finite input", res)
         if np.any(np.isnan(lower)) or np.any(np.isnan(upper)) or np.any(lower > upper):
             return self._fallback(J, gradient_step, lower, upper, "inconsistent bounds", res)
+        if res.status == qp.INFEASIBLE:  # no point meets J x = 0 and the bounds: the least violation
+            soft = self._relaxed.solve(J, gradient_step, lower, upper)
+            if soft.solved:
+                why = relaxed_reason(lower, upper)
+                it, us = res.iterations + soft.iterations, res.solve_us + soft.solve_us
+                self.last = NullspaceResult(soft.x, why, it, us, self.backend, fallback=True)
+                return self.last
         return self._fallback(J, gradient_step, lower, upper, res.status, res)
 
     def closed_form_result(self, x: np.ndarray, active: int) -> NullspaceResult:

@@ -55,6 +55,7 @@ MAX_ITER = "max iter"  # iteration cap reached: x is the last iterate (approxima
 INFEASIBLE = "infeasible"
 NON_FINITE = "non-finite"  # the solver returned NaN/inf
 FAILED = "failed"
+RELAXED = "relaxed"  # an executor's least-violation solution of an infeasible problem ("relaxed: why")
 USABLE = (SOLVED, SOLVED_INACCURATE)
 # numeric codes for the step log (OSQP 1.x's `SolverStatus` values where it has one)
 STATUS_CODES = {SOLVED: 1, SOLVED_INACCURATE: 2, INFEASIBLE: 3, MAX_ITER: 7, FAILED: 11, NON_FINITE: -1}

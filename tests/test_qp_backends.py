@@ -81,10 +81,10 @@ def test_nullspace_qp_backends_agree_with_each_other_and_the_exact_optimum(robot
         lower, upper = damper_bounds(q, robot.q_lower, robot.q_upper, 0.5 * robot.dq_max, robot.endless, gains)
         a, b = dense.solve(dyn.J, step, lower, upper), osqp.solve(dyn.J, step, lower, upper)
         exact = _kernel_box_exact(dyn.J, step, lower, upper)
-        if exact is None:  # no x in the kernel meets the box: both report it and fall back alike
+        if exact is None:  # no x in the kernel meets the box: both relax it to the same least violation
             n_infeasible += 1
-            assert a.fallback and b.fallback
-            np.testing.assert_allclose(a.x, b.x, atol=1e-12)
+            assert a.fallback and b.fallback and a.status.startswith("relaxed"), (a.status, b.status)
+            assert float(np.max(np.abs(a.x - b.x))) <= AGREE_ABS + AGREE_REL * float(np.max(np.abs(a.x)))
             continue
         n_solved += 1
         assert not a.fallback, a.status

@@ -19,6 +19,7 @@ from app.live.ui.panels.base import KnobPanel, notify
 from app.live.ui.panels.settings import SettingsButtons
 from app.live.ui.phase import PhaseReader, starts_paused
 from app.scenarios import SCENARIOS
+from control.qp import RELAXED
 
 DEFAULT_ROBOT = "scenario default"
 NO_CASE = "–"
@@ -33,6 +34,17 @@ SLOW_WARNING = 0.95  # say so when the real-time factor stays below this share o
 FALLBACK_SHOW_S = 2.0  # keep the fallback badge up this long after the last fallback step
 NOTICE_SHOW_S = 20.0  # the status line repeats the newest notice this long
 NOTICE_CHARS = 160
+
+
+def fallback_text(qp_status: str) -> str:
+    """The badge's one line for a step whose QP solution was replaced: a relaxed step (the
+    constraints had no common point: `control.qp.RELAXED`) says what was infeasible and what the arm
+    does instead; anything else says the QP failed and a fallback torque was used."""
+    if qp_status.startswith(RELAXED):
+        why = qp_status.removeprefix(RELAXED).lstrip(": ")
+        return f"**QP relaxed:** {why[:1].upper()}{why[1:]}."
+    return f"**QP fallback!** A QP failed in the last seconds ({qp_status}); a fallback torque was used."
+
 
 SUMMARY = "Preset, case, arm and controller; run, step, reset, speed. Drag any link to push it."
 INTRO = (
@@ -248,7 +260,7 @@ class ScenarioPanel(KnobPanel):
         self._seen_fallback_steps = st.fallback_steps
         show = now - self._last_fallback_wall < FALLBACK_SHOW_S
         if step is not None and step.qp_fallback and step.qp_status:
-            text = f"**QP fallback!** A QP failed in the last seconds ({step.qp_status}); a fallback torque was used."
+            text = fallback_text(step.qp_status)
             if self.fallback_md.content != text:
                 self.fallback_md.content = text
         if self.fallback_md.visible != show:
