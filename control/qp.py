@@ -16,7 +16,9 @@ Backends (`BACKENDS`):
   then (~2 µs; `DenseBackend`). (The 7-joint nullspace QP is solved in closed form before it
   reaches this backend: `control.nullspace`.)
 - "osqp": OSQP with an explicit fixed sparsity pattern (zeros kept, so updates may fill them;
-  DESIGN §9), updated with Px/Ax in that CSC order: the reference backend.
+  DESIGN §9), updated with Px/Ax in that CSC order: the reference backend. Its polishing
+  (`QPSettings.polish`) is done here on OSQP's solution (`polish_active_set`), not by OSQP, whose
+  own prints a line on every solve without an active set whatever `verbose` says.
 
 Closed forms (this module is the one door to every way a QP is solved; the executors ask it and
 never test a backend's type):
@@ -90,8 +92,8 @@ class QPResult(NamedTuple):
 @dataclass(frozen=True)
 class QPSettings:
     """Solver tolerances. eps: OSQP absolute/relative tolerance and DAQP's primal tolerance;
-    max_iter: iteration cap; polish: OSQP solution polishing; check_termination: OSQP's check
-    interval (0 = OSQP's default)."""
+    max_iter: iteration cap; polish: OSQP's solution refined on its active set (`polish_active_set`);
+    check_termination: OSQP's check interval (0 = OSQP's default)."""
 
     eps: float = 1e-6
     max_iter: int = 400
@@ -319,11 +321,15 @@ class OSQPBackend:
         C_csc.data[:] = self._Ax
         self._lo = np.full(n + m, -INF)
         self._hi = np.full(n + m, INF)
+        # polishing here (`polish_active_set`): dense copies of P (OSQP starts from I) and [I; A]
+        self._polish, self._eps = settings.polish, settings.eps
+        self._P_dense = np.eye(n)
+        self._C_dense = np.vstack([np.eye(n), np.zeros((m, n))])
         self._solver = osqp.OSQP()
         options: dict = {
             "verbose": False,
             "warm_starting": True,
-            "polishing": settings.polish,
+            "polishing": False,  # OSQP's own prints a line per solve (module docstring)
             "eps_abs": settings.eps,
             "eps_rel": settings.eps,
             "max_iter": settings.max_iter,
@@ -379,24 +385,77 @@ class OSQPBackend:
                 if Px is not None or Ax is not None:
                     ext.update_data_mat(P_x=Px, P_i=None, A_x=Ax, A_i=None)
                 ext.solve()
-                info, x = ext.info, ext.solution.x
+                info, x, y = ext.info, ext.solution.x, ext.solution.y
             else:
                 kwargs = {} if Px is None else {"Px": Px}
                 if Ax is not None:
                     kwargs["Ax"] = Ax.copy()  # the wrapper keeps a reference to it
                 self._solver.update(q=q, l=self._lo, u=self._hi, **kwargs)
                 res = self._solver.solve(raise_error=False)
-                info, x = res.info, res.x
+                info, x, y = res.info, res.x, res.y
             code, iters = int(info.status_val), int(info.iter)
         except (ValueError, TypeError, RuntimeError, ArithmeticError) as exc:
             return QPResult(np.full(n, np.nan), f"{FAILED}: {exc}", 0, _us(t0), self.backend)
         status = self._codes.get(code, FAILED)
         x = np.full(n, np.nan) if x is None else np.array(x, dtype=float)
+        if self._polish:
+            if P is not None:  # OSQP reads the upper triangle
+                self._P_dense[:] = np.triu(P) + np.triu(P, 1).T
+            if A is not None:
+                self._C_dense[n:] = A
+            if status == SOLVED and y is not None:
+                q_ = np.asarray(q, dtype=float)
+                x_polished = polish_active_set(self._P_dense, q_, self._C_dense, self._lo, self._hi, x, y, self._eps)
+                x = x if x_polished is None else x_polished
         if not math.isfinite(float(x @ x)):
             status = NON_FINITE if status in (*USABLE, MAX_ITER) else status
         if status not in (*USABLE, MAX_ITER):  # an infeasible problem's iterates diverge: start afresh
             self._solver.warm_start(x=np.zeros(n), y=np.zeros(n + self.m))
         return QPResult(x, status, iters, _us(t0), self.backend)
+
+
+def polish_active_set(
+    P: np.ndarray,
+    q: np.ndarray,
+    C: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    eps: float,
+) -> np.ndarray | None:
+    """OSQP's polishing on its solution (x, y) of min ½xᵀPx + qᵀx s.t. lo ≤ C x ≤ hi: the rows its
+    rule marks active (lower when C x − lo < −y, upper when hi − C x < y; equality rows always)
+    held as equalities, the KKT system [P Cₐᵀ; Cₐ 0] [x; yₐ] = [−q; bₐ] solved exactly. The
+    polished x when it meets every row to ~eps and its multipliers have the right signs (then it is
+    the exact optimum); None otherwise (no active row: nothing to polish; a singular or wrong
+    active set: OSQP's x stands, as after OSQP's own failed polish)."""
+    n = x.size
+    z = C @ x
+    equal = lo == hi
+    lower = (z - lo < -y) & ~equal
+    upper = (hi - z < y) & ~equal & ~lower
+    active = lower | upper | equal
+    k = int(active.sum())
+    if k == 0 or k > n:
+        return None
+    Ca = C[active]
+    kkt = np.zeros((n + k, n + k))
+    kkt[:n, :n], kkt[:n, n:], kkt[n:, :n] = P, Ca.T, Ca
+    try:
+        sol = np.linalg.solve(kkt, np.r_[-q, np.where(upper, hi, lo)[active]])
+    except np.linalg.LinAlgError:
+        return None
+    xp, ya = sol[:n], sol[n:]
+    zp = C @ xp
+    tol = 10.0 * eps * (1.0 + float(np.max(np.abs(zp)))) if math.isfinite(float(zp @ zp)) else -1.0
+    violation = max(float(np.max(lo - zp)), float(np.max(zp - hi)))
+    dual_tol = 10.0 * eps * (1.0 + float(np.max(np.abs(ya))))
+    if not (violation <= tol and math.isfinite(float(ya @ ya))):
+        return None
+    if (ya[lower[active]] > dual_tol).any() or (ya[upper[active]] < -dual_tol).any():
+        return None
+    return xp
 
 
 # ---- closed forms ------------------------------------------------------------------------------------
