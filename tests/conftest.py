@@ -1,9 +1,13 @@
-"""Shared fixtures: robots and models are loaded once per session."""
+"""Shared fixtures (robots and models are loaded once per session; the free preset's app once per
+module that asks) and helpers of the tests that talk to a running app."""
 
 from __future__ import annotations
 
 import socket
+import time
+from collections.abc import Callable
 
+import msgspec
 import numpy as np
 import pytest
 import viser
@@ -71,3 +75,41 @@ def server():
     srv = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     yield srv
     srv.stop()
+
+
+@pytest.fixture(scope="module")
+def app():
+    """The app on the free preset, paused, on a free port: one per module that asks for it."""
+    from app.live.server import start_app
+
+    a = start_app(port=0, scenario="free", running=False)
+    yield a
+    a.stop()
+
+
+def wait_until(predicate: Callable[[], object], timeout: float = 10.0) -> bool:
+    """Poll `predicate` every 20 ms until it is true (True) or `timeout` seconds have passed (False)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def camera_message() -> bytes:
+    """The first message a browser sends; viser counts a client as connected after it."""
+    return msgspec.msgpack.encode(
+        {
+            "type": "ViewerCameraMessage",
+            "wxyz": [1.0, 0.0, 0.0, 0.0],
+            "position": [1.5, 1.5, 1.0],
+            "fov": 0.9,
+            "near": 0.01,
+            "far": 100.0,
+            "image_height": 600,
+            "image_width": 800,
+            "look_at": [0.0, 0.0, 0.3],
+            "up_direction": [0.0, 0.0, 1.0],
+        }
+    )

@@ -14,9 +14,9 @@ from websockets.sync.client import connect
 from app.core.commands import StepOnce, SwitchSession
 from app.live.frames import FrameBuilder
 from app.live.lab import Lab
-from app.live.server import start_app
 from app.live.supervise import ErrorBudget, Stages
 from app.live.ui.inputs import check_value
+from tests.conftest import camera_message, wait_until
 
 # the loop thread is timed here: the kernels are compiled (or loaded) before, not inside it
 pytestmark = pytest.mark.usefixtures("warm_kernels")
@@ -28,15 +28,6 @@ class Clock:
 
     def __call__(self) -> float:
         return self.t
-
-
-def _wait(predicate, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def test_a_failing_stage_is_reported_once_per_distinct_error_per_minute_with_bounded_memory():
@@ -97,22 +88,15 @@ def test_a_capture_that_fails_for_a_while_comes_back_and_a_failing_twin_leaves_t
     assert frames.stages.failures["twin poses"] == 1
 
 
-@pytest.fixture(scope="module")
-def app():
-    a = start_app(port=0, scenario="free", running=False)
-    yield a
-    a.stop()
-
-
 def _shown_grows(app, attr: str = "frames_shown", timeout: float = 10.0) -> bool:
     before = getattr(app.publisher, attr)
     app.loop.submit(StepOnce(1))
-    return _wait(lambda: getattr(app.publisher, attr) > before, timeout)
+    return wait_until(lambda: getattr(app.publisher, attr) > before, timeout)
 
 
 def test_the_page_keeps_updating_through_a_failing_notify_scene_or_plot_stage(app, monkeypatch):
     pub = app.publisher
-    assert _wait(lambda: _shown_grows(app) and pub.scene is not None)
+    assert wait_until(lambda: _shown_grows(app) and pub.scene is not None)
     for stage, target, name in (
         ("notify", app.loop, "take_notices"),
         ("scene", pub.scene, "update"),
@@ -146,7 +130,7 @@ def test_a_dead_publisher_thread_is_restarted(app, monkeypatch):
 
     monkeypatch.setattr(pub, "show", die)
     app.loop.submit(StepOnce(1))
-    assert _wait(lambda: not pub.alive)
+    assert wait_until(lambda: not pub.alive)
     assert "the publisher broke" in pub.failure
     monkeypatch.undo()
     assert pub.supervise() == "" and pub.alive
@@ -170,23 +154,6 @@ def test_serve_exits_non_zero_with_the_reason_when_the_publisher_cannot_be_resta
     assert "the publisher always breaks" in err
 
 
-def _camera_message() -> bytes:
-    return msgspec.msgpack.encode(
-        {
-            "type": "ViewerCameraMessage",
-            "wxyz": [1.0, 0.0, 0.0, 0.0],
-            "position": [1.5, 1.5, 1.0],
-            "fov": 0.9,
-            "near": 0.01,
-            "far": 100.0,
-            "image_height": 600,
-            "image_width": 800,
-            "look_at": [0.0, 0.0, 0.3],
-            "up_direction": [0.0, 0.0, 1.0],
-        }
-    )
-
-
 def test_junk_for_the_phase_joint_selector_is_one_notice_to_its_sender_and_the_plots_run_on(app):
     joint = app.publisher.plots.joint
     before = joint.value
@@ -196,13 +163,13 @@ def test_junk_for_the_phase_joint_selector_is_one_notice_to_its_sender_and_the_p
     bystander = connect(f"ws://127.0.0.1:{app.port}", subprotocols=sub, open_timeout=10)
     ws = connect(f"ws://127.0.0.1:{app.port}", subprotocols=sub, open_timeout=10)
     try:
-        bystander.send(_camera_message())
-        ws.send(_camera_message())
+        bystander.send(camera_message())
+        ws.send(camera_message())
         junk = ("abc", "0", "99", 4, None, [1], "4.5", "")
         for i in range(1000):
             msg = {"type": "GuiUpdateMessage", "uuid": joint._impl.uuid, "updates": {"value": junk[i % len(junk)]}}
             ws.send(msgspec.msgpack.encode(msg))
-        assert _wait(lambda: guard.refused - refused == 1000)
+        assert wait_until(lambda: guard.refused - refused == 1000)
     finally:
         ws.close()
         bystander.close()
@@ -229,6 +196,6 @@ def test_a_preset_switch_re_arms_the_display_reports(app):
     n = len(frames.stages.budget)
     assert n >= 1
     app.loop.submit(SwitchSession("compliance"))
-    assert _wait(lambda: app.loop.status.scenario == "compliance" or app.loop.sync().scenario == "compliance")
+    assert wait_until(lambda: app.loop.status.scenario == "compliance" or app.loop.sync().scenario == "compliance")
     app.loop.submit(StepOnce(1))
-    assert _wait(lambda: len(frames.stages.budget) == 0)
+    assert wait_until(lambda: len(frames.stages.budget) == 0)

@@ -1,13 +1,12 @@
-"""Compiled before the URL: after the warm-up the loop meets no kernel signature it has not compiled."""
+"""Compiled before the URL: after the warm-up the loop meets no kernel signature it has not compiled
+(that `serve` says the kernels are ready before it prints the URL: the smoke test in tests/test_cli.py)."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import time
 
 import numpy as np
-import pytest
 
 from app.core.commands import DragCommand, Play, SwitchSession
 from app.live.loop import SimLoop
@@ -54,25 +53,3 @@ def test_after_the_warm_up_switches_and_a_hard_drag_compile_nothing_new():
     after = _signatures()
     grown = {k: (before.get(k, 0), v) for k, v in after.items() if v > before.get(k, 0)}
     assert not grown, f"compiled inside the loop after the warm-up: {grown}"
-
-
-@pytest.mark.slow
-def test_serve_says_the_kernels_are_ready_before_it_prints_the_url():
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "serve", "--scenario", "free", "--port", "0"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None
-        lines = []
-        for line in proc.stdout:
-            lines.append(line)
-            if "open http://" in line:
-                break
-        ready = [i for i, line in enumerate(lines) if "kernels ready in" in line]
-        assert ready and ready[0] < len(lines) - 1, "".join(lines)
-    finally:
-        proc.kill()
-        proc.wait(timeout=30)

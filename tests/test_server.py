@@ -17,25 +17,10 @@ from websockets.sync.client import connect
 from app.core.commands import DragCommand, StepOnce
 from app.live.server import port_is_free, start_app
 from app.live.ui.panels.base import KnobPanel
+from tests.conftest import camera_message, wait_until
 
 # the loop thread is timed here: the kernels are compiled (or loaded) before, not inside it
 pytestmark = pytest.mark.usefixtures("warm_kernels")
-
-
-@pytest.fixture(scope="module")
-def app():
-    a = start_app(port=0, scenario="free", running=False)
-    yield a
-    a.stop()
-
-
-def _wait(predicate, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def _browser_update(handle, value, client_id: int) -> None:
@@ -43,24 +28,6 @@ def _browser_update(handle, value, client_id: int) -> None:
     handle._impl.value = value
     for cb in handle._impl.update_cb:
         cb(viser.GuiEvent(client=None, client_id=client_id, target=handle))
-
-
-def _camera_message() -> bytes:
-    """The first message a browser sends; viser counts a client as connected after it."""
-    return msgspec.msgpack.encode(
-        {
-            "type": "ViewerCameraMessage",
-            "wxyz": [1.0, 0.0, 0.0, 0.0],
-            "position": [1.5, 1.5, 1.0],
-            "fov": 0.9,
-            "near": 0.01,
-            "far": 100.0,
-            "image_height": 600,
-            "image_width": 800,
-            "look_at": [0.0, 0.0, 0.3],
-            "up_direction": [0.0, 0.0, 1.0],
-        }
-    )
 
 
 def _knob_handle(app, key: str):
@@ -79,7 +46,7 @@ def test_page_is_served_on_localhost_and_frames_are_published(app):
         assert b"<html" in resp.read().lower()
     shown = app.publisher.frames_shown
     app.loop.submit(StepOnce(1))  # the paused loop publishes when something changed
-    assert _wait(lambda: app.publisher.frames_shown > shown)
+    assert wait_until(lambda: app.publisher.frames_shown > shown)
 
 
 def test_the_publisher_sends_each_frame_as_one_message_batch(app, monkeypatch):
@@ -99,7 +66,7 @@ def test_the_publisher_sends_each_frame_as_one_message_batch(app, monkeypatch):
     for _ in range(5):
         shown = app.publisher.frames_shown
         app.loop.submit(StepOnce(10))  # the paused loop publishes a frame with the arm moved
-        assert _wait(lambda shown=shown: app.publisher.frames_shown > shown)
+        assert wait_until(lambda shown=shown: app.publisher.frames_shown > shown)
     assert len(pushes) >= 5 and all(pushes), (len(pushes), pushes.count(False))
 
 
@@ -116,12 +83,12 @@ def test_the_publisher_and_the_server_event_loop_run_between_the_browser_and_the
     process = os.getpriority(os.PRIO_PROCESS, 0)
     permitted = os.geteuid() == 0 or 20 - resource.getrlimit(resource.RLIMIT_NICE)[0] <= PUBLISHER_NICENESS
     expected = min(PUBLISHER_NICENESS, process) if permitted else process
-    assert _wait(lambda: app.publisher.niceness is not None and app.publisher.server_niceness is not None)
+    assert wait_until(lambda: app.publisher.niceness is not None and app.publisher.server_niceness is not None)
     assert app.publisher.niceness == os.getpriority(os.PRIO_PROCESS, app.publisher._thread.native_id) == expected
     assert app.publisher.server_niceness == expected
     tids: list[int] = []  # the event loop thread's id, asked from that thread
     app.server.get_event_loop().call_soon_threadsafe(lambda: tids.append(threading.get_native_id()))
-    assert _wait(lambda: bool(tids))
+    assert wait_until(lambda: bool(tids))
     assert os.getpriority(os.PRIO_PROCESS, tids[0]) == expected
     assert os.getpriority(os.PRIO_PROCESS, 0) == process  # the other threads keep theirs
 
@@ -137,7 +104,7 @@ def test_panel_refuses_nonsense_values_and_applies_valid_ones(app):
     _browser_update(handle, 55.0, client_id=12345)
     app.loop.sync()
     assert app.loop.session.drag.max_force_n == 55.0
-    assert _wait(lambda: app.loop.settings.values["drag"]["max_force_n"] == 55.0)
+    assert wait_until(lambda: app.loop.settings.values["drag"]["max_force_n"] == 55.0)
 
 
 def test_closing_a_tab_releases_its_drag(app):
@@ -145,8 +112,8 @@ def test_closing_a_tab_releases_its_drag(app):
     before = set(app.server.get_clients())
     ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10)
     try:
-        ws.send(_camera_message())
-        assert _wait(lambda: len(set(app.server.get_clients()) - before) == 1)
+        ws.send(camera_message())
+        assert wait_until(lambda: len(set(app.server.get_clients()) - before) == 1)
         (client_id,) = set(app.server.get_clients()) - before
         s = app.loop.session
         body = s.world.model.body(s.world.wrist_body).name
@@ -157,7 +124,7 @@ def test_closing_a_tab_releases_its_drag(app):
         assert status.drag_client == client_id and s.drag.active
     finally:
         ws.close()
-    assert _wait(lambda: app.loop.sync().drag_client is None)
+    assert wait_until(lambda: app.loop.sync().drag_client is None)
     assert not app.loop.session.drag.active
 
 
@@ -175,73 +142,35 @@ def test_a_busy_port_moves_to_the_next_free_one():
             other.stop()
 
 
-def test_serve_prints_the_url_says_when_the_port_is_busy_and_stops_on_ctrl_c():
-    import signal
-    import subprocess
-    import sys
+def test_serve_says_when_the_port_is_busy_serves_the_url_and_stops_on_ctrl_c(monkeypatch, capsys):
+    """`serve` on a busy port says so and takes the next free one, serves the page at the URL it printed,
+    and a Ctrl-C while it waits (KeyboardInterrupt) stops it with exit code 0."""
+    import argparse
+    import re
 
+    from app.live.server import serve
+    from app.live.ui.publisher import Publisher
+
+    printed: list[str] = []
+    status: list[int] = []
+
+    def ctrl_c(self) -> str:  # the page is fetched while serve waits, then Ctrl-C
+        printed.append(capsys.readouterr().out)
+        url = re.search(r"open (http://\S+)", printed[-1]).group(1)  # type: ignore[union-attr]
+        with urllib.request.urlopen(url, timeout=10) as resp:
+            status.append(resp.status)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Publisher, "supervise", ctrl_c)
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind(("127.0.0.1", 0))
         sock.listen()
         busy = sock.getsockname()[1]
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "app.cli", "--scenario", "free", "--port", str(busy)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        try:
-            lines = []
-            assert proc.stdout is not None
-            for line in proc.stdout:
-                lines.append(line)
-                if "open http://" in line:
-                    break
-            text = "".join(lines)
-            assert f"port {busy} is busy" in text
-            url = text.split("open ")[1].split()[0]
-            assert url.startswith("http://127.0.0.1:") and not url.endswith(f":{busy}")
-            with urllib.request.urlopen(url, timeout=10) as resp:
-                assert resp.status == 200
-            proc.send_signal(signal.SIGINT)
-            assert proc.wait(timeout=60) == 0  # a clean exit on Ctrl-C; a loaded machine may take a while
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-
-
-def test_serve_stops_cleanly_on_sigterm_and_gives_its_sessions_cpu_share_back():
-    """`kill` (SIGTERM) stops `serve` as Ctrl-C does: exit code 0, and where it raised its session's
-    autogroup niceness (app/live/priority.py), the value it found is back."""
-    import signal
-    import subprocess
-    import sys
-
-    from app.live.priority import autogroup_niceness, set_autogroup_niceness
-
-    found = autogroup_niceness()
-    if found is not None:
-        set_autogroup_niceness(0)  # (raising a niceness is always permitted)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "--scenario", "free", "--port", "0"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            if "open http://" in line:
-                break
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=60) == 0
-        if found is not None:
-            assert autogroup_niceness() == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        if found is not None:
-            set_autogroup_niceness(found)
+        args = argparse.Namespace(scenario="free", host="127.0.0.1", port=busy, robot=None, urdf=None)
+        assert serve(args) == 0
+    text = "".join(printed)
+    port = int(re.search(rf"port {busy} is busy; using port (\d+) instead", text).group(1))  # type: ignore[union-attr]
+    assert port != busy and f"open http://127.0.0.1:{port} " in text and status == [200]
 
 
 def test_nonsense_sent_over_the_websocket_is_refused_and_the_server_keeps_running(app):
@@ -250,7 +179,7 @@ def test_nonsense_sent_over_the_websocket_is_refused_and_the_server_keeps_runnin
     shown = app.publisher.frames_shown
     ws = connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10)
     try:
-        ws.send(_camera_message())
+        ws.send(camera_message())
         for value in ("abc", float("nan"), -1e300, None, [1, 2], {"x": 1}, 1e308):
             ws.send(
                 msgspec.msgpack.encode(
@@ -265,7 +194,7 @@ def test_nonsense_sent_over_the_websocket_is_refused_and_the_server_keeps_runnin
     assert app.loop.alive and status.halted == ""
     assert app.loop.settings.values["drag"]["max_force_n"] == before
     app.loop.submit(StepOnce(1))
-    assert _wait(lambda: app.publisher.frames_shown > shown)  # the publisher still shows frames
+    assert wait_until(lambda: app.publisher.frames_shown > shown)  # the publisher still shows frames
     with urllib.request.urlopen(app.url, timeout=10) as resp:
         assert resp.status == 200
 
@@ -341,7 +270,7 @@ def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):
     plots.joint.value = "2"
     app.loop.submit(SwitchSession(scenario="limit-drop"))
     app.loop.sync()
-    assert _wait(lambda: plots.joint.value == "4")  # joint 4 falls into its limit
+    assert wait_until(lambda: plots.joint.value == "4")  # joint 4 falls into its limit
     plots.joint.value = "6"
     app.loop.submit(SwitchSession(scenario="free"))
     app.loop.sync()
@@ -350,7 +279,7 @@ def test_a_preset_about_one_joint_points_the_phase_plot_at_it(app):
         last = app.publisher.last_frame
         return last is not None and last.status.scenario == "free" and app.publisher.scene_session_id == last.session_id
 
-    assert _wait(shown_free)
+    assert wait_until(shown_free)
     assert plots.joint.value == "6"  # a preset without a focus joint leaves the choice alone
 
 
@@ -442,9 +371,9 @@ def test_tune_tab_puts_the_presets_folders_first_and_hides_what_the_executor_lac
 
     try:
         app.loop.submit(SwitchSession(scenario="polish", executor="projection"))
-        assert _wait(lambda: orders()[:2] == ["Motion–force", "Nullspace"], 20), orders()
+        assert wait_until(lambda: orders()[:2] == ["Motion–force", "Nullspace"], 20), orders()
         # The publisher refreshes the panels one after another: wait for the last of them too.
-        assert _wait(
+        assert wait_until(
             lambda: (
                 ns.folder.visible
                 and mf.intro.visible
@@ -463,7 +392,7 @@ def test_tune_tab_puts_the_presets_folders_first_and_hides_what_the_executor_lac
             co.gamma_x.visible,
         )
         app.loop.submit(SwitchSession(executor="compliance-qp"))
-        assert _wait(
+        assert wait_until(
             lambda: (
                 not ns.folder.visible
                 and not mf.intro.visible
@@ -482,11 +411,11 @@ def test_tune_tab_puts_the_presets_folders_first_and_hides_what_the_executor_lac
             co.gamma_x.visible,
         )
         app.loop.submit(SwitchSession(scenario="limit-drop"))
-        assert _wait(lambda: orders()[0] == "Safety", 20), orders()
+        assert wait_until(lambda: orders()[0] == "Safety", 20), orders()
     finally:
         app.loop.submit(SwitchSession(scenario="free", robot=""))
         app.loop.sync()
-        assert _wait(lambda: orders()[0] == "Nullspace", 20)
+        assert wait_until(lambda: orders()[0] == "Nullspace", 20)
 
 
 def test_tune_order_and_the_live_w_line_near_a_singularity():
@@ -512,12 +441,12 @@ def test_settle_now_button_shows_in_polishs_settle_phase_and_runs_it(app):
     try:
         app.loop.submit(SwitchSession(scenario="polish", executor="projection"))
         app.loop.submit(SetParam("nullspace", "objective", "j"))
-        assert _wait(lambda: app.loop.sync().scenario == "polish" and panel.settle.visible, 60), app.loop.status
+        assert wait_until(lambda: app.loop.sync().scenario == "polish" and panel.settle.visible, 60), app.loop.status
         _browser_update(panel.settle, True, client_id=1)
-        assert _wait(lambda: not app.loop.sync().can_settle, 120), app.loop.status
+        assert wait_until(lambda: not app.loop.sync().can_settle, 120), app.loop.status
         status = app.loop.sync()
         assert status.running and not status.settling and status.t > 1.0, status
-        assert _wait(lambda: not panel.settle.visible, 60)
+        assert wait_until(lambda: not panel.settle.visible, 60)
     finally:
         app.loop.submit(Pause())
         app.loop.submit(SwitchSession(scenario="free", robot=""))
@@ -535,7 +464,7 @@ def test_a_paused_page_shows_the_value_in_force_once_the_touched_inputs_hold_has
     app.loop.submit(SetParam("drag", "max_force_n", 120.0))
     app.loop.sync()
     assert app.loop.session.drag.max_force_n == 120.0 and not app.loop.status.running
-    assert _wait(lambda: handle.value == 120.0, 5.0), handle.value
+    assert wait_until(lambda: handle.value == 120.0, 5.0), handle.value
 
 
 def test_a_connection_closed_before_its_request_is_not_logged_as_an_error():
