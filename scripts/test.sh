@@ -3,7 +3,9 @@
 # Creates or reuses .venv, installs torquelab with its test extras, makes sure a Chromium is
 # available for the browser tests, then runs ruff, mypy, the import contracts, pytest and the wheel smoke test
 # (scripts/wheel_smoke.sh: the built wheel installed in a throw-away venv; only without pytest
-# arguments). Exits non-zero on any failure.
+# arguments). Exits non-zero on any failure. pytest runs on TORQUELAB_TEST_WORKERS processes
+# (pytest-xdist, default 2: the machine's two cores; a module's tests stay on one worker, so its
+# module fixtures start once; `-n 0` among the pytest arguments runs them in this process).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -45,7 +47,7 @@ echo "== import contracts (README, Architecture)"
 .venv/bin/lint-imports
 echo "== pytest"
 mkdir -p test-artifacts
-.venv/bin/python -m pytest "$@"
+.venv/bin/python -m pytest -n "${TORQUELAB_TEST_WORKERS:-2}" --dist loadfile --durations=30 "$@"
 if [ "$#" -eq 0 ]; then  # the full run; with pytest arguments (a subset) the wheel is not built
     echo "== wheel smoke test"
     bash scripts/wheel_smoke.sh

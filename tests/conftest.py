@@ -1,8 +1,15 @@
 """Shared fixtures (robots and models are loaded once per session; the free preset's app once per
-module that asks) and helpers of the tests that talk to a running app."""
+module that asks) and helpers of the tests that talk to a running app.
+
+Under pytest-xdist (`scripts/test.sh` runs `-n 2 --dist loadfile`: a module's tests on one worker,
+so its module fixtures start once) each worker is made a session of its own (`os.setsid`), hence
+an autogroup of its own: the app raises its autogroup's niceness while it runs and gives it back
+(app/live/priority.py), and a worker's app must not change the niceness another worker's test reads.
+"""
 
 from __future__ import annotations
 
+import os
 import socket
 import time
 from collections.abc import Callable
@@ -14,6 +21,15 @@ import viser
 
 import robots
 from control.model import RobotModel
+
+
+def pytest_configure(config) -> None:
+    """An xdist worker becomes a session (and an autogroup) of its own."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        try:
+            os.setsid()
+        except OSError:  # already a session or process group leader: it has its own
+            pass
 
 
 @pytest.fixture(scope="session", params=list(robots.BUILTIN))
