@@ -321,8 +321,9 @@ def _build(
         )
     if not has_sidecar:
         guessed["postures"] = (
-            "home is the zero posture clipped into the limits and the polish start is searched over the arm's"
-            " self-motion (app/scenarios/reach.py), not chosen; limit-drop and mass-drop need sidecar postures"
+            "home is the zero posture clipped into the limits; the polish start is searched over the arm's"
+            " self-motion (app/scenarios/reach.py) and the limit-drop and mass-drop starts from the arm's load and"
+            " reach (app/scenarios/drop_postures.py), not chosen"
         )
     return RobotDescription(
         name=name,

@@ -227,3 +227,64 @@ def test_a_smaller_arm_without_sidecar_gets_the_table_and_start_scaled_to_its_re
     result = session.run(1.5)
     assert not result.halted, result.reason
     assert session.last is not None and session.last.signals["contact_force_n"] > 5.0  # pressing on the table
+
+
+def test_the_pandas_limit_drop_start_has_the_load_push_joint_4_into_its_lower_limit_all_the_way(panda):
+    """The sidecar's start: the 1.25 kg load's torque on joint 4 points to the lower limit from the start
+    to the limit (6.0 → 3.3 N m, like the Gen3's 5.9 → 3.2 toward its upper one); [C]'s literal
+    L-shape (upper arm vertical) has it reverse before the limit."""
+    from app.scenarios.drop_postures import fall_from
+    from app.scenarios.limit_drop import PAYLOAD_KG, LimitDropScenario
+
+    fall = LimitDropScenario().fall(panda)
+    assert fall.direction == -1 and fall.limit == pytest.approx(Q_LOWER[3]) and fall.reaches_limit
+    assert fall.torque[0] > 5.5 and fall.torque[-1] > 3.0  # N m
+    gen3 = robots.load("gen3")
+    g = LimitDropScenario().fall(gen3)
+    assert g.direction == 1 and g.limit == pytest.approx(gen3.q_upper[3]) and g.reaches_limit
+    literal = np.array([0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0, np.pi / 2, 0.0])
+    assert not fall_from(panda, RobotModel(panda.model), literal, PAYLOAD_KG, 3).reaches_limit
+
+
+@pytest.fixture(scope="module")
+def panda_drops():
+    from app.headless.experiments.limit_drop import run_drop
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(robots.ROBOT_ENV, "panda")
+        return {fb: run_drop("proposed", 100.0, 2.0, fb, "position", 3.0) for fb in (True, False)}
+
+
+def test_on_the_panda_joint_4_falls_into_its_lower_limit_and_the_dampers_hold_it(panda, panda_drops):
+    """λ = 100, M = 2, feedback on: joint 4 falls 1 rad, comes to rest within 2 d_s (60 mrad) of its
+    lower limit, far inside the dampers' influence distance d_i (0.30 rad), and never enters d_s
+    (0.1 mrad slack); without feedback it goes at least 2 mrad deeper and into d_s ([C] Fig. 4)."""
+    on, off = panda_drops[True], panda_drops[False]
+    span = Q_UPPER[3] - Q_LOWER[3]
+    assert on["robot"] == "panda" and on["direction"] == -1 and on["q_limit"] == pytest.approx(Q_LOWER[3])
+    assert on["d_s"] == pytest.approx(0.01 * span)
+    assert on["stop"] == "until" and abs(on["trace_dq"][-1]) < 0.01  # at rest before the 3 s cap
+    assert np.min(on["trace_q"]) - Q_LOWER[3] < 2 * on["d_s"] < 0.1 * span
+    assert 0.0 < on["final_margin"] < 2 * on["d_s"]
+    assert on["max_violation"] < 0.0 and on["overshoot_beyond_ds"] < 1e-4
+    assert off["overshoot_beyond_ds"] > max(on["overshoot_beyond_ds"], 0.0) + 2e-3
+
+
+def test_the_panda_without_its_sidecar_postures_drops_into_a_limit_and_starts_the_mass_drop(monkeypatch):
+    """The Panda's URDF alone: the limit drop's start is searched and the dampers catch joint 4 at the
+    limit it falls toward; the mass drop starts tool down in front of the shoulder."""
+    from app.core.session import Session
+    from app.scenarios.drop_postures import TOOL_DOWN, mass_drop_target
+    from tests.test_robot_chains import _drops, assert_drop_reaches_and_holds
+
+    path = str(external.urdf_path("panda"))
+    session = Session("limit-drop", robot=path)
+    fall = session.scenario.fall(session.robot)
+    assert "limit_drop" in session.robot.guessed and fall.reaches_limit
+    drops = _drops(monkeypatch, path)
+    assert drops[True]["q_limit"] == pytest.approx(fall.limit)
+    assert_drop_reaches_and_holds(drops[True], drops[False])
+    md = Session("mass-drop", robot=path)
+    assert "mass_drop" in md.robot.guessed
+    np.testing.assert_allclose(md.dyn.tcp_position_world, mass_drop_target(md.robot), atol=1e-6)
+    np.testing.assert_allclose(md.dyn.tcp_rotation_world, TOOL_DOWN, atol=1e-6)

@@ -256,3 +256,66 @@ def test_check_takes_the_chain_options(cli, tmp_path):
     path = fx.write(tmp_path / "two_arms.urdf", fx.two_arms())
     code, lines = cli("check", "--urdf", str(path), "--base", "torso", "--tip", "left_flange", "--samples", "10")
     assert code == 0 and lines == []
+
+
+def _drops(monkeypatch, spec: str) -> dict:
+    """The limit drop (λ = 100, M = 2, position limit) with and without feedback on the arm `spec`."""
+    from app.headless.experiments.limit_drop import run_drop
+
+    monkeypatch.setenv(robots.ROBOT_ENV, spec)
+    return {fb: run_drop("proposed", 100.0, 2.0, fb, "position", 3.0) for fb in (True, False)}
+
+
+def assert_drop_reaches_and_holds(on: dict, off: dict) -> None:
+    """Joint 4 comes to rest within 2 d_s of the limit it falls toward, never inside d_s (0.1 mrad
+    slack) with feedback; without feedback it goes at least 2 mrad deeper, into d_s."""
+    assert on["stop"] == "until" and abs(on["trace_dq"][-1]) < 0.01
+    assert 0.0 < on["final_margin"] < 2 * on["d_s"]
+    assert on["max_violation"] < 0.0 and on["overshoot_beyond_ds"] < 1e-4
+    assert off["overshoot_beyond_ds"] > max(on["overshoot_beyond_ds"], 0.0) + 2e-3
+
+
+def test_a_urdf_without_sidecar_drops_joint_4_into_a_limit_from_a_searched_start(tmp_path, monkeypatch):
+    """No sidecar: the limit drop's start is searched (the load pushes joint 4 into a limit all the
+    way), the guessed values say so, and the dampers catch the fall at that limit."""
+    from app.core.session import Session
+
+    path = fx.write(tmp_path / "gripper_arm.urdf", fx.gripper_arm())
+    session = Session("limit-drop", robot=str(path))
+    robot = session.robot
+    assert "limit_drop" in robot.guessed and "joint 4" in robot.guessed["limit_drop"]
+    assert "the limit drop starts" in robots.guessed_text(robot)
+    fall = session.scenario.fall(robot)
+    assert fall.reaches_limit and abs(fall.limit - robot.postures["l_shape"][3]) == pytest.approx(1.0)
+    drops = _drops(monkeypatch, str(path))
+    assert drops[True]["q_limit"] == pytest.approx(fall.limit) and drops[True]["direction"] == fall.direction
+    assert_drop_reaches_and_holds(drops[True], drops[False])
+
+
+def test_a_urdf_without_sidecar_runs_the_mass_drop_from_a_searched_start(tmp_path):
+    """No sidecar: the mass drop starts tool down half the arm's size in front of the shoulder, inside
+    the limits; the mass is released at 1.5 s, the rope's catch moves the TCP (more than 0.1 mm) and it is back
+    within 5 mm by 3 s."""
+    from app.core.session import Session
+    from app.scenarios.drop_postures import TOOL_DOWN, mass_drop_target
+    from app.scenarios.mass_drop import RELEASE_TIME_S
+
+    path = fx.write(tmp_path / "gripper_arm.urdf", fx.gripper_arm())
+    session = Session("mass-drop", robot=str(path))
+    robot = session.robot
+    assert "mass_drop" in robot.guessed
+    q0 = session.world.q
+    assert np.all(q0 > robot.q_lower) and np.all(q0 < robot.q_upper)
+    p0 = session.dyn.tcp_position_world.copy()
+    np.testing.assert_allclose(p0, mass_drop_target(robot), atol=1e-6)
+    np.testing.assert_allclose(session.dyn.tcp_rotation_world, TOOL_DOWN, atol=1e-6)
+    peak = [0.0]
+
+    def record(rec) -> None:
+        if rec.t > RELEASE_TIME_S:
+            peak[0] = max(peak[0], float(np.linalg.norm(session.dyn.tcp_position_world - p0)))
+
+    result = session.run(3.0, record=record)
+    assert not result.halted, result.reason
+    assert getattr(session.environment, "released", False) and peak[0] > 1e-4  # the catch moved the TCP
+    assert np.linalg.norm(session.dyn.tcp_position_world - p0) < 5e-3

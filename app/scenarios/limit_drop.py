@@ -3,7 +3,11 @@
 into its position limit or a lowered velocity limit; the dampers must stop it.
 
 Constants, chosen once from the paper and not tuned afterwards:
-- posture `l_shape` (robots/gen3.toml): the paper's L-shape, only joint 4 loaded by the mass;
+- posture `l_shape` (robots/gen3.toml): the paper's L-shape, only joint 4 loaded by the mass; on
+  another arm its sidecar's `l_shape` (robots/panda.toml says how the Panda's was chosen), or for an
+  arm without a sidecar the start `app.scenarios.drop_postures.limit_drop_start` finds;
+- the limit joint 4 falls into: the one the mass's torque at the start points to (`fall`, the Gen3's
+  upper limit, the Panda's lower one);
 - payload 1.25 kg at the TCP: the paper's weight "fixed to the end-effector";
 - posture task only (no Cartesian task): the drop is a joint-level test, the other joints are
   kept by Γ = 0 and feedback ("kept the other joints non-compliant");
@@ -26,6 +30,7 @@ import mujoco
 import numpy as np
 
 from app.scenarios import Environment, Scenario
+from app.scenarios.drop_postures import FALLING_JOINT, Fall, fall_from, limit_drop_start
 from app.scenarios.payload import PayloadEnvironment, add_payload_body
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor
@@ -35,7 +40,6 @@ from control.model import Dynamics, RobotModel
 from robots import RobotDescription
 
 PAYLOAD_KG = 1.25  # [C] §IV-B
-FALLING_JOINT = 3  # joint 4 (0-based index 3)
 POSTURE_STIFFNESS = 1.0  # 1/s², mc_rtc posture-task default
 POSTURE_DAMPING = 2.0  # 1/s, critical damping for K_p = 1
 OBSERVER_GAIN = 50.0  # 1/s
@@ -65,6 +69,26 @@ class LimitDropScenario(Scenario):
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         return self.named_posture(robot, "l_shape")
+
+    def prepare_robot(self, robot: RobotDescription) -> None:
+        """For an arm without sidecar postures, find its start (`drop_postures.limit_drop_start`) and
+        say so among the guessed values."""
+        if "postures" not in robot.guessed or "l_shape" in robot.postures:
+            return
+        q, fall = limit_drop_start(robot, PAYLOAD_KG)
+        robot.postures["l_shape"] = q
+        side = "upper" if fall.direction > 0 else "lower"
+        robot.guessed["limit_drop"] = (
+            f"the limit drop starts at joint 4 = {q[FALLING_JOINT]:.3f} rad, joint 2 = {q[1]:.3f} rad, falling toward"
+            f" its {side} limit {fall.limit:.3f} rad under {fall.torque.min():.1f}–{fall.torque.max():.1f} N m of the"
+            f" {PAYLOAD_KG:g} kg load (a search, app/scenarios/drop_postures.py, not [C]'s L-shape): the speed at"
+            " which it meets the dampers depends on that torque"
+        )
+
+    def fall(self, robot: RobotDescription) -> Fall:
+        """Where joint 4 falls from the start: toward the limit the payload's torque points to there."""
+        model = RobotModel(robot.model)
+        return fall_from(robot, model, self.initial_q(robot), PAYLOAD_KG, FALLING_JOINT)
 
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         add_payload_body(spec, robot, PAYLOAD_KG)

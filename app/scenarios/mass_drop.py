@@ -7,7 +7,8 @@ compliant, Γ₀ = I). A second case, "held-release" (labelled so in the report)
 transient: the arm holds the mass rigidly and lets it go (an unloading step, no impact).
 
 Constants, chosen once from the paper and physical sense, not tuned afterwards:
-- posture `mass_drop_nominal` (robots/gen3.toml): the nominal posture with the TCP 5 cm forward;
+- posture `mass_drop_nominal` (robots/gen3.toml): the nominal posture with the TCP 5 cm forward; for an
+  arm without a sidecar the start `app.scenarios.drop_postures.mass_drop_start` finds;
 - mass 1.25 kg, a free body in MuJoCo (steel sphere, 3.4 cm radius); the rope attaches at the TCP,
   distal to the F/T sensor (the sensor feels the rope's pull, as in [C]'s compliance experiment);
 - rope length 0.05 m: [C] gives none for this experiment; a short loop at the wrist. The mass is
@@ -43,6 +44,7 @@ import mujoco
 import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor
+from app.scenarios.drop_postures import mass_drop_start, mass_drop_target
 from app.scenarios.payload import PayloadEnvironment, add_payload_body, set_inertial_at_origin
 from app.sim.rope import Rope
 from app.sim.sensor import FTSensor
@@ -301,6 +303,19 @@ class MassDropScenario(Scenario):
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         return self.named_posture(robot, "mass_drop_nominal")
+
+    def prepare_robot(self, robot: RobotDescription) -> None:
+        """For an arm without sidecar postures, find its start (`drop_postures.mass_drop_start`) and
+        say so among the guessed values."""
+        if "postures" not in robot.guessed or "mass_drop_nominal" in robot.postures:
+            return
+        robot.postures["mass_drop_nominal"] = mass_drop_start(robot)
+        x, _, z = mass_drop_target(robot)
+        robot.guessed["mass_drop"] = (
+            f"the mass drop starts with the TCP tool down at ({x:.2f}, 0, {z:.2f}) m, half the arm's size in front"
+            " of the shoulder at its height (app/scenarios/drop_postures.py), not [C]'s nominal posture: the"
+            " TCP's deflection after the catch depends on the posture (the arm's inertia and torque margins there)"
+        )
 
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         if self.case == "held-release":

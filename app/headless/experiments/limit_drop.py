@@ -1,4 +1,6 @@
-"""limit-drop: joint 4 of the Gen3 falls into its position / velocity limit ([C] §IV-B–C, Figs. 2–4).
+"""limit-drop: joint 4 of the Gen3 (or the arm chosen) falls into its position / velocity limit ([C]
+§IV-B–C, Figs. 2–4); the limit it falls toward is the one the payload's torque points to (upper on
+the Gen3, lower on the Panda), and every margin is measured toward it.
 
 Sweeps λ ∈ {70, 100, 300, 500} at M = 3, M ∈ {1.5, 2, 3, 5} at λ = 100 and the classic δt form,
 each with and without external-force feedback, for (a) the position limit and (b) a lowered
@@ -137,41 +139,46 @@ def run_drop(
     steps = q.size
     relaxed = counts["relaxed"]
     drift_max = drift[0]
-    q_up = float(robot.q_upper[j])
+    fall = scenario.fall(robot)
+    s = fall.direction  # +1: joint 4 falls toward its upper limit, −1: toward its lower one
+    q_lim = fall.limit
     d_s = 0.01 * float(robot.q_upper[j] - robot.q_lower[j])
     dq_lim = float(scenario.velocity_limits(robot)[j])
-    k_peak = int(np.argmax(dq))
-    slow = np.flatnonzero(dq[k_peak:] < 0.9 * dq[k_peak])
+    toward, speed = s * (q - q_lim), s * dq  # past the limit (> 0 beyond it), speed toward it
+    k_peak = int(np.argmax(speed))
+    slow = np.flatnonzero(speed[k_peak:] < 0.9 * speed[k_peak])
     k_brake = k_peak + int(slow[0]) if slow.size else steps - 1  # braking: below 90 % of the peak speed
     window = 5  # steps: deceleration from 5 ms velocity differences
-    ddq = (dq[window:] - dq[:-window]) / (window * dt)
+    ddq = (speed[window:] - speed[:-window]) / (window * dt)
     if limit == "position":
-        violation = float(np.max(q) - q_up)
+        violation = float(np.max(toward))
     else:
-        violation = float(np.max(dq) - dq_lim)
+        violation = float(np.max(speed) - dq_lim)
     damper = executor.damper.gains  # the values in force
     return {
+        "robot": robot.name,
         "form": damper.form,
         "lambda": damper.lambda_,
         "M": damper.M,
         "feedback": bool(executor.settings.feedback),
         "limit": limit,
         "max_violation": violation,
-        "overshoot_beyond_ds": float(np.max(q) - (q_up - d_s)),
+        "overshoot_beyond_ds": float(np.max(toward) + d_s),
         "oscillations": count_oscillations(dq),
         "peak_torque": float(np.max(np.abs(tau))),
-        "peak_velocity": float(np.max(dq)),
-        "brake_onset_margin": float(q_up - q[k_brake]),
+        "peak_velocity": float(np.max(speed)),
+        "brake_onset_margin": float(-toward[k_brake]),
         "peak_deceleration": float(-np.min(ddq)),
         "observer_gain": float(executor.estimator.gains.observer_gain),
         "source": str(executor.estimator.gains.source),
         "stop": result.stop,  # "until": joint 4 stopped; "done": still moving at the cap
         "duration_s": steps * dt,
         "torque_delay_ms": session.world.torque_delay_steps * 1e3 * dt,  # in force (whole steps)
-        "final_margin": float(q_up - q[-1]),
+        "final_margin": float(-toward[-1]),
         "relaxed_steps": relaxed,
         "other_joints_drift": drift_max,
-        "q_upper": q_up,
+        "direction": s,
+        "q_limit": q_lim,
         "d_s": d_s,
         "dq_limit": dq_lim,
         "trace_q": q[::5].tolist(),
@@ -187,15 +194,17 @@ def _phase_figure(runs: list[dict], title: str, path: Path, key: str) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
     r0 = runs[0]
-    q_up, d_s, dq_lim = r0["q_upper"], r0["d_s"], r0["dq_limit"]
+    q_lim, d_s, dq_lim, s = r0["q_limit"], r0["d_s"], r0["dq_limit"], r0["direction"]
     qs = np.concatenate([np.asarray(r["trace_q"]) for r in runs])
     dqs = np.concatenate([np.asarray(r["trace_dq"]) for r in runs])
-    x_lo, x_hi = float(qs.min()) - 0.02, max(float(qs.max()), q_up) + 0.03
-    y_lo, y_hi = min(float(dqs.min()), 0.0) - 0.05, max(float(dqs.max()), dq_lim) + 0.1
-    ax.axvspan(q_up, x_hi, color="0.75", label="beyond position limit")
-    ax.axvspan(q_up - d_s, q_up, color="0.9", label="safety distance d_s")
-    ax.axhspan(dq_lim, y_hi, color="0.85")
-    ax.axhline(dq_lim, ls="--", color="0.4", lw=0.8, label="velocity limit")
+    x_lo, x_hi = min(float(qs.min()), q_lim) - 0.03, max(float(qs.max()), q_lim) + 0.03
+    y_lo = min(float(dqs.min()), 0.0, s * dq_lim) - (0.1 if s < 0 else 0.05)
+    y_hi = max(float(dqs.max()), 0.0, s * dq_lim) + (0.1 if s > 0 else 0.05)
+    beyond = (q_lim, x_hi) if s > 0 else (x_lo, q_lim)  # the side joint 4 falls toward
+    ax.axvspan(*beyond, color="0.75", label="beyond position limit")
+    ax.axvspan(*sorted((q_lim - s * d_s, q_lim)), color="0.9", label="safety distance d_s")
+    ax.axhspan(*((dq_lim, y_hi) if s > 0 else (y_lo, -dq_lim)), color="0.85")
+    ax.axhline(s * dq_lim, ls="--", color="0.4", lw=0.8, label="velocity limit")
     for r in runs:
         if r["form"] == "classic":
             ax.plot(r["trace_q"], r["trace_dq"], color="0.5", lw=1.6, label="classic δt [C17–19]")
@@ -206,7 +215,7 @@ def _phase_figure(runs: list[dict], title: str, path: Path, key: str) -> None:
     ax.set_xlabel("joint 4 position q (rad)")
     ax.set_ylabel("joint 4 velocity q̇ (rad/s)")
     ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=7, loc="lower left")
+    ax.legend(fontsize=7, loc="lower left" if s > 0 else "upper right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -539,13 +548,14 @@ def run(args: argparse.Namespace) -> int:
     classic = next((r for r in runs if r["form"] == "classic"), None)
     gains = DamperGains()
     setup = (
-        f"<p>Gen3 in the L-shape (<code>l_shape</code>), {PAYLOAD_KG:g} kg at the TCP in the simulation only, "
+        f"<p>{runs[0]['robot']} at <code>l_shape</code>, {PAYLOAD_KG:g} kg at the TCP in the simulation only, "
         f"posture task only (K_p = {POSTURE_STIFFNESS:g}, K_d = {POSTURE_DAMPING:g}), Γ₀ = e₄, external torque "
         f"from the momentum observer fused with the F/T sensor (K_I = {runs[0]['observer_gain']:g} s⁻¹), each drop "
         f"until joint 4 has stopped (at most {args.duration:g} s), {1.0 / TIMESTEP_S:g} Hz. The F/T model reads the "
         "payload's weight and its inertial force m(g − a)."
         + (
-            f" Case (a): position limit q⁺ = {pos['q_upper']:.2f} rad (d_s = {pos['d_s'] * 1e3:.1f} mrad)."
+            f" Case (a): joint 4 falls toward its {'upper' if pos['direction'] > 0 else 'lower'} position limit"
+            f" q⁺ = {pos['q_limit']:.2f} rad (q⁺ names that limit below; d_s = {pos['d_s'] * 1e3:.1f} mrad)."
             if pos
             else ""
         )
