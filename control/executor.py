@@ -66,6 +66,24 @@ class TaskTarget:
     wrench: np.ndarray = field(default_factory=lambda: np.zeros(6))  # (6,) desired F^e (force on the robot)
     q_posture: np.ndarray | None = None  # (n,) desired joint posture for posture/nullspace tasks
 
+    @classmethod
+    def trusted(
+        cls,
+        position: np.ndarray,
+        rotation: np.ndarray,
+        velocity: np.ndarray,
+        acceleration: np.ndarray,
+        wrench: np.ndarray,
+        q_posture: np.ndarray | None,
+    ) -> TaskTarget:
+        """A target from arrays its builder already holds as the checked type (float64, these shapes,
+        finite, C-contiguous): no check here. For a builder that makes one target per control step from
+        inputs it checked once, at its own construction (`app.scenarios.polish.PolishTarget`)."""
+        target = object.__new__(cls)
+        target.position, target.rotation, target.velocity = position, rotation, velocity
+        target.acceleration, target.wrench, target.q_posture = acceleration, wrench, q_posture
+        return target
+
     def __post_init__(self) -> None:
         p, R, v, a, w, qp = self.position, self.rotation, self.velocity, self.acceleration, self.wrench, self.q_posture
         # the per-step case first (float64 arrays of the right shape, not read-only: one combined
@@ -77,15 +95,10 @@ class TaskTarget:
             and (qp is None or (type(qp) is _ARRAY and qp.dtype is _F64 and qp.ndim == 1 and qp.shape[0] > 0))
             and _plain(p) and _plain(R) and _plain(v) and _plain(a) and _plain(w) and (qp is None or _plain(qp))
         ):  # fmt: skip
-            s = (
-                float(p @ p)
-                + float(v @ v)
-                + float(a @ a)
-                + float(w @ w)
-                + float(R[0] @ R[0] + R[1] @ R[1] + R[2] @ R[2])
-            )
+            r = R.reshape(9)  # `dot` costs a third of `@` on these sizes
+            s = float(p.dot(p)) + float(v.dot(v)) + float(a.dot(a)) + float(w.dot(w)) + float(r.dot(r))
             if qp is not None:
-                s += float(qp @ qp)
+                s += float(qp.dot(qp))
             if math.isfinite(s):
                 return
         self.position = float_array("TaskTarget", "position", self.position, (3,))
@@ -105,6 +118,17 @@ class ControlInputs:
     target: TaskTarget
     wrench_tcp: np.ndarray  # (6,) filtered F/T reading mapped to the TCP: F^e [f; m], world axes
     tau_ext_oracle: np.ndarray | None = None  # (n,) true external torque: only for source "oracle"
+
+    @classmethod
+    def trusted(
+        cls, t: float, target: TaskTarget, wrench_tcp: np.ndarray, tau_ext_oracle: np.ndarray | None
+    ) -> ControlInputs:
+        """Inputs from arrays the caller made as the checked type (float64 C-contiguous vectors, the
+        reading (6,)): no check here. For the session's step, whose reading comes from a compiled
+        kernel and whose oracle torque is a fresh copy of the world's (`app.core.session.Session.step`)."""
+        inputs = object.__new__(cls)
+        inputs.t, inputs.target, inputs.wrench_tcp, inputs.tau_ext_oracle = t, target, wrench_tcp, tau_ext_oracle
+        return inputs
 
     def __post_init__(self) -> None:
         """The reading as float64 (6,) (NaN kept: a faulty sensor is the executor's to survive)."""

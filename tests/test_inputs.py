@@ -68,6 +68,34 @@ def test_task_target_refuses_a_bad_field_at_construction_in_one_line(kwargs, fie
     assert "\n" not in str(err.value)
 
 
+def test_the_polish_target_checks_its_inputs_once_and_builds_every_steps_target_of_the_checked_type():
+    """`PolishTarget` refuses a bad start or rotation at its construction (one line); the targets it
+    builds each step without a check (`TaskTarget.trusted`) hold float64 C-contiguous arrays of the
+    right shapes with finite entries, the same values a checked `TaskTarget` gets, along the zig-zag."""
+    from app.scenarios.polish import CONTACT_TIME_S, PhaseClock, PolishTarget, trajectory_duration
+
+    clock = PhaseClock()
+    q = np.linspace(-0.5, 0.5, 7)
+    with pytest.raises(ValueError, match=r"^PolishTarget\.rotation ") as err:
+        PolishTarget(np.zeros(3), np.eye(4), q, clock)
+    assert "\n" not in str(err.value)
+    with pytest.raises(ValueError, match=r"^PolishTarget\.start_position "):
+        PolishTarget([0.0, np.nan, 0.5], np.eye(3), q, clock)
+    target_fn = PolishTarget((0.4, 0.0, 0.3), np.eye(3, dtype=int), tuple(q), clock)
+    clock.trajectory_start = CONTACT_TIME_S
+    shapes = {"position": (3,), "rotation": (3, 3), "velocity": (6,), "acceleration": (6,), "wrench": (6,)}
+    end = CONTACT_TIME_S + trajectory_duration() + 1.0
+    for t in np.linspace(0.0, end, 41):
+        built = target_fn(float(t))
+        checked = TaskTarget(**{name: getattr(built, name) for name in (*shapes, "q_posture")})
+        for name, shape in {**shapes, "q_posture": (7,)}.items():
+            a = getattr(built, name)
+            assert type(a) is np.ndarray and a.dtype == np.float64 and a.shape == shape, (t, name)
+            assert a.flags.c_contiguous and np.all(np.isfinite(a)), (t, name)
+            np.testing.assert_array_equal(a, getattr(checked, name))
+    assert np.ptp([target_fn(float(t)).position[0] for t in np.linspace(CONTACT_TIME_S, end, 9)]) > 0.01
+
+
 def _executors(robot, model):
     from app.core.executors import EXECUTORS
 

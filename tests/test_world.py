@@ -100,16 +100,34 @@ def test_site_point_state_is_the_site_pose_velocity_and_inverse_mass_in_one(rizo
     assert world.site_point_state(world.tcp_site)[2] is None  # the inverse mass only when asked
 
 
-def test_compiled_torque_clip_equals_numpy_minimum_of_maximum():
-    """`clip_torque` gives np.minimum(np.maximum(τ, lower), upper) exactly, NaN kept as NaN."""
-    from app.sim.world import clip_torque
+def test_compiled_torque_clip_equals_numpy_minimum_of_maximum_and_tracks_the_stop_depth():
+    """`clip_torque_track_stops` gives np.minimum(np.maximum(τ, lower), upper) exactly, NaN kept as
+    NaN, and raises the recent and peak stop depths to max(q − hi, lo − q) where that is deeper
+    (an endless joint's ±inf stops never register)."""
+    from app.sim.world import clip_torque_track_stops
 
     rng = np.random.default_rng(6)
     upper = rng.uniform(10, 80, 7)
-    for _ in range(200):
+    limits = np.array([-upper, upper])
+    adr = np.array([0, 2, 3, 4, 6, 7, 8])  # the arm's joints among other qpos entries
+    lo, hi = rng.uniform(-3, -2, 7), rng.uniform(2, 3, 7)
+    lo[5], hi[5] = -np.inf, np.inf  # an endless joint
+    stops = np.array([lo, hi, np.full(7, -np.inf), np.full(7, -np.inf)])
+    recent, peak = np.full(7, -np.inf), np.full(7, -np.inf)
+    for k in range(200):
         tau = rng.normal(0, 60, 7)
         tau[rng.integers(0, 7)] = rng.choice([np.nan, np.inf, -np.inf, 0.0])
-        np.testing.assert_array_equal(clip_torque(tau, -upper, upper), np.minimum(np.maximum(tau, -upper), upper))
+        qpos = rng.uniform(-3.2, 3.2, 9)
+        if k % 50 == 0:
+            stops[2].fill(-np.inf)
+            recent.fill(-np.inf)
+        out = clip_torque_track_stops(tau, limits, qpos, adr, stops)
+        np.testing.assert_array_equal(out, np.minimum(np.maximum(tau, -upper), upper))
+        depth = np.maximum(qpos[adr] - hi, lo - qpos[adr])
+        recent, peak = np.maximum(recent, depth), np.maximum(peak, depth)
+        np.testing.assert_array_equal(stops[2], recent)
+        np.testing.assert_array_equal(stops[3], peak)
+    assert stops[3, 5] == -np.inf and np.all(np.isfinite(stops[3, [0, 1, 2, 3, 4, 6]]))
 
 
 def test_body_ids_are_mujocos_looked_up_once_and_an_unknown_name_is_refused_by_name(rizon):

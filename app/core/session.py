@@ -357,7 +357,9 @@ class Session:
         wrench_tcp = self._sensor_to_tcp(reading_sensor, dyn)
         target = self.target_fn(t)
         tau_ext = world.external_joint_torque()
-        inputs = ControlInputs(t=t, target=target, wrench_tcp=wrench_tcp, tau_ext_oracle=tau_ext)
+        # the target was checked where it was built (its scenario), the reading and τ^e are fresh
+        # float64 vectors made here: no per-step coercion
+        inputs = ControlInputs.trusted(t, target, wrench_tcp, tau_ext)
         out = self._safe_step(dyn, inputs)  # [4]
         world.step(out.tau)  # [5]
         self.steps += 1

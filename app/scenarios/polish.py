@@ -28,7 +28,7 @@ from app.sim.disturbances import Sander
 from app.sim.sensor import FTSensor
 from app.sim.world import World
 from control.coupling import POLISH_SUBSPACES, move_to_swivel, project_to_pose
-from control.executor import TaskTarget
+from control.executor import TaskTarget, float_array
 from control.gains import MotionForceGains
 from control.kernels.geometry import swivel_of_anchors_fused
 from control.margin import ContactLoop, posture_margin
@@ -728,7 +728,11 @@ def planned_path(
 
 
 class PolishTarget:
-    """TaskTarget as a function of time: the zig-zag of Fig. 7 with 20 N along +z."""
+    """TaskTarget as a function of time: the zig-zag of Fig. 7 with 20 N along +z.
+
+    Its inputs (start, rotation, posture, the plan's postures) are checked here, once, as the
+    executors' type (`control.executor.float_array`); each step's target is built from them by
+    arithmetic that keeps that type, so it takes `TaskTarget.trusted` (no check per step)."""
 
     def __init__(
         self,
@@ -739,10 +743,14 @@ class PolishTarget:
         plan: Plan | None = None,
         plan_lead_s: float = 0.0,
     ):
-        self.start = np.asarray(start_position, dtype=float)
-        self.rotation = rotation
-        self.q_posture = q_posture
+        self.start = float_array("PolishTarget", "start_position", start_position, (3,))
+        self.rotation = float_array("PolishTarget", "rotation", rotation, (3, 3))
+        self.q_posture = float_array("PolishTarget", "q_posture", q_posture, None)
         self.clock = clock
+        if plan is not None:
+            n = self.q_posture.shape[0]
+            float_array("PolishTarget", "plan.q", plan.q, (plan.t.shape[0], n))
+            float_array("PolishTarget", "plan.t", plan.t, None)
         self.plan = plan
         self.plan_lead_s = float(plan_lead_s)
         self.corners = segment_waypoints((float(self.start[0]), float(self.start[1])))
@@ -765,14 +773,8 @@ class PolishTarget:
             pos[:2] = a + s_p * (b - a)
             vel[:2] = s_v / T * (b - a)
             acc[:2] = s_a / T**2 * (b - a)
-        return TaskTarget(
-            position=pos,
-            rotation=self.rotation,
-            velocity=vel,
-            acceleration=acc,
-            wrench=self.wrench,
-            q_posture=self.q_posture if self.plan is None else self.planned_posture(t),
-        )
+        q_d = self.q_posture if self.plan is None else self.planned_posture(t)
+        return TaskTarget.trusted(pos, self.rotation, vel, acc, self.wrench, q_d)  # checked in __init__
 
     def plan_time(self, t: float) -> float:
         """Time on the plan's clock at t: −transfer at the settle start, 0 at the trajectory start."""

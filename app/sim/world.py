@@ -241,21 +241,28 @@ class World:
         self._jacp = np.zeros((3, self.model.nv))  # Jacobian buffers (mj_jac* overwrite them)
         self._jacr = np.zeros((3, self.model.nv))
         self._solve_buf = np.zeros((3, self.model.nv))
-        self._tau_min = -np.asarray(robot.tau_max, dtype=float)
         self.reset_at: float | None = None  # simulated time at which MuJoCo reset an unstable state
         self._warning_counts = self.data.warning.number  # a live view of MjData's warning counters
         # live views of the MjData arrays read or written every step (MjData's buffers never move;
         # each attribute read would build a new array object)
         self._qfrc_applied = self.data.qfrc_applied
         self._views = all(isinstance(at, slice) for at in (self._qpos_at, self._qvel_at, self._ctrl_at))  # else copies
-        self._tau_max = np.asarray(robot.tau_max, dtype=float).copy()
+        self._qpos_all, self._qvel_all = self.data.qpos, self.data.qvel
+        tau_max = np.asarray(robot.tau_max, dtype=float)
+        self._tau_limits = np.array([-tau_max, tau_max])  # rows: lower, upper (N m)
         # the deepest each joint went into its mechanical stop (rad, ≤ 0: short of it) at any step since
-        # `take_stop_depth` last read it: checked every step, not sampled when someone looks
+        # `take_stop_depth` last read it: checked every step, not sampled when someone looks. Rows:
+        # the stop's lower and upper position (±inf for an endless joint), the depth since the last
+        # look, the depth since the reset (`STOP_ROWS`)
         bounded = ~np.asarray(robot.endless, dtype=bool)
-        self._stop_lo = np.where(bounded, np.asarray(robot.q_lower, dtype=float) - HARD_STOP_BEYOND_RAD, -np.inf)
-        self._stop_hi = np.where(bounded, np.asarray(robot.q_upper, dtype=float) + HARD_STOP_BEYOND_RAD, np.inf)
-        self._stop_recent = np.full(len(robot.joint_names), -np.inf)  # since `take_stop_depth` last read it
-        self.stop_depth = np.full(len(robot.joint_names), -np.inf)  # since the last reset (peak)
+        self._stops = np.array(
+            [
+                np.where(bounded, np.asarray(robot.q_lower, dtype=float) - HARD_STOP_BEYOND_RAD, -np.inf),
+                np.where(bounded, np.asarray(robot.q_upper, dtype=float) + HARD_STOP_BEYOND_RAD, np.inf),
+                np.full(len(robot.joint_names), -np.inf),
+                np.full(len(robot.joint_names), -np.inf),
+            ]
+        )
         if self._views:
             self._ctrl_arm = self.data.ctrl[self._ctrl_at]
             self._qpos_arm, self._qvel_arm = self.data.qpos[self._qpos_at], self.data.qvel[self._qvel_at]
@@ -295,8 +302,7 @@ class World:
         self._tau_pipeline.clear()
         self._acc_valid = False
         self.reset_at = None
-        self.stop_depth.fill(-np.inf)
-        self._stop_recent.fill(-np.inf)
+        self._stops[2:].fill(-np.inf)
 
     @property
     def divergence_time(self) -> float:
@@ -473,7 +479,9 @@ class World:
         """Advance one timestep with joint torques τ (clipped to the motor limits), then clear forces.
         With a torque delay of d steps the motors apply the command of d steps ago (the first
         command is held until the pipeline has filled)."""
-        ctrl = clip_torque(tau, self._tau_min, self._tau_max)  # np.clip's result (NaN kept), compiled
+        # np.clip's result (NaN kept), and in the same compiled call how deep each joint is in its stop
+        # in the state this step starts from: the one the last step (or a reset) left
+        ctrl = clip_torque_track_stops(tau, self._tau_limits, self._qpos_all, self.qpos_adr, self._stops)
         if self.torque_delay_steps > 0:
             self._tau_pipeline.append(ctrl)
             ctrl = self._tau_pipeline[0]
@@ -491,9 +499,6 @@ class World:
         t_before = self.data.time
         mujoco.mj_step2(self.model, self.data)
         mujoco.mj_step1(self.model, self.data)
-        track_stop_depth(
-            self.data.qpos, self.qpos_adr, self._stop_lo, self._stop_hi, self._stop_recent, self.stop_depth
-        )
         if self.data.time < t_before and self.reset_at is None:
             # MuJoCo reset an unstable state (time back to 0): keep when it happened
             self.reset_at = t_before + self.model.opt.timestep
@@ -533,15 +538,23 @@ class World:
 
     def take_stop_depth(self) -> np.ndarray:
         """The deepest each joint went into its stop (rad) at any step since the last call; starts over."""
-        out = self._stop_recent.copy()
-        self._stop_recent.fill(-np.inf)
+        stops = self._stops
+        track_stop_depth(self._qpos_all, self.qpos_adr, stops)  # the last step's state (`step` checks the rest)
+        out = stops[2].copy()
+        stops[2].fill(-np.inf)
         return out
+
+    @property
+    def stop_depth(self) -> np.ndarray:
+        """The deepest each joint went into its stop (rad) at any step since the reset: the world's own
+        array (filling it with −inf starts the count over)."""
+        track_stop_depth(self._qpos_all, self.qpos_adr, self._stops)  # the last step's state
+        return self._stops[3]
 
     def diverged(self) -> bool:
         """True when the state holds NaN/inf or a runaway velocity (‖q̇‖ > 1e3), or MuJoCo had to reset
         an unstable state since the last `reset` (it does so silently, counting a warning)."""
-        data = self.data
-        qvel, qpos = data.qvel, data.qpos
+        qvel, qpos = self._qvel_all, self._qpos_all
         # a dot product is NaN/inf when any element is, and `not <=` is True for NaN: one cheap test
         if not float(qvel.dot(qvel)) <= 1e6 or not math.isfinite(float(qpos.dot(qpos))):
             return True
@@ -574,27 +587,30 @@ class World:
 
 
 @njit(cache=True)
-def track_stop_depth(qpos, adr, stop_lo, stop_hi, recent, peak):
-    """recent[j], peak[j] = their max with how far joint j is past its stop now (rad; < 0: short of it)."""
+def track_stop_depth(qpos, adr, stops):
+    """stops[2, j], stops[3, j] = their max with how far joint j (at qpos[adr[j]]) is past its stop
+    now (rad; < 0: short of it), the stop being stops[0, j] below and stops[1, j] above."""
     for j in range(adr.shape[0]):
         q = qpos[adr[j]]
-        d = max(q - stop_hi[j], stop_lo[j] - q)
-        if d > recent[j]:
-            recent[j] = d
-        if d > peak[j]:
-            peak[j] = d
+        d = max(q - stops[1, j], stops[0, j] - q)
+        if d > stops[2, j]:
+            stops[2, j] = d
+        if d > stops[3, j]:
+            stops[3, j] = d
 
 
 @njit(cache=True)
-def clip_torque(tau, lower, upper):
-    """min(max(τ, lower), upper) element by element as a new array (NaN stays NaN, as with
-    np.minimum/np.maximum): the motors' torque limits."""
+def clip_torque_track_stops(tau, limits, qpos, adr, stops):
+    """min(max(τ, limits[0]), limits[1]) element by element as a new array (NaN stays NaN, as with
+    np.minimum/np.maximum): the motors' torque limits; and `track_stop_depth(qpos, adr, stops)`,
+    in one call (one dispatch per step)."""
+    track_stop_depth(qpos, adr, stops)
     out = np.empty(tau.shape[0])
     for i in range(tau.shape[0]):
         x = tau[i]
-        if x < lower[i]:
-            x = lower[i]
-        elif x > upper[i]:
-            x = upper[i]
+        if x < limits[0, i]:
+            x = limits[0, i]
+        elif x > limits[1, i]:
+            x = limits[1, i]
         out[i] = x
     return out
