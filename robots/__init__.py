@@ -119,6 +119,21 @@ def chosen(default: str) -> str:
     return os.environ.get(ROBOT_ENV) or default
 
 
+def short_name(spec: str) -> str:
+    """A robot's name for a list: a shipped name as it is; for a URDF (a path or a `robot_spec`) the
+    name its `<robot name="…">` gives, else the file's stem."""
+    if spec in BUILTIN + EXTERNAL:
+        return spec
+    import xml.etree.ElementTree as ET
+
+    path = Path(spec.partition("#")[0]).expanduser()
+    try:
+        name = (ET.parse(path).getroot().get("name") or "").strip()
+    except (OSError, ET.ParseError):
+        name = ""
+    return name or path.stem
+
+
 def guessed_text(robot: RobotDescription) -> str:
     """One paragraph naming the values `robot` had to guess and why each matters ("" when none)."""
     if not robot.guessed:

@@ -53,3 +53,62 @@ def test_sidecar_naming_a_missing_frame_is_refused(tmp_path):
     (tmp_path / "arm.toml").write_text('flange_frame = "tool0"\n')
     with pytest.raises(robots.RobotLoadError, match="no frame 'tool0'"):
         robots.load(str(path))
+
+
+def test_the_robot_list_names_a_urdf_by_its_robot_name_and_tells_apart_those_that_collide(tmp_path):
+    """A URDF's label is its `<robot name>` (the file stem when it has none); one that a shipped robot
+    or an earlier URDF already holds gets its chain options, else its file name, then its folder and
+    file, in brackets; every label maps back to its spec."""
+    from app.live.ui.panels.scenario import robot_labels
+    from tests import urdf_fixtures as fx
+
+    arm = fx.write(tmp_path / "lab" / "gripper_arm.urdf", fx.gripper_arm())
+    same = fx.write(tmp_path / "other" / "gripper_arm.urdf", fx.gripper_arm())
+    renamed = fx.write(tmp_path / "lab" / "my_arm.urdf", fx.gripper_arm())
+    panda = fx.write(tmp_path / "lab" / "franka.urdf", fx.robot("panda", fx.arm("a", "world_base")))
+    nameless = fx.write(tmp_path / "lab" / "bare.urdf", fx.gripper_arm().replace(' name="gripper_arm"', "", 1))
+    tipped = robots.robot_spec(arm, tip="a_link7")
+    twin = fx.write(tmp_path / "more" / "other" / "gripper_arm.urdf", fx.gripper_arm())
+    specs = [str(arm), str(same), str(renamed), str(panda), str(nameless), tipped, str(twin)]
+    labels = robot_labels(specs, taken=("scenario default", "rizon4s", "gen3", "panda"))
+    assert labels["gripper_arm"] == str(arm)
+    assert labels["gripper_arm (gripper_arm.urdf)"] == str(same)
+    assert labels["gripper_arm (my_arm.urdf)"] == str(renamed)
+    assert labels["panda (franka.urdf)"] == str(panda)
+    assert labels["bare"] == str(nameless)
+    assert labels["gripper_arm (other/gripper_arm.urdf)"] == str(twin)  # file name taken: folder and file
+    assert labels["gripper_arm (tip=a_link7)"] == tipped  # the same file as the first: its chain option
+    assert len(set(labels.values())) == len(specs)
+
+
+def test_the_page_lists_a_urdf_arm_by_its_short_name_keeps_the_path_in_the_hint_and_switches_to_it(tmp_path):
+    """`serve --urdf PATH`: the Robot dropdown offers "gripper_arm", not the path; its hint holds the
+    path; the dropdown shows that label for the arm in force, and choosing it switches to the spec."""
+    import types
+
+    from app.live.server import start_app
+    from app.live.ui.panels.scenario import DEFAULT_ROBOT, ScenarioPanel
+    from tests import urdf_fixtures as fx
+    from tests.conftest import free_port
+
+    spec = str(fx.write(tmp_path / "gripper_arm.urdf", fx.gripper_arm()))
+    app = start_app("127.0.0.1", free_port(), "free", spec, running=False)
+    try:
+        panel = next(p for p in app.panels if isinstance(p, ScenarioPanel))
+        assert "gripper_arm" in panel.robot.options and spec not in panel.robot.options
+        assert f"gripper_arm: {spec}" in (panel.robot.hint or "")
+        frame = app.loop.wait_frame(0, timeout=10.0)
+        assert frame is not None
+        panel.live(frame)
+        assert panel.robot.value == "gripper_arm"
+
+        def choose(label: str) -> None:
+            panel._on_robot(types.SimpleNamespace(client_id=1, target=types.SimpleNamespace(value=label)))
+            app.loop.sync()
+
+        choose(DEFAULT_ROBOT)
+        assert app.loop.robot_choice == "" and app.loop.session.robot.name == "rizon4s"
+        choose("gripper_arm")
+        assert app.loop.robot_choice == spec and app.loop.session.robot.name == "gripper_arm"
+    finally:
+        app.stop()

@@ -6,6 +6,8 @@ import contextlib
 import math
 import time
 from collections import deque
+from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 import viser
@@ -22,6 +24,32 @@ from app.scenarios import SCENARIOS
 from control.qp import RELAXED
 
 DEFAULT_ROBOT = "scenario default"
+
+
+def robot_labels(specs: Iterable[str], taken: Iterable[str] = ()) -> dict[str, str]:
+    """label -> spec for the page's robot list: each URDF's short name (`robots.short_name`); one that
+    a label already holds (`taken`: the shipped robots, or an earlier URDF) gets, in brackets, its chain
+    options (--base/--tip) if it has any, else its file name, then its folder and file, then a number."""
+    used = set(taken)
+    out: dict[str, str] = {}
+    for spec in specs:
+        name = robots.short_name(spec)
+        path_text, _, query = spec.partition("#")
+        path = Path(path_text)
+        where = f"{path.parent.name}/{path.name}"
+        tries = [name, *([f"{name} ({query})"] if query else []), f"{name} ({path.name})", f"{name} ({where})"]
+        if query:
+            tries.append(f"{name} ({where} {query})")
+        label = next((t for t in tries if t not in used), "")
+        k = 2
+        while not label:
+            label = f"{name} ({k})" if f"{name} ({k})" not in used else ""
+            k += 1
+        used.add(label)
+        out[label] = spec
+    return out
+
+
 NO_CASE = "–"
 SETTLE_LABEL = "Settle now"
 SETTLING_LABEL = "Settling unpaced…"
@@ -92,8 +120,16 @@ class ScenarioPanel(KnobPanel):
             "Case", status.variants or (NO_CASE,), initial_value=status.variant or NO_CASE, disabled=not status.variants
         )
         self.description = gui.add_markdown(_describe(status))
-        robot_options = (DEFAULT_ROBOT, *robots.available(), *self._extra_robots)
-        self.robot = gui.add_dropdown("Robot", robot_options, initial_value=DEFAULT_ROBOT)
+        names = (DEFAULT_ROBOT, *robots.available())
+        self._robot_specs = {**{n: n for n in names}, **robot_labels(self._extra_robots, names)}  # label -> spec
+        self._robot_labels = {spec: label for label, spec in self._robot_specs.items()}
+        paths = [f"{label}: {spec}" for label, spec in self._robot_specs.items() if label not in names]
+        self.robot = gui.add_dropdown(
+            "Robot",
+            tuple(self._robot_specs),
+            initial_value=DEFAULT_ROBOT,
+            hint="The arm to run the preset on" + ("; " + "; ".join(paths) if paths else ""),
+        )
         executors = tuple(EXECUTORS)
         self.executor = gui.add_dropdown(
             "Executor", executors, initial_value=status.executor if status.executor in executors else executors[0]
@@ -166,10 +202,11 @@ class ScenarioPanel(KnobPanel):
         if event.client_id is None:
             return
         name = event.target.value
-        if name not in self.robot.options:
+        spec = self._robot_specs.get(name)
+        if spec is None:
             notify(self.server, event.client_id, "Refused", f"unknown robot {name!r}")
             return
-        self.loop.submit(SwitchSession(robot="" if name == DEFAULT_ROBOT else name))
+        self.loop.submit(SwitchSession(robot="" if spec == DEFAULT_ROBOT else spec))
 
     def _on_executor(self, event: viser.GuiEvent) -> None:
         if event.client_id is None:
@@ -211,8 +248,8 @@ class ScenarioPanel(KnobPanel):
             self.case.disabled = not st.variants
         if st.executor in self.executor.options:
             _set(self.executor, st.executor)
-        choice = self.loop.robot_choice or DEFAULT_ROBOT
-        if choice in self.robot.options:
+        choice = self._robot_labels.get(self.loop.robot_choice or DEFAULT_ROBOT)
+        if choice is not None:
             _set(self.robot, choice)
         if time.time() - self.speed.update_timestamp > 0.6:
             _set(self.speed, speed_label(st.speed))
