@@ -65,6 +65,7 @@ class Margin:
     spectral_radius: float
     directional_coupling: float  # P_d·f̂ (force-subspace wrench per unit friction wrench) [T10]
     kd_critical: float | None  # K_f^d (N s/m) below which the loop is unstable (None: not found)
+    frequency_hz: float = math.nan  # the slowest-decaying mode's frequency, |arg λ|/(2π Δt)
 
 
 # ---- a sampled loop with latency: ξ_{k+1} = Φ ξ_k --------------------------------------------------
@@ -238,9 +239,16 @@ def force_loop_margin(
 ) -> Margin:
     """The `Margin` of one posture (its Λx) for one friction direction (module docstring)."""
     phi = _step_map(Lambda, sub, gains, loop, friction_dir)
-    rho = _spectral_radius(phi(float(gains.force_kd)))
+    rho, freq = dominant_mode(phi(float(gains.force_kd)), loop.dt)
     kd_crit = _critical_kd(phi, gains.force_kd) if find_kd else None
-    return Margin(-math.log(rho) / loop.dt, rho, directional_coupling(Lambda, sub, friction_dir), kd_crit)
+    return Margin(-math.log(rho) / loop.dt, rho, directional_coupling(Lambda, sub, friction_dir), kd_crit, freq)
+
+
+def dominant_mode(phi: np.ndarray, dt: float) -> tuple[float, float]:
+    """(ρ(Φ), frequency in Hz) of the eigenvalue of largest modulus λ: |λ| and |arg λ|/(2π Δt)."""
+    w = np.linalg.eigvals(phi)
+    lam = w[int(np.argmax(np.abs(w)))]
+    return float(abs(lam)), float(abs(np.angle(lam)) / (2.0 * math.pi * dt))
 
 
 def critical_force_kd(

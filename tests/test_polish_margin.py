@@ -166,3 +166,55 @@ def test_recomputed_run_margins_use_each_runs_own_sensing_delay(rizon):
     _recompute_margins(runs)
     old, zero, one = (r["margin"] for r in runs)
     assert old == zero and one < zero - 10.0
+
+
+def test_the_observed_mode_finds_a_growing_oscillations_frequency_and_growth():
+    """A 13.5 Hz oscillation growing at 1.5 /s over a 2.5 s stroke in noise: the peak within the
+    spectrum's resolution (1/2.5 s), the band's envelope rising by ≈ 1.5 /s over the bins' span
+    (2.25 s); the same oscillation at constant amplitude shows no growth beyond the noise."""
+    dt, T = 1e-3, P.SEGMENT_DURATION_S
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, T + 1.0, dt)  # 0.5 s either side of the stroke
+    start, stop = round(0.5 / dt), round((0.5 + T) / dt)
+    tau = np.clip(t - 0.5, 0.0, T)
+    growing = 0.5 * np.exp(1.5 * tau) * np.sin(2 * np.pi * 13.5 * t) + rng.normal(0.0, 0.05, t.size)
+    seen = C.observed_mode(growing, start, stop, dt)
+    assert seen is not None and abs(seen["peak_hz"] - 13.5) <= 1.0 / T
+    assert seen["growth_np"] == pytest.approx(1.5 * (T - C.OBSERVED_BIN_S), rel=0.1)
+    steady = np.sin(2 * np.pi * 13.5 * t) + rng.normal(0.0, 0.05, t.size)
+    calm = C.observed_mode(steady, start, stop, dt)
+    assert calm is not None and calm["growth_np"] < 0.1 and calm["band_rms_n"] == pytest.approx(np.sqrt(0.5), rel=0.05)
+    assert C.observed_mode(steady, start, start + 10, dt) is None  # shorter than two bins
+
+
+def test_the_dominant_mode_is_the_eigenvalue_of_largest_modulus_with_its_frequency():
+    from control.margin import dominant_mode
+
+    dt, r, f = 1e-3, 0.999, 13.5
+    th = 2 * np.pi * f * dt
+    phi = np.zeros((3, 3))
+    phi[:2, :2] = r * np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    phi[2, 2] = 0.5
+    rho, hz = dominant_mode(phi, dt)
+    assert rho == pytest.approx(r, rel=1e-12) and hz == pytest.approx(f, rel=1e-9)
+
+
+def test_the_calibration_names_the_largest_growth_stroke_with_both_modes():
+    run = {
+        "stroke_margin": [
+            {"segment": 4, "growth_np": 0.4, "mode_hz_at_worst": 13.2},
+            {"segment": 6, "growth_np": 4.0, "mode_hz_at_worst": 13.0},
+        ],
+        "per_segment": [
+            {"segment": 4, "observed": {"peak_hz": 13.2, "growth_np": 2.1}},
+            {"segment": 6, "observed": {"peak_hz": 13.6, "growth_np": 1.4}},
+        ],
+    }
+    assert C.growth_stroke(run) == {
+        "growth_segment": 6,
+        "growth_segment_np": 4.0,
+        "growth_segment_mode_hz": 13.0,
+        "growth_segment_peak_hz": 13.6,
+        "growth_segment_observed_np": 1.4,
+    }
+    assert C.growth_stroke({"stroke_margin": []}) == {}

@@ -59,6 +59,7 @@ class MarginSample:
     rate_per_s: float  # σ, > 0 decays
     kd_margin: float  # N s/m; −inf when no K_f^d up to 2000 N s/m is stable
     pd_fhat: float  # P_d·f̂ [T10] along the segment's friction direction
+    frequency_hz: float = math.nan  # the slowest-decaying mode's frequency (NaN: rate alone)
 
 
 def sample(
@@ -72,7 +73,7 @@ def sample(
         return MarginSample(rate, math.nan, math.nan)
     m = force_loop_margin(Lambda, POLISH_SUBSPACES, gains, _at_speed(loop, speed), f_hat, find_kd=find_kd)
     kd = math.nan if not find_kd else (-math.inf if m.kd_critical is None else gains.force_kd - m.kd_critical)
-    return MarginSample(m.rate_per_s, kd, m.directional_coupling)
+    return MarginSample(m.rate_per_s, kd, m.directional_coupling, m.frequency_hz)
 
 
 def _at_speed(loop: ContactLoop, speed: float) -> ContactLoop:
@@ -83,7 +84,8 @@ def _at_speed(loop: ContactLoop, speed: float) -> ContactLoop:
 
 def per_stroke(taus: np.ndarray, samples: list[MarginSample]) -> list[dict]:
     """Per segment 1..6: the worst σ (and when), the worst K_f^d margin, P_d·f̂ mean and max, the
-    growth G (module docstring); segments without samples are left out."""
+    growth G (module docstring), the frequency of the slowest-decaying mode at the worst σ; segments
+    without samples are left out."""
     taus = np.asarray(taus, dtype=float)
     out = []
     for k in range(1, P.N_SEGMENTS + 1):
@@ -93,6 +95,7 @@ def per_stroke(taus: np.ndarray, samples: list[MarginSample]) -> list[dict]:
         rate = np.array([samples[i].rate_per_s for i in sel])
         kd = np.array([samples[i].kd_margin for i in sel])
         pd = np.array([samples[i].pd_fhat for i in sel])
+        hz = np.array([samples[i].frequency_hz for i in sel])
         dts = np.diff(np.concatenate([[taus[sel[0]]], taus[sel]]))
         dts[0] = MARGIN_SAMPLE_S if sel.size == 1 else dts[1]
         g = 0.0
@@ -112,6 +115,7 @@ def per_stroke(taus: np.ndarray, samples: list[MarginSample]) -> list[dict]:
                 "growth_np": float(growth),
                 "pd_fhat_mean": float(np.mean(pd)),
                 "pd_fhat_max": float(np.max(pd)),
+                "mode_hz_at_worst": float(hz[worst]) if np.isfinite(hz[worst]) else None,
             }
         )
     return out

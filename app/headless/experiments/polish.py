@@ -24,7 +24,12 @@ from typing import Any
 import numpy as np
 
 from app.core.provenance import code_version
-from app.headless.experiments.polish_calibration import OSCILLATION_FACTOR, oscillation_threshold_n, runs_by_row
+from app.headless.experiments.polish_calibration import (
+    OSCILLATION_FACTOR,
+    observed_mode,
+    oscillation_threshold_n,
+    runs_by_row,
+)
 from app.headless.sweep.engine import open_executor
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
@@ -456,12 +461,17 @@ def simulate(spec: dict) -> dict:
         }
     for seg_k in range(1, N_SEGMENTS + 1):
         sel = series["segment"] == seg_k
+        idx = np.flatnonzero(sel)
         result["per_segment"].append(
             {
                 "segment": seg_k,
                 "direction": "retract (-X)" if seg_k % 2 == 1 else "stretch (+X)",
                 "force_error": _stats(series["force_error"][sel]),
                 "contact_lost_ms": int(np.sum(series["force_error_true"][sel] >= scenario_module.DESIRED_FORCE_N)),
+                # the true contact force's mode on this stroke, beside the margin's (polish_calibration)
+                "observed": observed_mode(series["force_error_true"], int(idx[0]), int(idx[-1]) + 1, dt)
+                if idx.size
+                else None,
             }
         )
     result["wall_s"] = time.perf_counter() - t_wall

@@ -13,6 +13,8 @@ from __future__ import annotations
 import html
 import math
 
+import numpy as np
+
 OSCILLATION_FACTOR = 3.0  # calm strokes sit at 1.2-1.5x the floor, the S2/S4/S6 limit cycles at 6-8x (issue 24)
 NOISE_VAR_N2, SINE_AMPLITUDE_N, CUTOFF_HZ, DT_S = 5.0, 2.0, 25.0, 1e-3  # the polish sensor's defaults ([T] §IV-A)
 
@@ -47,6 +49,44 @@ def outcome(result: dict) -> dict:
         else ""
     )
     return {"unstable": bool(why), "why": why, "stroke_std_max_n": worst, "threshold_n": limit}
+
+
+OBSERVED_BAND_HZ = (5.0, 40.0)  # where the force loop's modes lie (the linearised loop's: 13-14 Hz)
+OBSERVED_HALF_BAND_HZ = 3.5  # the band around the stroke's spectral peak whose envelope is followed
+OBSERVED_BIN_S = 0.25  # the envelope's averaging bins
+OBSERVED_PAD_S = 0.5  # the series either side of the stroke that the band filter runs over
+
+
+def observed_mode(error_n: np.ndarray, start: int, stop: int, dt: float) -> dict | None:
+    """What the simulation did on one stroke (samples start:stop of a force-error series at step dt),
+    for comparison with the linearised loop: the spectral peak (Hz) of the stroke's force error in
+    `OBSERVED_BAND_HZ` (Hann window), the RMS (N) of the error in ±`OBSERVED_HALF_BAND_HZ` around it,
+    and its observed growth (Np): the largest rise ln(b_j / b_i), j > i, of the band's envelope
+    (|Hilbert transform|) averaged over `OBSERVED_BIN_S` bins, the counterpart of the margin's growth
+    G. None for a stroke shorter than two bins."""
+    from scipy.signal import butter, hilbert, sosfiltfilt
+
+    x = np.asarray(error_n[start:stop], dtype=float)
+    per_bin = max(1, round(OBSERVED_BIN_S / dt))
+    if x.size < 2 * per_bin:
+        return None
+    x = x - np.mean(x)
+    spectrum = np.abs(np.fft.rfft(x * np.hanning(x.size))) ** 2
+    f = np.fft.rfftfreq(x.size, dt)
+    inside = (f >= OBSERVED_BAND_HZ[0]) & (f <= OBSERVED_BAND_HZ[1])
+    if not np.any(inside):
+        return None
+    peak = float(f[inside][np.argmax(spectrum[inside])])
+    lo, hi = max(peak - OBSERVED_HALF_BAND_HZ, 0.5), min(peak + OBSERVED_HALF_BAND_HZ, 0.45 / dt)
+    pad = round(OBSERVED_PAD_S / dt)
+    a, b = max(0, start - pad), min(len(error_n), stop + pad)
+    wide = np.asarray(error_n[a:b], dtype=float)
+    band = sosfiltfilt(butter(4, [lo, hi], btype="band", fs=1.0 / dt, output="sos"), wide - np.mean(wide))
+    env = np.abs(hilbert(band))[start - a : stop - a]
+    bins = env[: env.size // per_bin * per_bin].reshape(-1, per_bin).mean(axis=1)
+    logs = np.log(np.maximum(bins, 1e-12))
+    growth = max(0.0, float(np.max(logs - np.minimum.accumulate(logs))))
+    return {"peak_hz": peak, "band_rms_n": float(np.std(band[start - a : stop - a])), "growth_np": growth}
 
 
 def growth_limit_np(force_n: float = 20.0) -> float:
@@ -203,6 +243,26 @@ def calibration_metrics(result: dict) -> dict:
         "simulated_unstable": o["unstable"],
         "outcome": o["why"] or "stable",
         "stroke_std_max_n": o["stroke_std_max_n"],
+        **growth_stroke(result),
+    }
+
+
+def growth_stroke(result: dict) -> dict:
+    """The stroke where the margin's growth G is largest, model beside simulation: its segment, G,
+    the model's mode frequency at the stroke's worst σ, and the run's spectral peak and observed
+    growth there (`observed_mode`); {} without stroke samples."""
+    strokes = result.get("stroke_margin") or []
+    if not strokes:
+        return {}
+    worst = max(strokes, key=lambda s: s["growth_np"])
+    seg: dict = next((s for s in result.get("per_segment", []) if s["segment"] == worst["segment"]), {})
+    seen = seg.get("observed") or {}
+    return {
+        "growth_segment": worst["segment"],
+        "growth_segment_np": worst["growth_np"],
+        "growth_segment_mode_hz": worst.get("mode_hz_at_worst"),
+        "growth_segment_peak_hz": seen.get("peak_hz"),
+        "growth_segment_observed_np": seen.get("growth_np"),
     }
 
 
@@ -251,7 +311,9 @@ def _disagreeing(names: list[str], runs: list[dict], predicted: list[bool], sim:
         + f"<td>{r.get('seed', '-')}</td><td>{_f(m.get('stroke_rate_min_per_s'), 2)}</td>"
         f"<td>{_f(m.get('stroke_growth_max_np'), 1)}</td>"
         f"<td>{'unstable' if p else 'stable'}</td><td>{html.escape(str(m['outcome']))}</td>"
-        f"<td>{_f(m.get('stroke_std_max_n'), 1)}</td><td>{m.get('contact_lost_ms', '-')}</td></tr>"
+        f"<td>{_f(m.get('stroke_std_max_n'), 1)}</td><td>{m.get('contact_lost_ms', '-')}</td>"
+        f"<td>S{m.get('growth_segment', '-')}: {_f(m.get('growth_segment_mode_hz'), 1)} / "
+        f"{_f(m.get('growth_segment_peak_hz'), 1)}</td><td>{_f(m.get('growth_segment_observed_np'), 1)}</td></tr>"
         for r, p in bad
         for m in [r["metrics"]]
     )
@@ -259,5 +321,6 @@ def _disagreeing(names: list[str], runs: list[dict], predicted: list[bool], sim:
         f"<p>Disagreeing runs by {verdict} ({len(bad)}):</p>"
         f"<table><tr>{head}<th>seed</th><th>σ_min (1/s)</th><th>G (Np)</th>"
         "<th>predicted</th><th>simulated</th><th>max stroke STD (N)</th>"
-        f"<th>contact lost (ms)</th></tr>{rows}</table>"
+        "<th>contact lost (ms)</th><th>stroke of the largest G: mode Hz, model / simulation</th>"
+        f"<th>observed growth there (Np)</th></tr>{rows}</table>"
     )
