@@ -5,7 +5,8 @@
 # (scripts/wheel_smoke.sh: the built wheel installed in a throw-away venv; only without pytest
 # arguments). Exits non-zero on any failure. pytest runs on TORQUELAB_TEST_WORKERS processes
 # (pytest-xdist, default 2: the machine's two cores; a module's tests stay on one worker, so its
-# module fixtures start once; `-n 0` among the pytest arguments runs them in this process).
+# module fixtures start once; modules are handed out in file order, so the long browser module
+# starts early instead of last; `-n 0` among the pytest arguments runs them in this process).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -47,7 +48,7 @@ echo "== import contracts (README, Architecture)"
 .venv/bin/lint-imports
 echo "== pytest"
 mkdir -p test-artifacts
-.venv/bin/python -m pytest -n "${TORQUELAB_TEST_WORKERS:-2}" --dist loadfile --durations=30 "$@"
+.venv/bin/python -m pytest -n "${TORQUELAB_TEST_WORKERS:-2}" --dist loadfile --no-loadscope-reorder --durations=30 "$@"
 if [ "$#" -eq 0 ]; then  # the full run; with pytest arguments (a subset) the wheel is not built
     echo "== wheel smoke test"
     bash scripts/wheel_smoke.sh

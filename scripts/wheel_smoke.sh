@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
 # Wheel smoke test: build the wheel, install it (with its dependencies, no editable install) into a
 # throw-away venv, and run `torquelab check` and one experiment from it, outside the source tree.
-# Usage: bash scripts/wheel_smoke.sh   (PYTHON picks the interpreter; pip's cache makes reruns quick)
+# Usage: bash scripts/wheel_smoke.sh   (PYTHON picks the interpreter). With TORQUELAB_SMOKE_VENV set
+# (.ci/run sets it, keyed by pyproject.toml) that venv is kept between runs: made and filled by this
+# script alone (the wheel and its dependencies, nothing else), a later run replaces the wheel in it
+# and installs what `pip check` finds missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
@@ -12,17 +15,26 @@ trap 'rm -rf "$WORK"' EXIT
 echo "== building the wheel"
 "$PYTHON" -m pip wheel -q --disable-pip-version-check --no-deps -w "$WORK/dist" "$ROOT"
 WHEEL=$(ls "$WORK"/dist/torquelab-*.whl)
-echo "== installing $(basename "$WHEEL") into a throw-away venv"
-"$PYTHON" -m venv "$WORK/venv"
-"$WORK/venv/bin/python" -m pip install -q --disable-pip-version-check --no-compile "$WHEEL"
+VENV=${TORQUELAB_SMOKE_VENV:-$WORK/venv}
+if [ -x "$VENV/bin/python" ]; then
+    echo "== installing $(basename "$WHEEL") into the kept venv $VENV (its dependencies are there)"
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-compile --force-reinstall --no-deps "$WHEEL"
+    if ! "$VENV/bin/python" -m pip check >/dev/null; then  # (a run stopped mid-install): complete it
+        "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-compile "$WHEEL"
+    fi
+else
+    echo "== installing $(basename "$WHEEL") into a throw-away venv"
+    "$PYTHON" -m venv "$VENV"
+    "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-compile "$WHEEL"
+fi
 cd "$WORK"  # nothing from the source tree on the path
 echo "== torquelab check --robot gen3 (from the wheel)"
-"$WORK/venv/bin/torquelab" check --robot gen3
+"$VENV/bin/torquelab" check --robot gen3
 echo "== torquelab experiment compliance (from the wheel)"
-"$WORK/venv/bin/torquelab" experiment compliance --out "$WORK/compliance"
+"$VENV/bin/torquelab" experiment compliance --out "$WORK/compliance"
 test -s "$WORK/compliance/report.html"
 echo "== the first served step comes within seconds of the URL (kernels compiled before it)"
-"$WORK/venv/bin/python" - <<'PY'
+"$VENV/bin/python" - <<'PY'
 import time
 from app.live.server import start_app
 from app.live.warmup import warm_up
@@ -38,7 +50,7 @@ finally:
 print(f"== first served step {first:.2f} s after the URL (warm-up {took:.1f} s before it)")
 assert first < 5.0, f"the first step came {first:.1f} s after the URL"
 PY
-"$WORK/venv/bin/python" - <<'PY'
+"$VENV/bin/python" - <<'PY'
 import app, pathlib, robots, static
 for mod in (app, robots, static):
     path = pathlib.Path(mod.__file__).resolve()
