@@ -133,10 +133,21 @@ def _fields() -> list[tuple[str, type, str]]:
     return sorted(set(out), key=lambda x: (x[0], x[1].__name__, x[2]))
 
 
+# group -> the contexts in which one of its fields reached the run: its other fields try them first
+# (a group's fields often act in the same condition: the nullspace dampers near a limit, the [C] solver
+# settings on OSQP). Only the order of the search depends on it, not what it finds.
+_REACHED_IN: dict[str, list[Context]] = {}
+
+
 def _reaches(group: str, cls: type, name: str) -> tuple[bool, list[str]]:
     tried = []
-    # the contexts made for a group first (its presets, or the drag for the drag's group): cheaper
-    aimed = sorted(_contexts(), key=lambda c: not (any(g == group for g, _, _ in c[3]) or (group == "drag" and c[2])))
+    learned = _REACHED_IN.setdefault(group, [])
+    # where a sibling reached first, then the contexts made for a group (its presets, or the drag for
+    # the drag's group): cheaper
+    aimed = sorted(
+        _contexts(),
+        key=lambda c: (c not in learned, not (any(g == group for g, _, _ in c[3]) or (group == "drag" and c[2]))),
+    )
     for context in aimed:
         current = _groups(context).get(group)
         if type(current) is not cls:  # the "scenario" group: this preset's dataclass only
@@ -155,6 +166,8 @@ def _reaches(group: str, cls: type, name: str) -> tuple[bool, list[str]]:
             for k in range(base.shape[0]):
                 sig = _signature(session)
                 if sig.shape != base[k].shape or not np.array_equal(sig, base[k], equal_nan=True):
+                    if context not in learned:
+                        learned.insert(0, context)
                     return True, tried
             valid += 1
             if valid == 2:  # two valid values per context (the range's ends first)
