@@ -1,4 +1,5 @@
-"""mass-drop: a 1.25 kg mass falls on a rope from the Gen3's wrist and jerks it ([C] §IV-D, Fig. 5).
+"""mass-drop: a 1.25 kg mass falls on a rope from the Gen3's (or the chosen arm's) wrist and jerks it ([C] §IV-D,
+Fig. 5).
 
 Position (joint PID) vs Torque + Residual vs Torque + Fusion. Each repetition draws the rig as it
 varies on a bench (seeded): drop height, rope stiffness and the true mass (`draw_rig`); the three
@@ -115,6 +116,8 @@ def run_mass_drop(
     out.update(counts)
     out.update(
         {
+            "robot": session.robot.name,
+            "posture": session.robot.guessed.get("mass_drop", "the sidecar's nominal posture"),
             "mode": mode,
             "case": case,
             "seed": seed,
@@ -344,7 +347,7 @@ def run(args: argparse.Namespace) -> int:
     }
     nominal = MassDropParams()
     setup = (
-        "<p>Gen3 at <code>mass_drop_nominal</code> (home with the TCP 5 cm forward). A mass hangs from the TCP "
+        f"<p>{rigs[0]['robot']} at <code>mass_drop_nominal</code> ({rigs[0]['posture']}). A mass hangs from the TCP "
         f"(distal to the F/T sensor) on a rope of {100 * nominal.rope_length_m:g} cm; a hand holds it at the "
         f"attachment point and lets go at t = {RELEASE_TIME_S} s; it falls, the rope goes taut and jerks the arm. "
         f"Metrics over the {WINDOW_S:g} s after the release. Deviation = distance of the TCP from its target. "
