@@ -5,12 +5,15 @@ from __future__ import annotations
 import itertools
 import os
 import signal
+import subprocess
+import sys
 import time
 
+import numpy as np
 import pytest
 
 from app.core.commands import SwitchSession
-from app.live.loop import SimLoop
+from app.live.loop import LOOP_NICENESS, SimLoop
 from app.live.plan_worker import BackgroundPlanner
 from app.scenarios import Work
 
@@ -43,11 +46,12 @@ def _until_done(planner: BackgroundPlanner, timeout: float = 180.0) -> tuple[obj
     raise AssertionError("the work never finished")
 
 
-def _wait_for_worker(pool, timeout: float = 60.0) -> None:
+def _wait_for_worker(planner: BackgroundPlanner, timeout: float = 60.0) -> None:
+    """Until the planner's pool (submitted from a thread of its own) has its worker process."""
     deadline = time.monotonic() + timeout
-    while not getattr(pool, "_processes", None) and time.monotonic() < deadline:
+    while not getattr(planner._pool, "_processes", None) and time.monotonic() < deadline:
         time.sleep(0.02)
-    assert pool._processes, "no worker process started"
+    assert getattr(planner._pool, "_processes", None), "no worker process started"
 
 
 def test_a_planner_whose_worker_is_killed_rebuilds_its_pool_and_never_computes_on_the_callers_thread():
@@ -55,7 +59,7 @@ def test_a_planner_whose_worker_is_killed_rebuilds_its_pool_and_never_computes_o
     stored: list[int] = []
     try:
         planner.start("switch", Work("a stand-in plan", _pid_after, (3.0,), stored.append))
-        _wait_for_worker(planner._pool)
+        _wait_for_worker(planner)
         time.sleep(1.0)  # the worker is computing
         assert _kill_workers(planner._pool) == 1
         done, longest = _until_done(planner)
@@ -75,22 +79,42 @@ def test_a_planner_whose_worker_is_killed_rebuilds_its_pool_and_never_computes_o
         planner.stop()
 
 
+def _effective_gaps(stamps: list[float], stalls: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """(gap, gap less the spans the stall probe was stalled too) between consecutive step stamps (s)."""
+    out = []
+    for a, b in itertools.pairwise(stamps):
+        overlap = sum(max(0.0, min(b, e) - max(a, s)) for s, e in stalls if s < b and e > a)
+        out.append((b - a, b - a - overlap))
+    return out
+
+
+def test_effective_gaps_subtract_only_the_overlap_with_machine_stalls():
+    gaps = _effective_gaps([0.0, 0.2, 0.25, 0.5], [(0.05, 0.1), (0.18, 0.22), (0.6, 0.7)])
+    np.testing.assert_allclose(gaps, [(0.2, 0.13), (0.05, 0.03), (0.25, 0.25)])
+
+
 @pytest.mark.usefixtures("warm_kernels")
-def test_the_loop_never_computes_the_work_itself_and_steps_on_while_a_killed_worker_is_replaced():
+def test_the_loop_steps_on_without_a_100_ms_gap_while_a_killed_worker_is_replaced(tmp_path):
     """The loop hands a preset's work to the planner and keeps stepping while the worker is killed and
-    the work computed again. What is asserted is the loop thread's own CPU time inside the planner's
-    calls (under 100 ms each; computing the work there took seconds): on a machine shared with other
-    jobs the wall-clock gaps between bursts mostly measure the others' load, so they are reported, not
-    asserted."""
+    the work computed again by a new one (computing it on the loop thread took seconds). Asserted: the
+    longest gap between two steps' wall-clock stamps from the kill to the work's end stays under 100 ms
+    once the spans a stall probe at the loop's niceness was stalled too are taken out (the machine's
+    load, not the loop: `app.tools.stall_probe --stream`), and the loop thread's CPU time inside each
+    planner call stays under 100 ms. The raw gap is printed beside it. Limit of the method: on 2 cores
+    the probe may run while the loop thread waits for a core, and such a wait counts against the loop."""
     lp = SimLoop("free", capture=lambda s: None)
     planner = lp.planner
     cpu: list[float] = []  # the loop thread's CPU time in each planner call
+    done_at: list[float] = []  # when take_done first handed the command back
 
     def on_loop_cpu(fn):
         def timed(*args, **kwargs):
             t0 = time.thread_time()
             try:
-                return fn(*args, **kwargs)
+                out = fn(*args, **kwargs)
+                if out is not None and not done_at:
+                    done_at.append(time.monotonic())
+                return out
             finally:
                 cpu.append(time.thread_time() - t0)
 
@@ -98,35 +122,50 @@ def test_the_loop_never_computes_the_work_itself_and_steps_on_while_a_killed_wor
 
     for name in ("take_done", "start"):
         setattr(planner, name, on_loop_cpu(getattr(planner, name)))
-    marks: list[float] = []
+    stamps: list[float] = []  # every step's wall-clock time
     advance = lp.lab.advance
 
-    def timed_advance(*args, **kwargs):
-        marks.append(time.perf_counter())
-        return advance(*args, **kwargs)
+    def stamped_advance(n, until=None):
+        def stamp(rec):
+            stamps.append(time.monotonic())
+            return until is not None and until(rec)
+
+        return advance(n, until=stamp)
 
     stored: list[int] = []
+    log = tmp_path / "stalls.txt"  # a file, not a pipe: a full pipe would stop the probe
+    probe = subprocess.Popen(
+        [sys.executable, "-m", "app.tools.stall_probe", "600", str(LOOP_NICENESS), "--stream", "5"],
+        stdout=log.open("w"),
+    )
     lp.start(running=True)
     try:
         lp.sync(timeout=300.0)
-        lp.lab.advance = timed_advance  # type: ignore[method-assign]
+        lp.lab.advance = stamped_advance  # type: ignore[method-assign]
         work = Work("a stand-in plan", _pid_after, (3.0,), stored.append)
         lp.call(lambda s: planner.start(SwitchSession(scenario="compliance"), work))  # as a switch hands it over
-        _wait_for_worker(planner._pool)
+        _wait_for_worker(planner)
         time.sleep(1.0)  # the worker computes
-        killed_at = time.perf_counter()
+        killed_at = time.monotonic()
         assert _kill_workers(planner._pool) == 1
         status = lp.sync(timeout=300.0)  # queued behind the switch: answered once it applied
-        done_at = time.perf_counter()
         assert status.scenario == "compliance" and planner.rebuilds == 1
         assert stored and stored[-1] != os.getpid()  # computed by the new worker, not here
     finally:
         lp.stop()
+        probe.terminate()
+        probe.wait(timeout=30.0)
+    stalls = [(float(a), float(b)) for a, b in (line.split() for line in log.read_text().splitlines())]
     assert max(cpu) < 0.1, f"the loop thread spent {max(cpu):.3f} s of CPU in one planner call"
-    during = [t for t in marks if killed_at <= t <= done_at]
-    assert len(during) > 30, "the loop did not step while the work was computed again"
-    gaps = [b - a for a, b in itertools.pairwise(during)]
-    print(f"replaced worker: {done_at - killed_at:.1f} s, longest wall gap between bursts {max(gaps) * 1e3:.0f} ms")
+    during = [t for t in stamps if killed_at <= t <= done_at[0]]
+    assert len(during) > 1000, "the loop did not step while the work was computed again"
+    gaps = _effective_gaps(during, stalls)
+    raw, effective = max(g for g, _ in gaps), max(e for _, e in gaps)
+    print(
+        f"worker replaced in {done_at[0] - killed_at:.1f} s; longest gap between steps {1e3 * raw:.0f} ms raw, "
+        f"{1e3 * effective:.0f} ms less machine stalls ({len(stalls)} probe stalls > 5 ms)"
+    )
+    assert effective < 0.1, f"the loop paused {1e3 * effective:.0f} ms beyond the machine's own stalls"
 
 
 def test_a_killed_scan_process_is_replaced_and_the_preview_scans_on():
