@@ -217,33 +217,40 @@ def test_the_w_d_flip_explanation_is_printed_only_when_w_d_did_not_flip():
     assert _w_d_flip(doc(-170.0)) == []
 
 
-def test_a_hold_that_oscillates_or_loses_contact_has_its_verdict_and_a_calm_one_has_none():
-    """The latency runs stop while held once the verdict is known (`HoldWatch`): the STD over the last
-    window against the threshold, looked at every `every` steps; contact lost at its first step."""
+def test_a_still_hold_that_oscillates_or_loses_contact_has_its_verdict_and_a_calm_or_flowing_one_has_none():
+    """The latency runs stop while held once the verdict is known (`HoldWatch`): the posture still
+    (swivel within still_deg over the window), then contact lost in the window or the STD over it at
+    least the threshold, looked at every `every` steps. A posture still flowing gets no verdict yet."""
     from app.headless.experiments.polish import HoldWatch, latency_table
 
     rng = np.random.default_rng(0)
     t = 1e-3 * np.arange(3000)
-    calm = HoldWatch(threshold_n=4.0, window=1000, dt=1e-3, every=100)
-    assert all(calm.add(tk, e, e, 20.0) is None for tk, e in zip(t, rng.normal(0.0, 1.5, t.size), strict=True))
+    still = np.full(t.size, 75.0) + rng.normal(0.0, 0.005, t.size)  # jitter ≪ 0.1°
+    flowing = 10.0 + 0.2 * t  # 0.2°/s: the slowest settle flow
+
+    def watch() -> HoldWatch:
+        return HoldWatch(threshold_n=4.0, window=1000, dt=1e-3, every=100, still_deg=0.1)
+
+    calm = watch()
+    noise = rng.normal(0.0, 1.5, t.size)
+    assert all(calm.add(tk, e, e, 20.0, sw) is None for tk, e, sw in zip(t, noise, still, strict=True))
     assert calm.verdict is None and calm.window_std_n is not None and 1.3 < calm.window_std_n < 1.7
-    assert calm.result(stopped=False) == {
-        "verdict": None,
-        "at_s": None,
-        "window_std_n": calm.window_std_n,
-        "threshold_n": 4.0,
-        "window_s": 1.0,
-        "contact_lost_ms": 0,
-        "stopped": False,
-    }
-    loud = HoldWatch(threshold_n=4.0, window=1000, dt=1e-3, every=100)
+    record = calm.result(stopped=False)
+    assert record["verdict"] is None and record["window_s"] == 1.0 and record["still_deg"] == 0.1
+    assert record["threshold_n"] == 4.0 and record["contact_lost_ms"] == 0 and record["stopped"] is False
     wave = 6.0 * np.sin(2 * np.pi * 30.0 * t)  # STD 4.24 N ≥ 4 N
-    verdicts = [loud.add(tk, e, e, 20.0) for tk, e in zip(t, wave, strict=True)]
+    loud = watch()
+    verdicts = [loud.add(tk, e, e, 20.0, sw) for tk, e, sw in zip(t, wave, still, strict=True)]
     first = next(k for k, v in enumerate(verdicts) if v)
     assert first == 999 and loud.verdict == "oscillation" and abs(loud.window_std_n - 6.0 / np.sqrt(2)) < 0.05
-    lost = HoldWatch(threshold_n=4.0, window=1000, dt=1e-3)
-    assert lost.add(0.5, 1.0, 19.0, 20.0) is None
-    assert lost.add(0.501, 1.0, 20.0, 20.0) == "contact lost" and lost.at_s == 0.501 and lost.contact_lost_ms == 1
+    assert loud.at_swivel_deg is not None and abs(loud.at_swivel_deg - 75.0) < 0.1
+    moving = watch()
+    assert all(moving.add(tk, e, e, 20.0, sw) is None for tk, e, sw in zip(t, wave, flowing, strict=True))
+    lost = watch()
+    errors = np.where(np.arange(t.size) == 500, 20.0, 1.0)  # contact lost at one step (0.5 s)
+    verdicts = [lost.add(tk, 1.0, e, 20.0, sw) for tk, e, sw in zip(t, errors, still, strict=True)]
+    assert next(k for k, v in enumerate(verdicts) if v) == 999 and lost.verdict == "contact lost"
+    assert lost.contact_lost_ms == 1
     # a run stopped while held oscillates in the latency table, whatever its (absent) strokes say
     ref = _run("row", 0, 0.0, [2.0] * 6)
     held = dict(_run("row", 3, 0.0, []), held=loud.result(stopped=True))

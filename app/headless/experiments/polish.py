@@ -70,6 +70,10 @@ OSCILLATION_STD_FACTOR = 3.0
 # phase, before the strokes) has its verdict there and stops (`HoldWatch`): at 3-4 periods of delay the
 # hold oscillates, W never settles and the run would otherwise sit out the settle cap.
 HOLD_CHECK_EVERY = 100  # steps between two looks at the hold's last second
+# ... once the posture has stopped flowing: the swivel moved at most this much over that second (half
+# the slowest flow a settle passes through, W_a's ≈ 0.2°/s on its plateau; a posture held in place by an
+# oscillating loop jitters by ≤ 0.04°)
+HOLD_STILL_DEG = 0.1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -211,6 +215,7 @@ def latency_table(runs: list[dict]) -> dict:
                     "oscillates": oscillates(r, ref_std),
                     "held": (r.get("held") or {}).get("verdict"),
                     "held_std_n": (r.get("held") or {}).get("window_std_n"),
+                    "held_swivel_deg": (r.get("held") or {}).get("at_swivel_deg"),
                     "converged": r.get("converged"),
                     "converged_swivel_deg": r["converged_swivel_deg"],
                 }
@@ -238,6 +243,7 @@ def latency_table(runs: list[dict]) -> dict:
         "held_std_n": None if held is None else held["threshold_n"],
         "held_floor_factor": OSCILLATION_FACTOR,  # held_std_n is this many noise floors
         "held_window_s": None if held is None else held["window_s"],
+        "held_still_deg": None if held is None else held.get("still_deg"),
         "settle_cap_s": next((r["settle_cap_s"] for r in runs if r.get("settle_cap_s") is not None), None),
     }
     return {"criterion": criterion, "mu": runs[0]["mu"] if runs else None, "rows": rows}
@@ -255,36 +261,56 @@ def oscillates(r: dict, reference_median_std: float | None) -> bool:
 
 
 class HoldWatch:
-    """What the force loop does while the TCP is held (the settle phase): the verdict "contact lost"
-    at the first step whose true contact force is ≤ 0, or "oscillation" once the force-error STD over
-    the last `window` steps is at least `threshold_n` (looked at every `every` steps; the polish
-    threshold is `OSCILLATION_FACTOR` × the sensor's noise floor, `oscillation_threshold_n`)."""
+    """What the force loop does while the TCP is held (the settle phase), judged only once the posture
+    has stopped flowing: the swivel moved at most `still_deg` over the last `window` steps (so the
+    verdict is on the posture the row settles in, not one it passes through). Then the verdict is
+    "contact lost" when the true contact force was ≤ 0 at some step of that window, or "oscillation"
+    when the force-error STD over it is at least `threshold_n` (looked at every `every` steps; the
+    polish threshold is `OSCILLATION_FACTOR` × the sensor's noise floor, `oscillation_threshold_n`)."""
 
-    def __init__(self, threshold_n: float, window: int, dt: float, every: int = HOLD_CHECK_EVERY):
+    def __init__(
+        self,
+        threshold_n: float,
+        window: int,
+        dt: float,
+        every: int = HOLD_CHECK_EVERY,
+        still_deg: float = HOLD_STILL_DEG,
+    ):
         from collections import deque
 
         self.threshold_n, self.window, self.every = float(threshold_n), max(1, int(window)), max(1, int(every))
         self.window_s = self.window * float(dt)
+        self.still_deg = float(still_deg)
         self._errors: deque[float] = deque(maxlen=self.window)
+        self._swivels: deque[float] = deque(maxlen=self.window)
+        self._lost: deque[bool] = deque(maxlen=self.window)
         self._n = 0
         self.verdict: str | None = None
         self.at_s: float | None = None
+        self.at_swivel_deg: float | None = None
         self.window_std_n: float | None = None  # the STD that gave the verdict, else the largest seen
         self.contact_lost_ms = 0
 
-    def add(self, t: float, force_error_n: float, true_error_n: float, desired_n: float) -> str | None:
-        """One held step: the filtered and the true force error (N). Returns the verdict (None: none yet)."""
-        if true_error_n >= desired_n:
-            self.contact_lost_ms += 1
-            if self.verdict is None:
-                self.verdict, self.at_s = "contact lost", float(t)
+    def add(
+        self, t: float, force_error_n: float, true_error_n: float, desired_n: float, swivel_deg: float
+    ) -> str | None:
+        """One held step: the filtered and the true force error (N) and the swivel (°). Returns the
+        verdict (None: none yet)."""
+        lost = true_error_n >= desired_n
+        self.contact_lost_ms += int(lost)
         self._errors.append(force_error_n)
+        self._swivels.append(swivel_deg)
+        self._lost.append(lost)
         self._n += 1
-        if self.verdict is None and len(self._errors) == self.window and self._n % self.every == 0:
-            std = float(np.std(self._errors))
-            self.window_std_n = std if self.window_std_n is None else max(self.window_std_n, std)
-            if std >= self.threshold_n:
-                self.verdict, self.at_s, self.window_std_n = "oscillation", float(t), std
+        if self.verdict is not None or len(self._errors) < self.window or self._n % self.every:
+            return self.verdict
+        std = float(np.std(self._errors))
+        self.window_std_n = std if self.window_std_n is None else max(self.window_std_n, std)
+        if not max(self._swivels) - min(self._swivels) <= self.still_deg:  # still flowing (or NaN)
+            return None
+        verdict = "contact lost" if any(self._lost) else "oscillation" if std >= self.threshold_n else None
+        if verdict is not None:
+            self.verdict, self.at_s, self.at_swivel_deg, self.window_std_n = verdict, float(t), float(swivel_deg), std
         return self.verdict
 
     def result(self, stopped: bool) -> dict:
@@ -292,9 +318,11 @@ class HoldWatch:
         return {
             "verdict": self.verdict,
             "at_s": self.at_s,
+            "at_swivel_deg": self.at_swivel_deg,
             "window_std_n": self.window_std_n,
             "threshold_n": self.threshold_n,
             "window_s": self.window_s,
+            "still_deg": self.still_deg,
             "contact_lost_ms": self.contact_lost_ms,
             "stopped": bool(stopped),
         }
@@ -376,7 +404,7 @@ def simulate(spec: dict) -> dict:
         sig = r.signals
         if clock.trajectory_start is None and r.t >= scenario_module.CONTACT_TIME_S:  # held, settling
             desired = scenario_module.DESIRED_FORCE_N
-            hold.add(r.t, desired - r.wrench_tcp[2], desired - sig["contact_force_n"], desired)
+            hold.add(r.t, desired - r.wrench_tcp[2], desired - sig["contact_force_n"], desired, sig["swivel_deg"])
         if 1 <= sig["segment"] <= N_SEGMENTS and len(rec["t"]) % margin_every == 0:
             stroke_q.append((r.t - float(clock.trajectory_start), r.q.copy()))
         if not q_converged and clock.trajectory_start is not None:
@@ -985,8 +1013,9 @@ def _held_rule(criterion: dict) -> str:
     if criterion.get("held_std_n") is None:
         return ""
     return (
-        f"; held: a run that loses contact or whose force-error STD over {criterion['held_window_s']:g} s reaches "
-        f"{criterion['held_std_n']:.2f} N while the TCP is held stops there with that verdict"
+        f"; held: a run whose posture has stopped flowing (swivel within {criterion.get('held_still_deg')}° over "
+        f"{criterion['held_window_s']:g} s) while the TCP is held, and that lost contact or whose force-error STD "
+        f"reached {criterion['held_std_n']:.2f} N over that time, stops there with that verdict"
     )
 
 

@@ -439,7 +439,8 @@ def latency_html(doc: dict) -> str:
         text = f"{ratio}{lost}{', diverged' if c['diverged'] else ''}"
         if c.get("held"):  # stopped while held (the settle phase): no strokes run
             std = "" if c.get("held_std_n") is None else f", {c['held_std_n']:.1f} N"
-            text = f"held: {c['held']}{std}"
+            at = "" if c.get("held_swivel_deg") is None else f" at {c['held_swivel_deg']:+.0f}°"
+            text = f"held{at}: {c['held']}{std}"
         elif c.get("converged") is False:
             text += ", settle not converged"
         return f"<td><b>{text}</b></td>" if c["oscillates"] else f"<td>{text}</td>"
@@ -476,10 +477,11 @@ def _held_html(criterion: dict) -> str:
         return ""
     cap = criterion.get("settle_cap_s")
     return (
-        "A run that loses contact, or whose force-error STD over the last "
-        f"{criterion['held_window_s']:g} s reaches {criterion['held_std_n']:.2f} N "
-        f"({criterion.get('held_floor_factor', float('nan')):g}× the sensor's noise floor) "
-        "while the TCP is still held before the strokes, stops there with that verdict (cell <i>held</i>)"
+        "A run whose posture has stopped flowing while the TCP is still held before the strokes (the swivel "
+        f"within {criterion.get('held_still_deg')}° over the last {criterion['held_window_s']:g} s) and that "
+        f"lost contact or whose force-error STD reached {criterion['held_std_n']:.2f} N "
+        f"({criterion.get('held_floor_factor', float('nan')):g}× the sensor's noise floor) over that time "
+        "stops there with that verdict (cell <i>held</i>, with the swivel it stopped at)"
         + (f"; a settle that has not converged after {cap:g} s starts its strokes and says so. " if cap else ". ")
     )
 
