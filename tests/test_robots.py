@@ -112,3 +112,18 @@ def test_the_page_lists_a_urdf_arm_by_its_short_name_keeps_the_path_in_the_hint_
         assert app.loop.robot_choice == spec and app.loop.session.robot.name == "gripper_arm"
     finally:
         app.stop()
+
+
+def test_the_warm_up_runs_a_preset_the_chosen_arm_lacks_a_posture_for_on_the_presets_own_arm(monkeypatch):
+    """`serve --robot rizon4s`: the Rizon's sidecar has no limit-drop posture, so the warm-up runs that
+    preset on the Gen3 (as a switch in the page does) and says so, instead of stopping the start."""
+    from app.core import executors
+    from app.live import warmup
+
+    monkeypatch.setattr(executors, "EXECUTORS", {"joint-hold": executors.EXECUTORS["joint-hold"]})
+    monkeypatch.setattr("app.scenarios.SCENARIOS", {"limit-drop": "limit_drop"})
+    monkeypatch.setattr(warmup, "WARM_STEPS", 5)
+    monkeypatch.setattr(warmup, "DRAG_STEPS", 5)
+    lines: list[str] = []
+    assert warmup.warm_presets("rizon4s", lines.append) == 1
+    assert any("on its own arm" in ln and "l_shape" in ln for ln in lines)
