@@ -7,10 +7,14 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
-from app.core.commands import DragCommand, Play, SwitchSession
+import robots
+from app.core.commands import DragCommand, Play, SetParam, SwitchSession
 from app.live.loop import SimLoop
 from app.live.warmup import warm_up
+
+MAX_STEP_CPU_S = 0.010  # a step of the loop thread after a switch: no compile (that takes 0.1-10 s) in it
 
 
 def _signatures() -> dict[str, int]:
@@ -27,9 +31,28 @@ def _signatures() -> dict[str, int]:
     return out
 
 
-def test_after_the_warm_up_switches_and_a_hard_drag_compile_nothing_new():
+@pytest.fixture(scope="module")
+def warm_lines() -> list[str]:
+    """`serve`'s warm-up on the default robot, once for this module; its progress lines."""
     lines: list[str] = []
     warm_up(None, lines.append)
+    return lines
+
+
+def _hard_drag(lp: SimLoop, seconds: float) -> None:
+    """The page's hardest drag (the tip pulled 1 m down) for `seconds`, then released."""
+    link = lp.call(lambda s: s.robot.link_names[-1])
+    q_tip = lp.call(lambda s: np.array(s.world.data.xpos[-1]))
+    lp.submit(DragCommand("grab", 1, body_name=link, point_world=tuple(q_tip)))
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < seconds:
+        lp.submit(DragCommand("move", 1, body_name=link, target_world=(q_tip[0], q_tip[1], q_tip[2] - 1.0)))
+        time.sleep(0.1)
+    lp.submit(DragCommand("release", 1, body_name=link))
+
+
+def test_after_the_warm_up_switches_and_a_hard_drag_compile_nothing_new(warm_lines):
+    lines = warm_lines
     assert lines[0].startswith("compiling or loading") and any(line.startswith("[15/15]") for line in lines)
     before = _signatures()
     assert len(before) >= 30
@@ -39,17 +62,57 @@ def test_after_the_warm_up_switches_and_a_hard_drag_compile_nothing_new():
         for scenario, executor in (("free", "projection"), ("limit-drop", "projection"), ("polish", "compliance-qp")):
             lp.submit(SwitchSession(scenario=scenario, executor=executor))
             lp.submit(Play())
-            link = lp.call(lambda s: s.robot.link_names[-1])
-            q_tip = lp.call(lambda s: np.array(s.world.data.xpos[-1]))
-            lp.submit(DragCommand("grab", 1, body_name=link, point_world=tuple(q_tip)))
-            t0 = time.monotonic()
-            while time.monotonic() - t0 < 1.5:  # the page's hardest drag: far below the arm
-                lp.submit(DragCommand("move", 1, body_name=link, target_world=(q_tip[0], q_tip[1], q_tip[2] - 1.0)))
-                time.sleep(0.1)
-            lp.submit(DragCommand("release", 1, body_name=link))
+            _hard_drag(lp, 1.5)
             lp.sync(timeout=120.0)
     finally:
         lp.stop()
     after = _signatures()
     grown = {k: (before.get(k, 0), v) for k, v in after.items() if v > before.get(k, 0)}
     assert not grown, f"compiled inside the loop after the warm-up: {grown}"
+
+
+def test_a_switch_to_every_robot_and_backend_the_page_offers_compiles_nothing_and_steps_under_10_ms(warm_lines):
+    """After the warm-up on the default robot (kernel signatures depend on argument types, not on the
+    arm or the QP backend), every robot the page's selector offers × both QP backends × both QP
+    executors, with a hard drag: no numba signature is added and no step of the loop thread costs
+    MAX_STEP_CPU_S of its CPU time (CPU, not wall time: the machine's load does not count)."""
+    before = _signatures()
+    lp = SimLoop("free", capture=lambda s: None)
+    cpu: list[tuple[str, float]] = []  # (what ran, the loop thread's CPU time of one step)
+    label = ["warm"]
+    advance = lp.lab.advance
+
+    def timed_advance(n, until=None):
+        last = [time.thread_time()]
+
+        def stamp(rec) -> bool:
+            now = time.thread_time()
+            cpu.append((label[0], now - last[0]))
+            last[0] = now
+            return until is not None and until(rec)
+
+        return advance(n, until=stamp)
+
+    lp.lab.advance = timed_advance  # type: ignore[method-assign]
+    lp.start(running=True)
+    try:
+        for robot in robots.available():
+            for backend in ("osqp", "dense"):
+                for executor, scenario in (("projection", "free"), ("compliance-qp", "compliance")):
+                    label[0] = f"{robot} / {backend} / {executor}"  # from the switch's first step on
+                    lp.submit(SwitchSession(scenario=scenario, robot=robot, executor=executor))
+                    lp.submit(SetParam("solver", "qp_backend", backend))
+                    lp.submit(Play())
+                    assert lp.sync(timeout=120.0).scenario == scenario
+                    _hard_drag(lp, 0.6)
+                    lp.sync(timeout=120.0)
+    finally:
+        lp.stop()
+    after = _signatures()
+    grown = {k: (before.get(k, 0), v) for k, v in after.items() if v > before.get(k, 0)}
+    assert not grown, f"compiled inside the loop after the warm-up: {grown}"
+    measured = [(c, what) for what, c in cpu]
+    assert len({what for _, what in measured} - {"warm"}) == 4 * len(robots.available())
+    worst, where = max(measured)
+    print(f"{len(measured)} steps after switches, longest {1e3 * worst:.1f} ms of loop-thread CPU ({where})")
+    assert worst < MAX_STEP_CPU_S, f"a step took {1e3 * worst:.1f} ms of the loop thread's CPU ({where})"
