@@ -39,7 +39,9 @@ from control.kernels.law import (
     OBJECTIVE_J,
     damper_bounds_fused,
     joint_torque_fused,
-    law_constants,
+    law_dynamics,
+    law_record,
+    law_target,
     projection_step_fused,
     task_wrench_fused,
 )
@@ -203,13 +205,13 @@ class ProjectionExecutor:
         self._zeros_f = np.zeros(self.sub.n_f)
         ns = self.nullspace
         self._objective_code = OBJECTIVE_J if ns.objective == "j" else OBJECTIVE_CODES[ns.objective]
-        if self.fused:  # what the fused law reads that changes only here (`law_constants`)
-            self._law_constants = law_constants(
-                self._objective_code, self.sub.perm, self.sub.n_m, self._kp_m, self._kd_scale_m,
-                (float(g.force_kp), float(g.force_kd), float(g.force_ki), float(g.force_integral_limit_n)),
-                bool(g.shaping), float(ns.k0), self.q_lower, self.q_upper, self._dq_limit, self.endless,
-                (float(ns.damper_influence), float(ns.damper_safety), float(ns.damper_speed)),
+        if self.fused:  # what the fused law reads that changes only here, by name (`law_record`)
+            self._law = law_record(
+                g, ns, objective=self._objective_code, k0=float(ns.k0), n_m=self.sub.n_m, perm=self.sub.perm,
+                kp_m=self._kp_m, kd_scale_m=self._kd_scale_m, q_lower=self.q_lower, q_upper=self.q_upper,
+                dq_limit=self._dq_limit, endless=self.endless, kn=self._kn, closed_form=self.qp.closed_form,
             )  # fmt: skip
+            self._law_closed_form = self.qp.closed_form
 
     def _step_fused(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
         """`_step_reference` in one compiled call (`projection_step_fused`: pose error, force integral,
@@ -220,14 +222,13 @@ class ProjectionExecutor:
         self._last_terms, self._last_dyn, self._last_sub = None, dyn, sub
         q_d = target.q_posture if target.q_posture is not None else self.q_posture
         qp_ = self.qp
+        if qp_.closed_form != self._law_closed_form:  # a new QP (a reset, a backend) says otherwise
+            self._cache_gains()
         x, tau = np.empty(self.n), np.empty(self.n)
         F_mu, qp_data = self._F_mu, self._qp_data  # filled by the kernel, read in this step only
         F, integral, W_obj, W_f, W_a, W_d, coupled, force_error, active = projection_step_fused(
-            dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq, not dyn.near_singular,
-            dyn.tcp_position_world, dyn.tcp_rotation_world, target.position, target.rotation,
-            target.velocity, target.acceleration, target.wrench, F_e, self.force_integral,
-            dyn.q if q_d is None else q_d, *self._law_constants, self._chain, F_mu, qp_data,
-            qp_.closed_form, dyn.N, dyn.Lambda_n, self._kn, dyn.h, x, tau,
+            law_dynamics(dyn), law_target(target), F_e, self.force_integral, dyn.q if q_d is None else q_d,
+            self._law, self._chain, F_mu, qp_data, (x, tau),
         )  # fmt: skip
         self.force_integral = integral
         self._last_q, self._last_q_d = dyn.q, q_d  # for W_j in the view

@@ -4,10 +4,12 @@ torque, the velocity dampers' bounds, and the whole law (and step) in one compil
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numba import njit
 
-from control.gains import CONTROL_PERIOD_S
+from control.gains import CONTROL_PERIOD_S, MotionForceGains, NullspaceGains
 from control.kernels.chain import (
     inertia_contraction_fused,
     inertia_contraction_reference,
@@ -19,6 +21,7 @@ from control.kernels.coupling import coupling_fused, coupling_reference
 from control.kernels.geometry import log3_fused, log3_reference
 from control.kernels.gradients import gradient_contraction_fused, gradient_contraction_reference
 from control.kernels.line_qp import nullspace_line_qp_fused, nullspace_line_qp_into_reference
+from control.kernels.records import fill_record, record_dtype
 
 
 def task_wrench_reference(
@@ -198,58 +201,59 @@ def damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, influence, safet
 OBJECTIVE_J = 3  # `projection_law_fused`'s code for W_j [T18] (0/1/2: f/a/d, `OBJECTIVE_CODES`)
 
 
-def law_constants(
-    objective: int,
-    perm: np.ndarray,
-    n_m: int,
-    kp_m: np.ndarray,
-    kd_scale_m: np.ndarray,
-    force_gains: tuple[float, float, float, float],
-    shaping: bool,
-    k0: float,
-    q_lower: np.ndarray,
-    q_upper: np.ndarray,
-    dq_limit: np.ndarray,
-    endless: np.ndarray,
-    damper: tuple[float, float, float],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """What `projection_law_fused` reads that changes only with the gains, in three arrays (one
-    compiled call's argument checks cost per argument): (axes, gains, limits) =
-    ([objective, n_m, perm…] int64; [K_f^p, K_f^d, K_f^i, integral limit, shaping, k0, d_i, d_s, ξ,
-    K_m^p…, 2ζ√K_m^p…]; rows q⁻, q⁺, q̇ limit, endless (1/0)), read back by `projection_law_fused`."""
-    axes = np.array([objective, n_m, *np.asarray(perm, dtype=np.int64)], dtype=np.int64)
-    gains = np.array([*force_gains, float(shaping), k0, *damper, *kp_m, *kd_scale_m], dtype=float)
-    limits = np.array([q_lower, q_upper, dq_limit, np.asarray(endless, dtype=float)], dtype=float)
-    return axes, gains, limits
+LAW_GROUPS = (MotionForceGains, NullspaceGains)  # the groups whose fields the [T] law's record carries
+
+
+@functools.cache
+def law_record_dtype(n: int) -> np.dtype:
+    """The record `projection_law_fused` reads (`control.kernels.records`): every numeric field of
+    `MotionForceGains` and `NullspaceGains` by its name, and what the executor derives from them and
+    the arm: the objective's code (0/1/2 f/a/d, `OBJECTIVE_J`) and its k0, the task axes (n_m motion
+    axes first in `perm`), K_m^p and 2ζ√K_m^p of the motion axes (the first n_m entries), the joint
+    limits q⁻, q⁺, the damper's speed limit, which joints are endless, the nullspace damping K_n and
+    whether the nullspace QP's 7-joint line form applies (`closed_form`)."""
+    return record_dtype(
+        LAW_GROUPS,
+        (
+            ("objective", np.int64),
+            ("k0", np.float64),
+            ("n_m", np.int64),
+            ("perm", np.int64, (6,)),
+            ("kp_m", np.float64, (6,)),
+            ("kd_scale_m", np.float64, (6,)),
+            ("q_lower", np.float64, (n,)),
+            ("q_upper", np.float64, (n,)),
+            ("dq_limit", np.float64, (n,)),
+            ("endless", np.float64, (n,)),  # 1.0: endless (numba has no boolean subarrays)
+            ("kn", np.float64, (n,)),
+            ("closed_form", np.bool_),
+        ),
+    )
+
+
+def law_record(gains: MotionForceGains, nullspace: NullspaceGains, **derived) -> np.ndarray:
+    """The one-element record of `law_record_dtype(n)` (n from `q_lower`): the groups' fields by
+    name, and the derived fields given by name (all of them: ValueError naming one missing)."""
+    n = len(derived["q_lower"]) if "q_lower" in derived else 0
+    return fill_record(law_record_dtype(n), (gains, nullspace), **derived)
+
+
+def law_dynamics(dyn) -> tuple:
+    """The `Dynamics` snapshot's arrays the [T] kernels read, in the order they unpack them: (q, q̇,
+    J, M⁻¹, Λx, Λx⁻¹, J̇q̇, exact (Λx not damped), p_tcp, R_tcp, N, Λn, μ)."""
+    return (
+        dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq, not dyn.near_singular,
+        dyn.tcp_position_world, dyn.tcp_rotation_world, dyn.N, dyn.Lambda_n, dyn.h,
+    )  # fmt: skip
+
+
+def law_target(target) -> tuple:
+    """The `TaskTarget`'s arrays in the order the [T] kernels unpack them: (p°, R°, ẋ°, ẍ°, F̂)."""
+    return target.position, target.rotation, target.velocity, target.acceleration, target.wrench
 
 
 @njit(cache=True)
-def projection_law_fused(
-    q,
-    dq,
-    J,
-    M_inv,
-    Lambda,
-    Lambda_inv,
-    dJ_dq,
-    exact,
-    tcp_position,
-    tcp_rotation,
-    target_position,
-    target_rotation,
-    target_velocity,
-    target_acceleration,
-    target_wrench,
-    F_e,
-    force_integral,
-    q_d,
-    axes,
-    gains,
-    limits,
-    chain,
-    F_mu,
-    qp_data,
-):
+def projection_law_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data):
     """Everything the [T] executor computes before its nullspace QP, in one compiled call of the
     kernels above (the same arithmetic as calling them one by one, as the executor's reference
     path `ProjectionExecutor._step_reference` does):
@@ -259,20 +263,23 @@ def projection_law_fused(
     T22]); the QP's linear term k0 ∇W with ∇W from `gradient_contraction_fused` and
     `inertia_contraction_fused` [T24-27] (objective 0/1/2: f/a/d), or ∇W_j = q − q_d [T18]
     (objective `OBJECTIVE_J`); `task_wrench_fused` [T7, T11-12]; `damper_bounds_fused` [T17].
-    `axes`, `gains`, `limits` are `law_constants(…)`, `chain` is `pack_chain(chain_constants(model))`
-    (a serial revolute chain).
+    `dyn` is `law_dynamics(snapshot)`, `target` is `law_target(task target)`, `law` is a
+    `law_record(…)` (the gains by name), `chain` is `pack_chain(chain_constants(model))` (a serial
+    revolute chain).
 
     Writes F − Λx J̇q̇ into `F_mu` (6,) and the QP's k0 ∇W, lower and upper bounds into the rows of
     `qp_data` (3, n) (the caller's buffers: handing arrays back costs more); returns (F, new force
     integral, W, W_f, W_a, W_d, P_f F_m^e, F̂_f[0] − F_f^e[0]).
     """
-    objective, n_m = axes[0], axes[1]
-    perm = axes[2:]
+    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, _N, _Ln, _h = dyn
+    target_position, target_rotation, target_velocity, target_acceleration, target_wrench = target
+    c = law[0]
+    objective, n_m, k0 = c.objective, c.n_m, c.k0
+    perm = c.perm
     m_idx, f_idx = perm[:n_m], perm[n_m:]
-    force_kp, force_kd, force_ki, force_integral_limit = gains[0], gains[1], gains[2], gains[3]
-    shaping, k0 = gains[4] != 0.0, gains[5]
-    kp_m, kd_scale_m = gains[9 : 9 + n_m], gains[9 + n_m : 9 + 2 * n_m]
-    q_lower, q_upper, dq_limit, endless = limits[0], limits[1], limits[2], limits[3] != 0.0
+    force_kp, force_kd, force_ki, force_integral_limit = c.force_kp, c.force_kd, c.force_ki, c.force_integral_limit_n
+    shaping = c.shaping
+    kp_m, kd_scale_m = c.kp_m[:n_m], c.kd_scale_m[:n_m]
     e = np.empty(6)  # [px py pz rx ry rz], world-aligned
     R_err = np.empty((3, 3))
     for i in range(3):
@@ -308,9 +315,9 @@ def projection_law_fused(
         term_J, a_, b_ = gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m)
         R_place, p_place, joint_axes, mass, lever, inertia = unpack_chain_fused(chain)
         term_M = np.zeros(n)
-        for c in range(a_.shape[1]):
+        for col in range(a_.shape[1]):
             term_M += inertia_contraction_fused(
-                q, R_place, p_place, joint_axes, mass, lever, inertia, a_[:, c], b_[:, c]
+                q, R_place, p_place, joint_axes, mass, lever, inertia, a_[:, col], b_[:, col]
             )
         W = W_f if objective == 0 else (W_a if objective == 1 else W_d)
         for i in range(n):
@@ -321,7 +328,9 @@ def projection_law_fused(
         J, dq, e, target_velocity, target_acceleration, A, P_d, P_f, Lambda, dJ_dq, F_e, F_hat, u_f_extra,
         m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, shaping,
     )  # fmt: skip
-    lower, upper = damper_bounds_fused(q, q_lower, q_upper, dq_limit, endless, gains[6], gains[7], gains[8])
+    lower, upper = damper_bounds_fused(
+        q, c.q_lower, c.q_upper, c.dq_limit, c.endless != 0.0, c.damper_influence, c.damper_safety, c.damper_speed
+    )
     F_mu[:] = F_mu_
     qp_data[0] = grad
     qp_data[1] = lower
@@ -330,44 +339,41 @@ def projection_law_fused(
 
 
 @njit(cache=True)
-def projection_step_fused(
-    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
-    target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
-    gains, limits, chain, F_mu, qp_data, closed_form, N, Lambda_n, kn, h, x, tau,
-):  # fmt: skip
-    """`projection_law_fused`, then, with `closed_form` (the nullspace QP's 7-joint line form applies),
-    the QP [T15-17] by `nullspace_line_qp_fused` into `x` and the torque [T13-14] by
-    `joint_torque_fused` into `tau`: the whole [T] step in one call. Returns the law's values and the
-    number of active bounds (0 or 1), or −1 when the QP was not solved here (`x`, `tau` untouched:
-    the caller solves it with its backend)."""
+def projection_step_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data, out):
+    """`projection_law_fused`, then, when the record's `closed_form` holds (the nullspace QP's
+    7-joint line form applies), the QP [T15-17] by `nullspace_line_qp_fused` into `x` and the torque
+    [T13-14] by `joint_torque_fused` into `tau`, `out` = (x, tau): the whole [T] step in one call.
+    Returns the law's values and the number of active bounds (0 or 1), or −1 when the QP was not
+    solved here (`x`, `tau` untouched: the caller solves it with its backend)."""
     F, integral, W, W_f, W_a, W_d, coupled, force_error = projection_law_fused(
-        q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
-        target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
-        gains, limits, chain, F_mu, qp_data,
-    )  # fmt: skip
+        dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data
+    )
+    x, tau = out
+    J, dq, N, Lambda_n, h = dyn[2], dyn[1], dyn[10], dyn[11], dyn[12]
+    c = law[0]
     active = -1
-    if closed_form:
+    if c.closed_form:
         active = nullspace_line_qp_fused(J, qp_data[0], qp_data[1], qp_data[2], x)
         if active >= 0:
-            tau[:] = joint_torque_fused(J, F_mu, N, Lambda_n, kn, x, dq, h)
+            tau[:] = joint_torque_fused(J, F_mu, N, Lambda_n, c.kn, x, dq, h)
     return F, integral, W, W_f, W_a, W_d, coupled, force_error, active
 
 
-def projection_law_reference(
-    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
-    target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
-    gains, limits, chain, F_mu, qp_data,
-) -> tuple:  # fmt: skip
+def projection_law_reference(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data) -> tuple:
     """`projection_law_fused` by the references one by one: e = [p° − p; log(R° Rᵀ)], the clamped
     force integral [T12], `coupling_reference` [T6, T9, T22], k0 ∇W from
     `gradient_contraction_reference` (∂J from `kinematic_hessian_reference`) and
     `inertia_contraction_reference` [T24-27] or ∇W_j = q − q_d [T18], `task_wrench_reference`
     [T7, T11-12] and `damper_bounds_reference` [T17]; the same buffers written, the same values."""
-    objective, n_m = int(axes[0]), int(axes[1])
-    perm = axes[2:]
+    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation = dyn[:10]
+    target_position, target_rotation, target_velocity, target_acceleration, target_wrench = target
+    c = law[0]
+    objective, n_m, k0 = int(c["objective"]), int(c["n_m"]), float(c["k0"])
+    perm = c["perm"]
     m_idx, f_idx = perm[:n_m], perm[n_m:]
-    force_kp, force_kd, force_ki, force_integral_limit, shaping, k0, influence, safety, speed = gains[:9]
-    kp_m, kd_scale_m = gains[9 : 9 + n_m], gains[9 + n_m : 9 + 2 * n_m]
+    force_kp, force_kd, force_ki = float(c["force_kp"]), float(c["force_kd"]), float(c["force_ki"])
+    force_integral_limit = float(c["force_integral_limit_n"])
+    kp_m, kd_scale_m = c["kp_m"][:n_m], c["kd_scale_m"][:n_m]
     e = np.concatenate([target_position - tcp_position, log3_reference(target_rotation @ tcp_rotation.T)])
     F_hat = target_wrench[f_idx]
     integral, u_f_extra = force_integral.copy(), np.zeros(len(f_idx))
@@ -387,39 +393,35 @@ def projection_law_reference(
         )
         R_place, p_place, joint_axes, mass, lever, inertia = unpack_chain_reference(chain)
         term_M = np.zeros(q.shape[0])
-        for c in range(a_.shape[1]):
+        for k in range(a_.shape[1]):
             term_M += inertia_contraction_reference(
-                q, R_place, p_place, joint_axes, mass, lever, inertia, a_[:, c], b_[:, c]
+                q, R_place, p_place, joint_axes, mass, lever, inertia, a_[:, k], b_[:, k]
             )
         W = (W_f, W_a, W_d)[objective]
         grad = -2.0 * (term_J - term_M)
     F, F_mu_, coupled = task_wrench_reference(
         J, dq, e, target_velocity, target_acceleration, A, P_d, P_f, Lambda, dJ_dq, F_e, F_hat, u_f_extra,
-        m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, shaping != 0.0,
+        m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, bool(c["shaping"]),
     )  # fmt: skip
     F_mu[:] = F_mu_
     qp_data[0] = k0 * grad
     qp_data[1], qp_data[2] = damper_bounds_reference(
-        q, limits[0], limits[1], limits[2], limits[3] != 0.0, influence, safety, speed
-    )
+        q, c["q_lower"], c["q_upper"], c["dq_limit"], c["endless"] != 0.0,
+        float(c["damper_influence"]), float(c["damper_safety"]), float(c["damper_speed"]),
+    )  # fmt: skip
     return F, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]
 
 
-def projection_step_reference(
-    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
-    target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
-    gains, limits, chain, F_mu, qp_data, closed_form, N, Lambda_n, kn, h, x, tau,
-) -> tuple:  # fmt: skip
+def projection_step_reference(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data, out) -> tuple:
     """`projection_step_fused` by `projection_law_reference`, `nullspace_line_qp_into_reference`
     [T15-17] and `joint_torque_reference` [T13-14]."""
-    law = projection_law_reference(
-        q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, target_position,
-        target_rotation, target_velocity, target_acceleration, target_wrench, F_e, force_integral, q_d, axes,
-        gains, limits, chain, F_mu, qp_data,
-    )  # fmt: skip
+    law_values = projection_law_reference(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data)
+    x, tau = out
+    J, dq, N, Lambda_n, h = dyn[2], dyn[1], dyn[10], dyn[11], dyn[12]
+    c = law[0]
     active = -1
-    if closed_form:
+    if c["closed_form"]:
         active = nullspace_line_qp_into_reference(J, qp_data[0], qp_data[1], qp_data[2], x)
         if active >= 0:
-            tau[:] = joint_torque_reference(J, F_mu, N, Lambda_n, kn, x, dq, h)
-    return (*law, active)
+            tau[:] = joint_torque_reference(J, F_mu, N, Lambda_n, c["kn"], x, dq, h)
+    return (*law_values, active)

@@ -316,21 +316,27 @@ def _damper_bounds_samples(rng):
     return out
 
 
-def _law_args(rng, dyn, objective: int, force: tuple[int, ...], ki: float) -> tuple:
+def _law_args(rng, dyn, objective: int, force: tuple[int, ...], ki: float, closed_form: bool = False) -> tuple:
+    from control.gains import MotionForceGains, NullspaceGains
+
     robot, model = _robot()
     perm, n_m = _perm(force)
-    axes, gains, limits = law.law_constants(
-        objective, perm, n_m, rng.uniform(100, 3000, n_m), rng.uniform(0.5, 2.0, n_m), (0.5, 0.01, ki, 20.0),
-        bool(rng.random() < 0.5), 30.0, robot.q_lower, robot.q_upper, 0.5 * robot.dq_max, robot.endless,
-        (0.2, 0.05, 0.5),
+    gains = MotionForceGains(force_kp=0.5, force_kd=0.01, force_ki=ki, force_integral_limit_n=20.0,
+                             shaping=bool(rng.random() < 0.5))  # fmt: skip
+    nullspace = NullspaceGains(damper_influence=0.2, damper_safety=0.05, damper_speed=0.5)
+    record = law.law_record(
+        gains, nullspace, objective=objective, k0=30.0, n_m=n_m, perm=perm, kp_m=rng.uniform(100, 3000, n_m),
+        kd_scale_m=rng.uniform(0.5, 2.0, n_m), q_lower=robot.q_lower, q_upper=robot.q_upper,
+        dq_limit=0.5 * robot.dq_max, endless=robot.endless, kn=rng.uniform(1, 100, 7), closed_form=closed_form,
     )  # fmt: skip
     R = _rotation(rng, 0.3) @ dyn.tcp_rotation_world
+    target = (
+        dyn.tcp_position_world + 0.02 * rng.standard_normal(3), R, rng.standard_normal(6), rng.standard_normal(6),
+        np.r_[rng.standard_normal(3) * 5, 0, 0, 0],
+    )  # fmt: skip
     return (
-        dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq, True, dyn.tcp_position_world,
-        dyn.tcp_rotation_world, dyn.tcp_position_world + 0.02 * rng.standard_normal(3), R, rng.standard_normal(6),
-        rng.standard_normal(6), np.r_[rng.standard_normal(3) * 5, 0, 0, 0], rng.standard_normal(6) * 10,
-        rng.standard_normal(6 - n_m), dyn.q + 0.1 * rng.standard_normal(7), axes, gains, limits,
-        chain.pack_chain(model.chain), np.zeros(6), np.zeros((3, 7)),
+        law.law_dynamics(dyn), target, rng.standard_normal(6) * 10, rng.standard_normal(6 - n_m),
+        dyn.q + 0.1 * rng.standard_normal(7), record, chain.pack_chain(model.chain), np.zeros(6), np.zeros((3, 7)),
     )  # fmt: skip
 
 
@@ -343,17 +349,18 @@ def _law_samples(rng):
 
 
 def _step_samples(rng):
-    _, model = _robot()
     out = []
-    for args in _law_samples(rng):
-        dyn = model.compute(args[0], args[1])
-        closed_form = bool(rng.random() < 0.8)
-        out.append((*args, closed_form, dyn.N, dyn.Lambda_n, rng.uniform(1, 100, 7), dyn.h, np.zeros(7), np.zeros(7)))
+    for k, dyn in enumerate(states(rng, 4)):
+        for objective in range(4):
+            args = _law_args(
+                rng, dyn, objective, SUBSPACES[(k + objective) % 3], 5.0 if k % 2 else 0.0, bool(rng.random() < 0.8)
+            )
+            out.append((*args, (np.zeros(7), np.zeros(7))))
     return out
 
 
 def _law_tolerance(args) -> float:
-    return lambda_tolerance(args[5])
+    return lambda_tolerance(args[0][5])
 
 
 def _line_qp_samples(rng):

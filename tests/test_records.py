@@ -1,0 +1,60 @@
+"""Named records at the compiled boundary (`control.kernels.records`): each record carries every
+numeric field of its parameter groups by name, and a group goes in and comes back unchanged."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from control.gains import MotionForceGains, NullspaceGains
+from control.kernels.law import LAW_GROUPS, law_record, law_record_dtype
+from control.kernels.records import group_fields, group_of, record_dtype, record_values
+
+
+def _law_derived(n: int = 7) -> dict:
+    rng = np.random.default_rng(3)
+    return {
+        "objective": 2, "k0": 12.5, "n_m": 3, "perm": np.array([0, 1, 5, 2, 3, 4]),
+        "kp_m": rng.uniform(1, 9, 3), "kd_scale_m": rng.uniform(1, 9, 3), "q_lower": -rng.uniform(1, 3, n),
+        "q_upper": rng.uniform(1, 3, n), "dq_limit": rng.uniform(1, 3, n), "endless": (np.arange(n) == 6).astype(float),
+        "kn": rng.uniform(1, 9, n), "closed_form": True,
+    }  # fmt: skip
+
+
+def test_the_law_record_holds_every_numeric_field_of_its_groups_by_name():
+    names = set(law_record_dtype(7).names)
+    for group in LAW_GROUPS:
+        numeric = [f.name for f in dataclasses.fields(group) if f.type in ("float", "int", "bool")]
+        assert numeric and set(numeric) <= names, group.__name__
+        assert [name for name, _ in group_fields(group)] == numeric
+    assert {"force_kp", "force_ki", "shaping", "k0_a", "damper_influence", "damper_speed"} <= names
+
+
+def test_the_law_record_round_trips_its_groups_and_its_derived_fields():
+    gains = dataclasses.replace(MotionForceGains(), force_kp=1.25, force_ki=3.5, shaping=False)
+    nullspace = dataclasses.replace(NullspaceGains(), k0_a=0.7, damper_safety=0.03, damper_speed=0.6)
+    derived = _law_derived()
+    rec = law_record(gains, nullspace, **derived)
+    values = record_values(rec)
+    assert group_of(MotionForceGains, values, MotionForceGains()) == gains
+    assert group_of(NullspaceGains, values, NullspaceGains()) == nullspace
+    for name, value in derived.items():
+        got = values[name]
+        if np.ndim(value):
+            np.testing.assert_array_equal(got[: len(value)], value)
+            assert not np.any(got[len(value) :]), name  # a shorter value leaves the rest zero
+        else:
+            assert got == value, name
+
+
+def test_a_record_refuses_a_missing_or_unknown_derived_field_and_a_name_used_twice():
+    derived = _law_derived()
+    del derived["kn"]
+    with pytest.raises(ValueError, match=r"missing \['kn'\]"):
+        law_record(MotionForceGains(), NullspaceGains(), **derived)
+    with pytest.raises(ValueError, match=r"unknown \['gain'\]"):
+        law_record(MotionForceGains(), NullspaceGains(), **_law_derived(), gain=1.0)
+    with pytest.raises(ValueError, match="named twice: force_kp"):
+        record_dtype((MotionForceGains,), (("force_kp", np.float64),))
