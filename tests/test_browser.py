@@ -96,7 +96,7 @@ def open_page(app: Any, browser: Any) -> tuple[Any, Any]:
     before = set(app.server.get_clients())
     page = browser.new_page(viewport=VIEWPORT)
     page.goto(app.url)
-    page.wait_for_selector("canvas", timeout=60_000)
+    page.wait_for_selector(SCENE_CANVAS, timeout=60_000)  # the 3D view (a 0×0 helper canvas may come first)
     new = wait_for(lambda: set(app.server.get_clients()) - before, 60, "the page to connect")
     client = app.server.get_clients()[min(new)]
     wait_for(lambda: client.camera.image_width > 0, 30, "the page to report its camera")
@@ -280,9 +280,9 @@ def has_control(pg: Any, label_pattern: str, role: str) -> bool:
     return bool(pg.evaluate(_CONTROL_JS, [label_pattern, role]))
 
 
-def open_tab(pg: Any, name: str) -> None:
+def open_tab(pg: Any, name: str, timeout_ms: float = 30_000) -> None:
     """Show the control panel's tab `name` (Run, Tune, Visuals, Record)."""
-    pg.get_by_role("tab", name=name).click()
+    pg.get_by_role("tab", name=name).click(timeout=timeout_ms)
 
 
 def choose(pg: Any, label: str, option: str) -> list[str]:
@@ -670,6 +670,66 @@ def test_a_case_switch_in_the_page_keeps_the_users_friction_and_says_what_it_res
     finally:
         app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection", variant="flow"))
         app.loop.sync(timeout=60)
+
+
+def _knob(app: Any, label: str) -> tuple[Any, Any]:
+    """The panel and the knob whose input is labelled `label`."""
+    for panel in app.panels:
+        for k in getattr(panel, "knobs", ()):
+            if k.label == label:
+                return panel, k
+    raise AssertionError(f"no knob labelled {label!r}")
+
+
+def test_typed_text_a_number_box_cannot_take_gets_a_notice_naming_the_value_in_force(app, page, paused):
+    """Polish, Tune, the Force setpoint's box (a slider's): "1e9" typed key by key is clamped to the
+    slider's top (the browser alone would have sent 19) and "abc" typed, "NaN" filled in, change
+    nothing; each gets one notice in the page naming the text and the value in force, the box then
+    shows that value, and the setpoint in force is it."""
+    from app.core.commands import SetParam
+
+    pg, client = page
+    label = "Force setpoint F̂ (N)"
+    _, k = _knob(app, label)
+    hi = k.bounds[1]
+    before = param(app, k.group, k.field)
+    mark = f"box{time.monotonic_ns()}"
+    open_tab(pg, "Tune", timeout_ms=120_000)  # the first click of a fresh page waits for its first frames
+    wait_for(lambda: pg.evaluate(_NUMBER_BOX_JS, ["^" + re.escape(label) + "$", mark]), 30, f"the box of {label}")
+    box = pg.locator(f"[data-tour-box={mark}]")
+    box.scroll_into_view_if_needed()
+    cases = [  # (text, how it goes in, the notice's words, the value in force after)
+        ("1e9", "type", f"'1e9' is above the largest value {hi:g}; {hi:g} is in force", hi),
+        ("abc", "type", f"'abc' is not a number; {hi:g} stays", hi),
+        ("NaN", "fill", f"'NaN' is not a finite number; {hi:g} stays", hi),
+    ]
+    pg.set_default_timeout(120_000)  # a software-rendered page on a loaded machine takes seconds per input
+    try:
+        for text, how, words, expected in cases:
+            seen = len(app.loop.lab.notice_log)
+            box.focus()
+            if how == "type":
+                pg.keyboard.press("Control+A")
+                pg.keyboard.type(text, delay=30)
+            else:
+                box.fill(text)
+            box.press("Enter")
+
+            def new_notices(seen: int = seen, words: str = words) -> list[Any]:
+                return [n for n in list(app.loop.lab.notice_log)[seen:] if words in n.body]
+
+            notices = wait_for(new_notices, 30, f"the notice {words!r}")
+            assert len(notices) == 1 and notices[0].client_id == client.client_id  # one notice, to the typist
+            assert notices[0].body.startswith(label)
+            in_page = pg.get_by_text(words, exact=False)
+            wait_for(lambda in_page=in_page: in_page.count() > 0, 20, f"{words!r} shown in the page")
+            assert float(param(app, k.group, k.field)) == pytest.approx(expected)
+            shown = f"{expected:g}"
+            wait_for(lambda shown=shown: box.input_value() == shown, 20, f"the box to show {shown}")
+    finally:
+        pg.set_default_timeout(30_000)
+        app.loop.submit(SetParam(k.group, k.field, before))
+        app.loop.sync()
 
 
 _PHASE_LAST_JS = """() => {

@@ -51,6 +51,7 @@ from app.live.ui.publisher import Publisher
 from app.live.ui.replay import ReplayPanel
 from app.live.ui.scene import SceneView
 from app.live.ui.snapshot import capture
+from app.live.ui.typed import typed_numbers
 from app.live.ui.visuals import VisualSettings, VisualsPanel
 from app.live.warmup import warm_up
 from app.scenarios import SCENARIOS
@@ -134,6 +135,7 @@ def start_app(
     with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
     input_guard = guard_gui_updates(server)  # every GUI update checked on arrival
+    typed_numbers(server)  # text typed into a number box reaches the server (at the root, hidden)
     server.gui.configure_theme(control_width="large")
     server.gui.main_panel.dock_right()  # the 3D view is the canvas between the panels
     actual = server.get_port()

@@ -28,6 +28,7 @@ import viser
 from app.core.commands import SetParam
 from app.core.params import field_spec
 from app.live.loop import Settings, SimLoop
+from app.live.ui.typed import parse_typed, shown_text, typed_numbers
 from control.params import ParamSpec
 
 TOUCH_HOLD_S = 0.6  # after a person moves a knob, the panel does not overwrite it for this long
@@ -265,6 +266,12 @@ class KnobPanel:
                 self.echo(k, event.target, event.target.value, event.client_id, before)
 
         handle.on_update(on_update)
+        if k.kind in ("slider", "number"):
+
+            def on_typed(text: str, client_id: int | None, k: Knob = k, h: Any = handle) -> None:
+                self.typed(k, h, text, client_id)
+
+            typed_numbers(self.server).register(handle, on_typed)
         self.knobs.append(k)
         self.handles.append(handle)
         return handle
@@ -296,6 +303,34 @@ class KnobPanel:
         if not _refused_since(self.loop.lab.notice_log, before, client_id):
             notify(self.server, client_id, "Value adjusted", f"{k.label}: {typed!r} arrived, {in_force:g} is in force")
         return in_force
+
+    def typed(self, k: Knob, handle: Any, text: str, client_id: int | None) -> None:
+        """Text typed into a knob's number box (`app.live.ui.typed`): the number, clamped to the knob's
+        range, is applied; text that is no finite number changes nothing. Either way the box shows the
+        value in force, and a clamp or a refusal gets one notice naming that value."""
+        lab = self.loop.lab
+        lo, hi = k.bounds
+        value, why = parse_typed(text, lo, hi)
+        if value is None:
+            try:
+                current = self.shown_value(k, self.loop.settings)
+            except (KeyError, TypeError, ValueError, IndexError, AttributeError):
+                return
+            lab.notify("error", "Input refused", f"{k.label}: {shown_text(text)} {why}; {current:g} stays", client_id)
+            handle.value = current
+            return
+        before = lab.notice_log[-1] if lab.notice_log else None
+        for cmd in k.commands(value, client_id):
+            self.loop.submit(cmd)
+        in_force = self.echo(k, handle, value, client_id, before)
+        shown = value if in_force is None else in_force
+        if why:
+            body = f"{k.label}: {shown_text(text)} {why}; {shown:g} is in force"
+            lab.notify("warning", "Value adjusted", body, client_id)
+        try:
+            handle.value = shown
+        except (TypeError, ValueError):
+            pass
 
     def shown_value(self, k: Knob, settings: Settings) -> Any:
         """The input value of a knob for the values in force (numbers clamped to the input's range)."""
