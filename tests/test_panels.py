@@ -136,3 +136,13 @@ def test_export_writes_every_column_and_marks_missing_values():
     assert lines[0] == "t,W_a" and len(lines) == 4 and lines[1] == "0,"
     doc = json.loads(to_json({"columns": cols, "scenario": "free", "settings": {"drag": {"max_force_n": 150.0}}}))
     assert doc["columns"]["W_a"] == [None, 1.5, 2.0] and doc["scenario"] == "free"
+
+
+def test_the_gamma0_line_lists_each_joints_value_and_says_when_the_slider_shows_their_mean():
+    from app.live.ui.panels.compliance import gamma0_text
+
+    mixed = gamma0_text(np.diag([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))  # Γ₀ of joint 1 only: mean 0.14
+    assert "1.00 · 0.00 · 0.00 · 0.00 · 0.00 · 0.00 · 0.00" in mixed and "mean" in mixed and "0.14" not in mixed
+    same = gamma0_text(np.full(7, 0.5))
+    assert same.count("0.50") == 7 and "mean" not in same
+    assert gamma0_text(None) == ""

@@ -24,6 +24,16 @@ def test_polish_phase_names_contact_settling_with_w_swivel_seconds_then_each_str
     assert reader.text(_status("polish", 40.0, segment=7.0), scene).startswith("done")
 
 
+def test_a_planned_case_says_it_follows_the_planned_path_not_an_objectives_settling():
+    reader = PhaseReader()
+    scene = SimpleNamespace(objective="j", W={"W_j": 0.4})  # the planned case runs W_j's gains underneath
+    status = _status("polish", 4.2, segment=0.0, swivel_deg=-12.4, swivel_plan_deg=-20.2, settle_s=3.2)
+    status.variant = "planned W_a"
+    text = reader.text(status, scene)
+    assert text == "moving to the planned W_a path's start: swivel -12° (planned -20°), 3.2 s"
+    assert "W_j" not in text and "settling" not in text
+
+
 def test_mass_drop_phase_follows_the_release_signal():
     reader = PhaseReader()
     assert reader.text(_status("mass-drop", 1.0, mass_released=0.0)) == "holding the mass"

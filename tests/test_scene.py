@@ -361,7 +361,8 @@ def test_coupling_shapes_hide_near_a_singularity_and_never_exceed_a_metre(server
         o = view.overlays
         # unit spheres scaled by their semi-axes: at most 0.5 m each way, 1 m across
         assert o.coupling_disc.visible and max(o.coupling_disc.scale) <= 0.5 and max(o.inertia.scale) <= 0.5
-        center = snap.tcp_position + np.array([0.0, 0.0, 0.05])
+        center = o.coupling_center
+        assert center is not None and np.allclose(o.coupling_disc.position, center)
         assert np.max(np.linalg.norm(o.coupling_outline.points - center, axis=2)) <= 0.5 + 1e-6
         with server.atomic():
             view.update(dataclasses.replace(snap, near_singular=True))
@@ -429,5 +430,41 @@ def test_the_twin_arm_is_drawn_where_its_bodies_are_and_hidden_without_a_twin(se
         with server.atomic():
             view.update(snap)
         assert not any(h.visible for h in view.twin_meshes.values()) and not view.twin_label.visible
+    finally:
+        view.remove()
+
+
+@pytest.mark.parametrize("preset", ["mass-drop", "limit-drop", "polish"])
+def test_the_coupling_ellipse_leaves_the_wrist_and_the_payload_in_view_and_its_label_on_it(server, preset):
+    """The disc (an ellipsoid of semi-axes `scale` rotated by its quaternion) contains neither the payload
+    ball nor the last two links' origins, and its label sits just above its top (≤ 2 cm)."""
+    import viser.transforms as vtf
+
+    session = Session(preset)
+    session.run(0.02)
+    view = SceneView(server, session.robot, lambda c: None)
+    try:
+        snap = capture(session)
+        if snap.near_singular:  # gen3's L-shaped drop start: no coupling shapes; look at them beside it
+            snap = dataclasses.replace(snap, near_singular=False)
+        with server.atomic():
+            view.update(snap)
+        o = view.overlays
+        assert o.coupling_disc.visible
+        c, semi = np.asarray(o.coupling_disc.position), np.asarray(o.coupling_disc.scale)
+        R = vtf.SO3(np.asarray(o.coupling_disc.wxyz)).as_matrix()
+
+        def inside(x: np.ndarray, pad: float = 0.0) -> bool:
+            local = R.T @ (np.asarray(x) - c)
+            return float(np.sum((local / (semi + pad)) ** 2)) <= 1.0
+
+        points = [snap.link_positions[snap.link_index(n)] for n in session.robot.link_names[-2:]]
+        points.append(snap.tcp_position)
+        if snap.payload_position is not None:
+            assert not inside(snap.payload_position, pad=0.04)  # the ball's radius
+        assert not any(inside(p) for p in points)
+        top = float(np.linalg.norm(R[2, :] * semi))
+        gap = float(o.coupling_label.position[2] - (c[2] + top))
+        assert 0.0 <= gap <= 0.02 and np.allclose(o.coupling_label.position[:2], c[:2])
     finally:
         view.remove()

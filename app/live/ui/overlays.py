@@ -26,8 +26,11 @@ MIN_AXIS_M = 1e-3
 # semi-axis cap: no overlay is more than 1 m across (a huge P near a singularity would engulf the camera)
 MAX_AXIS_M = 0.5
 PAYLOAD_RADIUS_M = 0.04  # drawn size of an attached payload mass (the sphere its inertia assumes)
-# Coupling shapes sit 5 cm above the TCP so that a surface under the tool cannot hide them.
+# Coupling shapes sit 5 cm above the TCP (a surface under the tool cannot hide them), beside the tool.
 LIFT_M = np.array([0.0, 0.0, 0.05])
+COUPLING_OPACITY = 0.3  # the wrist and the tool stay visible through the disc
+SIDE_GAP_M = 0.03  # gap between a coupling shape and a payload at the tool
+LABEL_GAP_M = 0.01  # the coupling label sits this far above the disc's top (it moves with the disc)
 
 GREEN = np.array([60, 200, 90], dtype=float)
 YELLOW = np.array([240, 200, 40], dtype=float)
@@ -138,6 +141,17 @@ def margin_color(margin_rad: float, zone_rad: float) -> tuple[int, int, int]:
     return magnitude_color(1.0 - margin_rad / zone_rad)
 
 
+def coupling_center(tcp: np.ndarray, R: np.ndarray, semi: np.ndarray) -> np.ndarray:
+    """Where a coupling shape (rotation R, semi-axes `semi`) is drawn: LIFT_M above the tool and moved
+    out sideways, away from the arm's base (at the world origin), by its own horizontal half-extent plus
+    a payload's radius and a gap, so that it covers neither the wrist nor a payload at the tool."""
+    out = np.array([tcp[0], tcp[1], 0.0])
+    norm = float(np.linalg.norm(out))
+    out = out / norm if norm > 1e-6 else np.array([1.0, 0.0, 0.0])
+    half = float(np.linalg.norm((out @ R) * semi))  # half-extent of the ellipsoid along `out`
+    return tcp + LIFT_M + (half + PAYLOAD_RADIUS_M + SIDE_GAP_M) * out
+
+
 def wxyz_of(R: np.ndarray) -> np.ndarray:
     """Quaternion (w, x, y, z) of a rotation matrix."""
     return vtf.SO3.from_matrix(R).wxyz
@@ -186,9 +200,10 @@ class Overlays:
         self.settings = settings
         self.root = root
         self.trail = Trail()
+        self.coupling_center: np.ndarray | None = None  # where the coupling ellipse was last drawn
         sc = server.scene
         self.coupling_disc = sc.add_icosphere(
-            f"{root}/coupling_disc", radius=1.0, color=GREEN, subdivisions=3, opacity=0.45, side="double"
+            f"{root}/coupling_disc", radius=1.0, color=GREEN, subdivisions=3, opacity=COUPLING_OPACITY, side="double"
         )
         self.coupling_outline = sc.add_line_segments(
             f"{root}/coupling_outline", np.zeros((1, 2, 3)), colors=(30, 30, 30), thickness=0.003
@@ -213,7 +228,10 @@ class Overlays:
         )
         self.target = sc.add_icosphere(f"{root}/target", radius=0.008, color=(120, 120, 120), visible=False)
         self.payload = sc.add_icosphere(f"{root}/payload", radius=PAYLOAD_RADIUS_M, color=(70, 70, 75), visible=False)
-        self.payload_label = sc.add_label(f"{root}/payload_label", "", font_screen_scale=0.8, visible=False)
+        # below the ball, to its left: clear of the coupling label, which sits above the tool, to its right
+        self.payload_label = sc.add_label(
+            f"{root}/payload_label", "", font_screen_scale=0.8, visible=False, anchor="top-right"
+        )
 
     def update(self, snap: SceneSnapshot) -> None:
         """Move/rescale/recolour every overlay for one frame; hides them all on a non-finite state."""
@@ -240,7 +258,7 @@ class Overlays:
         self.payload_label.visible = shown and s.labels
         if p is not None and shown:
             set_position(self.payload, p)
-            set_position(self.payload_label, p + np.array([0.0, 0.0, 1.5 * PAYLOAD_RADIUS_M]))
+            set_position(self.payload_label, p - np.array([0.0, 0.0, 1.5 * PAYLOAD_RADIUS_M]))
             set_prop(self.payload_label, "text", f"{snap.payload_mass_kg:.2f} kg")
 
     def _nodes(self) -> tuple[viser.SceneNodeHandle, ...]:
@@ -268,21 +286,26 @@ class Overlays:
         P = snap.P[kind]
         scale = s.coupling_scale(snap.objective)
         L = coupling_map(P, sub, scale)
-        show = s.coupling and L.shape[1] > 0 and not snap.near_singular
+        # with no translational force axis the image is the unit sphere whatever P is: nothing to show,
+        # and a sphere at the tool would hide the wrist and the payload
+        lifts = any(a < 3 for a in sub.force_axes)
+        show = s.coupling and L.shape[1] > 0 and lifts and not snap.near_singular
         self.coupling_disc.visible = show
         self.coupling_outline.visible = show
-        self.coupling_label.visible = s.coupling and s.labels and L.shape[1] > 0
+        self.coupling_label.visible = s.coupling and s.labels and L.shape[1] > 0 and (lifts or snap.near_singular)
         if snap.near_singular:
             set_position(self.coupling_label, snap.tcp_position + LIFT_M)
             set_prop(self.coupling_label, "text", "near a singularity: Λx ill-conditioned")
         if not show:
             return
         radius = s.coupling_radius_m
-        center = snap.tcp_position + LIFT_M
         axes, R = ellipsoid_of_map(L)
+        semi = np.clip(radius * axes, MIN_AXIS_M, MAX_AXIS_M)
+        center = coupling_center(snap.tcp_position, R, semi)
+        self.coupling_center = center
         set_position(self.coupling_disc, center)
         set_wxyz(self.coupling_disc, wxyz_of(R))
-        set_prop(self.coupling_disc, "scale", _triple(np.clip(radius * axes, MIN_AXIS_M, MAX_AXIS_M)))
+        set_prop(self.coupling_disc, "scale", _triple(semi))
         set_prop(self.coupling_disc, "color", magnitude_color(np.tan(tilt_rad(P, sub, scale))))
         outline = coupling_ellipse(P, sub, scale=scale, points=48)
         outline = radius * outline
@@ -290,7 +313,8 @@ class Overlays:
         outline *= np.minimum(1.0, MAX_AXIS_M / np.maximum(reach, 1e-12))  # same cap as the disc, roughly
         set_prop(self.coupling_outline, "points", polyline_segments(center + outline).astype(np.float32))
         W = snap.W.get("W" + kind[1:], float("nan"))
-        set_position(self.coupling_label, center + np.array([0.0, 0.0, radius * 1.2]))
+        top = float(np.linalg.norm(R[2, :] * semi))  # the disc's half-height along world z
+        set_position(self.coupling_label, center + np.array([0.0, 0.0, top + LABEL_GAP_M]))
         set_prop(self.coupling_label, "text", f"W{kind[1:]} = {W:.3g}")
 
     def _update_ppt(self, snap: SceneSnapshot, s: VisualSettings) -> None:
@@ -302,9 +326,10 @@ class Overlays:
             return
         axes, R = shape
         size = s.coupling_radius_m * s.coupling_scale(snap.objective)
-        set_position(self.ppt, snap.tcp_position + LIFT_M)
+        semi = np.clip(size * axes, MIN_AXIS_M, MAX_AXIS_M)
+        set_position(self.ppt, coupling_center(snap.tcp_position, R, semi))
         set_wxyz(self.ppt, wxyz_of(R))
-        set_prop(self.ppt, "scale", _triple(np.clip(size * axes, MIN_AXIS_M, MAX_AXIS_M)))
+        set_prop(self.ppt, "scale", _triple(semi))
 
     def _update_inertia(self, snap: SceneSnapshot, s: VisualSettings) -> None:
         self.inertia.visible = s.inertia_ellipsoid and not snap.near_singular

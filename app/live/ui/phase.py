@@ -1,6 +1,7 @@
 """The phase a preset is in, in words, for the status line: read from the scenario's own signals.
 
-polish: contact, settling (objective W, swivel, seconds), S1…S6, done (signals "segment",
+polish: contact, settling (objective W, swivel, seconds; a planned case: the swivel and the planned
+one), S1…S6, done (signals "segment",
 "settle_s", "swivel_deg"); mass-drop: holding, dropped (signal "mass_released"); limit-drop: the
 drop while the falling joint moves, at rest once it has stopped (its speed, from the posture of
 successive frames). Presets that are over in a few seconds start paused (`starts_paused`, the
@@ -39,7 +40,7 @@ class PhaseReader:
         sig = status.signals
         name = status.scenario
         if name == "polish":
-            return _polish(status.t, sig, scene)
+            return _polish(status.t, sig, scene, str(getattr(status, "variant", "") or ""))
         if "mass_released" in sig:
             return "dropped: the mass hangs on the rope" if sig["mass_released"] > 0.5 else "holding the mass"
         if name == "limit-drop":
@@ -63,7 +64,7 @@ class PhaseReader:
         return f"done: joint {joint + 1} at rest"
 
 
-def _polish(t: float, sig: dict[str, float], scene: Any) -> str:
+def _polish(t: float, sig: dict[str, float], scene: Any, variant: str = "") -> str:
     segment = sig.get("segment", math.nan)
     if math.isfinite(segment) and 1 <= segment <= SEGMENTS:
         stroke = "back" if int(segment) % 2 == 1 else "forward"
@@ -72,14 +73,21 @@ def _polish(t: float, sig: dict[str, float], scene: Any) -> str:
         return "done: the zig-zag is over"
     if t < POLISH_CONTACT_S:
         return "contact: pressing onto the table"
+    swivel = sig.get("swivel_deg", math.nan)
+    seconds = sig.get("settle_s", max(t - POLISH_CONTACT_S, 0.0))
+    if variant.startswith("planned"):  # the posture follows the planned swivel path, no objective's gradient
+        planned = sig.get("swivel_plan_deg", math.nan)
+        parts = [f"moving to the {variant} path's start"]
+        if math.isfinite(swivel):
+            parts.append(f"swivel {swivel:+.0f}°" + (f" (planned {planned:+.0f}°)" if math.isfinite(planned) else ""))
+        parts.append(f"{seconds:.1f} s")
+        return parts[0] + ": " + ", ".join(parts[1:])
     parts = ["settling"]
     objective = getattr(scene, "objective", None)
     W = (getattr(scene, "W", None) or {}).get(f"W_{objective}", sig.get(f"W_{objective}")) if objective else None
     if W is not None and np.isfinite(W):
         parts.append(f"W_{objective} = {W:.3g}")
-    swivel = sig.get("swivel_deg", math.nan)
     if math.isfinite(swivel):
         parts.append(f"swivel {swivel:+.0f}°")
-    seconds = sig.get("settle_s", max(t - POLISH_CONTACT_S, 0.0))
     parts.append(f"{seconds:.1f} s")
     return parts[0] + ": " + ", ".join(parts[1:])

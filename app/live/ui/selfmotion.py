@@ -37,6 +37,8 @@ PREVIEW_PERIOD_S = 1.0  # s between two scans while the preview is on (a scan ta
 PLANNED_SIGNAL = "swivel_plan_deg"  # the polish scenario's planned swivel, when it runs a planned path
 GHOST_COLOR = (110, 130, 255)
 GHOST_OPACITY = 0.35
+GHOST_HIDE_RAD = np.radians(2.0)  # a ghost this close to the arm on every joint is hidden (no flicker through it)
+GHOST_SHOW_RAD = np.radians(3.0)  # … and shows again once it is this far (no flicker at the edge)
 AS_CONTROLLER = "as the controller"
 OBJECTIVE_CHOICES = (AS_CONTROLLER, "W_f", "W_a", "W_d")
 GHOST_CHOICES = ("where the flow settles (on the plan when one runs)", "best inside the limits", "hidden")
@@ -129,6 +131,7 @@ class SelfMotionPreview:
         self.ghost_q: np.ndarray | None = None  # the posture the ghost was last drawn at (tests read it)
         self._planned_deg: float | None = None  # swivel the planned path heads for, if the scenario plans one
         self._planned_q: np.ndarray | None = None  # the planned posture now, if the scenario tracks a plan
+        self._ghost_hidden_near = False  # the ghost is hidden because it stands in the arm's posture
         self._ghost_lock = threading.Lock()  # the ghost is posed from the publisher and the scan thread
         for handle in (self.objective, self.ghost_at):
             handle.on_update(lambda _: self._wake.set())
@@ -273,9 +276,20 @@ class SelfMotionPreview:
         if self.text.content != text:
             self.text.content = text
 
+    def _near_the_arm(self, q: np.ndarray) -> bool:
+        """True while the ghost's posture is within GHOST_HIDE_RAD of the arm's on every joint (it would
+        flicker through the arm); once hidden it shows again only beyond GHOST_SHOW_RAD."""
+        with self._lock:
+            current = None if self._input is None else self._input[1]
+        if current is None or np.shape(current) != np.shape(q):
+            return False
+        gap = float(np.max(np.abs(np.asarray(q, dtype=float) - current)))
+        self._ghost_hidden_near = gap < (GHOST_SHOW_RAD if self._ghost_hidden_near else GHOST_HIDE_RAD)
+        return self._ghost_hidden_near
+
     def _show_ghost(self, robot: RobotDescription | None, q: np.ndarray | None) -> None:
         with self._ghost_lock:
-            if robot is None or q is None:
+            if robot is None or q is None or self._near_the_arm(q):
                 hide_ghost_arm(self._ghost)
                 return
             if self._ghost_robot != str(robot.urdf_path):

@@ -66,17 +66,34 @@ class VisualSettings:
             setattr(self, key, value)
 
 
+# Every object the 3D view can draw, in words (the objects without a label of their own are named here).
+LEGEND = (
+    "- **Green disc / outline** (label W = …): the coupling ellipse, drawn beside the tool; with no "
+    "force axis (a free pose) there is nothing to lift and it is hidden.\n"
+    "- **Purple ellipsoid**: P Pᵀ in the force subspace [T21]. **Blue ellipsoid**: the task inertia Λx.\n"
+    "- **Orange arrow and line**: your drag's spring force and the grabbed point; **magenta arrow**: the "
+    "F/T reading; **red arrow**: the coupled response P_f·F_m.\n"
+    "- **Blue line**: the tool's trail; **grey line**: the commanded path; **small grey ball**: the task "
+    "target (where the controller wants the tool now).\n"
+    "- **Dark ball** (label: its mass): a payload hanging from the tool (mass-drop, limit-drop).\n"
+    "- **Translucent blue arm**: the self-motion preview's ghost (hidden while it stands within a few "
+    "degrees of the arm). **Red links**: a joint inside its damper zone d_i."
+)
+
+
 class VisualsPanel:
     """GUI folder with one control per overlay; each control's hint says what it shows."""
 
     def __init__(self, gui: viser.GuiApi, settings: VisualSettings, order: float | None = None):
         self.settings = settings
-        self.folder = gui.add_folder("Visuals", order=order, expand_by_default=False)
+        self.folder = gui.add_folder("Visuals", order=order, expand_by_default=True)
         with self.folder:
             gui.add_markdown(
                 "Overlays at the tool: the **coupling ellipse** is the unit motion circle lifted by "
                 "s·P into the force direction — flat means decoupled ([T] Table I, eq. 21)."
             )
+            with gui.add_folder("What the scene shows", expand_by_default=False):
+                gui.add_markdown(LEGEND)
             self.handles: dict[str, Any] = {}
             self._check(gui, "coupling", "Coupling ellipse", "Image of the unit motion sphere under v ↦ (v, s·P v).")
             self._dropdown(gui)
@@ -97,7 +114,7 @@ class VisualsPanel:
             self._slider(
                 gui, "limit_zone_rad", "Colour zone (rad)", 0.02, 0.6, 0.01, "d_i when the controller has no damper."
             )
-            self._check(gui, "labels", "Labels", "W value beside the coupling ellipse.")
+            self._check(gui, "labels", "Labels", "W value beside the coupling ellipse, the payload's mass.")
 
     def _check(self, gui: viser.GuiApi, key: str, label: str, hint: str) -> None:
         handle = gui.add_checkbox(label, bool(getattr(self.settings, key)), hint=hint)

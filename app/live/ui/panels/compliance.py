@@ -53,9 +53,17 @@ class CompliancePanel(KnobPanel):
         for handle in (self.gamma_x_help, self.gamma_x):
             if handle.visible != projection:
                 handle.visible = projection
+        group = settings.groups.get("posture_task")
+        text = gamma0_text(getattr(group, "compliance", None)) if group is not None else ""
+        if self.gamma0.content != text:
+            self.gamma0.content = text
+        if self.gamma0.visible != bool(text):
+            self.gamma0.visible = bool(text)
 
     def build_extra_bottom(self) -> None:
-        """The read-only Γ_x line and the per-joint Γ₀ fold (each slider changes one element, on the loop thread)."""
+        """The per-joint Γ₀ line, the read-only Γ_x line and the per-joint Γ₀ fold (each slider changes one
+        element, on the loop thread)."""
+        self.gamma0 = self.server.gui.add_markdown("")
         self.gamma_x = self.server.gui.add_markdown(GAMMA_X_OFF)
         with self.server.gui.add_folder("Γ_x ?", expand_by_default=False) as fold:
             self.server.gui.add_markdown(GAMMA_X_HELP)
@@ -72,6 +80,19 @@ class CompliancePanel(KnobPanel):
         text = GAMMA_X_OFF if eigs is None or skew is None else gamma_x_text(eigs, skew)
         if self.gamma_x.content != text:
             self.gamma_x.content = text
+
+
+def gamma0_text(value: Any) -> str:
+    """The per-joint Γ₀ line: each joint's value (the Γ₀ slider above sets all of them to one value and
+    shows their mean when they differ)."""
+    if value is None:
+        return ""
+    arr = np.asarray(value, dtype=float)
+    diag = np.diag(arr) if arr.ndim == 2 else np.atleast_1d(arr)
+    same = bool(np.allclose(diag, diag[0]))
+    listed = " · ".join(f"{x:.2f}" for x in diag)
+    note = "" if same else " (they differ: the slider shows their mean; set each one in Per-joint Γ₀)"
+    return f"**Γ₀ by joint 1…{len(diag)}:** {listed}{note}"
 
 
 def gamma_x_text(eigs: np.ndarray, skew: float) -> str:

@@ -23,7 +23,7 @@ class RecordPanel:
         self.server = server
         self.loop = loop
         gui = server.gui
-        with gui.add_folder("Record/Export", order=order, expand_by_default=False):
+        with gui.add_folder("Record/Export", order=order, expand_by_default=True):
             gui.add_markdown(INTRO)
             self.seconds = gui.add_number("Seconds", 10.0, min=0.1, max=MAX_EXPORT_S, step=0.5)
             self.csv = gui.add_button("Download CSV", icon=viser.Icon.DOWNLOAD)
