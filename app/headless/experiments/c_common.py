@@ -3,6 +3,7 @@ QP executor, parallel runs with progress, and a small HTML report writer."""
 
 from __future__ import annotations
 
+import argparse
 import html
 import json
 import os
@@ -13,6 +14,7 @@ import numpy as np
 from tqdm import tqdm
 
 from app.core.executors import EXECUTORS
+from app.core.provenance import code_version
 from app.core.session import Session
 from app.headless.sweep.engine import open_executor
 from app.scenarios import Scenario
@@ -90,8 +92,37 @@ def html_table(header: list[str], rows: list[list]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def write_report(out: Path, title: str, sections: list[tuple[str, str]]) -> Path:
-    """report.html with a title and (heading, html body) sections."""
+NOT_OPTIONS = ("func", "command", "experiment")  # parser bookkeeping, not options of the run
+
+
+def command_line(args: argparse.Namespace) -> str:
+    """The `torquelab experiment NAME …` command of a run, every option spelled out as parsed (defaults
+    included), so the report says exactly what made it."""
+    words = ["torquelab", "experiment", str(getattr(args, "experiment", "") or "")]
+    for key, value in vars(args).items():
+        if key in NOT_OPTIONS or value is None or value is False or (isinstance(value, list | tuple) and not value):
+            continue
+        flag = "--" + key.replace("_", "-")
+        if value is True:
+            words.append(flag)
+        elif isinstance(value, list | tuple):
+            words += [flag, ",".join(str(v) for v in value)]
+        else:
+            words += [flag, str(value)]
+    return " ".join(w for w in words if w)
+
+
+def run_line(args: argparse.Namespace | None) -> str:
+    """The report's provenance paragraph: the command and the code version that made it."""
+    command = html.escape(command_line(args)) if args is not None else "not recorded"
+    return f"<p>Run: <code>{command}</code>, code version <code>{html.escape(code_version())}</code>.</p>"
+
+
+def write_report(
+    out: Path, title: str, sections: list[tuple[str, str]], args: argparse.Namespace | None = None
+) -> Path:
+    """report.html with a title, the command and code version that made it (`run_line`) and (heading,
+    html body) sections."""
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'>",
         f"<title>{html.escape(title)}</title>",
@@ -100,6 +131,7 @@ def write_report(out: Path, title: str, sections: list[tuple[str, str]]) -> Path
         "text-align:right}th{background:#f4f4f4}img{max-width:100%}.ok{color:#070}.no{color:#a00}"
         ".oracle{color:#a60;font-weight:bold}</style></head><body>",
         f"<h1>{html.escape(title)}</h1>",
+        run_line(args),
     ]
     for heading, body in sections:
         parts.append(f"<h2>{html.escape(heading)}</h2>{body}")

@@ -168,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
             ("Peaks per mode and push", html_table(header, rows)),
             ("Figure (Fig. 6 style)", "<img src='fig6.png'>"),
         ],
+        args,
     )
     if args.json:
         print(json.dumps(summary, indent=2))

@@ -580,6 +580,7 @@ def run(args: argparse.Namespace) -> int:
             ("All runs", html_table(header, rows)),
             ("Phase diagrams (Figs. 2–4 style)", figs_html),
         ],
+        args,
     )
     if args.json:
         import json

@@ -400,7 +400,7 @@ def run(args: argparse.Namespace) -> int:
                 + "</p>",
             )
         )
-    write_report(out, "Mass drop [C] §IV-D", sections)
+    write_report(out, "Mass drop [C] §IV-D", sections, args)
     if args.json:
         print(json.dumps({"cases": stats, "findings": items}, indent=2))
     print(f"wrote {out / 'mass_drop.json'} and {out / 'report.html'} ({elapsed:.1f} s)")
