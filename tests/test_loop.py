@@ -590,6 +590,36 @@ def test_nothing_under_the_loop_imports_the_ui():
     assert out.strip() == "[]"
 
 
+def test_commands_waiting_behind_a_presets_work_do_not_keep_the_loop_awake(monkeypatch):
+    """While a preset's work is computed (a swivel plan in the worker process) the commands queued behind
+    its switch wait: the paused loop still sleeps until its next frame instead of spinning a core beside
+    the worker (it looked at its queue ~10⁵ times a second before)."""
+    from app.live.plan_worker import BackgroundPlanner
+
+    lp = SimLoop("free", capture=lambda s: None)
+    lp.start(running=False)
+    try:
+        lp.sync()
+        monkeypatch.setattr(BackgroundPlanner, "busy", property(lambda self: True))
+        drains = [0]
+        drain = lp._drain
+
+        def counted() -> None:
+            drains[0] += 1
+            drain()
+
+        monkeypatch.setattr(lp, "_drain", counted)
+        lp.submit(SetSpeed(2.0))  # not urgent: it waits behind the (pretended) work
+        time.sleep(0.1)
+        drains[0] = 0
+        time.sleep(1.0)
+        woken = drains[0]
+    finally:
+        monkeypatch.undo()
+        lp.stop()
+    assert woken <= 4 / lp.publish_period, woken  # about once per frame (at most 4 × the frame rate)
+
+
 def test_a_switch_to_a_planned_case_plans_in_another_process_while_the_loop_runs_on(monkeypatch):
     """The swivel plan of "planned W_a" (~4.5 s of Python) is computed in a worker process: meanwhile
     the loop keeps stepping the running preset and publishing frames, a Pause (urgent) still applies,

@@ -110,9 +110,9 @@ class CommandQueue:
                 return self._normal.popleft()
             return None
 
-    def empty(self) -> bool:
-        """True when nothing is queued."""
-        return not (self._urgent or self._normal)
+    def empty(self, urgent_only: bool = False) -> bool:
+        """True when nothing is queued (with `urgent_only`: nothing `get(urgent_only=True)` would take)."""
+        return not (self._urgent or (self._normal and not urgent_only))
 
 
 class SimLoop:
@@ -314,9 +314,11 @@ class SimLoop:
                 wake_at = min(wake_at, self._pacer.next_due(lab.total_steps + self._pacer.max_burst - 1))
             timeout = wake_at - self._clock()
             # cleared before the queue is looked at: a command queued after the look sets it again
-            # and ends the wait at once (cleared after the wait, its wake-up could be lost)
+            # and ends the wait at once (cleared after the wait, its wake-up could be lost). While a
+            # preset's work is computed the commands behind its switch wait for it: they do not keep the
+            # loop awake (it would spin a core beside the worker computing the work)
             self._wake.clear()
-            if timeout > 2e-4 and self._queue.empty():
+            if timeout > 2e-4 and self._queue.empty(urgent_only=self.planner.busy):
                 self._wake.wait(timeout)
 
     def _release_silent_drag(self, now: float) -> None:
