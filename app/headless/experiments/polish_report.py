@@ -7,6 +7,7 @@ sentence whose premise does not hold is not printed.
 from __future__ import annotations
 
 import html
+import json
 from pathlib import Path
 
 import numpy as np
@@ -186,6 +187,20 @@ def armature_basins(scales: tuple[float, ...]) -> list[dict]:
 
 
 # ---- figures ------------------------------------------------------------------------------------
+def readable_log_ticks(ax) -> None:
+    """Plain tick labels on a log y axis ("0.64", "20", "1e+04" only beyond 10⁴), not "6.4×10⁻¹"; the
+    minor ticks are labelled only when the axis spans less than a decade (else they stay unlabelled)."""
+    from matplotlib import ticker
+
+    def plain(y: float, _pos: object = None) -> str:
+        return f"{y:.2g}" if 1e-3 <= abs(y) < 1e4 else f"{y:.0e}"
+
+    lo, hi = ax.get_ylim()
+    narrow = lo > 0 and hi / lo < 10.0
+    ax.yaxis.set_major_formatter(ticker.FuncFormatter(plain))
+    ax.yaxis.set_minor_formatter(ticker.FuncFormatter(plain) if narrow else ticker.NullFormatter())
+
+
 def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict) -> None:
     """fig9_force_error.png, fig8_coupling.png, fig6_postures.png, swivel_scan.png, planned_path.png."""
     import matplotlib
@@ -213,6 +228,7 @@ def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict
             _shade_segments(axes[row][col])
             axes[row][col].set_ylabel(w)
             axes[row][col].set_yscale("log")
+            readable_log_ticks(axes[row][col])
         axes[0][col].set_title(f"coupling objectives, μ = {mu:g} (seed 0)")
         axes[-1][col].set_xlabel("time since trajectory start (s)")
         axes[0][col].legend(fontsize=7, ncol=3)
@@ -255,6 +271,7 @@ def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict
             ax.axvline(ridge, color="tab:red", ls=":", lw=1.0)
         ax.set_ylabel(w)
         ax.set_yscale("log")
+        readable_log_ticks(ax)
     axes[0].set_title("coupling along the self-motion loop at the start pose (grey: outside joint limits)")
     axes[-1].set_xlabel("swivel (deg; 0 = Fig. 6a start; o: converged from 0°, ^: from −30°; dotted: W_a ridge)")
     fig.tight_layout()
@@ -352,7 +369,7 @@ def _posture_figure(out: Path, runs: list[dict], plt) -> None:
         ax.set_ylim(-0.45, 0.45)
         ax.set_zlim(0.0, 0.9)
         ax.view_init(elev=20, azim=-60)
-        ax.set_title(f"{NAMES[r['objective']]}: swivel {r['converged_swivel_deg']:+.0f}°", fontsize=10)
+        ax.set_title(f"{NAMES[r['objective']]}: swivel {_deg(r['converged_swivel_deg'])}°", fontsize=10)
         ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(out / "fig6_postures.png", dpi=110)
@@ -364,8 +381,8 @@ def _pm(x: dict | None, digits: int = 1) -> str:
     if not x or x.get("mean") is None:
         return "-"
     if x.get("sd") is None:  # one seed: no spread to show
-        return f"{x['mean']:.{digits}f}"
-    return f"{x['mean']:.{digits}f} ± {x['sd']:.{digits}f}"
+        return _num(x["mean"], digits)
+    return f"{_num(x['mean'], digits)} ± {_num(x['sd'], digits)}"
 
 
 def _reused(settings: dict) -> str:
@@ -374,7 +391,18 @@ def _reused(settings: dict) -> str:
 
 
 def _fmt(x, digits: int = 2) -> str:
-    return "-" if x is None else f"{x:.{digits}f}"
+    return "-" if x is None else _num(x, digits)
+
+
+def _num(x: float, digits: int = 1, sign: bool = False) -> str:
+    """x to `digits` decimals, never "−0" (a value that rounds to zero prints without a sign)."""
+    text = f"{x:+.{digits}f}" if sign else f"{x:.{digits}f}"
+    return text.lstrip("+-") if float(text) == 0.0 else text
+
+
+def _deg(x: float) -> str:
+    """An angle in whole degrees with its sign ("+12", "-3", "0"; never "-0")."""
+    return _num(x, 0, sign=True)
 
 
 def _common(runs: list[dict], key: str):
@@ -439,7 +467,7 @@ def latency_html(doc: dict) -> str:
         text = f"{ratio}{lost}{', diverged' if c['diverged'] else ''}"
         if c.get("held"):  # stopped while held (the settle phase): no strokes run
             std = "" if c.get("held_std_n") is None else f", {c['held_std_n']:.1f} N"
-            at = "" if c.get("held_swivel_deg") is None else f" at {c['held_swivel_deg']:+.0f}°"
+            at = "" if c.get("held_swivel_deg") is None else f" at {_deg(c['held_swivel_deg'])}°"
             text = f"held{at}: {c['held']}{std}"
         elif c.get("converged") is False:
             text += ", settle not converged"
@@ -603,10 +631,51 @@ ends along the swivel scan with the armature scaled (model and simulation alike)
 <th>W_j PTP</th><th>W_f PTP</th><th>W_a PTP</th><th>W_d PTP</th></tr>{arm_rows}</table>
 {_v_eps_head(doc.get("v_eps", [])) + v_rows + "</table>" if v_rows else ""}
 <h2>Figures</h2>
-{"".join(f'<h3>{f}</h3><img src="{f}.png">' for f in figs)}
+{"".join(_figure_html(f) for f in figs)}
+{run_files_html(out)}
 </body></html>
 """
     (out / "report.html").write_text(page)
+
+
+FIGURE_TITLES = {
+    "fig9_force_error": "Force error along the zig-zag ([T] Fig. 9)",
+    "fig8_coupling": "The coupling objectives along the zig-zag ([T] Fig. 8)",
+    "fig6_postures": "The postures each objective settles in ([T] Fig. 6)",
+    "swivel_scan": "Coupling along the self-motion loop at the start pose",
+    "planned_path": "Planned and executed swivel paths over the planning cost",
+}
+
+
+def _figure_html(name: str) -> str:
+    """A figure under its title in words, with a link to its file."""
+    title = html.escape(FIGURE_TITLES.get(name, name.replace("_", " ")))
+    return f'<h3>{title}</h3><p><a href="{name}.png">{name}.png</a></p><img src="{name}.png">'
+
+
+def run_files_html(out: Path) -> str:
+    """Links to the per-run files under out/runs (each run's record as JSON and its signals as .npz),
+    one line per run named by its row, μ, seed and start; "" when there are none."""
+    runs = out / "runs"
+    lines = []
+    for meta in sorted(runs.glob("*.json")) if runs.is_dir() else []:
+        if meta.name.endswith(".tmp.json"):
+            continue
+        try:
+            spec = json.loads(meta.read_text()).get("spec", {})
+        except (OSError, ValueError):
+            continue
+        what = ", ".join(
+            f"{k} {spec[k]:g}" if isinstance(spec.get(k), float) else f"{k} {spec[k]}"
+            for k in ("group", "row", "mu", "seed", "start_swivel_deg", "armature_scale")
+            if k in spec
+        )
+        arrays = meta.with_suffix(".npz")
+        link = f' · <a href="runs/{arrays.name}">signals</a>' if arrays.exists() else ""
+        lines.append(f'<li><a href="runs/{meta.name}">{html.escape(meta.stem)}</a> ({html.escape(what)}){link}</li>')
+    if not lines:
+        return ""
+    return f"<h2>Per-run files ({len(lines)})</h2><ul>{''.join(lines)}</ul>"
 
 
 def stroke_margin_html(doc: dict) -> str:
@@ -622,7 +691,7 @@ def _arm_ptp(doc: dict, scale: float, objective: str) -> str:
         if r["armature_scale"] == scale and r["objective"] == objective and r["force_error"]["ptp"] is not None:
             flags = [w for w, bad in (("not converged", not r["converged"]), ("contact lost", not r["stable"])) if bad]
             return (
-                f"{r['force_error']['ptp']:.1f} ({r['converged_swivel_deg']:+.0f}°{''.join(', ' + f for f in flags)})"
+                f"{r['force_error']['ptp']:.1f} ({_deg(r['converged_swivel_deg'])}°{''.join(', ' + f for f in flags)})"
             )
     return "-"
 
@@ -641,7 +710,7 @@ def _w_d_flip(doc: dict) -> list[str]:
         return []
     if any(180.0 - abs(e["converged_swivel_deg"]["mean"]) <= FLIPPED_WITHIN_DEG for e in rows):
         return []
-    reached = ", ".join(f"μ = {e['mu']:g}: {e['converged_swivel_deg']['mean']:+.0f}°" for e in rows)
+    reached = ", ".join(f"μ = {e['mu']:g}: {_deg(e['converged_swivel_deg']['mean'])}°" for e in rows)
     where = (
         f"outside the joint limits (every swivel within {inv['infeasible_within_deg']:.0f}° of ±180° is)"
         if not inv["feasible"]
@@ -651,14 +720,14 @@ def _w_d_flip(doc: dict) -> list[str]:
     text = (
         f"W_d does not invert the elbow as [T] Fig. 6d does (ours reaches {reached}). Along the self-motion loop "
         f"at the start pose W_d has its local minima at {wd['local_minima_swivel_deg']}° and its feasible minimum "
-        f"at {wd['feasible_min_swivel_deg']:+.0f}° (W_d {wd['feasible_min']:.2f}); the flow from the start "
+        f"at {_deg(wd['feasible_min_swivel_deg'])}° (W_d {wd['feasible_min']:.2f}); the flow from the start "
         f"({wd['at_start']:.2f} at 0°) ends there"
         + (
-            f", the ridge to the other basin is at {wd['ridge_swivel_deg']:+.0f}°"
+            f", the ridge to the other basin is at {_deg(wd['ridge_swivel_deg'])}°"
             if wd.get("ridge_swivel_deg") is not None
             else ""
         )
-        + f". The inverted elbow ({inv['swivel_deg']:+.0f}°) is {where} and has W_d {inv['W_d']:.2f} "
+        + f". The inverted elbow ({_deg(inv['swivel_deg'])}°) is {where} and has W_d {inv['W_d']:.2f} "
         f"(feasible maximum {wd['feasible_max']:.2f})"
         + (": a minimum there, unreachable from this start." if is_min else ": not a minimum of this model's W_d.")
     )
@@ -745,20 +814,20 @@ def findings_in_words(doc: dict) -> list[str]:
         txt = "; ".join(f"{e['row']} (μ = {e['mu']:g}) reaches {_pm(e['converged_swivel_deg'], 0)}°" for e in rows_a)
         out.append(
             f"W_a basins: along the scan at the start pose W_a has local minima at {wa['local_minima_swivel_deg']}°, "
-            f"the flow from 0° ends at {wa['flow_from_start_deg']:+.0f}° (W_a {wa['flow_from_start_value']:.3f}), "
-            f"the feasible minimum is at {wa['feasible_min_swivel_deg']:+.0f}° (W_a {wa['feasible_min']:.3f}) "
+            f"the flow from 0° ends at {_deg(wa['flow_from_start_deg'])}° (W_a {wa['flow_from_start_value']:.3f}), "
+            f"the feasible minimum is at {_deg(wa['feasible_min_swivel_deg'])}° (W_a {wa['feasible_min']:.3f}) "
             f"and the ridge between the "
             f"basins at {_fmt(wa.get('ridge_swivel_deg'), 0)}°. {txt}."
         )
     pd = scan.get("Pd_fhat_stretch")
     if wa.get("basins") and pd:
         basins = "; ".join(
-            f"{b['swivel_deg']:+.0f}°: W_a {b['W_a']:.3f}, P_d·f̂ {b['Pd_fhat_stretch']:+.3f}" for b in wa["basins"]
+            f"{_deg(b['swivel_deg'])}°: W_a {b['W_a']:.3f}, P_d·f̂ {b['Pd_fhat_stretch']:+.3f}" for b in wa["basins"]
         )
         out.append(
             f"Stretching friction along the loop ({scan.get('robot', '')}): P_d·f̂ is {pd['at_start']:+.3f} at the "
             "start, "
-            f"|P_d·f̂| runs from {pd['feasible_min_abs']:.3f} (at {pd['feasible_min_abs_swivel_deg']:+.0f}°) to "
+            f"|P_d·f̂| runs from {pd['feasible_min_abs']:.3f} (at {_deg(pd['feasible_min_abs_swivel_deg'])}°) to "
             f"{pd['feasible_max_abs']:.3f} over the feasible loop; at the W_a basins: {basins}."
         )
     out += _w_d_flip(doc)
