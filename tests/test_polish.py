@@ -236,6 +236,29 @@ def test_finished_runs_are_kept_as_they_finish_and_resume_reuses_only_matching_o
     assert ran == [3, 1, 2, 3]
 
 
+def test_an_unfinished_invocations_runs_can_be_combined_and_a_combine_needs_one_finished_one(tmp_path):
+    """--combine takes a directory without polish.json by the runs it finished (runs/, `save_run`),
+    half-written ones left out; with no directory that has its polish.json it refuses in one line."""
+    import argparse
+
+    from app.headless.experiments.polish import _finished_runs, combine, save_run
+
+    runs = tmp_path / "unfinished" / "runs"
+    for seed in (1, 2):
+        spec = {"objective": "j", "mu": 1.0, "seed": seed}
+        save_run(runs, spec, _toy_run(spec))
+    (runs / "half.tmp.json").write_text("{")  # a run being written when the invocation stopped
+    results, series = _finished_runs(runs)
+    assert sorted(r["seed"] for r in results) == [1, 2]
+    assert sorted(float(s["t"][-1]) for s in series) == [2.0, 4.0]
+    args = argparse.Namespace(combine=str(tmp_path / "unfinished"), out=str(tmp_path / "out"))
+    with pytest.raises(ValueError, match=r"at least one directory with its polish\.json") as err:
+        combine(args, [tmp_path / "unfinished"])
+    assert "\n" not in str(err.value)
+    with pytest.raises(ValueError, match=r"neither polish\.json nor runs/"):
+        combine(args, [tmp_path / "nothing"])
+
+
 def test_a_quick_one_row_experiment_writes_a_report_from_its_own_runs(tmp_path):
     import json
 

@@ -738,20 +738,36 @@ def run(args: argparse.Namespace) -> int:
 
 def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
     """One polish.json, figures and report from the runs of several earlier output directories
-    (e.g. rows run separately); a run (row, μ, seed, armature) present twice is kept once."""
+    (e.g. rows run separately); a run (row, μ, seed, armature, latency) present twice is kept from the
+    first directory that has it. A directory without polish.json (an invocation that did not finish)
+    gives the runs it finished (runs/, `save_run`); at least one directory needs its polish.json."""
     from app.headless.experiments.polish_report import scan_at_start, write_figures, write_report
 
-    docs, series_files = [], []
+    docs: list[dict] = []
+    sources: list[tuple[list[dict], list[dict]]] = []  # per directory: its runs and their series
+    unfinished: list[Path] = []
     for d in dirs:
-        if not (d / "polish.json").is_file():
-            raise ValueError(f"{d} has no polish.json to combine")
-        docs.append(json.loads((d / "polish.json").read_text()))
-        series_files.append(np.load(d / "polish_series.npz"))
+        if (d / "polish.json").is_file():
+            doc_d = json.loads((d / "polish.json").read_text())
+            docs.append(doc_d)
+            runs_d = (
+                doc_d["runs"]
+                + [x for x in doc_d["armature"]["runs"] if x["group"] == "armature"]
+                + doc_d.get("latency", {}).get("runs", [])
+            )
+            with np.load(d / "polish_series.npz") as npz:
+                sources.append((runs_d, [_series_of(npz, r) for r in runs_d]))
+        elif (d / RUNS_DIR).is_dir():
+            unfinished.append(d)
+            sources.append(_finished_runs(d / RUNS_DIR))
+        else:
+            raise ValueError(f"{d} has neither polish.json nor {RUNS_DIR}/ to combine")
+    if not docs:
+        raise ValueError("--combine needs at least one directory with its polish.json")
     seen: set[tuple] = set()
     results, series = [], []
-    for doc, npz in zip(docs, series_files, strict=True):
-        latency_runs = doc.get("latency", {}).get("runs", [])
-        for r in doc["runs"] + [x for x in doc["armature"]["runs"] if x["group"] == "armature"] + latency_runs:
+    for runs_d, series_d in sources:
+        for r, s in zip(runs_d, series_d, strict=True):
             if r.get("margin") is not None and not np.isfinite(r["margin"]):
                 r["margin"] = None  # older outputs wrote ±inf for "no K_f^d stabilises"
             key = (r["row"], r["mu"], r["seed"], r["armature_scale"], r["group"], _latency_of(r))
@@ -759,14 +775,17 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
                 continue
             seen.add(key)
             results.append(r)
-            prefix = f"{_label(r)}__"
-            series.append({k[len(prefix) :]: npz[k] for k in npz.files if k.startswith(prefix)})
+            series.append(s)
     if getattr(args, "recompute_margin", True):
         _recompute_margins(results)
     table = [r for r in results if r["group"] == "table"]
     mus = sorted({r["mu"] for r in table})
     settings = dict(docs[0]["settings"])
-    settings["command"] = "; ".join(d["settings"]["command"] for d in docs) + f" (combined: {args.combine})"
+    settings["command"] = (
+        "; ".join(d["settings"]["command"] for d in docs)
+        + "".join(f"; the finished runs of {d} (not timed here)" for d in unfinished)
+        + f" (combined: {args.combine})"
+    )
     settings["mu"] = mus
     settings["seeds"] = max(d["settings"]["seeds"] for d in docs)
     scan = scan_at_start()
@@ -803,6 +822,24 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
         print(format_latency(doc["latency"]))
     print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} from {len(dirs)} directories")
     return 0
+
+
+def _series_of(npz, r: dict) -> dict:
+    prefix = f"{_label(r)}__"
+    return {k[len(prefix) :]: npz[k] for k in npz.files if k.startswith(prefix)}
+
+
+def _finished_runs(runs_dir: Path) -> tuple[list[dict], list[dict]]:
+    """The runs an invocation saved in runs_dir as they finished (`save_run`), and their series."""
+    results, series = [], []
+    for meta in sorted(runs_dir.glob("*.json")):
+        arrays = meta.with_suffix(".npz")
+        if meta.name.endswith(".tmp.json") or not arrays.is_file():
+            continue
+        results.append(json.loads(meta.read_text())["result"])
+        with np.load(arrays) as z:
+            series.append({k: z[k] for k in z.files})
+    return results, series
 
 
 def _recompute_margins(results: list[dict]) -> None:
