@@ -16,14 +16,15 @@ echo "== building the wheel"
 "$PYTHON" -m pip wheel -q --disable-pip-version-check --no-deps -w "$WORK/dist" "$ROOT"
 WHEEL=$(ls "$WORK"/dist/torquelab-*.whl)
 VENV=${TORQUELAB_SMOKE_VENV:-$WORK/venv}
-if [ -x "$VENV/bin/python" ]; then
+if "$VENV/bin/python" -m pip --version >/dev/null 2>&1; then  # (not one a stopped run left without pip)
     echo "== installing $(basename "$WHEEL") into the kept venv $VENV (its dependencies are there)"
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-compile --force-reinstall --no-deps "$WHEEL"
     if ! "$VENV/bin/python" -m pip check >/dev/null; then  # (a run stopped mid-install): complete it
         "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-compile "$WHEEL"
     fi
 else
-    echo "== installing $(basename "$WHEEL") into a throw-away venv"
+    echo "== installing $(basename "$WHEEL") into a fresh venv"
+    rm -rf "$VENV"
     "$PYTHON" -m venv "$VENV"
     "$VENV/bin/python" -m pip install -q --disable-pip-version-check --no-compile "$WHEEL"
 fi
