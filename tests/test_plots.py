@@ -248,3 +248,25 @@ def test_a_redraw_with_nothing_new_sends_no_chart_options_again(server, polish, 
         plots.redraw()
         after = {k: (h.scales, h.axes, h.title) for k, h in handles.items()}
         assert all(before[k][i] is after[k][i] for k in handles for i in range(3)), plot
+
+
+@pytest.mark.skipif(not __import__("robots").external.installed("panda"), reason="needs the robots extra")
+def test_the_limit_drop_readout_measures_the_pandas_fall_toward_its_lower_limit(server):
+    """On the Panda joint 4 falls toward its lower limit: the plot data says so and carries min q₄ over
+    every step, and the readout's distance beyond d_s is taken from the lower limit's side
+    ((q⁻ + d_s) − min q₄); the Gen3's stays on its upper side."""
+    from app.live.frames import plot_data
+    from app.live.lab import Lab
+
+    lab = Lab("limit-drop", robot="panda")
+    lab.advance(400)
+    plot = plot_data(lab, deque())
+    every = lab.log.window(60.0, lab.dt)
+    assert plot.fall_direction == -1 and plot.low_q is not None and plot.low_q[3] == np.min(every["q_4"])
+    lo, hi = lab.session.robot.q_lower[3], lab.session.robot.q_upper[3]
+    plots = Plots(server)
+    plots.focus(3)
+    plots.update(plot, session=1)
+    expected = (lo + 0.01 * (hi - lo)) - float(np.min(every["q_4"]))
+    assert plots.readouts["overshoot_beyond_ds_rad"] == pytest.approx(expected, abs=1e-12)
+    assert plot_data(Lab("limit-drop"), deque()).fall_direction == 1

@@ -55,6 +55,7 @@ class StepLog:
         self._scanned = 0  # rows already folded into the extremes
         self._abs_tau_max = np.full(n, np.nan)
         self._q_max = np.full(n, np.nan)
+        self._q_min = np.full(n, np.nan)
         self._seg_scanned = 0  # rows already folded into the per-segment force-error moments
         self._seg_moments = np.zeros((N_SEGMENTS + 1, 3))  # per segment: count, mean, sum of squared deviations
 
@@ -65,6 +66,7 @@ class StepLog:
         self._scanned = 0
         self._abs_tau_max.fill(np.nan)
         self._q_max.fill(np.nan)
+        self._q_min.fill(np.nan)
         self._seg_scanned = 0
         self._seg_moments.fill(0.0)
 
@@ -79,8 +81,13 @@ class StepLog:
             block = self._data[idx]
             np.fmax(self._abs_tau_max, np.max(np.abs(block[:, self._sl_tau]), axis=0), out=self._abs_tau_max)
             np.fmax(self._q_max, np.max(block[:, self._sl_q], axis=0), out=self._q_max)
+            np.fmin(self._q_min, np.min(block[:, self._sl_q], axis=0), out=self._q_min)
             self._scanned = self.count
         return self._abs_tau_max.copy(), self._q_max.copy()
+
+    def q_min(self) -> np.ndarray:
+        """min q_i per joint over the rows `extremes()` has folded in (NaN before the first)."""
+        return self._q_min.copy()
 
     def append(self, rec: StepRecord) -> None:
         """Store one step (called by the loop thread after every step)."""

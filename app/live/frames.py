@@ -80,6 +80,8 @@ class PlotData:
     segment_std: dict[int, float] | None = None  # force-error STD per polish segment, every step since the reset
     twin_segment_std: dict[int, float] | None = None  # the same for the twin arm, over its own segments
     deflection: dict[str, float] | None = None  # the deflection readouts over every step (`deflection_readouts`)
+    low_q: np.ndarray | None = None  # min q_i per joint over every step since the reset
+    fall_direction: int = 1  # the limit drop's joint falls toward its upper (+1) or lower (−1) limit
 
 
 @dataclass(frozen=True)
@@ -231,6 +233,8 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
         if "segment" in twin:
             columns["twin_segment"] = twin["segment"]
     peak_abs_tau, peak_q = lab.log.extremes()
+    fall = getattr(lab.session.scenario, "fall", None)  # the limit drop: which limit its joint falls toward
+    fall_direction = fall(lab.session.robot).direction if fall is not None else 1
     segment_std = lab.log.segment_force_error_std()
     twin_segment_std = lab.twin.log.segment_force_error_std() if lab.twin is not None else None
     deflection = deflection_readouts(lab.log, lab.session.scenario)
@@ -249,6 +253,8 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
         segment_std,
         twin_segment_std,
         deflection,
+        low_q=lab.log.q_min(),
+        fall_direction=fall_direction,
     )
 
 

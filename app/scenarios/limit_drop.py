@@ -86,9 +86,14 @@ class LimitDropScenario(Scenario):
         )
 
     def fall(self, robot: RobotDescription) -> Fall:
-        """Where joint 4 falls from the start: toward the limit the payload's torque points to there."""
-        model = RobotModel(robot.model)
-        return fall_from(robot, model, self.initial_q(robot), PAYLOAD_KG, FALLING_JOINT)
+        """Where joint 4 falls from the start: toward the limit the payload's torque points to there
+        (computed once per robot and start)."""
+        q0 = self.initial_q(robot)
+        key = (robot.spec or robot.name, tuple(q0))
+        cache = self.__dict__.setdefault("_falls", {})
+        if key not in cache:
+            cache[key] = fall_from(robot, RobotModel(robot.model), q0, PAYLOAD_KG, FALLING_JOINT)
+        return cache[key]
 
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         add_payload_body(spec, robot, PAYLOAD_KG)

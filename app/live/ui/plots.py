@@ -732,13 +732,18 @@ class Plots:
         if "payload_attached" in c and joint is not None:
             # from every 1 ms step since the reset (the loop's step log), not from the plotted samples
             tau = plot.peak_abs_tau[joint] if plot.peak_abs_tau is not None else np.nan
-            q_max = plot.peak_q[joint] if plot.peak_q is not None else np.nan
+            # the deepest point toward the limit the joint falls to (the Gen3's upper one, the Panda's lower
+            # one), in a coordinate s·q that grows toward that limit
+            s = -1.0 if plot.fall_direction < 0 else 1.0
+            deepest = plot.low_q if s < 0 else plot.peak_q
+            q_deep = s * float(deepest[joint]) if deepest is not None else np.nan
             if np.isfinite(tau):
                 peak = float(tau)
                 out["peak_torque_nm"] = peak
                 hi, lo = float(plot.q_upper[joint]), float(plot.q_lower[joint])
+                limit = s * (lo if s < 0 else hi)
                 d_s = self._damper_fraction("safety_fraction", 0.01) * (hi - lo) if np.isfinite(hi - lo) else math.nan
-                over = float(q_max) - (hi - d_s) if np.isfinite(q_max) and math.isfinite(d_s) else math.nan
+                over = q_deep - (limit - d_s) if np.isfinite(q_deep) and math.isfinite(d_s) else math.nan
                 if math.isfinite(over):
                     out["overshoot_beyond_ds_rad"] = over
                 text = f"Joint {joint + 1}: peak |τ| {peak:.1f} N m"
