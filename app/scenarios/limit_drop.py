@@ -53,8 +53,9 @@ class LimitDropScenario(Scenario):
     case_arg = "limit"
     title = "Joint-limit drop [C]"
     description = (
-        "Gen3 in an L-shape carries 1.25 kg the controller does not know about. Only joint 4 is "
-        "compliant (Γ₀ = e₄), so the weight drops it into its position limit (or a lowered velocity "
+        "Gen3 in an L-shape (another arm: its own limit-drop start) carries 1.25 kg the controller does not "
+        "know about. Only joint 4 is compliant (Γ₀ = e₄), so the weight drops it into the position limit its "
+        "torque points to (or a lowered velocity "
         "limit). Change λ, M, the damper form and the external-force feedback and watch the phase plot."
     )
     default_robot = "gen3"
