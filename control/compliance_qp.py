@@ -52,7 +52,14 @@ from control.kernels.compliance import (
     posture_target_fused,
     torque_rows_fused,
 )
-from control.kernels.cqp import cqp_problem_fused
+from control.kernels.cqp import (
+    cqp_dynamics,
+    cqp_problem_fused,
+    pose_record_dtype,
+    posture_record_dtype,
+    settings_record_dtype,
+)
+from control.kernels.records import fill_record
 from control.model import Dynamics
 from control.params import expect
 
@@ -100,15 +107,15 @@ class PoseTask:
     def configure(self, gains: PoseTaskGains) -> None:
         """New gains / Γ (validated by the dataclass)."""
         self.gains = gains
-        # K_p, K_d, Γ (rows 0, 1, 2–7; the attributes are views) and [weight, Γ ≠ 0] (row 8): the
-        # fused step's one argument for this task (`kernels.cqp.cqp_problem_fused`)
-        packed = self.kernel_gains = np.zeros((9, 6))
-        self.kp, self.kd, self.gamma = packed[0], packed[1], packed[2:8]
-        self.kp[:] = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (6,))
-        self.kd[:] = np.broadcast_to(np.asarray(gains.damping, dtype=float), (6,))
-        self.gamma[:] = compliance_matrix(gains.compliance, 6)
-        self._use_gamma = bool(self.gamma.any())
-        packed[8, :2] = gains.weight, self._use_gamma
+        # the fused step's record of this task (`kernels.cqp.pose_record_dtype`: w by name, K_p, K_d, Γ);
+        # the attributes are views of it
+        gamma = compliance_matrix(gains.compliance, 6)
+        self._use_gamma = bool(gamma.any())
+        rec = self.kernel_record = fill_record(
+            pose_record_dtype(), (gains,), kp=np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (6,)),
+            kd=np.broadcast_to(np.asarray(gains.damping, dtype=float), (6,)), gamma=gamma, use_gamma=self._use_gamma,
+        )  # fmt: skip
+        self.kp, self.kd, self.gamma = rec["kp"][0], rec["kd"][0], rec["gamma"][0]
 
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
         """No internal state."""
@@ -157,18 +164,17 @@ class PostureTask:
         """New gains / Γ₀ / metric (validated by the dataclass)."""
         n = self.dim
         self.gains = gains
-        # K_p, K_d, K_i, Γ₀ (rows 0, 1, 2, 3…; the attributes are views) and [weight, K_i ≠ 0,
-        # Γ₀ ≠ 0, δt, inertia metric]: the fused step's arguments (`kernels.cqp.cqp_problem_fused`)
-        packed = self.kernel_gains = np.zeros((3 + n, n))
-        self.kp, self.kd, self.ki, self.gamma = packed[0], packed[1], packed[2], packed[3:]
-        self.kp[:] = np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (n,))
-        self.kd[:] = np.broadcast_to(np.asarray(gains.damping, dtype=float), (n,))
-        self.ki[:] = np.broadcast_to(np.asarray(gains.integral, dtype=float), (n,))
-        self.gamma[:] = compliance_matrix(gains.compliance, n)
-        self._use_ki, self._use_gamma = bool(self.ki.any()), bool(self.gamma.any())
-        self.kernel_constants = np.array(
-            [gains.weight, self._use_ki, self._use_gamma, self.dt, gains.metric == "inertia"], dtype=float
-        )
+        # the fused step's record of this task (`kernels.cqp.posture_record_dtype`: w₀ by name, K_p, K_d,
+        # K_i, Γ₀, δt, the metric); the attributes are views of it
+        ki = np.broadcast_to(np.asarray(gains.integral, dtype=float), (n,))
+        gamma = compliance_matrix(gains.compliance, n)
+        self._use_ki, self._use_gamma = bool(ki.any()), bool(gamma.any())
+        rec = self.kernel_record = fill_record(
+            posture_record_dtype(n), (gains,), kp=np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (n,)),
+            kd=np.broadcast_to(np.asarray(gains.damping, dtype=float), (n,)), ki=ki, gamma=gamma,
+            use_ki=self._use_ki, use_gamma=self._use_gamma, dt=self.dt, inertia_metric=gains.metric == "inertia",
+        )  # fmt: skip
+        self.kp, self.kd, self.ki, self.gamma = rec["kp"][0], rec["kd"][0], rec["ki"][0], rec["gamma"][0]
         self._zeros = np.zeros(n)
 
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
@@ -368,7 +374,8 @@ class ComplianceQPExecutor:
         self.ddq = np.zeros(n)
         self._objective = np.zeros((n + 1, n))  # the fused step's P (rows 0…n−1) and q (row n) of [C9]
         self._P, self._q = self._objective[:n], self._objective[n]
-        self._zeros6, self._pose_unused = np.zeros(6), np.zeros((9, 6))  # arguments not read
+        self._zeros6 = np.zeros(6)  # an argument not read
+        self._pose_unused = PoseTask().kernel_record  # read only with a pose task (`pose_on`)
         self.last_qp: qp.QPResult | None = None
         self.last_info: dict[str, float] = {}
 
@@ -392,6 +399,15 @@ class ComplianceQPExecutor:
         self.qp = AccelerationQP(self.n, sum(t.dim for t in self.strict_tasks), self.settings, self.qp_backend)
         # the fused step may run the backend's exact fast path itself (the objective is final there)
         self._fast_qp = self.qp.fast_path and not self.strict_tasks and not self._other_soft_tasks
+        self._cache_settings()
+
+    def _cache_settings(self) -> None:
+        """The fused step's settings record (`kernels.cqp.settings_record_dtype`): the settings by name,
+        τ limits, whether the call has a pose task and may end the step on the fast path."""
+        self._settings_record = fill_record(
+            settings_record_dtype(self.n), (self.settings,), tau_max=self.tau_max, no_bound=qp.INF,
+            pose_on=self._fused_pose is not None, fast_on=self._fast_qp,
+        )  # fmt: skip
 
     # ---- Executor protocol --------------------------------------------------------------------
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
@@ -435,6 +451,7 @@ class ComplianceQPExecutor:
             old, self.settings = self.settings, new
             if (old.eps, old.polish, old.max_iter) != (new.eps, new.polish, new.max_iter):
                 self._build_qp()
+            self._cache_settings()
         elif name == "solver":
             backend = expect(name, group, SolverParams).qp_backend
             if backend != self.qp_backend:
@@ -478,7 +495,7 @@ class ComplianceQPExecutor:
         observer, high_pass = est.observer, est.high_pass
         previous, lp, wrench = observer.previous, high_pass.lp, inputs.wrench_tcp
         estimate_on = (
-            previous is not None and lp is not None and wrench is not None and est.kernel_constants[2] >= 0.0
+            previous is not None and lp is not None and wrench is not None and est.source_code >= 0.0
         ) and not self._prepared_tasks
         if estimate_on:  # the call computes the estimate (`tau_hat` is not read)
             tau_hat = self._zeros
@@ -487,21 +504,21 @@ class ComplianceQPExecutor:
         else:  # the estimate is given (the observer's and the filter's arguments are not read)
             tau_hat = self._estimate(dyn, inputs)
             (M_prev, dq_prev, h_prev), lp, wrench = (dyn.M, dyn.dq, dyn.h), self._zeros, self._zeros6
-        pose, posture, damper, aqp, settings = self._fused_pose, self.posture, self.damper, self.qp, self.settings
+        pose, posture, damper, aqp = self._fused_pose, self.posture, self.damper, self.qp
         P, q = self._P, self._q
         q_ref = posture.q_hold if target.q_posture is None else target.q_posture
         dq_ref = posture.velocity_reference()
         t0 = time.perf_counter()
         crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated = cqp_problem_fused(
-            dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world,
-            dyn.tcp_rotation_world, estimate_on, tau_hat, M_prev, dq_prev, h_prev,
-            self.tau_prev, observer.r, wrench, lp, est.kernel_constants, settings.feedback, self.tau_max,
-            settings.torque_limits, pose is not None, target.position, target.rotation, target.velocity,
-            target.acceleration, self._pose_unused if pose is None else pose.kernel_gains, q_ref, dq_ref,
-            posture.kernel_gains, posture.integral, posture.kernel_constants, damper.kernel_rows, damper.endless,
-            damper.kernel_constants, self._objective, aqp.A, aqp.l, aqp.u, aqp.lb, aqp.ub, qp.INF,
-            self._fast_qp, settings.eps,
-        )  # fmt: skip
+            cqp_dynamics(dyn),
+            (estimate_on, tau_hat, M_prev, dq_prev, h_prev, self.tau_prev, observer.r, wrench, lp, est.kernel_record),
+            (target.position, target.rotation, target.velocity, target.acceleration),
+            self._pose_unused if pose is None else pose.kernel_record,
+            (q_ref, dq_ref, posture.integral, posture.kernel_record),
+            damper.kernel_record,
+            self._settings_record,
+            (self._objective, aqp.A, aqp.l, aqp.u, aqp.lb, aqp.ub),
+        )
         if estimate_on:  # the estimator's state, as its `update` leaves it
             observer.take_step(dyn, r)
             est.tau_s, est.estimate, self.tau_hat = tau_s, tau_hat, tau_hat

@@ -18,6 +18,8 @@ import numpy as np
 
 from control.gains import DamperGains
 from control.kernels.compliance import acceleration_bounds_fused
+from control.kernels.cqp import damper_record_dtype
+from control.kernels.records import fill_record
 
 NO_BOUND = 1e9  # rad/s², stands for "unbounded" in the QP rows (OSQP treats ≥ 1e30 as inf)
 
@@ -77,14 +79,15 @@ class JointLimitDamper:
         self.kp = lam * lam / (4.0 * M * M)  # [C24] λ²/(4M²)
         self.xi = lam * (self.d_i - self.d_s) / (4.0 * M * M)  # [C23] solved for ξ (classic form)
         self.velocity_gain = lam if gains.form == "proposed" else 1.0 / self.dt
-        # the fused [C] step's arguments (`kernels.cqp.cqp_problem_fused`): the per-joint rows as one
-        # array (the attributes are views of it) and the scalars
-        rows = np.array([self.q_lower, self.q_upper, self.d_s, self.d_i, self.xi, self.dq_limit])
-        self.kernel_rows = rows
-        self.q_lower, self.q_upper, self.d_s, self.d_i, self.xi, self.dq_limit = rows
-        self.kernel_constants = np.array(
-            [self.kp, lam, self.velocity_gain, float(gains.form == "proposed"), self.dt, NO_BOUND]
-        )
+        # the fused [C] step's record (`kernels.cqp.damper_record_dtype`): the gains by name, the joint
+        # rows (the attributes are views of it) and the derived scalars
+        rec = self.kernel_record = fill_record(
+            damper_record_dtype(self.n), (gains,), q_lower=self.q_lower, q_upper=self.q_upper, d_s=self.d_s,
+            d_i=self.d_i, xi=self.xi, dq_limit=self.dq_limit, endless=self.endless, kp=self.kp,
+            velocity_gain=self.velocity_gain, proposed=gains.form == "proposed", dt=self.dt, no_bound=NO_BOUND,
+        )  # fmt: skip
+        self.q_lower, self.q_upper, self.d_s = rec["q_lower"][0], rec["q_upper"][0], rec["d_s"][0]
+        self.d_i, self.xi, self.dq_limit = rec["d_i"][0], rec["xi"][0], rec["dq_limit"][0]
         self.has_position = ~self.endless
         self._d_s2 = np.concatenate([self.d_s, self.d_s])
         self._d_i2 = np.concatenate([self.d_i, self.d_i])

@@ -19,7 +19,9 @@ import math
 import numpy as np
 
 from control.gains import EstimatorGains
+from control.kernels.cqp import estimator_record_dtype
 from control.kernels.estimation import momentum_observer_fused, sensor_high_pass_fused
+from control.kernels.records import fill_record
 from control.model import Dynamics
 
 
@@ -135,9 +137,12 @@ class ExternalTorqueEstimator:
         self.high_pass = HighPass(self.n, self.gains.observer_gain, self.dt)
         self.tau_s = np.zeros(self.n)
         self.estimate = np.zeros(self.n)
-        # [pole a, δt, source code] for the [C] executor's fused step (`kernels.cqp.cqp_problem_fused`)
-        code = {"none": 0.0, "residual": 1.0, "fusion": 2.0}.get(self.gains.source, -1.0)
-        self.kernel_constants = np.array([self.observer.a, self.dt, code])
+        # the [C] executor's fused step's record (`kernels.cqp.estimator_record_dtype`): K_I by name, the
+        # pole a, δt, the source code (−1: the oracle, not computed there)
+        self.source_code = {"none": 0.0, "residual": 1.0, "fusion": 2.0}.get(self.gains.source, -1.0)
+        self.kernel_record = fill_record(
+            estimator_record_dtype(), (self.gains,), a=self.observer.a, dt=self.dt, source_code=self.source_code
+        )
 
     def configure(self, gains: EstimatorGains) -> None:
         """New source or K_I; the observer keeps running from its current residual."""

@@ -58,3 +58,47 @@ def test_a_record_refuses_a_missing_or_unknown_derived_field_and_a_name_used_twi
         law_record(MotionForceGains(), NullspaceGains(), **_law_derived(), gain=1.0)
     with pytest.raises(ValueError, match="named twice: force_kp"):
         record_dtype((MotionForceGains,), (("force_kp", np.float64),))
+
+
+def test_each_compliance_qp_record_round_trips_its_group_and_its_owners_views_share_its_memory():
+    """The [C] step's records (pose task, posture task, damper, estimator, settings): the group comes
+    back unchanged from its record, and the owner's arrays (K_p, the damper's rows) are the record's."""
+    import robots
+    from control.compliance_qp import ComplianceQPExecutor, PoseTask, PostureTask
+    from control.dampers import JointLimitDamper
+    from control.estimation import ExternalTorqueEstimator
+    from control.gains import ComplianceQPSettings, DamperGains, EstimatorGains, PoseTaskGains, PostureTaskGains
+
+    robot = robots.load("rizon4s")
+    pose_gains = PoseTaskGains(stiffness=(100.0, 200.0, 300.0, 10.0, 20.0, 30.0), weight=50.0, compliance=0.5)
+    pose = PoseTask(pose_gains)
+    posture_gains = PostureTaskGains(stiffness=4.0, integral=2.0, weight=3.0, metric="inertia")
+    posture = PostureTask(7, posture_gains)
+    damper_gains = DamperGains(lambda_=120.0, safety_fraction=0.02)
+    damper = JointLimitDamper(robot.q_lower, robot.q_upper, robot.dq_max, robot.endless, damper_gains, dt=1e-3)
+    est_gains = EstimatorGains(source="residual", observer_gain=80.0)
+    est = ExternalTorqueEstimator(7, est_gains)
+    settings = ComplianceQPSettings(feedback=False, eps=1e-7)
+    ex = ComplianceQPExecutor.for_robot(robot, settings=settings)
+    for group, base, rec in (
+        (pose_gains, PoseTaskGains(), pose.kernel_record),
+        (posture_gains, PostureTaskGains(), posture.kernel_record),
+        (damper_gains, DamperGains(), damper.kernel_record),
+        (est_gains, EstimatorGains(), est.kernel_record),
+        (settings, ComplianceQPSettings(), ex._settings_record),
+    ):
+        values = record_values(rec)
+        back = group_of(type(group), values, base)
+        # fields the record cannot hold (strings, per-axis tuples) come from `base`: compare the rest
+        for name, _ in group_fields(type(group)):
+            assert getattr(back, name) == getattr(group, name), (type(group).__name__, name)
+    np.testing.assert_array_equal(record_values(pose.kernel_record)["kp"], [100.0, 200.0, 300.0, 10.0, 20.0, 30.0])
+    assert np.shares_memory(pose.kp, pose.kernel_record) and np.shares_memory(posture.ki, posture.kernel_record)
+    assert np.shares_memory(damper.d_s, damper.kernel_record) and np.shares_memory(damper.q_lower, damper.kernel_record)
+    values = record_values(damper.kernel_record)
+    np.testing.assert_allclose(values["d_s"], 0.02 * (robot.q_upper - robot.q_lower))
+    np.testing.assert_array_equal(values["endless"], np.asarray(robot.endless, dtype=float))
+    assert record_values(est.kernel_record)["source_code"] == 1.0
+    s = record_values(ex._settings_record)
+    assert s["pose_on"] and not s["feedback"] and s["eps"] == 1e-7
+    np.testing.assert_array_equal(s["tau_max"], robot.tau_max)

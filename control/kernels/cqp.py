@@ -4,9 +4,12 @@ torque rows [C10].
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numba import njit
 
+from control.gains import ComplianceQPSettings, DamperGains, EstimatorGains, PoseTaskGains, PostureTaskGains
 from control.kernels.compliance import (
     acceleration_bounds_fused,
     acceleration_bounds_reference,
@@ -28,19 +31,89 @@ from control.kernels.estimation import (
     sensor_high_pass_fused,
     sensor_high_pass_reference,
 )
+from control.kernels.records import record_dtype
+
+# ---- the records `cqp_problem_fused` reads (`control.kernels.records`): each group's numeric fields by
+# name, and what its owner derives from them (the per-axis gains, the joint rows)
+
+
+@functools.cache
+def pose_record_dtype() -> np.dtype:
+    """`PoseTaskGains` (w) and the pose task's K_p, K_d (6,), Γ (6, 6), Γ ≠ 0 [C3-4, C9]."""
+    return record_dtype(
+        (PoseTaskGains,),
+        (("kp", np.float64, (6,)), ("kd", np.float64, (6,)), ("gamma", np.float64, (6, 6)), ("use_gamma", np.bool_)),
+    )
+
+
+@functools.cache
+def posture_record_dtype(n: int) -> np.dtype:
+    """`PostureTaskGains` (w₀) and the posture task's K_p, K_d, K_i (n,), Γ₀ (n, n), K_i ≠ 0, Γ₀ ≠ 0,
+    δt (s) and whether its metric is M [C7, C9]."""
+    return record_dtype(
+        (PostureTaskGains,),
+        (
+            ("kp", np.float64, (n,)),
+            ("kd", np.float64, (n,)),
+            ("ki", np.float64, (n,)),
+            ("gamma", np.float64, (n, n)),
+            ("use_ki", np.bool_),
+            ("use_gamma", np.bool_),
+            ("dt", np.float64),
+            ("inertia_metric", np.bool_),
+        ),
+    )
+
+
+@functools.cache
+def damper_record_dtype(n: int) -> np.dtype:
+    """`DamperGains` (λ, M, the fractions, the velocity scale) and the damper's joint rows q⁻, q⁺, d_s,
+    d_i, ξ, q̇ limit, endless (1.0) (n,), k_p = λ²/(4M²), the velocity gain, the proposed form, δt and
+    the value of no bound [C17-24] (`control.dampers.JointLimitDamper`)."""
+    joint = tuple(
+        (name, np.float64, (n,)) for name in ("q_lower", "q_upper", "d_s", "d_i", "xi", "dq_limit", "endless")
+    )
+    return record_dtype(
+        (DamperGains,),
+        (
+            *joint,
+            ("kp", np.float64),
+            ("velocity_gain", np.float64),
+            ("proposed", np.bool_),
+            ("dt", np.float64),
+            ("no_bound", np.float64),
+        ),
+    )
+
+
+@functools.cache
+def estimator_record_dtype() -> np.dtype:
+    """`EstimatorGains` (K_I) and the estimator's pole a, δt and source code (0 none, 1 residual,
+    2 fusion, −1 oracle: not computed in the call) [C25-26]."""
+    return record_dtype((EstimatorGains,), (("a", np.float64), ("dt", np.float64), ("source_code", np.float64)))
+
+
+@functools.cache
+def settings_record_dtype(n: int) -> np.dtype:
+    """`ComplianceQPSettings` (feedback, torque limits, tolerance, …) and the executor's τ limits (n,),
+    the value of no bound, whether a pose task is in the call and whether its fast path may end the
+    step (`fast_on`: the objective is final in the call)."""
+    return record_dtype(
+        (ComplianceQPSettings,),
+        (("tau_max", np.float64, (n,)), ("no_bound", np.float64), ("pose_on", np.bool_), ("fast_on", np.bool_)),
+    )
+
+
+def cqp_dynamics(dyn) -> tuple:
+    """The `Dynamics` snapshot's arrays `cqp_problem_fused` reads, in the order it unpacks them:
+    (q, q̇, M, M⁻¹, μ, J, J̇q̇, p_tcp, R_tcp)."""
+    return (
+        dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world,
+    )  # fmt: skip
 
 
 @njit(cache=True)
-def cqp_problem_fused(
-    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation,
-    estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, estimator_constants,
-    feedback, tau_max, torque_limits,
-    pose_on, target_position, target_rotation, target_velocity, target_acceleration, pose_gains,
-    q_ref, dq_ref, posture_gains, integral, posture_constants,
-    damper_rows, endless, damper_constants,
-    objective, A, l, u, lb, ub, no_bound,
-    fast_on, tol,
-):  # fmt: skip
+def cqp_problem_fused(dyn, estimator, target, pose, posture, damper, settings, buffers):
     """What `control.compliance_qp.ComplianceQPExecutor._step_reference` computes before the QP,
     for a TCP pose task (when `pose_on`) and the posture task, in one call of the kernels it calls
     one by one:
@@ -64,14 +137,20 @@ def cqp_problem_fused(
     τ_s new only with `estimate_on` (else r and `tau_hat_given`), the last four only when
     `solved` (the fast path held).
 
-    Packed arguments (one compiled call's argument checks cost per argument): `pose_gains` (9, 6)
-    = [K_p; K_d; Γ (6 rows); weight, Γ ≠ 0, …]; `posture_gains` (3 + n, n) = [K_p; K_d; K_i; Γ₀]
-    and `posture_constants` = [weight, K_i ≠ 0, Γ₀ ≠ 0, δt, inertia metric]; `damper_rows` =
-    [q⁻; q⁺; d_s; d_i; ξ; q̇ limit] and `damper_constants` = [k_p, λ, velocity gain, proposed,
-    δt, no bound] (`control.dampers.JointLimitDamper`); `objective` (n + 1, n) = [P; qv]."""
+    The arguments: `dyn` = `cqp_dynamics(snapshot)`; `estimator` = (estimate_on, τ̂_e given, the last
+    step's M, q̇, μ, τ, the residual r, the F/T wrench, the filter state lp, the estimator's record);
+    `target` = (p°, R°, ẋ°, ẍ°); the records of the pose task (`pose_record_dtype`; read only with
+    the record `settings.pose_on`), the damper and the settings; `posture` = (q_ref, q̇_ref, ∫e,
+    its record); `buffers` = (objective (n + 1, n) = [P; qv], A, l, u, lb, ub), written."""
+    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation = dyn
+    estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, est_record = estimator
+    target_position, target_rotation, target_velocity, target_acceleration = target
+    q_ref, dq_ref, integral, posture_record = posture
+    objective, A, l, u, lb, ub = buffers
+    e_c, pc, ps, dc, sc = est_record[0], posture_record[0], pose[0], damper[0], settings[0]
     n = q.shape[0]
     if estimate_on:
-        a, dt, source = estimator_constants[0], estimator_constants[1], estimator_constants[2]
+        a, dt, source = e_c.a, e_c.dt, e_c.source_code
         r = momentum_observer_fused(M_prev, dq, dq_prev, tau_prev, h_prev, dt, a, r)
         tau_s, high = sensor_high_pass_fused(J, wrench, lp, a)
         tau_hat = np.zeros(n)
@@ -83,10 +162,6 @@ def cqp_problem_fused(
     else:
         tau_hat, tau_s = tau_hat_given, tau_hat_given
     P, qv = objective[:n], objective[n]
-    w_pose, pose_use_gamma = pose_gains[8, 0], pose_gains[8, 1] != 0.0
-    w_posture, posture_dt = posture_constants[0], posture_constants[3]
-    posture_use_ki, posture_use_gamma = posture_constants[1] != 0.0, posture_constants[2] != 0.0
-    inertia_metric = posture_constants[4] != 0.0
     ddq_e = np.empty(n)  # q̈_e = M⁻¹ τ̂_e
     for i in range(n):
         s = 0.0
@@ -97,18 +172,17 @@ def cqp_problem_fused(
         qv[i] = 0.0
         for j in range(n):
             P[i, j] = 0.0
-    if pose_on:
+    if sc.pose_on:
         b = pose_task_target_fused(
             J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
-            target_acceleration, pose_gains[0], pose_gains[1], pose_gains[2:8], pose_use_gamma, ddq_e,
+            target_acceleration, ps.kp, ps.kd, ps.gamma, ps.use_gamma, ddq_e,
         )  # fmt: skip
-        add_task_rows_fused(P, qv, J, b, w_pose)
+        add_task_rows_fused(P, qv, J, b, ps.weight)
     b0 = posture_target_fused(
-        q, q_ref, dq, dq_ref, posture_gains[0], posture_gains[1], posture_gains[2], posture_use_ki, integral,
-        posture_dt, posture_gains[3:], posture_use_gamma, ddq_e,
-    )  # fmt: skip
-    w = w_posture
-    if inertia_metric:  # (Iᵀ M) w I = w M, (Iᵀ M) w b0 = w M b0
+        q, q_ref, dq, dq_ref, pc.kp, pc.kd, pc.ki, pc.use_ki, integral, pc.dt, pc.gamma, pc.use_gamma, ddq_e
+    )
+    w = pc.weight
+    if pc.inertia_metric:  # (Iᵀ M) w I = w M, (Iᵀ M) w b0 = w M b0
         for i in range(n):
             s = 0.0
             for j in range(n):
@@ -120,21 +194,21 @@ def cqp_problem_fused(
             P[i, i] += w
             qv[i] -= w * b0[i]
     lower, upper, crossed = acceleration_bounds_fused(
-        q, dq, damper_rows[0], damper_rows[1], damper_rows[2], damper_rows[3], damper_rows[4], damper_constants[0],
-        damper_constants[1], damper_constants[2], damper_rows[5], endless, damper_constants[3] != 0.0,
-        damper_constants[4], damper_constants[5],
+        q, dq, dc.q_lower, dc.q_upper, dc.d_s, dc.d_i, dc.xi, dc.kp, dc.lambda_, dc.velocity_gain, dc.dq_limit,
+        dc.endless != 0.0, dc.proposed, dc.dt, dc.no_bound,
     )  # fmt: skip
     for i in range(n):
         lb[i] = lower[i]
         ub[i] = upper[i]
+    feedback, tau_max = sc.feedback, sc.tau_max
     if feedback:
-        torque_rows_fused(M, h, tau_hat, tau_max, A, l, u, torque_limits, no_bound)
+        torque_rows_fused(M, h, tau_hat, tau_max, A, l, u, sc.torque_limits, sc.no_bound)
     else:
-        torque_rows_fused(M, h, np.zeros(n), tau_max, A, l, u, torque_limits, no_bound)
+        torque_rows_fused(M, h, np.zeros(n), tau_max, A, l, u, sc.torque_limits, sc.no_bound)
     x = np.zeros(n)
     solved = False
-    if fast_on and not crossed:
-        solved = unconstrained_optimum_fused(P, qv, A, lb, l, ub, u, tol, x)
+    if sc.fast_on and not crossed:
+        solved = unconstrained_optimum_fused(P, qv, A, lb, l, ub, u, sc.eps, x)
     if solved:  # [C8] for an exact solution (no clipping of τ_d)
         tau, tau_cmd, saturated = inverse_dynamics_fused(M, x, h, tau_hat if feedback else np.zeros(n), tau_max, False)
     else:
@@ -142,21 +216,18 @@ def cqp_problem_fused(
     return crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated
 
 
-def cqp_problem_reference(
-    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation,
-    estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, estimator_constants,
-    feedback, tau_max, torque_limits,
-    pose_on, target_position, target_rotation, target_velocity, target_acceleration, pose_gains,
-    q_ref, dq_ref, posture_gains, integral, posture_constants,
-    damper_rows, endless, damper_constants,
-    objective, A, l, u, lb, ub, no_bound,
-    fast_on, tol,
-) -> tuple:  # fmt: skip
+def cqp_problem_reference(dyn, estimator, target, pose, posture, damper, settings, buffers) -> tuple:
     """`cqp_problem_fused` by the references of the kernels it calls, one by one (same arguments,
     same buffers written, same values)."""
+    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation = dyn
+    estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, est_record = estimator
+    target_position, target_rotation, target_velocity, target_acceleration = target
+    q_ref, dq_ref, integral, posture_record = posture
+    objective, A, l, u, lb, ub = buffers
+    e_c, pc, ps, dc, sc = est_record[0], posture_record[0], pose[0], damper[0], settings[0]
     n = q.shape[0]
     if estimate_on:
-        a, dt, source = estimator_constants[:3]
+        a, dt, source = float(e_c["a"]), float(e_c["dt"]), float(e_c["source_code"])
         r = momentum_observer_reference(M_prev, dq, dq_prev, tau_prev, h_prev, dt, a, r)  # [C25]
         tau_s, high = sensor_high_pass_reference(J, wrench, lp, a)
         tau_hat = r.copy() if source == 1.0 else (r + high if source == 2.0 else np.zeros(n))  # [C26]
@@ -165,29 +236,31 @@ def cqp_problem_reference(
     P, qv = objective[:n], objective[n]
     P[:], qv[:] = 0.0, 0.0
     ddq_e = M_inv @ tau_hat
-    if pose_on:  # [C3-4, C9]
+    if sc["pose_on"]:  # [C3-4, C9]
         b = pose_task_target_reference(
             J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
-            target_acceleration, pose_gains[0], pose_gains[1], pose_gains[2:8], pose_gains[8, 1] != 0.0, ddq_e,
+            target_acceleration, ps["kp"], ps["kd"], ps["gamma"], bool(ps["use_gamma"]), ddq_e,
         )  # fmt: skip
-        add_task_rows_reference(P, qv, J, b, pose_gains[8, 0])
-    w, use_ki, use_gamma, dt_posture, inertia_metric = posture_constants[:5]
+        add_task_rows_reference(P, qv, J, b, float(ps["weight"]))
+    w = float(pc["weight"])
     b0 = posture_target_reference(
-        q, q_ref, dq, dq_ref, posture_gains[0], posture_gains[1], posture_gains[2], use_ki != 0.0, integral,
-        dt_posture, posture_gains[3:], use_gamma != 0.0, ddq_e,
+        q, q_ref, dq, dq_ref, pc["kp"], pc["kd"], pc["ki"], bool(pc["use_ki"]), integral, float(pc["dt"]),
+        pc["gamma"], bool(pc["use_gamma"]), ddq_e,
     )  # fmt: skip
-    metric = M if inertia_metric != 0.0 else np.eye(n)  # [C7] task 0 in the M or identity metric
+    metric = M if pc["inertia_metric"] else np.eye(n)  # [C7] task 0 in the M or identity metric
     P += w * metric
     qv -= w * (metric @ b0)
     lower, upper, crossed = acceleration_bounds_reference(
-        q, dq, damper_rows[0], damper_rows[1], damper_rows[2], damper_rows[3], damper_rows[4], damper_constants[0],
-        damper_constants[1], damper_constants[2], damper_rows[5], endless, damper_constants[3] != 0.0,
-        damper_constants[4], damper_constants[5],
+        q, dq, dc["q_lower"], dc["q_upper"], dc["d_s"], dc["d_i"], dc["xi"], float(dc["kp"]), float(dc["lambda_"]),
+        float(dc["velocity_gain"]), dc["dq_limit"], dc["endless"] != 0.0, bool(dc["proposed"]), float(dc["dt"]),
+        float(dc["no_bound"]),
     )  # fmt: skip
     lb[:], ub[:] = lower, upper
+    feedback, tau_max = bool(sc["feedback"]), sc["tau_max"]
     tau_fb = tau_hat if feedback else np.zeros(n)
-    torque_rows_reference(M, h, tau_fb, tau_max, A, l, u, torque_limits, no_bound)  # [C10]
+    torque_rows_reference(M, h, tau_fb, tau_max, A, l, u, bool(sc["torque_limits"]), float(sc["no_bound"]))  # [C10]
     x = np.zeros(n)
+    fast_on, tol = bool(sc["fast_on"]), float(sc["eps"])
     solved = bool(fast_on and not crossed and unconstrained_optimum_reference(P, qv, A, lb, l, ub, u, tol, x))
     if solved:  # [C8]
         tau, tau_cmd, saturated = inverse_dynamics_reference(M, x, h, tau_fb, tau_max, False)

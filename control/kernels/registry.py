@@ -531,7 +531,8 @@ def _cqp_samples(rng):
     from control.compliance_qp import PoseTask, PostureTask
     from control.dampers import JointLimitDamper
     from control.estimation import ExternalTorqueEstimator
-    from control.gains import DamperGains, EstimatorGains, PostureTaskGains
+    from control.gains import ComplianceQPSettings, DamperGains, EstimatorGains, PostureTaskGains
+    from control.kernels.records import fill_record
 
     robot, model = _robot()
     out = []
@@ -544,17 +545,25 @@ def _cqp_samples(rng):
         damper = JointLimitDamper(robot.q_lower, robot.q_upper, robot.dq_max, robot.endless, DamperGains(), dt=1e-3)
         est = ExternalTorqueEstimator(7, EstimatorGains(), dt=1e-3)
         prev = model.compute(dyn.q - 1e-3 * dyn.dq, dyn.dq + 0.01 * rng.standard_normal(7))
+        settings = fill_record(
+            cqp.settings_record_dtype(7), (ComplianceQPSettings(feedback=bool(k % 3 != 1), torque_limits=True),),
+            tau_max=tau_max, no_bound=1e30, pose_on=k != 3, fast_on=k != 2,
+        )  # fmt: skip
         n, m = 7, 7
-        out.append((
-            dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world,
+        estimator = (
             k % 2 == 0, rng.standard_normal(7), prev.M, prev.dq, prev.h, rng.standard_normal(7) * 5,
-            rng.standard_normal(7), rng.standard_normal(6) * 5, rng.standard_normal(7), est.kernel_constants,
-            bool(k % 3 != 1), tau_max, True, k != 3, dyn.tcp_position_world + 0.02 * rng.standard_normal(3),
-            _rotation(rng, 0.2) @ dyn.tcp_rotation_world, rng.standard_normal(6), rng.standard_normal(6),
-            pose.kernel_gains, dyn.q + 0.1 * rng.standard_normal(7), np.zeros(7), posture.kernel_gains,
-            rng.standard_normal(7) * 0.01, posture.kernel_constants, damper.kernel_rows, damper.endless,
-            damper.kernel_constants, np.zeros((n + 1, n)), np.zeros((m, n)), np.zeros(m), np.zeros(m), np.zeros(n),
-            np.zeros(n), 1e30, k != 2, 1e-6,
+            rng.standard_normal(7), rng.standard_normal(6) * 5, rng.standard_normal(7), est.kernel_record,
+        )  # fmt: skip
+        target = (
+            dyn.tcp_position_world + 0.02 * rng.standard_normal(3), _rotation(rng, 0.2) @ dyn.tcp_rotation_world,
+            rng.standard_normal(6), rng.standard_normal(6),
+        )  # fmt: skip
+        posture_args = (dyn.q + 0.1 * rng.standard_normal(7), np.zeros(7), rng.standard_normal(7) * 0.01,
+                        posture.kernel_record)  # fmt: skip
+        buffers = (np.zeros((n + 1, n)), np.zeros((m, n)), np.zeros(m), np.zeros(m), np.zeros(n), np.zeros(n))
+        out.append((
+            cqp.cqp_dynamics(dyn), estimator, target, pose.kernel_record, posture_args, damper.kernel_record,
+            settings, buffers,
         ))  # fmt: skip
     return out
 
