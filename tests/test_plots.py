@@ -233,6 +233,10 @@ def test_the_rate_plot_shows_the_logged_decay_rate_of_the_polish_force_loop(serv
     assert np.any(np.isfinite(rate)) and np.all(np.isin(rate[np.isfinite(rate)], logged))
     lo, hi = plots.rate.scales["y"]["range"]
     assert lo == -hi and np.nanmax(np.abs(rate)) <= hi
+    # a short plot: two or three ticks (−σ_max, 0), ≥ 40 px apart in a 330 px wide panel at its aspect
+    splits = plots.rate.axes[1]["splits"]
+    assert 2 <= len(splits) <= 3 and 0.0 in splits
+    assert (330 / plots.rate.aspect - 60) / len(splits) >= 40  # minus the title and the x axis
     plots.update(drop, session=2)
     assert not np.any(np.isfinite(np.asarray(plots.rate.data[1], dtype=float)))
 

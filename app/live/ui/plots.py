@@ -44,6 +44,8 @@ FORCE_RANGE_N = 10.0  # ± N before any widening
 TORQUE_RANGE_PCT = 110.0
 RTF_RANGE = 1.2
 RATE_RANGE_PER_S = 10.0  # ± 1/s of the force loop's decay rate before any widening
+RATE_ASPECT = 2.2  # width / height of the σ plot: tall enough for its ticks to stand apart
+RATE_TICKS = 2  # about two tick intervals on σ's y axis (−σ_max, 0): no crowding in a short plot
 RATE_TITLE = "Force-loop decay rate σ (1/s; < 0: a mode grows)"
 W_SERIES = (("W_f", "1/kg²", COLORS[0]), ("W_a", "kg²", COLORS[1]), ("W_d", "1", COLORS[2]))
 LEGEND = {"live": False}  # labels only: no "--" / "NaN" values beside them
@@ -119,11 +121,11 @@ def tick_text(value: float, step: float) -> str:
     return "0" if text in ("-0", "") else text
 
 
-def y_axis(label: str, lo: float, hi: float) -> uplot.Axis:
+def y_axis(label: str, lo: float, hi: float, ticks: int = 4) -> uplot.Axis:
     """A y axis with its label (with the unit) and explicit ticks inside (lo, hi), none at the top edge
     (where it would hide under the title), and as wide as its longest tick needs (uPlot's default width
-    clipped "10,000" to "0,000")."""
-    step = tick_step(hi - lo)
+    clipped "10,000" to "0,000"); `ticks`: about how many intervals (fewer for a short plot)."""
+    step = tick_step(hi - lo, ticks)
     first = math.ceil(lo / step - 1e-9) * step
     splits = [first + i * step for i in range(int((hi - first) / step + 1e-9) + 1)]
     splits = [0.0 if abs(v) < 1e-9 * step else v for v in splits if v < hi - 0.04 * (hi - lo)]
@@ -350,9 +352,9 @@ class Plots:
                     ),
                     title=RATE_TITLE,
                     scales=self._scales("rate", (-RATE_RANGE_PER_S, RATE_RANGE_PER_S)),
-                    axes=(x_axis(), y_axis(Y_LABELS["rate"], -RATE_RANGE_PER_S, RATE_RANGE_PER_S)),
+                    axes=(x_axis(), y_axis(Y_LABELS["rate"], -RATE_RANGE_PER_S, RATE_RANGE_PER_S, RATE_TICKS)),
                     legend=LEGEND,  # type: ignore[arg-type]
-                    aspect=3.0,
+                    aspect=RATE_ASPECT,
                     padding=(24, 12, 0, 0),
                 )
             with self.folders["coupling"]:
@@ -481,7 +483,7 @@ class Plots:
         if force or self._ranges.get(key) != y:
             handle.scales = self._scales(key, y)
             x_label = "" if key.startswith("W_") else X_LABEL  # three small plots: one x label is enough
-            handle.axes = (x_axis(x_label), y_axis(Y_LABELS[key], *y))
+            handle.axes = (x_axis(x_label), y_axis(Y_LABELS[key], *y, RATE_TICKS if key == "rate" else 4))
 
     def _on_window(self) -> None:
         value = WINDOWS.get(str(self.window.value))
