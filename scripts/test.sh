@@ -5,8 +5,9 @@
 # (scripts/wheel_smoke.sh: the built wheel installed in a throw-away venv; only without pytest
 # arguments). Exits non-zero on any failure. pytest runs on TORQUELAB_TEST_WORKERS processes
 # (pytest-xdist, default 2: the machine's two cores; a module's tests stay on one worker, so its
-# module fixtures start once; modules are handed out in file order, so the long browser module
-# starts early instead of last; `-n 0` among the pytest arguments runs them in this process).
+# module fixtures start once; `-n 0` among the pytest arguments runs them in this process). The full
+# run takes the browser tests (`-m browser`: the page in a software-WebGL Chromium, timed against the
+# 1 kHz loop) on their own afterwards, with the machine to themselves as the other tests are not.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -48,8 +49,13 @@ echo "== import contracts (README, Architecture)"
 .venv/bin/lint-imports
 echo "== pytest"
 mkdir -p test-artifacts
-.venv/bin/python -m pytest -n "${TORQUELAB_TEST_WORKERS:-2}" --dist loadfile --no-loadscope-reorder --durations=30 "$@"
-if [ "$#" -eq 0 ]; then  # the full run; with pytest arguments (a subset) the wheel is not built
-    echo "== wheel smoke test"
-    bash scripts/wheel_smoke.sh
+PARALLEL=(-n "${TORQUELAB_TEST_WORKERS:-2}" --dist loadfile --no-loadscope-reorder)
+if [ "$#" -gt 0 ]; then  # a subset: as given; the wheel is not built
+    .venv/bin/python -m pytest "${PARALLEL[@]}" --durations=30 "$@"
+    exit 0
 fi
+.venv/bin/python -m pytest "${PARALLEL[@]}" --durations=30 -m "not browser"
+echo "== pytest: the browser tests, alone"
+.venv/bin/python -m pytest --durations=10 -m browser
+echo "== wheel smoke test"
+bash scripts/wheel_smoke.sh
