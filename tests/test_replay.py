@@ -35,3 +35,23 @@ def test_the_poser_puts_the_links_where_the_simulation_had_them():
     margins = np.where(robot.endless, np.inf, np.minimum(q_now - robot.q_lower, robot.q_upper - q_now))
     assert poser.margins(q_now) == pytest.approx(margins)
     np.testing.assert_allclose(tcp, lab.session.dyn.tcp_position_world, atol=0.5)  # on the arm, roughly
+
+
+def test_the_poser_computes_the_coupling_terms_at_the_replayed_posture():
+    """The replayed instant's P and W are those of the model at that posture (as the live scene's are
+    at the live one), not the live instant's."""
+    from app.live.ui.snapshot import capture
+
+    lab = Lab("limit-drop")
+    lab.advance(200)
+    poser = ArmPoser(lab.session.world, tuple(lab.session.robot.link_names))
+    before = capture(lab.session)
+    q_then = lab.session.world.q.copy()
+    lab.advance(600)  # joint 4 falls on
+    now = capture(lab.session)
+    got = poser.coupling(q_then, before.subspaces)
+    assert got is not None
+    P, W = got
+    np.testing.assert_allclose(P["P_a"], before.P["P_a"], rtol=1e-2)  # one step apart at most, near-singular
+    assert W["W_a"] == pytest.approx(before.W["W_a"], rel=1e-2)
+    assert not np.allclose(P["P_a"], now.P["P_a"], rtol=0.1)  # the live instant's differ by more than 10 %

@@ -5,8 +5,9 @@ Turning *Replay* on pauses the simulation and takes the last minute of the step 
 `REPLAY_EVERY` steps) on the loop thread. The slider picks an instant: the plots draw their window
 up to it (`Plots.replay_t`), and the arm is posed from the logged joint positions with MuJoCo's
 forward kinematics on a private `MjData` of the same model (the simulation's own data is never
-touched). The coupling ellipse follows the tool but keeps the live instant's values (the controller's
-coupling terms are not logged); arrows and the commanded path are hidden while replaying.
+touched). The coupling ellipse follows the tool, and its shape and W value are computed again at the
+instant's posture from the arm's model (`ArmPoser.coupling`: the controller's terms are not logged);
+arrows and the commanded path are hidden while replaying.
 
 Events: the phase markers of the plots (S1…S6, the drop, a payload release), the first step of each
 QP fallback, contact lost (polish: the F/T reading falls below `CONTACT_LOST_N` while the setpoint
@@ -30,6 +31,8 @@ import viser
 from app.core.commands import Pause
 from app.live.loop import SimLoop
 from app.live.ui.plots import Plots, phase_markers
+from control.coupling import Subspaces, coupling_terms, coupling_values
+from control.model import RobotModel
 
 REPLAY_EVERY = 5  # logged steps per replay sample (5 ms)
 REPLAY_SECONDS = 60.0
@@ -78,6 +81,18 @@ class ArmPoser:
         robot = world.robot
         self.q_lower, self.q_upper = np.array(robot.q_lower), np.array(robot.q_upper)
         self.endless = np.array(robot.endless, dtype=bool)
+        self.dynamics = RobotModel(robot.model.copy())  # private: the session's model is the loop's
+
+    def coupling(self, q: np.ndarray, sub: Subspaces) -> tuple[dict[str, np.ndarray], dict[str, float]] | None:
+        """(P_f, P_a, P_d and W_f, W_a, W_d) of [T] Table I at joint positions q (q̇ = 0), for the
+        coupling ellipse of a replayed instant; None where the motion block is singular."""
+        dyn = self.dynamics.compute(q, np.zeros_like(q))
+        try:
+            terms = coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub)
+        except np.linalg.LinAlgError:
+            return None
+        P = {"P_f": terms.P_f.copy(), "P_a": terms.P_a.copy(), "P_d": terms.P_d.copy()}
+        return P, dict(coupling_values(terms))
 
     def margins(self, q: np.ndarray) -> np.ndarray:
         """Distance of each joint to its nearer position limit (inf for endless joints), as the scene's."""
@@ -229,8 +244,12 @@ class ReplayPanel:
         if not np.all(np.isfinite(q)):
             return live
         positions, wxyz, tcp, rot = poser.pose(q)
+        coupling = poser.coupling(q, live.subspaces)
+        P, W = coupling if coupling is not None else (live.P, live.W)
         return dataclasses.replace(
             live,
+            P=P,
+            W=W,
             t=float(times[i]),
             link_positions=positions,
             link_wxyz=wxyz,
