@@ -62,3 +62,19 @@ def test_the_per_run_files_are_linked_with_what_each_run_was(tmp_path):
     (runs / "abc.npz").write_bytes(b"")
     text = run_files_html(tmp_path)
     assert 'href="runs/abc.json"' in text and 'href="runs/abc.npz"' in text and "row W_j, mu 1" in text
+
+
+def test_table_iii_has_the_papers_rows_and_columns_with_ours_and_theirs_in_each_cell():
+    from app.headless.experiments.polish_report import table_iii_html
+
+    def entry(row: str, mu: float, ma: float, paper: tuple | None) -> dict:
+        stat = {"mean": ma, "sd": 0.1}
+        return {"row": row, "mu": mu, "ma": stat, "ptp": stat, "std": stat, "paper": paper}
+
+    summary = [entry("W_j", 0.25, 2.0, (2.3, 18.2, 2.8)), entry("W_j", 1.0, 6.0, (5.9, 72.4, 9.3))]
+    summary.append(entry("W_a from -30°", 1.0, 1.5, None))
+    text = table_iii_html(summary)
+    assert text.count("<th colspan='3'>") == 2 and "μ = 0.25" in text and "μ = 1</th>" in text
+    assert text.count("<th>MA</th><th>PTP</th><th>STD</th>") == 2
+    assert "<tr><th>W_j</th><td>2.0 ± 0.1<br><small>paper 2.3</small></td>" in text
+    assert "paper 72.4" in text and "<th>W_a from -30°</th><td>-</td><td>-</td><td>-</td><td>1.5 ± 0.1</td>" in text
