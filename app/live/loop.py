@@ -31,12 +31,13 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from app.core.commands import Command, DragCommand, Pause, Play, StepOnce
+from app.core.commands import Command, DragCommand, Pause, Play, StepOnce, SwitchSession
 from app.core.session import Session, WorkPending
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.live.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
 from app.live.lab import SPEED_RANGE, UNPACED_SPEED, Lab, Notice, Settings
+from app.live.memory import trim_heap_soon
 from app.live.pacing import Pacer, RateMeter, next_frame_due
 from app.live.plan_worker import BackgroundPlanner
 
@@ -380,9 +381,12 @@ class SimLoop:
                 self._apply(item)
 
     def _apply(self, command: Command) -> None:
-        """`lab.apply`; a switch whose preset needs work not done yet (a swivel plan) waits for `planner`."""
+        """`lab.apply`; a switch whose preset needs work not done yet (a swivel plan) waits for `planner`;
+        after a switch the memory the old session held goes back to the system (`app.live.memory`)."""
         try:
             self.lab.apply(command)
+            if isinstance(command, SwitchSession):
+                trim_heap_soon()
         except WorkPending as pending:
             self.lab.notify(
                 "info",
