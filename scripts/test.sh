@@ -7,7 +7,8 @@
 # (pytest-xdist, default 2: the machine's two cores; a module's tests stay on one worker, so its
 # module fixtures start once; `-n 0` among the pytest arguments runs them in this process). The full
 # run takes the browser tests (`-m browser`: the page in a software-WebGL Chromium, timed against the
-# 1 kHz loop) on their own afterwards, with the machine to themselves as the other tests are not.
+# 1 kHz loop) and the loop's wall-clock tests (`-m alone`) on their own afterwards, with the machine
+# to themselves as the other tests are not.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -54,8 +55,8 @@ if [ "$#" -gt 0 ]; then  # a subset: as given; the wheel is not built
     .venv/bin/python -m pytest "${PARALLEL[@]}" --durations=30 "$@"
     exit 0
 fi
-.venv/bin/python -m pytest "${PARALLEL[@]}" --durations=30 -m "not browser"
-echo "== pytest: the browser tests, alone"
-.venv/bin/python -m pytest --durations=10 -m browser
+.venv/bin/python -m pytest "${PARALLEL[@]}" --durations=30 -m "not browser and not alone"
+echo "== pytest: the tests timed against the wall clock (loop, workers, the page), alone"
+.venv/bin/python -m pytest --durations=15 -m "browser or alone"
 echo "== wheel smoke test"
 bash scripts/wheel_smoke.sh

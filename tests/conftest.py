@@ -24,7 +24,10 @@ from control.model import RobotModel
 
 
 def pytest_configure(config) -> None:
-    """An xdist worker becomes a session (and an autogroup) of its own."""
+    """Declares the `alone` marker; an xdist worker becomes a session (and an autogroup) of its own."""
+    config.addinivalue_line(
+        "markers", "alone: timed against the wall clock; scripts/test.sh runs it after the parallel phase, alone"
+    )
     if os.environ.get("PYTEST_XDIST_WORKER"):
         try:
             os.setsid()

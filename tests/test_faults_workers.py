@@ -17,6 +17,9 @@ from app.live.loop import LOOP_NICENESS, SimLoop
 from app.live.plan_worker import BackgroundPlanner
 from app.scenarios import Work
 
+# the loop's gaps are timed against the wall clock: the module runs alone (the `alone` marker)
+pytestmark = pytest.mark.alone
+
 
 def _pid_after(seconds: float) -> int:
     """The worker's process id, after `seconds` (a stand-in for a plan)."""

@@ -17,8 +17,9 @@ from app.live.pacing import Pacer, RateMeter, next_frame_due
 from app.live.ui.snapshot import capture
 from app.scenarios import SCENARIOS
 
-# the loop thread is timed here: the kernels are compiled (or loaded) before, not inside it
-pytestmark = pytest.mark.usefixtures("warm_kernels")
+# the loop thread is timed here against the wall clock: the kernels are compiled (or loaded)
+# before, not inside it, and the module runs alone (the `alone` marker), not beside another worker
+pytestmark = [pytest.mark.usefixtures("warm_kernels"), pytest.mark.alone]
 
 DT = 1e-3
 
