@@ -149,7 +149,9 @@ class CameraReports:
         self.poses.append((np.array(camera.position), np.array(camera.look_at)))
 
 
-_CAMERA_REPORTS: dict[int, CameraReports] = {}
+# per client handle, the handle kept beside its reports: client ids restart at 0 with every server,
+# so an id alone would hand a later module's client the reports of an earlier server's one
+_CAMERA_REPORTS: dict[int, tuple[Any, CameraReports]] = {}
 
 
 def set_camera(client: Any, position: np.ndarray, look_at: np.ndarray, app: Any = None) -> None:
@@ -158,9 +160,10 @@ def set_camera(client: Any, position: np.ndarray, look_at: np.ndarray, app: Any 
     so that framing cannot move the camera after this."""
     if app is not None:
         wait_for(lambda: not app.publisher.framing_pending, 30, "the app to frame the new preset")
-    if client.client_id not in _CAMERA_REPORTS:
-        _CAMERA_REPORTS[client.client_id] = CameraReports(client)
-    reports = _CAMERA_REPORTS[client.client_id]
+    held = _CAMERA_REPORTS.get(client.client_id)
+    if held is None or held[0] is not client:
+        held = _CAMERA_REPORTS[client.client_id] = (client, CameraReports(client))
+    reports = held[1]
 
     def at_pose(p: np.ndarray, a: np.ndarray) -> bool:
         return bool(np.allclose(p, position, atol=1e-3) and np.allclose(a, look_at, atol=1e-3))

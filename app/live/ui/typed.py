@@ -77,9 +77,11 @@ TYPED_JS = r"""
     r.input.value = text;
     setValue.call(ch, JSON.stringify({id: r.id, text: text, n: Date.now()}));
     ch.dispatchEvent(new Event("input", {bubbles: true}));
+    const sent = {text: text};  // this send's token: only the box's latest send restores it
+    r.input.__typedSent = sent;
     setTimeout(() => {  // the server left the box as it was: its old text back
-      if (raw !== null && raw.input === r.input) return;
-      if (r.input.value === text) r.input.value = r.input.__typedBefore;
+      if (r.input.__typedSent !== sent || (raw !== null && raw.input === r.input)) return;
+      if (r.input.value === text && r.input.__typedBefore !== undefined) r.input.value = r.input.__typedBefore;
       delete r.input.__typedBefore;
     }, 1500);
   };
@@ -90,7 +92,9 @@ TYPED_JS = r"""
   const edit = (input, id, insert, forward) => {  // insert null: delete (backward unless forward)
     if (raw === null || raw.input !== input) {
       send();
-      if (input.__typedBefore === undefined) input.__typedBefore = input.value;
+      // the text before raw mode: kept while the box still shows a sent text not yet answered ("1e")
+      const pending = input.__typedSent !== undefined && input.value === input.__typedSent.text;
+      if (input.__typedBefore === undefined || !pending) input.__typedBefore = input.value;
       raw = {input: input, id: id, timer: 0, text: input.value, caret: input.value.length};
     }
     const v = raw.text;
