@@ -17,23 +17,44 @@ def _samples(rates, pds):
 
 def test_per_stroke_keeps_each_strokes_worst_rate_its_coupling_and_the_growth_it_accumulates():
     """Two strokes sampled every 25 ms: S1 decays everywhere (G = 0), S2 grows at 2/s for 1 s in the
-    middle and decays at 1/s after it: G = 2 Np; worst σ, P_d·f̂ mean/max and the share negative are
-    each stroke's own."""
+    middle and decays at 1/s after it: G = 2 Np, so with a budget of 1.5 Np S2's least headroom is
+    −0.5 Np and S1's the whole budget; worst σ, P_d·f̂ mean/max and the share negative are each
+    stroke's own."""
     T, dt = P.SEGMENT_DURATION_S, PM.MARGIN_SAMPLE_S
     taus = np.arange(0.0, 2 * T - 1e-9, dt)
     rates = np.where(taus < T, 3.0, np.where((taus >= T + 0.5) & (taus < T + 1.5), -2.0, 1.0))
     pds = np.where(taus < T, -1.0, np.linspace(0.5, 1.0, taus.size))
-    strokes = PM.per_stroke(taus, _samples(rates, pds))
+    strokes = PM.per_stroke(taus, _samples(rates, pds), budget_np=1.5)
     s1, s2 = strokes
     assert (s1["segment"], s2["segment"]) == (1, 2) and s2["direction"].startswith("stretch")
     assert s1["rate_min_per_s"] == 3.0 and s1["growth_np"] == 0.0 and s1["negative_share"] == 0.0
     assert s2["rate_min_per_s"] == -2.0 and s2["growth_np"] == pytest.approx(2.0, abs=1e-9)
+    assert s1["headroom_min_np"] == 1.5 and s2["headroom_min_np"] == pytest.approx(-0.5, abs=1e-9)
     assert s2["negative_share"] == pytest.approx(1.0 / T, abs=dt / T)
     assert s2["kd_margin_min"] == -20.0 and s2["pd_fhat_max"] == pytest.approx(1.0)
     assert s2["pd_fhat_mean"] == pytest.approx(np.mean(pds[taus >= T]))
     total = PM.summary(strokes)
     assert total["rate_min_per_s"] == -2.0 and total["growth_max_np"] == pytest.approx(2.0)
+    assert total["headroom_min_np"] == pytest.approx(-0.5)
     assert total["stretch_pd_fhat"] == {"mean": pytest.approx(s2["pd_fhat_mean"]), "max": pytest.approx(1.0)}
+
+
+def test_the_stroke_headroom_starts_each_stroke_at_the_budget_and_spends_it_where_sigma_is_negative():
+    """σ = −3/s for 0.5 s then +1/s: h falls 1.5 Np below the budget, climbs back at 1 Np/s (G ≥ 0 caps
+    it at the budget); a new segment starts again from the budget; outside the strokes h is NaN."""
+    h = PM.StrokeHeadroom(budget_np=2.0, first_dt=0.1)
+    t = 0.0
+    for _ in range(5):
+        t += 0.1
+        h.add(t, 2, -3.0)
+    assert h.headroom_np == pytest.approx(0.5, abs=1e-9) and h.growth_np == pytest.approx(1.5, abs=1e-9)
+    for _ in range(3):
+        t += 0.1
+        h.add(t, 2, 1.0)
+    assert h.headroom_np == pytest.approx(0.8, abs=1e-9) and h.headroom_min_np == pytest.approx(0.5, abs=1e-9)
+    assert h.add(t + 0.1, 3, 1.0) == 2.0 and h.headroom_min_np == 2.0
+    assert np.isnan(h.add(t + 0.2, P.N_SEGMENTS + 1, -5.0)) and np.isnan(h.add(t + 0.3, 0, -5.0))
+    assert PM.headroom_budget_np(20.0, 0.0) == np.inf  # no noise: nothing at the floor to grow
 
 
 def test_the_operating_point_is_the_commanded_speed_against_the_segments_friction_direction():
@@ -44,7 +65,7 @@ def test_the_operating_point_is_the_commanded_speed_against_the_segments_frictio
     assert f0[0] > 0.9 and f_mid[0] < -0.9  # S1 retracts along −X (friction +X), S2 stretches along +X
 
 
-def _run(stds, lost=0, rate=-1.0):
+def _run(stds, lost=0, rate=-1.0, growth=0.0, sensor=None):
     return {
         "row": "W_j",
         "mu": 1.0,
@@ -52,36 +73,65 @@ def _run(stds, lost=0, rate=-1.0):
         "diverged": False,
         "contact_lost_ms": lost,
         "per_segment": [{"force_error": {"std": s}} for s in stds],
-        "stroke": {"rate_min_per_s": rate},
+        "stroke": {"rate_min_per_s": rate, "growth_max_np": growth},
+        **({"sensor": sensor} if sensor is not None else {}),
     }
 
 
-def test_outcome_is_contact_loss_or_a_stroke_std_above_three_noise_floors():
-    """The noise floor of the default sensor is √(5 α/(2 − α) + 2) N; a stroke at 3× it oscillates."""
+def test_outcome_is_contact_loss_or_a_stroke_std_above_three_noise_floors_of_the_runs_sensor():
+    """The noise floor of the default sensor is √(5 α/(2 − α) + 2) N; a stroke at 3× it oscillates; a
+    run with another sensor is held against its own floor."""
     a = 1.0 - np.exp(-2.0 * np.pi * 25.0 * 1e-3)
     floor = np.sqrt(5.0 * a / (2.0 - a) + 2.0)
-    assert C.noise_floor_std_n() == pytest.approx(floor, rel=1e-12)
+    assert C.run_floor_n({}) == pytest.approx(floor, rel=1e-12)
     limit = 3.0 * floor
     assert C.outcome(_run([1.8, limit * 0.99]))["why"] == ""
     assert C.outcome(_run([1.8, limit * 1.01]))["why"] == "oscillation"
     assert C.outcome(_run([1.8, 1.9], lost=3))["why"] == "contact lost"
-    assert C.predicted_unstable(_run([1.0], rate=-0.1)) and not C.predicted_unstable(_run([1.0], rate=0.1))
+    quiet = {"force_noise_var": 0.0, "sine_amplitude_n": 1.0}  # floor √0.5 N
+    assert C.outcome(_run([1.8, 2.2], sensor=quiet))["why"] == "oscillation"
+    assert C.oscillation_threshold_n(quiet) == pytest.approx(3.0 * np.sqrt(0.5), rel=1e-12)
+
+
+def test_the_verdict_is_the_sign_of_the_least_headroom_and_sigma_is_kept_beside_it():
+    """h_min = ln(F̂ / floor) − G: a run whose σ dips below 0 but whose growth stays under the budget is
+    predicted stable; a growth beyond it, unstable; the budget follows the run's sensor."""
+    budget = C.headroom_budget({})
+    assert budget == pytest.approx(np.log(20.0 / C.run_floor_n({})), rel=1e-12)
+    slow = _run([1.0], rate=-0.9, growth=0.5 * budget)
+    fast = _run([1.0], rate=-9.0, growth=1.5 * budget)
+    assert C.headroom_min(slow) == pytest.approx(0.5 * budget) and not C.predicted_unstable(slow)
+    assert C.predicted_unstable(fast) and C.predicted_unstable_by_rate(slow) and C.predicted_unstable_by_rate(fast)
+    noisier = _run([1.0], growth=0.9 * budget, sensor={"force_noise_var": 50.0})  # a higher floor, less budget
+    assert C.headroom_budget(noisier) < budget and C.predicted_unstable(noisier)
+    assert C.predicted_unstable({"stroke": {}}) is None
 
 
 def test_confusion_counts_and_the_report_names_the_disagreeing_runs():
+    """Both verdicts from each record's metrics (flattened as a sweep writes them): the headroom's
+    table, then σ's, each with its disagreeing runs."""
     pairs = [(True, True), (True, False), (False, False), (False, False), (False, True)]
     c = C.confusion(pairs)
     assert (c["tp"], c["fp"], c["tn"], c["fn"], c["n"]) == (1, 1, 2, 1, 5) and c["agreement"] == pytest.approx(0.6)
+    budget = C.headroom_budget({})
     records = [
         {"status": "ok", "params": {"hold_swivel": sw, "mu": 1.0}, "seed": 0, "metrics": m}
         for sw, (p, s) in zip((-80, -40, 0, 20, 40), pairs, strict=True)
-        for m in [{"predicted_unstable": p, "simulated_unstable": s, "outcome": "oscillation" if s else "stable"}]
+        for m in [
+            {
+                "stroke_growth_max_np": (1.5 if p else 0.5) * budget,
+                "stroke_rate_min_per_s": -1.0,  # σ says unstable everywhere
+                "simulated_unstable": s,
+                "outcome": "oscillation" if s else "stable",
+            }
+        ]
     ]
     page = C.sweep_section(["hold_swivel", "mu"], records)
-    assert "Agreement 3 of 5 (60 %)" in page and "Disagreeing runs by the sign of σ (2)" in page
-    assert "<td>-40</td>" in page and "<td>40</td>" in page and "<td>20</td>" not in page
-    assert "by the growth" not in page  # these records carry no growth verdict
-    assert C.growth_limit_np() == pytest.approx(np.log(20.0 / C.noise_floor_std_n()))
+    first, second = page.split("The same runs by the sign of the worst σ")
+    assert "Agreement 3 of 5 (60 %)" in first and "Disagreeing runs by the sign of the headroom (2)" in first
+    assert "<td>-40</td>" in first and "<td>40</td>" in first and "<td>20</td>" not in first
+    assert "Agreement 2 of 5 (40 %)" in second and "Disagreeing runs by the sign of σ (3)" in second
+    assert f"starts with {budget:.2f} Np" in page
 
 
 def test_the_live_rate_is_recomputed_every_100_steps_from_the_logged_posture_and_shown(rizon):
@@ -117,23 +167,24 @@ def test_the_live_rate_is_recomputed_every_100_steps_from_the_logged_posture_and
 @pytest.mark.slow
 def test_the_margins_verdicts_agree_with_the_simulation_on_a_small_grid():
     """Held swivel × μ × sensing delay, S1 and S2 of the sweep's polish cell: the coupled elbow-up
-    posture at μ = 1 with one period of delay loses contact on S2 and σ and G say so; the mirror W_a
-    minimum (−82°) and μ = 0.25 stay calm and both verdicts say so; at −40°, μ = 0.5 with two periods
-    σ dips below 0 for too short a time to matter: G agrees with the outcome in every cell, the sign
-    of σ in at least three of the four."""
+    posture at μ = 1 with one period of delay loses contact on S2 and both verdicts say so; the mirror
+    W_a minimum (−82°) and μ = 0.25 stay calm and both say so; at −40°, μ = 0.5 with two periods σ dips
+    below 0 for too short a time to matter: the headroom agrees with the outcome in every cell, the
+    sign of σ in at least three of the four."""
     from app.headless.sweep.experiments import get
 
     cell = get("polish").cell
     grid = [(0.0, 1.0, 1), (-82.0, 1.0, 1), (0.0, 0.25, 1), (-40.0, 0.5, 2)]
-    sign = growth = 0
+    sign = headroom = 0
     outcomes = []
     for swivel, mu, delay in grid:
         m = cell({"hold_swivel": swivel, "mu": mu, "reading_delay": delay, "strokes": 2}, 0)["metrics"]
         outcomes.append(m["simulated_unstable"])
-        sign += m["predicted_unstable"] == m["simulated_unstable"]
-        growth += m["predicted_unstable_growth"] == m["simulated_unstable"]
+        headroom += m["predicted_unstable"] == m["simulated_unstable"]
+        sign += m["predicted_unstable_rate"] == m["simulated_unstable"]
+        assert m["predicted_unstable"] == (m["headroom_min_np"] < 0.0)
     assert outcomes == [True, False, False, False]
-    assert growth == len(grid) and sign >= len(grid) - 1
+    assert headroom == len(grid) and sign >= len(grid) - 1
 
 
 def test_stretch_floor_is_the_loops_least_positive_coupling_on_the_stretching_samples():

@@ -10,6 +10,12 @@ directional coupling P_d·f̂ [T10] there. Evaluated on samples of the executed 
 stroke keeps its worst (smallest) σ and K_f^d margin, the mean and max of P_d·f̂, and the growth
 G (nepers) that the frozen-posture rates accumulate over the stroke: G_k = max(0, G_{k−1} − σ_k Δt),
 the log of how much a disturbance at the noise level can be amplified before the stroke ends.
+
+The margin itself is the stroke's headroom h_k = ln(F̂ / floor) − G_k (nepers): the growth still
+allowed before a disturbance at the sensor's noise floor (`noise_floor_std_n`) reaches the desired
+force F̂, i.e. lifts the tool off the table. h > 0 all along a stroke: the stroke ends first; h < 0:
+it does not. σ and the K_f^d margin stay as the instantaneous diagnostics: a slowly growing mode
+(σ slightly negative) on a 2.5 s stroke does not use up the headroom.
 """
 
 from __future__ import annotations
@@ -26,6 +32,69 @@ from control.margin import ContactLoop, force_loop_margin, loop_rate
 from control.planner import Plan
 
 MARGIN_SAMPLE_S = 0.025  # 100 samples per 2.5 s stroke: finer than the ≈ 0.3 s the rates change over
+
+
+def noise_floor_std_n(
+    force_noise_var_n2: float, sine_amplitude_n: float, cutoff_hz: float, dt: float, noise: bool = True
+) -> float:
+    """STD (N) of the F/T reading's noise and sinusoid after its first-order low-pass ([T] §IV-A):
+    white noise of variance σ² leaves σ² α/(2 − α); a slow sinusoid of amplitude A passes with A²/2;
+    0 without noise."""
+    if not noise:
+        return 0.0
+    alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz * dt) if cutoff_hz > 0 else 1.0
+    return math.sqrt(force_noise_var_n2 * alpha / (2.0 - alpha) + 0.5 * sine_amplitude_n**2)
+
+
+def sensor_floor_n(sensor: object, dt: float) -> float:
+    """`noise_floor_std_n` of a sensor group (`SensorParams`) or of its fields as a mapping."""
+
+    def field(name: str) -> object:
+        return sensor.get(name) if isinstance(sensor, dict) else getattr(sensor, name)
+
+    return noise_floor_std_n(
+        float(field("force_noise_var")),  # type: ignore[arg-type]
+        float(field("sine_amplitude_n")),  # type: ignore[arg-type]
+        float(field("cutoff_hz")),  # type: ignore[arg-type]
+        dt,
+        bool(field("noise")),
+    )
+
+
+def headroom_budget_np(force_n: float, floor_n: float) -> float:
+    """ln(F̂ / floor) (nepers): the growth that takes a disturbance at the noise floor to the desired
+    force, the headroom a stroke starts with (inf for a sensor without noise)."""
+    return math.log(force_n / floor_n) if floor_n > 0 else math.inf
+
+
+class StrokeHeadroom:
+    """The headroom h = budget − G along the current stroke from σ samples (module docstring): G
+    starts at 0 at each segment's start and G ← max(0, G − σ Δt) with Δt the time since the
+    stroke's previous sample (`first_dt` for its first); NaN outside the strokes."""
+
+    def __init__(self, budget_np: float, first_dt: float):
+        self.budget_np = float(budget_np)
+        self.first_dt = float(first_dt)
+        self.segment = -1
+        self.growth_np = 0.0
+        self.headroom_np = math.nan
+        self.headroom_min_np = math.nan  # the least h of this stroke so far
+        self._t = math.nan
+
+    def add(self, t: float, segment: int, rate_per_s: float) -> float:
+        """Take σ (1/s) sampled at time t in `segment` (1..6 the strokes); returns h now."""
+        if segment != self.segment:
+            self.segment, self.growth_np, self._t = segment, 0.0, math.nan
+            self.headroom_np = self.headroom_min_np = math.nan
+        if not 1 <= segment <= P.N_SEGMENTS or not math.isfinite(rate_per_s):
+            return self.headroom_np
+        dt = self.first_dt if not math.isfinite(self._t) else t - self._t
+        self._t = t
+        self.growth_np = max(0.0, self.growth_np - rate_per_s * dt)
+        self.headroom_np = self.budget_np - self.growth_np
+        prev = self.headroom_min_np
+        self.headroom_min_np = self.headroom_np if not math.isfinite(prev) else min(prev, self.headroom_np)
+        return self.headroom_np
 
 
 def contact_loop(contact: object, sensor: object, world: object, speed_m_s: float = 0.0) -> ContactLoop:
@@ -82,10 +151,10 @@ def _at_speed(loop: ContactLoop, speed: float) -> ContactLoop:
     return replace(loop, speed_m_s=speed)
 
 
-def per_stroke(taus: np.ndarray, samples: list[MarginSample]) -> list[dict]:
+def per_stroke(taus: np.ndarray, samples: list[MarginSample], budget_np: float = math.inf) -> list[dict]:
     """Per segment 1..6: the worst σ (and when), the worst K_f^d margin, P_d·f̂ mean and max, the
-    growth G (module docstring), the frequency of the slowest-decaying mode at the worst σ; segments
-    without samples are left out."""
+    growth G and the least headroom budget_np − G (module docstring), the frequency of the
+    slowest-decaying mode at the worst σ; segments without samples are left out."""
     taus = np.asarray(taus, dtype=float)
     out = []
     for k in range(1, P.N_SEGMENTS + 1):
@@ -96,13 +165,11 @@ def per_stroke(taus: np.ndarray, samples: list[MarginSample]) -> list[dict]:
         kd = np.array([samples[i].kd_margin for i in sel])
         pd = np.array([samples[i].pd_fhat for i in sel])
         hz = np.array([samples[i].frequency_hz for i in sel])
-        dts = np.diff(np.concatenate([[taus[sel[0]]], taus[sel]]))
-        dts[0] = MARGIN_SAMPLE_S if sel.size == 1 else dts[1]
-        g = 0.0
+        along = StrokeHeadroom(budget_np, MARGIN_SAMPLE_S if sel.size == 1 else float(taus[sel[1]] - taus[sel[0]]))
         growth = 0.0
-        for r, dt in zip(rate, dts, strict=True):
-            g = max(0.0, g - r * dt)
-            growth = max(growth, g)
+        for i, r in zip(sel, rate, strict=True):
+            along.add(float(taus[i]), k, float(r))
+            growth = max(growth, along.growth_np)
         worst = int(np.argmin(rate))
         out.append(
             {
@@ -113,6 +180,7 @@ def per_stroke(taus: np.ndarray, samples: list[MarginSample]) -> list[dict]:
                 "kd_margin_min": float(np.min(kd)) if np.all(np.isfinite(kd)) else None,
                 "negative_share": float(np.mean(rate < 0.0)),
                 "growth_np": float(growth),
+                "headroom_min_np": float(budget_np - growth),
                 "pd_fhat_mean": float(np.mean(pd)),
                 "pd_fhat_max": float(np.max(pd)),
                 "mode_hz_at_worst": float(hz[worst]) if np.isfinite(hz[worst]) else None,
@@ -122,16 +190,23 @@ def per_stroke(taus: np.ndarray, samples: list[MarginSample]) -> list[dict]:
 
 
 def summary(strokes: list[dict]) -> dict:
-    """Over all strokes: worst σ and K_f^d margin, largest growth, and P_d·f̂ over the stretching
-    strokes (the mean of the stroke means, the max of the maxima)."""
+    """Over all strokes: worst σ and K_f^d margin, largest growth, least headroom, and P_d·f̂ over the
+    stretching strokes (the mean of the stroke means, the max of the maxima)."""
     if not strokes:
-        return {"rate_min_per_s": None, "kd_margin_min": None, "growth_max_np": None, "stretch_pd_fhat": None}
+        return {
+            "rate_min_per_s": None,
+            "kd_margin_min": None,
+            "growth_max_np": None,
+            "headroom_min_np": None,
+            "stretch_pd_fhat": None,
+        }
     kds = [s["kd_margin_min"] for s in strokes]
     stretch = [s for s in strokes if s["segment"] % 2 == 0]
     return {
         "rate_min_per_s": min(s["rate_min_per_s"] for s in strokes),
         "kd_margin_min": None if any(k is None for k in kds) else min(kds),
         "growth_max_np": max(s["growth_np"] for s in strokes),
+        "headroom_min_np": min(s["headroom_min_np"] for s in strokes),
         "stretch_pd_fhat": None
         if not stretch
         else {

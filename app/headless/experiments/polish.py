@@ -394,7 +394,7 @@ def simulate(spec: dict) -> dict:
     dt = float(session.world.model.opt.timestep)
     margin_every = max(1, round(MARGIN_SAMPLE_S / dt))
     hold = HoldWatch(
-        oscillation_threshold_n(float(ran["sensor"].cutoff_hz)),  # type: ignore[attr-defined]
+        oscillation_threshold_n(dataclasses.asdict(ran["sensor"]), dt),  # type: ignore[call-overload]
         round(scenario_module.SETTLE_WINDOW_S / dt),
         dt,
     )
@@ -568,13 +568,18 @@ def stroke_margin_figures(session, stroke_q: list[tuple[float, np.ndarray]], sha
     n = len(session.world.q)
     taus = np.array([tau for tau, _ in stroke_q])
     samples = [PM.sample(session.model.compute(q, np.zeros(n)).Lambda, gains, loop, tau) for tau, q in stroke_q]
-    strokes = PM.per_stroke(taus, samples)
+    floor = PM.sensor_floor_n(session.params()["sensor"], loop.dt)
+    budget = PM.headroom_budget_np(scenario_module.DESIRED_FORCE_N, floor)
+    strokes = PM.per_stroke(taus, samples, budget)
     return {
         "stroke_margin": strokes,
         "stroke": PM.summary(strokes),
         "stroke_loop": {
             "sensing_delay_steps": loop.sensing_delay_steps,
             "actuation_delay_steps": loop.actuation_delay_steps,
+            "desired_force_n": scenario_module.DESIRED_FORCE_N,
+            "noise_floor_n": floor,
+            "headroom_budget_np": budget,
         },
     }
 

@@ -1,36 +1,50 @@
 """Is the force-loop margin a prediction? Its sign along the strokes against what the run did.
 
-Predicted unstable: the worst decay rate σ of the linearised force loop over the six strokes
-(`app.scenarios.polish_margin`, with the run's μ, sensor and latency) is negative.
+Predicted unstable: the stroke headroom h = ln(F̂ / noise floor) − G (`app.scenarios.polish_margin`,
+with the run's μ, sensor and latency) falls below 0 on some stroke: a disturbance at the sensor's
+noise floor grows to the desired force before the stroke ends. The sign of the worst decay rate σ
+over the strokes is kept beside it as the instantaneous verdict.
 Simulated unstable: the run diverged, lost contact during the strokes (true contact force ≤ 0 for
 at least one 1 ms step), or oscillated: some stroke's force-error STD is at least
-`OSCILLATION_FACTOR` times the noise floor, the STD that the sensor's noise and sinusoid alone give
-after its low-pass (√(σ_n² α/(2 − α) + A²/2)).
+`OSCILLATION_FACTOR` times the noise floor, the STD that the run's sensor noise and sinusoid alone
+give after its low-pass (`polish_margin.noise_floor_std_n`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import html
-import math
+from collections.abc import Mapping
 
 import numpy as np
 
+from app.scenarios import polish as P
+from app.scenarios.polish_margin import headroom_budget_np, sensor_floor_n
+from app.sim.sensor import SensorParams
+
 OSCILLATION_FACTOR = 3.0  # calm strokes sit at 1.2-1.5x the floor, the S2/S4/S6 limit cycles at 6-8x (issue 24)
-NOISE_VAR_N2, SINE_AMPLITUDE_N, CUTOFF_HZ, DT_S = 5.0, 2.0, 25.0, 1e-3  # the polish sensor's defaults ([T] §IV-A)
+DEFAULT_DT_S = 1e-3  # the step of runs that did not record theirs
 
 
-def noise_floor_std_n(
-    noise_var_n2: float = NOISE_VAR_N2, sine_n: float = SINE_AMPLITUDE_N, cutoff_hz: float = CUTOFF_HZ, dt: float = DT_S
-) -> float:
-    """STD (N) of the reading's noise and sinusoid after the first-order low-pass ([T] §IV-A): white
-    noise of variance σ² leaves σ² α/(2 − α); a slow sinusoid of amplitude A passes with A²/2."""
-    alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz * dt) if cutoff_hz > 0 else 1.0
-    return math.sqrt(noise_var_n2 * alpha / (2.0 - alpha) + 0.5 * sine_n**2)
+def run_sensor(result: Mapping) -> dict:
+    """The run's sensor fields (`SensorParams`): as the run recorded them, the defaults for a run that
+    recorded none, or from a sweep record's flattened "sensor_FIELD" metrics."""
+    defaults = dataclasses.asdict(SensorParams())
+    own = result.get("sensor")
+    if isinstance(own, Mapping):
+        return {**defaults, **own}
+    return {k: result.get(f"sensor_{k}", v) for k, v in defaults.items()}
 
 
-def oscillation_threshold_n(cutoff_hz: float | None = None) -> float:
-    """The stroke force-error STD (N) from which a stroke counts as oscillating."""
-    return OSCILLATION_FACTOR * noise_floor_std_n(cutoff_hz=CUTOFF_HZ if cutoff_hz is None else float(cutoff_hz))
+def run_floor_n(result: Mapping) -> float:
+    """The run's noise floor (N): its sensor's noise and sinusoid after its low-pass."""
+    return sensor_floor_n(run_sensor(result), float(result.get("timestep_s") or DEFAULT_DT_S))
+
+
+def oscillation_threshold_n(sensor: Mapping | None = None, dt: float = DEFAULT_DT_S) -> float:
+    """The stroke force-error STD (N) from which a stroke counts as oscillating: `OSCILLATION_FACTOR`
+    noise floors of this sensor (its fields; None: the defaults)."""
+    return OSCILLATION_FACTOR * run_floor_n({"sensor": dict(sensor or {}), "timestep_s": dt})
 
 
 def outcome(result: dict) -> dict:
@@ -38,7 +52,7 @@ def outcome(result: dict) -> dict:
     stable), the largest stroke STD and the threshold it was held against."""
     stds = [s["force_error"]["std"] for s in result.get("per_segment", []) if s["force_error"]["std"] is not None]
     worst = max(stds) if stds else None
-    limit = oscillation_threshold_n(result.get("sensor_cutoff_hz"))
+    limit = OSCILLATION_FACTOR * run_floor_n(result)
     why = (
         "diverged"
         if result.get("diverged")
@@ -89,21 +103,36 @@ def observed_mode(error_n: np.ndarray, start: int, stop: int, dt: float) -> dict
     return {"peak_hz": peak, "band_rms_n": float(np.std(band[start - a : stop - a])), "growth_np": growth}
 
 
-def growth_limit_np(force_n: float = 20.0) -> float:
-    """ln(F̂ / noise floor) (nepers): the growth that takes a disturbance at the noise floor to the
-    desired force itself, i.e. to contact loss ([T] Table II F̂ = 20 N)."""
-    return math.log(force_n / noise_floor_std_n())
+def desired_force_n(result: Mapping) -> float:
+    """F̂ (N) of the run: as its margin recorded it (a sweep record: flattened), else the scenario's."""
+    loop = result.get("stroke_loop")
+    own = loop.get("desired_force_n") if isinstance(loop, Mapping) else result.get("stroke_loop_desired_force_n")
+    return float(own) if own is not None else P.DESIRED_FORCE_N
 
 
-def predicted_unstable_by_growth(result: dict) -> bool | None:
-    """The margin's second verdict: some stroke accumulates a growth G ≥ `growth_limit_np`."""
-    g = (result.get("stroke") or {}).get("growth_max_np")
-    return None if g is None else bool(g >= growth_limit_np())
+def headroom_budget(result: Mapping) -> float:
+    """ln(F̂ / noise floor) (Np) of the run: the headroom each stroke starts with."""
+    return headroom_budget_np(desired_force_n(result), run_floor_n(result))
 
 
-def predicted_unstable(result: dict) -> bool | None:
-    """The margin's verdict: the worst σ over the strokes is negative (None without stroke samples)."""
-    rate = (result.get("stroke") or {}).get("rate_min_per_s")
+def headroom_min(result: Mapping) -> float | None:
+    """The least stroke headroom h = ln(F̂ / floor) − G (Np) over the run's strokes, from its largest
+    growth G (a run dict, or a sweep record's flattened metrics); None without stroke samples."""
+    stroke = result.get("stroke")
+    g = stroke.get("growth_max_np") if isinstance(stroke, Mapping) else result.get("stroke_growth_max_np")
+    return None if g is None else headroom_budget(result) - float(g)
+
+
+def predicted_unstable(result: Mapping) -> bool | None:
+    """The margin's verdict: the headroom falls below 0 on some stroke (None without stroke samples)."""
+    h = headroom_min(result)
+    return None if h is None else bool(h < 0.0)
+
+
+def predicted_unstable_by_rate(result: Mapping) -> bool | None:
+    """The instantaneous verdict beside it: the worst σ over the strokes is negative."""
+    stroke = result.get("stroke")
+    rate = stroke.get("rate_min_per_s") if isinstance(stroke, Mapping) else result.get("stroke_rate_min_per_s")
     return None if rate is None else bool(rate < 0.0)
 
 
@@ -169,33 +198,57 @@ def _floor(x: dict | None) -> str:
     return f"{x['loop_best_mean']:.3f} ({x['loop_best_max']:.3f}) / {x['plan_mean']:.3f} ({x['plan_max']:.3f})"
 
 
+def _verdicts_text(force_n: float, floor_n: float, budget_np: float, threshold_n: float) -> str:
+    """The two verdicts and the outcome in words, with the run's F̂, floor and threshold."""
+    return (
+        "Predicted unstable (the margin's verdict): the stroke headroom h = ln(F̂ / floor) − G falls below 0 "
+        f"on some stroke, with F̂ = {force_n:g} N and the sensor's noise floor {floor_n:.2f} N (its noise and "
+        f"sinusoid after its low-pass), so each stroke starts with {budget_np:.2f} Np and G is the growth "
+        "G_k = max(0, G_{k−1} − σ_k Δt) the rates accumulate along it: a disturbance at the noise floor "
+        "reaches the desired force before the stroke ends. Beside it, the instantaneous verdict: the worst "
+        "σ over the strokes is negative. Simulated unstable: the run diverged, lost contact, or a stroke's "
+        f"force-error STD reached {threshold_n:.1f} N ({OSCILLATION_FACTOR:g}× the noise floor)."
+    )
+
+
+def _run_figures(runs: list[dict]) -> tuple[float, float, float, float]:
+    """(F̂, floor, budget, oscillation threshold) of the first run, the runs' common sensor."""
+    r = runs[0]
+    return desired_force_n(r), run_floor_n(r), headroom_budget(r), OSCILLATION_FACTOR * run_floor_n(r)
+
+
 def report_section(runs: list[dict]) -> str:
-    """HTML: per run, the worst σ of each stroke, the stretching strokes' P_d·f̂, the verdicts; then
-    the confusion table over the runs. Empty when no run carries stroke samples."""
+    """HTML: per run, the worst σ of each stroke, the stretching strokes' P_d·f̂, the least headroom,
+    both verdicts; then the confusion tables over the runs (the headroom's, then σ's). Empty when no
+    run carries stroke samples."""
     runs = [r for r in runs if r.get("stroke_margin")]
     if not runs:
         return ""
-    rows, pairs = [], []
+    rows, by_h, by_rate = [], [], []
     for r in runs:
         seg = {s["segment"]: s for s in r["stroke_margin"]}
         o = outcome(r)
-        pred = predicted_unstable(r)
+        pred, pred_rate = predicted_unstable(r), predicted_unstable_by_rate(r)
         if pred is not None:
-            pairs.append((pred, o["unstable"]))
+            by_h.append((pred, o["unstable"]))
+        if pred_rate is not None:
+            by_rate.append((pred_rate, o["unstable"]))
         pd = r["stroke"].get("stretch_pd_fhat") or {}
         cells = "".join(f"<td>{_f(seg[k]['rate_min_per_s']) if k in seg else '-'}</td>" for k in range(1, 7))
         verdict = "-" if pred is None else ("unstable" if pred else "stable")
+        verdict_rate = "-" if pred_rate is None else ("unstable" if pred_rate else "stable")
         sim = o["why"] or "stable"
         mark = "" if pred is None or pred == o["unstable"] else " style='background:#fdd'"
         rows.append(
             f"<tr{mark}><td>{html.escape(str(r['row']))}</td><td>{r['mu']:g}</td><td>{r['seed']}</td>{cells}"
             f"<td>{_f(r['stroke'].get('kd_margin_min'), 0)}</td><td>{r['stroke']['growth_max_np']:.1f}</td>"
-            f"<td>{_f(pd.get('mean'), 3)}</td><td>{_f(pd.get('max'), 3)}</td><td>{verdict}</td>"
+            f"<td>{_f(headroom_min(r), 2)}</td>"
+            f"<td>{_f(pd.get('mean'), 3)}</td><td>{_f(pd.get('max'), 3)}</td><td>{verdict}</td><td>{verdict_rate}</td>"
             f"<td>{sim} ({_f(o['stroke_std_max_n'])} N)</td></tr>"
         )
     loops = {(r["stroke_loop"]["sensing_delay_steps"], r["stroke_loop"]["actuation_delay_steps"]) for r in runs}
     latency = "; ".join(f"d_s = {ds}, d_a = {da} periods" for ds, da in sorted(loops))
-    limit = oscillation_threshold_n(runs[0].get("sensor_cutoff_hz"))
+    force, floor, budget, limit = _run_figures(runs)
     row_table = "".join(
         f"<tr><td>{html.escape(str(e['row']))}</td><td>{e['mu']:g}</td><td>{e['n']}</td>"
         f"<td>{_f(e['pd_start'], 3)}</td><td>{_f(e['pd_stretch_mean'], 3)}</td>"
@@ -214,32 +267,30 @@ def report_section(runs: list[dict]) -> str:
         f"torque d_a periods late; {html.escape(latency)}) at each posture the run passed through every "
         "25 ms, linearised about the commanded sliding speed and the segment's friction direction; each "
         "cell is a stroke's worst value (negative: a mode grows). K_f^d margin: the worst over all strokes "
-        "(N s/m). G: the largest growth (nepers) the rates accumulate on a stroke. P_d·f̂: mean and max "
-        "over the stretching strokes S2, S4, S6. Predicted unstable when the worst σ is negative; simulated "
-        f"unstable when the run diverged, lost contact, or a stroke's force-error STD reached {limit:.1f} N "
-        f"({OSCILLATION_FACTOR:g}× the sensor's noise floor). Red rows disagree.</p>"
+        "(N s/m). G: the largest growth (nepers) the rates accumulate on a stroke; h_min: the least headroom "
+        "(Np). P_d·f̂: mean and max over the stretching strokes S2, S4, S6. "
+        f"{html.escape(_verdicts_text(force, floor, budget, limit))} Red rows disagree with the headroom.</p>"
         "<table><tr><th>row</th><th>μ</th><th>seed</th>"
         + "".join(f"<th>σ S{k}</th>" for k in range(1, 7))
-        + "<th>K_f^d margin</th><th>G</th><th>P_d·f̂ mean</th><th>P_d·f̂ max</th><th>predicted</th>"
-        "<th>simulated (max stroke STD)</th></tr>"
+        + "<th>K_f^d margin</th><th>G</th><th>h_min</th><th>P_d·f̂ mean</th><th>P_d·f̂ max</th>"
+        "<th>predicted (h)</th><th>predicted (σ)</th><th>simulated (max stroke STD)</th></tr>"
         + "".join(rows)
-        + "</table>"
-        + confusion_table_html(confusion(pairs))
-        + f"<p>By the growth G ≥ ln(F̂ / noise floor) = {growth_limit_np():.2f} Np instead:</p>"
-        + confusion_table_html(
-            confusion([(bool(predicted_unstable_by_growth(r)), outcome(r)["unstable"]) for r in runs]),
-            "G ≥ limit",
-            "G &lt; limit",
-        )
+        + "</table><p>By the sign of the headroom (the margin's verdict):</p>"
+        + confusion_table_html(confusion(by_h), "h_min &lt; 0", "h_min ≥ 0")
+        + "<p>By the sign of the worst σ (the instantaneous verdict):</p>"
+        + confusion_table_html(confusion(by_rate))
     )
 
 
 def calibration_metrics(result: dict) -> dict:
-    """A sweep cell's scalars for the calibration: the margin's verdict and the run's outcome."""
+    """A sweep cell's scalars for the calibration: both verdicts, the least headroom and the run's
+    outcome."""
     o = outcome(result)
     return {
         "predicted_unstable": predicted_unstable(result),
-        "predicted_unstable_growth": predicted_unstable_by_growth(result),
+        "predicted_unstable_rate": predicted_unstable_by_rate(result),
+        "headroom_min_np": headroom_min(result),
+        "headroom_budget_np": headroom_budget(result),
         "simulated_unstable": o["unstable"],
         "outcome": o["why"] or "stable",
         "stroke_std_max_n": o["stroke_std_max_n"],
@@ -267,36 +318,46 @@ def growth_stroke(result: dict) -> dict:
 
 
 def sweep_section(names: list[str], records: list[dict]) -> str:
-    """HTML for a polish sweep: the confusion tables over its runs (one per cell and seed) of both
-    verdicts, and every run where a verdict and the outcome disagree, by its swept values. Empty
-    without verdicts."""
-    runs = [
-        r for r in records if r.get("status") == "ok" and (r.get("metrics") or {}).get("predicted_unstable") is not None
-    ]
+    """HTML for a polish sweep: the confusion tables over its runs (one per cell and seed) of the
+    headroom's verdict and of σ's, each followed by every run where it and the outcome disagree, by
+    its swept values. Both verdicts come from each record's own metrics (its growth, worst σ, sensor
+    and F̂), so a redrawn report of older records judges them alike. Empty without verdicts."""
+    runs = [r for r in records if r.get("status") == "ok" and headroom_min(r.get("metrics") or {}) is not None]
     if not runs:
         return ""
-    sim = [bool(r["metrics"]["simulated_unstable"]) for r in runs]
-    by_sign = [bool(r["metrics"]["predicted_unstable"]) for r in runs]
-    grown = [r["metrics"].get("stroke_growth_max_np") for r in runs]
-    limit = oscillation_threshold_n()
+    metrics = [r["metrics"] for r in runs]
+    sim = [bool(m["simulated_unstable"]) for m in metrics]
+    by_h = [bool(predicted_unstable(m)) for m in metrics]
     text = (
         "<h3>Calibration of the force-loop margin</h3>"
-        "<p>Predicted unstable: the worst decay rate σ of the linearised force loop over the six strokes, "
-        "evaluated along each run's executed postures with its μ and latency, is negative. Simulated "
-        "unstable: the run diverged, lost contact, or a stroke's force-error STD reached "
-        f"{limit:.1f} N ({OSCILLATION_FACTOR:g}× the noise floor of the default sensor).</p>"
-        + confusion_table_html(confusion(list(zip(by_sign, sim, strict=True))))
-        + _disagreeing(names, runs, by_sign, sim, "the sign of σ")
+        f"<p>{html.escape(_sweep_verdicts_text(metrics))}</p>"
+        "<p>By the sign of the headroom (the margin's verdict):</p>"
+        + confusion_table_html(confusion(list(zip(by_h, sim, strict=True))), "h_min &lt; 0", "h_min ≥ 0")
+        + _disagreeing(names, runs, by_h, sim, "the sign of the headroom")
     )
-    if all(g is not None for g in grown):
-        by_growth = [bool(g >= growth_limit_np()) for g in grown]
+    rates = [predicted_unstable_by_rate(m) for m in metrics]
+    if all(p is not None for p in rates):
+        by_rate = [bool(p) for p in rates]
         text += (
-            "<p>The same runs judged by the growth G a stroke accumulates (G ≥ ln(F̂ / noise floor) = "
-            f"{growth_limit_np():.2f} Np: a disturbance at the noise floor grows to the desired force):</p>"
-            + confusion_table_html(confusion(list(zip(by_growth, sim, strict=True))), "G ≥ limit", "G &lt; limit")
-            + _disagreeing(names, runs, by_growth, sim, "the growth G")
+            "<p>The same runs by the sign of the worst σ (the instantaneous verdict):</p>"
+            + confusion_table_html(confusion(list(zip(by_rate, sim, strict=True))))
+            + _disagreeing(names, runs, by_rate, sim, "the sign of σ")
         )
     return text
+
+
+def _sweep_verdicts_text(metrics: list[dict]) -> str:
+    """`_verdicts_text` with the records' F̂, floor and budget (their range when the sweep varies them)."""
+    force = sorted({desired_force_n(m) for m in metrics})
+    floors = sorted({round(run_floor_n(m), 6) for m in metrics})
+    if len(force) == 1 and len(floors) == 1:
+        return _verdicts_text(force[0], floors[0], headroom_budget(metrics[0]), OSCILLATION_FACTOR * floors[0])
+    return (
+        "Predicted unstable: the stroke headroom h = ln(F̂ / floor) − G falls below 0 on some stroke (F̂ "
+        f"{force[0]:g}–{force[-1]:g} N, noise floor {floors[0]:.2f}–{floors[-1]:.2f} N, each run's own); "
+        "beside it, the worst σ is negative. Simulated unstable: diverged, lost contact, or a stroke's "
+        f"force-error STD of at least {OSCILLATION_FACTOR:g}× the run's noise floor."
+    )
 
 
 def _disagreeing(names: list[str], runs: list[dict], predicted: list[bool], sim: list[bool], verdict: str) -> str:
@@ -309,7 +370,7 @@ def _disagreeing(names: list[str], runs: list[dict], predicted: list[bool], sim:
         "<tr>"
         + "".join(f"<td>{html.escape(str(r['params'].get(n)))}</td>" for n in names)
         + f"<td>{r.get('seed', '-')}</td><td>{_f(m.get('stroke_rate_min_per_s'), 2)}</td>"
-        f"<td>{_f(m.get('stroke_growth_max_np'), 1)}</td>"
+        f"<td>{_f(m.get('stroke_growth_max_np'), 1)}</td><td>{_f(headroom_min(m), 2)}</td>"
         f"<td>{'unstable' if p else 'stable'}</td><td>{html.escape(str(m['outcome']))}</td>"
         f"<td>{_f(m.get('stroke_std_max_n'), 1)}</td><td>{m.get('contact_lost_ms', '-')}</td>"
         f"<td>S{m.get('growth_segment', '-')}: {_f(m.get('growth_segment_mode_hz'), 1)} / "
@@ -319,7 +380,7 @@ def _disagreeing(names: list[str], runs: list[dict], predicted: list[bool], sim:
     )
     return (
         f"<p>Disagreeing runs by {verdict} ({len(bad)}):</p>"
-        f"<table><tr>{head}<th>seed</th><th>σ_min (1/s)</th><th>G (Np)</th>"
+        f"<table><tr>{head}<th>seed</th><th>σ_min (1/s)</th><th>G (Np)</th><th>h_min (Np)</th>"
         "<th>predicted</th><th>simulated</th><th>max stroke STD (N)</th>"
         "<th>contact lost (ms)</th><th>stroke of the largest G: mode Hz, model / simulation</th>"
         f"<th>observed growth there (Np)</th></tr>{rows}</table>"
