@@ -99,6 +99,31 @@ def test_metrics_summary_and_table_helpers():
     assert "W_a" in text and "2.0 ± 1.4" in text and "20.0" in text and "1.6/10.8/2.0" in text
 
 
+def test_the_console_tables_print_a_swivel_or_margin_that_rounds_to_zero_as_0_not_minus_0():
+    """A posture that settled at −0.3° and a margin of −0.2 N s/m print as "0°" and "0" (the HTML report's
+    way), a real −3° keeps its sign."""
+    cell = {"mean": 1.0, "sd": None}
+
+    def entry(swivel: float, margin: float) -> dict:
+        return {
+            "row": "W_a",
+            "mu": 1.0,
+            "ma": cell,
+            "ptp": cell,
+            "std": cell,
+            "paper": None,
+            "converged_swivel_deg": {"mean": swivel},
+            "margin": {"mean": margin},
+            "converged": 1,
+            "stable": 1,
+            "n": 1,
+        }
+
+    near, far = format_table([entry(-0.3, -0.2), entry(-3.2, -12.4)]).splitlines()[1:]
+    assert near.split()[6:8] == ["0°", "0"] and "-0" not in near
+    assert far.split()[6:8] == ["-3°", "-12"]
+
+
 def test_cli_registers_the_polish_experiment_with_its_options():
     import argparse
 

@@ -30,6 +30,7 @@ from app.headless.experiments.polish_calibration import (
     oscillation_threshold_n,
     runs_by_row,
 )
+from app.headless.experiments.polish_report import _deg, _num
 from app.headless.sweep.engine import open_executor
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
@@ -974,9 +975,9 @@ def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
         if r["converged"]
         else "NOT converged"
     )
-    swivel = "-" if r.get("converged_swivel_deg") is None else f"{r['converged_swivel_deg']:+.0f}°"
+    swivel = "-" if r.get("converged_swivel_deg") is None else f"{_deg(r['converged_swivel_deg'])}°"
     # margin None: no K_f^d stabilises the linearised loop
-    margin = "none (no K_f^d stabilises)" if r.get("margin") is None else f"{r['margin']:+.0f} N s/m"
+    margin = "none (no K_f^d stabilises)" if r.get("margin") is None else f"{_num(r['margin'], 0, sign=True)} N s/m"
     print(
         f"[{i + 1}/{total}] {_label(r)}: {conv} at {swivel}, "
         f"MA/PTP/STD {ma} N, margin {margin}, {'stable' if r['stable'] else 'UNSTABLE'} "
@@ -1044,7 +1045,7 @@ def format_table(summary: list[dict]) -> str:
         mg = e["margin"]["mean"]
         lines.append(
             f"{e['row']:22s} {e['mu']:5.2f} {_pm(e['ma']):>12s} {_pm(e['ptp']):>13s} {_pm(e['std']):>12s}  "
-            f"{paper:>15s} {'-' if sw is None else f'{sw:+.0f}°':>8s} {'-' if mg is None else f'{mg:+.0f}':>8s} "
+            f"{paper:>15s} {'-' if sw is None else _deg(sw) + '°':>8s} {'-' if mg is None else _num(mg, 0, True):>8s} "
             f"{e['converged']}/{e['n']} {e['stable']}/{e['n']}"
         )
     return "\n".join(lines)
@@ -1088,7 +1089,7 @@ def format_latency(latency: dict) -> str:
 
         sensing = [c for c in e["cells"] if c["torque_delay_ms"] == 0.0]
         torque = [c for c in e["cells"] if c["reading_delay_steps"] == 0]
-        sw = "-" if e["swivel_deg"] is None else f"{e['swivel_deg']:+.0f}°"
+        sw = "-" if e["swivel_deg"] is None else f"{_deg(e['swivel_deg'])}°"
         first_s = smallest(e["smallest_sensing_delay_steps"], "periods", e["sensing_tried"])
         first_t = smallest(e["smallest_torque_delay_ms"], "ms", e["torque_tried"])
         lines.append(f"{e['row']:22s} {sw:>7s} {first_s:>14s} {first_t:>14s}  {ratios(sensing)} | {ratios(torque)}")
