@@ -14,6 +14,8 @@ import pytest
 from app.core.commands import DragCommand
 from app.core.session import Session
 from app.live.ui.overlays import (
+    COUPLING_MAX_SPAN,
+    PAYLOAD_RADIUS_M,
     Trail,
     coupling_map,
     ellipsoid_of_map,
@@ -466,5 +468,43 @@ def test_the_coupling_ellipse_leaves_the_wrist_and_the_payload_in_view_and_its_l
         top = float(np.linalg.norm(R[2, :] * semi))
         gap = float(o.coupling_label.position[2] - (c[2] + top))
         assert 0.0 <= gap <= 0.02 and np.allclose(o.coupling_label.position[:2], c[:2])
+    finally:
+        view.remove()
+
+
+def test_a_strongly_coupled_ellipse_is_scaled_down_whole_beside_the_tool_and_framed_by_its_box(server, session):
+    """P 30× the polish start's: the disc's largest semi-axis is capped at COUPLING_MAX_SPAN × the circle's
+    radius, its rim (the outline) shrinks by the same factor (the tilt is the unscaled one's), its centre is
+    clear of the tool by its half-extent plus a payload's radius, and `coupling_extent` (what the camera
+    frames) is the disc's box."""
+    settings = VisualSettings()
+    view = SceneView(server, session.robot, lambda c: None, settings)
+    try:
+        snap = capture(session)
+        strong = dataclasses.replace(snap, P={k: 30.0 * v for k, v in snap.P.items()})
+        with server.atomic():
+            view.update(strong)
+        o = view.overlays
+        radius = settings.coupling_radius_m
+        semi = np.array(o.coupling_disc.scale)
+        assert o.coupling_disc.visible and max(semi) == pytest.approx(COUPLING_MAX_SPAN * radius, rel=1e-9)
+        kind = settings.projection_name(strong.objective)
+        L = coupling_map(strong.P[kind], strong.subspaces, settings.coupling_scale(strong.objective))
+        axes, R = ellipsoid_of_map(L)
+        assert max(radius * axes) > 2 * max(semi)  # it would have been more than twice as large
+        rim = o.coupling_outline.points[:, 0, :] - o.coupling_center
+        # the rim lies on the disc's plane (its normal R[:, 2]) and within its largest semi-axis: scaled alike
+        assert np.max(np.abs(rim @ R[:, 2])) < 1e-3 * max(semi)
+        assert np.max(np.linalg.norm(rim, axis=1)) == pytest.approx(max(semi), rel=0.02)
+        tcp = strong.tcp_position
+        out = np.array([tcp[0], tcp[1], 0.0]) / np.linalg.norm(tcp[:2])
+        half = float(np.linalg.norm((out @ R) * semi))
+        assert (o.coupling_center - tcp) @ out >= half + PAYLOAD_RADIUS_M - 1e-9
+        box = o.coupling_extent()  # what the camera frames: the rim inside it, touching each side
+        assert box is not None
+        rim_world = o.coupling_outline.points[:, 0, :]
+        assert np.all(rim_world >= box.min(axis=0) - 1e-6) and np.all(rim_world <= box.max(axis=0) + 1e-6)
+        spans = (rim_world.max(axis=0) - rim_world.min(axis=0), box.max(axis=0) - box.min(axis=0))
+        assert np.allclose(*spans, rtol=0.05, atol=2.1 * min(semi))  # but for the disc's thickness
     finally:
         view.remove()

@@ -29,6 +29,10 @@ PAYLOAD_RADIUS_M = 0.04  # drawn size of an attached payload mass (the sphere it
 # Coupling shapes sit 5 cm above the TCP (a surface under the tool cannot hide them), beside the tool.
 LIFT_M = np.array([0.0, 0.0, 0.05])
 COUPLING_OPACITY = 0.3  # the wrist and the tool stay visible through the disc
+# the coupling shapes' largest semi-axis is at most this many times the unit circle's radius (the shape is
+# scaled down as a whole, so its tilt stays): a strongly coupled posture stays beside the tool and in view
+# instead of growing over the arm; the tilt, the colour and the label still say how strong it is
+COUPLING_MAX_SPAN = 2.0
 SIDE_GAP_M = 0.03  # gap between a coupling shape and a payload at the tool
 LABEL_GAP_M = 0.01  # the coupling label sits this far above the disc's top (it moves with the disc)
 
@@ -141,6 +145,20 @@ def margin_color(margin_rad: float, zone_rad: float) -> tuple[int, int, int]:
     return magnitude_color(1.0 - margin_rad / zone_rad)
 
 
+def coupling_cap(radius: float) -> float:
+    """The largest semi-axis a coupling shape gets with this unit-circle radius (m)."""
+    return min(COUPLING_MAX_SPAN * radius, MAX_AXIS_M)
+
+
+def capped_semi_axes(semi: np.ndarray, cap: float) -> tuple[np.ndarray, float]:
+    """(semi-axes, factor): `semi` scaled as a whole so that the largest is at most `cap` (the factor ≤ 1
+    applies to the outline too: the shape and its tilt stay), each ≥ MIN_AXIS_M."""
+    semi = np.asarray(semi, dtype=float)
+    top = float(np.max(semi)) if semi.size else 0.0
+    factor = cap / top if top > cap else 1.0
+    return np.maximum(factor * semi, MIN_AXIS_M), factor
+
+
 def coupling_center(tcp: np.ndarray, R: np.ndarray, semi: np.ndarray) -> np.ndarray:
     """Where a coupling shape (rotation R, semi-axes `semi`) is drawn: LIFT_M above the tool and moved
     out sideways, away from the arm's base (at the world origin), by its own horizontal half-extent plus
@@ -251,6 +269,16 @@ class Overlays:
         self._update_lines(snap, s)
         self._update_payload(snap, s)
 
+    def coupling_extent(self) -> np.ndarray | None:
+        """(8, 3) corners of a box around the coupling disc as last drawn (None while it is hidden): what
+        framing the camera keeps in view besides the arm."""
+        if self.coupling_center is None or not self.coupling_disc.visible:
+            return None
+        R = vtf.SO3(np.asarray(self.coupling_disc.wxyz)).as_matrix()
+        half = np.abs(R * np.asarray(self.coupling_disc.scale)).sum(axis=1)  # along world x, y, z
+        signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], dtype=float)
+        return self.coupling_center + signs * half
+
     def _update_payload(self, snap: SceneSnapshot, s: VisualSettings) -> None:
         p = snap.payload_position
         shown = p is not None and bool(np.all(np.isfinite(p)))
@@ -300,7 +328,7 @@ class Overlays:
             return
         radius = s.coupling_radius_m
         axes, R = ellipsoid_of_map(L)
-        semi = np.clip(radius * axes, MIN_AXIS_M, MAX_AXIS_M)
+        semi, factor = capped_semi_axes(radius * axes, coupling_cap(radius))
         center = coupling_center(snap.tcp_position, R, semi)
         self.coupling_center = center
         set_position(self.coupling_disc, center)
@@ -308,9 +336,7 @@ class Overlays:
         set_prop(self.coupling_disc, "scale", _triple(semi))
         set_prop(self.coupling_disc, "color", magnitude_color(np.tan(tilt_rad(P, sub, scale))))
         outline = coupling_ellipse(P, sub, scale=scale, points=48)
-        outline = radius * outline
-        reach = np.linalg.norm(outline, axis=1, keepdims=True)
-        outline *= np.minimum(1.0, MAX_AXIS_M / np.maximum(reach, 1e-12))  # same cap as the disc, roughly
+        outline = radius * factor * outline  # the disc's rim: scaled with it
         set_prop(self.coupling_outline, "points", polyline_segments(center + outline).astype(np.float32))
         W = snap.W.get("W" + kind[1:], float("nan"))
         top = float(np.linalg.norm(R[2, :] * semi))  # the disc's half-height along world z
@@ -326,7 +352,7 @@ class Overlays:
             return
         axes, R = shape
         size = s.coupling_radius_m * s.coupling_scale(snap.objective)
-        semi = np.clip(size * axes, MIN_AXIS_M, MAX_AXIS_M)
+        semi, _ = capped_semi_axes(size * axes, coupling_cap(s.coupling_radius_m))
         set_position(self.ppt, coupling_center(snap.tcp_position, R, semi))
         set_wxyz(self.ppt, wxyz_of(R))
         set_prop(self.ppt, "scale", _triple(semi))

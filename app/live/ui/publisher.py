@@ -22,11 +22,12 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
 import viser
 
 from app.live.loop import Frame, SimLoop, raise_thread_priority
 from app.live.supervise import Stages, error_text
-from app.live.ui.camera import frame_on_connect, frame_robot
+from app.live.ui.camera import Framer, frame_on_connect, robot_points
 from app.live.ui.panels.base import notify
 from app.live.ui.plots import Plots
 
@@ -80,9 +81,10 @@ class Publisher:
         self._next_live = 0.0
         self._live_state: tuple[bool, str, float, int, int] | None = None
         self._frame_pending = True  # frame the robot once a new scene has a snapshot
+        self.framer = Framer(server)  # frames the pages on the arm and keeps it in view
         # pages whose camera was framed on connect (client ids)
         self.framed_clients = frame_on_connect(
-            server, lambda: self.last_frame.scene if self.last_frame is not None else None
+            self.framer, lambda: self._points(self.last_frame.scene if self.last_frame is not None else None)
         )
         self.niceness: int | None = None  # the publisher thread's, once it runs (None: not on Linux)
         self.server_niceness: int | None = None  # the server event loop thread's, likewise
@@ -185,8 +187,16 @@ class Publisher:
     def frame_view(self, client: viser.ClientHandle | None = None) -> bool:
         """Point one client's camera (every client's when None) at the arm of the newest frame."""
         frame = self.last_frame
-        scene = frame.scene if frame is not None else None
-        return frame_robot(self.server, scene, None if client is None else [client])
+        points = self._points(frame.scene if frame is not None else None)
+        if points is None:
+            return False
+        self.framer.frame(points, None if client is None else [client])
+        return True
+
+    def _points(self, snap: Any) -> np.ndarray | None:
+        """What framing keeps in view: the arm, its tool and, while drawn, the coupling ellipse's room."""
+        overlays = getattr(self.scene, "overlays", None)
+        return robot_points(snap, overlays.coupling_extent() if overlays is not None else None)
 
     def show(self, frame: Frame) -> None:
         """Show one frame: its scene, panels and plots go out as one message batch (one wake-up of
@@ -221,8 +231,14 @@ class Publisher:
             snap = frame.scene if self.replay is None else self.replay.scene_for(frame.scene, frame.session_id)
             self.scene.update(snap)
             self.scene_updates += 1
-            if self._frame_pending:
-                self._frame_pending = not frame_robot(self.server, frame.scene)
+            points = self._points(frame.scene)
+            if points is None:
+                pass
+            elif self._frame_pending:
+                self.framer.frame(points)
+                self._frame_pending = False
+            else:
+                self.framer.follow(points)
 
     def _show_panels(self, frame: Frame) -> None:
         now = time.monotonic()

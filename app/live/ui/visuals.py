@@ -26,7 +26,7 @@ class VisualSettings:
 
     coupling: bool = True
     coupling_kind: CouplingKind = "objective"  # "objective": the P of the nullspace objective (P_a for W_j)
-    coupling_radius_m: float = 0.12  # radius of the unit motion circle at the TCP
+    coupling_radius_m: float = 0.08  # radius of the unit motion circle at the TCP
     coupling_gain: float = 1.0  # multiplies s = 1 / COUPLING_REFERENCE[kind]
     ppt_ellipsoid: bool = True
     inertia_ellipsoid: bool = False
