@@ -53,13 +53,12 @@ from control.kernels.compliance import (
     torque_rows_fused,
 )
 from control.kernels.cqp import (
-    cqp_dynamics,
     cqp_problem_fused,
     pose_record_dtype,
     posture_record_dtype,
     settings_record_dtype,
 )
-from control.kernels.records import fill_record
+from control.kernels.records import fill_record, target_arrays
 from control.model import Dynamics
 from control.params import expect
 
@@ -128,11 +127,7 @@ class PoseTask:
 
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
         """`rows_reference` in one compiled call (`control.kernels.pose_task_target_fused`)."""
-        b = pose_task_target_fused(
-            dyn.J, dyn.dq, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world, target.position,
-            target.rotation, target.velocity, target.acceleration, self.kp, self.kd, self.gamma,
-            self._use_gamma, ddq_e,
-        )  # fmt: skip
+        b = pose_task_target_fused(dyn.record, target_arrays(target), self.kernel_record, ddq_e)
         return TaskRows(dyn.J, b, self.gains.weight, None)
 
     def rows_reference(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
@@ -199,10 +194,7 @@ class PostureTask:
         """`rows_reference` in one compiled call (`control.kernels.posture_target_fused`)."""
         q_ref = self.q_hold if target.q_posture is None else target.q_posture
         dq_ref = self.velocity_reference()
-        b = posture_target_fused(
-            dyn.q, q_ref, dyn.dq, dq_ref, self.kp, self.kd, self.ki, self._use_ki, self.integral, self.dt,
-            self.gamma, self._use_gamma, ddq_e,
-        )  # fmt: skip
+        b = posture_target_fused(dyn.record, q_ref, dq_ref, self.integral, self.kernel_record, ddq_e)
         metric = dyn.M if self.gains.metric == "inertia" else None
         return TaskRows(self._eye, b, self.gains.weight, metric)
 
@@ -510,9 +502,9 @@ class ComplianceQPExecutor:
         dq_ref = posture.velocity_reference()
         t0 = time.perf_counter()
         crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated = cqp_problem_fused(
-            cqp_dynamics(dyn),
+            dyn.record,
             (estimate_on, tau_hat, M_prev, dq_prev, h_prev, self.tau_prev, observer.r, wrench, lp, est.kernel_record),
-            (target.position, target.rotation, target.velocity, target.acceleration),
+            target_arrays(target),
             self._pose_unused if pose is None else pose.kernel_record,
             (q_ref, dq_ref, posture.integral, posture.kernel_record),
             damper.kernel_record,

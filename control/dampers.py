@@ -117,12 +117,9 @@ class JointLimitDamper:
 
     def bounds(self, q: np.ndarray, dq: np.ndarray) -> AccelerationBounds:
         """Acceleration bounds lower ≤ q̈ ≤ upper at (q, q̇): `bounds_reference` in one compiled call."""
-        g = self.gains
         lower, upper, crossed = acceleration_bounds_fused(
-            np.asarray(q, dtype=float), np.asarray(dq, dtype=float), self.q_lower, self.q_upper, self.d_s,
-            self.d_i, self.xi, float(self.kp), float(g.lambda_), float(self.velocity_gain), self.dq_limit,
-            self.endless, g.form == "proposed", self.dt, NO_BOUND,
-        )  # fmt: skip
+            np.asarray(q, dtype=float), np.asarray(dq, dtype=float), self.kernel_record
+        )
         return AccelerationBounds(lower, upper, bool(crossed))
 
     def bounds_reference(self, q: np.ndarray, dq: np.ndarray) -> AccelerationBounds:

@@ -8,13 +8,19 @@ J̄ = M⁻¹ Jᵀ Λx, N = I − J̄ J, Λn = (N M⁻¹ Nᵀ)#.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
 from control.kernels.chain import chain_constants
-from control.kernels.snapshot import snapshot_into, snapshot_reference, snapshot_work
+from control.kernels.snapshot import (
+    SNAPSHOT_FIELDS,
+    snapshot_into,
+    snapshot_record_dtype,
+    snapshot_reference,
+    snapshot_work,
+)
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -22,28 +28,115 @@ LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 SINGULAR_EIGENVALUE = 1e-6
 
 
-@dataclass
-class Dynamics:
-    """One snapshot of the arm's dynamics at (q, q̇), computed once per control step."""
+def _fields_of(records: np.ndarray) -> dict[str, np.ndarray]:
+    """Each field of a record array as an array of its own (a view)."""
+    return {name: records[name] for name in records.dtype.names or ()}
 
-    q: np.ndarray  # (n,) rad
-    dq: np.ndarray  # (n,) rad/s
-    M: np.ndarray  # (n, n) joint inertia incl. armature
-    M_inv: np.ndarray  # (n, n)
-    h: np.ndarray  # (n,) μ = C q̇ + g, Coriolis + gravity torques [T1]
-    tcp_rotation_world: np.ndarray  # (3, 3)
-    tcp_position_world: np.ndarray  # (3,) m
-    J: np.ndarray  # (6, n) TCP Jacobian, LOCAL_WORLD_ALIGNED, [linear; angular]
-    dJ_dq: np.ndarray  # (6,) J̇ q̇, classical acceleration of the TCP at q̈ = 0
-    Lambda_inv: np.ndarray  # (6, 6) J M⁻¹ Jᵀ
-    Lambda: np.ndarray  # (6, 6) Λx task inertia [T3], damped near singularities
-    J_bar: np.ndarray  # (n, 6) dynamically consistent inverse M⁻¹ Jᵀ Λx [T2-3]
-    N: np.ndarray  # (n, n) nullspace projector I − J̄ J [T4]
-    Lambda_n: np.ndarray  # (n, n) nullspace inertia (N M⁻¹ Nᵀ)# [T5]
+
+class _Field:
+    """A `Dynamics` array: the view of its record's field of the same name, made on first use (then
+    a plain attribute of the snapshot)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj: Any, owner: Any = None) -> np.ndarray:
+        return obj.field_view(self.name)
+
+
+class SnapshotRecords:
+    """Snapshot records handed out one by one from blocks of `size` (a record of its own costs
+    about 1.5 µs to allocate, a slice of a block 0.1 µs): each record is a one-element slice of a
+    block, never handed out twice; a block lives as long as one of its snapshots does."""
+
+    def __init__(self, n: int, size: int = 64):
+        self.dtype, self.size = snapshot_record_dtype(n), size
+        self._new_block()
+
+    def _new_block(self) -> None:
+        self.block = np.empty(self.size, self.dtype)
+        self.fields = _fields_of(self.block)
+        self.next = 0
+
+    def take(self) -> tuple[np.ndarray, dict[str, np.ndarray], int]:
+        """(record, the block's field arrays, the record's index in them); the record's fields are
+        not initialised."""
+        if self.next == self.size:
+            self._new_block()
+        at = self.next
+        self.next = at + 1
+        return self.block[at : at + 1], self.fields, at
+
+
+class Dynamics:
+    """One snapshot of the arm's dynamics at (q, q̇), computed once per control step.
+
+    Its arrays are views of one record, `record` (`control.kernels.snapshot.snapshot_record_dtype`),
+    which the compiled kernels take whole and read by field name (`snap[0].Lambda`): write into an
+    array (`dyn.M[:] = …`), never rebind it."""
+
+    q = _Field()  # (n,) rad
+    dq = _Field()  # (n,) rad/s
+    M = _Field()  # (n, n) joint inertia incl. armature
+    M_inv = _Field()  # (n, n)
+    h = _Field()  # (n,) μ = C q̇ + g, Coriolis + gravity torques [T1]
+    tcp_rotation_world = _Field()  # (3, 3)
+    tcp_position_world = _Field()  # (3,) m
+    J = _Field()  # (6, n) TCP Jacobian, LOCAL_WORLD_ALIGNED, [linear; angular]
+    dJ_dq = _Field()  # (6,) J̇ q̇, classical acceleration of the TCP at q̈ = 0
+    Lambda_inv = _Field()  # (6, 6) J M⁻¹ Jᵀ
+    Lambda = _Field()  # (6, 6) Λx task inertia [T3], damped near singularities
+    J_bar = _Field()  # (n, 6) dynamically consistent inverse M⁻¹ Jᵀ Λx [T2-3]
+    N = _Field()  # (n, n) nullspace projector I − J̄ J [T4]
+    Lambda_n = _Field()  # (n, n) nullspace inertia (N M⁻¹ Nᵀ)# [T5]
+    record: np.ndarray  # the one-element record the arrays above view (`snapshot_record_dtype(n)`)
     near_singular: bool  # Λx was damped
-    # smallest eigenvalue of J M⁻¹ Jᵀ when the snapshot computed it (near a singularity), else NaN:
-    # read `min_eig_Lambda_inv`, which computes it on first use
-    min_eig_known: float = math.nan
+    min_eig_known: float  # see `__init__`
+    _block: dict[str, np.ndarray]  # the field arrays of the record's block
+    _at: int  # the record's index in them
+
+    def __init__(
+        self,
+        record: np.ndarray,
+        near_singular: bool,
+        min_eig_known: float = math.nan,
+        block: dict[str, np.ndarray] | None = None,
+        at: int = 0,
+    ):
+        d = self.__dict__
+        d["record"] = record
+        # where the views are taken from: the field arrays of the record's block and its index there
+        d["_block"], d["_at"] = (_fields_of(record) if block is None else block), at
+        d["near_singular"] = near_singular  # Λx was damped
+        # smallest eigenvalue of J M⁻¹ Jᵀ when the snapshot computed it (near a singularity), else
+        # NaN: read `min_eig_Lambda_inv`, which computes it on first use
+        d["min_eig_known"] = min_eig_known
+
+    @classmethod
+    def of(cls, near_singular: bool, min_eig_known: float = math.nan, **arrays: np.ndarray) -> Dynamics:
+        """A snapshot from its arrays by name (every field of `SNAPSHOT_FIELDS`), copied into a new record."""
+        record = np.zeros(1, snapshot_record_dtype(len(arrays["q"])))
+        for name, _ in SNAPSHOT_FIELDS:
+            record[name][0] = arrays[name]
+        record["near_singular"][0] = near_singular
+        return cls(record, bool(near_singular), min_eig_known)
+
+    def field_view(self, name: str) -> np.ndarray:
+        """The view of the record's field `name`, kept as the snapshot's attribute of that name."""
+        view = self.__dict__[name] = self._block[name][self._at]
+        return view
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _FIELD_NAMES:
+            raise AttributeError(f"Dynamics.{name} is a view of the snapshot's record: write into it ({name}[...] = …)")
+        object.__setattr__(self, name, value)
+
+    def __getstate__(self) -> dict:
+        return {k: self.__dict__[k] for k in ("record", "near_singular", "min_eig_known")}
+
+    def __setstate__(self, state: dict) -> None:
+        record = state["record"]
+        self.__dict__.update(state, _block=_fields_of(record), _at=0)
 
     @property
     def min_eig_Lambda_inv(self) -> float:
@@ -52,6 +145,9 @@ class Dynamics:
         if math.isnan(self.min_eig_known):
             self.min_eig_known = float(np.linalg.eigvalsh(self.Lambda_inv)[0])
         return self.min_eig_known
+
+
+_FIELD_NAMES = frozenset(name for name, _ in SNAPSHOT_FIELDS)
 
 
 class RobotModel:
@@ -71,6 +167,7 @@ class RobotModel:
         self._data_hessian = model.createData()
         self._zeros = np.zeros(self.nv)
         self._work = snapshot_work(self.nv)  # scratch of the snapshot kernel
+        self._records = SnapshotRecords(self.nv)  # where each snapshot's record comes from
         self._lower = np.tril_indices(self.nv, -1)
         # ∂J/∂q from J alone (control.kernels) holds for a serial chain of 1-DoF revolute joints
         self.revolute_chain = all(
@@ -90,26 +187,20 @@ class RobotModel:
         compiled kernel (`control.kernels.snapshot_into`, tested against its numpy reference), which
         also forms J̇q̇ from J and q̇ on a serial revolute chain (else Pinocchio's classical acceleration).
         """
-        model, data, fid, n = self.model, self.data, self.tcp_frame_id, self.nv
-        q = np.array(q, dtype=float)
-        dq = np.array(dq, dtype=float)
+        model, data, fid = self.model, self.data, self.tcp_frame_id
+        record, f, at = self._records.take()  # every field is written below or by the kernel
+        f["q"][at], f["dq"][at] = q, dq
+        q, dq = f["q"][at], f["dq"][at]
         pin.computeAllTerms(model, data, q, dq)  # M (upper), h, joint Jacobians, data.a at q̈ = 0
         oMf = pin.updateFramePlacement(model, data, fid)
-        J = pin.getFrameJacobian(model, data, fid, LWA)
-        if self.revolute_chain:  # J̇q̇ from J in the kernel (`tcp_bias_acceleration_reference`)
-            dJ_dq, dq_chain = np.empty(6), dq
-        else:
-            dJ_dq, dq_chain = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector.copy(), None
-        M, M_inv, N, Lambda_n = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-        Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))  # the kernel fills them
-        near_singular, min_eig = snapshot_into(
-            data.M, J, SINGULAR_EIGENVALUE, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, self._work,
-            dq_chain, dJ_dq,
-        )  # compiled `snapshot_reference` (+ J̇q̇)  # fmt: skip
-        return Dynamics(
-            q, dq, M, M_inv, data.nle.copy(), oMf.rotation.copy(), oMf.translation.copy(), J, dJ_dq,
-            Lambda_inv, Lambda, J_bar, N, Lambda_n, near_singular, min_eig,
-        )  # fmt: skip
+        f["J"][at] = pin.getFrameJacobian(model, data, fid, LWA)
+        f["h"][at], f["tcp_rotation_world"][at], f["tcp_position_world"][at] = data.nle, oMf.rotation, oMf.translation
+        if not self.revolute_chain:  # else J̇q̇ from J in the kernel (`tcp_bias_acceleration_reference`)
+            f["dJ_dq"][at] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
+        near_singular, min_eig = snapshot_into(data.M, SINGULAR_EIGENVALUE, record, self._work, self.revolute_chain)
+        dyn = Dynamics(record, near_singular, min_eig, f, at)
+        dyn.__dict__["q"], dyn.__dict__["dq"] = q, dq  # the views made above
+        return dyn
 
     def compute_reference(self, q: np.ndarray, dq: np.ndarray) -> Dynamics:
         """`compute` with the plain-numpy algebra (`control.kernels.snapshot_reference`): the readable
@@ -125,10 +216,24 @@ class RobotModel:
             data.M.copy(), J, SINGULAR_EIGENVALUE
         )
         oMf = data.oMf[fid]
-        return Dynamics(
-            q, dq, M, M_inv, data.nle.copy(), oMf.rotation.copy(), oMf.translation.copy(), J, dJ_dq,
-            Lambda_inv, Lambda, J_bar, N, Lambda_n, bool(near), float(min_eig),
-        )  # fmt: skip
+        return Dynamics.of(
+            bool(near),
+            float(min_eig),
+            q=q,
+            dq=dq,
+            M=M,
+            M_inv=M_inv,
+            h=data.nle,
+            tcp_rotation_world=oMf.rotation,
+            tcp_position_world=oMf.translation,
+            J=J,
+            dJ_dq=dJ_dq,
+            Lambda_inv=Lambda_inv,
+            Lambda=Lambda,
+            J_bar=J_bar,
+            N=N,
+            Lambda_n=Lambda_n,
+        )
 
     # ---- kinematics helpers ---------------------------------------------------------------
     def frame_pose(self, q: np.ndarray, frame: str) -> pin.SE3:

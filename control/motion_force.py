@@ -39,12 +39,11 @@ from control.kernels.law import (
     OBJECTIVE_J,
     damper_bounds_fused,
     joint_torque_fused,
-    law_dynamics,
     law_record,
-    law_target,
     projection_step_fused,
     task_wrench_fused,
 )
+from control.kernels.records import target_arrays
 from control.model import Dynamics, RobotModel
 from control.nullspace import NullspaceQP, NullspaceResult
 from control.params import ParamGroup, expect
@@ -205,13 +204,13 @@ class ProjectionExecutor:
         self._zeros_f = np.zeros(self.sub.n_f)
         ns = self.nullspace
         self._objective_code = OBJECTIVE_J if ns.objective == "j" else OBJECTIVE_CODES[ns.objective]
-        if self.fused:  # what the fused law reads that changes only here, by name (`law_record`)
-            self._law = law_record(
-                g, ns, objective=self._objective_code, k0=float(ns.k0), n_m=self.sub.n_m, perm=self.sub.perm,
-                kp_m=self._kp_m, kd_scale_m=self._kd_scale_m, q_lower=self.q_lower, q_upper=self.q_upper,
-                dq_limit=self._dq_limit, endless=self.endless, kn=self._kn, closed_form=self.qp.closed_form,
-            )  # fmt: skip
-            self._law_closed_form = self.qp.closed_form
+        # what the law's kernels read that changes only here, by name (`law_record`)
+        self._law = law_record(
+            g, ns, objective=self._objective_code, k0=float(ns.k0), n_m=self.sub.n_m, perm=self.sub.perm,
+            kp_m=self._kp_m, kd_scale_m=self._kd_scale_m, q_lower=self.q_lower, q_upper=self.q_upper,
+            dq_limit=self._dq_limit, endless=self.endless, kn=self._kn, closed_form=self.qp.closed_form,
+        )  # fmt: skip
+        self._law_closed_form = self.qp.closed_form
 
     def _step_fused(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
         """`_step_reference` in one compiled call (`projection_step_fused`: pose error, force integral,
@@ -227,7 +226,7 @@ class ProjectionExecutor:
         x, tau = np.empty(self.n), np.empty(self.n)
         F_mu, qp_data = self._F_mu, self._qp_data  # filled by the kernel, read in this step only
         F, integral, W_obj, W_f, W_a, W_d, coupled, force_error, active = projection_step_fused(
-            law_dynamics(dyn), law_target(target), F_e, self.force_integral, dyn.q if q_d is None else q_d,
+            dyn.record, target_arrays(target), F_e, self.force_integral, dyn.q if q_d is None else q_d,
             self._law, self._chain, F_mu, qp_data, (x, tau),
         )  # fmt: skip
         self.force_integral = integral
@@ -285,10 +284,8 @@ class ProjectionExecutor:
         # [T11] motion impedance, [T12] force law, [T7] with Λ̂x [T9]: F_m = u_m,
         # F_f = u_f + BᵀA⁻¹(u_m + F_m^e); F minus Λx J̇q̇ (μx without gravity: h is added in τ)
         F, F_mu, coupled = task_wrench_fused(
-            dyn.J, dyn.dq, e, target.velocity, target.acceleration, terms.A, terms.P_d, terms.P_f,
-            dyn.Lambda, dyn.dJ_dq, F_e, F_hat, u_f_extra, self._m, self._f, self._kp_m, self._kd_scale_m,
-            float(g.force_kp), float(g.force_kd), bool(g.shaping),
-        )  # fmt: skip
+            dyn.record, target_arrays(target), e, terms.A, terms.P_d, terms.P_f, F_e, F_hat, u_f_extra, self._law
+        )
         self.last_wrench = F
 
         # [T15-17] goal nullspace velocity

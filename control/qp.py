@@ -215,6 +215,7 @@ class DenseBackend:
         self._P, self._A, self._q, self._lo, self._hi = dense_qp.dense_qp_views(self._data, n, m)
         self._P[:] = np.eye(n)  # P starts as the identity (as OSQP's pattern), A as zeros
         self._x = np.zeros(n)
+        self._setup = dense_qp.dense_qp_setup(n, m, n_eq, INF, settings.eps)
 
     def take_fast_path(self, x: np.ndarray, solve_us: float) -> QPResult:
         """`QP.take_fast_path`: the next DAQP solve loads all data and starts from an empty working
@@ -226,8 +227,7 @@ class DenseBackend:
         """Update and solve (see `QP.solve`)."""
         n = self.n
         t0 = time.perf_counter()
-        args = (self._data, n, self.m, self.n_eq, P, q, A, l, u, lb, ub, INF, self.settings.eps, self._x)
-        code = dense_qp.dense_qp_load_fused(*args)
+        code = dense_qp.dense_qp_load_fused(self._data, self._setup, P, q, A, l, u, lb, ub, self._x)
         if code == dense_qp.FAST_SOLVED:
             self._model_current = False
             return QPResult(self._x.copy(), SOLVED, 0, _us(t0), self.backend)

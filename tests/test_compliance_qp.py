@@ -134,7 +134,7 @@ def test_infeasible_constraints_never_raise_and_keep_torque_limits(gen3):
     assert np.all(np.isfinite(out.tau))
     assert np.all(np.abs(ex.tau_desired) <= gen3.tau_max * (1 + 1e-4))
     nan_dyn = model.compute(q, dq)
-    nan_dyn.M = np.full((7, 7), np.nan)
+    nan_dyn.M[:] = np.nan
     out = ex.step(nan_dyn, ControlInputs(0.0, target, np.zeros(6)))  # garbage in: flagged, no raise
     assert out.fallback
 

@@ -1,8 +1,11 @@
 """Every compiled kernel has a plain-numpy reference, and the two agree (`control.kernels.registry`).
 
 The registry test enumerates every numba dispatcher defined in a `control.kernels` module: one that
-is not in `KERNELS` fails. Each pair runs on the same copies of its sample inputs; every output and
-every argument array the kernel writes (scratch excepted) is held to the entry's relative tolerance
+is not in `KERNELS` fails. No compiled function (the kernels and the simulator's) takes more than
+`MAX_ARGUMENTS` arguments: a group of them is a named record (`control.kernels.records`).
+
+Each pair runs on the same copies of its sample inputs; every output and every argument array the
+kernel writes (scratch excepted; a record's fields each) is held to the entry's relative tolerance
 (1e-10, or max(1e-10, 100·eps·κ) for outputs derived from an ill-conditioned inverse: see
 `tests/test_kernels.py`); booleans, integers and NaN positions exactly.
 """
@@ -11,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import importlib
+import inspect
 import pkgutil
 import zlib
 
@@ -18,18 +22,31 @@ import numpy as np
 import pytest
 from numba.core.registry import CPUDispatcher
 
+import app.sim
 import control.kernels
 from control.kernels.registry import KERNELS
 
+MAX_ARGUMENTS = 10  # per compiled function; more than this: group them into a record
 
-def _dispatchers() -> dict[str, CPUDispatcher]:
+
+def _dispatchers(package=control.kernels) -> dict[str, CPUDispatcher]:
     found = {}
-    for info in pkgutil.iter_modules(control.kernels.__path__):
-        module = importlib.import_module(f"control.kernels.{info.name}")
+    for info in pkgutil.iter_modules(package.__path__):
+        module = importlib.import_module(f"{package.__name__}.{info.name}")
         for name, value in vars(module).items():
             if isinstance(value, CPUDispatcher) and value.py_func.__module__ == module.__name__:
-                found[name] = value
+                found[f"{module.__name__}.{name}" if package is not control.kernels else name] = value
     return found
+
+
+def test_no_compiled_function_takes_more_than_ten_arguments():
+    counts = {
+        name: len(inspect.signature(f.py_func).parameters)
+        for name, f in {**_dispatchers(), **_dispatchers(app.sim)}.items()
+    }
+    assert len(counts) >= 45  # the kernels and the simulator's compiled functions were found
+    over = {name: n for name, n in counts.items() if n > MAX_ARGUMENTS}
+    assert not over, f"compiled functions over {MAX_ARGUMENTS} arguments (group them into a record): {over}"
 
 
 def test_every_compiled_kernel_has_a_reference_in_the_registry():
@@ -83,5 +100,8 @@ def test_compiled_kernel_equals_its_reference(name):
             if i in pair.scratch:
                 continue
             for j, (a_leaf, b_leaf) in enumerate(zip(_leaves(a), _leaves(b), strict=True)):  # a tuple's arrays too
-                if isinstance(b_leaf, np.ndarray) and b_leaf.dtype.names is None:  # records are read, not written
-                    _assert_close(a_leaf, b_leaf, tol, f"{name} sample {k} argument {i}.{j}")
+                if not isinstance(b_leaf, np.ndarray):
+                    continue
+                for field in b_leaf.dtype.names or (None,):  # a record: each of its fields
+                    a_val, b_val = (a_leaf, b_leaf) if field is None else (a_leaf[field], b_leaf[field])
+                    _assert_close(a_val, b_val, tol, f"{name} sample {k} argument {i}.{j} {field or ''}")

@@ -20,6 +20,7 @@ import pytest
 
 from control import kernels as K
 from control.coupling import Subspaces, coupling_gradient, coupling_gradient_direct, terms_of
+from control.gains import MotionForceGains, NullspaceGains
 from control.kernels import dense_qp as KQ
 from control.model import SINGULAR_EIGENVALUE, RobotModel
 from tests.conftest import random_configurations
@@ -180,16 +181,20 @@ def test_projection_law_kernels_equal_numpy_reference(robot, sub, shaping):
     """[T7, T11-14] around the QP: the task wrench and the joint torque, random inputs."""
     model = RobotModel(robot.model)
     rng = np.random.default_rng(17)
-    m_idx, f_idx = np.array(sub.motion_axes), np.array(sub.force_axes)
     for q in _states(robot, seed=18):
         dyn = model.compute(q, rng.uniform(-1, 1, 7))
         t = terms_of(dyn, sub)
-        vec = [rng.standard_normal(6) for _ in range(3)]  # e, target velocity, target acceleration
+        e, velocity, acceleration = (rng.standard_normal(6) for _ in range(3))
+        law = K.law_record(
+            MotionForceGains(force_kp=0.5, force_kd=200.0, shaping=shaping), NullspaceGains(), objective=0, k0=1.0,
+            n_m=sub.n_m, perm=sub.perm, kp_m=rng.uniform(10, 4000, sub.n_m), kd_scale_m=rng.uniform(0.5, 200, sub.n_m),
+            q_lower=robot.q_lower, q_upper=robot.q_upper, dq_limit=robot.dq_max, endless=robot.endless, kn=np.ones(7),
+            closed_form=False,
+        )  # fmt: skip
+        target = (np.zeros(3), np.eye(3), velocity, acceleration, np.zeros(6))
         args = (
-            dyn.J, dyn.dq, *vec, t.A, t.P_d, t.P_f, dyn.Lambda, dyn.dJ_dq, rng.standard_normal(6),
-            rng.standard_normal(sub.n_f), rng.standard_normal(sub.n_f), m_idx, f_idx,
-            rng.uniform(10, 4000, sub.n_m), rng.uniform(0.5, 200, sub.n_m),
-            0.5, 200.0, shaping,
+            dyn.record, target, e, t.A, t.P_d, t.P_f, rng.standard_normal(6), rng.standard_normal(sub.n_f),
+            rng.standard_normal(sub.n_f), law,
         )  # fmt: skip
         fused, ref = K.task_wrench_fused(*args), K.task_wrench_reference(*args)
         tol = _tolerance(dyn.Lambda_inv)
@@ -504,7 +509,7 @@ def test_dense_qp_load_kernel_equals_numpy_reference():
         out = {}
         for name, fn in (("ref", KQ.dense_qp_load_reference), ("fused", KQ.dense_qp_load_fused)):
             data, x = KQ.dense_qp_buffer(n, m), np.zeros(n)
-            code = fn(data, n, m, n_eq, P, q, A, l, u, lb, ub, 1e30, 1e-6, x)
+            code = fn(data, KQ.dense_qp_setup(n, m, n_eq, 1e30, 1e-6), P, q, A, l, u, lb, ub, x)
             out[name] = code, data, x
         (c_ref, d_ref, x_ref), (c_fused, d_fused, x_fused) = out["ref"], out["fused"]
         assert c_ref == c_fused, k
@@ -524,7 +529,7 @@ def test_unconstrained_optimum_kernel_agrees_with_the_backend_load_and_refuses_b
     for k in range(80):
         P, q, A, l, u, lb, ub = _qp_problem(rng, 7, 7, active=k % 3 == 0)
         data, x_ref, x = KQ.dense_qp_buffer(7, 7), np.zeros(7), np.zeros(7)
-        code = KQ.dense_qp_load_reference(data, 7, 7, 0, P, q, A, l, u, lb, ub, 1e30, 1e-6, x_ref)
+        code = KQ.dense_qp_load_reference(data, KQ.dense_qp_setup(7, 7, 0, 1e30, 1e-6), P, q, A, l, u, lb, ub, x_ref)
         took = KQ.unconstrained_optimum_fused(P, q, A, lb, l, ub, u, 1e-6, x)
         assert took == (code == KQ.FAST_SOLVED)
         if took:

@@ -102,3 +102,38 @@ def test_each_compliance_qp_record_round_trips_its_group_and_its_owners_views_sh
     s = record_values(ex._settings_record)
     assert s["pose_on"] and not s["feedback"] and s["eps"] == 1e-7
     np.testing.assert_array_equal(s["tau_max"], robot.tau_max)
+
+
+def test_the_snapshot_is_a_view_of_its_record_and_round_trips_through_it():
+    """`Dynamics`' arrays are the record's fields (what a kernel reads by name is what Python reads and
+    writes); a snapshot built from arrays gives them back; records from one block never share memory;
+    a pickled snapshot comes back whole; rebinding an array is refused."""
+    import pickle
+
+    import robots
+    from control.kernels.snapshot import SNAPSHOT_FIELDS
+    from control.model import Dynamics, RobotModel
+
+    robot = robots.load("rizon4s")
+    model = RobotModel(robot.model)
+    rng = np.random.default_rng(8)
+    snaps = [model.compute(rng.uniform(-1, 1, 7), rng.uniform(-1, 1, 7)) for _ in range(70)]  # two blocks
+    dyn = snaps[3]
+    for name, _ in SNAPSHOT_FIELDS:
+        assert np.shares_memory(getattr(dyn, name), dyn.record), name
+        np.testing.assert_array_equal(getattr(dyn, name), dyn.record[name][0])
+    assert bool(dyn.record["near_singular"][0]) == dyn.near_singular
+    dyn.M[0, 0] += 1.0  # written through the view: in the record
+    assert dyn.record["M"][0][0, 0] == dyn.M[0, 0]
+    assert not any(np.shares_memory(a.record, b.record) for a, b in zip(snaps, snaps[1:], strict=False))
+    arrays = {name: rng.standard_normal(np.shape(getattr(dyn, name))) for name, _ in SNAPSHOT_FIELDS}
+    built = Dynamics.of(True, 0.5, **arrays)
+    for name, value in arrays.items():
+        np.testing.assert_array_equal(getattr(built, name), value)
+        np.testing.assert_array_equal(built.record[name][0], value)
+    assert built.near_singular and bool(built.record["near_singular"][0]) and built.min_eig_Lambda_inv == 0.5
+    back = pickle.loads(pickle.dumps(snaps[5]))
+    for name, _ in SNAPSHOT_FIELDS:
+        np.testing.assert_array_equal(getattr(back, name), getattr(snaps[5], name))
+    with pytest.raises(AttributeError, match="view of the snapshot's record"):
+        dyn.J = np.zeros((6, 7))

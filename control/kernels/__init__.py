@@ -9,7 +9,9 @@ from `__pycache__`). The references are the readable statement of the formulas; 
 near-singular states of both robots).
 
 Modules:
-- `snapshot`: from M and the TCP Jacobian J: M⁻¹, Λx⁻¹, Λx [T3], J̄ [T2], N [T4], Λn [T5].
+- `records`: the named records the kernels read (parameter groups, the task target's named positions).
+- `snapshot`: from M and the TCP Jacobian J: M⁻¹, Λx⁻¹, Λx [T3], J̄ [T2], N [T4], Λn [T5], into the
+  snapshot's record (`control.model.Dynamics` is a view of it).
 - `chain`: ∂J/∂q, J̇q̇ and the ∂M/∂q contraction [T24] of a serial revolute chain.
 - `coupling`: blocks A, B, D [T6, T20], A⁻¹, D̂ [T9], P_f, P_a, P_d (Table I) and W [T22].
 - `gradients`: the ∂J part of ∂W/∂q [T24-27] and the vectors of its ∂M part.
@@ -64,10 +66,8 @@ from control.kernels.law import (
     damper_bounds_fused,
     joint_torque_fused,
     joint_torque_reference,
-    law_dynamics,
     law_record,
     law_record_dtype,
-    law_target,
     projection_law_fused,
     projection_step_fused,
     task_wrench_fused,
@@ -78,6 +78,8 @@ from control.kernels.snapshot import (
     nullspace_inertia_reference,
     snapshot_fused,
     snapshot_into,
+    snapshot_record,
+    snapshot_record_dtype,
     snapshot_reference,
     snapshot_work,
 )
@@ -111,10 +113,8 @@ __all__ = [
     "joint_torque_fused",
     "joint_torque_reference",
     "kinematic_hessian_reference",
-    "law_dynamics",
     "law_record",
     "law_record_dtype",
-    "law_target",
     "log3_fused",
     "momentum_observer_fused",
     "move_wrench_fused",
@@ -130,6 +130,8 @@ __all__ = [
     "sensor_high_pass_fused",
     "snapshot_fused",
     "snapshot_into",
+    "snapshot_record",
+    "snapshot_record_dtype",
     "snapshot_reference",
     "snapshot_work",
     "swivel_of_anchors_fused",

@@ -9,15 +9,20 @@ from numba import njit
 
 from control.kernels._linalg import _np_max
 from control.kernels.geometry import log3_fused, log3_reference
+from control.kernels.records import TARGET_ACCELERATION, TARGET_POSITION, TARGET_ROTATION, TARGET_VELOCITY
 
 
 @njit(cache=True)
-def pose_task_target_fused(
-    J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
-    target_acceleration, kp, kd, gamma, use_gamma, ddq_e,
-):  # fmt: skip
+def pose_task_target_fused(snap, target, pose, ddq_e):
     """Compiled `control.compliance_qp.PoseTask.rows_reference`'s right-hand side: b = ẍ° + ë* − J̇q̇
-    (+ Γ J q̈_e when Γ ≠ 0) [C4, C9], ë* = −K_d ė − K_p e [C3], e = [p − p°; log(R R°ᵀ)]."""
+    (+ Γ J q̈_e when Γ ≠ 0) [C4, C9], ë* = −K_d ė − K_p e [C3], e = [p − p°; log(R R°ᵀ)]; from the
+    snapshot's record `snap`, `target_arrays(task target)` and the pose task's record `pose`
+    (`cqp.pose_record_dtype`: K_p, K_d, Γ by name)."""
+    s, ps = snap[0], pose[0]
+    J, dq, dJ_dq, tcp_position, tcp_rotation = s.J, s.dq, s.dJ_dq, s.tcp_position_world, s.tcp_rotation_world
+    target_position, target_rotation = target[TARGET_POSITION], target[TARGET_ROTATION]
+    target_velocity, target_acceleration = target[TARGET_VELOCITY], target[TARGET_ACCELERATION]
+    kp, kd, gamma = ps.kp, ps.kd, ps.gamma
     n = J.shape[1]
     R = np.empty((3, 3))
     for i in range(3):
@@ -35,7 +40,7 @@ def pose_task_target_fused(
             v += J[a, j] * dq[j]
         e = tcp_position[a] - target_position[a] if a < 3 else w[a - 3]
         b[a] = target_acceleration[a] + (-kd[a] * (v - target_velocity[a]) - kp[a] * e) - dJ_dq[a]
-    if use_gamma:
+    if ps.use_gamma:
         Jx = np.zeros(6)
         for a in range(6):
             for j in range(n):
@@ -66,10 +71,14 @@ def add_task_rows_fused(P, q, J, b, w):
 
 
 @njit(cache=True)
-def posture_target_fused(q, q_ref, dq, dq_ref, kp, kd, ki, use_ki, integral, dt, gamma, use_gamma, ddq_e):
+def posture_target_fused(snap, q_ref, dq_ref, integral, posture, ddq_e):
     """Compiled `control.compliance_qp.PostureTask.rows_reference`'s right-hand side: q̈*₀ =
     −K_d (q̇ − q̇_ref) − K_p e − K_i ∫e, e = q − q_ref (the integral advanced in place when K_i ≠ 0),
-    plus Γ₀ q̈_e when Γ₀ ≠ 0 [C7, C9]."""
+    plus Γ₀ q̈_e when Γ₀ ≠ 0 [C7, C9]; q, q̇ from the snapshot's record `snap`, the gains from the
+    posture task's record `posture` (`cqp.posture_record_dtype`: K_p, K_d, K_i, δt, Γ₀ by name)."""
+    s, pc = snap[0], posture[0]
+    q, dq = s.q, s.dq
+    kp, kd, ki, use_ki, dt, gamma = pc.kp, pc.kd, pc.ki, pc.use_ki, pc.dt, pc.gamma
     n = q.shape[0]
     b = np.empty(n)
     for i in range(n):
@@ -77,7 +86,7 @@ def posture_target_fused(q, q_ref, dq, dq_ref, kp, kd, ki, use_ki, integral, dt,
         if use_ki:
             integral[i] += e * dt
         b[i] = -kd[i] * (dq[i] - dq_ref[i]) - kp[i] * e - ki[i] * integral[i]
-    if use_gamma:
+    if pc.use_gamma:
         for i in range(n):
             s = 0.0
             for j in range(n):
@@ -125,14 +134,17 @@ def inverse_dynamics_fused(M, ddq, h, tau_fb, tau_max, clip_desired):
 
 
 @njit(cache=True)
-def acceleration_bounds_fused(
-    q, dq, q_lower, q_upper, d_s, d_i, xi, kp, lam, velocity_gain, dq_limit, endless, proposed, dt, no_bound
-):
-    """Compiled `control.dampers.JointLimitDamper.bounds_reference`: (lower, upper, crossed).
+def acceleration_bounds_fused(q, dq, damper):
+    """Compiled `control.dampers.JointLimitDamper.bounds_reference`: (lower, upper, crossed) at (q, q̇),
+    the dampers read by name from their record `damper` (`cqp.damper_record_dtype`).
 
     Per joint and side (upper: e = q⁺ − q, ė = −q̇; lower: e = q − q⁻, ė = q̇): ë_p proposed [C24]
     −λė − k_p(e − d_s) or classic [C15, C17] −(ė − ė_d)/δt below d_i, ë_v = −g(ė + q̇⁺) [C18, C20],
     ë ≥ max(ë_p, ë_v) [C19] capped at `no_bound`; crossed rows go to their midpoint."""
+    dc = damper[0]
+    q_lower, q_upper, d_s, d_i, xi, dq_limit = dc.q_lower, dc.q_upper, dc.d_s, dc.d_i, dc.xi, dc.dq_limit
+    kp, lam, velocity_gain, proposed = dc.kp, dc.lambda_, dc.velocity_gain, dc.proposed
+    dt, no_bound, endless = dc.dt, dc.no_bound, dc.endless
     n = q.shape[0]
     lower = np.empty(n)
     upper = np.empty(n)
@@ -143,7 +155,7 @@ def acceleration_bounds_fused(
                 e, de = q_upper[i] - q[i], -dq[i]
             else:
                 e, de = q[i] - q_lower[i], dq[i]
-            if endless[i]:
+            if endless[i] != 0.0:
                 e_p = -no_bound
             elif proposed:
                 e_p = (-lam) * de - kp * (e - d_s[i])  # [C24]
@@ -170,15 +182,17 @@ def acceleration_bounds_fused(
     return lower, upper, crossed
 
 
-def pose_task_target_reference(
-    J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
-    target_acceleration, kp, kd, gamma, use_gamma, ddq_e,
-) -> np.ndarray:  # fmt: skip
+def pose_task_target_reference(snap, target, pose, ddq_e) -> np.ndarray:
     """b = ẍ° + ë* − J̇q̇ (+ Γ J q̈_e when `use_gamma`) [C4, C9], ë* = −K_d ė − K_p e [C3],
     e = [p − p°; log(R R°ᵀ)], ė = J q̇ − ẋ°."""
+    s, ps = snap[0], pose[0]
+    J, dq = s["J"], s["dq"]
+    tcp_position, tcp_rotation = s["tcp_position_world"], s["tcp_rotation_world"]
+    target_position, target_rotation = target[TARGET_POSITION], target[TARGET_ROTATION]
+    kp, kd, gamma = ps["kp"], ps["kd"], ps["gamma"]
     e = np.concatenate([tcp_position - target_position, log3_reference(tcp_rotation @ target_rotation.T)])
-    b = target_acceleration + (-kd * (J @ dq - target_velocity) - kp * e) - dJ_dq
-    return b + gamma @ (J @ ddq_e) if use_gamma else b
+    b = target[TARGET_ACCELERATION] + (-kd * (J @ dq - target[TARGET_VELOCITY]) - kp * e) - s["dJ_dq"]
+    return b + gamma @ (J @ ddq_e) if ps["use_gamma"] else b
 
 
 def add_task_rows_reference(P, q, J, b, w) -> None:
@@ -187,14 +201,15 @@ def add_task_rows_reference(P, q, J, b, w) -> None:
     q -= w * (J.T @ b)
 
 
-def posture_target_reference(q, q_ref, dq, dq_ref, kp, kd, ki, use_ki, integral, dt, gamma, use_gamma, ddq_e):
+def posture_target_reference(snap, q_ref, dq_ref, integral, posture, ddq_e) -> np.ndarray:
     """q̈*₀ = −K_d (q̇ − q̇_ref) − K_p e − K_i ∫e, e = q − q_ref (∫e advanced in place by e δt when
     `use_ki`), + Γ₀ q̈_e when `use_gamma` [C7, C9]."""
-    e = q - q_ref
-    if use_ki:
-        integral += e * dt
-    b = -kd * (dq - dq_ref) - kp * e - ki * integral
-    return b + gamma @ ddq_e if use_gamma else b
+    s, pc = snap[0], posture[0]
+    e = s["q"] - q_ref
+    if pc["use_ki"]:
+        integral += e * float(pc["dt"])
+    b = -pc["kd"] * (s["dq"] - dq_ref) - pc["kp"] * e - pc["ki"] * integral
+    return b + pc["gamma"] @ ddq_e if pc["use_gamma"] else b
 
 
 def torque_rows_reference(M, h, tau_fb, tau_max, A, lower, upper, limits_on, no_bound) -> None:
@@ -214,17 +229,20 @@ def inverse_dynamics_reference(M, ddq, h, tau_fb, tau_max, clip_desired) -> tupl
     return tau, np.clip(tau, -tau_max, tau_max), bool(np.any(np.abs(tau) > tau_max + 1e-9))
 
 
-def acceleration_bounds_reference(
-    q, dq, q_lower, q_upper, d_s, d_i, xi, kp, lam, velocity_gain, dq_limit, endless, proposed, dt, no_bound
-) -> tuple:
+def acceleration_bounds_reference(q, dq, damper) -> tuple:
     """(lower, upper, crossed) of the joint-limit dampers [C13-24] on both sides at once (upper
     side: e = q⁺ − q, ė = −q̇; lower: e = q − q⁻, ė = q̇): ë ≥ max(ë_p, ë_v) [C19] capped at
     `no_bound`, ë_p proposed [C24] or classic [C15, C17], ë_v [C18, C20]; crossed rows at their
     midpoint."""
+    dc = damper[0]
+    q_lower, q_upper, d_s, d_i, xi = dc["q_lower"], dc["q_upper"], dc["d_s"], dc["d_i"], dc["xi"]
+    dq_limit = dc["dq_limit"]
+    kp, lam, velocity_gain, dt = float(dc["kp"]), float(dc["lambda_"]), float(dc["velocity_gain"]), float(dc["dt"])
+    no_bound, endless = float(dc["no_bound"]), dc["endless"] != 0.0
     e = np.concatenate([q_upper - q, q - q_lower])
     de = np.concatenate([-dq, dq])
     d_s2, d_i2, xi2 = np.tile(d_s, 2), np.tile(d_i, 2), np.tile(xi, 2)
-    if proposed:
+    if dc["proposed"]:
         e_p = -lam * de - kp * (e - d_s2)  # [C24]
     else:
         de_d = -xi2 * (e - d_s2) / (d_i2 - d_s2)  # [C15]

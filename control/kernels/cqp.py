@@ -104,16 +104,8 @@ def settings_record_dtype(n: int) -> np.dtype:
     )
 
 
-def cqp_dynamics(dyn) -> tuple:
-    """The `Dynamics` snapshot's arrays `cqp_problem_fused` reads, in the order it unpacks them:
-    (q, q̇, M, M⁻¹, μ, J, J̇q̇, p_tcp, R_tcp)."""
-    return (
-        dyn.q, dyn.dq, dyn.M, dyn.M_inv, dyn.h, dyn.J, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world,
-    )  # fmt: skip
-
-
 @njit(cache=True)
-def cqp_problem_fused(dyn, estimator, target, pose, posture, damper, settings, buffers):
+def cqp_problem_fused(snap, estimator, target, pose, posture, damper, settings, buffers):
     """What `control.compliance_qp.ComplianceQPExecutor._step_reference` computes before the QP,
     for a TCP pose task (when `pose_on`) and the posture task, in one call of the kernels it calls
     one by one:
@@ -137,17 +129,18 @@ def cqp_problem_fused(dyn, estimator, target, pose, posture, damper, settings, b
     τ_s new only with `estimate_on` (else r and `tau_hat_given`), the last four only when
     `solved` (the fast path held).
 
-    The arguments: `dyn` = `cqp_dynamics(snapshot)`; `estimator` = (estimate_on, τ̂_e given, the last
-    step's M, q̇, μ, τ, the residual r, the F/T wrench, the filter state lp, the estimator's record);
-    `target` = (p°, R°, ẋ°, ẍ°); the records of the pose task (`pose_record_dtype`; read only with
-    the record `settings.pose_on`), the damper and the settings; `posture` = (q_ref, q̇_ref, ∫e,
-    its record); `buffers` = (objective (n + 1, n) = [P; qv], A, l, u, lb, ub), written."""
-    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation = dyn
+    The arguments: `snap` = the snapshot's record (`Dynamics.record`, read by field name);
+    `estimator` = (estimate_on, τ̂_e given, the last step's M, q̇, μ, τ, the residual r, the F/T
+    wrench, the filter state lp, the estimator's record); `target` = `records.target_arrays(task
+    target)`; the records of the pose task (`pose_record_dtype`; read only with the record
+    `settings.pose_on`), the damper and the settings; `posture` = (q_ref, q̇_ref, ∫e, its record);
+    `buffers` = (objective (n + 1, n) = [P; qv], A, l, u, lb, ub), written."""
+    s = snap[0]
+    q, dq, M, M_inv, h, J = s.q, s.dq, s.M, s.M_inv, s.h, s.J
     estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, est_record = estimator
-    target_position, target_rotation, target_velocity, target_acceleration = target
     q_ref, dq_ref, integral, posture_record = posture
     objective, A, l, u, lb, ub = buffers
-    e_c, pc, ps, dc, sc = est_record[0], posture_record[0], pose[0], damper[0], settings[0]
+    e_c, pc, sc = est_record[0], posture_record[0], settings[0]
     n = q.shape[0]
     if estimate_on:
         a, dt, source = e_c.a, e_c.dt, e_c.source_code
@@ -173,14 +166,9 @@ def cqp_problem_fused(dyn, estimator, target, pose, posture, damper, settings, b
         for j in range(n):
             P[i, j] = 0.0
     if sc.pose_on:
-        b = pose_task_target_fused(
-            J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
-            target_acceleration, ps.kp, ps.kd, ps.gamma, ps.use_gamma, ddq_e,
-        )  # fmt: skip
-        add_task_rows_fused(P, qv, J, b, ps.weight)
-    b0 = posture_target_fused(
-        q, q_ref, dq, dq_ref, pc.kp, pc.kd, pc.ki, pc.use_ki, integral, pc.dt, pc.gamma, pc.use_gamma, ddq_e
-    )
+        b = pose_task_target_fused(snap, target, pose, ddq_e)
+        add_task_rows_fused(P, qv, J, b, pose[0].weight)
+    b0 = posture_target_fused(snap, q_ref, dq_ref, integral, posture_record, ddq_e)
     w = pc.weight
     if pc.inertia_metric:  # (Iᵀ M) w I = w M, (Iᵀ M) w b0 = w M b0
         for i in range(n):
@@ -193,10 +181,7 @@ def cqp_problem_fused(dyn, estimator, target, pose, posture, damper, settings, b
         for i in range(n):
             P[i, i] += w
             qv[i] -= w * b0[i]
-    lower, upper, crossed = acceleration_bounds_fused(
-        q, dq, dc.q_lower, dc.q_upper, dc.d_s, dc.d_i, dc.xi, dc.kp, dc.lambda_, dc.velocity_gain, dc.dq_limit,
-        dc.endless != 0.0, dc.proposed, dc.dt, dc.no_bound,
-    )  # fmt: skip
+    lower, upper, crossed = acceleration_bounds_fused(q, dq, damper)
     for i in range(n):
         lb[i] = lower[i]
         ub[i] = upper[i]
@@ -216,15 +201,15 @@ def cqp_problem_fused(dyn, estimator, target, pose, posture, damper, settings, b
     return crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated
 
 
-def cqp_problem_reference(dyn, estimator, target, pose, posture, damper, settings, buffers) -> tuple:
+def cqp_problem_reference(snap, estimator, target, pose, posture, damper, settings, buffers) -> tuple:
     """`cqp_problem_fused` by the references of the kernels it calls, one by one (same arguments,
     same buffers written, same values)."""
-    q, dq, M, M_inv, h, J, dJ_dq, tcp_position, tcp_rotation = dyn
+    s = snap[0]
+    q, dq, M, M_inv, h, J = s["q"], s["dq"], s["M"], s["M_inv"], s["h"], s["J"]
     estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, est_record = estimator
-    target_position, target_rotation, target_velocity, target_acceleration = target
     q_ref, dq_ref, integral, posture_record = posture
     objective, A, l, u, lb, ub = buffers
-    e_c, pc, ps, dc, sc = est_record[0], posture_record[0], pose[0], damper[0], settings[0]
+    e_c, pc, sc = est_record[0], posture_record[0], settings[0]
     n = q.shape[0]
     if estimate_on:
         a, dt, source = float(e_c["a"]), float(e_c["dt"]), float(e_c["source_code"])
@@ -237,24 +222,14 @@ def cqp_problem_reference(dyn, estimator, target, pose, posture, damper, setting
     P[:], qv[:] = 0.0, 0.0
     ddq_e = M_inv @ tau_hat
     if sc["pose_on"]:  # [C3-4, C9]
-        b = pose_task_target_reference(
-            J, dq, dJ_dq, tcp_position, tcp_rotation, target_position, target_rotation, target_velocity,
-            target_acceleration, ps["kp"], ps["kd"], ps["gamma"], bool(ps["use_gamma"]), ddq_e,
-        )  # fmt: skip
-        add_task_rows_reference(P, qv, J, b, float(ps["weight"]))
+        b = pose_task_target_reference(snap, target, pose, ddq_e)
+        add_task_rows_reference(P, qv, J, b, float(pose[0]["weight"]))
     w = float(pc["weight"])
-    b0 = posture_target_reference(
-        q, q_ref, dq, dq_ref, pc["kp"], pc["kd"], pc["ki"], bool(pc["use_ki"]), integral, float(pc["dt"]),
-        pc["gamma"], bool(pc["use_gamma"]), ddq_e,
-    )  # fmt: skip
+    b0 = posture_target_reference(snap, q_ref, dq_ref, integral, posture_record, ddq_e)
     metric = M if pc["inertia_metric"] else np.eye(n)  # [C7] task 0 in the M or identity metric
     P += w * metric
     qv -= w * (metric @ b0)
-    lower, upper, crossed = acceleration_bounds_reference(
-        q, dq, dc["q_lower"], dc["q_upper"], dc["d_s"], dc["d_i"], dc["xi"], float(dc["kp"]), float(dc["lambda_"]),
-        float(dc["velocity_gain"]), dc["dq_limit"], dc["endless"] != 0.0, bool(dc["proposed"]), float(dc["dt"]),
-        float(dc["no_bound"]),
-    )  # fmt: skip
+    lower, upper, crossed = acceleration_bounds_reference(q, dq, damper)
     lb[:], ub[:] = lower, upper
     feedback, tau_max = bool(sc["feedback"]), sc["tau_max"]
     tau_fb = tau_hat if feedback else np.zeros(n)

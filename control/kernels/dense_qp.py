@@ -21,6 +21,8 @@ import math
 import numpy as np
 from numba import njit
 
+from control.kernels.records import fill_record, record_dtype
+
 # `dense_qp_load_*` outcomes
 FAST_SOLVED = 0  # x holds the optimum (the unconstrained minimiser is feasible)
 
@@ -52,11 +54,21 @@ def dense_qp_views(data: np.ndarray, n: int, m: int) -> tuple:
     return P, A, rest[:n], rest[n : n + k], rest[n + k : n + 2 * k]
 
 
+SETUP_DTYPE = record_dtype(
+    (), (("n", np.int64), ("m", np.int64), ("n_eq", np.int64), ("no_bound", np.float64), ("tol", np.float64))
+)  # `dense_qp_setup`
+
+
+def dense_qp_setup(n: int, m: int, n_eq: int, no_bound: float, tol: float) -> np.ndarray:
+    """The record of what a dense problem's load reads besides its data (`control.kernels.records`):
+    n variables, m rows (the last n_eq of them equalities), the value standing for no bound and the
+    fast path's primal tolerance, by name."""
+    return fill_record(SETUP_DTYPE, (), n=n, m=m, n_eq=n_eq, no_bound=no_bound, tol=tol)
+
+
 def dense_qp_load_reference(
     data: np.ndarray,
-    n: int,
-    m: int,
-    n_eq: int,
+    setup: np.ndarray,
     P: np.ndarray | None,
     q: np.ndarray,
     A: np.ndarray | None,
@@ -64,8 +76,6 @@ def dense_qp_load_reference(
     u: np.ndarray,
     lb: np.ndarray,
     ub: np.ndarray,
-    no_bound: float,
-    tol: float,
     x: np.ndarray,
 ) -> int:
     """Load min ½xᵀPx + qᵀx s.t. lb ≤ x ≤ ub, l ≤ Ax ≤ u (last n_eq rows equalities; P, A None:
@@ -75,7 +85,10 @@ def dense_qp_load_reference(
     ±inf bounds become ±no_bound (only when the data's sum of squares is not finite, as the
     backend always did); NaN anywhere is NON_FINITE_DATA. The fast path needs no equality rows and
     P positive definite (every Cholesky pivot above PIVOT_FLOOR · max diag P); its candidate
-    x = −P⁻¹q must be finite and meet lb − tol ≤ x ≤ ub + tol, l − tol ≤ Ax ≤ u + tol."""
+    x = −P⁻¹q must be finite and meet lb − tol ≤ x ≤ ub + tol, l − tol ≤ Ax ≤ u + tol. The sizes,
+    no_bound and tol are read from `setup` (`dense_qp_setup`)."""
+    c = setup[0]
+    n, m, n_eq, no_bound, tol = int(c["n"]), int(c["m"]), int(c["n_eq"]), float(c["no_bound"]), float(c["tol"])
     Pd, Ad, qd, lo, hi = dense_qp_views(data, n, m)
     if P is not None:
         Pd[:] = P
@@ -114,9 +127,11 @@ def dense_qp_load_reference(
 
 
 @njit(cache=True)
-def dense_qp_load_fused(data, n, m, n_eq, P, q, A, l, u, lb, ub, no_bound, tol, x):
+def dense_qp_load_fused(data, setup, P, q, A, l, u, lb, ub, x):
     """`dense_qp_load_reference` in one compiled call (Cholesky and the triangular solves written
     out, on the P held in `data`)."""
+    c = setup[0]
+    n, m, n_eq, no_bound, tol = c.n, c.m, c.n_eq, c.no_bound, c.tol
     k = n + m
     off_A = n * n
     off_q = off_A + m * n

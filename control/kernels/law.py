@@ -21,86 +21,69 @@ from control.kernels.coupling import coupling_fused, coupling_reference
 from control.kernels.geometry import log3_fused, log3_reference
 from control.kernels.gradients import gradient_contraction_fused, gradient_contraction_reference
 from control.kernels.line_qp import nullspace_line_qp_fused, nullspace_line_qp_into_reference
-from control.kernels.records import fill_record, record_dtype
+from control.kernels.records import (
+    TARGET_ACCELERATION,
+    TARGET_POSITION,
+    TARGET_ROTATION,
+    TARGET_VELOCITY,
+    TARGET_WRENCH,
+    fill_record,
+    record_dtype,
+)
 
 
-def task_wrench_reference(
-    J: np.ndarray,
-    dq: np.ndarray,
-    e: np.ndarray,
-    target_velocity: np.ndarray,
-    target_acceleration: np.ndarray,
-    A: np.ndarray,
-    P_d: np.ndarray,
-    P_f: np.ndarray,
-    Lambda: np.ndarray,
-    dJ_dq: np.ndarray,
-    F_e: np.ndarray,
-    F_hat: np.ndarray,
-    u_f_extra: np.ndarray,
-    m_idx: np.ndarray,
-    f_idx: np.ndarray,
-    kp_m: np.ndarray,
-    kd_scale_m: np.ndarray,
-    force_kp: float,
-    force_kd: float,
-    shaping: bool,
-) -> tuple:
+def task_wrench_reference(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law) -> tuple:
     """(F [T7] before μx, F − Λx J̇q̇, coupled acceleration P_f F_m^e) of the [T] executor.
 
-    e: pose error [p° − p; log(R° Rᵀ)]; `u_f_extra`: the integral term K_f^i ∫e_f (or zeros).
+    `snap`: the snapshot's record (J, q̇, Λx, J̇q̇ by name); `target`: `target_arrays(task target)`;
+    e: pose error [p° − p; log(R° Rᵀ)]; A, P_d, P_f: the coupling blocks of `coupling_reference`;
+    `u_f_extra`: the integral term K_f^i ∫e_f (or zeros); `law`: the law's record (the axes, K_m^p,
+    2ζ√K_m^p, K_f^p, K_f^d and `shaping` by name).
     """
+    s, c = snap[0], law[0]
+    J, dq, Lambda, dJ_dq = s["J"], s["dq"], s["Lambda"], s["dJ_dq"]
+    n_m = int(c["n_m"])
+    m_idx, f_idx = c["perm"][:n_m], c["perm"][n_m:]
+    kp_m, kd_scale_m = c["kp_m"][:n_m], c["kd_scale_m"][:n_m]
+    target_velocity, target_acceleration = target[TARGET_VELOCITY], target[TARGET_ACCELERATION]
     v = J @ dq
     de = target_velocity - v
     kd_m = kd_scale_m * np.sqrt(A.diagonal())  # [T11] K_m^d = 2ζ√(K_m^p A_ii)
     u_m = A @ target_acceleration[m_idx] + kd_m * de[m_idx] + kp_m * e[m_idx]  # [T11]
-    u_f = -F_hat + force_kp * (F_e[f_idx] - F_hat) - force_kd * v[f_idx] + u_f_extra  # [T12]
+    u_f = -F_hat + float(c["force_kp"]) * (F_e[f_idx] - F_hat) - float(c["force_kd"]) * v[f_idx] + u_f_extra  # [T12]
     F = np.empty(6)
     F[m_idx] = u_m
-    F[f_idx] = u_f + P_d @ (u_m + F_e[m_idx]) if shaping else u_f  # [T7] with Λ̂x [T9]
+    F[f_idx] = u_f + P_d @ (u_m + F_e[m_idx]) if c["shaping"] else u_f  # [T7] with Λ̂x [T9]
     return F, F - Lambda @ dJ_dq, float(P_f[0] @ F_e[m_idx])
 
 
 @njit(cache=True)
-def task_wrench_fused(
-    J,
-    dq,
-    e,
-    target_velocity,
-    target_acceleration,
-    A,
-    P_d,
-    P_f,
-    Lambda,
-    dJ_dq,
-    F_e,
-    F_hat,
-    u_f_extra,
-    m_idx,
-    f_idx,
-    kp_m,
-    kd_scale_m,
-    force_kp,
-    force_kd,
-    shaping,
-):
+def task_wrench_fused(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law):
     """Compiled `task_wrench_reference` (same outputs, same order)."""
+    s, c = snap[0], law[0]
+    J, dq, Lambda, dJ_dq = s.J, s.dq, s.Lambda, s.dJ_dq
+    target_velocity, target_acceleration = target[TARGET_VELOCITY], target[TARGET_ACCELERATION]
+    n_m = c.n_m
+    perm = c.perm
+    m_idx, f_idx = perm[:n_m], perm[n_m:]
+    kp_m, kd_scale_m = c.kp_m, c.kd_scale_m
+    force_kp, force_kd = c.force_kp, c.force_kd
     n = J.shape[1]
     v = np.zeros(6)
     for a in range(6):
-        s = 0.0
+        s_ = 0.0
         for j in range(n):
-            s += J[a, j] * dq[j]
-        v[a] = s
+            s_ += J[a, j] * dq[j]
+        v[a] = s_
     nm = m_idx.shape[0]
     nf = f_idx.shape[0]
     u_m = np.empty(nm)
     for i in range(nm):
-        s = 0.0
+        s_ = 0.0
         for j in range(nm):
-            s += A[i, j] * target_acceleration[m_idx[j]]
+            s_ += A[i, j] * target_acceleration[m_idx[j]]
         mi = m_idx[i]
-        u_m[i] = s + kd_scale_m[i] * np.sqrt(A[i, i]) * (target_velocity[mi] - v[mi]) + kp_m[i] * e[mi]
+        u_m[i] = s_ + kd_scale_m[i] * np.sqrt(A[i, i]) * (target_velocity[mi] - v[mi]) + kp_m[i] * e[mi]
     F = np.empty(6)
     for i in range(nm):
         F[m_idx[i]] = u_m[i]
@@ -110,16 +93,16 @@ def task_wrench_fused(
     for r in range(nf):
         fr = f_idx[r]
         u_f = -F_hat[r] + force_kp * (F_e[fr] - F_hat[r]) - force_kd * v[fr] + u_f_extra[r]
-        if shaping:
+        if c.shaping:
             for j in range(nm):
                 u_f += P_d[r, j] * (u_m[j] + F_e[m_idx[j]])
         F[fr] = u_f
     F_mu = F.copy()
     for a in range(6):
-        s = 0.0
+        s_ = 0.0
         for b in range(6):
-            s += Lambda[a, b] * dJ_dq[b]
-        F_mu[a] -= s
+            s_ += Lambda[a, b] * dJ_dq[b]
+        F_mu[a] -= s_
     return F, F_mu, coupled
 
 
@@ -238,22 +221,8 @@ def law_record(gains: MotionForceGains, nullspace: NullspaceGains, **derived) ->
     return fill_record(law_record_dtype(n), (gains, nullspace), **derived)
 
 
-def law_dynamics(dyn) -> tuple:
-    """The `Dynamics` snapshot's arrays the [T] kernels read, in the order they unpack them: (q, q̇,
-    J, M⁻¹, Λx, Λx⁻¹, J̇q̇, exact (Λx not damped), p_tcp, R_tcp, N, Λn, μ)."""
-    return (
-        dyn.q, dyn.dq, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, dyn.dJ_dq, not dyn.near_singular,
-        dyn.tcp_position_world, dyn.tcp_rotation_world, dyn.N, dyn.Lambda_n, dyn.h,
-    )  # fmt: skip
-
-
-def law_target(target) -> tuple:
-    """The `TaskTarget`'s arrays in the order the [T] kernels unpack them: (p°, R°, ẋ°, ẍ°, F̂)."""
-    return target.position, target.rotation, target.velocity, target.acceleration, target.wrench
-
-
 @njit(cache=True)
-def projection_law_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data):
+def projection_law_fused(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data):
     """Everything the [T] executor computes before its nullspace QP, in one compiled call of the
     kernels above (the same arithmetic as calling them one by one, as the executor's reference
     path `ProjectionExecutor._step_reference` does):
@@ -263,7 +232,8 @@ def projection_law_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_mu
     T22]); the QP's linear term k0 ∇W with ∇W from `gradient_contraction_fused` and
     `inertia_contraction_fused` [T24-27] (objective 0/1/2: f/a/d), or ∇W_j = q − q_d [T18]
     (objective `OBJECTIVE_J`); `task_wrench_fused` [T7, T11-12]; `damper_bounds_fused` [T17].
-    `dyn` is `law_dynamics(snapshot)`, `target` is `law_target(task target)`, `law` is a
+    `snap` is the snapshot's record (`Dynamics.record`, read by field name), `target` is
+    `target_arrays(task target)` (read by the named positions of `records.TARGET_FIELDS`), `law` is a
     `law_record(…)` (the gains by name), `chain` is `pack_chain(chain_constants(model))` (a serial
     revolute chain).
 
@@ -271,15 +241,16 @@ def projection_law_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_mu
     `qp_data` (3, n) (the caller's buffers: handing arrays back costs more); returns (F, new force
     integral, W, W_f, W_a, W_d, P_f F_m^e, F̂_f[0] − F_f^e[0]).
     """
-    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation, _N, _Ln, _h = dyn
-    target_position, target_rotation, target_velocity, target_acceleration, target_wrench = target
+    s = snap[0]
+    q, J, M_inv, Lambda, Lambda_inv = s.q, s.J, s.M_inv, s.Lambda, s.Lambda_inv
+    tcp_position, tcp_rotation = s.tcp_position_world, s.tcp_rotation_world
+    target_position, target_rotation = target[TARGET_POSITION], target[TARGET_ROTATION]
+    target_wrench = target[TARGET_WRENCH]
     c = law[0]
     objective, n_m, k0 = c.objective, c.n_m, c.k0
     perm = c.perm
-    m_idx, f_idx = perm[:n_m], perm[n_m:]
-    force_kp, force_kd, force_ki, force_integral_limit = c.force_kp, c.force_kd, c.force_ki, c.force_integral_limit_n
-    shaping = c.shaping
-    kp_m, kd_scale_m = c.kp_m[:n_m], c.kd_scale_m[:n_m]
+    f_idx = perm[n_m:]
+    force_ki, force_integral_limit = c.force_ki, c.force_integral_limit_n
     e = np.empty(6)  # [px py pz rx ry rz], world-aligned
     R_err = np.empty((3, 3))
     for i in range(3):
@@ -301,7 +272,9 @@ def projection_law_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_mu
             lim = force_integral_limit / force_ki
             integral[r] = min(max(integral[r] + (F_e[f_idx[r]] - F_hat[r]) * CONTROL_PERIOD_S, -lim), lim)
             u_f_extra[r] = force_ki * integral[r]
-    A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_fused(Lambda, Lambda_inv, perm, n_m, exact)
+    A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_fused(
+        Lambda, Lambda_inv, perm, n_m, not s.near_singular
+    )
     n = q.shape[0]
     grad = np.empty(n)
     if objective == OBJECTIVE_J:  # [T18] W_j = ½‖q − q_d‖²
@@ -324,10 +297,7 @@ def projection_law_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_mu
             grad[i] = -2.0 * (term_J[i] - term_M[i])
     for i in range(n):
         grad[i] = k0 * grad[i]
-    F, F_mu_, coupled = task_wrench_fused(
-        J, dq, e, target_velocity, target_acceleration, A, P_d, P_f, Lambda, dJ_dq, F_e, F_hat, u_f_extra,
-        m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, shaping,
-    )  # fmt: skip
+    F, F_mu_, coupled = task_wrench_fused(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law)
     lower, upper = damper_bounds_fused(
         q, c.q_lower, c.q_upper, c.dq_limit, c.endless != 0.0, c.damper_influence, c.damper_safety, c.damper_speed
     )
@@ -339,17 +309,18 @@ def projection_law_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_mu
 
 
 @njit(cache=True)
-def projection_step_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data, out):
+def projection_step_fused(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data, out):
     """`projection_law_fused`, then, when the record's `closed_form` holds (the nullspace QP's
     7-joint line form applies), the QP [T15-17] by `nullspace_line_qp_fused` into `x` and the torque
     [T13-14] by `joint_torque_fused` into `tau`, `out` = (x, tau): the whole [T] step in one call.
     Returns the law's values and the number of active bounds (0 or 1), or −1 when the QP was not
     solved here (`x`, `tau` untouched: the caller solves it with its backend)."""
     F, integral, W, W_f, W_a, W_d, coupled, force_error = projection_law_fused(
-        dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data
+        snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data
     )
     x, tau = out
-    J, dq, N, Lambda_n, h = dyn[2], dyn[1], dyn[10], dyn[11], dyn[12]
+    s = snap[0]
+    J, dq, N, Lambda_n, h = s.J, s.dq, s.N, s.Lambda_n, s.h
     c = law[0]
     active = -1
     if c.closed_form:
@@ -359,21 +330,22 @@ def projection_step_fused(dyn, target, F_e, force_integral, q_d, law, chain, F_m
     return F, integral, W, W_f, W_a, W_d, coupled, force_error, active
 
 
-def projection_law_reference(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data) -> tuple:
+def projection_law_reference(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data) -> tuple:
     """`projection_law_fused` by the references one by one: e = [p° − p; log(R° Rᵀ)], the clamped
     force integral [T12], `coupling_reference` [T6, T9, T22], k0 ∇W from
     `gradient_contraction_reference` (∂J from `kinematic_hessian_reference`) and
     `inertia_contraction_reference` [T24-27] or ∇W_j = q − q_d [T18], `task_wrench_reference`
     [T7, T11-12] and `damper_bounds_reference` [T17]; the same buffers written, the same values."""
-    q, dq, J, M_inv, Lambda, Lambda_inv, dJ_dq, exact, tcp_position, tcp_rotation = dyn[:10]
-    target_position, target_rotation, target_velocity, target_acceleration, target_wrench = target
+    s = snap[0]
+    q, J, M_inv, Lambda, Lambda_inv = s["q"], s["J"], s["M_inv"], s["Lambda"], s["Lambda_inv"]
+    exact, tcp_position, tcp_rotation = not s["near_singular"], s["tcp_position_world"], s["tcp_rotation_world"]
+    target_position, target_rotation = target[TARGET_POSITION], target[TARGET_ROTATION]
+    target_wrench = target[TARGET_WRENCH]
     c = law[0]
     objective, n_m, k0 = int(c["objective"]), int(c["n_m"]), float(c["k0"])
     perm = c["perm"]
-    m_idx, f_idx = perm[:n_m], perm[n_m:]
-    force_kp, force_kd, force_ki = float(c["force_kp"]), float(c["force_kd"]), float(c["force_ki"])
-    force_integral_limit = float(c["force_integral_limit_n"])
-    kp_m, kd_scale_m = c["kp_m"][:n_m], c["kd_scale_m"][:n_m]
+    f_idx = perm[n_m:]
+    force_ki, force_integral_limit = float(c["force_ki"]), float(c["force_integral_limit_n"])
     e = np.concatenate([target_position - tcp_position, log3_reference(target_rotation @ tcp_rotation.T)])
     F_hat = target_wrench[f_idx]
     integral, u_f_extra = force_integral.copy(), np.zeros(len(f_idx))
@@ -399,10 +371,7 @@ def projection_law_reference(dyn, target, F_e, force_integral, q_d, law, chain, 
             )
         W = (W_f, W_a, W_d)[objective]
         grad = -2.0 * (term_J - term_M)
-    F, F_mu_, coupled = task_wrench_reference(
-        J, dq, e, target_velocity, target_acceleration, A, P_d, P_f, Lambda, dJ_dq, F_e, F_hat, u_f_extra,
-        m_idx, f_idx, kp_m, kd_scale_m, force_kp, force_kd, bool(c["shaping"]),
-    )  # fmt: skip
+    F, F_mu_, coupled = task_wrench_reference(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law)
     F_mu[:] = F_mu_
     qp_data[0] = k0 * grad
     qp_data[1], qp_data[2] = damper_bounds_reference(
@@ -412,12 +381,13 @@ def projection_law_reference(dyn, target, F_e, force_integral, q_d, law, chain, 
     return F, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]
 
 
-def projection_step_reference(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data, out) -> tuple:
+def projection_step_reference(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data, out) -> tuple:
     """`projection_step_fused` by `projection_law_reference`, `nullspace_line_qp_into_reference`
     [T15-17] and `joint_torque_reference` [T13-14]."""
-    law_values = projection_law_reference(dyn, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data)
+    law_values = projection_law_reference(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data)
     x, tau = out
-    J, dq, N, Lambda_n, h = dyn[2], dyn[1], dyn[10], dyn[11], dyn[12]
+    s = snap[0]
+    J, dq, N, Lambda_n, h = s["J"], s["dq"], s["N"], s["Lambda_n"], s["h"]
     c = law[0]
     active = -1
     if c["closed_form"]:

@@ -88,3 +88,15 @@ def group_of(group: type, values: Mapping[str, Any], base: Any) -> Any:
     """`base` (an instance of `group`) with its record fields set from `values` (the way back of
     `fill_record`, for the round-trip tests)."""
     return dataclasses.replace(base, **{name: values[name] for name, _ in group_fields(group)})
+
+
+# A task target reaches the kernels as the tuple `target_arrays(target)` (its arrays are the
+# scenario's own, made each step: copying them into a record would cost more than the step's
+# kernels gain), read there by these named positions: `target[TARGET_VELOCITY]`.
+TARGET_FIELDS = ("position", "rotation", "velocity", "acceleration", "wrench")
+TARGET_POSITION, TARGET_ROTATION, TARGET_VELOCITY, TARGET_ACCELERATION, TARGET_WRENCH = range(len(TARGET_FIELDS))
+
+
+def target_arrays(target: Any) -> tuple:
+    """A `control.executor.TaskTarget`'s arrays in the order of `TARGET_FIELDS`: (p°, R°, ẋ°, ẍ°, F̂)."""
+    return target.position, target.rotation, target.velocity, target.acceleration, target.wrench

@@ -203,7 +203,7 @@ def _linalg_entries() -> dict[str, KernelPair]:
 
 
 # ---- the snapshot, the chain, coupling and gradients [T2-6, T9, T22, T24-27] ----------------------
-def _snapshot_samples(rng):
+def _snapshot_samples(rng):  # (M upper, J, ρ)
     out = []
     for dyn in states(rng, 3):
         out.append((np.triu(dyn.M), dyn.J, 1e-6))
@@ -214,16 +214,15 @@ def _snapshot_into_samples(rng):
     out = []
     for k, (M_upper, J, rho) in enumerate(_snapshot_samples(rng)):
         n = J.shape[1]
-        buffers = [np.zeros((n, n)), np.zeros((n, n)), np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((n, 6))]
-        buffers += [np.zeros((n, n)), np.zeros((n, n))]
-        dq = rng.uniform(-1, 1, n) if k % 2 == 0 else None
-        out.append((M_upper, J, rho, *buffers, snapshot.snapshot_work(n), dq, np.zeros(6)))
+        snap = snapshot.snapshot_record(J, dq=rng.uniform(-1, 1, n))
+        out.append((M_upper, rho, snap, snapshot.snapshot_work(n), k % 2 == 0))
     return out
 
 
-def _snapshot_tolerance(args) -> float:
-    M = np.triu(args[0]) + np.triu(args[0], 1).T
-    return lambda_tolerance(args[1] @ np.linalg.solve(M, args[1].T))
+def _snapshot_into_tolerance(args) -> float:
+    M_upper, J = args[0], args[2][0]["J"]
+    M = np.triu(M_upper) + np.triu(M_upper, 1).T
+    return lambda_tolerance(J @ np.linalg.solve(M, J.T))
 
 
 def _chain_samples(rng):
@@ -279,12 +278,13 @@ def _task_wrench_samples(rng):
             perm, n_m = _perm(force)
             n_f = 6 - n_m
             blocks = coupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, perm, n_m, True)
+            record = _law_args(rng, dyn, 3, force, 0.0)[5]
             for shaping in (True, False):
+                record[0]["shaping"] = shaping
+                target = (np.zeros(3), np.eye(3), rng.standard_normal(6), rng.standard_normal(6), np.zeros(6))
                 out.append((
-                    dyn.J, dyn.dq, rng.standard_normal(6), rng.standard_normal(6), rng.standard_normal(6),
-                    blocks[0], blocks[7], blocks[5], dyn.Lambda, dyn.dJ_dq, rng.standard_normal(6),
-                    rng.standard_normal(n_f), rng.standard_normal(n_f), perm[:n_m], perm[n_m:],
-                    rng.uniform(10, 4000, n_m), rng.uniform(0.5, 200, n_m), 0.5, 200.0, shaping,
+                    dyn.record, target, rng.standard_normal(6), blocks[0], blocks[7], blocks[5],
+                    rng.standard_normal(6), rng.standard_normal(n_f), rng.standard_normal(n_f), record.copy(),
                 ))  # fmt: skip
     return out
 
@@ -333,9 +333,9 @@ def _law_args(rng, dyn, objective: int, force: tuple[int, ...], ki: float, close
     target = (
         dyn.tcp_position_world + 0.02 * rng.standard_normal(3), R, rng.standard_normal(6), rng.standard_normal(6),
         np.r_[rng.standard_normal(3) * 5, 0, 0, 0],
-    )  # fmt: skip
+    )  # fmt: skip  # `records.target_arrays` order
     return (
-        law.law_dynamics(dyn), target, rng.standard_normal(6) * 10, rng.standard_normal(6 - n_m),
+        dyn.record, target, rng.standard_normal(6) * 10, rng.standard_normal(6 - n_m),
         dyn.q + 0.1 * rng.standard_normal(7), record, chain.pack_chain(model.chain), np.zeros(6), np.zeros((3, 7)),
     )  # fmt: skip
 
@@ -360,7 +360,7 @@ def _step_samples(rng):
 
 
 def _law_tolerance(args) -> float:
-    return lambda_tolerance(args[0][5])
+    return lambda_tolerance(args[0][0]["Lambda_inv"])
 
 
 def _line_qp_samples(rng):
@@ -396,15 +396,17 @@ def _wrench_samples(rng):
 
 # ---- the [C] rows, estimate and problem [C3-26] -------------------------------------------------------
 def _pose_target_samples(rng):
+    from control.compliance_qp import PoseTask
+    from control.gains import PoseTaskGains
+
     out = []
     for k, dyn in enumerate(states(rng, 3)):
-        gamma = 0.5 * np.eye(6) if k % 2 else np.zeros(6 * 6).reshape(6, 6)
-        out.append((
-            dyn.J, dyn.dq, dyn.dJ_dq, dyn.tcp_position_world, dyn.tcp_rotation_world,
+        task = PoseTask(PoseTaskGains(stiffness=400.0, damping=40.0, compliance=0.5 if k % 2 else 0.0))
+        target = (
             dyn.tcp_position_world + 0.05 * rng.standard_normal(3), _rotation(rng, 0.3) @ dyn.tcp_rotation_world,
-            rng.standard_normal(6), rng.standard_normal(6), np.full(6, 400.0), np.full(6, 40.0), gamma, bool(k % 2),
-            rng.standard_normal(7),
-        ))  # fmt: skip
+            rng.standard_normal(6), rng.standard_normal(6), np.zeros(6),
+        )  # fmt: skip
+        out.append((dyn.record, target, task.kernel_record, rng.standard_normal(7)))
     return out
 
 
@@ -415,13 +417,16 @@ def _add_rows_samples(rng):
 
 
 def _posture_samples(rng):
+    from control.compliance_qp import PostureTask
+    from control.gains import PostureTaskGains
+
     out = []
     for k, dyn in enumerate(states(rng, 3)):
-        gamma = 0.3 * np.eye(7)
+        gains = PostureTaskGains(stiffness=30.0, damping=8.0, integral=2.0 * (k % 2), compliance=0.3 if k % 3 else 0.0)
+        task = PostureTask(7, gains)
         out.append((
-            dyn.q, dyn.q + 0.1 * rng.standard_normal(7), dyn.dq, rng.standard_normal(7), np.full(7, 30.0),
-            np.full(7, 8.0), np.full(7, 2.0 * (k % 2)), bool(k % 2), rng.standard_normal(7) * 0.01, 1e-3, gamma,
-            bool(k % 3), rng.standard_normal(7),
+            dyn.record, dyn.q + 0.1 * rng.standard_normal(7), rng.standard_normal(7), rng.standard_normal(7) * 0.01,
+            task.kernel_record, rng.standard_normal(7),
         ))  # fmt: skip
     return out
 
@@ -445,17 +450,18 @@ def _inverse_dynamics_samples(rng):
 
 
 def _acceleration_bounds_samples(rng):
+    from control.dampers import JointLimitDamper
+    from control.gains import DamperGains
+
     robot, _ = _robot()
-    span = robot.q_upper - robot.q_lower
     out = []
     for k in range(40):
         edge = np.where(rng.random(7) < 0.5, robot.q_lower, robot.q_upper)
         q = edge + rng.uniform(-0.3, 0.3, 7)
         dq = rng.uniform(-3, 3, 7) * robot.dq_max
-        out.append((
-            q, dq, robot.q_lower, robot.q_upper, 0.01 * span, 0.1 * span, np.full(7, 0.5), 200.0, 30.0, 20.0,
-            np.asarray(robot.dq_max, dtype=float), np.asarray(robot.endless, dtype=bool), bool(k % 2), 1e-3, 1e30,
-        ))  # fmt: skip
+        gains = DamperGains(form="proposed" if k % 2 else "classic")
+        damper = JointLimitDamper(robot.q_lower, robot.q_upper, robot.dq_max, robot.endless, gains, dt=1e-3)
+        out.append((q, dq, damper.kernel_record))
     return out
 
 
@@ -513,7 +519,8 @@ def _dense_load_samples(rng):
         if k == 9:
             lb[3], ub[3] = 1.0, -1.0
         n_eq = 2 if k == 10 else 0
-        out.append((dense_qp.dense_qp_buffer(n, m), n, m, n_eq, P, q, A, l, u, lb, ub, 1e30, 1e-6, np.zeros(n)))
+        setup = dense_qp.dense_qp_setup(n, m, n_eq, 1e30, 1e-6)
+        out.append((dense_qp.dense_qp_buffer(n, m), setup, P, q, A, l, u, lb, ub, np.zeros(n)))
     return out
 
 
@@ -556,13 +563,13 @@ def _cqp_samples(rng):
         )  # fmt: skip
         target = (
             dyn.tcp_position_world + 0.02 * rng.standard_normal(3), _rotation(rng, 0.2) @ dyn.tcp_rotation_world,
-            rng.standard_normal(6), rng.standard_normal(6),
+            rng.standard_normal(6), rng.standard_normal(6), np.zeros(6),
         )  # fmt: skip
         posture_args = (dyn.q + 0.1 * rng.standard_normal(7), np.zeros(7), rng.standard_normal(7) * 0.01,
                         posture.kernel_record)  # fmt: skip
         buffers = (np.zeros((n + 1, n)), np.zeros((m, n)), np.zeros(m), np.zeros(m), np.zeros(n), np.zeros(n))
         out.append((
-            cqp.cqp_dynamics(dyn), estimator, target, pose.kernel_record, posture_args, damper.kernel_record,
+            dyn.record, estimator, target, pose.kernel_record, posture_args, damper.kernel_record,
             settings, buffers,
         ))  # fmt: skip
     return out
@@ -570,11 +577,12 @@ def _cqp_samples(rng):
 
 KERNELS: dict[str, KernelPair] = {
     **_linalg_entries(),
-    "snapshot_fused": KernelPair(
-        snapshot.snapshot_fused, snapshot.snapshot_reference, _snapshot_samples, _snapshot_tolerance
-    ),
     "snapshot_into": KernelPair(
-        snapshot.snapshot_into, snapshot.snapshot_into_reference, _snapshot_into_samples, _snapshot_tolerance, (10,)
+        snapshot.snapshot_into,
+        snapshot.snapshot_into_reference,
+        _snapshot_into_samples,
+        _snapshot_into_tolerance,
+        (3,),
     ),
     "tcp_bias_acceleration_into": KernelPair(
         chain.tcp_bias_acceleration_into,
@@ -606,7 +614,7 @@ KERNELS: dict[str, KernelPair] = {
         law.task_wrench_fused,
         law.task_wrench_reference,
         _task_wrench_samples,
-        lambda a: lambda_tolerance(np.linalg.inv(a[8])),
+        lambda a: lambda_tolerance(a[0][0]["Lambda_inv"]),
     ),
     "joint_torque_fused": KernelPair(law.joint_torque_fused, law.joint_torque_reference, _joint_torque_samples),
     "damper_bounds_fused": KernelPair(law.damper_bounds_fused, law.damper_bounds_reference, _damper_bounds_samples),

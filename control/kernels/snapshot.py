@@ -4,6 +4,8 @@ M⁻¹, Λx⁻¹, Λx [T3] (damped near singularities), J̄ [T2], N [T4], Λn [T
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numba import njit
 
@@ -16,6 +18,7 @@ from control.kernels._linalg import (
     _symmetrise,
 )
 from control.kernels.chain import tcp_bias_acceleration_into, tcp_bias_acceleration_reference
+from control.kernels.records import record_dtype
 
 
 def snapshot_reference(M_upper: np.ndarray, J: np.ndarray, singular_eig: float) -> tuple:
@@ -51,19 +54,47 @@ def nullspace_inertia_reference(S: np.ndarray) -> np.ndarray:
     return (V * w_inv) @ V.T
 
 
-@njit(cache=True)
-def snapshot_fused(M_upper, J, singular_eig):
-    """Compiled `snapshot_reference` (same outputs, same order)."""
-    n = J.shape[1]
-    M, M_inv, N, Lambda_n = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    Lambda_inv, Lambda, J_bar = np.empty((6, 6)), np.empty((6, 6)), np.empty((n, 6))
-    work = np.empty((4, n, n))  # `snapshot_work(n)`
-    near_singular, min_eig = snapshot_into(
-        M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work, None, np.empty(6)
-    )
+# the snapshot's arrays, each a field of its record by the `Dynamics` attribute's name: (name, shape)
+# with n the number of joints (`snapshot_record_dtype`)
+SNAPSHOT_FIELDS = (
+    ("q", ("n",)), ("dq", ("n",)), ("M", ("n", "n")), ("M_inv", ("n", "n")), ("h", ("n",)),
+    ("tcp_rotation_world", (3, 3)), ("tcp_position_world", (3,)), ("J", (6, "n")), ("dJ_dq", (6,)),
+    ("Lambda_inv", (6, 6)), ("Lambda", (6, 6)), ("J_bar", ("n", 6)), ("N", ("n", "n")), ("Lambda_n", ("n", "n")),
+)  # fmt: skip
+
+
+@functools.cache
+def snapshot_record_dtype(n: int) -> np.dtype:
+    """The record of one `control.model.Dynamics` snapshot of an n-joint arm
+    (`control.kernels.records`): every array of `SNAPSHOT_FIELDS` by its name (the snapshot's
+    attributes are views of it) and whether Λx was damped (`near_singular`). The kernels read it by
+    field name: `snap[0].J`, `snap[0].Lambda`."""
+    fields = tuple((name, np.float64, tuple(n if d == "n" else d for d in shape)) for name, shape in SNAPSHOT_FIELDS)
+    return record_dtype((), (*fields, ("near_singular", np.bool_)))
+
+
+def snapshot_record(J: np.ndarray, q=None, dq=None) -> np.ndarray:
+    """A zeroed one-element snapshot record of J's arm with J and, when given, q and q̇ filled in
+    (what `snapshot_into` reads of it)."""
+    rec = np.zeros(1, snapshot_record_dtype(J.shape[1]))
+    row = rec[0]
+    row["J"] = J
+    if q is not None:
+        row["q"] = q
+    if dq is not None:
+        row["dq"] = dq
+    return rec
+
+
+def snapshot_fused(M_upper, J, singular_eig) -> tuple:
+    """`snapshot_reference`'s outputs (same order) by the compiled `snapshot_into` on a fresh record."""
+    snap = snapshot_record(J)
+    near_singular, min_eig = snapshot_into(M_upper, singular_eig, snap, snapshot_work(J.shape[1]), False)
     if not near_singular:  # `snapshot_into` leaves it to the caller away from a singularity
-        min_eig = np.linalg.eigvalsh(Lambda_inv)[0]
-    return M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, min_eig, near_singular
+        min_eig = np.linalg.eigvalsh(snap[0]["Lambda_inv"])[0]
+    s = snap[0]
+    return (*(s[k].copy() for k in ("M", "M_inv", "Lambda_inv", "Lambda", "J_bar", "N", "Lambda_n")), min_eig,
+            bool(near_singular))  # fmt: skip
 
 
 def snapshot_work(n: int) -> np.ndarray:
@@ -72,16 +103,22 @@ def snapshot_work(n: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work, dq, dJ_dq):
-    """`snapshot_fused` writing into arrays the caller allocated, with scratch `work`
-    (`snapshot_work(n)`), allocating nothing away from a singularity; with `dq` (a serial revolute
-    chain; None: the caller fills `dJ_dq`) also J̇q̇ into `dJ_dq` (`tcp_bias_acceleration_into`). Returns (near_singular,
-    min eig Λx⁻¹); the eigenvalue is computed only near a singularity, where the damping needs the
-    eigen-decomposition, and is NaN elsewhere: there positive definiteness of Λx⁻¹ − ρI, tested by
-    its Cholesky factorisation, decides that the smallest eigenvalue exceeds ρ."""
+def snapshot_into(M_upper, singular_eig, snap, work, bias):
+    """[T2-5] into the snapshot record `snap` (`snapshot_record_dtype`), read and written by field
+    name: from CRBA's upper triangle `M_upper` and the record's J, its M, M⁻¹, Λx⁻¹, Λx (damped when
+    the smallest eigenvalue of Λx⁻¹ is ≤ ρ = `singular_eig`), J̄, N, Λn and `near_singular`, with
+    scratch `work` (`snapshot_work(n)`), allocating nothing away from a singularity; with `bias` (a
+    serial revolute chain; else the caller fills J̇q̇) also J̇q̇ from J and the record's q̇
+    (`tcp_bias_acceleration_into`). Returns (near_singular, min eig Λx⁻¹); the eigenvalue is computed
+    only near a singularity, where the damping needs the eigen-decomposition, and is NaN elsewhere:
+    there positive definiteness of Λx⁻¹ − ρI, tested by its Cholesky factorisation, decides that the
+    smallest eigenvalue exceeds ρ."""
+    s = snap[0]
+    J, M, M_inv, Lambda_inv, Lambda = s.J, s.M, s.M_inv, s.Lambda_inv, s.Lambda
+    J_bar, N, Lambda_n = s.J_bar, s.N, s.Lambda_n
     n = J.shape[1]
-    if dq is not None:
-        tcp_bias_acceleration_into(J, dq, dJ_dq)
+    if bias:
+        tcp_bias_acceleration_into(J, s.dq, s.dJ_dq)
     L, Li, X, S = work[0], work[1], work[2, :, :6], work[3]
     for i in range(n):
         for j in range(i, n):
@@ -131,19 +168,20 @@ def snapshot_into(M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar,
             if abs(ws[i]) > cutoff:
                 g[i] = 1.0 / ws[i]
         Lambda_n[:, :] = _sym_from_eig(Vs, g)
+    s.near_singular = near_singular
     return near_singular, min_eig
 
 
-def snapshot_into_reference(
-    M_upper, J, singular_eig, M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n, work, dq, dJ_dq
-) -> tuple[bool, float]:
-    """`snapshot_into` by `snapshot_reference` (and J̇q̇ by `tcp_bias_acceleration_reference` when
-    `dq` is given): the same outputs written into the same arrays (`work` is scratch, not read),
-    the same (near_singular, min eig Λx⁻¹ or NaN away from a singularity)."""
-    out = snapshot_reference(M_upper, J, singular_eig)
-    for buffer, value in zip((M, M_inv, Lambda_inv, Lambda, J_bar, N, Lambda_n), out[:7], strict=True):
-        buffer[:] = value
-    if dq is not None:
-        dJ_dq[:] = tcp_bias_acceleration_reference(J, dq)
+def snapshot_into_reference(M_upper, singular_eig, snap, work, bias) -> tuple[bool, float]:
+    """`snapshot_into` by `snapshot_reference` (and J̇q̇ by `tcp_bias_acceleration_reference` with
+    `bias`): the same fields of the record written (`work` is scratch, not read), the same
+    (near_singular, min eig Λx⁻¹ or NaN away from a singularity)."""
+    s = snap[0]
+    out = snapshot_reference(M_upper, s["J"], singular_eig)
+    for name, value in zip(("M", "M_inv", "Lambda_inv", "Lambda", "J_bar", "N", "Lambda_n"), out[:7], strict=True):
+        s[name] = value
+    if bias:
+        s["dJ_dq"] = tcp_bias_acceleration_reference(s["J"], s["dq"])
     near_singular = bool(out[8])
+    s["near_singular"] = near_singular
     return near_singular, (out[7] if near_singular else np.nan)
