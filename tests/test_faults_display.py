@@ -180,6 +180,37 @@ def test_junk_for_the_phase_joint_selector_is_one_notice_to_its_sender_and_the_p
     assert "plots" not in app.publisher.stages.failing
 
 
+def test_junk_for_a_plots_signal_checkbox_is_one_notice_to_its_sender_and_the_choice_stands(app):
+    """A raw websocket sends 200 values a checkbox cannot take for the torque plot's τ3 box: all refused,
+    one notice to that client only, τ3 still drawn, and a real update after them still applies."""
+    plots = app.publisher.plots
+    box = plots.signal_boxes[("torque", "tau_3")]
+    guard = app.input_guard
+    refused, notified = guard.refused, dict(guard.notified)
+    sub = [f"viser-v{viser.__version__}"]
+    bystander = connect(f"ws://127.0.0.1:{app.port}", subprotocols=sub, open_timeout=10)
+    ws = connect(f"ws://127.0.0.1:{app.port}", subprotocols=sub, open_timeout=10)
+    try:
+        bystander.send(camera_message())
+        ws.send(camera_message())
+        junk = ("false", 0, 1, None, [False], 0.5, "")
+        for i in range(200):
+            msg = {"type": "GuiUpdateMessage", "uuid": box._impl.uuid, "updates": {"value": junk[i % len(junk)]}}
+            ws.send(msgspec.msgpack.encode(msg))
+        assert wait_until(lambda: guard.refused - refused == 200)
+        assert box.value is True and plots.signals.shown("torque", "tau_3")
+        new = {k: v - notified.get(k, 0) for k, v in guard.notified.items() if v - notified.get(k, 0)}
+        assert list(new.values()) == [1]  # one notice, to the sender alone
+        msg = {"type": "GuiUpdateMessage", "uuid": box._impl.uuid, "updates": {"value": False}}
+        ws.send(msgspec.msgpack.encode(msg))
+        assert wait_until(lambda: not plots.signals.shown("torque", "tau_3"))
+        assert wait_until(lambda: plots.torque.series[3].get("show") is False)
+    finally:
+        ws.close()
+        bystander.close()
+        plots.choose_signals("torque", (*plots.signals.shown_keys("torque"), "tau_3"))
+
+
 def test_the_check_accepts_what_a_page_sends_and_refuses_the_rest():
     dropdown = SimpleNamespace(options=("1", "2"))
     assert check_value("1", dropdown, "2") == ""

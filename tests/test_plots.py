@@ -274,3 +274,45 @@ def test_the_limit_drop_readout_measures_the_pandas_fall_toward_its_lower_limit(
     expected = (lo + 0.01 * (hi - lo)) - float(np.min(every["q_4"]))
     assert plots.readouts["overshoot_beyond_ds_rad"] == pytest.approx(expected, abs=1e-12)
     assert plot_data(Lab("limit-drop"), deque()).fall_direction == 1
+
+
+def _finite(values) -> int:
+    return int(np.count_nonzero(np.isfinite(np.asarray(values, dtype=float))))
+
+
+def test_the_signals_chosen_for_a_plot_are_the_ones_it_draws_across_a_switch_and_a_reset(server, polish, drop):
+    """Torque plot: joints 2 and 5 only: every other joint's series is hidden and sent without a finite sample,
+    and the y range covers only the shown joints; a checkbox unticked in the page hides its series the same
+    way; a preset switch (new session) and a blank new run keep the choice; W_d's plot and the σ plot hide;
+    an unknown series is refused in one line and changes nothing."""
+    plots = Plots(server)
+    plots.update(drop, session=1)
+    n = plots.n
+    big = max(range(n), key=lambda i: float(np.nanmax(np.abs(drop.columns[f"tau_{i + 1}"] / drop.tau_max[i]))))
+    keep = [k for k in (1, 4) if k != big][:2]  # two joints, not the one with the largest torque share
+    plots.choose_signals("torque", [f"tau_{k + 1}" for k in keep] + ["limits"])
+    series = plots.torque.series
+    for i in range(n):
+        assert series[i + 1].get("show", True) is (i in keep), i
+        assert (_finite(plots.torque.data[i + 1]) > 0) is (i in keep), i
+    top = max(float(np.nanmax(np.abs(100 * drop.columns[f"tau_{k + 1}"] / drop.tau_max[k]))) for k in keep)
+    hi = plots.torque.scales["y"]["range"][1]
+    assert hi == (nice_ceiling(1.05 * top, 110.0) if top > 110.0 else 110.0)  # the shown joints' range only
+    assert plots.signal_boxes[("torque", f"tau_{big + 1}")].value is False  # the checkbox follows
+    # what a checkbox the page unticks calls (the browser test clicks the real one)
+    plots._on_signal_box("deflection", "elbow", False)
+    assert plots.deflection.series[2]["show"] is False
+    plots._on_signal_box("coupling", "W_d", False)
+    plots._on_signal_box("force", "rate", False)
+    assert not plots.w_plots["W_d"].visible and plots.w_plots["W_a"].visible and not plots.rate.visible
+    # a preset switch and a new run's blank charts keep the choice
+    plots.update(polish, session=2)
+    plots.update(dataclasses.replace(polish, columns={k: v[:1] for k, v in polish.columns.items()}), session=3)
+    plots.update(polish, session=4)
+    assert [i for i in range(n) if plots.torque.series[i + 1].get("show", True)] == keep
+    assert all(_finite(plots.torque.data[i + 1]) == 0 for i in range(n) if i not in keep)
+    assert plots.deflection.series[2]["show"] is False and not plots.w_plots["W_d"].visible
+    before = plots.signals.as_dict()
+    with pytest.raises(ValueError, match="no series 'tau_99'"):
+        plots.choose_signals("torque", ["tau_1", "tau_99"])
+    assert plots.signals.as_dict() == before

@@ -7,7 +7,8 @@ the plot's x range being the joint's position range (Fig. 2–4 of [C]); joint t
 their limits; the real-time factor. A window of 10, 30 or 60 s of simulated time, a Freeze switch
 that holds the picture (the history keeps filling), vertical markers where the scenario's phase
 changes (polish segments S1…S6, a payload release) and the readouts the README quotes: force-error
-STD per polish segment (main and twin), peak joint torque and overshoot in the limit drop.
+STD per polish segment (main and twin), peak joint torque and overshoot in the limit drop. Each chart's
+*Signals* fold chooses the series it draws (`app.live.ui.signals`); the choice outlives preset switches.
 
 Every y range is fixed per signal and widens in 1-2-5 steps when the data leave it; x is the time
 before now, so neither axis depends on uPlot's auto-ranging (which a series that is all NaN — the
@@ -29,6 +30,7 @@ import viser
 import viser.uplot as uplot
 
 from app.live.loop import PlotData
+from app.live.ui.signals import SignalChoice, masked, series_shown, signal_specs
 
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2")
 MARKER_COLOR = "#7a7a7a"
@@ -311,6 +313,8 @@ class Plots:
         self.panel = gui.add_panel(order=order)
         self.replay_t: float | None = None  # while replaying: the instant the plots end at
         self.previous: dict[str, np.ndarray] | None = None  # the run before, drawn faint until cleared
+        self.signals = SignalChoice(signal_specs(n_joints))  # which series each chart draws
+        self.signal_boxes: dict[tuple[str, str], Any] = {}  # (chart, series) → its checkbox
         self.panel_tab = self.panel.add_tab("Plots", icon=viser.Icon.CHART_LINE)
         with self.panel_tab:
             self.window: Any = gui.add_dropdown(
@@ -438,6 +442,9 @@ class Plots:
                     aspect=3.0,
                     padding=(24, 12, 0, 0),
                 )
+            for chart in self.signals.specs:
+                with self.folders[chart]:
+                    self._add_signal_boxes(gui, chart)
         self.panel.dock_left()
         self.panel.set_width(400)
         self.window.on_update(lambda _: self._on_window())
@@ -446,6 +453,63 @@ class Plots:
         self.show_all.on_update(lambda _: self.arrange(None))
         self.arrange("polish")
         server.on_client_connect(lambda _: self._resend_later(*RESEND_AFTER_CONNECT_S))
+
+    # ---- signals --------------------------------------------------------------------------------
+    def _add_signal_boxes(self, gui: Any, chart: str) -> None:
+        """The chart's Signals fold: one checkbox per series it may draw."""
+        with gui.add_folder("Signals", order=100.0, expand_by_default=False):
+            for key, label in self.signals.specs[chart]:
+                box = gui.add_checkbox(label, self.signals.shown(chart, key), hint=f"Draw {label} in this plot")
+                box.on_update(lambda event, c=chart, k=key: self._on_signal_box(c, k, event.target.value))
+                self.signal_boxes[(chart, key)] = box
+
+    def _on_signal_box(self, chart: str, key: str, value: object) -> None:
+        if self.signals.set(chart, key, value):
+            self.apply_signals()
+            self._redraw()
+
+    def choose_signals(self, chart: str, keys: Any) -> None:
+        """Draw exactly the series `keys` of `chart` (ValueError, one line, for an unknown chart or series:
+        then nothing changes); the checkboxes follow."""
+        if self.signals.choose(chart, keys):
+            for (c, k), box in self.signal_boxes.items():
+                if c == chart and box.value != self.signals.shown(c, k):
+                    box.value = self.signals.shown(c, k)
+            self.apply_signals()
+            self._redraw()
+
+    def apply_signals(self) -> None:
+        """Show or hide each chart's series (and the σ and W plots) as the choice says; a frozen picture
+        changes too (hidden series are not drawn whatever data they hold)."""
+        shown = self.signals.shown
+        self._show_series(
+            self.force,
+            {
+                1: shown("force", "error"),
+                2: shown("force", "twin") and bool(self._twin_shown),
+                4: shown("force", "previous"),
+            },
+        )
+        if self.rate.visible != shown("force", "rate"):
+            self.rate.visible = shown("force", "rate")
+        for name, handle in self.w_plots.items():
+            if handle.visible != shown("coupling", name):
+                handle.visible = shown("coupling", name)
+        flags = {i + 1: shown("torque", f"tau_{i + 1}") for i in range(self.n)}
+        flags |= {self.n + 1: shown("torque", "limits"), self.n + 2: shown("torque", "limits")}
+        self._show_series(self.torque, flags)
+        speed, zones = shown("phase", "speed_limits"), shown("phase", "zones")
+        self._show_series(self.phase, {2: speed, 3: speed, 4: zones, 5: zones, 6: zones})
+        self._show_series(
+            self.deflection,
+            {1: shown("deflection", "tcp"), 2: shown("deflection", "elbow"), 4: shown("deflection", "previous")},
+        )
+
+    @staticmethod
+    def _show_series(handle: Any, flags: dict[int, bool]) -> None:
+        series = series_shown(tuple(handle.series), flags)
+        if series is not None:
+            handle.series = series
 
     # ---- layout ---------------------------------------------------------------------------------
     def arrange(self, scenario: str | None) -> None:
@@ -657,9 +721,11 @@ class Plots:
         has_twin = twin is not None and bool(np.any(np.isfinite(twin)))
         if has_twin != self._twin_shown:
             self._twin_shown = has_twin
-            series = list(self.force.series)
-            series[2] = {**series[2], "show": has_twin}
-            self.force.series = tuple(series)
+            self.apply_signals()
+        shown = self.signals.shown
+        err = masked(err, shown("force", "error"))
+        if twin is not None:
+            twin = masked(twin, shown("force", "twin"))
         values = np.abs(err[np.isfinite(err)])
         if has_twin and twin is not None:
             values = np.concatenate([values, np.abs(twin[np.isfinite(twin)])])
@@ -667,7 +733,7 @@ class Plots:
         hi = nice_ceiling(1.1 * top, FORCE_RANGE_N)
         self._set_range("force", self.force, (-hi, hi))
         twin_y = twin[s] if has_twin and twin is not None else np.zeros(len(x))
-        prev = self._previous_at("force_error", c["t"][s])
+        prev = masked(self._previous_at("force_error", c["t"][s]), shown("force", "previous"))
         self.force.data = _with_markers(x, [err[s], twin_y], self.markers, now, -hi, hi, after=[prev])
         title = FORCE_TITLE if np.any(c["Fd_z"] != 0.0) else NO_SETPOINT_TITLE
         if self.force.title != title:
@@ -684,7 +750,10 @@ class Plots:
         self.rate.data = _with_markers(x, [rate[s], np.zeros(len(x))], self.markers, now, -hi, hi)
 
     def _draw_torque(self, plot: PlotData, c: dict[str, np.ndarray], s: slice, x: np.ndarray, now: float) -> None:
-        ratio = [100.0 * c[f"tau_{i + 1}"][s] / plot.tau_max[i] for i in range(self.n)]
+        ratio = [
+            masked(100.0 * c[f"tau_{i + 1}"][s] / plot.tau_max[i], self.signals.shown("torque", f"tau_{i + 1}"))
+            for i in range(self.n)
+        ]
         finite = [np.abs(r[np.isfinite(r)]) for r in ratio]
         top = max((float(r.max()) for r in finite if r.size), default=0.0)
         hi = nice_ceiling(1.05 * top, TORQUE_RANGE_PCT) if top > TORQUE_RANGE_PCT else TORQUE_RANGE_PCT
@@ -696,15 +765,17 @@ class Plots:
         """TCP and elbow distance from their start (signals "tcp_dev_mm", "elbow_dev_mm"), when logged."""
         if "tcp_dev_mm" not in c:
             return
-        tcp = c["tcp_dev_mm"][s]
+        shown = self.signals.shown
+        tcp = masked(c["tcp_dev_mm"][s], shown("deflection", "tcp"))
         elbow = c["elbow_dev_mm"][s] if "elbow_dev_mm" in c else np.full(len(x), np.nan)
+        elbow = masked(elbow, shown("deflection", "elbow"))
         both = np.concatenate([tcp[np.isfinite(tcp)], elbow[np.isfinite(elbow)]])
         top = float(both.max()) if both.size else 0.0
         hi = nice_ceiling(1.1 * top, DEFLECTION_RANGE_MM) if top > 0 else DEFLECTION_RANGE_MM
         if top > 0 and top < 0.5 * DEFLECTION_RANGE_MM:  # small deflections get a finer range
             hi = nice_ceiling(1.1 * top, 10.0 ** math.floor(math.log10(top)))
         self._set_range("deflection", self.deflection, (0.0, hi))
-        prev = self._previous_at("tcp_dev_mm", c["t"][s])
+        prev = masked(self._previous_at("tcp_dev_mm", c["t"][s]), shown("deflection", "previous"))
         self.deflection.data = _with_markers(x, [tcp, elbow], self.markers, now, 0.0, hi, after=[prev])
 
     def _update_readouts(self, plot: PlotData) -> None:
