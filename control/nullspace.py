@@ -10,7 +10,7 @@ bound at the upper limit. Endless joints get no damper.
 The QP is set up once through `control.qp` (dense active-set backend by default, OSQP with a
 fixed sparsity pattern as the reference) and updated in place each step (warm-started). For a
 7-joint arm the kernel of J is a line, and the dense backend solves the QP in closed form on it
-(`control.qp.solve_line_qp`: the same optimum, without a solver call); where that
+(`control.qp.LineQPFirst`: the same optimum, without a solver call); where that
 does not apply (J rank deficient, no point of the line meets the box) the active-set solver
 decides as for any other arm.
 
@@ -126,7 +126,7 @@ class RelaxedNullspaceQP:
         return self._qp.solve(self._P, gradient_step, self._A, self._lo, self._hi, lower, upper)
 
 
-class NullspaceQP:
+class NullspaceQP(qp.LineQPFirst):
     """The [T15-17] QP for an n-joint arm, set up once (`control.qp`) and updated every step.
 
     P = I [T15] stays; A = J with J x = 0 [T16] as equality rows; the bounds are the box [T17].
@@ -157,13 +157,11 @@ class NullspaceQP:
         self._relaxed = RelaxedNullspaceQP(n, self.backend, eps, max_iter)
         self.last: NullspaceResult | None = None
 
-    def solve(self, J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> NullspaceResult:
-        """Goal nullspace velocity for q = k0 ∇W (`gradient_step`), J x = 0 and l ≤ x ≤ u."""
-        if self.closed_form:
-            line = qp.solve_line_qp(J, gradient_step, lower, upper, self.backend)
-            if line is not None:  # iterations: the active bounds (0 or 1)
-                self.last = line
-                return line
+    def solve_general(
+        self, J: np.ndarray, gradient_step: np.ndarray, lower: np.ndarray, upper: np.ndarray
+    ) -> NullspaceResult:
+        """Goal nullspace velocity for q = k0 ∇W (`gradient_step`), J x = 0 and l ≤ x ≤ u, by the
+        backend (`solve`, from `qp.LineQPFirst`, tries the 7-joint closed form first)."""
         res = self._qp.solve(None, gradient_step, J, self._zero, self._zero, lower, upper)
         if res.solved:
             self.last = res

@@ -4,6 +4,7 @@ numeric field of its parameter groups by name, and a group goes in and comes bac
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -125,7 +126,7 @@ def test_the_snapshot_is_a_view_of_its_record_and_round_trips_through_it():
     assert bool(dyn.record["near_singular"][0]) == dyn.near_singular
     dyn.M[0, 0] += 1.0  # written through the view: in the record
     assert dyn.record["M"][0][0, 0] == dyn.M[0, 0]
-    assert not any(np.shares_memory(a.record, b.record) for a, b in zip(snaps, snaps[1:], strict=False))
+    assert not any(np.shares_memory(a.record, b.record) for a, b in itertools.pairwise(snaps))
     arrays = {name: rng.standard_normal(np.shape(getattr(dyn, name))) for name, _ in SNAPSHOT_FIELDS}
     built = Dynamics.of(True, 0.5, **arrays)
     for name, value in arrays.items():
