@@ -8,7 +8,7 @@ import re
 import numpy as np
 import pytest
 
-from app.core.commands import SetParam, SwitchSession
+from app.core.commands import RestoreDefaults, SetParam, SwitchSession
 from app.live.frames import deflection_readouts, make_status
 from app.live.lab import Lab, owned_fields
 from app.live.lessons import LESSONS, measure
@@ -19,6 +19,12 @@ def numbers(text: str) -> list[float]:
     return [float(x) for x in re.findall(r"-?\d+\.\d+", text)]
 
 
+# a step's numbers by what it runs (its commands, from the defaults, and when it is done): two lessons
+# that take the same run (W_j at μ = 1 with the default delay: the posture lesson's first step, the
+# latency lesson's second) measure it once
+_RUNS: dict[tuple, dict] = {}
+
+
 def run_lesson(key: str) -> tuple[dict, dict]:
     """Take every step of a lesson on a Lab as the panel does; (claims, numbers) by step key."""
     lab = Lab("free")
@@ -26,14 +32,20 @@ def run_lesson(key: str) -> tuple[dict, dict]:
     memo: dict = {}
     claims: dict = {}
     for step in lesson.steps:
-        for cmd in step.setup(lab):
+        commands = tuple(step.setup(lab))
+        run = (commands, step.ready)
+        if isinstance(commands[0], RestoreDefaults) and run in _RUNS:  # from the defaults: the same run
+            memo[step.key] = obs = _RUNS[run]
+            claims[step.key] = step.claim(obs, memo)
+            continue
+        for cmd in commands:
             lab.apply(cmd)
         for _ in range(200):
             if step.ready(make_status(lab)) or lab.halted:
                 break
             lab.advance(500)
         assert not lab.halted, lab.halted
-        obs = measure(lab)
+        obs = _RUNS[run] = measure(lab)
         memo[step.key] = obs
         claims[step.key] = step.claim(obs, memo)
     return claims, memo
