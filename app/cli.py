@@ -133,6 +133,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="memory slope of the web app over MINUTES with preset switches, drags and a headless browser",
     )
     p.add_argument("--no-browser", action="store_true", help="with --soak: no browser")
+    p.add_argument("--no-switches", action="store_true", help="with --soak: no preset switches")
+    p.add_argument("--no-drags", action="store_true", help="with --soak: no drags")
+    p.add_argument(
+        "--trim-every", type=float, default=0.0, metavar="SECONDS", help="with --soak: also trim the heap this often"
+    )
     p.add_argument("--seconds", type=float, default=20.0, help="measuring time for --serve (wall seconds)")
     p.add_argument(
         "--twin", choices=("j", "f", "a", "d"), default=None, help="with --serve: also run a twin arm with this W"

@@ -41,3 +41,17 @@ def test_the_loop_trims_after_a_switch_and_not_after_other_commands(monkeypatch)
     assert calls == []
     lp._apply(SwitchSession(scenario="compliance"))
     assert calls == [1] and lp.lab.session.scenario.name == "compliance"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and glibc's mallinfo2")
+def test_the_soaks_columns_see_an_allocation_in_the_heap_and_the_resident_anonymous_memory():
+    from app.live.memory import heap_mb
+    from app.tools.soak import proc_status
+
+    before, heap_before = proc_status(), heap_mb()
+    block = bytearray(64 * 2**20)  # 64 MB, zeroed: resident and anonymous, in glibc's heap (mmapped)
+    after, heap_after = proc_status(), heap_mb()
+    del block
+    assert after["Threads"] >= 1 and after["VmRSS"] > 0
+    assert after["RssAnon"] - before["RssAnon"] > 50.0, (before["RssAnon"], after["RssAnon"])
+    assert heap_after["heap_used"] - heap_before["heap_used"] > 60.0, (heap_before, heap_after)

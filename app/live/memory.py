@@ -40,6 +40,37 @@ def trim_heap() -> bool:
     return True
 
 
+class _MallInfo2(ctypes.Structure):
+    _fields_ = [
+        (name, ctypes.c_size_t)
+        for name in (
+            "arena",
+            "ordblks",
+            "smblks",
+            "hblks",
+            "hblkhd",
+            "usmblks",
+            "fsmblks",
+            "uordblks",
+            "fordblks",
+            "keepcost",
+        )
+    ]
+
+
+def heap_mb() -> dict[str, float]:
+    """glibc's heap over all arenas (mallinfo2): "heap_used" (allocated blocks, mmapped ones included),
+    "heap_free" (freed but kept in the arenas) in MB; empty elsewhere than glibc ≥ 2.33."""
+    lib = _libc()
+    fn = getattr(lib, "mallinfo2", None) if lib is not None else None
+    if fn is None:
+        return {}
+    fn.restype = _MallInfo2
+    info = fn()
+    mb = 1024.0 * 1024.0
+    return {"heap_used": (info.uordblks + info.hblkhd) / mb, "heap_free": info.fordblks / mb}
+
+
 def trim_heap_soon() -> threading.Thread:
     """`trim_heap` in a daemon thread of its own (started; returned for a caller that waits)."""
     thread = threading.Thread(target=trim_heap, name="torquelab-trim", daemon=True)

@@ -6,18 +6,25 @@ second and lets go (a drag the loop does not answer within `SimLoop.call`'s time
 counted as a late answer). The server process's resident memory (VmRSS) is sampled every SAMPLE_EVERY_S;
 the slope is a least-squares line through the samples after the first WARMUP_S (imports, caches and
 the first compiles settle there), in MB per minute. Not part of the test suite: it takes minutes.
+
+Beside RSS each sample has, to tell where memory grows: its anonymous and file-backed parts, the
+thread count, glibc's heap in use and kept free over all its arenas (mallinfo2), and the browser's
+RSS over all its processes; each gets a slope too. `--no-switches`, `--no-drags` and `--no-browser`
+leave a part out, `--trim-every S` also hands the free heap back every S seconds.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from typing import Any
 
 import numpy as np
 
 from app.core.commands import DragCommand, SwitchSession
+from app.live.memory import heap_mb, trim_heap
 from app.live.server import start_app
 from app.scenarios import SCENARIOS
 from app.tools.bench_serve import headless_chromium
@@ -31,14 +38,25 @@ DRAG_CLIENT = -7  # a client id no page has: the soak's own drags
 
 def rss_mb() -> float:
     """This process's resident memory (MB), from /proc (0 where there is none)."""
+    return proc_status().get("VmRSS", 0.0)
+
+
+def proc_status(pid: int | str = "self") -> dict[str, float]:
+    """A process's memory lines of /proc/PID/status in MB (VmRSS, RssAnon, RssFile, ...) and its
+    thread count ("Threads"); empty where there is no /proc."""
+    out: dict[str, float] = {}
     try:
-        with open("/proc/self/status") as f:
+        with open(f"/proc/{pid}/status") as f:
             for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
+                key, _, value = line.partition(":")
+                parts = value.split()
+                if key == "Threads":
+                    out[key] = float(parts[0])
+                elif len(parts) == 2 and parts[1] == "kB":
+                    out[key] = int(parts[0]) / 1024.0
     except OSError:
         pass
-    return 0.0
+    return out
 
 
 def slope_mb_per_min(t_s: np.ndarray, mb: np.ndarray) -> float:
@@ -48,37 +66,84 @@ def slope_mb_per_min(t_s: np.ndarray, mb: np.ndarray) -> float:
     return float(np.polyfit(t_s / 60.0, mb, 1)[0])
 
 
-def run_soak(minutes: float, browser: bool = True, progress: bool = True) -> dict[str, Any]:
-    """Run the soak (see the module docstring); the samples, counts and slopes."""
+def _group_rss_mb(pgid: int) -> float:
+    """Resident memory (MB) summed over the processes of a process group (Chromium and its helpers)."""
+    total = 0.0
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rpartition(")")[2].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid:  # the process group (after state and ppid)
+            total += proc_status(entry).get("VmRSS", 0.0)
+    return total
+
+
+def _sample(t_s: float, browser_pgid: int | None) -> dict[str, float]:
+    """One sample: the server's RSS split into anonymous and file-backed memory, its threads, glibc's
+    heap in use and kept free, and the browser's RSS over all its processes."""
+    status = proc_status()
+    row = {
+        "t": round(t_s, 1),
+        "rss": status.get("VmRSS", 0.0),
+        "anon": status.get("RssAnon", 0.0),
+        "file": status.get("RssFile", 0.0),
+        "threads": status.get("Threads", 0.0),
+        **heap_mb(),
+    }
+    if browser_pgid is not None:
+        row["browser"] = _group_rss_mb(browser_pgid)
+    return {k: round(v, 2) for k, v in row.items()}
+
+
+def run_soak(
+    minutes: float,
+    browser: bool = True,
+    progress: bool = True,
+    switches: bool = True,
+    drags: bool = True,
+    trim_every_s: float = 0.0,
+) -> dict[str, Any]:
+    """Run the soak (see the module docstring); the samples, counts and slopes. `switches` / `drags` /
+    `browser` False leave that part out; `trim_every_s` > 0 also trims the heap that often."""
     app = start_app(port=0, scenario="polish", running=True)
     names = list(SCENARIOS)
-    samples: list[tuple[float, float]] = []
-    switches = drags = late = 0
+    samples: list[dict[str, float]] = []
+    n_switches = n_drags = late = 0
     t0 = time.monotonic()
     end = t0 + 60.0 * minutes
-    next_switch, next_drag, next_sample = t0 + SWITCH_EVERY_S, t0 + DRAG_EVERY_S, t0
+    never = float("inf")
+    next_switch = t0 + SWITCH_EVERY_S if switches else never
+    next_drag = t0 + DRAG_EVERY_S if drags else never
+    next_trim = t0 + trim_every_s if trim_every_s > 0 else never
+    next_sample = t0
     try:
         ctx = headless_chromium(app.url) if browser else None
-        if ctx is not None:
-            ctx.__enter__()
+        proc = ctx.__enter__() if ctx is not None else None
         try:
             while (now := time.monotonic()) < end:
                 if now >= next_sample:
-                    samples.append((now - t0, rss_mb()))
+                    samples.append(_sample(now - t0, proc.pid if proc is not None else None))
                     next_sample += SAMPLE_EVERY_S
                     if progress:
-                        print(f"soak: {now - t0:7.0f} s  {samples[-1][1]:8.1f} MB", flush=True)
+                        print("soak: " + "  ".join(f"{k} {v:g}" for k, v in samples[-1].items()), flush=True)
                 if now >= next_switch:
-                    switches += 1
-                    app.loop.submit(SwitchSession(scenario=names[switches % len(names)]))
+                    n_switches += 1
+                    app.loop.submit(SwitchSession(scenario=names[n_switches % len(names)]))
                     next_switch += SWITCH_EVERY_S
                 if now >= next_drag:
                     try:
                         _drag(app)
-                        drags += 1
+                        n_drags += 1
                     except TimeoutError:  # the loop answered late (a switch on a loaded machine): counted
                         late += 1
                     next_drag += DRAG_EVERY_S
+                if now >= next_trim:
+                    trim_heap()
+                    next_trim += trim_every_s
                 if not app.loop.alive:
                     raise RuntimeError(f"the simulation loop stopped: {app.loop.failure}")
                 time.sleep(0.2)
@@ -87,22 +152,27 @@ def run_soak(minutes: float, browser: bool = True, progress: bool = True) -> dic
                 ctx.__exit__(None, None, None)
     finally:
         app.stop()
-    t = np.array([s[0] for s in samples])
-    mb = np.array([s[1] for s in samples])
+    t = np.array([s["t"] for s in samples])
     after = t >= WARMUP_S
+    columns = [k for k in samples[0] if k != "t" and all(k in s for s in samples)] if samples else []
+    slopes = {k: slope_mb_per_min(t[after], np.array([s[k] for s in samples])[after]) for k in columns}
+    mb = np.array([s["rss"] for s in samples])
     return {
         "minutes": minutes,
         "browser": browser,
-        "switches": switches,
-        "drags": drags,
+        "switches": n_switches,
+        "drags": n_drags,
         "late_answers": late,
+        "trim_every_s": trim_every_s,
+        "malloc_arena_max": os.environ.get("MALLOC_ARENA_MAX", ""),
         "samples": len(samples),
         "rss_start_mb": float(mb[0]) if len(mb) else float("nan"),
         "rss_end_mb": float(mb[-1]) if len(mb) else float("nan"),
-        "slope_mb_per_min": slope_mb_per_min(t[after], mb[after]),
+        "slope_mb_per_min": slopes.get("rss", float("nan")),
         "slope_all_mb_per_min": slope_mb_per_min(t, mb),
+        "slopes_per_min": slopes,
         "warmup_s": WARMUP_S,
-        "series": [[round(a, 1), round(b, 2)] for a, b in samples],
+        "series": samples,
     }
 
 
@@ -118,15 +188,24 @@ def _drag(app: Any) -> None:
 
 def cmd_soak(args: argparse.Namespace) -> int:
     """`bench --soak MINUTES`: print the slope (and the samples with --json)."""
-    report = run_soak(args.soak, browser=not getattr(args, "no_browser", False), progress=not args.json)
+    report = run_soak(
+        args.soak,
+        browser=not getattr(args, "no_browser", False),
+        progress=not args.json,
+        switches=not getattr(args, "no_switches", False),
+        drags=not getattr(args, "no_drags", False),
+        trim_every_s=getattr(args, "trim_every", 0.0) or 0.0,
+    )
     if args.json:
         print(json.dumps(report, indent=2))
     else:
+        others = ", ".join(f"{k} {v:+.3f}" for k, v in report["slopes_per_min"].items() if k != "rss")
         print(
             f"soak {report['minutes']:g} min, {report['switches']} switches, {report['drags']} drags "
             f"({report['late_answers']} late), "
             f"browser {'on' if report['browser'] else 'off'}: RSS {report['rss_start_mb']:.1f} → "
             f"{report['rss_end_mb']:.1f} MB, slope {report['slope_mb_per_min']:+.3f} MB/min after the first "
-            f"{report['warmup_s']:g} s ({report['slope_all_mb_per_min']:+.3f} over the whole run)"
+            f"{report['warmup_s']:g} s ({report['slope_all_mb_per_min']:+.3f} over the whole run); "
+            f"per minute after it: {others}"
         )
     return 0
