@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections import deque
 
 import numpy as np
@@ -24,15 +25,28 @@ from app.live.ui.plots import (
 from app.live.ui.snapshot import capture
 
 
+def _has_rate(plot) -> bool:
+    """The frame's columns hold a live σ (the offload's figures arrive a few steps after their step)."""
+    return bool(np.any(np.isfinite(plot.columns.get("margin_rate", np.zeros(0)))))
+
+
 def _plot_data(scenario: str, steps: int = 300):
     loop = SimLoop(scenario, capture=capture)
+    assert loop.offload.ready(60.0)  # the live margin's worker process: its figures from the first step on
     loop.start(running=False)
     try:
         loop.submit(StepOnce(steps))
         loop.sync()
         frame = loop.wait_frame(0, timeout=10.0)
         deadline = 50
-        while (frame is None or frame.plot is None or len(frame.plot.monitor["t"]) < 2) and deadline:
+        until = time.monotonic() + 60.0  # polish: until its first live σ is in (a loaded machine may take seconds)
+
+        def wanting(frame) -> bool:
+            if frame is None or frame.plot is None or len(frame.plot.monitor["t"]) < 2:
+                return True
+            return scenario == "polish" and not _has_rate(frame.plot)
+
+        while wanting(frame) and (deadline or (scenario == "polish" and time.monotonic() < until)):
             loop.submit(StepOnce(100))
             loop.sync()
             frame = loop.wait_frame(frame.seq if frame else 0, timeout=5.0)
@@ -223,22 +237,37 @@ def test_segment_std_comes_from_every_step_for_the_main_arm_and_the_twin():
     assert plot.segment_std == main and plot.twin_segment_std == twin
 
 
-def test_the_rate_plot_shows_the_logged_decay_rate_of_the_polish_force_loop(server, polish, drop):
-    """Polish logs σ every 100 steps (finite, within the plot's range); the limit drop has none and
-    its rate plot stays empty with its fixed range."""
+def test_the_margin_plot_shows_the_logged_stroke_headroom_and_decay_rate_of_the_polish_force_loop(server, polish, drop):
+    """Polish logs σ every 100 steps (finite, within the plot's range) and the stroke headroom h, NaN
+    before the strokes; a headroom far below 0 widens the range to hold it; the limit drop has neither
+    and its margin plot stays empty with its fixed range."""
+    import dataclasses
+
     plots = Plots(server)
     plots.update(polish, session=1)
-    rate = np.asarray(plots.rate.data[1], dtype=float)
+    headroom, rate = (np.asarray(plots.rate.data[k], dtype=float) for k in (1, 2))
     logged = polish.columns["margin_rate"]
     assert np.any(np.isfinite(rate)) and np.all(np.isin(rate[np.isfinite(rate)], logged))
+    assert np.all(np.isnan(polish.columns["margin_headroom_np"])) and np.all(np.isnan(headroom))  # still settling
     lo, hi = plots.rate.scales["y"]["range"]
     assert lo == -hi and np.nanmax(np.abs(rate)) <= hi
-    # a short plot: two or three ticks (−σ_max, 0), ≥ 40 px apart in a 330 px wide panel at its aspect
+    # a short plot: two or three ticks (−max, 0), ≥ 40 px apart in a 330 px wide panel at its aspect
     splits = plots.rate.axes[1]["splits"]
     assert 2 <= len(splits) <= 3 and 0.0 in splits
     assert (330 / plots.rate.aspect - 60) / len(splits) >= 40  # minus the title and the x axis
-    plots.update(drop, session=2)
+    deep = np.linspace(-30.0, 2.5, len(polish.columns["t"]))
+    stroke = dataclasses.replace(polish, columns={**polish.columns, "margin_headroom_np": deep})
+    plots.update(stroke, session=2)
+    headroom = np.asarray(plots.rate.data[1], dtype=float)
+    lo, hi = plots.rate.scales["y"]["range"]
+    assert (
+        np.nanmin(headroom) == pytest.approx(-30.0)
+        and -hi <= -30.0
+        and np.all(np.isin(headroom[np.isfinite(headroom)], deep))
+    )
+    plots.update(drop, session=3)
     assert not np.any(np.isfinite(np.asarray(plots.rate.data[1], dtype=float)))
+    assert not np.any(np.isfinite(np.asarray(plots.rate.data[2], dtype=float)))
 
 
 def test_a_redraw_with_nothing_new_sends_no_chart_options_again(server, polish, drop):

@@ -269,3 +269,42 @@ def test_the_calibration_names_the_largest_growth_stroke_with_both_modes():
         "growth_segment_observed_np": 1.4,
     }
     assert C.growth_stroke({"stroke_margin": []}) == {}
+
+
+def test_the_live_margin_in_the_worker_process_is_the_inline_one_and_leaves_the_loop_thread_alone(monkeypatch):
+    """The app's loop hands the live figures to a worker process (`app.live.offload`): stepping W_j at μ = 1
+    for 0.5 s, each σ (every 100 steps) and the K_f^d margin, taken from the worker when the environment
+    looks for answers (every LIVE_POLL_EVERY_S), are those the same session computes inline, to 1e-9;
+    the stepping thread never computes one itself."""
+    from app.core.session import Session
+    from app.live.offload import LiveOffload
+
+    poll = round(P.LIVE_POLL_EVERY_S / 1e-3)
+
+    def stepped(offload: LiveOffload | None) -> list[tuple[float, float]]:
+        session = Session(P.PolishScenario(mu=1.0), seed=0)
+        session.set_param("nullspace", "objective", "j")
+        session.set_offload(offload)
+        env = session.environment
+        out = []
+        for k in range(500):
+            if offload is not None and k % 100 == poll:  # the tick's figures are in when they are looked for
+                for *_, future in list(env._pending):  # type: ignore[attr-defined]
+                    future.result(timeout=30.0)
+            sig = session.step().signals
+            if k % 100 == poll:
+                out.append((sig["margin_rate"], sig["margin_kd"]))
+        return out
+
+    inline = stepped(None)
+    offload = LiveOffload()
+    try:
+        assert offload.ready(60.0)
+        monkeypatch.setattr(P.PolishEnvironment, "live_rate", lambda self, t: pytest.fail("σ on the loop thread"))
+        monkeypatch.setattr(P.PolishEnvironment, "live_margin", lambda self, t: pytest.fail("K_f^d on the loop thread"))
+        away = stepped(offload)
+    finally:
+        offload.stop()
+    assert len(away) == len(inline) == 5 and all(np.isfinite(inline[k][0]) for k in range(5))
+    for (rate, kd), (rate_in, kd_in) in zip(away, inline, strict=True):
+        assert rate == pytest.approx(rate_in, rel=1e-9, abs=1e-9) and kd == pytest.approx(kd_in, rel=1e-9, abs=1e-9)

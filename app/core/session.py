@@ -32,7 +32,7 @@ import pinocchio as pin
 import robots
 from app.core.commands import SetParam
 from app.core.executors import make_executor
-from app.scenarios import Environment, Scenario, Sensor, Work, get_scenario
+from app.scenarios import Environment, Offload, Scenario, Sensor, Work, get_scenario
 from app.sim.drag import DragSpring
 from app.sim.world import World, WorldParams
 from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
@@ -177,10 +177,21 @@ class Session:
         self.executor: Executor = make_executor(self.executor_name, self.robot, self.model)
         self._configure_executor_for_scenario()
         self._q0_override = q0
+        self.offload: Offload | None = None  # the runner's place for costly page signals (`set_offload`)
         self.reset()
         for c in changes:
             if c.group != "scenario":
                 self.set_param(c.group, c.field, c.value, c.index)
+
+    def _dynamics(self) -> Dynamics:
+        """The step's dynamics snapshot (`Environment.connect`)."""
+        return self.dyn
+
+    def set_offload(self, offload: Offload | None) -> None:
+        """Give the environment (now and after every reset) a place off the loop thread for its costly
+        page signals (`app.scenarios.Offload`); None: it computes them inline."""
+        self.offload = offload
+        self.environment.connect(self.params, offload, self._dynamics)
 
     # ---- lifecycle ----------------------------------------------------------------------------
     def reset(self) -> None:
@@ -193,7 +204,7 @@ class Session:
         self.drag.release()
         rng = np.random.default_rng(self.seed)
         self.environment: Environment = self.scenario.make_environment(self.world, rng)
-        self.environment.connect(self.params)
+        self.environment.connect(self.params, self.offload, self._dynamics)
         self.sensor: Sensor = self.scenario.make_sensor(rng)
         self.dyn: Dynamics = self.model.compute(self.world.q, self.world.dq)
         self.target_fn: Callable[[float], TaskTarget] = self.scenario.make_target(self.robot, self.model, self.dyn)

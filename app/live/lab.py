@@ -45,7 +45,7 @@ from app.core.settings import finite_number, plain
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.core.variants import make_variant
-from app.scenarios import Scenario
+from app.scenarios import Offload, Scenario
 from control.params import ParamError, ParamGroup
 from robots import guessed_text
 
@@ -135,6 +135,7 @@ class Lab:
         # WorkPending from `apply` (nothing changed) instead of computing it here; the app's loop
         # computes it elsewhere and applies the switch again
         self.defer_work = False
+        self.offload: Offload | None = None  # where the sessions compute their costly page signals (`set_offload`)
         self._say_guessed()
 
     def _say_guessed(self) -> None:
@@ -331,8 +332,17 @@ class Lab:
         new = Session(s.preset, robot=self.robot_choice or None, executor=s.executor_name, seed=self.seed)
         self._install(new, changes)
 
+    def set_offload(self, offload: Offload | None) -> None:
+        """Have this session, its twin and every later one compute their costly page signals (the
+        polish margin) in `offload`, off the thread that steps them; None: inline."""
+        self.offload = offload
+        self.session.set_offload(offload)
+        if self.twin is not None:
+            self.twin.session.set_offload(offload)
+
     def _install(self, session: Session, changes: list[SetParam]) -> None:
         """Make `session` the lab's, with every one of `changes` it accepts; the twin follows."""
+        session.set_offload(self.offload)
         self.session = session
         self.session_id += 1
         self.defaults = session.params()
@@ -509,7 +519,7 @@ class Lab:
 
     def _new_twin(self, objective: str) -> Twin:
         s = self.session
-        return Twin(
+        twin = Twin(
             s.preset,
             self.robot_choice or None,
             s.executor_name,
@@ -519,6 +529,8 @@ class Lab:
             self.overrides,
             self._log_seconds,
         )
+        twin.session.set_offload(self.offload)
+        return twin
 
     def _drop_twin(self, reason: str) -> None:
         self.twin = None

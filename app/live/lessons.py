@@ -82,6 +82,7 @@ def measure(lab: Lab) -> Obs:
     if name == "polish":
         for k, v in lab.log.segment_force_error_std().items():
             out[f"std_S{k}"] = v
+        out.update(least_headroom(c))
         found = delay_field()
         if found is not None and found[0] in s.params():
             out["reading_delay"] = float(getattr(s.params()[found[0]], found[1]))
@@ -119,6 +120,20 @@ def measure(lab: Lab) -> Obs:
     return out
 
 
+def least_headroom(c: dict[str, np.ndarray]) -> Obs:
+    """The least live stroke headroom (Np, signal "margin_headroom_np": the polish margin along each
+    stroke) per logged segment, "headroom_S{k}"; none for a segment without a finite value."""
+    out: Obs = {}
+    h, seg = c.get("margin_headroom_np"), c.get("segment")
+    if h is None or seg is None:
+        return out
+    for k in range(1, SEGMENTS + 1):
+        values = h[(seg == k) & np.isfinite(h)]
+        if values.size:
+            out[f"headroom_S{k}"] = float(np.min(values))
+    return out
+
+
 # ---- what a claim says -----------------------------------------------------------------------------
 def _strokes(o: Obs) -> tuple[list[float], list[float]] | None:
     """(S2, S4, S6) and (S1, S3, S5) force-error STDs, or None while a segment is missing."""
@@ -148,9 +163,30 @@ def strokes_claim(label: str) -> Callable[[Obs, Memo], str]:
         return (
             f"{label}{delay}: the stretching strokes S2/S4/S6 had a force-error STD of {_fmt(forward)} N against "
             f"{_fmt(back)} N on S1/S3/S5 — S4's {o['std_S4']:.1f} N is {ratio:.1f}× S3's {o['std_S3']:.1f} N."
+            + headroom_claim(o)
         )
 
     return claim
+
+
+def headroom_claim(o: Obs) -> str:
+    """The margin's least stroke headroom on S2/S4/S6 and S1/S3/S5 in words ("" without it)."""
+    if not all(f"headroom_S{k}" in o for k in range(1, SEGMENTS + 1)):
+        return ""
+    forward = [o[f"headroom_S{k}"] for k in (2, 4, 6)]
+    back = [o[f"headroom_S{k}"] for k in (1, 3, 5)]
+    short = [f"S{k}" for k in range(1, SEGMENTS + 1) if o[f"headroom_S{k}"] < 0.0]
+    verdict = (
+        f"below 0 on {', '.join(short)}: the model predicted a disturbance at the noise floor to reach the "
+        "desired force before those strokes end"
+        if short
+        else "above 0 on every stroke: the model predicted every stroke to end before a disturbance at the "
+        "noise floor reaches the desired force"
+    )
+    return (
+        f" The margin's stroke headroom fell to {'/'.join(f'{v:+.1f}' for v in forward)} Np on S2/S4/S6 and "
+        f"{'/'.join(f'{v:+.1f}' for v in back)} Np on S1/S3/S5, {verdict}."
+    )
 
 
 def compare_strokes(label: str, other_key: str, other_label: str) -> Callable[[Obs, Memo], str]:

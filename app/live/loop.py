@@ -38,6 +38,7 @@ from app.core.twin import Twin
 from app.live.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
 from app.live.lab import SPEED_RANGE, UNPACED_SPEED, Lab, Notice, Settings
 from app.live.memory import trim_heap_soon
+from app.live.offload import LiveOffload
 from app.live.pacing import Pacer, RateMeter, next_frame_due
 from app.live.plan_worker import BackgroundPlanner
 
@@ -134,6 +135,10 @@ class SimLoop:
         self.lab = Lab(scenario, robot=robot, executor=executor, seed=seed, log_seconds=log_seconds)
         self.lab.defer_work = True  # a preset's costly preparation (a swivel plan) runs in `planner` meanwhile
         self.planner = BackgroundPlanner()
+        # the polish margin's live figures: in a worker process, not on the loop thread (`app.live.offload`)
+        # (started by the first figure a preset asks for, from a thread of its own: nothing waits)
+        self.offload = LiveOffload()
+        self.lab.set_offload(self.offload)
         self._clock = clock
         self.publish_period = 1.0 / publish_hz
         self.frames = FrameBuilder(self.publish_period, 1.0 / plot_hz, capture)
@@ -208,6 +213,7 @@ class SimLoop:
                 return False
             self._thread = None
         self.planner.stop()
+        self.offload.stop()
         return True
 
     @property

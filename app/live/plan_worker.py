@@ -29,7 +29,7 @@ from app.live.priority import set_process_niceness
 from app.scenarios import Work
 
 
-def _app_niceness() -> int:
+def app_niceness() -> int:
     """The niceness of the process's main thread (the app's default priority; 0 where unknown)."""
     try:
         return os.getpriority(os.PRIO_PROCESS, os.getpid())
@@ -61,7 +61,7 @@ class BackgroundPlanner:
                 max_workers=1,
                 mp_context=get_context("spawn"),
                 initializer=set_process_niceness,
-                initargs=(_app_niceness(),),
+                initargs=(app_niceness(),),
             )
         except Exception:  # no worker process here: a thread, never the loop thread itself
             return ThreadPoolExecutor(max_workers=1, thread_name_prefix="torquelab-work")

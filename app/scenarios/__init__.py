@@ -9,15 +9,17 @@ Each scenario module adds itself to `SCENARIOS` (name -> module under app.scenar
 `SCENARIO`, an instance of a `Scenario` subclass). What a runner needs from a preset comes through
 hooks every scenario may implement, so the runner names no preset: `Scenario.pending_work` (a
 computation to do, perhaps elsewhere, before the session is built), `Environment.settle_pending`
-(a settle phase is under way) and `Environment.connect` (the session's parameter groups, to read).
+(a settle phase is under way) and `Environment.connect` (the session's parameter groups, to read,
+and an `Offload` where the runner has one: a place off its loop thread for costly page signals).
 """
 
 from __future__ import annotations
 
 import importlib
 from collections.abc import Callable, Mapping
+from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
@@ -51,6 +53,16 @@ class Work:
     store: Callable[[Any], None]
 
 
+class Offload(Protocol):
+    """Where an environment's costly page signals are computed away from the loop thread (the app's
+    loop gives one; tests and headless runs give none and the environment computes inline)."""
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any) -> Future | None:
+        """Compute fn(*args) elsewhere (a module-level function, picklable arguments); None when it
+        cannot take work now (still starting, or behind): the caller skips this sample."""
+        ...
+
+
 class Environment:
     """Forces the surroundings apply each step (contact, sander, released masses...).
 
@@ -58,10 +70,16 @@ class Environment:
     state; it applies forces via `world.apply_force` and returns scalar signals for the logs.
     """
 
-    def connect(self, params: Callable[[], Mapping[str, ParamGroup]]) -> None:
-        """Called by the session once it has built the environment: `params()` gives the session's
-        parameter groups in force (read only), for an environment whose signals depend on the
-        controller's gains. Ignored by default."""
+    def connect(
+        self,
+        params: Callable[[], Mapping[str, ParamGroup]],
+        offload: Offload | None = None,
+        dynamics: Callable[[], Dynamics] | None = None,
+    ) -> None:
+        """Called by the session once it has built the environment (and again when its runner gives
+        an `offload`): `params()` gives the session's parameter groups in force (read only), for an
+        environment whose signals depend on the controller's gains; `dynamics()` the step's snapshot
+        of the arm's dynamics (during `apply`: of this step). Ignored by default."""
 
     def settle_pending(self) -> bool:
         """True while the preset's settle phase (before the task starts) has not ended; a preset

@@ -198,11 +198,17 @@ def _tang_session_step(robot):
 def _app_step(robot):
     """One step as the app's loop runs it, in a burst of a 30 Hz frame's 33 steps (`Lab.advance`:
     the Session steps, the step log, the divergence check), polish with W_a in contact; always the
-    Rizon 4s. The live margin (`polish_live_margin`) comes on top once per simulated second, the live
-    rate (`polish_live_rate`) ten times."""
+    Rizon 4s. As in the app's loop, the live margin (`polish_live_margin`, once per simulated second)
+    and the live rate (`polish_live_rate`, ten times) are computed in the worker process
+    (`app.live.offload`): the step pays only their snapshot and submission."""
     from app.live.lab import Lab
+    from app.live.offload import LiveOffload
 
     lab = Lab("polish")
+    offload = LiveOffload()
+    if not offload.ready(120.0):
+        raise RuntimeError("the live margin's worker process did not start within 120 s")
+    lab.set_offload(offload)
     lab.session.set_param("nullspace", "objective", "a")
     lab.advance(1000)  # past the first live margin and into steady contact
 
@@ -216,7 +222,8 @@ def _app_step(robot):
 def _polish_live_margin(robot):
     """The polish scenario's live force-loop margin signal (`live_margin`: Λx of the posture, the
     K_f^d search over two friction directions and three speeds), which runs once per simulated
-    second, not every step; always the Rizon 4s, at the posture of `tang_session_step_W_a`."""
+    second, not every step, and in the app in the worker process, not on the loop thread; always the
+    Rizon 4s, at the posture of `tang_session_step_W_a`."""
     from app.core.session import Session
     from app.scenarios.polish import PolishScenario
 
@@ -230,7 +237,8 @@ def _polish_live_margin(robot):
 def _polish_live_rate(robot):
     """The polish scenario's live decay rate σ (`live_rate`: Λx of the posture, one map of the force
     loop with its latency, one eigenvalue problem), which runs ten times per simulated second (every
-    100 steps); always the Rizon 4s, at the posture of `polish_live_margin`."""
+    100 steps; in the app in the worker process); always the Rizon 4s, at the posture of
+    `polish_live_margin`."""
     from app.core.session import Session
     from app.scenarios.polish import PolishScenario
 

@@ -1,7 +1,8 @@
 """Live plots (viser uPlot) in their own dockable panel, beside the control panel.
 
 Force error along the force axis (the twin's dashed when a twin runs); the polish force loop's decay
-rate σ (`app.scenarios.polish_margin`, < 0 where a mode grows); W_f, W_a, W_d (Fig. 8 of
+margin (`app.scenarios.polish_margin`): the stroke headroom h (< 0 where a disturbance at the noise
+floor reaches F̂ within the stroke) with the decay rate σ beside it (< 0 where a mode grows); W_f, W_a, W_d (Fig. 8 of
 [T]) in three small single-axis plots; the (q, q̇) phase of one joint with its velocity limits,
 the plot's x range being the joint's position range (Fig. 2–4 of [C]); joint torques as a share of
 their limits; the real-time factor. A window of 10, 30 or 60 s of simulated time, a Freeze switch
@@ -45,10 +46,10 @@ SEGMENTS = 6  # polish zig-zag S1…S6
 FORCE_RANGE_N = 10.0  # ± N before any widening
 TORQUE_RANGE_PCT = 110.0
 RTF_RANGE = 1.2
-RATE_RANGE_PER_S = 10.0  # ± 1/s of the force loop's decay rate before any widening
-RATE_ASPECT = 2.2  # width / height of the σ plot: tall enough for its ticks to stand apart
-RATE_TICKS = 2  # about two tick intervals on σ's y axis (−σ_max, 0): no crowding in a short plot
-RATE_TITLE = "Force-loop decay rate σ (1/s; < 0: a mode grows)"
+RATE_RANGE_PER_S = 10.0  # ± of the margin plot (headroom in Np, σ in 1/s) before any widening
+RATE_ASPECT = 2.2  # width / height of the margin plot: tall enough for its ticks to stand apart
+RATE_TICKS = 2  # about two tick intervals on its y axis (−max, 0): no crowding in a short plot
+RATE_TITLE = "Stroke headroom h (Np; < 0: noise grows to F̂ within the stroke) and σ (1/s)"
 W_SERIES = (("W_f", "1/kg²", COLORS[0]), ("W_a", "kg²", COLORS[1]), ("W_d", "1", COLORS[2]))
 LEGEND = {"live": False}  # labels only: no "--" / "NaN" values beside them
 DEFLECTION_RANGE_MM = 10.0
@@ -58,7 +59,7 @@ Y_LABELS = {
     "torque": "τ / τmax (%)",
     "rtf": "× real time",
     "deflection": "deflection (mm)",
-    "rate": "σ (1/s)",
+    "rate": "h (Np) · σ (1/s)",
     **{name: f"{name} ({unit})" for name, unit, _ in W_SERIES},
 }
 LIMIT_COLOR, DS_COLOR, DI_COLOR = "#555555", "#d62728", "#ff9f1c"
@@ -347,10 +348,11 @@ class Plots:
                 )
                 self.sensor_note = gui.add_markdown("")
                 self.rate = gui.add_uplot(
-                    _empty(4),
+                    _empty(5),
                     (
                         {"label": X_LABEL},
-                        _series("σ (1/s)", COLORS[6]),
+                        _series("h (Np)", COLORS[6]),
+                        _series("σ (1/s)", COLORS[5], width=1),
                         _series("0", "#888888", width=1, dash=(4.0, 4.0)),
                         _marker_series(),
                     ),
@@ -631,7 +633,7 @@ class Plots:
         self.torque.data = (x, *([nan2] * (self.n + 3)))
         self.deflection.data = (x, nan2, nan2, nan2, nan2)
         self.rtf.data = (x, nan2)
-        self.rate.data = (x, nan2, nan2, nan2)
+        self.rate.data = (x, nan2, nan2, nan2, nan2)
         for handle in self.w_plots.values():
             handle.data = (x, nan2, nan2)
         self.phase.data = (np.array([-1.0, 1.0]), *([nan2] * 6))
@@ -740,14 +742,17 @@ class Plots:
             self.force.title = title
 
     def _draw_rate(self, c: dict[str, np.ndarray], s: slice, x: np.ndarray, now: float) -> None:
-        """The polish preset's live σ (signal "margin_rate", recomputed every 0.1 s of simulated time
-        from the logged step's posture); all NaN elsewhere."""
-        rate = c.get("margin_rate")
-        rate = np.full(len(c["t"]), np.nan) if rate is None else rate
-        values = np.abs(rate[np.isfinite(rate)])
+        """The polish preset's live margin: the stroke headroom h (signal "margin_headroom_np", from the
+        σ samples of the current stroke) and σ (signal "margin_rate", every 0.1 s of simulated time from
+        the logged step's posture); all NaN elsewhere."""
+        nan = np.full(len(c["t"]), np.nan)
+        rate = c.get("margin_rate", nan)
+        headroom = c.get("margin_headroom_np", nan)
+        both = np.concatenate([rate, headroom])
+        values = np.abs(both[np.isfinite(both)])
         hi = nice_ceiling(1.1 * float(values.max()), RATE_RANGE_PER_S) if values.size else RATE_RANGE_PER_S
         self._set_range("rate", self.rate, (-hi, hi))
-        self.rate.data = _with_markers(x, [rate[s], np.zeros(len(x))], self.markers, now, -hi, hi)
+        self.rate.data = _with_markers(x, [headroom[s], rate[s], np.zeros(len(x))], self.markers, now, -hi, hi)
 
     def _draw_torque(self, plot: PlotData, c: dict[str, np.ndarray], s: slice, x: np.ndarray, now: float) -> None:
         ratio = [

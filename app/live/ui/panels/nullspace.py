@@ -117,10 +117,21 @@ def w_text(name: str, value: float | None, singular: bool) -> str:
 def _polish_lines(sig: dict) -> str:
     """Settle progress and the force-loop margin (polish preset signals), or "" elsewhere."""
     out = ""
+    headroom = sig.get("margin_headroom_np")
+    if headroom is not None and headroom == headroom:  # not NaN: on a stroke
+        least = sig.get("margin_headroom_stroke_min_np")
+        low = f", least on this stroke {least:+.1f} Np" if least is not None and least == least else ""
+        verdict = (
+            "the stroke ends first" if headroom > 0 else "a disturbance at the noise floor reaches F̂ within the stroke"
+        )
+        out += (
+            f"  \n**Force-loop margin (stroke headroom):** {headroom:+.1f} Np now{low} "
+            f"(ln(F̂/noise floor) − the growth so far on this stroke; {verdict})"
+        )
     margin = sig.get("margin_kd")
     if margin is not None and margin == margin:  # not NaN
-        verdict = "stays on the table" if margin > 0 else "predicted to lose contact when sliding"
-        out += f"  \n**Force-loop margin:** {margin:+.0f} N s/m (K_f^d − critical K_f^d; {verdict})"
+        verdict = "stable now" if margin > 0 else "unstable now"
+        out += f"  \n**K_f^d margin:** {margin:+.0f} N s/m (K_f^d − critical K_f^d at this posture; {verdict})"
     rate = sig.get("margin_rate")
     if rate is not None and rate == rate:
         worst = sig.get("margin_rate_stroke_min")
