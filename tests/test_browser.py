@@ -268,6 +268,31 @@ def start_drag(page: Any, client: Any, app: Any, link: str, attempts: int = 2) -
     pytest.fail(f"no drag of {link} after {attempts} presses", pytrace=False)
 
 
+def drag_along_the_spring(page: Any, client: Any, app: Any, link: str, what: str) -> tuple[float, float]:
+    """Press on `link`, move the pointer five times up and to the left (~25 px each) and wait until the
+    grabbed point has followed the spring's pull by more than 1 cm (`what` names it in a timeout); returns
+    (m moved along the pull, peak spring force in N). The button stays down: the caller releases it."""
+    x, y = start_drag(page, client, app, link)
+    start = drag_state(app).point
+    assert start is not None
+    peak = 0.0
+    for k in range(1, 6):
+        page.mouse.move(x - 15 * k, y - 20 * k)
+        peak = max(peak, drag_state(app).force_n)
+
+    def pulled_along_the_spring() -> float:
+        """Displacement (m) of the grabbed point along the spring's pull direction since the grab."""
+        view = drag_state(app)
+        if view.point is None or view.target is None or np.linalg.norm(view.target - start) < 0.02:
+            return 0.0
+        pull = (view.target - start) / np.linalg.norm(view.target - start)
+        along = float((view.point - start) @ pull)
+        return along if along > 0.01 else 0.0
+
+    moved = wait_for(pulled_along_the_spring, 30, what)
+    return moved, max(peak, drag_state(app).force_n)
+
+
 # ---- GUI controls -----------------------------------------------------------------------------------
 _CONTROL_JS = """([pattern, role]) => {
     const re = new RegExp(pattern);
@@ -962,6 +987,166 @@ def test_the_compliance_lesson_in_the_page_compares_the_gamma_modes(app, page):
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
 
 
+_SIGNALS_FOLD_JS = """(title) => {
+    for (const v of Object.values((window.__viserTestpoints || {}).uplots || {})) {
+        const c = v.chart;
+        if (!c.root.isConnected || !(c.root.querySelector('.u-title')?.textContent || '').startsWith(title)) continue;
+        for (let el = c.root.parentElement; el; el = el.parentElement) {
+            const labels = [...el.querySelectorAll('.mantine-Paper-root')].filter(
+                p => p.firstChild && p.firstChild.nodeType === 3 && p.firstChild.textContent.trim() === 'Signals');
+            if (labels.length > 1) return false;
+            if (labels.length === 1) {
+                labels[0].scrollIntoView({block: 'center'});
+                labels[0].click();
+                return true;
+            }
+        }
+    }
+    return false;
+}"""
+
+_SERIES_JS = """(title) => {
+    for (const v of Object.values((window.__viserTestpoints || {}).uplots || {})) {
+        const c = v.chart;
+        if (!c.root.isConnected || !(c.root.querySelector('.u-title')?.textContent || '').startsWith(title)) continue;
+        return c.series.slice(1).map((s, i) => ({label: s.label, show: s.show !== false,
+            finite: (c.data[i + 1] || []).filter(y => y !== null && Number.isFinite(y)).length}));
+    }
+    return null;
+}"""
+
+TORQUE_TITLE = "Torques"
+
+
+def drawn_joints(pg: Any) -> tuple[int, ...] | None:
+    """The joints (1-based) whose torque series the page's torque chart shows with samples; None if a series
+    is shown without samples or hidden with some (a choice half applied), or there is no torque chart."""
+    series = pg.evaluate(_SERIES_JS, TORQUE_TITLE)
+    if not series:
+        return None
+    joints = [(int(s["label"][1:]), s["show"], s["finite"]) for s in series if re.fullmatch(r"τ\d+", s["label"])]
+    if any(show != (finite > 0) for _, show, finite in joints):
+        return None
+    return tuple(j for j, show, _ in joints if show)
+
+
+def test_the_signals_ticked_in_a_plots_fold_are_the_series_its_chart_draws(app, page):
+    """Polish, paused: in the torque chart's Signals fold a person unticks τ1, τ2 and τ3: the page's chart
+    hides those series and holds no sample of them while τ4…τ7 keep drawing; after a switch to the limit
+    drop its torque chart draws the same joints; ticking τ2 again draws it."""
+    from app.core.commands import Pause, Play, SwitchSession
+
+    pg, _ = page
+    plots = app.publisher.plots
+    n = plots.n
+    try:
+        wait_for(lambda: drawn_joints(pg) == tuple(range(1, n + 1)), 60, "every joint's torque drawn")
+        app.loop.submit(Pause())  # a still page answers clicks sooner; the chart redraws from its history
+        wait_for(lambda: pg.evaluate(_SIGNALS_FOLD_JS, TORQUE_TITLE), 30, "the torque chart's Signals fold to open")
+        for k in (1, 2, 3):
+            box = pg.get_by_label(f"τ{k}", exact=True)
+            box.scroll_into_view_if_needed()
+            box.uncheck()
+        wait_for(lambda: drawn_joints(pg) == tuple(range(4, n + 1)), 30, "τ1…τ3 hidden in the page's chart")
+        assert plots.signals.shown_keys("torque") == (*(f"tau_{k}" for k in range(4, n + 1)), "limits")
+        app.loop.submit(SwitchSession(scenario="limit-drop", robot=""))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "limit-drop" and app.loop.status.t > 0.5, 60, "the limit drop")
+        wait_for(lambda: drawn_joints(pg) == tuple(range(4, n + 1)), 60, "the same joints drawn after the switch")
+        box = pg.get_by_label("τ2", exact=True)
+        box.scroll_into_view_if_needed()
+        box.check()
+        wait_for(lambda: drawn_joints(pg) == (2, *range(4, n + 1)), 30, "τ2 drawn again")
+    finally:
+        plots.choose_signals("torque", [k for k, _ in plots.signals.specs["torque"]])
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
+_DRAWN_POINTS_JS = """(points) => {
+    // world points (the server's frame, z up) where the page draws them: the scene root's transform, then
+    // the page's own camera; CSS pixels of the page
+    const m = window.__viserMutable, root = m && m.nodeRefFromName[''];
+    if (!m || !m.camera || !m.canvas || !root) return null;
+    const cam = m.camera, rect = m.canvas.getBoundingClientRect();
+    cam.updateMatrixWorld();
+    root.updateWorldMatrix(true, false);
+    const mul = (e, p) => [0, 1, 2, 3].map(r => e[r] * p[0] + e[4 + r] * p[1] + e[8 + r] * p[2] + e[12 + r] * p[3]);
+    const out = points.map(p => {
+        const c = mul(cam.projectionMatrix.elements, mul(cam.matrixWorldInverse.elements,
+                                                         mul(root.matrixWorld.elements, [p[0], p[1], p[2], 1])));
+        return c[3] > 0 ? [rect.x + (c[0] / c[3] + 1) / 2 * rect.width, rect.y + (1 - c[1] / c[3]) / 2 * rect.height]
+                        : null;
+    });
+    return {points: out, canvas: {x: rect.x, y: rect.y, width: rect.width, height: rect.height}};
+}"""
+IN_VIEW_MARGIN_PX = 40  # about a link's radius at the framed distance: the link around its origin is in view too
+
+
+def arm_in_view(app: Any, pg: Any) -> str:
+    """ "" if every link origin, the tool and the coupling ellipse's centre are drawn inside the page's 3D
+    view (the canvas between the panels) at least IN_VIEW_MARGIN_PX from its edges, else what is not."""
+    snap = app.publisher.last_frame.scene
+    names = [*snap.link_names, "tool"]
+    points = [*np.asarray(snap.link_positions).tolist(), np.asarray(snap.tcp_position).tolist()]
+    center = app.publisher.scene.overlays.coupling_center if app.publisher.scene is not None else None
+    if center is not None and app.publisher.scene.overlays.coupling_disc.visible:
+        names.append("coupling ellipse")
+        points.append(np.asarray(center).tolist())
+    got = pg.evaluate(_DRAWN_POINTS_JS, points)
+    if got is None:
+        return "no camera in the page"
+    box, m = got["canvas"], IN_VIEW_MARGIN_PX
+    out = [
+        f"{name} at {None if xy is None else (round(xy[0]), round(xy[1]))}"
+        for name, xy in zip(names, got["points"], strict=True)
+        if xy is None
+        or not (
+            box["x"] + m < xy[0] < box["x"] + box["width"] - m and box["y"] + m < xy[1] < box["y"] + box["height"] - m
+        )
+    ]
+    return "; ".join(out) + (f" outside the view {box}" if out else "")
+
+
+def assert_in_view(app: Any, pg: Any, what: str, timeout: float = 10.0) -> None:
+    """`arm_in_view` within `timeout` s (the page takes a frame or two to draw a new camera), else fail with
+    what is out of view."""
+    deadline = time.monotonic() + timeout
+    while (problem := arm_in_view(app, pg)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not problem, f"{what}: {problem}"
+
+
+def test_the_arm_its_tool_and_the_ellipse_stay_in_view_after_a_robot_switch_a_load_and_a_preset_switch(
+    app, page, browser
+):
+    """Polish → robot gen3: after 8 s (the settle swings gen3's elbow far from its start) every link origin,
+    the tool and the coupling ellipse are drawn inside the 3D view between the panels; so they are in a page
+    that loads then, and after a switch to the mass drop (gen3)."""
+    from app.core.commands import Play, SwitchSession
+
+    pg, _ = page
+    try:
+        app.loop.submit(SwitchSession(scenario="polish", robot="gen3"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish" and app.loop.status.t > 8.0, 90, "8 s of gen3's polish")
+        assert_in_view(app, pg, "gen3's polish after the robot switch")
+        other, _ = open_page(app, browser)
+        try:
+            assert_in_view(app, other, "gen3's polish in a page that loads now", 20.0)
+        finally:
+            other.close()
+        app.loop.submit(SwitchSession(scenario="mass-drop", robot=""))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "mass-drop" and app.loop.status.t > 3.0, 90, "the mass drop")
+        assert_in_view(app, pg, "the mass drop after the preset switch")
+    finally:
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
 def test_space_pauses_and_plays_arrow_steps_and_r_resets(app, page):
     from app.core.commands import Play
     from app.live.ui.panels.scenario import ScenarioPanel
@@ -1081,25 +1266,9 @@ def test_the_first_look_drag_in_free_moves_the_elbow_along_the_spring(app, page)
         choose_preset(app, pg, "free")
         set_running(app, pg, True)
         assert drag_state(app).body is None
-        x, y = start_drag(pg, client, app, DRAG_LINK)
-        start = drag_state(app).point
-        assert start is not None
-        peak = 0.0
-        for k in range(1, 6):  # 5 moves up and to the left, ~25 px each
-            pg.mouse.move(x - 15 * k, y - 20 * k)
-            peak = max(peak, drag_state(app).force_n)
-
-        def pulled_along_the_spring() -> float:
-            """Displacement (m) of the grabbed point along the spring's pull direction since the grab."""
-            view = drag_state(app)
-            if view.point is None or view.target is None or np.linalg.norm(view.target - start) < 0.02:
-                return 0.0
-            pull = (view.target - start) / np.linalg.norm(view.target - start)
-            along = float((view.point - start) @ pull)
-            return along if along > 0.01 else 0.0
-
-        moved = wait_for(pulled_along_the_spring, 30, "the grabbed point to follow the spring by 1 cm")
-        peak = max(peak, drag_state(app).force_n)
+        moved, peak = drag_along_the_spring(
+            pg, client, app, DRAG_LINK, "the grabbed point to follow the spring by 1 cm"
+        )
         assert moved > 0.01 and peak > 5.0, f"moved {moved * 1e3:.1f} mm with at most {peak:.1f} N"
         save_tour_shot(pg, "tour-1-drag.png")
         pg.mouse.up()
@@ -1111,12 +1280,9 @@ def test_the_first_look_drag_in_free_moves_the_elbow_along_the_spring(app, page)
         wait_for(lambda: app.loop.sync().executor == "projection", 30, "the projection executor")
         set_running(app, pg, True)
         tcp_before = app.loop.call(lambda s: s.dyn.tcp_position_world.copy())
-        x, y = start_drag(pg, client, app, DRAG_LINK)
-        start = drag_state(app).point
-        assert start is not None
-        for k in range(1, 6):
-            pg.mouse.move(x - 15 * k, y - 20 * k)
-        moved = wait_for(pulled_along_the_spring, 30, "the elbow to follow the spring by 1 cm (projection)")
+        moved, _ = drag_along_the_spring(
+            pg, client, app, DRAG_LINK, "the elbow to follow the spring by 1 cm (projection)"
+        )
         tcp_now = app.loop.call(lambda s: s.dyn.tcp_position_world.copy())
         tcp_shift = float(np.linalg.norm((tcp_now - tcp_before)[:2]))  # x, y: motion axes (z: the force axis)
         print(

@@ -12,7 +12,7 @@ import pytest
 from app.tools.bench_serve import CHROMIUM_ARGS
 from robots import external
 from tests.conftest import free_port
-from tests.test_browser import chromium_path, drag_state, open_page, start_drag, wait_for
+from tests.test_browser import chromium_path, drag_along_the_spring, drag_state, open_page, wait_for
 
 pytestmark = [
     pytest.mark.browser,
@@ -60,24 +60,7 @@ def test_the_page_draws_the_pandas_meshes_and_a_drag_on_its_hand_moves_the_arm(p
         assert all(len(scene._link_shapes[name].faces) > 500 for name in PANDA_VISUAL_LINKS)
         assert all(scene.meshes[name].visible for name in PANDA_VISUAL_LINKS)
         tcp0, q0 = app.loop.call(lambda s: (s.dyn.tcp_position_world.copy(), s.world.q.copy()))
-        x, y = start_drag(page, client, app, DRAG_LINK)
-        start = drag_state(app).point
-        assert start is not None
-        peak = 0.0
-        for k in range(1, 6):  # 5 moves up and to the left, ~25 px each
-            page.mouse.move(x - 15 * k, y - 20 * k)
-            peak = max(peak, drag_state(app).force_n)
-
-        def pulled() -> float:
-            view = drag_state(app)
-            if view.point is None or view.target is None or np.linalg.norm(view.target - start) < 0.02:
-                return 0.0
-            pull = (view.target - start) / np.linalg.norm(view.target - start)
-            along = float((view.point - start) @ pull)
-            return along if along > 0.01 else 0.0
-
-        moved = wait_for(pulled, 30, "the hand to follow the spring by 1 cm")
-        peak = max(peak, drag_state(app).force_n)
+        moved, peak = drag_along_the_spring(page, client, app, DRAG_LINK, "the hand to follow the spring by 1 cm")
         tcp, q = app.loop.call(lambda s: (s.dyn.tcp_position_world.copy(), s.world.q.copy()))
         shift = float(np.linalg.norm(tcp - tcp0))
         print(
