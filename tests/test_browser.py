@@ -650,8 +650,8 @@ def test_every_plot_has_its_y_axis_with_units_in_every_preset_and_the_lessons_pl
 
 
 def test_a_paused_reset_clears_the_plots_and_readouts_of_the_old_run(app, page):
-    """Polish runs into the zig-zag's readouts; paused, Reset: the force plot has no sample of the old
-    run left and the readout line says a new run starts, until Play."""
+    """The limit drop runs into its peak-torque readout; paused, Reset: no chart of the page has a sample of
+    the old run left, the readouts are gone and the readout line says a new run starts."""
     from app.core.commands import Pause, Play, Reset, SetSpeed, SwitchSession
 
     pg, _ = page
@@ -675,9 +675,10 @@ def test_a_paused_reset_clears_the_plots_and_readouts_of_the_old_run(app, page):
 
 
 def test_a_case_switch_in_the_page_keeps_the_users_friction_and_says_what_it_reset(app, page, paused):
-    """Polish, μ = 1 and W_d typed into the page, then Case → mirror start: μ stays 1 and W_d stays the
-    objective; one notice (repeated in the status line, at the top of the plots) says it kept both (the
-    case owns neither; tests/test_lessons.py checks that a value the case owns is named as reset)."""
+    """Polish, μ = 1 and W_d typed into the page, then Case → mirror start: μ stays 1 (in force and in the
+    Tune tab's box) and W_d stays the objective; one notice (repeated in the status line, at the top of the
+    plots) says it kept both (the case owns neither; tests/test_lessons.py checks that a value the case
+    owns is named as reset)."""
     from app.core.commands import SwitchSession
 
     pg, _ = page
@@ -696,6 +697,7 @@ def test_a_case_switch_in_the_page_keeps_the_users_friction_and_says_what_it_res
         notices = [n for n in app.loop.lab.notice_log if n.title == "Case mirror start"]
         assert len(notices) == 1 and "kept 2 value(s) you set" in notices[0].body  # μ and the objective
         open_tab(pg, "Tune")  # the status line is at the top of the plots: in view from Tune too
+        wait_for(lambda: re.fullmatch(r"1(\.0*)?", number_text(pg, r"^Friction μ")), 20, "the μ box to show 1")
         wait_for(lambda: pg.get_by_text("Latest notice: Case mirror start", exact=False).count() > 0, 20, "status")
         assert pg.get_by_text("Latest notice: Case mirror start", exact=False).first.is_visible()
     finally:
@@ -1214,6 +1216,13 @@ def type_number(pg: Any, label_pattern: str, text: str) -> None:
     box.scroll_into_view_if_needed()
     box.fill(text)
     box.press("Enter")
+
+
+def number_text(pg: Any, label_pattern: str) -> str:
+    """The text the number box of the input labelled `label_pattern` shows in the page."""
+    mark = f"box{time.monotonic_ns()}"
+    wait_for(lambda: pg.evaluate(_NUMBER_BOX_JS, [label_pattern, mark]), 30, f"the number box of {label_pattern}")
+    return str(pg.locator(f"[data-tour-box={mark}]").input_value())
 
 
 def param(app: Any, group: str, field: str) -> Any:

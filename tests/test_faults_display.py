@@ -154,9 +154,10 @@ def test_serve_exits_non_zero_with_the_reason_when_the_publisher_cannot_be_resta
     assert "the publisher always breaks" in err
 
 
-def test_junk_for_the_phase_joint_selector_is_one_notice_to_its_sender_and_the_plots_run_on(app):
-    joint = app.publisher.plots.joint
-    before = joint.value
+def _junk_from_one_client(app, uuid: str, junk: tuple, count: int, then: tuple = ()) -> dict[int, int]:
+    """From a raw websocket (beside a bystander that sends nothing) `count` GUI updates for the input `uuid`
+    cycling through `junk`, waiting until the guard has refused them all, then the values `then`; returns
+    the notices sent meanwhile, by client id."""
     guard = app.input_guard
     refused, notified = guard.refused, dict(guard.notified)
     sub = [f"viser-v{viser.__version__}"]
@@ -165,16 +166,24 @@ def test_junk_for_the_phase_joint_selector_is_one_notice_to_its_sender_and_the_p
     try:
         bystander.send(camera_message())
         ws.send(camera_message())
-        junk = ("abc", "0", "99", 4, None, [1], "4.5", "")
-        for i in range(1000):
-            msg = {"type": "GuiUpdateMessage", "uuid": joint._impl.uuid, "updates": {"value": junk[i % len(junk)]}}
+        for i in range(count):
+            msg = {"type": "GuiUpdateMessage", "uuid": uuid, "updates": {"value": junk[i % len(junk)]}}
             ws.send(msgspec.msgpack.encode(msg))
-        assert wait_until(lambda: guard.refused - refused == 1000)
+        assert wait_until(lambda: guard.refused - refused == count)
+        new = {k: v - notified.get(k, 0) for k, v in guard.notified.items() if v - notified.get(k, 0)}
+        for value in then:
+            ws.send(msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": uuid, "updates": {"value": value}}))
+        return new
     finally:
         ws.close()
         bystander.close()
+
+
+def test_junk_for_the_phase_joint_selector_is_one_notice_to_its_sender_and_the_plots_run_on(app):
+    joint = app.publisher.plots.joint
+    before = joint.value
+    new = _junk_from_one_client(app, joint._impl.uuid, ("abc", "0", "99", 4, None, [1], "4.5", ""), 1000)
     assert joint.value == before  # the value every page sees is unchanged
-    new = {k: v - notified.get(k, 0) for k, v in guard.notified.items() if v - notified.get(k, 0)}
     assert list(new.values()) == [1]  # one notice, to one client (the sender: the bystander sent no junk)
     assert _shown_grows(app, "plot_updates")
     assert "plots" not in app.publisher.stages.failing
@@ -185,29 +194,14 @@ def test_junk_for_a_plots_signal_checkbox_is_one_notice_to_its_sender_and_the_ch
     one notice to that client only, τ3 still drawn, and a real update after them still applies."""
     plots = app.publisher.plots
     box = plots.signal_boxes[("torque", "tau_3")]
-    guard = app.input_guard
-    refused, notified = guard.refused, dict(guard.notified)
-    sub = [f"viser-v{viser.__version__}"]
-    bystander = connect(f"ws://127.0.0.1:{app.port}", subprotocols=sub, open_timeout=10)
-    ws = connect(f"ws://127.0.0.1:{app.port}", subprotocols=sub, open_timeout=10)
     try:
-        bystander.send(camera_message())
-        ws.send(camera_message())
-        junk = ("false", 0, 1, None, [False], 0.5, "")
-        for i in range(200):
-            msg = {"type": "GuiUpdateMessage", "uuid": box._impl.uuid, "updates": {"value": junk[i % len(junk)]}}
-            ws.send(msgspec.msgpack.encode(msg))
-        assert wait_until(lambda: guard.refused - refused == 200)
-        assert box.value is True and plots.signals.shown("torque", "tau_3")
-        new = {k: v - notified.get(k, 0) for k, v in guard.notified.items() if v - notified.get(k, 0)}
+        new = _junk_from_one_client(app, box._impl.uuid, ("false", 0, 1, None, [False], 0.5, ""), 200)
         assert list(new.values()) == [1]  # one notice, to the sender alone
-        msg = {"type": "GuiUpdateMessage", "uuid": box._impl.uuid, "updates": {"value": False}}
-        ws.send(msgspec.msgpack.encode(msg))
-        assert wait_until(lambda: not plots.signals.shown("torque", "tau_3"))
+        assert box.value is True and plots.signals.shown("torque", "tau_3")
+        _junk_from_one_client(app, box._impl.uuid, (), 0, then=(False,))
+        assert wait_until(lambda: not plots.signals.shown("torque", "tau_3"))  # the real update applied
         assert wait_until(lambda: plots.torque.series[3].get("show") is False)
     finally:
-        ws.close()
-        bystander.close()
         plots.choose_signals("torque", (*plots.signals.shown_keys("torque"), "tau_3"))
 
 
