@@ -312,7 +312,7 @@ def _finite(values) -> int:
 def test_the_signals_chosen_for_a_plot_are_the_ones_it_draws_across_a_switch_and_a_reset(server, polish, drop):
     """Torque plot: joints 2 and 5 only: every other joint's series is hidden and sent without a finite sample,
     and the y range covers only the shown joints; a checkbox unticked in the page hides its series the same
-    way; a preset switch (new session) and a blank new run keep the choice; W_d's plot and the σ plot hide;
+    way; a preset switch (new session) and a blank new run keep the choice; W_d's plot and the margin plot hide;
     an unknown series is refused in one line and changes nothing."""
     plots = Plots(server)
     plots.update(drop, session=1)

@@ -21,7 +21,12 @@ SignalSpecs = dict[str, tuple[tuple[str, str], ...]]  # chart → (series key, l
 def signal_specs(n_joints: int) -> SignalSpecs:
     """The choosable series of each chart (charts with one series have none)."""
     return {
-        "force": (("error", "F̂ − F"), ("twin", "twin arm"), ("previous", "previous run"), ("rate", "σ plot")),
+        "force": (
+            ("error", "F̂ − F"),
+            ("twin", "twin arm"),
+            ("previous", "previous run"),
+            ("rate", "margin plot (h, σ)"),
+        ),
         "coupling": (("W_f", "W_f"), ("W_a", "W_a"), ("W_d", "W_d")),
         "torque": (*((f"tau_{i + 1}", f"τ{i + 1}") for i in range(n_joints)), ("limits", "±limit")),
         "phase": (("speed_limits", "±q̇max"), ("zones", "limit, d_s, d_i")),
