@@ -32,7 +32,7 @@ def _has_rate(plot) -> bool:
 
 def _plot_data(scenario: str, steps: int = 300):
     loop = SimLoop(scenario, capture=capture)
-    assert loop.offload.ready(60.0)  # the live margin's worker process: its figures from the first step on
+    assert loop.offload.ready(120.0)  # the live margin's worker process: its figures from the first step on
     loop.start(running=False)
     try:
         loop.submit(StepOnce(steps))
