@@ -10,8 +10,8 @@ in the canvas centres in the free area.
 settle phase can swing the elbow far from the start posture): when a point leaves the framed box by
 more than `FOLLOW_TOLERANCE_M`, the pages whose camera is still where the app put it are framed again
 on everything seen since the switch (widened by `FOLLOW_PAD` about its middle, not compounding), at
-most once per `FOLLOW_PERIOD_S`. A page whose camera a person moved is left alone until the next
-switch or *Frame the robot*.
+most once per `FOLLOW_PERIOD_S`, and not while a link is dragged. A page whose camera a person moved
+is left alone until the next switch or *Frame the robot*.
 """
 
 from __future__ import annotations

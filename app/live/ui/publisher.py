@@ -237,7 +237,7 @@ class Publisher:
             elif self._frame_pending:
                 self.framer.frame(points)
                 self._frame_pending = False
-            else:
+            elif frame.scene.drag_point is None:  # never under a person's drag (the pointer would slip)
                 self.framer.follow(points)
 
     def _show_panels(self, frame: Frame) -> None:
