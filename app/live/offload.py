@@ -34,6 +34,9 @@ from app.live.plan_worker import app_niceness
 from app.live.priority import set_process_niceness
 
 READY_TIMEOUT_S = 120.0  # a worker that has not imported the scenarios by then is given up (and tried again)
+# the worker runs this much nicer than the app: woken by a job, it must not take the core the loop
+# thread (or, headless, the stepping thread) is on; a figure a few milliseconds late costs nothing
+WORKER_NICENESS_ABOVE_APP = 10
 
 
 def _serve(conn: Connection, niceness: int) -> None:
@@ -122,7 +125,8 @@ class LiveOffload:
     def _start(self) -> None:
         ctx = get_context("spawn")
         ours, theirs = ctx.Pipe()
-        process = ctx.Process(target=_serve, args=(theirs, app_niceness()), name="torquelab-offload", daemon=True)
+        niceness = min(19, app_niceness() + WORKER_NICENESS_ABOVE_APP)
+        process = ctx.Process(target=_serve, args=(theirs, niceness), name="torquelab-offload", daemon=True)
         try:
             process.start()
             theirs.close()
