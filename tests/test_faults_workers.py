@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import os
 import signal
@@ -96,22 +97,36 @@ def test_effective_gaps_subtract_only_the_overlap_with_machine_stalls():
     np.testing.assert_allclose(gaps, [(0.2, 0.13), (0.05, 0.03), (0.25, 0.25)])
 
 
-@pytest.mark.usefixtures("warm_kernels")
-def test_the_loop_steps_on_without_a_100_ms_gap_while_a_killed_worker_is_replaced(tmp_path):
-    """The loop hands a preset's work to the planner and keeps stepping while the worker is killed and
-    the work computed again by a new one (computing it on the loop thread took seconds). Asserted: the
-    longest gap between two steps' wall-clock stamps from the kill to the work's end stays under 100 ms
-    once the spans a stall probe at the loop's niceness was stalled too are taken out (the machine's
-    load, not the loop: `app.tools.stall_probe --stream`), and the loop thread's CPU time inside each
-    planner call stays under 100 ms. The raw gap is printed beside it. Limit of the method: on 2 cores
-    the probe may run while the loop thread waits for a core, and such a wait counts against the loop."""
+MAX_GAP_S = 0.1  # the issue's bound on the loop's longest gap between two steps through a worker kill
+PROBE_OVER_MS = 5  # the stall probe reports its wake-ups later than this
+
+
+def _gaps_through_a_worker_kill(tmp_path, stall_on_loop_s: float = 0.0) -> dict[str, float]:
+    """The loop hands a preset's work to the planner; its worker is killed while it computes and the
+    work is computed again by a new one. Measured from the kill to the work's end: the longest gap
+    between two steps' wall-clock stamps, raw and less the spans a stall probe at the loop's niceness
+    (`app.tools.stall_probe --stream`, a process of its own) was stalled too, and the loop thread's
+    largest CPU time in one planner call. `stall_on_loop_s` > 0 sleeps that long on the loop thread
+    in its first planner call after the kill (a stand-in for work that would block the loop there).
+
+    Why the probe's stalls are subtracted: on a machine shared with other work, the scheduler can
+    stop every thread for tens of ms (the host, other processes); the probe sleeps 1 ms at a time
+    in another process at the loop's priority, so a span in which it woke late too is the machine's,
+    not the loop's. What the loop does itself (a plan, a spawn or a sleep on its thread) does not
+    stall the probe and is counted whole. Limit: on 2 cores the probe may run while the loop thread
+    waits for a core; such a wait counts against the loop."""
     lp = SimLoop("free", capture=lambda s: None)
     planner = lp.planner
     cpu: list[float] = []  # the loop thread's CPU time in each planner call
     done_at: list[float] = []  # when take_done first handed the command back
+    killed: list[float] = []  # when the worker was killed
+    stalled: list[float] = []  # when the injected sleep ran
 
     def on_loop_cpu(fn):
         def timed(*args, **kwargs):
+            if stall_on_loop_s > 0 and killed and not stalled:
+                stalled.append(time.monotonic())
+                time.sleep(stall_on_loop_s)
             t0 = time.thread_time()
             try:
                 out = fn(*args, **kwargs)
@@ -138,7 +153,7 @@ def test_the_loop_steps_on_without_a_100_ms_gap_while_a_killed_worker_is_replace
     stored: list[int] = []
     log = tmp_path / "stalls.txt"  # a file, not a pipe: a full pipe would stop the probe
     probe = subprocess.Popen(
-        [sys.executable, "-m", "app.tools.stall_probe", "600", str(LOOP_NICENESS), "--stream", "5"],
+        [sys.executable, "-m", "app.tools.stall_probe", "600", str(LOOP_NICENESS), "--stream", str(PROBE_OVER_MS)],
         stdout=log.open("w"),
     )
     lp.start(running=True)
@@ -149,7 +164,7 @@ def test_the_loop_steps_on_without_a_100_ms_gap_while_a_killed_worker_is_replace
         lp.call(lambda s: planner.start(SwitchSession(scenario="compliance"), work))  # as a switch hands it over
         _wait_for_worker(planner)
         time.sleep(1.0)  # the worker computes
-        killed_at = time.monotonic()
+        killed.append(time.monotonic())
         assert _kill_workers(planner._pool) == 1
         status = lp.sync(timeout=300.0)  # queued behind the switch: answered once it applied
         assert status.scenario == "compliance" and planner.rebuilds == 1
@@ -159,16 +174,47 @@ def test_the_loop_steps_on_without_a_100_ms_gap_while_a_killed_worker_is_replace
         probe.terminate()
         probe.wait(timeout=30.0)
     stalls = [(float(a), float(b)) for a, b in (line.split() for line in log.read_text().splitlines())]
-    assert max(cpu) < 0.1, f"the loop thread spent {max(cpu):.3f} s of CPU in one planner call"
-    during = [t for t in stamps if killed_at <= t <= done_at[0]]
+    # from the last step before the kill to the first after the work's end: a gap that spans either
+    # instant counts whole (cut at the first step after the kill, a stall begun at the kill was missed)
+    first, last = max(0, bisect.bisect_right(stamps, killed[0]) - 1), bisect.bisect_left(stamps, done_at[0]) + 1
+    during = stamps[first:last]
     assert len(during) > 1000, "the loop did not step while the work was computed again"
+    assert stall_on_loop_s == 0 or killed[0] <= stalled[0] <= done_at[0]
     gaps = _effective_gaps(during, stalls)
-    raw, effective = max(g for g, _ in gaps), max(e for _, e in gaps)
+    out = {
+        "replaced_s": done_at[0] - killed[0],
+        "raw_s": max(g for g, _ in gaps),
+        "effective_s": max(e for _, e in gaps),
+        "cpu_s": max(cpu),
+        "probe_stalls": len(stalls),
+    }
     print(
-        f"worker replaced in {done_at[0] - killed_at:.1f} s; longest gap between steps {1e3 * raw:.0f} ms raw, "
-        f"{1e3 * effective:.0f} ms less machine stalls ({len(stalls)} probe stalls > 5 ms)"
+        f"worker replaced in {out['replaced_s']:.1f} s (loop thread slept {1e3 * stall_on_loop_s:.0f} ms at the "
+        f"kill); longest gap between steps {1e3 * out['raw_s']:.0f} ms raw, {1e3 * out['effective_s']:.0f} ms less "
+        f"machine stalls ({len(stalls)} probe stalls > {PROBE_OVER_MS} ms); the loop thread's CPU in one planner "
+        f"call at most {1e3 * out['cpu_s']:.1f} ms"
     )
-    assert effective < 0.1, f"the loop paused {1e3 * effective:.0f} ms beyond the machine's own stalls"
+    return out
+
+
+@pytest.mark.usefixtures("warm_kernels")
+def test_the_loop_steps_on_without_a_100_ms_gap_while_a_killed_worker_is_replaced(tmp_path):
+    """Through a planner worker kill the loop's longest gap between two steps, less the machine's own
+    stalls (see `_gaps_through_a_worker_kill`), stays under MAX_GAP_S (computing the work on the
+    loop thread stalled it for seconds)."""
+    gaps = _gaps_through_a_worker_kill(tmp_path)
+    assert gaps["cpu_s"] < MAX_GAP_S, f"the loop thread spent {gaps['cpu_s']:.3f} s of CPU in one planner call"
+    assert gaps["effective_s"] < MAX_GAP_S, (
+        f"the loop paused {1e3 * gaps['effective_s']:.0f} ms beyond the machine's own stalls"
+    )
+
+
+@pytest.mark.usefixtures("warm_kernels")
+def test_the_gap_measure_sees_a_200_ms_stall_of_the_loop_thread_at_the_kill(tmp_path):
+    """The same measure with the loop thread put to sleep for 200 ms at the kill: the gap it reports
+    exceeds MAX_GAP_S, so the test above fails when the loop thread itself stalls."""
+    gaps = _gaps_through_a_worker_kill(tmp_path, stall_on_loop_s=0.2)
+    assert gaps["effective_s"] >= MAX_GAP_S, f"a 200 ms stall was measured as {1e3 * gaps['effective_s']:.0f} ms"
 
 
 def test_a_killed_scan_process_is_replaced_and_the_preview_scans_on():
