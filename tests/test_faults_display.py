@@ -94,12 +94,13 @@ def _shown_grows(app, attr: str = "frames_shown", timeout: float = 10.0) -> bool
     return wait_until(lambda: getattr(app.publisher, attr) > before, timeout)
 
 
-def test_the_page_keeps_updating_through_a_failing_notify_scene_or_plot_stage(app, monkeypatch):
+def test_the_page_keeps_updating_through_a_failing_notify_scene_panel_or_plot_stage(app, monkeypatch):
     pub = app.publisher
     assert wait_until(lambda: _shown_grows(app) and pub.scene is not None)
     for stage, target, name in (
         ("notify", app.loop, "take_notices"),
         ("scene", pub.scene, "update"),
+        ("panels", pub.panels[0], "live"),
         ("plots", pub.plots, "update"),
     ):
         calls = {"n": 0}
