@@ -114,7 +114,7 @@ def _run(row: str, ds: int, da: float, stds: list[float], lost: int = 0) -> dict
 
 
 def test_the_latency_table_gives_the_smallest_delay_that_oscillates_or_loses_contact():
-    from app.headless.experiments.polish import OSCILLATION_STD_FACTOR, latency_table
+    from app.headless.experiments.polish_latency import OSCILLATION_STD_FACTOR, latency_table
 
     calm = [2.0, 2.0, 2.0, 2.0, 2.0, 2.0]  # median 2 N: the reference
     loud = [2.0, 2.0 * OSCILLATION_STD_FACTOR, 2.0, 2.0, 2.0, 2.0]  # one segment at exactly the factor
@@ -138,7 +138,12 @@ def test_the_latency_table_gives_the_smallest_delay_that_oscillates_or_loses_con
 
 
 def test_latency_runs_vary_one_stage_at_a_time_at_mu_1():
-    from app.headless.experiments.polish import LATENCY_ROWS, LATENCY_SENSING_STEPS, LATENCY_TORQUE_MS, latency_specs
+    from app.headless.experiments.polish_latency import (
+        LATENCY_ROWS,
+        LATENCY_SENSING_STEPS,
+        LATENCY_TORQUE_MS,
+        latency_specs,
+    )
 
     specs = latency_specs()
     assert {s["mu"] for s in specs} == {1.0} and {s["seed"] for s in specs} == {0}
@@ -149,7 +154,7 @@ def test_latency_runs_vary_one_stage_at_a_time_at_mu_1():
 
 
 def test_the_latency_report_states_the_criterion_of_the_run_and_the_order_only_as_it_holds():
-    from app.headless.experiments.polish import latency_table
+    from app.headless.experiments.polish_latency import latency_table
     from app.headless.experiments.polish_report import latency_findings, latency_html
 
     calm, loud = [2.0] * 6, [2.0, 9.0, 2.0, 9.0, 2.0, 9.0]
@@ -221,7 +226,7 @@ def test_a_still_hold_that_oscillates_or_loses_contact_has_its_verdict_and_a_cal
     """The latency runs stop while held once the verdict is known (`HoldWatch`): the posture still
     (swivel within still_deg over the window), then contact lost in the window or the STD over it at
     least the threshold, looked at every `every` steps. A posture still flowing gets no verdict yet."""
-    from app.headless.experiments.polish import HoldWatch, latency_table
+    from app.headless.experiments.polish_latency import HoldWatch, latency_table
 
     rng = np.random.default_rng(0)
     t = 1e-3 * np.arange(3000)
@@ -261,7 +266,8 @@ def test_a_still_hold_that_oscillates_or_loses_contact_has_its_verdict_and_a_cal
 
 
 def test_only_the_latency_runs_stop_at_a_verdict_while_held():
-    from app.headless.experiments.polish import latency_specs, table_specs
+    from app.headless.experiments.polish_latency import latency_specs
+    from app.headless.experiments.polish_rows import table_specs
 
     assert all(s["stop_on_verdict"] for s in latency_specs())
     assert not any(s.get("stop_on_verdict") for s in table_specs([1.0], 1, quick=False))

@@ -128,7 +128,8 @@ def test_cli_registers_the_polish_experiment_with_its_options():
     import argparse
 
     from app.headless.experiments import EXPERIMENTS
-    from app.headless.experiments.polish import add_arguments, table_specs
+    from app.headless.experiments.polish import add_arguments
+    from app.headless.experiments.polish_rows import table_specs
 
     assert EXPERIMENTS["polish"] == "polish"
     parser = argparse.ArgumentParser()
@@ -237,7 +238,8 @@ def _toy_run(spec: dict) -> dict:
 
 
 def test_finished_runs_are_kept_as_they_finish_and_resume_reuses_only_matching_ones(tmp_path, capsys):
-    from app.headless.experiments.polish import _map, load_run
+    from app.headless.experiments.polish import _map
+    from app.headless.experiments.polish_runs import load_run
 
     specs = [{"objective": "j", "mu": 1.0, "seed": s, "session_params": [("nullspace", "k0_j", 2.0)]} for s in (1, 2)]
     runs = tmp_path / "runs"
@@ -266,7 +268,8 @@ def test_an_unfinished_invocations_runs_can_be_combined_and_a_combine_needs_one_
     half-written ones left out; with no directory that has its polish.json it refuses in one line."""
     import argparse
 
-    from app.headless.experiments.polish import _finished_runs, combine, save_run
+    from app.headless.experiments.polish import combine
+    from app.headless.experiments.polish_runs import _finished_runs, save_run
 
     runs = tmp_path / "unfinished" / "runs"
     for seed in (1, 2):

@@ -39,7 +39,7 @@ MATCH_REL = 0.25  # "matches the paper": within 25 % of its value or 2 sd of our
 
 def _v_eps_head(v_eps: list[dict]) -> str:
     """The friction-regularisation table's heading, with the hold's μ and length as the check ran them."""
-    from app.headless.experiments.polish import V_EPS_HOLD_S, V_EPS_MU
+    from app.headless.experiments.polish_v_eps import V_EPS_HOLD_S, V_EPS_MU
 
     mu = v_eps[0].get("mu", V_EPS_MU) if v_eps else V_EPS_MU
     hold = v_eps[0].get("hold_s", V_EPS_HOLD_S) if v_eps else V_EPS_HOLD_S

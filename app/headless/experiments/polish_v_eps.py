@@ -1,0 +1,35 @@
+"""The polish experiment's friction-regularisation check: a W_j hold re-measured at each v_ε."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.scenarios import polish as scenario_module
+from app.scenarios.polish import PolishScenario
+
+V_EPS_CHECK_M_PER_S = (0.001, 0.002, 0.01)  # friction regularisation re-measured each run (W_j hold, μ = 1)
+V_EPS_HOLD_S = 3.0
+V_EPS_MU = 1.0  # the friction coefficient of that check
+
+
+def v_eps_check(v_eps: float, seed: int = 0) -> dict:
+    """Force-error STD (true contact force) of a W_j hold at μ = V_EPS_MU with friction regularised at v_ε."""
+    from app.core.session import Session
+
+    session = Session(PolishScenario(mu=V_EPS_MU), seed=seed)
+    session.set_param("nullspace", "objective", "j")
+    session.set_param("contact", "v_eps_m_per_s", v_eps)
+    f: list[float] = []
+    res = session.run(
+        scenario_module.CONTACT_TIME_S + V_EPS_HOLD_S,
+        record=lambda r: f.append(r.signals["contact_force_n"]) if r.t >= scenario_module.CONTACT_TIME_S else None,
+    )
+    arr = np.asarray(f)
+    return {
+        "v_eps_m_per_s": v_eps,
+        "force_std_n": float(np.std(arr)),
+        "lost_ms": int(np.sum(arr <= 0)),
+        "stop": res.stop,
+        "mu": V_EPS_MU,
+        "hold_s": V_EPS_HOLD_S,
+    }
