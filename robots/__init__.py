@@ -30,7 +30,6 @@ import pinocchio as pin
 
 from robots import external
 from robots.chain import Chain, ChainError, read_chain
-from robots.packages import MeshNotFound, PackageResolver
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -229,22 +228,6 @@ def _reduced(model: pin.Model, chain: Chain, urdf: Path) -> pin.Model:
     return pin.buildReducedModel(model, sorted(lock_ids), q_ref)
 
 
-def _check_meshes(urdf: Path, resolver: PackageResolver) -> None:
-    """Every visual mesh of the URDF resolves to a file (one line naming the first that does not)."""
-    import xml.etree.ElementTree as ET
-
-    try:
-        root = ET.parse(urdf).getroot()
-    except ET.ParseError:
-        return  # the URDF parser has said so already
-    for mesh in root.iterfind("./link/visual/geometry/mesh"):
-        filename = mesh.get("filename", "")
-        try:
-            resolver.resolve(filename)
-        except MeshNotFound as exc:
-            raise RobotLoadError(f"{urdf.name}: {exc}") from None
-
-
 def _build(
     name: str,
     urdf: Path,
@@ -263,7 +246,6 @@ def _build(
         _, chain = read_chain(urdf, base or sidecar.get("base_link"), tip or sidecar.get("tip_link"), locked_given)
     except ChainError as exc:
         raise RobotLoadError(f"{urdf.name}: {exc}") from None
-    _check_meshes(urdf, PackageResolver(urdf, package_paths))
     model = _reduced(full, chain, urdf)
     joint_names = tuple(model.names[1:])
     if model.nv == N_JOINTS and joint_names != chain.arm_joints:

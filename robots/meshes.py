@@ -8,7 +8,9 @@ merged result is kept twice: in this process (a robot switch in the page reuses 
 one .npz per URDF (`cache_dir()`), keyed by the URDF's text, its mesh files' sizes and times and
 the package folders, so a second `serve` starts without reading a mesh file.
 
-A mesh file trimesh cannot read, or one that is not a mesh, is a one-line `MeshError`.
+A visual whose mesh file cannot be found, or that trimesh cannot read (or that holds no triangles),
+is drawn as nothing: the robot still loads and runs, and `mesh_problems(robot)` names each such file
+in one line (the page and `serve` say it once per robot, `missing_meshes_text`).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import yourdfpy
 
 from robots.packages import MeshNotFound, PackageResolver
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: the problems (files drawn as nothing) kept beside the meshes
 DEFAULT_COLOR = (175, 178, 186)  # a link whose URDF and mesh give no colour
 
 
@@ -41,7 +43,13 @@ class _Key:
     packages: tuple[str, ...]
 
 
-_MEMORY: dict[tuple[_Key, str], dict[str, trimesh.Trimesh]] = {}
+@dataclass(frozen=True)
+class _Converted:
+    meshes: dict[str, trimesh.Trimesh]
+    problems: dict[str, str]  # mesh file name in the URDF → why it is drawn as nothing (one line)
+
+
+_MEMORY: dict[tuple[_Key, str], _Converted] = {}
 
 
 def cache_dir() -> Path:
@@ -54,21 +62,41 @@ def cache_dir() -> Path:
 
 
 def link_meshes(urdf_path: str | Path, package_paths: tuple[Path, ...] = ()) -> dict[str, trimesh.Trimesh]:
-    """One mesh per link with visuals (in the link frame; colour in metadata["color"]); cached."""
+    """One mesh per link with visuals (in the link frame; colour in metadata["color"]); cached. A
+    visual whose file is missing or unreadable is left out (`mesh_problems` names it)."""
+    return _copies(_converted(urdf_path, package_paths).meshes)
+
+
+def mesh_problems(urdf_path: str | Path, package_paths: tuple[Path, ...] = ()) -> dict[str, str]:
+    """Mesh file name → one line saying why it is drawn as nothing (not found, not readable), for
+    every visual mesh of the URDF that `link_meshes` left out; empty when all were read. Cached."""
+    return dict(_converted(urdf_path, package_paths).problems)
+
+
+def missing_meshes_text(problems: dict[str, str]) -> str:
+    """One line for all the mesh files of a robot drawn as nothing ("" when there is none)."""
+    if not problems:
+        return ""
+    n = len(problems)
+    files = "file" if n == 1 else "files"
+    return f"{n} mesh {files} drawn as nothing: " + "; ".join(problems.values())
+
+
+def _converted(urdf_path: str | Path, package_paths: tuple[Path, ...]) -> _Converted:
     urdf_path = Path(urdf_path).resolve()
     resolver = PackageResolver(urdf_path, package_paths)
     urdf = yourdfpy.URDF.load(str(urdf_path), build_scene_graph=False, load_meshes=False, filename_handler=resolver)
     digest = _digest(urdf_path, urdf, resolver)
     key = (_Key(str(urdf_path), tuple(str(p) for p in package_paths)), digest)
     if key in _MEMORY:
-        return _copies(_MEMORY[key])
+        return _MEMORY[key]
     path = cache_dir() / f"{urdf_path.stem}-{digest[:16]}.npz"
-    meshes = _read_cache(path)
-    if meshes is None:
-        meshes = _convert(urdf, resolver)
-        _write_cache(path, meshes)
-    _MEMORY[key] = meshes
-    return _copies(meshes)
+    converted = _read_cache(path)
+    if converted is None:
+        converted = _convert(urdf, resolver)
+        _write_cache(path, converted)
+    _MEMORY[key] = converted
+    return converted
 
 
 def _copies(meshes: dict[str, trimesh.Trimesh]) -> dict[str, trimesh.Trimesh]:
@@ -92,22 +120,30 @@ def _digest(urdf_path: Path, urdf: yourdfpy.URDF, resolver: PackageResolver) -> 
                 continue
             try:
                 path = resolver.resolve(mesh.filename)
-            except MeshNotFound as exc:
-                raise MeshError(str(exc)) from None
-            stat = path.stat()
+                stat = path.stat()
+            except (MeshNotFound, OSError):
+                h.update(f"{mesh.filename}|missing".encode())  # drawn as nothing until it appears
+                continue
             h.update(f"{path}|{stat.st_size}|{stat.st_mtime_ns}".encode())
     return h.hexdigest()
 
 
-def _convert(urdf: yourdfpy.URDF, resolver: PackageResolver) -> dict[str, trimesh.Trimesh]:
-    """Read and merge every link's visuals (the slow part: mesh files are parsed here)."""
+def _convert(urdf: yourdfpy.URDF, resolver: PackageResolver) -> _Converted:
+    """Read and merge every link's visuals (the slow part: mesh files are parsed here); a visual
+    whose file is missing or unreadable is left out and its reason kept."""
     out: dict[str, trimesh.Trimesh] = {}
+    problems: dict[str, str] = {}
     for link in urdf.robot.links:
         parts, colors, areas = [], [], []
         for visual in link.visuals:
             if visual.geometry is None:
                 continue
-            part, color = _visual_mesh(visual.geometry, resolver)
+            try:
+                part, color = _visual_mesh(visual.geometry, resolver)
+            except (MeshError, OSError) as exc:
+                name = visual.geometry.mesh.filename if visual.geometry.mesh is not None else link.name
+                problems.setdefault(name, " ".join(str(exc).split()) or type(exc).__name__)
+                continue
             if part is None or len(part.faces) == 0:
                 continue
             if visual.origin is not None:
@@ -125,7 +161,7 @@ def _convert(urdf: yourdfpy.URDF, resolver: PackageResolver) -> dict[str, trimes
         known = [(a, c) for a, c in zip(areas, colors, strict=True) if c is not None]
         merged.metadata["color"] = tuple(max(known)[1]) if known else DEFAULT_COLOR
         out[link.name] = merged
-    return out
+    return _Converted(out, problems)
 
 
 def _material_rgba(visual, urdf: yourdfpy.URDF) -> tuple[int, int, int] | None:
@@ -206,8 +242,8 @@ def _file_color(mesh: trimesh.Trimesh) -> tuple[int, int, int] | None:
     return (int(rgba[0]), int(rgba[1]), int(rgba[2]))
 
 
-def _read_cache(path: Path) -> dict[str, trimesh.Trimesh] | None:
-    """The meshes of a cache file, or None (absent or unreadable: it is rebuilt)."""
+def _read_cache(path: Path) -> _Converted | None:
+    """The meshes and problems of a cache file, or None (absent or unreadable: it is rebuilt)."""
     try:
         with np.load(path, allow_pickle=False) as data:
             names = [str(n) for n in data["names"]]
@@ -216,14 +252,22 @@ def _read_cache(path: Path) -> dict[str, trimesh.Trimesh] | None:
                 mesh = trimesh.Trimesh(data[f"v{i}"], data[f"f{i}"], process=False)
                 mesh.metadata["color"] = tuple(int(c) for c in data[f"c{i}"])
                 out[name] = mesh
-            return out
+            files, reasons = (str(f) for f in data["problem_files"]), (str(r) for r in data["problems"])
+            problems = dict(zip(files, reasons, strict=True))
+            return _Converted(out, problems)
     except (OSError, KeyError, ValueError):
         return None
 
 
-def _write_cache(path: Path, meshes: dict[str, trimesh.Trimesh]) -> None:
-    """Store the meshes (float32 vertices, int32 faces); a cache folder that cannot be written is skipped."""
-    arrays: dict[str, np.ndarray] = {"names": np.array(list(meshes), dtype=str)}
+def _write_cache(path: Path, converted: _Converted) -> None:
+    """Store the meshes (float32 vertices, int32 faces) and problems; a cache folder that cannot be
+    written is skipped."""
+    meshes = converted.meshes
+    arrays: dict[str, np.ndarray] = {
+        "names": np.array(list(meshes), dtype=str),
+        "problem_files": np.array(list(converted.problems), dtype=str),
+        "problems": np.array(list(converted.problems.values()), dtype=str),
+    }
     for i, mesh in enumerate(meshes.values()):
         arrays[f"v{i}"] = np.asarray(mesh.vertices, dtype=np.float32)
         arrays[f"f{i}"] = np.asarray(mesh.faces, dtype=np.int32)

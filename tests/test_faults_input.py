@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-import shutil
 import time
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
+import viser
 
 from app.cli import main
 from app.core.commands import SetParam
@@ -13,8 +15,10 @@ from app.core.params import load_settings, settings_commands
 from app.core.session import Session
 from app.headless.sweep.grid import MAX_CELLS, Axis, SweepError, cells, parse_grid
 from app.live.lab import Lab
+from app.live.ui.scene import SceneView
 from control.gains import DamperGains
 from control.params import ParamError, replaced
+from tests import urdf_fixtures as fx
 
 HUGE = 10**400
 
@@ -94,19 +98,109 @@ def test_an_absurd_grid_is_refused_before_it_is_allocated():
     assert len(cells([Axis("a", (1, 2, 3))], 2)) == 6
 
 
-def test_a_missing_mesh_is_one_line_before_anything_starts(tmp_path, capsys):
-    import robots
+def _arm_with_one_missing_mesh(tmp_path):
+    """A URDF whose link 3 is drawn from a mesh file that does not exist and link 5 from one that does."""
+    fx.box_mesh(tmp_path / "meshes" / "link.stl")
+    return fx.write(
+        tmp_path / "arm.urdf", fx.gripper_arm_meshes({"a_link3": "meshes/missing.stl", "a_link5": "meshes/link.stl"})
+    )
 
-    src = robots.load("rizon4s").urdf_path
-    text = src.read_text()
-    first = text.index("<visual>")
-    start, end = text.index("<geometry>", first), text.index("</geometry>", first)
-    urdf = tmp_path / "arm.urdf"
-    urdf.write_text(text[:start] + '<geometry><mesh filename="meshes/missing.stl"/>' + text[end:])
-    sidecar = src.with_suffix(".toml")
-    if sidecar.exists():
-        shutil.copy(sidecar, tmp_path / "arm.toml")
-    assert main(["serve", "--urdf", str(urdf), "--port", "0"]) == 2
+
+def test_a_missing_mesh_is_drawn_as_nothing_the_robot_loads_and_one_notice_names_it(tmp_path, monkeypatch):
+    import robots
+    from robots import meshes
+
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
+    urdf = _arm_with_one_missing_mesh(tmp_path)
+    robot = robots.load(str(urdf))  # the model does not need the visuals
+    assert robot.model.nq == 7
+    shapes = meshes.link_meshes(robot.urdf_path)
+    assert "a_link3" not in shapes and {"a_link2", "a_link5"} <= set(shapes)
+    np.testing.assert_allclose(shapes["a_link5"].extents, [0.05, 0.05, 0.1], atol=1e-6)  # the file that exists
+    problems = meshes.mesh_problems(robot.urdf_path)
+    assert list(problems) == ["meshes/missing.stl"] and "not found" in problems["meshes/missing.stl"]
+    meshes._MEMORY.clear()  # a new process: the disk cache keeps the problem too
+    assert meshes.mesh_problems(robot.urdf_path) == problems
+    session = Session("free", robot=str(urdf))
+    t0 = session.world.time
+    records = [session.step() for _ in range(100)]
+    dt = float(session.world.model.opt.timestep)
+    assert session.world.time - t0 == pytest.approx(100 * dt, rel=1e-6)  # it runs
+    assert all(np.isfinite(r.tau).all() for r in records)
+
+    server = viser.ViserServer(port=0, verbose=False)
+    try:
+        scene = SceneView(server, robot, lambda cmd: None)
+        assert "a_link3" in scene.frames and "a_link3" not in scene.meshes and "a_link5" in scene.meshes
+        assert list(scene.missing_meshes) == ["meshes/missing.stl"]
+    finally:
+        server.stop()
+
+
+def test_serve_with_a_missing_mesh_starts_and_says_so_in_one_line(tmp_path, monkeypatch, capsys):
+    from app.live import server
+
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
+    urdf = _arm_with_one_missing_mesh(tmp_path)
+    started: list[str | None] = []
+
+    def start_app(**kwargs):
+        started.append(kwargs["robot"])
+        return SimpleNamespace(
+            loop=SimpleNamespace(alive=False, failure=""),
+            publisher=SimpleNamespace(supervise=lambda: ""),
+            port=8080,
+            url="http://127.0.0.1:8080",
+            stop=lambda: None,
+        )
+
+    monkeypatch.setattr(server, "start_app", start_app)
+    assert main(["serve", "--urdf", str(urdf), "--port", "0", "--no-warmup"]) == 0
     out = capsys.readouterr()
-    lines = out.err.strip().splitlines()
-    assert len(lines) == 1 and "meshes/missing.stl not found" in lines[0], out.err
+    assert started == [str(urdf)] and out.err == ""
+    said = [ln for ln in out.out.splitlines() if "missing.stl" in ln]
+    assert len(said) == 1 and "1 mesh file drawn as nothing" in said[0] and "not found" in said[0]
+
+
+def test_a_robot_switch_in_the_running_app_to_an_arm_with_a_missing_mesh_gives_one_notice(app, tmp_path, monkeypatch):
+    """The running loop and publisher (no browser): a switch to the arm draws it without link 3, one
+    notice names the file, frames keep coming, and a preset switch on the same arm says nothing again."""
+    from app.core.commands import StepOnce, SwitchSession
+    from tests.conftest import wait_until
+
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
+    urdf = _arm_with_one_missing_mesh(tmp_path)
+    pub, loop = app.publisher, app.loop
+
+    def said() -> list:
+        return [n for n in loop.notice_log if n.title == "Missing meshes"]
+
+    def scene_of(path) -> bool:
+        return pub.scene is not None and pub.scene.robot.urdf_path == path
+
+    def frames_grow() -> bool:
+        before = pub.frames_shown
+        loop.submit(StepOnce(1))
+        return wait_until(lambda: pub.frames_shown > before)
+
+    before = len(said())
+    try:
+        loop.submit(SwitchSession(robot=str(urdf)))
+        assert wait_until(lambda: scene_of(urdf.resolve()) or (frames_grow() and scene_of(urdf.resolve())), 30.0)
+        assert "a_link3" in pub.scene.frames and "a_link3" not in pub.scene.meshes and "a_link5" in pub.scene.meshes
+        t0 = loop.sync().t
+        for _ in range(10):
+            assert frames_grow()
+        assert loop.sync().t > t0 and loop.alive  # the arm runs
+        assert wait_until(lambda: len(said()) - before == 1)
+        (notice,) = said()[before:]
+        assert "meshes/missing.stl" in notice.body and "\n" not in notice.body
+        session_id = pub.scene_session_id
+        loop.submit(SwitchSession("compliance"))  # a new session on the same arm
+        assert wait_until(lambda: frames_grow() and pub.scene_session_id != session_id, 30.0)
+        for _ in range(10):
+            assert frames_grow()
+        assert len(said()) - before == 1  # once per robot, not per frame or per preset
+    finally:
+        loop.submit(SwitchSession("free", robot=""))
+        assert wait_until(lambda: frames_grow() and pub.scene is not None and pub.scene.robot.name == "rizon4s", 30.0)

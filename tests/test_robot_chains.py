@@ -12,6 +12,7 @@ import robots
 from app.sim.world import World
 from app.tools.check import cross_check
 from control.model import RobotModel
+from robots import meshes
 from robots.packages import PackageResolver
 from tests import urdf_fixtures as fx
 
@@ -126,10 +127,10 @@ def test_package_uri_resolves_from_package_path_then_ros_package_path(tmp_path, 
     fx.box_mesh(tmp_path / "ros" / "my_arm" / "meshes" / "link.stl")
     path = fx.write(tmp_path / "desc" / "arm.urdf", fx.gripper_arm("package://my_arm/meshes/link.stl"))
     monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
-    with pytest.raises(robots.RobotLoadError) as exc:
-        robots.load(str(path))
-    text = _one_line(exc)
-    assert "package://my_arm/meshes/link.stl" in text and "--package-path" in text
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
+    r = robots.load(str(path))  # not found: the arm loads, its links drawn as nothing
+    (text,) = set(meshes.mesh_problems(r.urdf_path).values())
+    assert "\n" not in text and "package://my_arm/meshes/link.stl" in text and "--package-path" in text
     # --package-path DIR (DIR/NAME inside, or DIR named NAME itself)
     for given in (tmp_path / "elsewhere", tmp_path / "elsewhere" / "my_arm"):
         r = robots.load(robots.robot_spec(path, package_paths=[str(given)]))
@@ -145,23 +146,27 @@ def test_package_uri_resolves_from_package_path_then_ros_package_path(tmp_path, 
 
 def test_missing_package_mesh_names_the_folders_searched(tmp_path, monkeypatch):
     monkeypatch.setenv("ROS_PACKAGE_PATH", str(tmp_path / "ros"))
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
     path = fx.write(tmp_path / "my_arm" / "urdf" / "arm.urdf", fx.gripper_arm("package://my_arm/meshes/gone.stl"))
-    with pytest.raises(robots.RobotLoadError) as exc:
-        robots.load(robots.robot_spec(path, package_paths=[str(tmp_path / "pp")]))
-    text = _one_line(exc)
+    r = robots.load(robots.robot_spec(path, package_paths=[str(tmp_path / "pp")]))
+    problems = meshes.mesh_problems(r.urdf_path, r.package_paths)
+    assert list(problems) == ["package://my_arm/meshes/gone.stl"]  # eight links, one file: named once
+    text = problems["package://my_arm/meshes/gone.stl"]
+    assert "\n" not in text
     for folder in (tmp_path / "my_arm", tmp_path / "pp" / "my_arm", tmp_path / "ros" / "my_arm"):
         assert str(folder) in text
 
 
-def test_relative_mesh_name_is_relative_to_the_urdf(tmp_path):
+def test_relative_mesh_name_is_relative_to_the_urdf(tmp_path, monkeypatch):
     fx.box_mesh(tmp_path / "meshes" / "link.obj")
     path = fx.write(tmp_path / "arm.urdf", fx.gripper_arm("meshes/link.obj"))
     r = robots.load(str(path))
     assert PackageResolver(r.urdf_path).resolve("meshes/link.obj") == tmp_path / "meshes" / "link.obj"
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
     path = fx.write(tmp_path / "arm2.urdf", fx.gripper_arm("meshes/none.obj"))
-    with pytest.raises(robots.RobotLoadError) as exc:
-        robots.load(str(path))
-    assert "mesh meshes/none.obj not found" in _one_line(exc)
+    r = robots.load(str(path))
+    assert "mesh meshes/none.obj not found" in meshes.mesh_problems(r.urdf_path)["meshes/none.obj"]
+    assert meshes.link_meshes(r.urdf_path) == {}  # every link drawn as nothing
 
 
 def test_the_arm_model_is_the_reduced_model_of_the_whole_urdf(tmp_path):
@@ -183,8 +188,6 @@ def test_the_arm_model_is_the_reduced_model_of_the_whole_urdf(tmp_path):
 
 # ---- visual meshes ------------------------------------------------------------------------------
 def test_visual_meshes_of_package_uris_are_read_once_and_cached(tmp_path, monkeypatch):
-    from robots import meshes
-
     monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
     fx.box_mesh(tmp_path / "my_arm" / "meshes" / "link.stl")
     path = fx.write(tmp_path / "my_arm" / "urdf" / "arm.urdf", fx.gripper_arm("package://my_arm/meshes/link.stl"))
@@ -208,17 +211,21 @@ def test_visual_meshes_of_package_uris_are_read_once_and_cached(tmp_path, monkey
         ("link.obj", bytes(range(256)) * 4, "mesh meshes/link.obj"),  # binary noise
     ],
 )
-def test_a_mesh_file_that_is_not_a_mesh_is_one_line(tmp_path, monkeypatch, name, content, words):
-    from robots import meshes
-
+def test_a_mesh_file_that_is_not_a_mesh_is_drawn_as_nothing_and_named_in_one_line(
+    tmp_path, monkeypatch, name, content, words
+):
     monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
     (tmp_path / "meshes").mkdir()
     (tmp_path / "meshes" / name).write_bytes(content)
     path = fx.write(tmp_path / "arm.urdf", fx.gripper_arm(f"meshes/{name}"))
     r = robots.load(str(path))  # the file exists: the model loads
-    with pytest.raises(meshes.MeshError) as exc:
-        meshes.link_meshes(r.urdf_path)
-    assert words in _one_line(exc) and f"meshes/{name}" in str(exc.value)
+    assert meshes.link_meshes(r.urdf_path) == {}
+    problems = meshes.mesh_problems(r.urdf_path)
+    assert list(problems) == [f"meshes/{name}"]
+    text = problems[f"meshes/{name}"]
+    assert words in text and "\n" not in text
+    said = meshes.missing_meshes_text(problems)
+    assert said.startswith("1 mesh file drawn as nothing: ") and text in said
 
 
 # ---- the command line -----------------------------------------------------------------------------

@@ -87,3 +87,13 @@ def box_mesh(path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     trimesh.creation.box(extents=(0.05, 0.05, 0.1)).export(path)
     return path
+
+
+def gripper_arm_meshes(meshes: dict[str, str]) -> str:
+    """`gripper_arm()` with the visual of each named link a mesh file (link name → file name)."""
+    text = gripper_arm()
+    for link, mesh in meshes.items():
+        start = text.index(f'<link name="{link}">')
+        at = text.index(_visual(None), start)
+        text = text[:at] + _visual(mesh) + text[at + len(_visual(None)) :]
+    return text

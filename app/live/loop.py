@@ -264,6 +264,11 @@ class SimLoop:
             frame = self._frame
         return frame if frame is not None and frame.seq > after_seq else None
 
+    def notify(self, level: str, title: str, body: str) -> None:
+        """A notice for every page from another thread (the lab's notice queues are deques: appends
+        are atomic); it goes out with the loop's own."""
+        self.lab.notify(level, title, body)
+
     def take_notices(self) -> list[Notice]:
         """Notices produced since the last call (for the publisher)."""
         return self.lab.take_notices()

@@ -112,6 +112,8 @@ class SceneView:
         self.joint_of = link_joint_indices(robot)
         meshes = link_meshes(str(robot.urdf_path), robot.package_paths)
         self._link_shapes = meshes
+        # mesh files not found or not readable: their links are drawn as nothing (the publisher says so once)
+        self.missing_meshes = robots.meshes.mesh_problems(robot.urdf_path, tuple(robot.package_paths))
         self.frames: dict[str, viser.FrameHandle] = {}
         self.meshes: dict[str, viser.MeshHandle] = {}
         for name in robot.link_names:
