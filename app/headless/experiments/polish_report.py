@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.headless.experiments.polish_rows import OBJECTIVE_NAMES as NAMES  # row names by objective key
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
 
@@ -22,14 +23,6 @@ COLORS = {
     "d": "tab:blue",
     "planned": "tab:purple",
     "planned_a": "tab:orange",
-}
-NAMES = {
-    "j": "W_j",
-    "f": "W_f",
-    "a": "W_a",
-    "d": "W_d",
-    "planned": "planned max(P_d·f̂, 0)²",
-    "planned_a": "planned W_a",
 }
 # robots/rizon4s.toml: armature = rotor inertia × gear ratio², neither published for the Rizon 4s
 ROTOR_INERTIA_KG_M2 = (4e-5, 4e-5, 2e-5, 2e-5, 1e-5, 1e-5, 1e-5)  # harmonic-drive motors for 123 / 64 / 39 N m joints
