@@ -168,3 +168,57 @@ def test_every_caught_error_prints_one_non_empty_line(exc, needle, monkeypatch, 
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1
     assert lines[0] == f"torquelab: error: {needle}"
+
+
+@pytest.fixture
+def serve_once(monkeypatch):
+    """`serve` in this process that stops (as Ctrl-C does) right after printing its URL; the apps it
+    started are kept (stopped) for a look at their sessions."""
+    from app.live import server
+
+    started: list = []
+    real = server.start_app
+
+    def start_app(**kwargs):
+        app = real(**kwargs)
+
+        def interrupt() -> str:
+            raise KeyboardInterrupt
+
+        app.publisher.supervise = interrupt
+        started.append(app)
+        return app
+
+    monkeypatch.setattr(server, "start_app", start_app)
+    return started
+
+
+@pytest.mark.parametrize("huge", ["1e400", str(10**400), "-1e400", "nan"])
+def test_serve_settings_whose_only_entry_is_huge_is_one_line_and_exit_2(run_cli, serve_once, tmp_path, huge):
+    path = tmp_path / "huge.toml"
+    path.write_text(f"[joint_hold]\nstiffness = {huge}\n")
+    res = run_cli("serve", "--scenario", "free", "--port", "0", "--no-warmup", "--settings", str(path))
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert "no entry applies" in lines[0] and "joint_hold.stiffness" in lines[0] and str(path) in lines[0]
+    assert "open http" not in res.stdout and len(serve_once) == 1 and not serve_once[0].loop.alive
+
+
+def test_serve_settings_with_one_bad_entry_applies_the_valid_ones_and_names_the_bad_one_once(
+    run_cli, serve_once, tmp_path
+):
+    from app.core.session import Session
+
+    defaults = Session("free").params()
+    force, damping = defaults["drag"].max_force_n + 7.0, defaults["joint_hold"].damping + 1.0
+    path = tmp_path / "mixed.toml"
+    path.write_text(f"[joint_hold]\nstiffness = {10**400}\ndamping = {damping}\n[drag]\nmax_force_n = {force}\n")
+    res = run_cli("serve", "--scenario", "free", "--port", "0", "--no-warmup", "--settings", str(path))
+    assert res.returncode == 0 and res.stderr == "", res.stderr
+    said = [ln for ln in res.stdout.splitlines() if "stiffness" in ln]
+    assert len(said) == 1 and "refused" in said[0] and "too large" in said[0]
+    assert f"settings from {path} applied (1 refused)" in res.stdout and "open http" in res.stdout
+    params = serve_once[0].loop.lab.session.params()
+    assert params["drag"].max_force_n == pytest.approx(force, abs=1e-12)
+    assert params["joint_hold"].damping == pytest.approx(damping, abs=1e-12)
+    assert params["joint_hold"].stiffness == pytest.approx(defaults["joint_hold"].stiffness, abs=1e-12)

@@ -31,7 +31,7 @@ from app.core.commands import DragCommand
 from app.core.params import parse_settings
 from app.live.loop import SimLoop
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
-from app.live.settings_io import load_settings_text
+from app.live.settings_io import apply_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
 from app.live.ui.keys import add_hotkeys
 from app.live.ui.panels import ALL_FIELDS
@@ -264,7 +264,11 @@ def serve(args: argparse.Namespace) -> int:
     display_failure = ""
     try:
         if settings_text is not None:
-            refused = load_settings_text(app.loop, settings_text)
+            applied, refused = apply_settings_text(app.loop, settings_text)
+            if refused and not applied:  # nothing of what was asked for applies: no start on other settings
+                reasons = "; ".join(refused)
+                print(f"torquelab: error: {settings_file}: no entry applies: {reasons}", file=sys.stderr, flush=True)
+                return 2
             for line in refused:
                 print(f"torquelab: {settings_file}: refused: {line}", flush=True)
             print(f"torquelab: settings from {settings_file} applied ({len(refused)} refused)", flush=True)
