@@ -225,3 +225,58 @@ def test_a_preset_switch_re_arms_the_display_reports(app):
     assert wait_until(lambda: app.loop.status.scenario == "compliance" or app.loop.sync().scenario == "compliance")
     app.loop.submit(StepOnce(1))
     assert wait_until(lambda: len(frames.stages.budget) == 0)
+
+
+def _failing_while(flag: dict, original, text: str):
+    """`original`, but raising RuntimeError(text) while flag["on"]; counts its calls in flag["calls"]."""
+
+    def broken(*args, **kwargs):
+        flag["calls"] += 1
+        if flag["on"]:
+            raise RuntimeError(text)
+        return original(*args, **kwargs)
+
+    return broken
+
+
+@pytest.mark.parametrize("stage", ["capture", "build"])
+def test_a_failing_frame_build_stage_in_the_running_loop_is_reported_once_and_comes_back(app, monkeypatch, stage):
+    """The loop thread's capture (part of a frame) or the whole frame build fails for ten steps: the
+    loop steps on, the publisher's other stages run on (frames without a scene go out while capture
+    fails), the page gets one notice, and frames with a scene come back by themselves after."""
+    import app.live.ui.publisher as publisher_module
+
+    pub, loop, frames = app.publisher, app.loop, app.loop.frames
+    assert wait_until(lambda: _shown_grows(app) and pub.scene is not None)
+    sent: list[str] = []
+    real_notify = publisher_module.notify
+
+    def notify(server, client_id, title, body, **kwargs):
+        sent.append(title)
+        return real_notify(server, client_id, title, body, **kwargs)
+
+    monkeypatch.setattr(publisher_module, "notify", notify)
+    flag = {"on": True, "calls": 0}
+    monkeypatch.setattr(frames, stage, _failing_while(flag, getattr(frames, stage), f"{stage} broke"))
+    frames.stages.rearm()  # an earlier test's report of the same text does not hide this one
+    failures, shown, updates = frames.stages.failures[stage], pub.frames_shown, pub.scene_updates
+    notify_runs = pub.stages.runs["notify"]
+    t0 = loop.sync().t
+    for _ in range(10):
+        calls = flag["calls"]
+        loop.submit(StepOnce(1))
+        assert wait_until(lambda c=calls: flag["calls"] > c), stage
+    assert loop.sync().t - t0 == pytest.approx(10 * loop.dt, rel=1e-6)  # ten steps ran
+    assert frames.stages.failures[stage] - failures == flag["calls"] >= 10
+    assert wait_until(lambda: sent.count("Display problem") == 1)  # delivered while the stage still fails
+    assert pub.alive and loop.alive and pub.stages.runs["notify"] - notify_runs >= 1
+    if stage == "capture":  # frames still go out, without a scene
+        assert wait_until(lambda: pub.frames_shown - shown >= 10)
+        assert pub.scene_updates == updates
+    else:  # no frame to show: the publisher waits on
+        assert pub.frames_shown == shown
+    flag["on"] = False
+    for _ in range(5):
+        assert _shown_grows(app, "scene_updates"), stage  # back by itself
+    assert stage not in frames.stages.failing
+    assert sent.count("Display problem") == 1  # ten failures, one notice
