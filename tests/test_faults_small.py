@@ -89,6 +89,19 @@ def test_the_soak_slope_is_the_least_squares_line_in_mb_per_minute():
     assert np.isnan(slope_mb_per_min(t[:2], t[:2]))
 
 
+def test_the_soaks_second_half_slope_tells_growth_that_levels_off():
+    import numpy as np
+
+    from app.tools.soak import late_slope_mb_per_min, slope_mb_per_min
+
+    t = np.arange(0.0, 600.0, 5.0)
+    filling = 300.0 + 2.0 * (1.0 - np.exp(-t / 60.0))  # a cache that fills within the first minutes
+    assert slope_mb_per_min(t, filling) > 0.1
+    assert abs(late_slope_mb_per_min(t, filling)) < 0.02
+    assert abs(late_slope_mb_per_min(t, 300.0 + 0.5 * t / 60.0) - 0.5) < 1e-9  # steady growth stays
+    assert np.isnan(late_slope_mb_per_min(t[:3], t[:3]))
+
+
 def test_a_joint_in_its_stop_for_one_step_between_two_looks_is_reported():
     import numpy as np
 

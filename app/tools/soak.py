@@ -5,7 +5,9 @@ preset switches to the next one, and every DRAG_EVERY_S a drag grabs the last li
 second and lets go (a drag the loop does not answer within `SimLoop.call`'s timeout is skipped and
 counted as a late answer). The server process's resident memory (VmRSS) is sampled every SAMPLE_EVERY_S;
 the slope is a least-squares line through the samples after the first WARMUP_S (imports, caches and
-the first compiles settle there), in MB per minute. Not part of the test suite: it takes minutes.
+the first compiles settle there), in MB per minute; the slope over the run's second half beside it
+tells growth that levels off (a cache filling as each preset is met again) from growth that does not.
+Not part of the test suite: it takes minutes.
 
 Beside RSS each sample has, to tell where memory grows: its anonymous and file-backed parts, the
 thread count, glibc's heap in use and kept free over all its arenas (mallinfo2), and the browser's
@@ -64,6 +66,15 @@ def slope_mb_per_min(t_s: np.ndarray, mb: np.ndarray) -> float:
     if len(t_s) < 3:
         return float("nan")
     return float(np.polyfit(t_s / 60.0, mb, 1)[0])
+
+
+def late_slope_mb_per_min(t_s: np.ndarray, mb: np.ndarray) -> float:
+    """The slope (MB/min) over the second half of the run's duration only (NaN with fewer than three
+    samples there)."""
+    if len(t_s) == 0:
+        return float("nan")
+    late = t_s >= t_s[0] + 0.5 * (t_s[-1] - t_s[0])
+    return slope_mb_per_min(t_s[late], mb[late])
 
 
 def _group_rss_mb(pgid: int) -> float:
@@ -170,6 +181,7 @@ def run_soak(
         "rss_end_mb": float(mb[-1]) if len(mb) else float("nan"),
         "slope_mb_per_min": slopes.get("rss", float("nan")),
         "slope_all_mb_per_min": slope_mb_per_min(t, mb),
+        "slope_second_half_mb_per_min": late_slope_mb_per_min(t, mb),
         "slopes_per_min": slopes,
         "warmup_s": WARMUP_S,
         "series": samples,
@@ -205,7 +217,8 @@ def cmd_soak(args: argparse.Namespace) -> int:
             f"({report['late_answers']} late), "
             f"browser {'on' if report['browser'] else 'off'}: RSS {report['rss_start_mb']:.1f} → "
             f"{report['rss_end_mb']:.1f} MB, slope {report['slope_mb_per_min']:+.3f} MB/min after the first "
-            f"{report['warmup_s']:g} s ({report['slope_all_mb_per_min']:+.3f} over the whole run); "
+            f"{report['warmup_s']:g} s ({report['slope_all_mb_per_min']:+.3f} over the whole run, "
+            f"{report['slope_second_half_mb_per_min']:+.3f} over its second half); "
             f"per minute after it: {others}"
         )
     return 0
