@@ -315,6 +315,10 @@ class Plots:
         self.replay_t: float | None = None  # while replaying: the instant the plots end at
         self.previous: dict[str, np.ndarray] | None = None  # the run before, drawn faint until cleared
         self.signals = SignalChoice(signal_specs(n_joints))  # which series each chart draws
+        # one redraw at a time: a checkbox's handler (viser's thread pool) and the publisher's frame both
+        # redraw; unserialised, a frame that read the old choice could send its picture after the
+        # handler's and be taken as the new one's (the chart then kept a series its box had hidden)
+        self._redraw_lock = threading.RLock()
         self.signal_boxes: dict[tuple[str, str], Any] = {}  # (chart, series) → its checkbox
         self.panel_tab = self.panel.add_tab("Plots", icon=viser.Icon.CHART_LINE)
         with self.panel_tab:
@@ -466,19 +470,21 @@ class Plots:
                 self.signal_boxes[(chart, key)] = box
 
     def _on_signal_box(self, chart: str, key: str, value: object) -> None:
-        if self.signals.set(chart, key, value):
-            self.apply_signals()
-            self._redraw()
+        with self._redraw_lock:
+            if self.signals.set(chart, key, value):
+                self.apply_signals()
+                self._redraw()
 
     def choose_signals(self, chart: str, keys: Any) -> None:
         """Draw exactly the series `keys` of `chart` (ValueError, one line, for an unknown chart or series:
         then nothing changes); the checkboxes follow."""
-        if self.signals.choose(chart, keys):
-            for (c, k), box in self.signal_boxes.items():
-                if c == chart and box.value != self.signals.shown(c, k):
-                    box.value = self.signals.shown(c, k)
-            self.apply_signals()
-            self._redraw()
+        with self._redraw_lock:
+            if self.signals.choose(chart, keys):
+                for (c, k), box in self.signal_boxes.items():
+                    if c == chart and box.value != self.signals.shown(c, k):
+                        box.value = self.signals.shown(c, k)
+                self.apply_signals()
+                self._redraw()
 
     def apply_signals(self) -> None:
         """Show or hide each chart's series (and the σ and W plots) as the choice says; a frozen picture
@@ -586,6 +592,10 @@ class Plots:
         key (the loop's session id and restart count) starts the history again and blanks the charts
         and readouts of the old run. `settings` (the parameters in force) name the sensor model's
         disturbances under the force plot."""
+        with self._redraw_lock:  # the history and the picture change together (see _redraw_lock)
+            self._update(plot, session, settings)
+
+    def _update(self, plot: PlotData, session: object, settings: Any) -> None:
         if session != self._session:
             self._session = session
             old = self.history.columns
@@ -673,6 +683,10 @@ class Plots:
         return out
 
     def _redraw(self) -> None:
+        with self._redraw_lock:
+            self._redraw_now()
+
+    def _redraw_now(self) -> None:
         plot = self._last
         if plot is None:
             return
