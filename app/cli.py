@@ -247,6 +247,26 @@ def error_reason(exc: BaseException) -> str:
     return type(exc).__name__
 
 
+def load_chosen_robot(args: argparse.Namespace) -> None:
+    """Load the arm of --urdf (and of experiment's and sweep's --robot) before the command runs: a wrong
+    name or URDF is one line, a URDF's mesh files drawn as nothing are one line on stderr; experiment
+    and sweep hand the arm to every session they build, workers included (ROBOT_ENV)."""
+    spec = robots.spec_from_args(args)
+    headless = args.command in ("experiment", "sweep")
+    urdf = getattr(args, "urdf", None)
+    if not spec or not (urdf or headless):
+        return
+    robot = robots.load(spec)
+    if urdf:
+        from robots.meshes import missing_meshes_line
+
+        missing = missing_meshes_line(robot)  # visuals only: the dynamics are whole
+        if missing:
+            print(f"torquelab: {missing}", file=sys.stderr, flush=True)
+    if headless:
+        os.environ[robots.ROBOT_ENV] = spec
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -261,12 +281,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"torquelab: error: {exc}", file=sys.stderr)
         return 2
-    if args.command in ("experiment", "sweep"):  # the arm of every session these build, workers included
+    if args.command != "serve":  # serve loads its arm itself and says the same beside its URL
         try:
-            spec = robots.spec_from_args(args)
-            if spec:
-                robots.load(spec)  # a wrong name or URDF is one line before any run starts
-                os.environ[robots.ROBOT_ENV] = spec
+            load_chosen_robot(args)
         except (robots.RobotLoadError, ValueError) as exc:
             print(f"torquelab: error: {error_reason(exc)}", file=sys.stderr)
             return 2

@@ -10,7 +10,7 @@ the package folders, so a second `serve` starts without reading a mesh file.
 
 A visual whose mesh file cannot be found, or that trimesh cannot read (or that holds no triangles),
 is drawn as nothing: the robot still loads and runs, and `mesh_problems(robot)` names each such file
-in one line (the page and `serve` say it once per robot, `missing_meshes_text`).
+in one line (the page, `serve` and the headless commands say it once per robot, `missing_meshes_line`).
 """
 
 from __future__ import annotations
@@ -80,6 +80,12 @@ def missing_meshes_text(problems: dict[str, str]) -> str:
     n = len(problems)
     files = "file" if n == 1 else "files"
     return f"{n} mesh {files} drawn as nothing: " + "; ".join(problems.values())
+
+
+def missing_meshes_line(robot: Any) -> str:
+    """The line "NAME: N mesh files drawn as nothing: …" for a robot (`robots.load`'s) with such files, else ""."""
+    text = missing_meshes_text(mesh_problems(robot.urdf_path, tuple(robot.package_paths)))
+    return f"{robot.name}: {text}" if text else ""
 
 
 def _converted(urdf_path: str | Path, package_paths: tuple[Path, ...]) -> _Converted:

@@ -162,6 +162,41 @@ def test_serve_with_a_missing_mesh_starts_and_says_so_in_one_line(tmp_path, monk
     assert len(said) == 1 and "1 mesh file drawn as nothing" in said[0] and "not found" in said[0]
 
 
+def _shipped_arm_with_a_missing_mesh(tmp_path):
+    """A copy of the Gen3's URDF and sidecar whose base visual is drawn from a mesh file that does not exist."""
+    import robots
+
+    text = (robots.ROBOTS_DIR / "gen3.urdf").read_text()
+    sphere = '<geometry><sphere radius="0.05"/></geometry></visual>'
+    assert sphere in text
+    text = text.replace(sphere, '<geometry><mesh filename="meshes/missing.stl"/></geometry></visual>', 1)
+    (tmp_path / "arm.toml").write_text((robots.ROBOTS_DIR / "gen3.toml").read_text())
+    return fx.write(tmp_path / "arm.urdf", text)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ("check", "--samples", "5"),
+        ("experiment", "limit-drop", "--quick", "--duration", "0.3", "--jobs", "1", "--out", "OUT"),
+    ],
+)
+def test_a_headless_command_on_a_urdf_with_a_missing_mesh_says_so_in_one_line_and_runs(
+    tmp_path, monkeypatch, capfd, argv
+):
+    import robots
+
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv(robots.ROBOT_ENV, "")  # restored after the command set it
+    urdf = _shipped_arm_with_a_missing_mesh(tmp_path)
+    args = [str(tmp_path / "out") if a == "OUT" else a for a in argv]
+    assert main([*args, "--urdf", str(urdf)]) == 0
+    err = capfd.readouterr().err
+    said = [ln for ln in err.splitlines() if "missing.stl" in ln]
+    assert len(said) == 1 and said[0].startswith("torquelab: arm: 1 mesh file drawn as nothing: "), err
+    assert "not found" in said[0] and str(tmp_path / "meshes" / "missing.stl") in said[0]
+
+
 def test_a_robot_switch_in_the_running_app_to_an_arm_with_a_missing_mesh_gives_one_notice(app, tmp_path, monkeypatch):
     """The running loop and publisher (no browser): a switch to the arm draws it without link 3, one
     notice names the file, frames keep coming, and a preset switch on the same arm says nothing again."""

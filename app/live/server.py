@@ -244,9 +244,9 @@ def serve(args: argparse.Namespace) -> int:
         described = robots.load(robot)  # a wrong name or URDF path is a one-line error before anything starts
         # the visual meshes read (or taken from the cache) now; a missing or unreadable one is drawn
         # as nothing, said in one line here (and once in the page)
-        missing = robots.meshes.mesh_problems(described.urdf_path, described.package_paths)
+        missing = robots.meshes.missing_meshes_line(described)
         if missing:
-            print(f"torquelab: {described.name}: {robots.meshes.missing_meshes_text(missing)}", flush=True)
+            print(f"torquelab: {missing}", flush=True)
     # the other robots of the page's selector converted in a niced child: a switch reads the cache
     robots.meshes.warm_in_background(tuple(n for n in robots.available() if n != robot))
     settings_file = getattr(args, "settings", None)
