@@ -239,3 +239,61 @@ def test_a_robot_switch_in_the_running_app_to_an_arm_with_a_missing_mesh_gives_o
     finally:
         loop.submit(SwitchSession("free", robot=""))
         assert wait_until(lambda: frames_grow() and pub.scene is not None and pub.scene.robot.name == "rizon4s", 30.0)
+
+
+def _notifications(ws, seconds: float) -> list[tuple[str, str]]:
+    """(title, body) of every notification a raw viser websocket received within `seconds`."""
+    import msgspec
+    import zstandard
+
+    out: list[tuple[str, str]] = []
+    deadline = time.monotonic() + seconds
+    while (left := deadline - time.monotonic()) > 0:
+        try:
+            data = ws.recv(timeout=left)
+        except TimeoutError:
+            break
+        size, packed = int.from_bytes(data[:8], "little"), int.from_bytes(data[8:16], "little")
+        inner = zstandard.ZstdDecompressor().decompress(data[16 : 16 + packed], max_output_size=size)
+        for msg in msgspec.msgpack.decode(inner)["messages"]:
+            if msg.get("type") == "NotificationShowMessage":
+                out.append((msg["props"]["title"], msg["props"]["body"]))
+    return out
+
+
+def test_a_page_opened_after_start_gets_the_missing_mesh_notice_once(tmp_path, monkeypatch):
+    """The app starts on an arm with a missing mesh file (no page open): each page that opens later
+    gets one "Missing meshes" notice naming the file, sent to it alone, and no second one."""
+    from websockets.sync.client import connect
+
+    from app.core.commands import StepOnce
+    from app.live.server import start_app
+    from tests.conftest import camera_message, wait_until
+
+    monkeypatch.setenv("TORQUELAB_CACHE", str(tmp_path / "cache"))
+    urdf = _arm_with_one_missing_mesh(tmp_path)
+    app = start_app(port=0, scenario="free", robot=str(urdf), running=False)
+    pages = []
+    try:
+        app.loop.submit(StepOnce(1))
+
+        def said() -> list:
+            return [n for n in app.loop.notice_log if n.title == "Missing meshes"]
+
+        assert wait_until(lambda: said() and not app.loop.lab.notices, 30.0)  # said at start, and sent
+        assert [n.client_id for n in said()] == [None]  # at start: to every page (there was none)
+        for _ in range(2):  # two pages, one after the other
+            before = set(app.server.get_clients())
+            ws = connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10)
+            pages.append(ws)
+            ws.send(camera_message())
+            assert wait_until(lambda b=before: len(set(app.server.get_clients()) - b) == 1)
+            (client_id,) = set(app.server.get_clients()) - before
+            shown = [body for title, body in _notifications(ws, 3.0) if title == "Missing meshes"]
+            assert len(shown) == 1 and "meshes/missing.stl" in shown[0] and "\n" not in shown[0], shown
+            assert len([n for n in said() if n.client_id == client_id]) == 1  # to that page alone
+        assert not [body for title, body in _notifications(pages[0], 1.0) if title == "Missing meshes"]
+    finally:
+        for ws in pages:
+            ws.close()
+        app.stop()

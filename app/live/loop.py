@@ -264,10 +264,10 @@ class SimLoop:
             frame = self._frame
         return frame if frame is not None and frame.seq > after_seq else None
 
-    def notify(self, level: str, title: str, body: str) -> None:
-        """A notice for every page from another thread (the lab's notice queues are deques: appends
-        are atomic); it goes out with the loop's own."""
-        self.lab.notify(level, title, body)
+    def notify(self, level: str, title: str, body: str, client_id: int | None = None) -> None:
+        """A notice for every page (or the page `client_id`) from another thread (the lab's notice
+        queues are deques: appends are atomic); it goes out with the loop's own."""
+        self.lab.notify(level, title, body, client_id)
 
     def take_notices(self) -> list[Notice]:
         """Notices produced since the last call (for the publisher)."""

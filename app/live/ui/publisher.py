@@ -28,9 +28,9 @@ import viser
 from app.live.loop import Frame, SimLoop, raise_thread_priority
 from app.live.supervise import Stages, error_text
 from app.live.ui.camera import Framer, frame_on_connect, robot_points
+from app.live.ui.mesh_notice import MeshNotice
 from app.live.ui.panels.base import notify
 from app.live.ui.plots import Plots
-from robots.meshes import missing_meshes_text
 
 LIVE_PERIOD_S = 0.15
 # Niceness of the publisher thread and of the server's event loop (Linux, where permitted): just below
@@ -77,7 +77,7 @@ class Publisher:
         self.restarts: deque[float] = deque(maxlen=MAX_RESTARTS)  # when the thread was restarted
         self.plot_updates = 0  # plot data shown
         self._scene_wanted = False  # a new session's scene view is still to be built
-        self._meshes_said_for: tuple[str, tuple[str, ...]] | None = None  # the robot whose missing meshes were said
+        self.mesh_notice = MeshNotice(server, loop)  # the shown robot's files drawn as nothing, to each page once
         self._settings_version = -1
         self._plot_seq = -1
         self._next_live = 0.0
@@ -152,6 +152,7 @@ class Publisher:
     def _notify(self) -> None:
         for notice in self.loop.take_notices():
             notify(self.server, notice.client_id, notice.title, notice.body, error=notice.level == "error")
+        self.mesh_notice.notices_sent()  # a page opened since gets the shown robot's
 
     def _run(self) -> None:
         self.niceness = raise_thread_priority(PUBLISHER_NICENESS)
@@ -229,7 +230,7 @@ class Publisher:
         if self._scene_wanted and self.make_scene is not None:  # tried again each frame until it builds
             self.scene = self.make_scene(frame.robot)
             self._scene_wanted = False
-            self._say_missing_meshes(frame.robot)
+            self.mesh_notice.robot_shown(frame.robot, getattr(self.scene, "missing_meshes", None) or {})
         if self.scene is not None and frame.scene is not None:
             snap = frame.scene if self.replay is None else self.replay.scene_for(frame.scene, frame.session_id)
             self.scene.update(snap)
@@ -242,17 +243,6 @@ class Publisher:
                 self._frame_pending = False
             elif frame.scene.drag_point is None:  # never under a person's drag (the pointer would slip)
                 self.framer.follow(points)
-
-    def _say_missing_meshes(self, robot: Any) -> None:
-        """One notice naming every mesh file the new scene draws as nothing, once per robot (a preset
-        switch that keeps the robot says nothing again)."""
-        key = (str(getattr(robot, "urdf_path", "")), tuple(str(p) for p in getattr(robot, "package_paths", ())))
-        if key == self._meshes_said_for:
-            return
-        self._meshes_said_for = key
-        text = missing_meshes_text(getattr(self.scene, "missing_meshes", None) or {})
-        if text:
-            self.loop.notify("warning", "Missing meshes", f"{robot.name}: {text}")
 
     def _show_panels(self, frame: Frame) -> None:
         now = time.monotonic()
