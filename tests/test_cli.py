@@ -194,14 +194,27 @@ def serve_once(monkeypatch):
 
 
 @pytest.mark.parametrize("huge", ["1e400", str(10**400), "-1e400", "nan"])
-def test_serve_settings_whose_only_entry_is_huge_is_one_line_and_exit_2(run_cli, serve_once, tmp_path, huge):
+def test_serve_settings_of_which_nothing_applies_is_one_line_and_exit_2_before_anything_starts(
+    run_cli, serve_once, monkeypatch, tmp_path, huge
+):
+    """Checked against the preset's defaults before the warm-up, the mesh child, the app or its threads."""
+    import threading
+
+    from app.live import server
+
+    begun: list[str] = []
+    monkeypatch.setattr(server, "warm_up", lambda *a: begun.append("warm-up") or 0.0)
+    monkeypatch.setattr(server.robots.meshes, "warm_in_background", lambda names: begun.append("mesh child"))
+    threads = set(threading.enumerate())
     path = tmp_path / "huge.toml"
-    path.write_text(f"[joint_hold]\nstiffness = {huge}\n")
-    res = run_cli("serve", "--scenario", "free", "--port", "0", "--no-warmup", "--settings", str(path))
+    path.write_text(f"[joint_hold]\nstiffness = {huge}\n[nothing_like_this]\nx = 1\n")
+    res = run_cli("serve", "--scenario", "free", "--port", "0", "--settings", str(path))
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert res.returncode == 2 and len(lines) == 1, res.stderr
     assert "no entry applies" in lines[0] and "joint_hold.stiffness" in lines[0] and str(path) in lines[0]
-    assert "open http" not in res.stdout and len(serve_once) == 1 and not serve_once[0].loop.alive
+    assert "nothing_like_this" in lines[0]
+    assert begun == [] and serve_once == [] and res.stdout == ""
+    assert set(threading.enumerate()) <= threads
 
 
 def test_serve_settings_with_one_bad_entry_applies_the_valid_ones_and_names_the_bad_one_once(

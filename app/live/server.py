@@ -31,7 +31,7 @@ from app.core.commands import DragCommand
 from app.core.params import parse_settings
 from app.live.loop import SimLoop
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
-from app.live.settings_io import apply_settings_text
+from app.live.settings_io import apply_settings_text, check_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
 from app.live.ui.keys import add_hotkeys
 from app.live.ui.panels import ALL_FIELDS
@@ -217,8 +217,9 @@ def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
 
-def _read_settings_file(path: str) -> str:
-    """The text of a settings file, checked as TOML; ValueError (one line) otherwise."""
+def _read_settings_file(path: str, scenario: str, robot: str | None) -> str:
+    """The text of a settings file, checked as TOML and against the preset's default parameters on
+    `robot`; ValueError (one line) when it cannot be read or none of its entries applies."""
     try:
         with open(path, encoding="utf-8") as fh:
             text = fh.read()
@@ -227,6 +228,9 @@ def _read_settings_file(path: str) -> str:
     _, problems = parse_settings(text)
     if problems and problems[0].startswith("not a TOML"):
         raise ValueError(f"{path}: {problems[0]}")
+    applied, refused = check_settings_text(scenario, robot, text)
+    if refused and not applied:  # nothing of what was asked for applies: no start on other settings
+        raise ValueError(f"{path}: no entry applies: {'; '.join(refused)}")
     return text
 
 
@@ -240,8 +244,12 @@ def serve(args: argparse.Namespace) -> int:
         raise ValueError(f"port must be 0…65535, got {args.port}")
     if not port_is_free(args.host, 0):
         raise ValueError(f"cannot listen on host {args.host!r} (not an address of this machine)")
-    if robot:
-        described = robots.load(robot)  # a wrong name or URDF path is a one-line error before anything starts
+    # a wrong name or URDF path, or a settings file of which nothing applies, is a one-line error
+    # before anything starts (no compile, thread, child process or URL)
+    described = robots.load(robot) if robot else None
+    settings_file = getattr(args, "settings", None)
+    settings_text = _read_settings_file(settings_file, scenario, robot) if settings_file else None
+    if described is not None:
         # the visual meshes read (or taken from the cache) now; a missing or unreadable one is drawn
         # as nothing, said in one line here (and once in the page)
         missing = robots.meshes.missing_meshes_line(described)
@@ -249,8 +257,6 @@ def serve(args: argparse.Namespace) -> int:
             print(f"torquelab: {missing}", flush=True)
     # the other robots of the page's selector converted in a niced child: a switch reads the cache
     robots.meshes.warm_in_background(tuple(n for n in robots.available() if n != robot))
-    settings_file = getattr(args, "settings", None)
-    settings_text = _read_settings_file(settings_file) if settings_file else None
     busy = args.port != 0 and not port_is_free(args.host, args.port)
     if getattr(args, "warm", False):  # the CLI's default (--no-warmup skips it); tests warm elsewhere
         took = warm_up(robot, _progress_line)
@@ -264,11 +270,7 @@ def serve(args: argparse.Namespace) -> int:
     display_failure = ""
     try:
         if settings_text is not None:
-            applied, refused = apply_settings_text(app.loop, settings_text)
-            if refused and not applied:  # nothing of what was asked for applies: no start on other settings
-                reasons = "; ".join(refused)
-                print(f"torquelab: error: {settings_file}: no entry applies: {reasons}", file=sys.stderr, flush=True)
-                return 2
+            _, refused = apply_settings_text(app.loop, settings_text)  # checked before the start
             for line in refused:
                 print(f"torquelab: {settings_file}: refused: {line}", flush=True)
             print(f"torquelab: settings from {settings_file} applied ({len(refused)} refused)", flush=True)

@@ -1,11 +1,20 @@
-"""Settings files over a running loop: the running session's overrides as TOML, and a TOML text applied."""
+"""Settings files: a TOML text checked against a preset's defaults before anything starts, and over a
+running loop the session's overrides as TOML and a TOML text applied."""
 
 from __future__ import annotations
 
 from app.core.params import save_settings, settings_commands
+from app.core.session import Session
 from app.live.loop import SimLoop
 
-__all__ = ["apply_settings_text", "load_settings_text", "save_settings_text"]
+__all__ = ["apply_settings_text", "check_settings_text", "load_settings_text", "save_settings_text"]
+
+
+def check_settings_text(scenario: str, robot: str | None, text: str) -> tuple[int, list[str]]:
+    """(entries applied, one line per refused entry) of a TOML settings text on a fresh session of
+    `scenario` on `robot` (its default parameters): what the app would apply at start, told before it starts."""
+    commands, refused = settings_commands(Session(scenario, robot=robot).params(), text)
+    return len(commands), refused
 
 
 def save_settings_text(loop: SimLoop, timeout: float = 60.0) -> str:
