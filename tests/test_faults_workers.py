@@ -28,6 +28,15 @@ def _pid_after(seconds: float) -> int:
     return os.getpid()
 
 
+def _kill_worker(worker) -> int:
+    """SIGKILL a `Worker`'s process; how many there were (1 while it is up, else 0)."""
+    pid = worker.pid
+    if pid is None:
+        return 0
+    os.kill(pid, signal.SIGKILL)
+    return 1
+
+
 def _kill_workers(pool) -> int:
     """SIGKILL every worker process of a ProcessPoolExecutor; how many there were."""
     procs = list(getattr(pool, "_processes", {}).values())
@@ -50,12 +59,15 @@ def _until_done(planner: BackgroundPlanner, timeout: float = 180.0) -> tuple[obj
     raise AssertionError("the work never finished")
 
 
-def _wait_for_worker(planner: BackgroundPlanner, timeout: float = 60.0) -> None:
-    """Until the planner's pool (submitted from a thread of its own) has its worker process."""
+def _wait_for_worker(planner: BackgroundPlanner, poll: bool = False, timeout: float = 60.0) -> None:
+    """Until the planner's work is in its worker process (started in a thread of its own, then handed
+    the work by a `take_done`: the loop's, or here when `poll`)."""
     deadline = time.monotonic() + timeout
-    while not getattr(planner._pool, "_processes", None) and time.monotonic() < deadline:
+    while (job := planner._job) is not None and job.future is None and time.monotonic() < deadline:
+        if poll:
+            assert planner.take_done() is None
         time.sleep(0.02)
-    assert getattr(planner._pool, "_processes", None), "no worker process started"
+    assert planner._job is not None and planner._job.future is not None, "no worker process took the work"
 
 
 def test_a_planner_whose_worker_is_killed_rebuilds_its_pool_and_never_computes_on_the_callers_thread():
@@ -63,15 +75,15 @@ def test_a_planner_whose_worker_is_killed_rebuilds_its_pool_and_never_computes_o
     stored: list[int] = []
     try:
         planner.start("switch", Work("a stand-in plan", _pid_after, (3.0,), stored.append))
-        _wait_for_worker(planner)
+        _wait_for_worker(planner, poll=True)
         time.sleep(1.0)  # the worker is computing
-        assert _kill_workers(planner._pool) == 1
+        assert _kill_worker(planner.worker) == 1
         done, longest = _until_done(planner)
         assert done == ("switch", None)  # the work was computed again by a new worker
         assert stored and stored[-1] != os.getpid() and planner.rebuilds == 1
         assert longest < 0.1  # nothing was computed inside take_done (the loop thread's call)
         # a worker that dies while idle: the next work goes to a new one
-        assert _kill_workers(planner._pool) == 1
+        assert _kill_worker(planner.worker) == 1
         time.sleep(0.5)
         t0 = time.perf_counter()
         planner.start("switch 2", Work("a stand-in plan", _pid_after, (0.0,), stored.append))
@@ -165,7 +177,7 @@ def _gaps_through_a_worker_kill(tmp_path, stall_on_loop_s: float = 0.0) -> dict[
         _wait_for_worker(planner)
         time.sleep(1.0)  # the worker computes
         killed.append(time.monotonic())
-        assert _kill_workers(planner._pool) == 1
+        assert _kill_worker(planner.worker) == 1
         status = lp.sync(timeout=300.0)  # queued behind the switch: answered once it applied
         assert status.scenario == "compliance" and planner.rebuilds == 1
         assert stored and stored[-1] != os.getpid()  # computed by the new worker, not here

@@ -666,9 +666,7 @@ def test_a_switch_to_a_planned_case_plans_in_another_process_while_the_loop_runs
         for name, value in plan._asdict().items():
             assert np.array_equal(value, getattr(here, name)), name
         if hasattr(os, "getpriority"):  # the worker runs at the app's priority, not the loop thread's
-            pool = lp.planner._pool
-            assert pool is not None
-            worker = pool.submit(os.getpriority, os.PRIO_PROCESS, 0).result(timeout=30)
+            worker = lp.planner.worker.call(os.getpriority, os.PRIO_PROCESS, 0, timeout=30.0)
             assert worker == os.getpriority(os.PRIO_PROCESS, os.getpid())
     finally:
         lp.stop()

@@ -10,6 +10,7 @@ import time
 import pytest
 
 from app.live.workers import FAILED_STARTS_MAX, Worker, WorkerLost
+from app.scenarios import Work
 
 
 def _fail_to_warm() -> None:
@@ -18,6 +19,10 @@ def _fail_to_warm() -> None:
 
 def _raise_holding_a_lock() -> None:
     raise ValueError("bad input", threading.Lock())
+
+
+def _thread_id() -> int:
+    return threading.get_ident()
 
 
 def _alive(pid: int) -> bool:
@@ -96,3 +101,20 @@ def test_a_worker_that_never_comes_up_is_given_up():
         assert not worker.ready(60.0)
     assert worker.gave_up is not None and str(FAILED_STARTS_MAX) in worker.gave_up
     assert worker.submit(pow, 2, 2) is None and not worker.ready(0.0) and worker.starts == 0
+
+
+def test_the_planner_computes_in_a_thread_of_its_own_once_no_worker_comes_up():
+    from app.live.plan_worker import BackgroundPlanner
+
+    planner = BackgroundPlanner()
+    planner.worker = Worker("torquelab-test", warm=_fail_to_warm)
+    stored: list[int] = []
+    try:
+        planner.start("switch", Work("a stand-in plan", _thread_id, (), stored.append))
+        deadline = time.monotonic() + 60.0
+        while (done := planner.take_done()) is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert done == ("switch", None) and planner.worker.gave_up is not None
+        assert stored and stored[0] != threading.get_ident()  # a thread of its own, not the caller's
+    finally:
+        planner.stop()

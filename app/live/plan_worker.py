@@ -8,133 +8,95 @@ loop hands the work to `BackgroundPlanner`, keeps running the current preset, ap
 commands (drag, Pause), and applies the switch again once the result is stored. The work is the
 same function of the same arguments in either process.
 
-The worker process comes back: when it dies (killed, out of memory) the pool is thrown away, a new one
-is started and the work under way is submitted again (once: work that kills its worker twice fails
-with a notice). Nothing is ever computed on the loop thread: where no worker process can start at
-all, the work runs in a thread of its own. Nor does the loop thread start a worker: a spawn blocks
-its caller for tens of milliseconds on a loaded machine, so every submission (the first, and the
-one after a worker died) runs in a short-lived thread, and `take_done` answers None until it is in.
+The worker process (`app.live.workers.Worker`, at the app's priority) is started on first use, in a
+thread of its own, and comes back: when it dies (killed, out of memory) a new one starts and the work
+under way is submitted again (once: work that kills its worker twice fails with a notice). Until a
+worker is up, `take_done` (the loop calls it every round) answers None and submits the work once one is.
+Nothing is ever computed on the loop thread: where no worker process can start at all, the work runs
+in a thread of its own.
 """
 
 from __future__ import annotations
 
-import os
-import threading
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
-from multiprocessing import get_context
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any
 
-from app.live.priority import set_process_niceness
+from app.live.workers import Worker, WorkerLost
 from app.scenarios import Work
 
+WORKER_NAME = "torquelab-plan"
 
-def app_niceness() -> int:
-    """The niceness of the process's main thread (the app's default priority; 0 where unknown)."""
-    try:
-        return os.getpriority(os.PRIO_PROCESS, os.getpid())
-    except (OSError, AttributeError):
-        return 0
+
+@dataclass
+class _Job:
+    command: Any  # handed back by take_done
+    work: Work
+    future: Future | None = None  # None until the work is submitted
+    retried: bool = False  # the work was submitted again after its worker died
 
 
 class BackgroundPlanner:
     """One piece of work at a time in a spawned worker process (started on first use, kept for the
-    next, rebuilt when it dies; see the module docstring)."""
+    next, replaced when it dies; see the module docstring)."""
 
     def __init__(self) -> None:
-        self._pool: Executor | None = None
-        self._job: tuple[Future | None, Work, Any] | None = None
-        self._retried = False  # the work under way was submitted again after its worker died
-        self.rebuilds = 0  # pools started after a worker died
-        self._lock = threading.Lock()  # the pool is made, used and thrown away under it
-        self._generation = 0  # bumped by each start and stop: a late submission of older work is dropped
+        self.worker = Worker(WORKER_NAME)
+        self._job: _Job | None = None
+        self._threads: ThreadPoolExecutor | None = None  # where no worker process can start
 
     @property
     def busy(self) -> bool:
         """True while work is being computed."""
         return self._job is not None
 
-    def _new_pool(self) -> Executor:
-        try:
-            # at the app's priority: spawned from the loop thread, it would inherit that thread's
-            return ProcessPoolExecutor(
-                max_workers=1,
-                mp_context=get_context("spawn"),
-                initializer=set_process_niceness,
-                initargs=(app_niceness(),),
-            )
-        except Exception:  # no worker process here: a thread, never the loop thread itself
-            return ThreadPoolExecutor(max_workers=1, thread_name_prefix="torquelab-work")
+    @property
+    def rebuilds(self) -> int:
+        """Worker processes replaced after one died."""
+        return self.worker.losses
 
-    def _submit(self, work: Work, fresh: bool = False) -> Future:
-        """Submit to the pool (a new one when `fresh`: its worker died), rebuilding it once if it is
-        broken (its worker died while idle)."""
-        if fresh:
-            self._discard_pool()
-        if self._pool is None:
-            self._pool = self._new_pool()
-        try:
-            return self._pool.submit(work.compute, *work.args)
-        except (BrokenProcessPool, RuntimeError):
-            self._discard_pool()
-            self.rebuilds += 1
-            self._pool = self._new_pool()
-            return self._pool.submit(work.compute, *work.args)
-
-    def _discard_pool(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
-
-    def _submit_in_thread(self, work: Work, command: Any, fresh: bool = False) -> None:
-        """Submit from a thread of its own (module docstring); the job has no future until it is in."""
-        generation = self._generation
-        self._job = (None, work, command)
-
-        def submit() -> None:
-            with self._lock:
-                if generation != self._generation:  # stopped or replaced meanwhile
-                    return
-                try:
-                    future = self._submit(work, fresh)
-                except Exception as exc:  # handed back by take_done as the work's error
-                    future = Future()
-                    future.set_exception(exc)
-                if generation == self._generation:
-                    self._job = (future, work, command)
-
-        threading.Thread(target=submit, name="torquelab-submit", daemon=True).start()
+    def _submit(self, job: _Job) -> None:
+        """Hand the work to the worker (the future stays None while none is up), or to a thread where
+        no worker process can start."""
+        work = job.work
+        if self.worker.gave_up is None:
+            job.future = self.worker.submit(work.compute, *work.args)
+            return
+        if self._threads is None:
+            self._threads = ThreadPoolExecutor(max_workers=1, thread_name_prefix="torquelab-work")
+        job.future = self._threads.submit(work.compute, *work.args)
 
     def start(self, command: Any, work: Work) -> None:
         """Compute `work`; `command` is handed back by `take_done` once its result is stored."""
-        self._retried = False
-        self._generation += 1
-        self._submit_in_thread(work, command)
+        self._job = _Job(command, work)
+        self._submit(self._job)
 
     def take_done(self) -> tuple[Any, BaseException | None] | None:
         """(command, None) once its work's result is stored, (command, error) if the work failed; None
         while it is still being submitted or computed (a dead worker's work is submitted again to a new
-        pool) or when nothing is."""
+        one) or when nothing is."""
         job = self._job
         if job is None:
             return None
-        future, work, command = job
-        if future is None or not future.done():
+        if job.future is None:
+            self._submit(job)
+        if job.future is None or not job.future.done():
             return None
-        error = future.exception()
-        if isinstance(error, BrokenProcessPool) and not self._retried:
-            self.rebuilds += 1  # the worker died under the work: a new one computes it again
-            self._retried = True
-            self._submit_in_thread(work, command, fresh=True)
+        error = job.future.exception()
+        if isinstance(error, WorkerLost) and not job.retried:
+            job.retried = True  # the worker died under the work: a new one computes it again
+            self._submit(job)
             return None
         self._job = None
         if error is None:
-            work.store(future.result())
-        return command, error
+            job.work.store(job.future.result())
+        return job.command, error
 
     def stop(self) -> None:
-        """End the worker process (work under way is abandoned; waits for a submission under way)."""
-        self._generation += 1
-        with self._lock:
-            self._discard_pool()
+        """End the worker process (work under way is abandoned); a later `start` starts a new one."""
+        self.worker.stop()
+        self.worker = Worker(WORKER_NAME)
         self._job = None
+        if self._threads is not None:
+            self._threads.shutdown(wait=False, cancel_futures=True)
+            self._threads = None
