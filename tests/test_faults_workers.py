@@ -37,14 +37,6 @@ def _kill_worker(worker) -> int:
     return 1
 
 
-def _kill_workers(pool) -> int:
-    """SIGKILL every worker process of a ProcessPoolExecutor; how many there were."""
-    procs = list(getattr(pool, "_processes", {}).values())
-    for proc in procs:
-        os.kill(proc.pid, signal.SIGKILL)
-    return len(procs)
-
-
 def _until_done(planner: BackgroundPlanner, timeout: float = 180.0) -> tuple[object, float]:
     """Poll `take_done` like the loop does; (its answer, the longest single call in s)."""
     longest = 0.0
@@ -233,21 +225,21 @@ def test_a_killed_scan_process_is_replaced_and_the_preview_scans_on():
     import numpy as np
 
     import robots
-    from app.live.ui.selfmotion import SelfMotionPreview
+    from app.live.ui.selfmotion import SelfMotionPreview, scan_worker
     from control.coupling import POLISH_SUBSPACES
 
     rizon = robots.load("rizon4s")
     preview = SelfMotionPreview.__new__(SelfMotionPreview)  # the scan machinery only, no widgets
-    preview._pool = None
+    preview._worker = scan_worker()
     preview._in_process = True
     preview._pool_failures = 0
     preview.pool_rebuilds = 0
     preview._models = {}
     q = np.asarray(rizon.postures.get("polish_start", rizon.home), dtype=float)
     first = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
-    assert _kill_workers(preview._pool) == 1
+    assert _kill_worker(preview._worker) == 1
     time.sleep(0.5)
     again = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
     assert preview._in_process and preview.pool_rebuilds == 1  # a new process scanned, not this thread
     np.testing.assert_array_equal(first.W, again.W)
-    preview._pool.shutdown()
+    preview._worker.stop()

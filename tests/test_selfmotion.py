@@ -132,14 +132,14 @@ def test_the_scan_process_runs_at_a_lower_priority_than_the_server():
     busy machine the 1 kHz loop and the browser get the cores first."""
     import os
 
-    from app.live.ui.selfmotion import scan_pool
+    from app.live.ui.selfmotion import scan_worker
     from app.live.ui.selfmotion_worker import SCAN_NICENESS
 
-    pool = scan_pool()
+    worker = scan_worker()
     try:
-        niceness = pool.submit(os.nice, 0).result(timeout=60.0)
+        niceness = worker.call(os.nice, 0, timeout=60.0)
     finally:
-        pool.shutdown()
+        worker.stop()
     assert niceness == min(os.nice(0) + SCAN_NICENESS, 19) and SCAN_NICENESS == 10
 
 

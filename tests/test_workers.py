@@ -1,9 +1,13 @@
-"""The supervised worker process the live app computes in (`app.live.workers.Worker`)."""
+"""The supervised worker process the live app computes in (`app.live.workers.Worker`): the live
+figures' offload, the planner and the self-motion scans each run one."""
 
 from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
+import textwrap
 import threading
 import time
 
@@ -118,3 +122,57 @@ def test_the_planner_computes_in_a_thread_of_its_own_once_no_worker_comes_up():
         assert stored and stored[0] != threading.get_ident()  # a thread of its own, not the caller's
     finally:
         planner.stop()
+
+
+def test_the_scans_run_in_the_servers_process_once_no_scan_process_comes_up():
+    import numpy as np
+
+    import robots
+    from app.live.ui.selfmotion import SelfMotionPreview, scan_worker
+    from control.coupling import POLISH_SUBSPACES
+
+    rizon = robots.load("rizon4s")
+    q = np.asarray(rizon.postures.get("polish_start", rizon.home), dtype=float)
+    preview = SelfMotionPreview.__new__(SelfMotionPreview)  # the scan machinery only, no widgets
+    preview._in_process, preview._pool_failures, preview.pool_rebuilds, preview._models = True, 0, 0, {}
+    preview._worker = scan_worker()
+    try:
+        there = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
+    finally:
+        preview._worker.stop()
+    preview._worker = Worker("torquelab-test", warm=_fail_to_warm)
+    here = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
+    assert not preview._in_process and preview._worker.gave_up is not None
+    np.testing.assert_array_equal(here.W, there.W)
+
+
+def test_the_live_apps_workers_exit_when_the_app_is_killed():
+    """The offload's, the planner's and the scan's workers, one of them busy, end within 10 s of the
+    app's kill -9 (a ProcessPoolExecutor worker lived on)."""
+    script = textwrap.dedent(
+        """
+        import os, signal, time
+        from app.live.offload import LiveOffload
+        from app.live.plan_worker import BackgroundPlanner
+        from app.live.ui.selfmotion import scan_worker
+
+        if __name__ == "__main__":
+            workers = [LiveOffload(), BackgroundPlanner().worker, scan_worker()]
+            pids = [w.call(os.getpid, timeout=120.0) for w in workers]
+            workers[1].submit(time.sleep, 2.0)  # computing when the app dies
+            print(" ".join(str(p) for p in pids), flush=True)
+            os.kill(os.getpid(), signal.SIGKILL)
+        """
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": os.getcwd()}
+    )
+    assert proc.stdout is not None
+    pids = [int(p) for p in proc.stdout.readline().split()]
+    try:
+        assert proc.wait(timeout=60) == -signal.SIGKILL and len(pids) == 3
+        assert _until(lambda: not any(_alive(p) for p in pids), 10.0), "a worker outlived the killed app"
+    finally:
+        for pid in pids:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)

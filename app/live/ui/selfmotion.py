@@ -16,8 +16,6 @@ from __future__ import annotations
 import threading
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from typing import Any
 
 import numpy as np
@@ -25,7 +23,8 @@ import pinocchio as pin
 import viser
 
 from app.live.ui.scene import add_ghost_arm, hide_ghost_arm, link_meshes, pose_ghost_arm
-from app.live.ui.selfmotion_worker import Preview, lower_priority, scan_in_worker, scan_preview
+from app.live.ui.selfmotion_worker import SCAN_NICENESS, Preview, scan_in_worker, scan_preview
+from app.live.workers import Worker, WorkerLost
 from control.coupling import Subspaces
 from control.model import RobotModel
 from robots import RobotDescription
@@ -33,6 +32,7 @@ from robots import RobotDescription
 __all__ = ["Preview", "SelfMotionPreview", "link_poses", "preview_objective", "scan_preview"]
 
 MAX_POOL_FAILURES = 3  # scan-process failures in a row before scans run in this thread
+SCAN_TIMEOUT_S = 60.0  # a scan process that has not come up, or not answered, by then counts as failed
 PREVIEW_PERIOD_S = 1.0  # s between two scans while the preview is on (a scan takes ~0.1 s)
 PLANNED_SIGNAL = "swivel_plan_deg"  # the polish scenario's planned swivel, when it runs a planned path
 GHOST_COLOR = (110, 130, 255)
@@ -50,10 +50,10 @@ INTRO = (
 )
 
 
-def scan_pool() -> ProcessPoolExecutor:
-    """The scan process: one worker, spawned (it does not inherit the server's threads), at a lower
-    scheduling priority than the server (`lower_priority`)."""
-    return ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"), initializer=lower_priority)
+def scan_worker() -> Worker:
+    """The scan process: spawned (it does not inherit the server's threads), SCAN_NICENESS steps
+    nicer than the server."""
+    return Worker("torquelab-selfmotion-scan", niceness_above_app=SCAN_NICENESS)
 
 
 def wrap_deg(value: Any) -> Any:
@@ -122,9 +122,9 @@ class SelfMotionPreview:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._models: dict[str, RobotModel] = {}
-        self._pool: ProcessPoolExecutor | None = None
+        self._worker = scan_worker()  # started on the first scan
         self._in_process = True  # off after MAX_POOL_FAILURES failures in a row: scans then run in this thread
-        self._pool_failures = 0  # scan-process failures in a row (a dead worker: the pool is rebuilt)
+        self._pool_failures = 0  # scan-process failures in a row (a dead process is replaced)
         self.pool_rebuilds = 0  # scan processes started again after one died
         self._ghost: dict[str, viser.MeshHandle] = {}
         self._ghost_robot: str | None = None
@@ -182,8 +182,7 @@ class SelfMotionPreview:
         self._stop.set()
         self._wake.set()
         self._thread.join(timeout=2.0)
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+        self._worker.stop()
 
     # ---- worker ---------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -222,27 +221,21 @@ class SelfMotionPreview:
         failures in a row (no process can run here) scans run in this thread."""
         while self._in_process:
             try:
-                if self._pool is None:
-                    self._pool = scan_pool()
-                job = self._pool.submit(
-                    scan_in_worker, str(robot.urdf_path), robot.model, robot.q_lower, robot.q_upper, q,
-                    sub.force_axes, objective,
-                )  # fmt: skip
-                result = job.result(timeout=60.0)
-            except Exception as exc:  # a dead or missing process: a new one
+                return self._in_worker(robot, q, sub, objective)
+            except (WorkerLost, TimeoutError) as exc:  # a dead, stuck or missing process: a new one
                 self._pool_failures += 1
-                if self._pool is not None:
-                    self._pool.shutdown(wait=False, cancel_futures=True)
-                    self._pool = None
-                if self._pool_failures >= MAX_POOL_FAILURES:
+                if self._pool_failures >= MAX_POOL_FAILURES or self._worker.gave_up is not None:
                     print(f"torquelab: self-motion scan process failed ({exc!r}); scanning in the server process")
                     self._in_process = False
                 else:
                     self.pool_rebuilds += 1
-                continue
-            self._pool_failures = 0
-            return result
         return scan_preview(self._model_for(robot), robot, q, sub, objective)
+
+    def _in_worker(self, robot: RobotDescription, q: np.ndarray, sub: Subspaces, objective: str) -> Preview:
+        args = (str(robot.urdf_path), robot.model, robot.q_lower, robot.q_upper, q, sub.force_axes, objective)
+        preview = self._worker.call(scan_in_worker, *args, timeout=SCAN_TIMEOUT_S)
+        self._pool_failures = 0
+        return preview
 
     def _model_for(self, robot: RobotDescription) -> RobotModel:
         key = str(robot.urdf_path)

@@ -1,14 +1,13 @@
 """The self-motion scan (DESIGN §8) as a function a separate process can run.
 
 Imports only numpy, Pinocchio and `control`: the scan process `app.live.ui.selfmotion` starts (spawned,
-one worker) does not load the web server. A scan traces the self-motion loop through a posture
+`app.live.workers.Worker`) does not load the web server. A scan traces the self-motion loop through a posture
 (`control.coupling.swivel_scan`, ~0.1 s of Python) and finds where the [T15] flow settles and the
 best posture inside the joint limits.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,7 +17,9 @@ from control.coupling import Subspaces, flow_minimum, swivel_scan
 from control.model import RobotModel
 
 _MODELS: dict[str, RobotModel] = {}  # in the scan process: one RobotModel per URDF
-SCAN_NICENESS = 10  # the scan process runs at this lower priority (`os.nice`)
+# the scan process runs this much nicer than the server: when every core is busy, the 1 kHz loop and
+# the browser go first and a scan waits (it is due about once a second and nobody waits for it)
+SCAN_NICENESS = 10
 
 
 @dataclass(frozen=True)
@@ -64,16 +65,6 @@ def scan_preview(model: RobotModel, robot, q: np.ndarray, sub: Subspaces, object
     inside = np.flatnonzero(feasible)
     best = int(inside[np.argmin(values[inside])]) if inside.size else None
     return Preview(objective, np.rad2deg(scan.swivel_rad), values, feasible, scan.q, flow, best)
-
-
-def lower_priority() -> None:
-    """Lower this process's scheduling priority by SCAN_NICENESS (the scan process's initializer): when
-    every core is busy, the 1 kHz loop and the browser go first and a scan waits (it is due about once
-    a second and nobody waits for it). Where the system refuses, the priority stays."""
-    try:
-        os.nice(SCAN_NICENESS)
-    except OSError:
-        pass
 
 
 def scan_in_worker(
