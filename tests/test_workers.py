@@ -140,6 +140,9 @@ def test_the_scans_run_in_the_servers_process_once_no_scan_process_comes_up():
         there = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
     finally:
         preview._worker.stop()
+    with pytest.raises(WorkerLost):  # a stopped preview scans nowhere, not in this process either
+        preview._scan(rizon, q, POLISH_SUBSPACES, "a")
+    assert preview._in_process and preview._pool_failures == 0
     preview._worker = Worker("torquelab-test", warm=_fail_to_warm)
     here = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
     assert not preview._in_process and preview._worker.gave_up is not None

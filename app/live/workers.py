@@ -147,6 +147,11 @@ class Worker:
         return self._conn is not None
 
     @property
+    def stopped(self) -> bool:
+        """True once `stop` was called (no worker starts any more)."""
+        return self._closed
+
+    @property
     def pid(self) -> int | None:
         """The worker's process id while it is up."""
         return self._process.pid if self._conn is not None else None

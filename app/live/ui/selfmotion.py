@@ -194,7 +194,8 @@ class SelfMotionPreview:
             try:
                 self._tick()
             except Exception:  # a failed scan must not end the preview
-                traceback.print_exc()
+                if not self._stop.is_set():  # (a scan cut short by `stop` is no failure)
+                    traceback.print_exc()
 
     def _tick(self) -> None:
         if not self.enabled.value:
@@ -223,6 +224,8 @@ class SelfMotionPreview:
             try:
                 return self._in_worker(robot, q, sub, objective)
             except (WorkerLost, TimeoutError) as exc:  # a dead, stuck or missing process: a new one
+                if self._worker.stopped:  # the preview is being stopped: no scan here either
+                    raise
                 self._pool_failures += 1
                 if self._pool_failures >= MAX_POOL_FAILURES or self._worker.gave_up is not None:
                     print(f"torquelab: self-motion scan process failed ({exc!r}); scanning in the server process")
