@@ -22,6 +22,7 @@ import copy
 import dataclasses
 import functools
 import math
+import weakref
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -74,6 +75,22 @@ class _TargetOwner:
         p = expect(name, group, TargetParams if name == "target" and isinstance(self.wrench, np.ndarray) else None)
         assert isinstance(self.wrench, np.ndarray)
         self.wrench[2] = p.force_setpoint_n
+
+
+def _weakly(method: Callable[[], Any]) -> Callable[[], Any]:
+    """`method` (bound) without keeping its object alive. The environment's hooks back into its
+    session would otherwise close a reference cycle, and a session in a cycle is freed (its MuJoCo
+    data, step buffers, compiled-code arrays) only by the collector's full pass, not when dropped."""
+    ref = weakref.WeakMethod(method)
+    name = method.__qualname__  # not the method: it holds its object
+
+    def call() -> Any:
+        bound = ref()
+        if bound is None:
+            raise ReferenceError(f"{name}: its object is gone")
+        return bound()
+
+    return call
 
 
 class WorkPending(Exception):
@@ -191,7 +208,7 @@ class Session:
         """Give the environment (now and after every reset) a place off the loop thread for its costly
         page signals (`app.scenarios.Offload`); None: it computes them inline."""
         self.offload = offload
-        self.environment.connect(self.params, offload, self._dynamics)
+        self.environment.connect(_weakly(self.params), offload, _weakly(self._dynamics))
 
     # ---- lifecycle ----------------------------------------------------------------------------
     def reset(self) -> None:
@@ -204,7 +221,7 @@ class Session:
         self.drag.release()
         rng = np.random.default_rng(self.seed)
         self.environment: Environment = self.scenario.make_environment(self.world, rng)
-        self.environment.connect(self.params, self.offload, self._dynamics)
+        self.environment.connect(_weakly(self.params), self.offload, _weakly(self._dynamics))
         self.sensor: Sensor = self.scenario.make_sensor(rng)
         self.dyn: Dynamics = self.model.compute(self.world.q, self.world.dq)
         self.target_fn: Callable[[float], TaskTarget] = self.scenario.make_target(self.robot, self.model, self.dyn)
