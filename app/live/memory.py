@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import gc
 import threading
 from functools import cache
 from typing import Any
@@ -76,3 +77,15 @@ def trim_heap_soon() -> threading.Thread:
     thread = threading.Thread(target=trim_heap, name="torquelab-trim", daemon=True)
     thread.start()
     return thread
+
+
+def freeze_start_up_objects() -> None:
+    """Keep everything built so far out of the collector's passes (`gc.freeze`), then run one pass
+    over what is left. CPython starts a full pass only once the objects promoted to the oldest
+    generation since the last full pass outnumber a quarter of those that pass left there; without
+    a pass after the freeze that count still holds the frozen start-up objects (~200,000), so cyclic
+    garbage that had reached the oldest generation stayed for good. After it, a full pass walks only
+    what came later (~3,000 objects in a served lab: under a millisecond)."""
+    gc.collect()
+    gc.freeze()
+    gc.collect()

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import atexit
 import contextlib
-import gc
 import io
 import logging
 import signal
@@ -30,6 +29,7 @@ import robots.meshes
 from app.core.commands import DragCommand
 from app.core.params import parse_settings
 from app.live.loop import SimLoop
+from app.live.memory import freeze_start_up_objects
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
 from app.live.settings_io import apply_settings_text, check_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
@@ -187,8 +187,7 @@ def start_app(
     add_hotkeys(server, loop, scenario_panel.toggle_run, scenario_panel.reset_preset, publisher.frame_view)
     # Everything built so far lives as long as the app: keep it out of the garbage collector's
     # full passes, which otherwise stop every thread for ~50 ms now and then.
-    gc.collect()
-    gc.freeze()
+    freeze_start_up_objects()
     loop.start(running=running and not starts_paused(scenario))  # a drop over in seconds waits for Play
     publisher.start()
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
