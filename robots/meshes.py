@@ -62,9 +62,10 @@ def cache_dir() -> Path:
 
 
 def link_meshes(urdf_path: str | Path, package_paths: tuple[Path, ...] = ()) -> dict[str, trimesh.Trimesh]:
-    """One mesh per link with visuals (in the link frame; colour in metadata["color"]); cached. A
-    visual whose file is missing or unreadable is left out (`mesh_problems` names it)."""
-    return _copies(_converted(urdf_path, package_paths).meshes)
+    """One mesh per link with visuals (in the link frame; colour in metadata["color"]); cached, and
+    the cached meshes themselves: read-only, shared by every caller. A visual whose file is missing
+    or unreadable is left out (`mesh_problems` names it)."""
+    return dict(_converted(urdf_path, package_paths).meshes)
 
 
 def mesh_problems(urdf_path: str | Path, package_paths: tuple[Path, ...] = ()) -> dict[str, str]:
@@ -101,17 +102,18 @@ def _converted(urdf_path: str | Path, package_paths: tuple[Path, ...]) -> _Conve
     if converted is None:
         converted = _convert(urdf, resolver)
         _write_cache(path, converted)
-    _MEMORY[key] = converted
-    return converted
+    _MEMORY[key] = _Converted(_shared(converted.meshes), converted.problems)
+    return _MEMORY[key]
 
 
-def _copies(meshes: dict[str, trimesh.Trimesh]) -> dict[str, trimesh.Trimesh]:
-    out = {}
-    for name, mesh in meshes.items():
-        copy = trimesh.Trimesh(mesh.vertices.copy(), mesh.faces.copy(), process=False)
-        copy.metadata["color"] = mesh.metadata["color"]
-        out[name] = copy
-    return out
+def _shared(meshes: dict[str, trimesh.Trimesh]) -> dict[str, trimesh.Trimesh]:
+    """The meshes made read-only (their vertices and faces), so every caller can be handed the cached
+    ones: a copy per call made garbage in reference cycles (a Trimesh and its caches point at each
+    other) at every scene built, freed only by the collector's full passes."""
+    for mesh in meshes.values():
+        mesh.vertices.flags.writeable = False
+        mesh.faces.flags.writeable = False
+    return meshes
 
 
 def _digest(urdf_path: Path, urdf: yourdfpy.URDF, resolver: PackageResolver) -> str:

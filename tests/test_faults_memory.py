@@ -152,3 +152,28 @@ def test_cyclic_garbage_in_the_oldest_generation_is_collected_after_the_start_up
         assert freed == 0, (freed, watched)
     else:
         assert freed == watched, (freed, watched)
+
+
+def test_a_scene_built_again_and_again_leaves_no_garbage_for_the_collector(no_collector):
+    """Every preset switch builds the page's scene again; its link meshes (a Trimesh and its caches
+    point at each other) were fresh copies each time: garbage only the collector's full pass frees."""
+    import gc
+
+    import viser
+
+    import robots
+    from app.live.ui.scene import SceneView
+
+    server = viser.ViserServer(port=0, verbose=False)
+    try:
+        robot = robots.load(robots.DEFAULT_ROBOT)
+        for _ in range(3):
+            SceneView(server, robot, lambda command: None).remove()
+        gc.set_debug(gc.DEBUG_SAVEALL)
+        gc.collect()
+        meshes = [o for o in gc.garbage if type(o).__module__.startswith("trimesh")]
+        gc.garbage.clear()
+        gc.set_debug(0)
+    finally:
+        server.stop()
+    assert meshes == []
