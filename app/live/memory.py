@@ -1,10 +1,12 @@
-"""Memory freed by a preset switch handed back to the system (glibc's `malloc_trim`).
+"""The server's memory across preset switches: freed when dropped, handed back, measured.
 
-A switch frees the old session (its MuJoCo and Pinocchio models, the step log, scene meshes), but
-glibc keeps freed memory in its arenas, so the server's resident memory crept up switch after switch
-with no live data growing: a soak's RSS fell to its level of the first minutes once trimmed. After
-each switch the loop asks for a trim in a short thread of its own (ctypes releases the GIL; the loop
-thread never waits for it). Elsewhere than glibc it does nothing.
+A switch drops the old session (its MuJoCo and Pinocchio models, the step log, the scene's meshes).
+Nothing of it may sit in a reference cycle (tests/test_faults_memory.py checks every preset case):
+`freeze_start_up_objects` keeps the start-up objects out of the collector's passes, and what is left
+to a full pass waits up to minutes for one. What is freed, glibc keeps in its arenas: after each
+switch the loop asks for a trim (`trim_heap_soon`) in a short thread of its own (ctypes releases the
+GIL; the loop thread never waits for it). `heap_mb` reads glibc's heap for `bench --soak`.
+Elsewhere than glibc the trim and the heap reading do nothing.
 """
 
 from __future__ import annotations
