@@ -541,3 +541,19 @@ def test_the_app_raises_its_sessions_share_of_the_cpu_while_it_runs_and_gives_it
         assert autogroup_niceness() == base
     finally:
         set_autogroup_niceness(found)
+
+
+def test_an_app_stopped_right_after_it_started_sends_nothing_to_its_closed_server():
+    """The plots' delayed axis resends (timers) fired after the server stopped: viser warned of a
+    message queued on a closed connection at every quick stop (a Ctrl-C soon after start)."""
+    import warnings
+
+    from app.live.ui.plots import RESEND_AFTER_SHOW_S
+
+    app = start_app(port=0, scenario="polish", running=True)  # no page: only the resends after a show
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        app.stop()
+        time.sleep(max(RESEND_AFTER_SHOW_S) + 0.5)
+    closed = [w for w in caught if "closed connection" in str(w.message)]
+    assert closed == [], [str(w.message) for w in closed]

@@ -306,6 +306,8 @@ class Plots:
         self._phase_range: tuple[float | int | None, ...] | None = None
         self._window_s = WINDOWS["10 s"]
         self._last: PlotData | None = None
+        self._timers: list[threading.Timer] = []  # pending `resend_axes` (`stop` cancels them)
+        self._stopped = False
         self._session: object = None
         self._blank = False  # the charts show a new run's empty axes
         self._settings: Any = None
@@ -928,12 +930,25 @@ class Plots:
 
     def _resend_later(self, *delays_s: float) -> None:
         """`resend_axes` after each delay (a page just connected, or charts were just shown)."""
+        self._timers = [t for t in self._timers if t.is_alive()]
         for delay in delays_s:
+            if self._stopped:
+                return
             timer = threading.Timer(delay, self._safe_resend)
             timer.daemon = True
+            self._timers.append(timer)
             timer.start()
 
+    def stop(self) -> None:
+        """No chart is sent anything from now on: the pending resends are cancelled (the server is
+        about to stop; a resend after it queued messages on a closed server, with a warning)."""
+        self._stopped = True
+        for timer in self._timers:
+            timer.cancel()
+
     def _safe_resend(self) -> None:
+        if self._stopped:
+            return
         try:
             self.resend_axes()
         except Exception:  # a chart being rebuilt meanwhile: the next resend fixes it

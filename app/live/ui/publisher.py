@@ -104,9 +104,11 @@ class Publisher:
         self.server.get_event_loop().call_soon_threadsafe(raise_server_priority)
 
     def stop(self, timeout: float = 5.0) -> None:
-        """Stop the thread and remove the scene view."""
+        """Stop the thread and remove the scene view; the plots send nothing more."""
         self._stop.set()
         self._thread.join(timeout)
+        if self.plots is not None:
+            self.plots.stop()
 
     @property
     def alive(self) -> bool:
