@@ -31,7 +31,7 @@ from app.core.params import parse_settings
 from app.live.loop import SimLoop
 from app.live.memory import freeze_start_up_objects
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
-from app.live.settings_io import apply_settings_text, check_settings_text
+from app.live.settings_io import check_settings_text, load_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
 from app.live.ui.keys import add_hotkeys
 from app.live.ui.panels import ALL_FIELDS
@@ -269,7 +269,7 @@ def serve(args: argparse.Namespace) -> int:
     display_failure = ""
     try:
         if settings_text is not None:
-            _, refused = apply_settings_text(app.loop, settings_text)  # checked before the start
+            refused = load_settings_text(app.loop, settings_text)  # checked before the start
             for line in refused:
                 print(f"torquelab: {settings_file}: refused: {line}", flush=True)
             print(f"torquelab: settings from {settings_file} applied ({len(refused)} refused)", flush=True)
