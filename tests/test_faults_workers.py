@@ -232,14 +232,14 @@ def test_a_killed_scan_process_is_replaced_and_the_preview_scans_on():
     preview = SelfMotionPreview.__new__(SelfMotionPreview)  # the scan machinery only, no widgets
     preview._worker = scan_worker()
     preview._in_process = True
-    preview._pool_failures = 0
-    preview.pool_rebuilds = 0
+    preview._scan_failures = 0
+    preview.scan_restarts = 0
     preview._models = {}
     q = np.asarray(rizon.postures.get("polish_start", rizon.home), dtype=float)
     first = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
     assert _kill_worker(preview._worker) == 1
     time.sleep(0.5)
     again = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
-    assert preview._in_process and preview.pool_rebuilds == 1  # a new process scanned, not this thread
+    assert preview._in_process and preview.scan_restarts == 1  # a new process scanned, not this thread
     np.testing.assert_array_equal(first.W, again.W)
     preview._worker.stop()

@@ -134,7 +134,7 @@ def test_the_scans_run_in_the_servers_process_once_no_scan_process_comes_up():
     rizon = robots.load("rizon4s")
     q = np.asarray(rizon.postures.get("polish_start", rizon.home), dtype=float)
     preview = SelfMotionPreview.__new__(SelfMotionPreview)  # the scan machinery only, no widgets
-    preview._in_process, preview._pool_failures, preview.pool_rebuilds, preview._models = True, 0, 0, {}
+    preview._in_process, preview._scan_failures, preview.scan_restarts, preview._models = True, 0, 0, {}
     preview._worker = scan_worker()
     try:
         there = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
@@ -142,7 +142,7 @@ def test_the_scans_run_in_the_servers_process_once_no_scan_process_comes_up():
         preview._worker.stop()
     with pytest.raises(WorkerLost):  # a stopped preview scans nowhere, not in this process either
         preview._scan(rizon, q, POLISH_SUBSPACES, "a")
-    assert preview._in_process and preview._pool_failures == 0
+    assert preview._in_process and preview._scan_failures == 0
     preview._worker = Worker("torquelab-test", warm=_fail_to_warm)
     here = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
     assert not preview._in_process and preview._worker.gave_up is not None

@@ -31,7 +31,7 @@ from robots import RobotDescription
 
 __all__ = ["Preview", "SelfMotionPreview", "link_poses", "preview_objective", "scan_preview"]
 
-MAX_POOL_FAILURES = 3  # scan-process failures in a row before scans run in this thread
+MAX_SCAN_FAILURES = 3  # scan-process failures in a row before scans run in this thread
 SCAN_TIMEOUT_S = 60.0  # a scan process that has not come up, or not answered, by then counts as failed
 PREVIEW_PERIOD_S = 1.0  # s between two scans while the preview is on (a scan takes ~0.1 s)
 PLANNED_SIGNAL = "swivel_plan_deg"  # the polish scenario's planned swivel, when it runs a planned path
@@ -123,9 +123,9 @@ class SelfMotionPreview:
         self._stop = threading.Event()
         self._models: dict[str, RobotModel] = {}
         self._worker = scan_worker()  # started on the first scan
-        self._in_process = True  # off after MAX_POOL_FAILURES failures in a row: scans then run in this thread
-        self._pool_failures = 0  # scan-process failures in a row (a dead process is replaced)
-        self.pool_rebuilds = 0  # scan processes started again after one died
+        self._in_process = True  # off after MAX_SCAN_FAILURES failures in a row: scans then run in this thread
+        self._scan_failures = 0  # scan-process failures in a row (a dead process is replaced)
+        self.scan_restarts = 0  # scan processes started again after one died
         self._ghost: dict[str, viser.MeshHandle] = {}
         self._ghost_robot: str | None = None
         self.ghost_q: np.ndarray | None = None  # the posture the ghost was last drawn at (tests read it)
@@ -218,7 +218,7 @@ class SelfMotionPreview:
 
     def _scan(self, robot: RobotDescription, q: np.ndarray, sub: Subspaces, objective: str) -> Preview:
         """One scan in the scan process (started on first use; this thread waits without the GIL). A
-        process that died is replaced by a new one, which scans again; after MAX_POOL_FAILURES
+        process that died is replaced by a new one, which scans again; after MAX_SCAN_FAILURES
         failures in a row (no process can run here) scans run in this thread."""
         while self._in_process:
             try:
@@ -226,18 +226,18 @@ class SelfMotionPreview:
             except (WorkerLost, TimeoutError) as exc:  # a dead, stuck or missing process: a new one
                 if self._worker.stopped:  # the preview is being stopped: no scan here either
                     raise
-                self._pool_failures += 1
-                if self._pool_failures >= MAX_POOL_FAILURES or self._worker.gave_up is not None:
+                self._scan_failures += 1
+                if self._scan_failures >= MAX_SCAN_FAILURES or self._worker.gave_up is not None:
                     print(f"torquelab: self-motion scan process failed ({exc!r}); scanning in the server process")
                     self._in_process = False
                 else:
-                    self.pool_rebuilds += 1
+                    self.scan_restarts += 1
         return scan_preview(self._model_for(robot), robot, q, sub, objective)
 
     def _in_worker(self, robot: RobotDescription, q: np.ndarray, sub: Subspaces, objective: str) -> Preview:
         args = (str(robot.urdf_path), robot.model, robot.q_lower, robot.q_upper, q, sub.force_axes, objective)
         preview = self._worker.call(scan_in_worker, *args, timeout=SCAN_TIMEOUT_S)
-        self._pool_failures = 0
+        self._scan_failures = 0
         return preview
 
     def _model_for(self, robot: RobotDescription) -> RobotModel:
