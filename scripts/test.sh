@@ -18,7 +18,10 @@ if [ ! -x .venv/bin/python ]; then
     "$PYTHON" -m venv .venv
 fi
 echo "== installing torquelab[test,robots] into .venv"
-.venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test,robots]'
+# through the venv's real path: pip writes the interpreter it runs under into the first line of the
+# scripts it installs (mypy, lint-imports, ...), and .venv may be a link (.ci/run's kept venv) made in
+# a checkout that is gone by the next run
+"$(cd .venv && pwd -P)/bin/python" -m pip install -q --disable-pip-version-check -e '.[test,robots]'
 
 find_chromium() {
     for c in "${TORQUELAB_CHROMIUM:-}" /usr/bin/chromium /usr/bin/chromium-browser /usr/bin/google-chrome; do
