@@ -272,6 +272,10 @@ def test_a_failing_frame_build_stage_in_the_running_loop_is_reported_once_and_co
     assert pub.alive and loop.alive and pub.stages.runs["notify"] - notify_runs >= 1
     if stage == "capture":  # frames still go out, without a scene
         assert wait_until(lambda: pub.frames_shown - shown >= 10)
+        assert pub.scene_updates - updates <= 1  # at most the frame captured before the patch
+        updates = pub.scene_updates
+        for _ in range(5):  # every frame captured while capture fails goes out without a scene
+            assert _shown_grows(app), stage
         assert pub.scene_updates == updates
     else:  # no frame to show: the publisher waits on
         assert pub.frames_shown == shown
