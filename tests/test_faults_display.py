@@ -278,6 +278,12 @@ def test_a_failing_frame_build_stage_in_the_running_loop_is_reported_once_and_co
             assert _shown_grows(app), stage
         assert pub.scene_updates == updates
     else:  # no frame to show: the publisher waits on
+        assert pub.frames_shown - shown <= 1  # at most the frame built before the patch
+        shown = pub.frames_shown
+        for _ in range(5):
+            calls = flag["calls"]
+            loop.submit(StepOnce(1))
+            assert wait_until(lambda c=calls: flag["calls"] > c), stage
         assert pub.frames_shown == shown
     flag["on"] = False
     for _ in range(5):
