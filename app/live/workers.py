@@ -23,7 +23,8 @@ each keeps only what it computes and what it does with the answer.
   worker starts. After FAILED_STARTS_MAX starts in a row that did not come up, or at once where no
   process can start here, it gives up (`gave_up` says why) and `submit` answers None from then on.
 - **It ends with the app.** `stop` ends it; a worker whose app died (even by kill -9) reads the end of
-  its pipe and exits once the job under way is done (a `ProcessPoolExecutor` worker lives on).
+  its pipe, or, in the middle of a job or its warm-up, sees within ORPHAN_CHECK_S that its parent
+  changed, and exits (a `ProcessPoolExecutor` worker lives on).
 
 A job and its answer are pickled whole into the pipe: keep them small (a few kB) when several are
 under way, or the worker, blocked writing an answer, and the caller, blocked writing a job, wait on
@@ -47,6 +48,7 @@ from app.live.priority import set_process_niceness
 
 READY_TIMEOUT_S = 120.0  # a worker that is not up (its imports done) by then is ended and started again
 FAILED_STARTS_MAX = 3  # starts in a row that did not come up before the worker is given up
+ORPHAN_CHECK_S = 0.5  # how often a worker looks whether its app is still there
 
 
 class WorkerLost(RuntimeError):
@@ -61,9 +63,19 @@ def app_niceness() -> int:
         return 0
 
 
+def _exit_when_orphaned(app_pid: int, every_s: float = ORPHAN_CHECK_S) -> None:
+    """Exit this worker process at once when the app that spawned it is gone (its parent changes)."""
+    while True:
+        time.sleep(every_s)
+        if os.getppid() != app_pid:
+            os._exit(0)
+
+
 def _serve(conn: Connection, niceness: int, warm: Callable[[], None] | None) -> None:
     """The worker process: warm up, say so, then answer each (fn, args) with (True, fn(*args)) or
-    (False, its error), in order, until told to stop (None) or the app is gone (the pipe's end)."""
+    (False, its error), in order, until told to stop (None) or the app is gone (the pipe's end, or
+    a new parent while a job or the warm-up is under way)."""
+    threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), name="orphan-watch", daemon=True).start()
     set_process_niceness(niceness)
     if warm is not None:
         warm()
