@@ -1360,8 +1360,8 @@ def test_disconnect_during_a_drag_releases_the_force_within_a_second(app, page):
 def test_bench_serve_runs_the_app_with_a_plain_headless_chromium_and_reports_what_it_measured(monkeypatch):
     """`bench --serve` opens the page in a Chromium process of its own (no automation driver in the
     server's process), runs the polish preset with every overlay, and reports a run it measured: one
-    browser connected, simulated time advancing near real time, frames published, nothing halted;
-    the browser is gone afterwards."""
+    browser connected, simulated time advancing near real time, frames published, nothing halted,
+    the plots' redraw probed; the browser is gone afterwards."""
     import subprocess
 
     from app.tools import bench_serve
@@ -1376,6 +1376,10 @@ def test_bench_serve_runs_the_app_with_a_plain_headless_chromium_and_reports_wha
     assert report["scene_updates_per_s"] > 5.0
     assert report["step_cpu_per_sim_s"] > 0.0
     assert len(report["overlays_on"]) >= 5
+    wait, choice = report["plots_redraw_wait_ms"], report["plots_signal_choice_ms"]  # probed 10 and 1 times a second
+    assert 20 <= wait["n"] <= 40 and 2 <= choice["n"] <= 4
+    assert 0.0 <= wait["median"] <= wait["p99"] <= wait["max"] < 1000.0
+    assert 0.0 < choice["median"] <= choice["max"] < 1000.0
     stalls = report["machine_stalls"]  # the probe process beside the app reported
     assert "error" not in stalls, stalls
     assert stalls["seconds"] == 3.0 and stalls["wakeups"] > 100

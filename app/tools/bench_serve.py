@@ -5,7 +5,8 @@ on, the self-motion preview scanning), opens the page in a headless Chromium of 
 process, as a person's browser would be: no automation driver forwarding the page's traffic into
 this process), waits until the page is connected, then measures for `--seconds` of wall time: the achieved real-time
 factor (simulated / wall seconds), its worst 1 s window, the loop's compute share, and how often
-the scene and plots were published.
+the scene and plots were published; and how long a Signals checkbox waits for a frame's redraw
+(the plots redraw under one lock), and how long its whole choice takes.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import random
 import signal
 import subprocess
 import sys
@@ -22,6 +24,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import fields
 from typing import Any
+
+import numpy as np
 
 import robots
 from app.core.commands import Play, Reset, SetParam, SetTwin
@@ -120,6 +124,24 @@ def _preview_on(app: Any) -> Any:
     return None
 
 
+def _toggle_first_torque(plots: Any) -> float:
+    """Hide τ1 in the torque chart if it is drawn, else draw it again, as its checkbox does (the
+    chart redrawn at once); returns the seconds that took, waiting for a frame's redraw included."""
+    keys = [key for key, _ in plots.signals.specs["torque"]]
+    shown = plots.signals.shown("torque", keys[0])
+    t0 = time.perf_counter()
+    plots.choose_signals("torque", keys[1:] if shown else keys)
+    return time.perf_counter() - t0
+
+
+def _spread_ms(seconds: list[float]) -> dict[str, float]:
+    """Median, 99th percentile and largest of `seconds`, in ms (NaN when there are none)."""
+    if not seconds:
+        return {"median": float("nan"), "p99": float("nan"), "max": float("nan"), "n": 0}
+    ms = np.asarray(seconds) * 1e3
+    return {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)), "max": float(ms.max()), "n": len(ms)}
+
+
 def run_serve_bench(
     scenario: str = "polish",
     seconds: float = 20.0,
@@ -163,9 +185,18 @@ def run_serve_bench(
             times0 = os.times()
             scans0 = preview.scans if preview is not None else 0
             loads = []
+            plots = app.publisher.plots
+            redraw_waits: list[float] = []  # s a redraw asked for from this thread waited, about 10 a second
+            jitter = random.Random(0)
+            signal_choices: list[float] = []  # s to draw τ1 again or not (what a Signals checkbox does), 1 a second
             prev_t, prev_w = s0.t, w0
             while time.perf_counter() - w0 < seconds:
-                time.sleep(1.0)
+                for _ in range(10):
+                    time.sleep(jitter.uniform(0.05, 0.15))  # not in step with the frames (every 33 ms)
+                    if plots is not None:
+                        redraw_waits.append(plots.redraw_wait_s())
+                if plots is not None:
+                    signal_choices.append(_toggle_first_torque(plots))
                 st = app.loop.sync()
                 now = time.perf_counter()
                 windows.append((st.t - prev_t) / (now - prev_w))
@@ -198,6 +229,8 @@ def run_serve_bench(
             "twin": s1.twin,
             "self_motion_scans_per_s": (preview.scans - scans0) / wall if preview is not None else 0.0,
             "halted": s1.halted,
+            "plots_redraw_wait_ms": _spread_ms(redraw_waits),
+            "plots_signal_choice_ms": _spread_ms(signal_choices),
             "machine_stalls": stalls,
             "cpu_count": os.cpu_count(),
             "load_average_1min": os.getloadavg()[0],
@@ -232,6 +265,12 @@ def cmd_bench_serve(args: argparse.Namespace) -> int:
         )
         print(
             f"  frames published        {report['frames_per_s']:.1f} /s (scene {report['scene_updates_per_s']:.1f} /s)"
+        )
+        wait, choice = report["plots_redraw_wait_ms"], report["plots_signal_choice_ms"]
+        print(
+            f"  plots redraw wait       median {wait['median']:.2f} ms, p99 {wait['p99']:.2f}, max {wait['max']:.2f} "
+            f"(a checkbox's redraw waiting for a frame's); a Signals choice takes median {choice['median']:.1f} ms, "
+            f"max {choice['max']:.1f}"
         )
         print(f"  machine                 {report['cpu_count']} cores, load average {report['load_average_1min']:.2f}")
         stalls = report["machine_stalls"]

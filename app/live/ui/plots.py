@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 import traceback
 from dataclasses import dataclass
 from typing import Any
@@ -938,6 +939,13 @@ class Plots:
             timer.daemon = True
             self._timers.append(timer)
             timer.start()
+
+    def redraw_wait_s(self) -> float:
+        """Seconds a redraw asked for now (a checkbox's handler) waits for the one under way (the
+        publisher's frame) before it can start; a probe for `torquelab bench --serve`."""
+        t0 = time.perf_counter()
+        with self._redraw_lock:
+            return time.perf_counter() - t0
 
     def stop(self) -> None:
         """No chart is sent anything from now on: the pending resends are cancelled (the server is
