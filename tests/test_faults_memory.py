@@ -144,6 +144,11 @@ print(sum(ref() is None for ref in watched), len(watched))
 def test_cyclic_garbage_in_the_oldest_generation_is_collected_after_the_start_up_freeze(freeze):
     import subprocess
 
+    if freeze == "gc.freeze" and sys.version_info >= (3, 14):
+        # the control rests on the generational collector's rule (a full pass only once the objects
+        # promoted since the last one exceed a quarter of the long-lived ones, frozen ones counted),
+        # which CPython 3.8-3.13 follow; 3.14's incremental collector has no such rule
+        pytest.skip("the gc.freeze control holds for CPython's generational collector (3.8-3.13)")
     out = subprocess.run(
         [sys.executable, "-c", _PROMOTED_GARBAGE, freeze], capture_output=True, text=True, timeout=120, check=True
     ).stdout.split()
