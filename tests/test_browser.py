@@ -1055,6 +1055,19 @@ def drawn_joints(pg: Any) -> tuple[int, ...] | None:
     return tuple(j for j, show, _ in joints if show)
 
 
+def torque_chart_state(pg: Any, plots: Any) -> str:
+    """What the page's torque chart and the server's plots hold, for a failure's message."""
+    page_series = pg.evaluate(_SERIES_JS, TORQUE_TITLE)
+    boxes = {k: box.value for (c, k), box in plots.signal_boxes.items() if c == "torque"}
+    server_show = [s.get("show", True) for s in tuple(plots.torque.series)]
+    return (
+        f"page series {page_series}; server choice {plots.signals.shown_keys('torque')}; boxes {boxes}; "
+        f"server series show {server_show}; frozen {plots.freeze.value}; history {len(plots.history.t)} samples "
+        f"to t = {plots.history.t[-1] if len(plots.history.t) else None}, keys {sorted(plots.history.columns)[:6]}…; "
+        f"replay {plots.replay_t}"
+    )
+
+
 def test_the_signals_ticked_in_a_plots_fold_are_the_series_its_chart_draws(app, page):
     """Polish, paused: in the torque chart's Signals fold a person unticks τ1, τ2 and τ3: the page's chart
     hides those series and holds no sample of them while τ4…τ7 keep drawing; after a switch to the limit
@@ -1065,6 +1078,13 @@ def test_the_signals_ticked_in_a_plots_fold_are_the_series_its_chart_draws(app, 
     plots = app.publisher.plots
     n = plots.n
     try:
+        # the polish run has torques in the plots' history (the chart may still show the run before a switch
+        # that an earlier test made: paused before the new run's first frame, a redraw has nothing to draw)
+        wait_for(
+            lambda: app.loop.status.scenario == "polish" and app.loop.status.t > 0.5 and len(plots.history.t) >= 2,
+            60,
+            "the polish run's torques in the plots' history",
+        )
         wait_for(lambda: drawn_joints(pg) == tuple(range(1, n + 1)), 60, "every joint's torque drawn")
         app.loop.submit(Pause())  # a still page answers clicks sooner; the chart redraws from its history
         wait_for(lambda: pg.evaluate(_SIGNALS_FOLD_JS, TORQUE_TITLE), 30, "the torque chart's Signals fold to open")
@@ -1072,7 +1092,11 @@ def test_the_signals_ticked_in_a_plots_fold_are_the_series_its_chart_draws(app, 
             box = pg.get_by_label(f"τ{k}", exact=True)
             box.scroll_into_view_if_needed()
             box.uncheck()
-        wait_for(lambda: drawn_joints(pg) == tuple(range(4, n + 1)), 30, "τ1…τ3 hidden in the page's chart")
+        try:
+            wait_for(lambda: drawn_joints(pg) == tuple(range(4, n + 1)), 30, "τ1…τ3 hidden in the page's chart")
+        except pytest.fail.Exception:
+            state = torque_chart_state(pg, plots)
+            pytest.fail(f"τ1…τ3 not hidden in the page's chart after 30 s: {state}", pytrace=False)
         assert plots.signals.shown_keys("torque") == (*(f"tau_{k}" for k in range(4, n + 1)), "limits")
         app.loop.submit(SwitchSession(scenario="limit-drop", robot=""))
         app.loop.submit(Play())
