@@ -100,7 +100,7 @@ def test_the_page_keeps_updating_through_a_failing_notify_scene_panel_or_plot_st
     for stage, target, name in (
         ("notify", app.loop, "take_notices"),
         ("scene", pub.scene, "update"),
-        ("panels", pub.panels[0], "live"),
+        (pub.panel_guards[0].stage, pub.panels[0], "live"),
         ("plots", pub.plots, "update"),
     ):
         calls = {"n": 0}
@@ -121,6 +121,54 @@ def test_the_page_keeps_updating_through_a_failing_notify_scene_panel_or_plot_st
         assert stage not in pub.stages.failing, stage
         monkeypatch.setattr(target, name, original)
     assert _shown_grows(app, "scene_updates") and _shown_grows(app, "plot_updates")
+
+
+def test_a_failing_panel_shows_it_stopped_updating_and_every_panel_after_it_updates_on(app, monkeypatch):
+    """The Nullspace panel's `live` raises: the panels after it (Lessons and Replay among them) still get
+    their calls, the page gets one notice for it, its folder says it stopped updating, and once it works
+    again it is updated and the line goes."""
+    import app.live.ui.publisher as publisher_module
+    from app.live.ui.panels.nullspace import NullspacePanel
+
+    pub = app.publisher
+    assert wait_until(lambda: _shown_grows(app) and pub.scene is not None)
+    broken_at = next(i for i, p in enumerate(pub.panels) if isinstance(p, NullspacePanel))
+    later = pub.panels[broken_at + 1 :]
+    names = {type(p).__name__ for p in later}
+    assert {"LessonsPanel", "ReplayPanel"} <= names and len(later) >= 5
+    sent: list[str] = []
+    real_notify = publisher_module.notify
+
+    def notify(server, client_id, title, body, **kwargs):
+        sent.append(body)
+        return real_notify(server, client_id, title, body, **kwargs)
+
+    monkeypatch.setattr(publisher_module, "notify", notify)
+    calls = [0] * len(later)
+    for i, p in enumerate(later):
+
+        def counted(frame, _orig=p.live, _i=i):
+            calls[_i] += 1
+            return _orig(frame)
+
+        monkeypatch.setattr(p, "live", counted)
+    broken = pub.panels[broken_at]
+    flag = {"on": True, "calls": 0}
+    monkeypatch.setattr(broken, "live", _failing_while(flag, broken.live, "nullspace readout broke"))
+    pub.stages.rearm()
+    for _ in range(12):  # the live numbers go out a few times a second: about 2 s of frames
+        assert _shown_grows(app)
+        time.sleep(0.15)
+    silent = [type(p).__name__ for p, n in zip(later, calls, strict=True) if n < 3]
+    assert not silent, f"panels after the failing one got fewer than 3 calls: {silent}"
+    guard = pub.panel_guards[broken_at]
+    assert flag["calls"] >= 3 and guard.failing  # tried again with later frames, failing each time
+    assert sum("updating the Nullspace panel failed" in body for body in sent) == 1  # one notice
+    assert guard.stale is not None and guard.stale.visible
+    assert "stopped updating" in guard.stale.content and "nullspace readout broke" in guard.stale.content
+    flag["on"] = False
+    assert wait_until(lambda: _shown_grows(app) and not guard.failing)  # retried, and back
+    assert not guard.stale.visible
 
 
 def test_a_dead_publisher_thread_is_restarted(app, monkeypatch):

@@ -78,6 +78,7 @@ class Stages:
         self.failures: Counter[str] = Counter()  # failed runs per stage
         self.runs: Counter[str] = Counter()  # successful runs per stage
         self.failing: set[str] = set()  # the stages whose last run failed
+        self.last_error: dict[str, str] = {}  # stage → its last failure's one-line text
 
     def run(self, stage: str, fn: Callable[..., T], *args: Any, default: Any = None) -> T | Any:
         """`fn(*args)`, or `default` when it raises (reported per the budget)."""
@@ -87,6 +88,7 @@ class Stages:
             self.failures[stage] += 1
             self.failing.add(stage)
             text = error_text(exc)
+            self.last_error[stage] = text
             if self.budget.should_report(f"{stage}: {text}"):
                 traceback.print_exc()
                 try:

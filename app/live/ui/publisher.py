@@ -5,7 +5,7 @@ the panels' values and live numbers (~6 Hz), the plots (10 Hz), and turns the lo
 notifications. It rebuilds the scene view when the session's robot changes. It never touches the
 session: everything it shows is a copy the loop made between two steps.
 
-Each stage of showing a frame (notify, scene, panels, plots) is an error boundary (`app.live.supervise`):
+Each stage of showing a frame (notify, scene, each panel, plots) is an error boundary (`app.live.supervise`):
 a failing one is skipped for that frame, reported once per distinct error per minute (again at once
 after a preset switch) and tried again with the next frame, so the page keeps updating through it. If
 the thread dies anyway, `supervise()` (called by `serve` twice a second) restarts it, up to
@@ -29,6 +29,7 @@ from app.live.loop import Frame, SimLoop, raise_thread_priority
 from app.live.supervise import Stages, error_text
 from app.live.ui.camera import Framer, frame_on_connect, robot_points
 from app.live.ui.mesh_notice import MeshNotice
+from app.live.ui.panel_guard import PanelGuard
 from app.live.ui.panels.base import notify
 from app.live.ui.plots import Plots
 
@@ -72,7 +73,8 @@ class Publisher:
         self.last_frame: Frame | None = None
         self._stop = threading.Event()
         self._thread = self._new_thread()
-        self.stages = Stages(self._report)  # notify, scene, panels, plots: one error boundary each
+        self.stages = Stages(self._report)  # notify, scene, each panel, plots: one error boundary each
+        self.panel_guards = [PanelGuard(panel, self.stages, server.gui) for panel in self.panels]
         self.failure = ""  # why the thread died last ("" while it runs)
         self.restarts: deque[float] = deque(maxlen=MAX_RESTARTS)  # when the thread was restarted
         self.plot_updates = 0  # plot data shown
@@ -142,7 +144,7 @@ class Publisher:
 
     def _report(self, stage: str, text: str) -> None:
         """A notice to every page for a failing stage (the budget lets through one per distinct error per minute)."""
-        what = STAGE_TEXT.get(stage, stage)
+        what = STAGE_TEXT.get(stage) or (f"updating the {stage[6:]} panel" if stage.startswith("panel ") else stage)
         notify(
             self.server,
             None,
@@ -181,8 +183,8 @@ class Publisher:
             self.stages.run("panels", self._refresh_panels, frame)
 
     def _refresh_panels(self, frame: Frame) -> None:
-        for panel in self.panels:
-            panel.refresh(frame.settings)
+        for guard in self.panel_guards:  # each panel in its own boundary: one that raises stops no other
+            guard.refresh(frame.settings)
 
     @property
     def framing_pending(self) -> bool:
@@ -250,8 +252,7 @@ class Publisher:
         now = time.monotonic()
         settings_changed = frame.settings.version != self._settings_version
         if settings_changed or now >= self._next_live:
-            for panel in self.panels:
-                panel.refresh(frame.settings)
+            self._refresh_panels(frame)
             self._settings_version = frame.settings.version
         # a paused loop publishes one last frame: show it at once, or the page keeps saying "running"
         # (or shows the preset before a switch made while paused)
@@ -259,8 +260,8 @@ class Publisher:
         if now >= self._next_live or (not frame.status.running and state != self._live_state):
             self._next_live = now + LIVE_PERIOD_S
             self._live_state = state
-            for panel in self.panels:
-                panel.live(frame)
+            for guard in self.panel_guards:
+                guard.live(frame)
 
     def _show_plots(self, frame: Frame) -> None:
         if frame.plot is not None and self.plots is not None and frame.plot_seq != self._plot_seq:
