@@ -14,7 +14,7 @@ import numpy as np
 from tqdm import tqdm
 
 from app.core.executors import EXECUTORS
-from app.core.provenance import code_version
+from app.core.provenance import code_text
 from app.core.session import Session
 from app.headless.sweep.engine import open_executor
 from app.scenarios import Scenario
@@ -115,7 +115,7 @@ def command_line(args: argparse.Namespace) -> str:
 def run_line(args: argparse.Namespace | None) -> str:
     """The report's provenance paragraph: the command and the code version that made it."""
     command = html.escape(command_line(args)) if args is not None else "not recorded"
-    return f"<p>Run: <code>{command}</code>, code version <code>{html.escape(code_version())}</code>.</p>"
+    return f"<p>Run: <code>{command}</code>, code version <code>{html.escape(code_text())}</code>.</p>"
 
 
 def write_report(

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from app.core.provenance import code_version
+from app.core.provenance import code_record
 from app.headless.experiments.polish_calibration import observed_mode, oscillation_threshold_n, runs_by_row
 from app.headless.experiments.polish_latency import HoldWatch, _latency_of, format_latency, latency_specs, latency_table
 from app.headless.experiments.polish_report import _deg, _num
@@ -667,7 +667,7 @@ def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
         + (" --quick" if quick else f" --seeds {args.seeds}")
         + (f" --rows {args.rows}" if getattr(args, "rows", None) else "")
         + f" --mu {','.join(f'{m:g}' for m in mus)}",
-        "code": code_version(),
+        "code": code_record(),
         "quick": quick,
         "seeds": 1 if quick else int(args.seeds),
         "jobs": int(args.jobs),

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.core.provenance import code_text
 from app.headless.experiments.polish_rows import OBJECTIVE_NAMES as NAMES  # row names by objective key
 from app.scenarios import polish as scenario_module
 from app.scenarios.polish import N_SEGMENTS, PolishScenario
@@ -378,6 +379,11 @@ def _pm(x: dict | None, digits: int = 1) -> str:
     return f"{_num(x['mean'], digits)} ± {_num(x['sd'], digits)}"
 
 
+def _code(settings: dict) -> str:
+    """The code version the run recorded, in words (`code_text`)."""
+    return code_text(settings["code"]) if settings.get("code") else "not recorded"
+
+
 def _reused(settings: dict) -> str:
     n = settings.get("reused_runs")
     return f", {n} run(s) reused from an interrupted invocation" if n else ""
@@ -620,7 +626,7 @@ td,th{{border:1px solid #bbb;padding:3px 6px;text-align:right}}
 th{{background:#eee}}img{{max-width:100%}}</style></head><body>
 <h1>Polishing with nullspace coupling optimization — simulation study of [T] §IV-B</h1>
 <p>Run: <code>{html.escape(s["command"])}</code> ({s["seeds"]} seed(s) per cell, {s["jobs"]} process(es), wall time
-{doc["wall_s"]:.0f} s{_reused(s)}, code version {html.escape(str(s.get("code", "not recorded")))}).
+{doc["wall_s"]:.0f} s{_reused(s)}, code version {html.escape(_code(s))}).
 Rizon 4s model, {_loop_text(doc)}; Table II gains; start elbow up (swivel {s["start_swivel_deg"]:g}°);
 six segments of {s["segment_dx_m"]:.2f} m in X and
 {s["segment_dy_m"]:.2f} m in Y, {s["segment_duration_s"]:.1f} s each. The settle phase ends when the QP's goal

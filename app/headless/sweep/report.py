@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.core.provenance import code_text
 from app.headless.sweep.grid import Axis
 
 STABLE = "stable"  # the per-cell stability flag, mapped as the fraction of stable seeds
@@ -191,7 +192,14 @@ def write_report(
     cell_wall = sum(float(r.get("wall_s") or 0.0) for r in records)
     wall = sum(float(i.get("wall_s", 0.0)) for i in invocations)
     workers = sorted({r.get("worker", "?") for r in records})
-    codes = sorted({r.get("code", "?") for r in records})
+    # older records carry the source hash alone ("code"), newer ones the commit beside it
+    codes = sorted(
+        {
+            code_text({"commit": r["commit"], "source": r["code"]} if "commit" in r else r["code"])
+            for r in records
+            if r.get("code")
+        }
+    )
     total = math.prod(len(a) for a in axes) * seeds
     grid_rows = [[a.name, len(a), ", ".join(_label(v) for v in a.values)] for a in axes]
     runs_rows = [
@@ -213,8 +221,8 @@ def write_report(
         + ("" if experiment.seeded else " This experiment does not depend on the seed: seeds repeat the same run.")
         + "</p>"
         f"<p>Total CPU time of the cells {cpu:.1f} s (their wall time {cell_wall:.1f} s); wall time of the sweep "
-        f"{wall:.1f} s over {len(invocations)} invocation(s); {len(workers)} worker process(es); code version(s) "
-        f"{html.escape(', '.join(codes))}.</p>"
+        f"{wall:.1f} s over {len(invocations)} invocation(s); {len(workers)} worker process(es); code version(s): "
+        f"{html.escape('; '.join(codes) or 'not recorded')}.</p>"
     )
     sections = [
         ("Setup", setup),

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from app.core.provenance import code_version
+from app.core.provenance import code_version, git_commit
 from app.headless.sweep.store import CellStore, cell_key, write_csv
 
 
@@ -122,7 +122,7 @@ def run_sweep(
     store = CellStore(out / "cells.jsonl")
     if store.torn:
         print(f"{out / 'cells.jsonl'}: dropped a half-written last record ({store.torn} bytes): that cell runs again")
-    code = code_version()
+    code, commit = code_version(), git_commit()
     keyed = [(cell_key(experiment, params, seed), params, seed) for params, seed in cells]
     spread = coarse_to_fine([p for p, _ in cells])
     # submission order: every grid point's first seed before any second seed, coarse points first
@@ -139,7 +139,9 @@ def run_sweep(
         for fut in as_completed(futures):
             k, p, s = futures[fut]
             rec = fut.result()  # BaseException from a cell, or a dead pool, stops the sweep here
-            rec.update(key=k, experiment=experiment, params=p, seed=s, code=code, finished_at=time.time())
+            rec.update(
+                key=k, experiment=experiment, params=p, seed=s, code=code, commit=commit, finished_at=time.time()
+            )
             store.append(rec)
             result.ran += 1
             result.failed += rec["status"] != "ok"

@@ -71,7 +71,7 @@ class CellStore:
 
 def write_csv(path: Path, records: list[dict]) -> None:
     """One row per cell: params as `p_NAME`, metrics as `m_NAME`, plus seed, status, timing, worker."""
-    base = ["key", "experiment", "seed", "status", "stable", "wall_s", "cpu_s", "worker", "code", "error"]
+    base = ["key", "experiment", "seed", "status", "stable", "wall_s", "cpu_s", "worker", "code", "commit", "error"]
     params = sorted({k for r in records for k in r.get("params", {})})
     metrics = sorted({k for r in records for k in (r.get("metrics") or {})})
     header = base + [f"p_{k}" for k in params] + [f"m_{k}" for k in metrics]
