@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The test command: bash scripts/test.sh [pytest args]
 # Creates or reuses .venv, installs torquelab with its test extras, makes sure a Chromium is
-# available for the browser tests, then runs ruff, mypy, the import contracts, pytest and the wheel smoke test
+# available for the browser tests, then runs ruff, mypy, the import contracts, the documentation build
+# (mkdocs.yml, docs/), pytest and the wheel smoke test
 # (scripts/wheel_smoke.sh: the built wheel installed in a throw-away venv; only without pytest
 # arguments). Exits non-zero on any failure. pytest runs on TORQUELAB_TEST_WORKERS processes
 # (pytest-xdist, default 2: the machine's two cores; a module's tests stay on one worker, so its
@@ -17,11 +18,11 @@ if [ ! -x .venv/bin/python ]; then
     echo "== creating .venv"
     "$PYTHON" -m venv .venv
 fi
-echo "== installing torquelab[test,robots] into .venv"
+echo "== installing torquelab[test,robots,docs] into .venv"
 # through the venv's real path: pip writes the interpreter it runs under into the first line of the
 # scripts it installs (mypy, lint-imports, ...), and .venv may be a link (.ci/run's kept venv) made in
 # a checkout that is gone by the next run
-"$(cd .venv && pwd -P)/bin/python" -m pip install -q --disable-pip-version-check -e '.[test,robots]'
+"$(cd .venv && pwd -P)/bin/python" -m pip install -q --disable-pip-version-check -e '.[test,robots,docs]'
 
 find_chromium() {
     for c in "${TORQUELAB_CHROMIUM:-}" /usr/bin/chromium /usr/bin/chromium-browser /usr/bin/google-chrome; do
@@ -49,8 +50,10 @@ echo "== ruff"
 .venv/bin/ruff format --check .
 echo "== mypy"
 .venv/bin/mypy
-echo "== import contracts (README, Architecture)"
+echo "== import contracts (docs/architecture.md)"
 .venv/bin/lint-imports
+echo "== docs (mkdocs build --strict: warnings, broken links and anchors fail it)"
+NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict
 echo "== pytest"
 mkdir -p test-artifacts
 PARALLEL=(-n "${TORQUELAB_TEST_WORKERS:-2}" --dist loadfile --no-loadscope-reorder)

@@ -512,7 +512,7 @@ _FORCE_PLOT_JS = """() => {
 
 
 def save_tour_shot(pg: Any, name: str) -> None:
-    """A screenshot for the README's tour: test-artifacts/NAME, copied to static/ with
+    """A screenshot for the docs' tour (docs/getting-started.md): test-artifacts/NAME, copied to static/ with
     TORQUELAB_UPDATE_SCREENSHOT=1."""
     ARTIFACTS.mkdir(exist_ok=True)
     close = pg.locator(".mantine-Notification-closeButton")  # notices would cover the 3D view
@@ -1304,10 +1304,11 @@ def choose_preset(app: Any, pg: Any, name: str) -> None:
 
 
 def test_the_first_look_drag_in_free_moves_the_elbow_along_the_spring(app, page):
-    """README "A first look", as a person takes it in the page (the lessons have their own tests below):
+    """docs/getting-started.md "A first look", as a person takes it in the page (the lessons have their own
+    tests below):
     free: a drag on the elbow moves the grabbed point ≥ 1 cm along the spring's pull with > 5 N; mouse-up
     releases it. Executor → projection, the same drag: the elbow follows ≥ 1 cm (the TCP's shift is
-    printed: the README says a hard pull moves it as well)."""
+    printed: that page says a hard pull moves it as well)."""
     from app.core.commands import Play, SetSpeed, SwitchSession
 
     pg, client = page
