@@ -4,14 +4,17 @@ a case switch keeps the person's values of every field the case does not own."""
 from __future__ import annotations
 
 import re
+import time
 
 import numpy as np
 import pytest
 
-from app.core.commands import RestoreDefaults, SetParam, SwitchSession
+from app.core.commands import Play, RestoreDefaults, SetParam, SwitchSession
 from app.live.frames import deflection_readouts, make_status
 from app.live.lab import Lab, owned_fields
-from app.live.lessons import LESSONS, measure
+from app.live.lesson_run import bind, cancel_line, finish
+from app.live.lessons import LESSONS
+from app.live.run_identity import identity_of
 
 
 def numbers(text: str) -> list[float]:
@@ -40,15 +43,104 @@ def run_lesson(key: str) -> tuple[dict, dict]:
             continue
         for cmd in commands:
             lab.apply(cmd)
+        bound = bind(lab, key, step.key)
         for _ in range(200):
             if step.ready(make_status(lab)) or lab.halted:
                 break
             lab.advance(500)
         assert not lab.halted, lab.halted
-        obs = _RUNS[run] = measure(lab)
-        memo[step.key] = obs
-        claims[step.key] = step.claim(obs, memo)
+        obs, claims[step.key] = finish(lab, bound, step, memo)
+        assert obs is not None, claims[step.key]
+        _RUNS[run] = obs
     return claims, memo
+
+
+def take_set_up(lesson_key: str, step_key: str, lab: Lab | None = None):
+    """A Lab with a lesson step set up as the panel does it: (lab, step, its binding to the run)."""
+    lab = lab or Lab("free")
+    step = next(s for s in next(x for x in LESSONS if x.key == lesson_key).steps if s.key == step_key)
+    for cmd in step.setup(lab):
+        lab.apply(cmd)
+    return lab, step, bind(lab, lesson_key, step.key)
+
+
+def run_until_ready(lab: Lab, step) -> None:
+    """Advance the lab (playing or not) until the step says it has run far enough."""
+    for _ in range(200):
+        if step.ready(make_status(lab)) or lab.halted:
+            return
+        lab.advance(500)
+
+
+def test_the_dampers_step_changed_after_set_up_is_cancelled_and_never_labelled_with_the_set_up():
+    """Issue 33's repro: Dampers step 1 set up (λ = 100), the preset switched to compliance and back to
+    limit-drop, λ = 1000, Play. The page sees the switch at once (the frame's run differs: one line naming
+    the preset); at the step's end the claim is the cancellation naming λ 100 → 1000, no "λ = 100" claim and
+    no torque of that run. The same run without the change is claimed, naming λ = 100 and the peak it had."""
+    lab, step, bound = take_set_up("dampers", "l100")
+    lab.apply(SwitchSession(scenario="compliance"))
+    line = cancel_line(bound, identity_of(lab))
+    assert line is not None and line.startswith("Cancelled:") and "the preset limit-drop → compliance" in line
+    lab.apply(SwitchSession(scenario="limit-drop"))
+    lab.apply(SetParam("damper", "lambda_", 1000.0))
+    lab.apply(Play())
+    run_until_ready(lab, step)
+    assert lab.session.world.time >= 3.0 and not lab.halted
+    obs, text = finish(lab, bound, step, {})
+    assert obs is None and text.startswith("Cancelled:") and "λ (damper.lambda_) 100 → 1000 1/s" in text, text
+    assert "N m" not in text and "λ = 100" not in text
+    # the run it would have labelled: λ = 1000 really ran (its peak torque differs from λ = 100's by > 1 N m)
+    peak_1000 = float(lab.log.extremes()[0][3])
+    lab, step, bound = take_set_up("dampers", "l100", lab)
+    run_until_ready(lab, step)
+    obs, text = finish(lab, bound, step, {})
+    assert obs is not None and abs(obs["peak_tau_4"] - peak_1000) > 1.0, (obs, peak_1000)
+    assert text.startswith(f"λ = 100: joint 4 peaked at |τ₄| = {obs['peak_tau_4']:.1f} N m"), text
+    assert "*Measured on* limit-drop (case position) on gen3" in text and "λ (damper.lambda_) = 100 1/s" in text
+
+
+DAMPERS_CHANGES = [
+    (SetParam("damper", "lambda_", 300.0), "λ (damper.lambda_) 100 → 300 1/s"),
+    (SetParam("world", "torque_delay_ms", 5.0), "(world.torque_delay_ms) 0 → 5 ms"),
+    (SetParam("damper", "M", 3.0), "(damper.M) 2 → 3"),
+    (SetParam("damper", "form", "classic"), "(damper.form) proposed → classic"),
+    (SetParam("payload", "mass_kg", 2.0), "(payload.mass_kg) 1.25 → 2"),
+    (SwitchSession(variant="velocity"), "the case position → velocity"),
+    (SwitchSession(robot="panda"), "the robot gen3 → panda"),
+]
+COMPLIANCE_CHANGES = [
+    (SetParam("posture_task", "compliance", 0.0), "(posture_task.compliance) 1 → 0"),
+    (SetParam("pose_task", "compliance", 1.0), "(pose_task.compliance) 0 → 1"),
+    (SetParam("estimator", "source", "residual"), "(estimator.source) fusion → residual"),
+    (SetParam("posture_task", "stiffness", 5.0), "(posture_task.stiffness) 1 → 5"),
+    (SwitchSession(variant="full"), "the case nullspace → full"),
+    (SwitchSession(robot="panda"), "the robot gen3 → panda"),
+]
+
+
+@pytest.mark.parametrize(
+    "lesson,step_key,change,named",
+    [("dampers", "l100", c, n) for c, n in DAMPERS_CHANGES]
+    + [("compliance", "gamma-nullspace", c, n) for c, n in COMPLIANCE_CHANGES],
+    ids=lambda v: getattr(v, "field", None) or getattr(v, "variant", None) or getattr(v, "robot", None) or None,
+)
+def test_a_change_after_set_up_cancels_the_step_with_one_line_naming_it(lesson, step_key, change, named):
+    lab, _step, bound = take_set_up(lesson, step_key)
+    assert cancel_line(bound, identity_of(lab), lab.edits) is None  # the set-up itself is the step's run
+    lab.apply(change)
+    assert not [n for n in lab.notice_log if n.level == "error"], list(lab.notice_log)
+    line = cancel_line(bound, identity_of(lab), lab.edits, lab.last_edit)
+    assert line is not None and named in line and "\n" not in line, line
+
+
+def test_a_change_set_back_before_the_measurement_still_cancels_the_step():
+    lab, step, bound = take_set_up("dampers", "l100")
+    lab.apply(SetParam("damper", "lambda_", 1000.0))
+    lab.advance(200)
+    lab.apply(SetParam("damper", "lambda_", 100.0))
+    assert identity_of(lab) == bound.identity  # the same run on paper …
+    obs, text = finish(lab, bound, step, {})
+    assert obs is None and "changed during the run (damper.lambda_ = 100.0) and set back" in text, text
 
 
 def test_a_case_switch_keeps_the_persons_values_and_names_those_the_case_owns():
@@ -144,3 +236,44 @@ def test_the_latency_lesson_shows_that_the_sensing_delay_makes_the_posture_shake
     assert "0 period(s) late" in claims["delay0"]
     assert stretching_mean(default) > 2.0 * stretching_mean(ideal)
     assert f"{stretching_mean(default) / stretching_mean(ideal):.2f}×" in claims["delay1"]
+
+
+def test_the_lessons_panel_cancels_the_repro_as_soon_as_the_preset_changes_and_claims_an_untouched_run():
+    """The Lessons tab on a running loop (no browser): Dampers step 1 set up, the preset switched to
+    compliance: the next frame's run differs and the panel shows one line naming the switch instead of a
+    claim, keeping no numbers for the step; set up again and left alone, the step's claim names its run."""
+    import viser
+
+    from app.live.loop import SimLoop
+    from app.live.ui.panels.lessons import LessonsPanel
+    from tests.conftest import free_port
+
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    loop = SimLoop("free", capture=lambda s: None)
+    loop.start(running=False)
+    try:
+        panel = LessonsPanel(server, loop)
+        panel.select("dampers")
+
+        def watch(until_s: float = 120.0) -> str:
+            seq, deadline = 0, time.monotonic() + until_s
+            while ("dampers", "l100") not in panel.claims and time.monotonic() < deadline:
+                frame = loop.wait_frame(seq, 1.0)
+                if frame is not None:
+                    seq = frame.seq
+                    panel.live(frame)
+            return panel.claims.get(("dampers", "l100"), "")
+
+        panel.start_step()
+        loop.submit(SwitchSession(scenario="compliance"))
+        text = watch()
+        assert text.startswith("Cancelled:") and "the preset limit-drop → compliance" in text, text
+        assert panel.result_md.content.startswith("**Step cancelled.**") and "l100" not in panel.results["dampers"]
+        panel.start_step()
+        text = watch()
+        low = panel.results["dampers"]["l100"]
+        assert text.startswith(f"λ = 100: joint 4 peaked at |τ₄| = {low['peak_tau_4']:.1f} N m"), text
+        assert "*Measured on* limit-drop (case position) on gen3" in text and panel.armed is None
+    finally:
+        loop.stop()
+        server.stop()

@@ -119,6 +119,10 @@ class Lab:
         self.restarts = 0  # grows at every reset or rebuild (the log starts over)
         self.total_steps = 0
         self.fallback_steps = 0  # fallback steps since the last reset
+        # accepted changes of a parameter, the preset, case, robot or controller (never reset; a lesson step
+        # compares it with its set-up's to see a change even when it was set back), the newest in words
+        self.edits = 0
+        self.last_edit = ""
         self.step_cpu_s = 0.0  # CPU time spent in steps
         self.drag_client: int | None = None
         self.overpowered = ""  # joints the surroundings overpower, in words (World.overpowered)
@@ -375,12 +379,16 @@ class Lab:
     # ---- parameters -----------------------------------------------------------------------------
     def _set_param(self, cmd: SetParam) -> None:
         """One parameter change, validated by its group's dataclass; refused: a notice, nothing changes."""
+        before = self.session.params().get(cmd.group)
         try:
             self.session.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
         except ParamError as exc:
             self.notify("error", "Value refused", str(exc), cmd.client_id)
             self._settings_changed()  # the panels show the value that is still in force
             return
+        after = self.session.params().get(cmd.group)
+        if before is None or after is None or not _same(before.values().get(cmd.field), after.values().get(cmd.field)):
+            self._edited(label(cmd))
         if self.twin is not None:
             self.twin.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
         self._steps_since_change = 0
@@ -389,6 +397,7 @@ class Lab:
     def _restore_defaults(self, cmd: RestoreDefaults | None = None) -> None:
         """Every parameter of the preset back to its defaults; the run restarts (twin too)."""
         self._healthy = 0
+        self._edited("every parameter back to its default")
         self.session.restore_defaults()
         self._after_rebuild()
         self._rebuild_twin()
@@ -396,6 +405,11 @@ class Lab:
             self.halted = ""
             self.running = self._resume_after_reset
             self._resume_after_reset = False
+
+    def _edited(self, what: str) -> None:
+        """Count an accepted change of the run's set-up (`edits`)."""
+        self.edits += 1
+        self.last_edit = what
 
     def _set_speed(self, cmd: SetSpeed) -> None:
         value = finite_number(cmd.factor)
@@ -453,6 +467,7 @@ class Lab:
             changes = [o for o in changes if o.group in KEPT_ON_PRESET_SWITCH]
             self._healthy = len(changes)
         self.robot_choice = robot_choice
+        self._edited(f"switched to {new.scenario.name} on {new.robot.name}")
         self._install(new, changes)
         self.halted = ""
         if case_switch and cmd.variant is not None:
@@ -490,6 +505,7 @@ class Lab:
             raise ValueError(f"unknown executor {name!r}; choose one of {', '.join(EXECUTORS)}")
         twin, self.twin = self.twin, None
         self.session.set_executor(name)  # re-applies the overrides the new executor has
+        self._edited(f"controller {name}")
         self.twin = twin
         if twin is not None:
             try:

@@ -107,6 +107,9 @@ def measure(lab: Lab) -> Obs:
         sign, limit = (drop.direction, drop.limit) if drop else (1, hi)
         past = float(np.nanmax(sign * (c[f"q_{j + 1}"] - limit)))  # > 0 beyond the limit
         out["beyond_ds_mrad"] = 1e3 * max(0.0, past + d_s)
+        out["lambda"] = float(getattr(damper, "lambda_", math.nan))  # the run's own, for the claim's label
+        world = s.params().get("world")
+        out["torque_delay_ms"] = float(getattr(world, "torque_delay_ms", math.nan))
         # the arm thrashing: any joint but the falling one faster than THRASH_SPEED_RAD_S
         others = np.vstack([np.abs(c[f"dq_{i + 1}"]) for i in range(n) if i != j])
         fast = np.flatnonzero(np.nanmax(others, axis=0) > THRASH_SPEED_RAD_S)
@@ -208,12 +211,20 @@ def compare_strokes(label: str, other_key: str, other_label: str) -> Callable[[O
     return claim
 
 
-def drop_claim(label: str, baseline: str | None = None) -> Callable[[Obs, Memo], str]:
-    """The limit-drop claim: joint 4's peak torque, how far it went beyond d_s and its reversals."""
+def drop_label(o: Obs) -> str:
+    """The limit drop's damper and delay as this run had them: "λ = 100", "λ = 500, 5 ms delay"."""
+    delay = o.get("torque_delay_ms", 0.0)
+    return f"λ = {o.get('lambda', math.nan):g}" + (f", {delay:g} ms delay" if delay > 0 else "")
+
+
+def drop_claim(baseline: str | None = None) -> Callable[[Obs, Memo], str]:
+    """The limit-drop claim: joint 4's peak torque, how far it went beyond d_s and its reversals, labelled
+    with the run's own λ and delay."""
 
     def claim(o: Obs, memo: Memo) -> str:
         if "peak_tau_4" not in o:
             return "Nothing logged since the last reset: press Play."
+        label = drop_label(o)
         text = (
             f"{label}: joint 4 peaked at |τ₄| = {o['peak_tau_4']:.1f} N m (limit {o['tau_max_4']:.0f} N m), "
             f"went {o['beyond_ds_mrad']:.1f} mrad beyond d_s and reversed its velocity "
@@ -221,7 +232,7 @@ def drop_claim(label: str, baseline: str | None = None) -> Callable[[Obs, Memo],
         )
         before = memo.get(baseline) if baseline else None
         if before is not None and "peak_tau_4" in before:
-            text += f" That is {o['peak_tau_4'] / before['peak_tau_4']:.1f}× the peak torque of λ = 100."
+            text += f" That is {o['peak_tau_4'] / before['peak_tau_4']:.1f}× the peak torque of {drop_label(before)}."
         return text
 
     return claim
@@ -407,7 +418,7 @@ LESSONS: tuple[Lesson, ...] = (
                 "reach d_s (dotted) before the limit.",
                 drop_setup(100.0, 0.0),
                 after("limit-drop", DROP_WATCH_S),
-                drop_claim("λ = 100"),
+                drop_claim(),
             ),
             Step(
                 "l500",
@@ -415,7 +426,7 @@ LESSONS: tuple[Lesson, ...] = (
                 "A five times stiffer damper: the joint brakes later and harder. Watch the torque plot.",
                 drop_setup(HIGH_LAMBDA, 0.0),
                 after("limit-drop", DROP_WATCH_S),
-                drop_claim("λ = 500", baseline="l100"),
+                drop_claim(baseline="l100"),
             ),
             Step(
                 "l500d",
@@ -432,7 +443,7 @@ LESSONS: tuple[Lesson, ...] = (
                 "The default damper with the same 5 ms delay. Watch joint 4's phase plot.",
                 drop_setup(100.0, LESSON_DELAY_MS),
                 after("limit-drop", DROP_WATCH_S),
-                drop_claim("λ = 100, 5 ms delay"),
+                drop_claim(),
             ),
         ),
     ),

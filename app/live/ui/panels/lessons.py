@@ -1,10 +1,12 @@
 """The Lessons tab: pick a lesson, take its steps one by one, read what this run showed.
 
-"Set up" sends the step's commands (as the panels would: preset, parameters, Settle now or Play).
-While the step runs the panel watches the loop's status; when the step has run far enough it
-measures the run on the loop thread (`app.live.lessons.measure`), pauses the simulation there (the
-picture freezes at the end of the step, for a look and a replay) and shows the step's claim, built
-from those numbers. The numbers of each step are kept (`results`), so a later step can compare.
+"Set up" sends the step's commands (as the panels would: preset, parameters, Settle now or Play) and
+binds the step to the run they made (`app.live.lesson_run`). While the step runs the panel watches
+the loop's status; a change of the preset, case, robot, controller or a parameter cancels the step
+with one line saying what changed. When the step has run far enough it measures the run on the loop
+thread, pauses the simulation there (the picture freezes at the end of the step, for a look and a
+replay) and shows the step's claim, built from those numbers and naming the run they were measured
+on. The numbers of each step are kept (`results`), so a later step can compare.
 """
 
 from __future__ import annotations
@@ -15,8 +17,10 @@ from typing import Any
 import viser
 
 from app.core.commands import Pause
-from app.live.lessons import LESSONS, Lesson, Memo, Obs, Step, measure
+from app.live.lesson_run import BoundStep, bind, cancel_line, finish
+from app.live.lessons import LESSONS, Lesson, Memo, Step
 from app.live.loop import Frame, SimLoop
+from app.live.run_identity import identity_from
 
 INTRO = (
     "**Start here.** Each lesson sets up a preset for you, says what to do and watch, and after each step "
@@ -34,8 +38,7 @@ class LessonsPanel:
         gui = server.gui
         self.lesson: Lesson = LESSONS[0]
         self.index = 0
-        self.armed: tuple[str, str] | None = None  # (lesson, step) set up and not yet measured
-        self._armed_restarts = -1  # the lab's restart count once the step's set-up had been applied
+        self.armed: BoundStep | None = None  # the step set up and not yet measured, bound to its run
         self.results: dict[str, Memo] = {}  # lesson key → step key → numbers
         self.claims: dict[tuple[str, str], str] = {}  # what each step showed (tests read them)
         self._lock = threading.Lock()
@@ -83,42 +86,58 @@ class LessonsPanel:
         step = self.step
         for cmd in step.setup(self.loop.lab):
             self.loop.submit(cmd)
-        status = self.loop.sync(timeout=60.0)  # a preset switch may take a while
+        lesson = self.lesson.key
+        # after every set-up command (a preset switch may take a while)
+        bound = self.loop.call(lambda s: bind(self.loop.lab, lesson, step.key), timeout=60.0)
         with self._lock:
-            self.armed = (self.lesson.key, step.key)
-            self._armed_restarts = self.loop.lab.restarts
-        self.claims.pop((self.lesson.key, step.key), None)
+            self.armed = bound
+        self.claims.pop(bound.key, None)
         self.result_md.content = WAITING
-        del status
 
     # ---- live -------------------------------------------------------------------------------------
     def refresh(self, settings: Any) -> None:
         """Nothing: the lessons follow the run, not the parameters."""
 
     def live(self, frame: Frame) -> None:
-        """When the armed step has run far enough: measure it, pause there and show the claim."""
+        """When the armed step's run changed: cancel it with one line; when it has run far enough:
+        measure it, pause there and show the claim."""
         with self._lock:
             armed = self.armed
-            if armed is None or frame.restarts < self._armed_restarts:
+            if armed is None or frame.restarts < armed.restarts:
                 return
-            lesson = next(x for x in LESSONS if x.key == armed[0])
-            step = next(s for s in lesson.steps if s.key == armed[1])
-            if not step.ready(frame.status):
+            lesson = next(x for x in LESSONS if x.key == armed.lesson)
+            step = next(s for s in lesson.steps if s.key == armed.step)
+            cancelled = cancel_line(armed, identity_from(frame.status, frame.settings))
+            if cancelled is None and not step.ready(frame.status):
                 return
             self.armed = None
-        self.loop.submit(Pause())
-        obs: Obs = self.loop.call(lambda s: measure(self.loop.lab), timeout=30.0)
         memo = self.results.setdefault(lesson.key, {})
-        memo[step.key] = obs
-        text = step.claim(obs, memo)
-        self.claims[(lesson.key, step.key)] = text
+        if cancelled is None:
+            self.loop.submit(Pause())
+            fresh: Memo = dict(memo)
+            obs, cancelled_or_claim = self.loop.call(lambda s: finish(self.loop.lab, armed, step, fresh), timeout=30.0)
+            if obs is not None:
+                memo[step.key] = obs
+            text = cancelled_or_claim
+        else:
+            text = cancelled
+        self.claims[armed.key] = text
         if self.lesson is lesson and self.step is step:
-            self.result_md.content = f"**What you saw.** {text}"
+            self.result_md.content = result_text(text)
 
     def _show(self) -> None:
         lesson, step = self.lesson, self.step
         self.purpose.content = f"*{lesson.purpose}*"
         self.step_md.content = f"**Step {self.index + 1} of {len(lesson.steps)}: {step.title}.** {step.todo}"
         claim = self.claims.get((lesson.key, step.key))
-        waiting = self.armed == (lesson.key, step.key)
-        self.result_md.content = f"**What you saw.** {claim}" if claim else (WAITING if waiting else "")
+        waiting = self.armed is not None and self.armed.key == (lesson.key, step.key)
+        self.result_md.content = result_text(claim) if claim else (WAITING if waiting else "")
+
+
+def result_text(claim: str) -> str:
+    """A step's result as shown: the claim, or the line saying why the step was cancelled."""
+    return (
+        f"**Step cancelled.** {claim.removeprefix('Cancelled: ')}"
+        if claim.startswith("Cancelled: ")
+        else (f"**What you saw.** {claim}")
+    )
