@@ -129,31 +129,105 @@ def test_a_joint_in_its_stop_for_one_step_between_two_looks_is_reported():
     assert world.overpowered(None) == ""  # the next look covers only the steps since
 
 
-@pytest.mark.usefixtures("warm_kernels")
-def test_the_worst_measured_drag_into_a_stop_stays_within_the_documented_number():
-    """free / projection with the tip pulled up at the page's maximum drag (300 N) went deepest of 90
-    runs (5 presets × 3 executors × 6 directions, 2 s each). The bound is the number the web app's page
-    (docs/web-app.md, Hard stops) promises ("sinks no joint more than X rad"), read from it: a promise the
-    arm breaks fails here."""
+HEADROOM = 1.2  # the hard-stop promise stands at least this far above the deepest drag measured
+
+
+def _promised_stop_depth_rad() -> float:
+    """The hard-stop depth the documentation promises ("sinks no joint more than X rad"), read from the
+    README or, where the text has moved, the documentation pages under docs/."""
     import re
     from pathlib import Path
 
-    import numpy as np
+    root = Path(__file__).resolve().parents[1]
+    pages = [root / "README.md", *sorted((root / "docs").rglob("*.md"))]
+    for page in pages:
+        if page.is_file():
+            promise = re.search(r"sinks no joint more than\s+([0-9.]+)\s+rad", page.read_text(encoding="utf-8"))
+            if promise:
+                return float(promise.group(1))
+    raise AssertionError("neither the README nor docs/ states a hard-stop depth")
 
-    from app.core.commands import SetParam
+
+@pytest.mark.usefixtures("warm_kernels")
+def test_the_hard_stop_promise_has_headroom_over_a_coarse_grid_of_the_hardest_drags():
+    """A coarse `stop_depth` grid (every preset × executor, the tip pulled 2 m up and down at the page's
+    maximum drag, 300 N, for 1 s; the full grid's worst, free / projection pulled up, is among them): no
+    run halts, and the deepest any joint went into its stop, times HEADROOM, stays within the depth the
+    documentation promises. A promise that sits on the measured worst fails here."""
+    from app.core.executors import EXECUTORS
+    from app.scenarios import SCENARIOS
+    from app.tools.stop_depth import probe
+
+    promise = _promised_stop_depth_rad()
+    rows = []
+    for scenario in SCENARIOS:
+        for executor in EXECUTORS:
+            for name, direction in (("+z", (0, 0, 1)), ("-z", (0, 0, -1))):
+                depth, _, _, halted = probe(scenario, executor, direction, 1000)
+                assert not halted, (scenario, executor, name)
+                rows.append((depth, scenario, executor, name))
+    worst = max(rows)
+    print(f"deepest into a stop {1e3 * worst[0]:.1f} mrad ({worst[1:]}); promised {1e3 * promise:.1f} mrad")
+    assert 0.0 < worst[0] and worst[0] * HEADROOM <= promise, (worst, promise)
+
+
+def test_the_port_probe_finds_a_port_free_whose_last_connection_waits_in_time_wait():
+    """A restart right after a stop: the old server's accepted connection, closed by the server first,
+    waits in TIME_WAIT on its port. The server binds with SO_REUSEADDR and gets the port; the probe must
+    say it is free (it said busy, and `serve` printed "port N is busy; using port N instead")."""
+    import socket
+
+    from app.live.server import port_is_free
+
+    listener = socket.socket()
+    listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    listener.bind(("127.0.0.1", 0))
+    listener.listen()
+    port = listener.getsockname()[1]
+    client = socket.create_connection(("127.0.0.1", port))
+    accepted, _ = listener.accept()
+    accepted.close()  # the server side closes first: its end of the connection goes to TIME_WAIT
+    client.recv(1)
+    client.close()
+    listener.close()
+    assert port_is_free("127.0.0.1", port)
+    with socket.socket() as server_again:  # as the restarted server binds
+        server_again.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        server_again.bind(("127.0.0.1", port))
+        server_again.listen()
+        assert not port_is_free("127.0.0.1", port)  # a port in use is still busy
+
+
+def test_a_twin_that_raises_on_a_change_is_switched_off_and_the_panels_show_what_the_main_arm_runs():
+    """The twin's set_param raises something other than a refusal: the main arm keeps the new μ, the
+    settings the panels show say the same, and the twin is switched off with a notice."""
+    from app.core.commands import SetParam, SetTwin
     from app.live.lab import Lab
 
-    lab = Lab("free", executor="projection")
-    lab.apply(SetParam("drag", "max_force_n", 300.0))
-    lab.advance(500)
-    link = lab.session.robot.link_names[-1]
-    tip = np.array(lab.session.world.data.xpos[-1], dtype=float)
-    lab.apply(DragCommand("grab", 1, body_name=link, point_world=tuple(tip)))
-    lab.apply(DragCommand("move", 1, body_name=link, target_world=tuple(tip + np.array([0.0, 0.0, 2.0]))))
-    lab.session.world.stop_depth.fill(-np.inf)
-    assert not lab.advance(2000).halted
-    depth = float(lab.session.world.stop_depth.max())
-    page = (Path(__file__).resolve().parents[1] / "docs" / "web-app.md").read_text(encoding="utf-8")
-    promise = re.search(r"sinks no joint more than\s+([0-9.]+) rad", page)
-    assert promise, "docs/web-app.md states no hard-stop depth"
-    assert 0.0 < depth < float(promise.group(1)), (depth, promise.group(1))
+    lab = Lab("polish")
+    lab.apply(SetTwin("j"))
+    assert lab.twin is not None
+    before = lab.settings.groups["contact"].mu
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("twin broke")
+
+    lab.twin.set_param = broken  # type: ignore[method-assign]
+    lab.apply(SetParam("contact", "mu", 0.7))
+    assert lab.session.params()["contact"].mu == pytest.approx(0.7, abs=1e-12)
+    shown = lab.settings.groups["contact"].mu
+    assert shown == pytest.approx(0.7, abs=1e-12), f"the panels show mu = {shown} (before: {before})"
+    assert lab.twin is None
+    off = [n for n in lab.notice_log if n.title == "Twin arm off"]
+    assert len(off) == 1 and "contact.mu" in off[0].body and "twin broke" in off[0].body
+
+
+def test_a_binary_settings_file_is_one_error_line_that_names_the_file(tmp_path, capsys):
+    from app.cli import main
+
+    path = tmp_path / "settings.toml"
+    path.write_bytes(bytes(range(256)) * 4)
+    code = main(["serve", "--scenario", "free", "--port", "0", "--no-warmup", "--settings", str(path)])
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1, lines
+    assert str(path) in lines[0] and "not UTF-8" in lines[0]

@@ -389,10 +389,16 @@ class Lab:
         after = self.session.params().get(cmd.group)
         if before is None or after is None or not _same(before.values().get(cmd.field), after.values().get(cmd.field)):
             self._edited(label(cmd))
-        if self.twin is not None:
-            self.twin.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
         self._steps_since_change = 0
-        self._settings_changed()
+        self._settings_changed()  # the main arm took it: the panels show it whatever the twin does
+        if self.twin is not None:
+            try:
+                self.twin.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
+            except Exception as exc:  # a twin that cannot follow compares nothing any more
+                self._drop_twin(
+                    f"the twin arm is switched off: it could not take {cmd.group}.{cmd.field} "
+                    f"({type(exc).__name__}: {exc}); the main arm runs with it"
+                )
 
     def _restore_defaults(self, cmd: RestoreDefaults | None = None) -> None:
         """Every parameter of the preset back to its defaults; the run restarts (twin too)."""

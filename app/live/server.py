@@ -91,9 +91,13 @@ class App:
 
 
 def port_is_free(host: str, port: int) -> bool:
-    """True if a TCP server could bind (host, port) now."""
+    """True if a TCP server could bind (host, port) now. The probe binds as the server does, with
+    SO_REUSEADDR: a port whose last connections wait in TIME_WAIT (a restart right after a stop) is free
+    to it, as it is to the server."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     with socket.socket(family, socket.SOCK_STREAM) as sock:
+        if sys.platform != "win32":  # on Windows the option lets two servers share a port
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             sock.bind((host, port))
         except (OSError, OverflowError):
@@ -224,6 +228,8 @@ def _read_settings_file(path: str, scenario: str, robot: str | None) -> str:
             text = fh.read()
     except OSError as exc:
         raise ValueError(f"cannot read settings file {path}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:  # a binary file: the reason names the file, as every other does
+        raise ValueError(f"{path}: not a TOML settings file: not UTF-8 text (byte {exc.start})") from None
     _, problems = parse_settings(text)
     if problems and problems[0].startswith("not a TOML"):
         raise ValueError(f"{path}: {problems[0]}")
