@@ -4,6 +4,8 @@
   each experiment under `torquelab experiment`), rendered from `app.cli.build_parser()`.
 - `<!-- lesson: KEY -->` becomes the purpose and the steps of that lesson (`app.live.lessons.LESSONS`),
   as the Lessons tab shows them.
+- In a table row, `\\|` inside a code span is GitHub's way to keep a pipe in a cell; Python-Markdown
+  keeps code spans' pipes already and would print the backslash, so the hook drops it.
 - The pictures in `static/` (the package's own, written by the browser tests) are served under
   `img/`, so the pages and the README show the same files.
 """
@@ -24,6 +26,7 @@ if str(ROOT) not in sys.path:
 
 HELP_WIDTH = "100"  # argparse wraps help to $COLUMNS: fixed, so the page does not depend on the terminal
 LESSON_MARK = re.compile(r"<!-- lesson: ([a-z0-9-]+) -->")
+CODE_SPAN = re.compile(r"`[^`\n]*`")
 
 
 def on_files(files: Files, config) -> Files:
@@ -38,7 +41,15 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
     """Fill the generated parts of a page."""
     if "<!-- cli-reference -->" in markdown:
         markdown = markdown.replace("<!-- cli-reference -->", cli_reference())
-    return LESSON_MARK.sub(lambda m: lesson_steps(m.group(1)), markdown)
+    markdown = LESSON_MARK.sub(lambda m: lesson_steps(m.group(1)), markdown)
+    return "\n".join(_table_pipes(line) for line in markdown.split("\n"))
+
+
+def _table_pipes(line: str) -> str:
+    """A table row's code spans with `\\|` (GitHub's escape) as a plain `|`."""
+    if not line.lstrip().startswith("|"):
+        return line
+    return CODE_SPAN.sub(lambda m: m.group(0).replace("\\|", "|"), line)
 
 
 def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
