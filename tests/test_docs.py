@@ -101,3 +101,18 @@ def test_the_hook_renders_every_subcommand_and_each_lessons_steps():
         steps = hook.lesson_steps(lesson.key)
         assert lesson.purpose in steps
         assert len(re.findall(r"^\d+\. \*\*", steps, flags=re.M)) == len(lesson.steps)
+
+
+def test_the_glossary_defines_every_term_the_readme_sends_a_reader_there_for():
+    """The README's documentation list names the terms its glossary explains ("…: Np, headroom, σ,
+    W_j/W_f/W_a/W_d, … and the rest"); each is a defined term of docs/glossary.md."""
+    named = re.search(r"\[glossary\]\(docs/glossary\.md\):(.*?)and the rest", readme(), flags=re.S)
+    assert named, "the README's link to the glossary names no terms"
+    terms = [t for part in named.group(1).replace("\n", " ").split(",") for t in part.strip().split("/") if t]
+    defined = [
+        m.group(1)
+        for m in re.finditer(r"^\*\*(.+?)\*\*\n:   ", (DOCS / "glossary.md").read_text(encoding="utf-8"), flags=re.M)
+    ]
+    missing = [t for t in terms if not any(re.search(rf"(^|[\s,(]){re.escape(t)}($|[\s,)])", d) for d in defined)]
+    assert len(terms) >= 10, terms
+    assert not missing, f"glossary terms {missing} are not defined (defined: {defined})"
