@@ -7,7 +7,7 @@ floor reaches F̂ within the stroke) with the decay rate σ beside it (< 0 where
 the plot's x range being the joint's position range (Fig. 2–4 of [C]); joint torques as a share of
 their limits; the real-time factor. A window of 10, 30 or 60 s of simulated time, a Freeze switch
 that holds the picture (the history keeps filling), vertical markers where the scenario's phase
-changes (polish segments S1…S6, a payload release) and the readouts the README quotes: force-error
+changes (polish segments S1…S6, a payload release) and the readouts docs/web-app.md quotes: force-error
 STD per polish segment (main and twin), peak joint torque and overshoot in the limit drop. Each chart's
 *Signals* fold chooses the series it draws (`app.live.ui.signals`); the choice outlives preset switches.
 
@@ -801,7 +801,7 @@ class Plots:
         self.deflection.data = _with_markers(x, [tcp, elbow], self.markers, now, 0.0, hi, after=[prev])
 
     def _update_readouts(self, plot: PlotData) -> None:
-        """The numbers the README quotes, from the whole history (not just the window shown)."""
+        """The readouts docs/web-app.md quotes, from the whole history (not just the window shown)."""
         c = self.history.columns
         out: dict[str, float] = {}
         lines: list[str] = []
