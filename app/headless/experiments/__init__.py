@@ -10,6 +10,8 @@ import argparse
 import importlib
 from collections.abc import Callable
 
+from app.headless.experiments.run_config import parse_settings
+
 # experiment name -> module under app.headless.experiments providing `add_arguments(parser)` and `run(args)`
 EXPERIMENTS: dict[str, str] = {
     "polish": "polish",
@@ -29,6 +31,14 @@ def add_parsers(sub) -> None:
         ep.add_argument("--out", default=f"out/{name}", help="output directory")
         ep.add_argument("--json", action="store_true", help="print the results as JSON")
         ep.add_argument("--jobs", type=int, default=1, help="parallel runs over processes")
+        ep.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="GROUP.FIELD=VALUE",
+            help="a session parameter every run starts with, through the parameter path (repeatable), "
+            "e.g. --set sensor.cutoff_hz=10 --set world.armature_scale=2",
+        )
         module.add_arguments(ep)
         ep.set_defaults(func=_with_checked_jobs(module.run))
     p.set_defaults(func=lambda args: _no_experiment(p))
@@ -40,6 +50,7 @@ def _with_checked_jobs(run: Callable[[argparse.Namespace], int]) -> Callable[[ar
     def checked(args: argparse.Namespace) -> int:
         if args.jobs < 1:
             raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
+        parse_settings(args.set)  # a malformed --set is one line before anything runs
         return run(args)
 
     return checked

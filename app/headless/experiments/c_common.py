@@ -105,6 +105,9 @@ def command_line(args: argparse.Namespace) -> str:
         flag = "--" + key.replace("_", "-")
         if value is True:
             words.append(flag)
+        elif key == "set":  # repeatable: one flag per session parameter
+            for item in value:
+                words += [flag, str(item)]
         elif isinstance(value, list | tuple):
             words += [flag, ",".join(str(v) for v in value)]
         else:

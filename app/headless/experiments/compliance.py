@@ -8,13 +8,24 @@ Writes compliance.json, fig6.png and report.html.
 from __future__ import annotations
 
 import argparse
+import html
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from app.headless.experiments.c_common import html_table, qp_session, run_parallel, verdict, write_json, write_report
+from app.core.provenance import code_record
+from app.headless.experiments.c_common import (
+    command_line,
+    html_table,
+    qp_session,
+    run_parallel,
+    verdict,
+    write_json,
+    write_report,
+)
+from app.headless.experiments.run_config import apply_settings, parse_settings, run_configuration
 from app.scenarios.compliance import DURATION_S, MODES, PUSH_N, PUSHES, ComplianceScenario
 from control.compliance_qp import ComplianceQPExecutor
 
@@ -25,13 +36,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of this experiment (none besides the common ones)."""
 
 
-def run_mode(mode: str) -> dict:
-    """One run of the scripted pushes; per-push peaks and down-sampled traces."""
+AFTER_PUSH_S = 0.5  # the peaks are taken over each push and this long after it
+
+
+def run_mode(mode: str, settings: tuple = ()) -> dict:
+    """One run of the scripted pushes; per-push peaks, down-sampled traces and the run's configuration
+    (`run_configuration`). `settings`: (group, field, value) set after the mode's own (`--set`)."""
     scenario = ComplianceScenario(mode)
     session = qp_session(scenario)
     executor = session.executor
     assert isinstance(executor, ComplianceQPExecutor)
     scenario.configure_executor(executor, session.robot)
+    apply_settings(session, settings)
     session.reset()
     p0 = session.target_fn(0.0).position.copy()
     q0 = session.world.q
@@ -54,7 +70,7 @@ def run_mode(mode: str) -> dict:
     arr = {c: np.array(v) for c, v in rec.items()}
     phases = {}
     for where, start, end in PUSHES:
-        sel = (arr["t"] >= start) & (arr["t"] < end + 0.5)  # the push and the half second after it
+        sel = (arr["t"] >= start) & (arr["t"] < end + AFTER_PUSH_S)  # the push and the time after it
         if not sel.any():
             continue
         phases[where] = {
@@ -65,7 +81,14 @@ def run_mode(mode: str) -> dict:
             "peak_posture_deviation_rad": float(arr["posture"][sel].max()),
         }
     traces = {c: arr[c][::4].tolist() for c in cols}
-    return {"mode": mode, "phases": phases, "traces": traces, "stop": result.stop, "reason": result.reason}
+    return {
+        "mode": mode,
+        "phases": phases,
+        "traces": traces,
+        "stop": result.stop,
+        "reason": result.reason,
+        "config": run_configuration(session),
+    }
 
 
 def _figure(runs: list[dict], out: Path) -> None:
@@ -94,8 +117,9 @@ def _figure(runs: list[dict], out: Path) -> None:
     plt.close(fig)
 
 
-def findings(runs: list[dict]) -> list[str]:
-    """[C] §IV-E's three statements checked against our numbers."""
+def findings(runs: list[dict]) -> list[dict]:
+    """[C] §IV-E's three statements checked against our numbers: per statement whether it reproduces,
+    the sentence, and every number the sentence prints (kept in compliance.json beside it)."""
     by = {r["mode"]: r["phases"] for r in runs}
     if not all(by.get(m) for m in MODES):
         return []
@@ -105,22 +129,64 @@ def findings(runs: list[dict]) -> list[str]:
 
     disp = {m: worst(m, "peak_tcp_displacement_mm") for m in MODES}
     post = {m: worst(m, "peak_posture_deviation_rad") for m in MODES}
+    yield_ratio = post["nullspace"] / max(post["stiff"], 1e-9)
+    follow_ratio = disp["full"] / max(disp["nullspace"], 1e-9)
     return [
-        verdict(
-            disp["stiff"] < 1.0 and post["stiff"] < 0.05,
-            f"Γ = 0 suppresses motion: TCP moves at most {disp['stiff']:.2f} mm, posture {post['stiff']:.3f} rad.",
-        ),
-        verdict(
-            disp["nullspace"] < 1.0 and post["nullspace"] > 5 * post["stiff"],
-            f"Γ₀ = I keeps the TCP ({disp['nullspace']:.2f} mm) while the joints yield "
-            f"({post['nullspace']:.3f} rad, {post['nullspace'] / max(post['stiff'], 1e-9):.0f}× the stiff mode).",
-        ),
-        verdict(
-            disp["full"] > 10 * max(disp["nullspace"], 0.1),
-            f"Γ = I lets the TCP follow the push: {disp['full']:.1f} mm "
-            f"({disp['full'] / max(disp['nullspace'], 1e-9):.0f}× the nullspace mode).",
-        ),
+        {
+            "ok": disp["stiff"] < 1.0 and post["stiff"] < 0.05,
+            "text": f"Γ = 0 suppresses motion: TCP moves at most {disp['stiff']:.2f} mm, posture "
+            f"{post['stiff']:.3f} rad.",
+            "numbers": {"tcp_mm": disp["stiff"], "posture_rad": post["stiff"]},
+        },
+        {
+            "ok": disp["nullspace"] < 1.0 and post["nullspace"] > 5 * post["stiff"],
+            "text": f"Γ₀ = I keeps the TCP ({disp['nullspace']:.2f} mm) while the joints yield "
+            f"({post['nullspace']:.3f} rad, {yield_ratio:.0f}× the stiff mode).",
+            "numbers": {"tcp_mm": disp["nullspace"], "posture_rad": post["nullspace"], "ratio": yield_ratio},
+        },
+        {
+            "ok": disp["full"] > 10 * max(disp["nullspace"], 0.1),
+            "text": f"Γ = I lets the TCP follow the push: {disp['full']:.1f} mm ({follow_ratio:.0f}× the nullspace "
+            "mode).",
+            "numbers": {"tcp_mm": disp["full"], "ratio": follow_ratio},
+        },
     ]
+
+
+def setup_html(doc: dict) -> str:
+    """The setup paragraph from compliance.json: robot, posture, the tasks' gains, the estimate, the
+    pushes and the window, as the runs had them (their recorded configuration)."""
+    config = doc["config"]
+    p = config["params"]
+    pose, posture, est = p["pose_task"], p["posture_task"], p["estimator"]
+    sensor = p.get("sensor")
+    noise = (
+        f", F/T noise σ = {sensor['force_noise_var'] ** 0.5:.3g} N"
+        if sensor and sensor.get("noise")
+        else ", no F/T noise"
+        if sensor
+        else ""
+    )
+    pushes = "; ".join(
+        f"at the {where} {start:g}–{end:g} s"
+        + (
+            " (seen by the F/T sensor)"
+            if where == "tcp"
+            else " (seen by the observer only)"
+            if where == "elbow"
+            else ""
+        )
+        for where, start, end in doc["pushes"]
+    )
+    return (
+        f"<p>{html.escape(config['robot'])} at {html.escape(doc['posture'])}, "
+        f"TCP pose task (K_p = {pose['stiffness']:g}, "
+        f"K_d = {pose['damping']:g}, weight {pose['weight']:g}) and posture task (K_p = {posture['stiffness']:g}, "
+        f"K_d = {posture['damping']:g}, weight {posture['weight']:g}), {html.escape(est['source'])} estimate "
+        f"(K_I = {est['observer_gain']:g} s⁻¹){noise}, feedback {'on' if p['compliance_qp']['feedback'] else 'off'}, "
+        f"control period {config['timestep_s'] * 1e3:g} ms. Pushes of {doc['push_n']:g} N along +y: {pushes}. "
+        f"Peaks over each push and the {doc['after_push_s']:g} s after it. Wall time {doc['wall_s']:.1f} s.</p>"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -128,10 +194,25 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    runs = run_parallel(run_mode, [(m,) for m in MODES], args.jobs, "compliance")
+    settings = tuple(parse_settings(getattr(args, "set", [])))
+    runs = run_parallel(run_mode, [(m, settings) for m in MODES], args.jobs, "compliance")
     elapsed = time.perf_counter() - t0
     summary = {r["mode"]: r["phases"] for r in runs}
-    write_json(out / "compliance.json", {"modes": summary, "push_n": PUSH_N, "estimate_source": "fusion"})
+    items = findings(runs)
+    doc = {
+        "modes": summary,
+        "push_n": PUSH_N,
+        "pushes": [list(p) for p in PUSHES],
+        "after_push_s": AFTER_PUSH_S,
+        "posture": "home",  # the scenario's initial posture (`Scenario.initial_q`)
+        "config": runs[0]["config"],  # the stiff run's; each mode's own under "configs"
+        "configs": {r["mode"]: r["config"] for r in runs},
+        "findings": items,
+        "wall_s": elapsed,
+        "command": command_line(args),
+        "code": code_record(),
+    }
+    write_json(out / "compliance.json", doc)
     _figure(runs, out)
     header = [
         "mode",
@@ -153,18 +234,15 @@ def run(args: argparse.Namespace) -> int:
             print(f"compliance: the {r['mode']} run ended early: {r['reason']}")
     for r in rows:
         print(f"{r[0]:32s} {r[1]:6s} " + " ".join(f"{x:9.4f}" for x in r[2:]))
-    setup = (
-        f"<p>Gen3 at home, TCP pose task (K_p = 100, K_d = 20, weight 1e4) and posture task (K_p = 1, K_d = 2, "
-        f"weight 1), fusion estimate (K_I = 50 s⁻¹), feedback on. Pushes of {PUSH_N:g} N along +y: at the TCP "
-        "0.5–1.0 s (seen by the F/T sensor), at the elbow 2.0–2.5 s (seen by the observer only). Peaks over each "
-        f"push and the 0.5 s after it. Wall time {elapsed:.1f} s.</p>"
-    )
     write_report(
         out,
         "Compliance modes [C] §IV-E",
         [
-            ("Setup", setup),
-            ("What the paper found and what we get", "<ul>" + "".join(findings(runs)) + "</ul>"),
+            ("Setup", setup_html(doc)),
+            (
+                "What the paper found and what we get",
+                "<ul>" + "".join(verdict(f["ok"], f["text"]) for f in items) + "</ul>",
+            ),
             ("Peaks per mode and push", html_table(header, rows)),
             ("Figure (Fig. 6 style)", "<img src='fig6.png'>"),
         ],
