@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import html
 import itertools
 import json
 import time
@@ -23,13 +24,21 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import bootstrap
 
-from app.headless.experiments.c_common import html_table, qp_session, run_parallel, write_json, write_report
+from app.core.provenance import code_record
+from app.headless.experiments.c_common import (
+    command_line,
+    html_table,
+    qp_session,
+    run_parallel,
+    write_json,
+    write_report,
+)
+from app.headless.experiments.run_config import parse_settings, run_configuration
+from app.scenarios import mass_drop as scenario_module
 from app.scenarios.mass_drop import (
     CASES,
     MODES,
-    PAYLOAD_KG,
     RELEASE_TIME_S,
-    RESIDUAL_WINDOW_S,
     STABLE_BAND_M,
     WINDOW_S,
     MassDropParams,
@@ -94,6 +103,7 @@ def run_mass_drop(
     for group, name, value in [*changes, *session_params]:
         session.set_param(group, name, value)
     session.reset()
+    config = run_configuration(session)
     in_force = session.params()["scenario"]  # the rig as it runs
     assert isinstance(in_force, MassDropParams)
     target = session.target_fn(0.0).position
@@ -126,6 +136,8 @@ def run_mass_drop(
             "drop_height_m": in_force.drop_height,
             "rope_stiffness_n_per_m": in_force.rope_stiffness_n_per_m,
             "mass_kg": in_force.mass_kg,
+            "rope_length_m": in_force.rope_length_m,
+            "config": config,
         }
     )
     k0 = int(np.searchsorted(ta, RELEASE_TIME_S - 0.1))
@@ -306,6 +318,75 @@ def _ratio_rows(stats: dict) -> list[list]:
     return [[pair] + [_fmt_ratio(stats["ratios"][pair][k]) for k in METRICS] for pair in stats["ratios"]]
 
 
+def _torque_tracking(doc: dict) -> str:
+    """How the runs' torques reached the joints (their recorded torque delays)."""
+    delays = sorted({float(c["params"]["world"]["torque_delay_ms"]) for c in doc["configs"].values()})
+    if delays == [0.0]:
+        return "each torque reaches the joints exactly, in the step it is computed"
+    return "each torque reaches the joints " + "/".join(f"{d:g}" for d in delays) + " ms after it is computed"
+
+
+def scenario_record() -> dict:
+    """The scenario's fixed figures a report names, recorded with the run (`app.scenarios.mass_drop`)."""
+    m = scenario_module
+    return {
+        "posture": "mass_drop_nominal",
+        "nominal_mass_kg": m.PAYLOAD_KG,
+        "release_time_s": m.RELEASE_TIME_S,
+        "window_s": m.WINDOW_S,
+        "stable_band_m": m.STABLE_BAND_M,
+        "residual_window_s": m.RESIDUAL_WINDOW_S,
+        "pid_pole_rad_s": m.PID_OMEGA,
+        "actuator_ripple_std_n_m": m.ACTUATOR_RIPPLE_STD,
+    }
+
+
+def setup_html(doc: dict, rigs: list[dict]) -> str:
+    """The setup paragraphs from mass_drop.json: robot, posture, rope, release, metrics, each mode's
+    controller as its run had it (`configs`) and the spread of the rigs drawn."""
+    sc, cfg = doc["scenario"], doc["configs"]
+    torque = cfg.get("torque-fusion") or next(iter(cfg.values()))
+    p = torque["params"]
+    pose, gamma0 = p.get("pose_task", {}), p.get("posture_task", {}).get("compliance")
+    sensor = p.get("sensor")
+    noise = (
+        (f"σ = {sensor['force_noise_var'] ** 0.5:.3g} N" if sensor and sensor.get("noise") else "no noise")
+        if sensor
+        else "noise not recorded"
+    )
+    gains = ", ".join(
+        f"{LABELS[m]} K_I = {c['params']['estimator']['observer_gain']:g} s⁻¹ ({c['params']['estimator']['source']})"
+        for m, c in cfg.items()
+        if m != "position" and "estimator" in c["params"]
+    )
+    spread = {
+        k: (min(r[k] for r in rigs), max(r[k] for r in rigs))
+        for k in ("drop_height_m", "rope_stiffness_n_per_m", "mass_kg", "rope_length_m")
+    }
+    return (
+        f"<p>{html.escape(torque['robot'])} at <code>{sc['posture']}</code> ({html.escape(rigs[0]['posture'])}). A "
+        "mass hangs from the TCP (distal to the F/T sensor) on a rope of "
+        + "–".join(f"{100 * x:g}" for x in sorted(set(spread["rope_length_m"])))
+        + " cm; a hand holds it at the "
+        f"attachment point and lets go at t = {sc['release_time_s']:g} s; it falls, the rope goes taut and jerks the "
+        f"arm. Metrics over the {sc['window_s']:g} s after the release. Deviation = distance of the TCP from its "
+        "target. Peak deflection: its maximum; stabilization time: the last exit from a "
+        f"{1e3 * sc['stable_band_m']:g} mm band (0 if it never leaves it); residual error: its mean over the last "
+        f"{sc['residual_window_s']:g} s. Position: joint PID, triple pole at {sc['pid_pole_rad_s']:g} rad/s, no "
+        f"external-torque estimate. Torque modes: TCP pose task (K_p = {pose.get('stiffness', float('nan')):g}, "
+        f"K_d = {pose.get('damping', float('nan')):g}, Γ = {pose.get('compliance')}), posture task Γ₀ = {gamma0}, "
+        f"momentum observer alone or fused with the F/T sensor ({gains}); F/T {noise}; control period "
+        f"{torque['timestep_s'] * 1e3:g} ms.</p>"
+        f"<p>What varies, per repetition (seeded, the same draw for the three modes): drop height "
+        f"{spread['drop_height_m'][0] * 100:.2f}–{spread['drop_height_m'][1] * 100:.2f} cm, rope stiffness "
+        f"{spread['rope_stiffness_n_per_m'][0]:.0f}–{spread['rope_stiffness_n_per_m'][1]:.0f} N/m, true mass "
+        f"{spread['mass_kg'][0]:.3f}–{spread['mass_kg'][1]:.3f} kg (nominal {sc['nominal_mass_kg']:g} kg, which no "
+        f"controller is told), plus the sensor noise and a {sc['actuator_ripple_std_n_m']:g} N m actuator torque "
+        f"ripple. {doc['repetitions']} repetitions per mode; {doc['halted']} runs ended early (divergence or error); "
+        f"wall time {doc['wall_s']:.1f} s.</p>"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the repetitions of both cases, write mass_drop.json, fig5.png and report.html."""
     if args.repetitions < 2:
@@ -316,21 +397,40 @@ def run(args: argparse.Namespace) -> int:
         return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    jobs_args: list[tuple] = [(mode, seed) for mode in MODES for seed in range(args.repetitions)]
-    jobs_args += [(mode, seed, "held-release") for mode in MODES for seed in range(args.held_repetitions)]
+    settings = tuple(parse_settings(getattr(args, "set", [])))
+    rope = [
+        (mode, seed, "rope-drop", None, WINDOW_S, None, settings) for mode in MODES for seed in range(args.repetitions)
+    ]
+    held = [
+        (mode, seed, "held-release", None, WINDOW_S, None, settings)
+        for mode in MODES
+        for seed in range(args.held_repetitions)
+    ]
     t0 = time.perf_counter()
-    runs = run_parallel(run_mass_drop, jobs_args, args.jobs, "mass-drop")
+    runs = run_parallel(run_mass_drop, rope + held, args.jobs, "mass-drop")
     elapsed = time.perf_counter() - t0
     by_case = {case: [r for r in runs if r["case"] == case] for case in CASES}
     stats = {case: summarize(rs) for case, rs in by_case.items() if len(rs) >= 2 * len(MODES)}
     halted = [r for r in runs if r["stop"] != "done"]
     main = stats["rope-drop"]
     items = findings(main)
-    per_run = [{k: v for k, v in r.items() if not k.startswith("trace")} for r in runs]
-    write_json(
-        out / "mass_drop.json",
-        {"cases": stats, "findings": items, "runs": per_run, "repetitions": args.repetitions},
-    )
+    configs = {m: next(r["config"] for r in runs if r["mode"] == m) for m in MODES}
+    per_run = [{k: v for k, v in r.items() if not k.startswith("trace") and k != "config"} for r in runs]
+    doc = {
+        "cases": stats,
+        "findings": items,
+        "runs": per_run,
+        "repetitions": args.repetitions,
+        "held_repetitions": args.held_repetitions,
+        "configs": configs,  # each mode's first run's configuration (the modes differ in their executor)
+        "scenario": scenario_record(),
+        "statistics": {"confidence": 0.95, "resamples": BOOTSTRAP_RESAMPLES, "similar_band": list(SIMILAR)},
+        "halted": len(halted),
+        "wall_s": elapsed,
+        "command": command_line(args),
+        "code": code_record(),
+    }
+    write_json(out / "mass_drop.json", doc)
     _figure(main, by_case["rope-drop"], out)
     header = ["mode", "n", "peak deflection (mm)", "stabilization time (s)", "residual error (mm)"]
     print(f"{'rope drop':20s} {'peak (mm)':>18s} {'settle (s)':>18s} {'residual (mm)':>18s}")
@@ -340,37 +440,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"  ratio {pair}: " + ", ".join(f"{k.split('_')[0]} {_fmt_ratio(row[k])}" for k in METRICS))
     for f in items:
         print(("  reproduces: " if f["ok"] else "  does not reproduce: ") + f["paper"])
-    rigs = [r for r in by_case["rope-drop"] if r["mode"] == MODES[0]]
-    spread = {
-        k: (min(r[k] for r in rigs), max(r[k] for r in rigs))
-        for k in ("drop_height_m", "rope_stiffness_n_per_m", "mass_kg")
-    }
-    nominal = MassDropParams()
-    setup = (
-        f"<p>{rigs[0]['robot']} at <code>mass_drop_nominal</code> ({rigs[0]['posture']}). A mass hangs from the TCP "
-        f"(distal to the F/T sensor) on a rope of {100 * nominal.rope_length_m:g} cm; a hand holds it at the "
-        f"attachment point and lets go at t = {RELEASE_TIME_S} s; it falls, the rope goes taut and jerks the arm. "
-        f"Metrics over the {WINDOW_S:g} s after the release. Deviation = distance of the TCP from its target. "
-        "Peak deflection: its maximum; stabilization time: the last exit from a "
-        f"{1e3 * STABLE_BAND_M:g} mm band (0 if it never leaves it); residual error: its mean over the last "
-        f"{RESIDUAL_WINDOW_S} s. Position: joint PID, triple pole at 20 rad/s, no external-torque estimate. "
-        "Torque modes: TCP pose task (ω = 20 rad/s, Γ = 0), posture task Γ₀ = I, momentum observer "
-        "K_I = 50 s⁻¹ alone or fused with the F/T sensor (σ = 0.1 N).</p>"
-        f"<p>What varies, per repetition (seeded, the same draw for the three modes): drop height "
-        f"{spread['drop_height_m'][0] * 100:.2f}–{spread['drop_height_m'][1] * 100:.2f} cm, rope stiffness "
-        f"{spread['rope_stiffness_n_per_m'][0]:.0f}–{spread['rope_stiffness_n_per_m'][1]:.0f} N/m, true mass "
-        f"{spread['mass_kg'][0]:.3f}–{spread['mass_kg'][1]:.3f} kg (nominal {PAYLOAD_KG} kg, which no controller is "
-        "told), plus the sensor noise and a 0.05 N m actuator torque ripple. "
-        f"{args.repetitions} repetitions per mode; {len(halted)} runs ended early (divergence or error); "
-        f"wall time {elapsed:.1f} s.</p>"
-    )
+    setup = setup_html(doc, [r for r in by_case["rope-drop"] if r["mode"] == MODES[0]])
     notes = (
         "<p>Effect sizes are ratios of means (row mode / column mode as named) with paired percentile-bootstrap "
-        f"95 % intervals ({BOOTSTRAP_RESAMPLES} resamples). 'Similar' means the interval lies within "
-        f"{SIMILAR[0]}–{SIMILAR[1]}; 'smaller' means it lies below 1. No p-values: the spread here comes from "
+        f"{doc['statistics']['confidence']:.0%} intervals ({doc['statistics']['resamples']} resamples). 'Similar' "
+        f"means the interval lies within {SIMILAR[0]}–{SIMILAR[1]}; 'smaller' means it lies below 1. "
+        "No p-values: the spread here comes from "
         "a modelled rig, not from a robot, so a test of significance would only measure how many repetitions "
         "were run. [C] gives Fig. 5 as bars only, with no numbers in its text: its side of each statement is "
-        "the direction it reports. In this simulation torque tracking is exact and the links are rigid (the cord "
+        f"the direction it reports. In this simulation {_torque_tracking(doc)} and the links are rigid (the cord "
         "stands in for the flexibility), so compare the ordering and the ratios, not the magnitudes.</p>"
     )
     sections = [
@@ -382,7 +460,7 @@ def run(args: argparse.Namespace) -> int:
             html_table(["mode", "n", *CONTEXT], _mean_sd_rows(main, CONTEXT)),
         ),
         (
-            "Rope drop: ratio of means, paired bootstrap 95 % interval",
+            f"Rope drop: ratio of means, paired bootstrap {doc['statistics']['confidence']:.0%} interval",
             html_table(["ratio", *METRICS], _ratio_rows(main)),
         ),
         ("Figure (Fig. 5 style)", "<img src='fig5.png'>"),
