@@ -10,6 +10,7 @@ velocity limit. Writes limit_drop.json, phase diagrams and report.html.
 from __future__ import annotations
 
 import argparse
+import html
 import itertools
 import time
 from collections.abc import Iterable
@@ -17,18 +18,24 @@ from pathlib import Path
 
 import numpy as np
 
-from app.headless.experiments.c_common import html_table, qp_session, run_parallel, verdict, write_json, write_report
+from app.core.provenance import code_record
+from app.headless.experiments.c_common import (
+    command_line,
+    html_table,
+    qp_session,
+    run_parallel,
+    verdict,
+    write_json,
+    write_report,
+)
+from app.headless.experiments.run_config import parse_settings, run_configuration
 from app.scenarios.limit_drop import (
     DURATION_S,
     FALLING_JOINT,
     PAYLOAD_KG,
-    POSTURE_DAMPING,
-    POSTURE_STIFFNESS,
     LimitDropScenario,
 )
-from app.sim.world import TIMESTEP_S
 from control.compliance_qp import ComplianceQPExecutor
-from control.gains import DamperGains
 
 LAMBDAS_AT_M3 = (70.0, 100.0, 300.0, 500.0)
 DELAY_STEPS = 5  # sensitivity check only: torque applied 5 ms late (a few ms of torque-loop/link latency)
@@ -118,7 +125,7 @@ def run_drop(
     counts = {"relaxed": 0, "slow": 0}  # QP relaxations; consecutive steps slower than STOP_SPEED
     q_start = session.world.q
     others = np.arange(robot.nq) != j
-    drift = [0.0]
+    drift = np.zeros(robot.nq)  # per joint: the largest |q − q_start| (joint 4's own entry stays 0)
 
     def record(rec) -> None:
         qs.append(float(rec.q[j]))
@@ -126,7 +133,7 @@ def run_drop(
         taus.append(float(rec.tau[j]))
         counts["relaxed"] += int(rec.signals.get("qp_relaxed", 0.0) > 0)
         counts["slow"] = counts["slow"] + 1 if abs(rec.dq[j]) < STOP_SPEED else 0
-        drift[0] = max(drift[0], float(np.max(np.abs(rec.q[others] - q_start[others]))))
+        np.maximum(drift, np.where(others, np.abs(rec.q - q_start), 0.0), out=drift)
 
     hold = round(STOP_HOLD_S / dt)
 
@@ -138,7 +145,7 @@ def run_drop(
     q, dq, tau = np.array(qs), np.array(dqs), np.array(taus)
     steps = q.size
     relaxed = counts["relaxed"]
-    drift_max = drift[0]
+    drift_max = float(np.max(drift))
     fall = scenario.fall(robot)
     s = fall.direction  # +1: joint 4 falls toward its upper limit, −1: toward its lower one
     q_lim = fall.limit
@@ -177,6 +184,9 @@ def run_drop(
         "final_margin": float(-toward[-1]),
         "relaxed_steps": relaxed,
         "other_joints_drift": drift_max,
+        "other_joints_drift_per_joint": [float(x) for x in drift],  # joint k + 1 at index k
+        "falling_joint": j + 1,  # numbered from 1, as the report names joints
+        "config": run_configuration(session),
         "direction": s,
         "q_limit": q_lim,
         "d_s": d_s,
@@ -241,35 +251,46 @@ def _label(r: dict) -> str:
     return f"{r['limit']} {r['form']} λ={r['lambda']:g} M={r['M']:g} feedback {fb}{delay}"
 
 
-def velocity_overshoot_item(study: list[dict]) -> str:
-    """The lowered velocity limit's excess with feedback per K_I and τ̂_e source, as an HTML item."""
-    lim = study[0]["dq_limit"]
+def velocity_overshoot_item(study: list[dict], table_gain: float) -> str:
+    """The lowered velocity limit's excess with feedback per K_I and τ̂_e source (each run's
+    `excess_share_of_limit`), as an HTML item; `table_gain` is the K_I of the table's runs."""
 
     def pct(r: dict) -> str:
-        return f"{100 * r['max_violation'] / lim:+.2f} %"
+        return f"{100 * r['excess_share_of_limit']:+.2f} %"
 
     by = {(r["source"], r["observer_gain"]): r for r in study}
+    gains = sorted({r["observer_gain"] for r in study})
     rows = []
     for src in ("fusion", "residual"):
-        cells = [f"K_I = {k:g} s⁻¹: {pct(by[(src, k)])}" for k in OBSERVER_GAINS if (src, k) in by]
+        cells = [f"K_I = {k:g} s⁻¹: {pct(by[(src, k)])}" for k in gains if (src, k) in by]
         rows.append(f"{src}: " + ", ".join(cells))
-    res = [by[("residual", k)] for k in OBSERVER_GAINS if ("residual", k) in by]
+    res = [by[("residual", k)] for k in gains if ("residual", k) in by]
     shrinks = all(a["max_violation"] >= b["max_violation"] - 1e-6 for a, b in itertools.pairwise(res))
     lag = (
-        "the excess shrinks as K_I grows, so it is the observer's lag (time constant 1/K_I)"
+        "the excess shrinks as K_I grows (the observer's time constant 1/K_I: "
+        + ", ".join(f"{1e3 * r['observer_time_constant_s']:g} ms" for r in res)
+        + ")"
         if shrinks
-        else "the excess does not shrink monotonically with K_I, so lag is not the whole story"
+        else "the excess does not shrink monotonically with K_I"
     )
-    default = by.get(("fusion", OBSERVER_GAINS[0]))
+    both = [k for k in gains if ("fusion", k) in by and ("residual", k) in by]
+    fusion_less = [k for k in both if by[("fusion", k)]["max_violation"] < by[("residual", k)]["max_violation"]]
+    fusion = (
+        f"With fusion the excess is smaller than with the observer alone at {len(fusion_less)} of {len(both)} K_I."
+        if both
+        else ""
+    )
+    default = by.get(("fusion", table_gain))
     return (
-        "<li>Velocity-limit overshoot with feedback (λ = 100, M = 2), peak q̇₄ above the lowered limit as a "
-        f"share of it — {'; '.join(rows)}. With the observer alone {lag}. Fusion adds the F/T sensor's "
-        "high-pass part, and the sensor now reads the payload's inertial force m(g − a) as well as its weight, "
-        "so the observer's lag matters less"
-        + (f": {pct(default)} at the default K_I" if default else "")
-        + f". The defaults use K_I = {OBSERVER_GAINS[0]:g} s⁻¹ (the paper gives none). It is the slowest gain "
-        "studied: the observer low-passes model error and encoder noise over 1/K_I = 20 ms, and with fusion the "
-        "sensor covers the fast part.</li>"
+        "<li>Velocity-limit overshoot with feedback (λ = "
+        + ", ".join(f"{x:g}" for x in sorted({r["lambda"] for r in study}))
+        + ", M = "
+        + ", ".join(f"{x:g}" for x in sorted({r["M"] for r in study}))
+        + f"), peak q̇ above the lowered limit as a share of it — {'; '.join(rows)}. With the observer alone {lag}. "
+        + fusion
+        + f" The table's runs use K_I = {table_gain:g} s⁻¹ (the paper gives none)"
+        + (f": {pct(default)} with fusion." if default else ".")
+        + "</li>"
     )
 
 
@@ -281,8 +302,11 @@ def _high_lambda_rings_more(delayed: list[dict]) -> bool:
     return by_lambda[-1]["oscillations"] > by_lambda[0]["oscillations"]
 
 
-def findings(runs: list[dict]) -> list[str]:
-    """The paper's claims checked against our runs, as HTML list items with numbers."""
+def findings(runs: list[dict], derived: dict | None = None) -> list[str]:
+    """The paper's claims checked against our runs, as HTML list items with numbers; the numbers they
+    print that no run holds (shares, counts) go into `derived` (limit_drop.json keeps them)."""
+    derived = {} if derived is None else derived
+    joint = runs[0].get("falling_joint", 4) if runs else 4  # runs recorded before the joint was: joint 4
     items = []
     fb = [r for r in runs if r["feedback"] and r["form"] == "proposed"]
     nofb = [r for r in runs if not r["feedback"]]
@@ -294,13 +318,15 @@ def findings(runs: list[dict]) -> list[str]:
         items.append(
             verdict(
                 worst <= 0.0,
-                f"with feedback the proposed damper keeps joint 4 inside its position limit: largest "
+                f"with feedback the proposed damper keeps joint {joint} inside its position limit: largest "
                 f"excursion {worst * 1e3:+.2f} mrad relative to the limit, {worst_ds * 1e3:+.2f} mrad relative "
                 f"to q⁺ − d_s (paper Figs. 2–3: inside).",
             )
         )
     if vel_fb:
         worst_v = max(r["max_violation"] for r in vel_fb)
+        derived["velocity_excess_pct_of_limit"] = 100 * worst_v / vel_fb[0]["dq_limit"]
+        derived["velocity_excess_accepted_pct"] = 2.0
         items.append(
             verdict(
                 worst_v <= 0.02 * vel_fb[0]["dq_limit"],
@@ -313,13 +339,6 @@ def findings(runs: list[dict]) -> list[str]:
         hi = max(lam_runs[300.0]["oscillations"], lam_runs[500.0]["oscillations"])
         lo = max(lam_runs[70.0]["oscillations"], lam_runs[100.0]["oscillations"])
         no_delay = all(lam_runs[lam].get("torque_delay_ms", 0.0) == 0.0 for lam in LAMBDAS_AT_M3)
-        why = (  # the explanation of a missing oscillation: only when it is missing and the torque was not delayed
-            " With exact, delay-free torque tracking, rigid links and noise-free encoders the damped "
-            "joint is the linear second-order system of [C21–22] whatever λ; oscillations at high λ need what "
-            "this simulation leaves out (torque-loop delay and bandwidth, joint elasticity)."
-            if hi <= lo and no_delay
-            else ""
-        )
         items.append(
             verdict(
                 hi > lo,
@@ -327,7 +346,12 @@ def findings(runs: list[dict]) -> list[str]:
                 f"λ = {LAMBDAS_AT_M3[0]:g}–{LAMBDAS_AT_M3[1]:g} (velocity reversals at M = 3: "
                 + ", ".join(f"λ={lam:g}: {lam_runs[lam]['oscillations']}" for lam in LAMBDAS_AT_M3)
                 + ")."
-                + why,
+                + (
+                    " Every one of these runs had its torque applied in the step it was computed (the latency check "
+                    "below delays it)."
+                    if no_delay
+                    else ""
+                ),
             )
         )
     m_runs = {r["M"]: r for r in pos_fb if r["lambda"] == 100.0}
@@ -342,7 +366,7 @@ def findings(runs: list[dict]) -> list[str]:
                 + ", ".join(f"M={M:g}: {m_runs[M]['brake_onset_margin']:.3f} rad" for M in MS_AT_L100)
                 + " from the limit; peak deceleration "
                 + ", ".join(f"M={M:g}: {m_runs[M]['peak_deceleration']:.1f} rad/s²" for M in MS_AT_L100)
-                + "; peak joint-4 torque "
+                + f"; peak joint-{joint} torque "
                 + ", ".join(f"M={M:g}: {m_runs[M]['peak_torque']:.1f} N m" for M in MS_AT_L100)
                 + ".",
             )
@@ -372,6 +396,13 @@ def findings(runs: list[dict]) -> list[str]:
         beyond = [r for r, _ in pairs if r["limit"] == "position" and r["max_violation"] > 0]
         n_pos = sum(r["limit"] == "position" for r, _ in pairs)
         more = [r for r, f in pairs if r["overshoot_beyond_ds"] > f["overshoot_beyond_ds"]]
+        derived["without_feedback"] = {
+            "pairs": len(pairs),
+            "crossed": len(over),
+            "further_than_with_feedback": len(more),
+            "position_runs": n_pos,
+            "beyond_hard_limit": len(beyond),
+        }
         items.append(
             verdict(
                 len(over) == len(pairs),
@@ -384,6 +415,73 @@ def findings(runs: list[dict]) -> list[str]:
     return items
 
 
+def other_joints_item(runs: list[dict], derived: dict) -> str:
+    """How far the other joints moved with and without feedback, naming the joint that moved most
+    without it (from each run's per-joint record), and whether the runs without feedback had stopped."""
+    on = [r for r in runs if r["feedback"]]
+    off = [r for r in runs if not r["feedback"]]
+    if not on or not off:
+        return ""
+    j = runs[0]["falling_joint"]
+    per_joint = np.max([r["other_joints_drift_per_joint"] for r in off], axis=0)
+    k = int(np.argmax(per_joint))
+    derived["most_moved_joint_without_feedback"] = k + 1
+    moving = sum(r["stop"] == "done" for r in off)
+    return (
+        f"<li>Posture of the other joints: with feedback they move at most "
+        f"{max(r['other_joints_drift'] for r in on) * 1e3:.1f} mrad; without feedback up to "
+        f"{max(r['other_joints_drift'] for r in off):.2f} rad, most at joint {k + 1} ({per_joint[k]:.2f} rad). "
+        f"Velocity reversals of joint {j} without feedback: "
+        + ", ".join(f"{_label(r)}: {r['oscillations']}" for r in off)
+        + (
+            f"; {moving} of these runs are still moving at the cap, so their reversals count a motion that had "
+            "not ended."
+            if moving
+            else "; every one of these runs had stopped before the cap."
+        )
+        + "</li>"
+    )
+
+
+def setup_html(doc: dict, runs: list[dict]) -> str:
+    """The setup paragraph from limit_drop.json: robot, posture, payload, the posture task, the
+    estimate and the limits as the runs had them (their recorded configuration)."""
+    cfg = doc["config"]
+    p = cfg["params"]
+    posture, est = p["posture_task"], p["estimator"]
+    payload = p.get("payload", {}).get("mass_kg", doc["payload_kg"])
+    j = doc["falling_joint"]
+    pos = next((r for r in runs if r["limit"] == "position"), None)
+    vel = next((r for r in runs if r["limit"] == "velocity"), None)
+    classic = next((r for r in runs if r["form"] == "classic"), None)
+    crit = doc["criteria"]
+    return (
+        f"<p>{html.escape(doc['robot'])} at <code>{doc['posture']}</code>, {payload:g} kg at the TCP in the "
+        f"simulation only, posture task only (K_p = {posture['stiffness']:g}, K_d = {posture['damping']:g}), "
+        f"Γ₀ = {posture['compliance']}, external torque from the momentum observer"
+        + (" fused with the F/T sensor" if est["source"] == "fusion" else f" ({html.escape(est['source'])})")
+        + f" (K_I = {est['observer_gain']:g} s⁻¹), each drop until joint {j} has stopped (at most "
+        f"{crit['duration_cap_s']:g} s), control period {cfg['timestep_s'] * 1e3:g} ms. The F/T model reads the "
+        "payload's weight and its inertial force m(g − a)."
+        + (
+            f" Case (a): joint {j} falls toward its {'upper' if pos['direction'] > 0 else 'lower'} position limit"
+            f" q⁺ = {pos['q_limit']:.2f} rad (q⁺ names that limit below; d_s = {pos['d_s'] * 1e3:.1f} mrad)."
+            if pos
+            else ""
+        )
+        + (f" Case (b): joint-{j} velocity limit lowered to {vel['dq_limit']:g} rad/s." if vel else "")
+        + (
+            f" The classic δt form uses d_i = {p['damper']['influence_fraction']:.0%} of the range and ξ from [C23] "
+            f"with λ = {classic['lambda']:g}, M = {classic['M']:g}."
+            if classic
+            else ""
+        )
+        + " Violation: positive = beyond the limit. "
+        f"Oscillations: velocity reversals larger than {crit['velocity_hysteresis_rad_s']} rad/s. "
+        f"Sweep wall time {doc['elapsed_s']:.1f} s.</p>"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the sweep, write limit_drop.json, figures and report.html."""
     if not args.duration > 0:
@@ -391,8 +489,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    settings = tuple(parse_settings(getattr(args, "set", [])))
+    # (form, λ, M, feedback, limit, duration, K_I, delay steps, source, until stopped, --set parameters)
     jobs_args = [
-        (form, lam, M, fb, limit, args.duration)
+        (form, lam, M, fb, limit, args.duration, None, 0, None, True, settings)
         for limit in ("position", "velocity")
         for fb in (True, False)
         for form, lam, M in variants(args.quick)
@@ -404,7 +504,7 @@ def run(args: argparse.Namespace) -> int:
         []
         if args.quick
         else [
-            ("proposed", 100.0, 2.0, True, "velocity", args.duration, k, 0, src)
+            ("proposed", 100.0, 2.0, True, "velocity", args.duration, k, 0, src, True, settings)
             for src in ("fusion", "residual")
             for k in OBSERVER_GAINS
         ]
@@ -413,11 +513,17 @@ def run(args: argparse.Namespace) -> int:
     delay_args = (
         []
         if args.quick
-        else [("proposed", lam, 3.0, True, "position", args.duration, None, DELAY_STEPS) for lam in LAMBDAS_AT_M3]
+        else [
+            ("proposed", lam, 3.0, True, "position", args.duration, None, DELAY_STEPS, None, True, settings)
+            for lam in LAMBDAS_AT_M3
+        ]
     )
     all_runs = run_parallel(run_drop, jobs_args + extra_args + delay_args, args.jobs, "limit-drop")
     n0, n1 = len(jobs_args), len(jobs_args) + len(extra_args)
     runs, extra, delayed = all_runs[:n0], all_runs[n0:n1], all_runs[n1:]
+    for r in extra:
+        r["excess_share_of_limit"] = r["max_violation"] / r["dq_limit"]
+        r["observer_time_constant_s"] = 1.0 / r["observer_gain"]
     elapsed = time.perf_counter() - t0
     keys = (
         "form",
@@ -431,20 +537,58 @@ def run(args: argparse.Namespace) -> int:
         "stop",
         "duration_s",
     )
-    extra_keys = ("peak_torque", "peak_velocity", "brake_onset_margin", "peak_deceleration", "other_joints_drift")
+    extra_keys = (
+        "peak_torque",
+        "peak_velocity",
+        "brake_onset_margin",
+        "peak_deceleration",
+        "other_joints_drift",
+        "other_joints_drift_per_joint",
+        "q_limit",
+        "d_s",
+        "dq_limit",
+        "direction",
+    )
     summary = [{k: r[k] for k in (*keys, *extra_keys)} for r in runs]
     delay_summary = [{k: r[k] for k in (*keys, *extra_keys, "torque_delay_ms")} for r in delayed]
-    study_keys = ("source", "observer_gain", "max_violation", "peak_velocity", "dq_limit", "stop", "duration_s")
-    write_json(
-        out / "limit_drop.json",
-        {
-            "runs": summary,
-            "latency_check": delay_summary,
-            "velocity_overshoot_per_K_I": [{k: r[k] for k in study_keys} for r in extra],
-            "elapsed_s": elapsed,
-            "estimate_source": "fusion",
-        },
+    study_keys = (
+        "source",
+        "observer_gain",
+        "observer_time_constant_s",
+        "lambda",
+        "M",
+        "max_violation",
+        "excess_share_of_limit",
+        "peak_velocity",
+        "dq_limit",
+        "stop",
+        "duration_s",
     )
+    derived: dict = {}
+    items = findings(runs, derived)
+    doc = {
+        "runs": summary,
+        "latency_check": delay_summary,
+        "velocity_overshoot_per_K_I": [{k: r[k] for k in study_keys} for r in extra],
+        "elapsed_s": elapsed,
+        "robot": runs[0]["robot"],
+        "falling_joint": runs[0]["falling_joint"],
+        "posture": "l_shape",  # the scenario's initial posture (`LimitDropScenario.initial_q`)
+        "payload_kg": PAYLOAD_KG,
+        "config": runs[0]["config"],  # the first drop's; the runs differ only in the damper, feedback, K_I, delay
+        "criteria": {
+            "duration_cap_s": args.duration,
+            "velocity_hysteresis_rad_s": VELOCITY_HYSTERESIS,
+            "stop_speed_rad_s": STOP_SPEED,
+            "stop_hold_s": STOP_HOLD_S,
+            "fallen_rad": FALLEN_RAD,
+            "delay_steps": DELAY_STEPS,
+        },
+        "derived": derived,
+        "command": command_line(args),
+        "code": code_record(),
+    }
+    write_json(out / "limit_drop.json", doc)
     write_json(out / "limit_drop_traces.json", runs)
     figures = []
     for limit in ("position", "velocity"):
@@ -473,6 +617,7 @@ def run(args: argparse.Namespace) -> int:
         ]
         for r in runs
     ]
+    j = runs[0]["falling_joint"]
     header = [
         "limit",
         "form",
@@ -482,7 +627,7 @@ def run(args: argparse.Namespace) -> int:
         "max violation (rad | rad/s)",
         "beyond q⁺−d_s (rad)",
         "oscillations",
-        "peak τ₄ (N m)",
+        f"peak τ{j} (N m)",
         "braking starts (rad from q⁺)",
         "end",
     ]
@@ -493,83 +638,40 @@ def run(args: argparse.Namespace) -> int:
             f"{r['max_violation']:+10.4f} {r['overshoot_beyond_ds']:+10.4f} {r['oscillations']:3d} "
             f"{r['peak_torque']:5.1f}"
         )
-    items = findings(runs)
-    drifts_on = [r["other_joints_drift"] for r in runs if r["feedback"]]
-    drifts_off = [r["other_joints_drift"] for r in runs if not r["feedback"]]
-    moving_nofb = sum(r["stop"] == "done" for r in runs if not r["feedback"])
-    if drifts_on and drifts_off:
-        items.append(
-            f"<li>Posture of the other joints: with feedback they move at most {max(drifts_on) * 1e3:.1f} mrad; "
-            f"without feedback up to {max(drifts_off):.2f} rad."
-            + (
-                " As joint 4 turns, the mass loads joint 2 as well, which only the soft posture task holds; "
-                "it sags and pulls joint 4 back from its limit."
-                if max(drifts_off) > max(drifts_on)
-                else ""
-            )
-            + " Velocity reversals of joint 4 without feedback: "
-            + ", ".join(f"{_label(r)}: {r['oscillations']}" for r in runs if not r["feedback"])
-            + (
-                f"; {moving_nofb} of these runs are still moving at the cap (the sagging arm swings), so their "
-                "reversals are the sag's swing, not a rebound from the damper."
-                if moving_nofb
-                else "; every one of these runs had stopped before the cap."
-            )
-            + "</li>"
-        )
+    drift_item = other_joints_item(runs, derived)
+    if drift_item:
+        items.append(drift_item)
     if delayed:
         items.append(
-            f"<li>Latency check (not in the paper's setup): with the torque applied {DELAY_STEPS} ms late, the same "
-            "λ sweep (M = 3, feedback on) gives velocity reversals "
+            "<li>Latency check (not in the paper's setup): with the torque applied "
+            + ", ".join(f"{x:g}" for x in sorted({r["torque_delay_ms"] for r in delayed}))
+            + " ms late, the same λ sweep (M = 3, feedback on) gives velocity reversals "
             + ", ".join(f"λ={r['lambda']:g}: {r['oscillations']}" for r in delayed)
             + "; largest position excursion "
             + ", ".join(f"λ={r['lambda']:g}: {r['max_violation'] * 1e3:+.1f} mrad" for r in delayed)
             + "."
             + (
-                " High λ loses its margin to delay first, which is one way to read the paper's oscillations."
+                " With the delay the highest λ reverses more often than the lowest."
                 if _high_lambda_rings_more(delayed)
                 else ""
             )
             + "</li>"
         )
     if extra:
-        items.append(velocity_overshoot_item(extra))
+        items.append(velocity_overshoot_item(extra, runs[0]["observer_gain"]))
     moving = [r for r in runs + extra + delayed if r["stop"] != "until"]
+    derived["still_moving_at_cap"] = len(moving)
+    derived["runs_in_all"] = len(runs) + len(extra) + len(delayed)
     items.append(
-        f"<li>Run length: each drop runs until joint 4 has stopped (|q̇₄| &lt; {STOP_SPEED} rad/s for "
+        f"<li>Run length: each drop runs until joint {j} has stopped (|q̇{j}| &lt; {STOP_SPEED} rad/s for "
         f"{STOP_HOLD_S} s after falling ≥ {FALLEN_RAD} rad), at most {args.duration:g} s; the runs took "
         f"{min(r['duration_s'] for r in runs):.2f}–{max(r['duration_s'] for r in runs):.2f} s; "
         f"{len(moving)} of {len(runs) + len(extra) + len(delayed)} were still moving at the cap"
         + (": " + ", ".join(_label(r) for r in moving) if moving else "")
         + ".</li>"
     )
-    pos = next((r for r in runs if r["limit"] == "position"), None)
-    vel = next((r for r in runs if r["limit"] == "velocity"), None)
-    classic = next((r for r in runs if r["form"] == "classic"), None)
-    gains = DamperGains()
-    setup = (
-        f"<p>{runs[0]['robot']} at <code>l_shape</code>, {PAYLOAD_KG:g} kg at the TCP in the simulation only, "
-        f"posture task only (K_p = {POSTURE_STIFFNESS:g}, K_d = {POSTURE_DAMPING:g}), Γ₀ = e₄, external torque "
-        f"from the momentum observer fused with the F/T sensor (K_I = {runs[0]['observer_gain']:g} s⁻¹), each drop "
-        f"until joint 4 has stopped (at most {args.duration:g} s), {1.0 / TIMESTEP_S:g} Hz. The F/T model reads the "
-        "payload's weight and its inertial force m(g − a)."
-        + (
-            f" Case (a): joint 4 falls toward its {'upper' if pos['direction'] > 0 else 'lower'} position limit"
-            f" q⁺ = {pos['q_limit']:.2f} rad (q⁺ names that limit below; d_s = {pos['d_s'] * 1e3:.1f} mrad)."
-            if pos
-            else ""
-        )
-        + (f" Case (b): joint-4 velocity limit lowered to {vel['dq_limit']:g} rad/s." if vel else "")
-        + (
-            f" The classic δt form uses d_i = {gains.influence_fraction:.0%} of the range and ξ from [C23] with "
-            f"λ = {classic['lambda']:g}, M = {classic['M']:g}."
-            if classic
-            else ""
-        )
-        + " Violation: positive = beyond the limit. "
-        f"Oscillations: velocity reversals larger than {VELOCITY_HYSTERESIS} rad/s. "
-        f"Sweep wall time {elapsed:.1f} s.</p>"
-    )
+    write_json(out / "limit_drop.json", doc)  # with the counts the items above added to `derived`
+    setup = setup_html(doc, runs)
     figs_html = "".join(f"<figure><img src='{n}'><figcaption>{t}</figcaption></figure>" for n, t in figures)
     write_report(
         out,
