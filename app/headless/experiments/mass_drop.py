@@ -398,16 +398,16 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     settings = tuple(parse_settings(getattr(args, "set", [])))
-    rope = [
+    rope_args = [
         (mode, seed, "rope-drop", None, WINDOW_S, None, settings) for mode in MODES for seed in range(args.repetitions)
     ]
-    held = [
+    held_args = [
         (mode, seed, "held-release", None, WINDOW_S, None, settings)
         for mode in MODES
         for seed in range(args.held_repetitions)
     ]
     t0 = time.perf_counter()
-    runs = run_parallel(run_mass_drop, rope + held, args.jobs, "mass-drop")
+    runs = run_parallel(run_mass_drop, rope_args + held_args, args.jobs, "mass-drop")
     elapsed = time.perf_counter() - t0
     by_case = {case: [r for r in runs if r["case"] == case] for case in CASES}
     stats = {case: summarize(rs) for case, rs in by_case.items() if len(rs) >= 2 * len(MODES)}
