@@ -59,6 +59,19 @@ def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.Argument
     return {}
 
 
+def _summaries(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """Each subcommand's one-line help, as its parent lists it."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return {a.dest: a.help or "" for a in action._choices_actions}
+    return {}
+
+
+def _section(level: str, name: str, summary: str, parser: argparse.ArgumentParser) -> list[str]:
+    lead = [summary[:1].upper() + summary[1:].rstrip(".") + ".", ""] if summary else []
+    return [f"{level} {name}", "", *lead, "```text", parser.format_help().rstrip(), "```", ""]
+
+
 def cli_reference() -> str:
     """Every subcommand's help, one section each, nested subcommands as subsections."""
     from app.cli import build_parser
@@ -67,11 +80,12 @@ def cli_reference() -> str:
     os.environ["COLUMNS"] = HELP_WIDTH
     try:
         root = build_parser()
-        out = ["## torquelab", "", "```text", root.format_help().rstrip(), "```", ""]
+        out = _section("##", "torquelab", "", root)
+        summaries = _summaries(root)
         for name, sub in _subcommands(root).items():
-            out += [f"## torquelab {name}", "", "```text", sub.format_help().rstrip(), "```", ""]
-            for inner, parser in _subcommands(sub).items():
-                out += [f"### torquelab {name} {inner}", "", "```text", parser.format_help().rstrip(), "```", ""]
+            out += _section("##", f"torquelab {name}", summaries.get(name, ""), sub)
+            for inner, parser in _subcommands(sub).items():  # (their one-line help is their parent's list)
+                out += _section("###", f"torquelab {name} {inner}", "", parser)
     finally:
         if old is None:
             del os.environ["COLUMNS"]
