@@ -72,7 +72,8 @@ def test_the_polish_target_checks_its_inputs_once_and_builds_every_steps_target_
     """`PolishTarget` refuses a bad start or rotation at its construction (one line); the targets it
     builds each step without a check (`TaskTarget.trusted`) hold float64 C-contiguous arrays of the
     right shapes with finite entries, the same values a checked `TaskTarget` gets, along the zig-zag."""
-    from app.scenarios.polish import CONTACT_TIME_S, PhaseClock, PolishTarget, trajectory_duration
+    from app.scenarios.polish_plan import PolishTarget
+    from app.scenarios.polish_stroke import CONTACT_TIME_S, PhaseClock, trajectory_duration
 
     clock = PhaseClock()
     q = np.linspace(-0.5, 0.5, 7)

@@ -626,9 +626,9 @@ def test_a_switch_to_a_planned_case_plans_in_another_process_while_the_loop_runs
     the loop keeps stepping the running preset and publishing frames, a Pause (urgent) still applies,
     and a call queued after the switch waits behind it; then the switch applies with the plan the
     worker computed, equal to the one computed in this process."""
-    from app.scenarios import polish
+    from app.scenarios import polish_plan
 
-    monkeypatch.setattr(polish, "_PLAN_CACHE", {})  # not planned yet, whatever ran before
+    monkeypatch.setattr(polish_plan, "_PLAN_CACHE", {})  # not planned yet, whatever ran before
     lp = SimLoop("polish", capture=lambda s: None)
     lp.start(running=True)
     try:
@@ -660,9 +660,9 @@ def test_a_switch_to_a_planned_case_plans_in_another_process_while_the_loop_runs
         status = lp.sync(timeout=180.0)  # queued behind the switch: answered once it applied
         assert status.variant == "planned W_a" and status.t == 0.0
         assert any(n.title == "Preparing the preset" for n in lp.notice_log)
-        ((key, plan),) = polish._PLAN_CACHE.items()
+        ((key, plan),) = polish_plan._PLAN_CACHE.items()
         robot = lp.call(lambda s: s.robot)
-        here = polish.compute_plan(robot, key[1], key[2])
+        here = polish_plan.compute_plan(robot, key[1], key[2])
         for name, value in plan._asdict().items():
             assert np.array_equal(value, getattr(here, name)), name
         if hasattr(os, "getpriority"):  # the worker runs at the app's priority, not the loop thread's

@@ -8,13 +8,14 @@ import pytest
 from app.core.session import Session
 from app.headless.experiments.polish import peak_speed
 from app.scenarios import polish as P
+from app.scenarios import polish_stroke as PS
 from control.coupling import POLISH_SUBSPACES
 from control.gains import MotionForceGains
 from control.margin import ContactLoop, force_loop_margin, posture_margin, step_matrix
 from control.model import RobotModel
 
-STRETCH = P.friction_direction(1.5 * P.SEGMENT_DURATION_S)
-RETRACT = P.friction_direction(0.5 * P.SEGMENT_DURATION_S)
+STRETCH = PS.friction_direction(1.5 * PS.SEGMENT_DURATION_S)
+RETRACT = PS.friction_direction(0.5 * PS.SEGMENT_DURATION_S)
 
 
 def _lambda(rizon, swivel_deg: float) -> np.ndarray:
@@ -101,9 +102,9 @@ def _loses_contact(swivel_deg: float, kd: float, delay: int) -> bool:
     session.set_param("sensor", "reading_delay_steps", delay)
     clock = session.environment.clock  # type: ignore[attr-defined]
     lost = []
-    session.run(P.CONTACT_TIME_S + 0.3, record=lambda r: lost.append(r.signals["contact_force_n"] <= 0 and r.t > 0.5))
+    session.run(PS.CONTACT_TIME_S + 0.3, record=lambda r: lost.append(r.signals["contact_force_n"] <= 0 and r.t > 0.5))
     clock.start_now(session.world.time)
-    res = session.run(2 * P.SEGMENT_DURATION_S, record=lambda r: lost.append(r.signals["contact_force_n"] <= 0))
+    res = session.run(2 * PS.SEGMENT_DURATION_S, record=lambda r: lost.append(r.signals["contact_force_n"] <= 0))
     return res.stop == "diverged" or any(lost)
 
 

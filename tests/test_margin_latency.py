@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 from app.scenarios import polish as P
+from app.scenarios import polish_stroke as PS
 from control.coupling import POLISH_SUBSPACES, coupling_terms
 from control.gains import MotionForceGains
 from control.margin import ContactLoop, SampledLoop, delayed_loop, force_loop_margin, step_matrix
 from control.model import RobotModel
 
-STRETCH = P.friction_direction(1.5 * P.SEGMENT_DURATION_S)
+STRETCH = PS.friction_direction(1.5 * PS.SEGMENT_DURATION_S)
 
 
 def _lambda(rizon, swivel_deg: float) -> np.ndarray:
@@ -55,7 +56,7 @@ def test_integral_gain_and_each_delay_reduce_the_margin(rizon):
     of sensing delay and one of actuation delay each lower the decay rate and raise the critical
     K_f^d; sensing and actuation delay of one period each act alike to within 10 %."""
     L = _lambda(rizon, 0.0)
-    loop = ContactLoop(mu=1.0, speed_m_s=P.PEAK_SPEED_M_S)
+    loop = ContactLoop(mu=1.0, speed_m_s=PS.PEAK_SPEED_M_S)
     g = MotionForceGains()
     base = force_loop_margin(L, POLISH_SUBSPACES, g, loop, STRETCH)
     ki = force_loop_margin(L, POLISH_SUBSPACES, replace(g, force_ki=10.0), loop, STRETCH)

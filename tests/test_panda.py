@@ -203,7 +203,7 @@ def test_a_smaller_arm_without_sidecar_gets_the_table_and_start_scaled_to_its_re
     import re
 
     from app.core.session import Session
-    from app.scenarios.polish import START_XY_M, TABLE_HEIGHT_M, segment_waypoints
+    from app.scenarios.polish_stroke import START_XY_M, TABLE_HEIGHT_M, segment_waypoints
 
     text = external.urdf_path("panda").read_text()
 

@@ -36,12 +36,12 @@ def _no_live_margin():
     """The polish page's live force-loop margin (a display signal the headless runs switch off too)
     is off here: with a long torque delay one evaluation costs seconds, and every change below
     restarts the preset. What these tests check is the parameter path, not that signal."""
-    from app.scenarios import polish
+    from app.scenarios import polish_environment
 
-    before = polish.LIVE_MARGIN_EVERY_S
-    polish.LIVE_MARGIN_EVERY_S = math.inf
+    before = polish_environment.LIVE_MARGIN_EVERY_S
+    polish_environment.LIVE_MARGIN_EVERY_S = math.inf
     yield
-    polish.LIVE_MARGIN_EVERY_S = before
+    polish_environment.LIVE_MARGIN_EVERY_S = before
 
 
 @pytest.fixture(scope="module")

@@ -109,9 +109,11 @@ def test_executed_swivel_follows_the_plan(monkeypatch):
     the report measured 0.5° mean, 4.1° max)."""
     from app.core.session import Session
     from app.scenarios import polish as P
+    from app.scenarios import polish_plan as PP
+    from app.scenarios import polish_stroke as PS
 
-    monkeypatch.setattr(P, "PLAN_SAMPLE_S", 1.25)
-    monkeypatch.setattr(P, "PLAN_GRID_DEG", 8.0)
+    monkeypatch.setattr(PP, "PLAN_SAMPLE_S", 1.25)
+    monkeypatch.setattr(PP, "PLAN_GRID_DEG", 8.0)
     session = Session(P.PolishScenario(mu=0.25, plan_cost="a"), seed=0)
     plan = session.scenario.plan  # type: ignore[attr-defined]
     assert plan is not None and np.rad2deg(plan.swivel_rad[-1]) < -60.0  # the global W_a basin
@@ -120,15 +122,15 @@ def test_executed_swivel_follows_the_plan(monkeypatch):
 
     def record(rec) -> None:
         sig = rec.signals
-        if rec.t > P.CONTACT_TIME_S + 0.5:
+        if rec.t > PS.CONTACT_TIME_S + 0.5:
             errors.append(abs((sig["swivel_deg"] - sig["swivel_plan_deg"] + 180.0) % 360.0 - 180.0))
 
     res = session.run(
-        P.CONTACT_TIME_S + clock.timeout_s, until=lambda r: clock.trajectory_start is not None, record=record
+        PS.CONTACT_TIME_S + clock.timeout_s, until=lambda r: clock.trajectory_start is not None, record=record
     )
     assert res.stop == "until" and clock.converged
     assert clock.convergence_time_s >= plan.transfer_s
-    session.run(P.SEGMENT_DURATION_S, record=record)
+    session.run(PS.SEGMENT_DURATION_S, record=record)
     assert max(errors) < 6.0 and float(np.mean(errors)) < 2.0
 
 

@@ -8,18 +8,21 @@ import pytest
 from app.core.session import Session
 from app.headless.experiments.polish import _parse_mu, _stats, format_table, summarise
 from app.scenarios import polish as P
+from app.scenarios import polish_environment as PE
+from app.scenarios import polish_plan as PP
+from app.scenarios import polish_stroke as PS
 from control.coupling import swivel_angle
 
 
 def test_zigzag_alternates_retract_and_stretch_with_smooth_profiles():
-    corners = P.segment_waypoints()
+    corners = PS.segment_waypoints()
     dx = np.diff(corners[:, 0])
     assert np.all(dx[0::2] < 0) and np.all(dx[1::2] > 0)  # S1, S3, S5 −X; S2, S4, S6 +X
     assert np.all(np.diff(corners[:, 1]) > 0)
     for s in (0.0, 1.0):  # minimum jerk: rest at both ends
-        _, v, a = P.min_jerk(s)
+        _, v, a = PS.min_jerk(s)
         assert v == 0.0 and abs(a) < 1e-12
-    assert P.min_jerk(0.5)[1] == pytest.approx(1.875)
+    assert PS.min_jerk(0.5)[1] == pytest.approx(1.875)
 
 
 def test_start_posture_is_elbow_up_with_the_tool_down_above_the_table(rizon):
@@ -30,7 +33,7 @@ def test_start_posture_is_elbow_up_with_the_tool_down_above_the_table(rizon):
     p, R = scenario.start_pose()
     np.testing.assert_allclose(dyn.tcp_position_world, p, atol=1e-9)
     np.testing.assert_allclose(dyn.tcp_rotation_world, R, atol=1e-9)
-    assert dyn.tcp_position_world[2] - P.TABLE_HEIGHT_M == pytest.approx(P.START_GAP_M)
+    assert dyn.tcp_position_world[2] - PS.TABLE_HEIGHT_M == pytest.approx(PS.START_GAP_M)
     assert swivel_angle(session.model, q0) == pytest.approx(0.0, abs=1e-5)
     assert np.all(q0 > rizon.q_lower) and np.all(q0 < rizon.q_upper)
 
@@ -49,9 +52,9 @@ def test_short_polish_run_holds_20_newtons(rizon):
     session.run(0.8)  # press on the table
     clock.trajectory_start = session.world.time
     errors, contact, xs = [], [], []
-    for _ in range(int(P.SEGMENT_DURATION_S * 1000)):
+    for _ in range(int(PS.SEGMENT_DURATION_S * 1000)):
         rec = session.step()
-        errors.append(P.DESIRED_FORCE_N - rec.wrench_tcp[2])
+        errors.append(PS.DESIRED_FORCE_N - rec.wrench_tcp[2])
         contact.append(rec.signals["contact_force_n"])
         xs.append(session.dyn.tcp_position_world[0])
     e = np.array(errors)
@@ -59,7 +62,7 @@ def test_short_polish_run_holds_20_newtons(rizon):
     assert np.sqrt(np.mean(e**2)) < 2.5
     assert np.max(np.abs(e)) < 8.0
     assert np.min(contact) > 15.0 and np.max(contact) < 25.0
-    assert xs[-1] == pytest.approx(P.START_XY_M[0] - P.SEGMENT_DX_M, abs=0.01)  # S1 reached its corner
+    assert xs[-1] == pytest.approx(PS.START_XY_M[0] - PS.SEGMENT_DX_M, abs=0.01)  # S1 reached its corner
 
 
 def test_metrics_summary_and_table_helpers():
@@ -158,7 +161,7 @@ def test_a_gradient_flow_on_a_plateau_is_not_declared_converged():
     def value(psi: float) -> float:
         return 1.0 - 0.008 * psi if psi < 1.0 else 0.992 + 0.02 * ((psi - 1.2) ** 2 - 0.04)
 
-    crit = P.SettleCriterion()
+    crit = PS.SettleCriterion()
     psi, dt = 0.6, 1e-3
     old_fired_at = fired_at = None
     quiet = 0
@@ -176,7 +179,7 @@ def test_a_gradient_flow_on_a_plateau_is_not_declared_converged():
 
 
 def test_settle_criterion_needs_a_full_quiet_second_and_restarts_on_bad_numbers():
-    crit = P.SettleCriterion()
+    crit = PS.SettleCriterion()
     for _ in range(1000):
         assert not crit.update(0.0, 1.0)  # the window is not full yet
     assert crit.update(0.0, 1.0)
@@ -196,7 +199,7 @@ def test_settle_now_ends_the_settle_phase_on_the_criterion_and_the_panel_shows_i
     clock = session.environment.clock  # type: ignore[attr-defined]
     res = P.settle_now(session)
     assert res.stop == "until" and clock.converged
-    assert clock.convergence_time_s == pytest.approx(P.CONVERGE_MIN_S, abs=0.01)
+    assert clock.convergence_time_s == pytest.approx(PS.CONVERGE_MIN_S, abs=0.01)
     sig = session.step().signals
     assert sig["settle_converged"] == 1.0 and abs(sig["swivel_deg"]) < 0.5
     assert P.settle_now(session).steps == 0  # nothing left to settle
@@ -341,15 +344,15 @@ def test_a_planned_case_names_its_work_and_a_deferred_session_raises_before_it_i
     from app.core.session import Session, WorkPending
     from app.core.variants import make_variant
 
-    monkeypatch.setattr(P, "_PLAN_CACHE", {})
+    monkeypatch.setattr(PP, "_PLAN_CACHE", {})
     spec = make_variant("polish", "planned W_a")
     with pytest.raises(WorkPending) as pending:
         Session(spec, defer_work=True)
     work = pending.value.work
-    assert work.compute is P.compute_plan and "swivel path" in work.what
+    assert work.compute is PP.compute_plan and "swivel path" in work.what
     plan = type("Plan", (), {"transfer_s": 0.5, "t": np.array([0.0, 1.0]), "q": np.zeros((2, 7))})()
     work.store(plan)  # (a stand-in: the plan itself is tested in test_planner.py)
-    monkeypatch.setattr(P, "compute_plan", lambda *a, **k: pytest.fail("computed again"))
+    monkeypatch.setattr(PP, "compute_plan", lambda *a, **k: pytest.fail("computed again"))
     session = Session(spec, defer_work=True)
     assert session.scenario.plan is plan and spec.pending_work(session.robot) is None
 
@@ -359,7 +362,7 @@ def test_a_run_without_the_live_margin_computes_none_not_even_at_the_start(monke
     none either (with a long torque delay one costs seconds), and the signal stays NaN."""
     session = Session(P.PolishScenario())
     session.environment.live_margin_every_s = float("inf")  # type: ignore[attr-defined]
-    monkeypatch.setattr(P.PolishEnvironment, "live_margin", lambda self, t: pytest.fail("computed"))
+    monkeypatch.setattr(PE.PolishEnvironment, "live_margin", lambda self, t: pytest.fail("computed"))
     session.run(steps=5)
     assert np.isnan(session.last.signals["margin_kd"])
 

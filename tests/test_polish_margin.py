@@ -8,7 +8,9 @@ import pytest
 
 from app.headless.experiments import polish_calibration as C
 from app.scenarios import polish as P
+from app.scenarios import polish_environment as PE
 from app.scenarios import polish_margin as PM
+from app.scenarios import polish_stroke as PS
 
 
 def _samples(rates, pds):
@@ -20,7 +22,7 @@ def test_per_stroke_keeps_each_strokes_worst_rate_its_coupling_and_the_growth_it
     middle and decays at 1/s after it: G = 2 Np, so with a budget of 1.5 Np S2's least headroom is
     −0.5 Np and S1's the whole budget; worst σ, P_d·f̂ mean/max and the share negative are each
     stroke's own."""
-    T, dt = P.SEGMENT_DURATION_S, PM.MARGIN_SAMPLE_S
+    T, dt = PS.SEGMENT_DURATION_S, PM.MARGIN_SAMPLE_S
     taus = np.arange(0.0, 2 * T - 1e-9, dt)
     rates = np.where(taus < T, 3.0, np.where((taus >= T + 0.5) & (taus < T + 1.5), -2.0, 1.0))
     pds = np.where(taus < T, -1.0, np.linspace(0.5, 1.0, taus.size))
@@ -53,15 +55,15 @@ def test_the_stroke_headroom_starts_each_stroke_at_the_budget_and_spends_it_wher
         h.add(t, 2, 1.0)
     assert h.headroom_np == pytest.approx(0.8, abs=1e-9) and h.headroom_min_np == pytest.approx(0.5, abs=1e-9)
     assert h.add(t + 0.1, 3, 1.0) == 2.0 and h.headroom_min_np == 2.0
-    assert np.isnan(h.add(t + 0.2, P.N_SEGMENTS + 1, -5.0)) and np.isnan(h.add(t + 0.3, 0, -5.0))
+    assert np.isnan(h.add(t + 0.2, PS.N_SEGMENTS + 1, -5.0)) and np.isnan(h.add(t + 0.3, 0, -5.0))
     assert PM.headroom_budget_np(20.0, 0.0) == np.inf  # no noise: nothing at the floor to grow
 
 
 def test_the_operating_point_is_the_commanded_speed_against_the_segments_friction_direction():
     """At a corner the commanded speed is 0, mid-stroke it is the minimum-jerk peak; f̂ opposes the motion."""
     speed0, f0 = PM.operating_point(0.0)
-    mid, f_mid = PM.operating_point(1.5 * P.SEGMENT_DURATION_S)
-    assert speed0 == pytest.approx(0.0, abs=1e-12) and mid == pytest.approx(P.PEAK_SPEED_M_S, rel=1e-9)
+    mid, f_mid = PM.operating_point(1.5 * PS.SEGMENT_DURATION_S)
+    assert speed0 == pytest.approx(0.0, abs=1e-12) and mid == pytest.approx(PS.PEAK_SPEED_M_S, rel=1e-9)
     assert f0[0] > 0.9 and f_mid[0] < -0.9  # S1 retracts along −X (friction +X), S2 stretches along +X
 
 
@@ -223,7 +225,7 @@ def test_the_observed_mode_finds_a_growing_oscillations_frequency_and_growth():
     """A 13.5 Hz oscillation growing at 1.5 /s over a 2.5 s stroke in noise: the peak within the
     spectrum's resolution (1/2.5 s), the band's envelope rising by ≈ 1.5 /s over the bins' span
     (2.25 s); the same oscillation at constant amplitude shows no growth beyond the noise."""
-    dt, T = 1e-3, P.SEGMENT_DURATION_S
+    dt, T = 1e-3, PS.SEGMENT_DURATION_S
     rng = np.random.default_rng(3)
     t = np.arange(0.0, T + 1.0, dt)  # 0.5 s either side of the stroke
     start, stop = round(0.5 / dt), round((0.5 + T) / dt)
@@ -279,7 +281,7 @@ def test_the_live_margin_in_the_worker_process_is_the_inline_one_and_leaves_the_
     from app.core.session import Session
     from app.live.offload import LiveOffload
 
-    poll = round(P.LIVE_POLL_EVERY_S / 1e-3)
+    poll = round(PE.LIVE_POLL_EVERY_S / 1e-3)
 
     def stepped(offload: LiveOffload | None) -> list[tuple[float, float]]:
         session = Session(P.PolishScenario(mu=1.0), seed=0)
@@ -300,8 +302,10 @@ def test_the_live_margin_in_the_worker_process_is_the_inline_one_and_leaves_the_
     offload = LiveOffload()
     try:
         assert offload.ready(60.0)
-        monkeypatch.setattr(P.PolishEnvironment, "live_rate", lambda self, t: pytest.fail("σ on the loop thread"))
-        monkeypatch.setattr(P.PolishEnvironment, "live_margin", lambda self, t: pytest.fail("K_f^d on the loop thread"))
+        monkeypatch.setattr(PE.PolishEnvironment, "live_rate", lambda self, t: pytest.fail("σ on the loop thread"))
+        monkeypatch.setattr(
+            PE.PolishEnvironment, "live_margin", lambda self, t: pytest.fail("K_f^d on the loop thread")
+        )
         away = stepped(offload)
     finally:
         offload.stop()

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.scenarios import polish as P
+from app.scenarios import polish_stroke as P
 from control.coupling import POLISH_SUBSPACES
 from control.gains import MotionForceGains
-from control.margin import ContactLoop, force_loop_margin, loop_rate
+from control.margin import ContactLoop, force_loop_margin, loop_rate, posture_margin
 from control.planner import Plan
 
 MARGIN_SAMPLE_S = 0.025  # 100 samples per 2.5 s stroke: finer than the ≈ 0.3 s the rates change over
@@ -237,3 +237,28 @@ def stretch_floor(plan: Plan) -> dict | None:
         "plan_mean": float(np.mean(own)),
         "plan_max": float(np.max(own)),
     }
+
+
+def rate_at(Lambda: np.ndarray, gains: MotionForceGains, loop: ContactLoop, tau: float) -> float:
+    """σ (1/s) of the force loop at a posture's Λx at trajectory time tau (`sample`), NaN
+    where the model cannot be formed; a module-level function, so the app's loop can compute it in
+    its worker process."""
+    try:
+        return sample(Lambda, gains, loop, tau, find_kd=False).rate_per_s
+    except (ValueError, np.linalg.LinAlgError):
+        return float("nan")
+
+
+def kd_margin_at(Lambda: np.ndarray, gains: MotionForceGains, loop: ContactLoop) -> float:
+    """Force-loop margin (N s/m, `control.margin`) of a posture's Λx: K_f^d minus the critical K_f^d
+    over the stretching and retracting friction directions, at rest and at the segments' peak speed
+    (`loop` at that speed), with the loop's latency (a coarse version of the report's, for once a
+    second); NaN where the model cannot be formed."""
+    dirs = [P.friction_direction(1.5 * P.SEGMENT_DURATION_S), P.friction_direction(0.5 * P.SEGMENT_DURATION_S)]
+    try:
+        pm = posture_margin(
+            Lambda, POLISH_SUBSPACES, gains, loop, dirs, speeds=(0.0, 0.3 * P.PEAK_SPEED_M_S, P.PEAK_SPEED_M_S)
+        )
+    except (ValueError, np.linalg.LinAlgError):
+        return float("nan")
+    return pm.kd_margin

@@ -39,14 +39,16 @@ from app.headless.experiments.polish_rows import (
 from app.headless.experiments.polish_runs import RUNS_DIR, _finished_runs, load_run, save_run
 from app.headless.experiments.polish_v_eps import V_EPS_CHECK_M_PER_S, v_eps_check
 from app.headless.sweep.engine import open_executor
-from app.scenarios import polish as scenario_module
-from app.scenarios.polish import N_SEGMENTS, PolishScenario
+from app.scenarios import polish_plan as plan_module
+from app.scenarios import polish_stroke as stroke_module
+from app.scenarios.polish import PolishScenario
 from app.scenarios.polish_margin import MARGIN_SAMPLE_S
+from app.scenarios.polish_stroke import N_SEGMENTS
 
 PLAN_COST_OF = {"planned": "signed", "planned_a": "a"}
 DEFAULT_SEEDS = 5
 RECORD_EVERY = 5  # time series kept at 200 Hz for the figures
-SAFETY_CAP_S = scenario_module.CONVERGE_TIMEOUT_S + scenario_module.CONTACT_TIME_S + 20.0  # settle cap + trajectory
+SAFETY_CAP_S = stroke_module.CONVERGE_TIMEOUT_S + stroke_module.CONTACT_TIME_S + 20.0  # settle cap + trajectory
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -110,7 +112,7 @@ def simulate(spec: dict) -> dict:
     objective = str(spec["objective"])
     plan_cost = PLAN_COST_OF.get(objective)
     scenario = PolishScenario(
-        converge_timeout_s=float(spec.get("converge_timeout_s", scenario_module.CONVERGE_TIMEOUT_S)),
+        converge_timeout_s=float(spec.get("converge_timeout_s", stroke_module.CONVERGE_TIMEOUT_S)),
         hold_swivel_deg=spec.get("hold_swivel_deg"),
         plan_cost=plan_cost,
     )
@@ -143,23 +145,23 @@ def simulate(spec: dict) -> dict:
     margin_every = max(1, round(MARGIN_SAMPLE_S / dt))
     hold = HoldWatch(
         oscillation_threshold_n(dataclasses.asdict(ran["sensor"]), dt),  # type: ignore[call-overload]
-        round(scenario_module.SETTLE_WINDOW_S / dt),
+        round(stroke_module.SETTLE_WINDOW_S / dt),
         dt,
     )
     stop_on_verdict = bool(spec.get("stop_on_verdict", False))
 
     def record(r) -> None:
         sig = r.signals
-        if clock.trajectory_start is None and r.t >= scenario_module.CONTACT_TIME_S:  # held, settling
-            desired = scenario_module.DESIRED_FORCE_N
+        if clock.trajectory_start is None and r.t >= stroke_module.CONTACT_TIME_S:  # held, settling
+            desired = stroke_module.DESIRED_FORCE_N
             hold.add(r.t, desired - r.wrench_tcp[2], desired - sig["contact_force_n"], desired, sig["swivel_deg"])
         if 1 <= sig["segment"] <= N_SEGMENTS and len(rec["t"]) % margin_every == 0:
             stroke_q.append((r.t - float(clock.trajectory_start), r.q.copy()))
         if not q_converged and clock.trajectory_start is not None:
             q_converged.append(r.q.copy())
         rec["t"].append(r.t)
-        rec["force_error"].append(scenario_module.DESIRED_FORCE_N - r.wrench_tcp[2])  # filtered F/T reading
-        rec["force_error_true"].append(scenario_module.DESIRED_FORCE_N - sig["contact_force_n"])
+        rec["force_error"].append(stroke_module.DESIRED_FORCE_N - r.wrench_tcp[2])  # filtered F/T reading
+        rec["force_error_true"].append(stroke_module.DESIRED_FORCE_N - sig["contact_force_n"])
         rec["W_f"].append(sig["W_f"])
         rec["W_a"].append(sig["W_a"])
         rec["W_d"].append(sig["W_d"])
@@ -208,7 +210,7 @@ def simulate(spec: dict) -> dict:
         **posture,
         "force_error": _stats(series["force_error"][traj]),
         "force_error_true_contact": _stats(series["force_error_true"][traj]),
-        "contact_lost_ms": int(np.sum(series["force_error_true"][traj] >= scenario_module.DESIRED_FORCE_N)),
+        "contact_lost_ms": int(np.sum(series["force_error_true"][traj] >= stroke_module.DESIRED_FORCE_N)),
         "run_stop": result_run.stop,
         "diverged": result_run.stop == "diverged",
         "held": held,
@@ -227,7 +229,7 @@ def simulate(spec: dict) -> dict:
             from app.scenarios.polish_margin import stretch_floor
 
             result["plan_stretch_floor"] = stretch_floor(plan)
-        sel = traj | ((series["segment"] == 0) & (series["t"] >= scenario_module.CONTACT_TIME_S + plan.transfer_s))
+        sel = traj | ((series["segment"] == 0) & (series["t"] >= stroke_module.CONTACT_TIME_S + plan.transfer_s))
         err = np.abs((series["swivel"][sel] - series["swivel_plan"][sel] + 180.0) % 360.0 - 180.0)
         result["plan_tracking_deg"] = {"mean": _mean(err), "max": float(np.max(err)) if err.size else None}
         result["plan"] = {
@@ -243,7 +245,7 @@ def simulate(spec: dict) -> dict:
                 "segment": seg_k,
                 "direction": "retract (-X)" if seg_k % 2 == 1 else "stretch (+X)",
                 "force_error": _stats(series["force_error"][sel]),
-                "contact_lost_ms": int(np.sum(series["force_error_true"][sel] >= scenario_module.DESIRED_FORCE_N)),
+                "contact_lost_ms": int(np.sum(series["force_error_true"][sel] >= stroke_module.DESIRED_FORCE_N)),
                 # the true contact force's mode on this stroke, beside the margin's (polish_calibration)
                 "observed": observed_mode(series["force_error_true"], int(idx[0]), int(idx[-1]) + 1, dt)
                 if idx.size
@@ -266,13 +268,13 @@ def posture_figures(session, q: np.ndarray, mu: float, shaping: bool) -> dict:
     dyn = session.model.compute(q, np.zeros(len(q)))
     terms = terms_of(dyn, POLISH_SUBSPACES)
     W = coupling_values(terms)
-    dirs = {"stretch": scenario_module.friction_direction(1.5 * scenario_module.SEGMENT_DURATION_S)}
-    dirs["retract"] = scenario_module.friction_direction(0.5 * scenario_module.SEGMENT_DURATION_S)
+    dirs = {"stretch": stroke_module.friction_direction(1.5 * stroke_module.SEGMENT_DURATION_S)}
+    dirs["retract"] = stroke_module.friction_direction(0.5 * stroke_module.SEGMENT_DURATION_S)
     gains = replace(session.executor.gains, shaping=shaping)  # type: ignore[attr-defined]
     loop = ContactLoop(
-        stiffness_n_per_m=scenario_module.CONTACT_STIFFNESS_N_PER_M,
+        stiffness_n_per_m=stroke_module.CONTACT_STIFFNESS_N_PER_M,
         mu=mu,
-        normal_force_n=scenario_module.DESIRED_FORCE_N,
+        normal_force_n=stroke_module.DESIRED_FORCE_N,
         speed_m_s=peak_speed(),
         v_eps_m_per_s=session.environment.contact.v_eps_m_per_s,
         sensor_cutoff_hz=session.sensor.cutoff_hz,
@@ -299,7 +301,7 @@ def _run_over(clock, t: float, strokes: int) -> bool:
     """The trajectory and its final hold are over, or the first `strokes` segments are."""
     start = clock.trajectory_start
     return clock.finished(t) or (
-        strokes < N_SEGMENTS and start is not None and t >= start + strokes * scenario_module.SEGMENT_DURATION_S
+        strokes < N_SEGMENTS and start is not None and t >= start + strokes * stroke_module.SEGMENT_DURATION_S
     )
 
 
@@ -317,7 +319,7 @@ def stroke_margin_figures(session, stroke_q: list[tuple[float, np.ndarray]], sha
     taus = np.array([tau for tau, _ in stroke_q])
     samples = [PM.sample(session.model.compute(q, np.zeros(n)).Lambda, gains, loop, tau) for tau, q in stroke_q]
     floor = PM.sensor_floor_n(session.params()["sensor"], loop.dt)
-    budget = PM.headroom_budget_np(scenario_module.DESIRED_FORCE_N, floor)
+    budget = PM.headroom_budget_np(stroke_module.DESIRED_FORCE_N, floor)
     strokes = PM.per_stroke(taus, samples, budget)
     return {
         "stroke_margin": strokes,
@@ -325,7 +327,7 @@ def stroke_margin_figures(session, stroke_q: list[tuple[float, np.ndarray]], sha
         "stroke_loop": {
             "sensing_delay_steps": loop.sensing_delay_steps,
             "actuation_delay_steps": loop.actuation_delay_steps,
-            "desired_force_n": scenario_module.DESIRED_FORCE_N,
+            "desired_force_n": stroke_module.DESIRED_FORCE_N,
             "noise_floor_n": floor,
             "headroom_budget_np": budget,
         },
@@ -338,7 +340,7 @@ def _finite_or_none(x: float) -> float | None:
 
 def peak_speed() -> float:
     """Peak TCP speed of a segment (minimum jerk: 1.875 × length / duration)."""
-    return scenario_module.PEAK_SPEED_M_S
+    return stroke_module.PEAK_SPEED_M_S
 
 
 def _stats(e: np.ndarray) -> dict:
@@ -658,7 +660,7 @@ def _progress(i: int, total: int, output: dict | None, t0: float) -> None:
 def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
     import robots
 
-    s = scenario_module
+    s = stroke_module
     robot = robots.chosen("")
     return {
         "robot": robot or PolishScenario.default_robot,
@@ -686,7 +688,11 @@ def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
             "window_s": s.SETTLE_WINDOW_S,
             "cap_s": s.CONVERGE_TIMEOUT_S,
         },
-        "plan": {"sample_s": s.PLAN_SAMPLE_S, "grid_deg": s.PLAN_GRID_DEG, "rate_max_deg_s": s.PLAN_RATE_MAX_DEG_S},
+        "plan": {
+            "sample_s": plan_module.PLAN_SAMPLE_S,
+            "grid_deg": plan_module.PLAN_GRID_DEG,
+            "rate_max_deg_s": plan_module.PLAN_RATE_MAX_DEG_S,
+        },
         "friction_v_eps_m_per_s": s.FRICTION_V_EPS_M_PER_S,
         "force_error": f"{s.DESIRED_FORCE_N:g} N minus the filtered F/T reading along z, over the six segments",
         "desired_force_n": s.DESIRED_FORCE_N,

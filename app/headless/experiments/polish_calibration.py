@@ -18,7 +18,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from app.scenarios import polish as P
+from app.scenarios import polish_stroke as PS
 from app.scenarios.polish_margin import headroom_budget_np, sensor_floor_n
 from app.sim.sensor import SensorParams
 
@@ -107,7 +107,7 @@ def desired_force_n(result: Mapping) -> float:
     """F̂ (N) of the run: as its margin recorded it (a sweep record: flattened), else the scenario's."""
     loop = result.get("stroke_loop")
     own = loop.get("desired_force_n") if isinstance(loop, Mapping) else result.get("stroke_loop_desired_force_n")
-    return float(own) if own is not None else P.DESIRED_FORCE_N
+    return float(own) if own is not None else PS.DESIRED_FORCE_N
 
 
 def headroom_budget(result: Mapping) -> float:

@@ -14,8 +14,10 @@ import numpy as np
 
 from app.core.provenance import code_text
 from app.headless.experiments.polish_rows import OBJECTIVE_NAMES as NAMES  # row names by objective key
-from app.scenarios import polish as scenario_module
-from app.scenarios.polish import N_SEGMENTS, PolishScenario
+from app.scenarios import polish_plan as plan_module
+from app.scenarios import polish_stroke as stroke_module
+from app.scenarios.polish import PolishScenario
+from app.scenarios.polish_stroke import N_SEGMENTS
 
 COLORS = {
     "j": "black",
@@ -65,7 +67,7 @@ def scan_at_start(armature_scale: float = 1.0) -> dict:
     scan = swivel_scan(model, q0, POLISH_SUBSPACES, robot.q_lower, robot.q_upper, step_rad=np.deg2rad(1.0))
     psi = (np.rad2deg(scan.swivel_rad) + 180.0) % 360.0 - 180.0
     order = np.argsort(psi)
-    stretch = scenario_module.friction_direction(1.5 * scenario_module.SEGMENT_DURATION_S)  # S2: +X motion
+    stretch = stroke_module.friction_direction(1.5 * stroke_module.SEGMENT_DURATION_S)  # S2: +X motion
     pd_stretch = np.array(
         [float(terms_of(model.compute(q, np.zeros(len(q))), POLISH_SUBSPACES).P_d[0, :2] @ stretch) for q in scan.q]
     )  # [T10] the normal force disturbance per unit stretching friction
@@ -238,7 +240,7 @@ def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict
                 t, sel = _trajectory_time(s)
                 ax.plot(t, s["force_error"][sel], color=COLORS[r["objective"]], lw=0.8, label=NAMES[r["objective"]])
         _shade_segments(ax, labels=True)
-        ax.set_ylabel(f"{scenario_module.DESIRED_FORCE_N:g} N − filtered force (N)")
+        ax.set_ylabel(f"{stroke_module.DESIRED_FORCE_N:g} N − filtered force (N)")
         ax.set_title(f"force error, μ = {mu:g}, seed 0 (grey: stretching segments S2, S4, S6)", pad=14)
         ax.legend(fontsize=7, ncol=3, loc="lower left")
     axes[-1][0].set_xlabel("time since trajectory start (s)")
@@ -289,10 +291,10 @@ def _plan_figure(out: Path, planned: list[tuple[dict, dict]], plt) -> None:
     model = RobotModel(robot.model)
     fig, axes = plt.subplots(len(planned), 1, figsize=(10, 3.6 * len(planned)), squeeze=False)
     for ax, (r, s) in zip(axes[:, 0], planned, strict=True):
-        plan = scenario_module.planned_path(robot, model, r["start_swivel_deg"], r["plan_cost_kind"])
+        plan = plan_module.planned_path(robot, model, r["start_swivel_deg"], r["plan_cost_kind"])
         start = r["convergence_time_s"]  # trajectory start, s after the settle start
         k = plan.cost_map.shape[0]
-        t_traj = start + np.arange(k) * scenario_module.PLAN_SAMPLE_S
+        t_traj = start + np.arange(k) * plan_module.PLAN_SAMPLE_S
         C = np.where(np.isfinite(plan.cost_map) & (plan.cost_map > 0), plan.cost_map, np.nan)
         positive = C[np.isfinite(C)]
         norm = LogNorm(vmin=float(np.min(positive)), vmax=float(np.max(positive))) if positive.size else None
@@ -306,8 +308,8 @@ def _plan_figure(out: Path, planned: list[tuple[dict, dict]], plt) -> None:
             [plan.transfer_s, start], [psi[transfer][-1], psi[~transfer][0]], "k:", lw=1.5, label="hold until converged"
         )
         ax.plot(t_plan[~transfer], psi[~transfer], "w-", lw=2, label="planned (trajectory)")
-        sel = s["t"] >= scenario_module.CONTACT_TIME_S
-        ax.plot(s["t"][sel] - scenario_module.CONTACT_TIME_S, s["swivel"][sel], "r--", lw=1.2, label="executed")
+        sel = s["t"] >= stroke_module.CONTACT_TIME_S
+        ax.plot(s["t"][sel] - stroke_module.CONTACT_TIME_S, s["swivel"][sel], "r--", lw=1.2, label="executed")
         ax.set_xlim(0.0, t_traj[-1])
         ax.set_ylabel("swivel (deg)")
         ax.set_title(f"{NAMES[r['objective']]}, μ = {r['mu']:g}, seed {r['seed']}")
@@ -327,7 +329,7 @@ def _trajectory_time(s: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _shade_segments(ax, labels: bool = False) -> None:
-    T = scenario_module.SEGMENT_DURATION_S
+    T = stroke_module.SEGMENT_DURATION_S
     for k in range(N_SEGMENTS):
         if k % 2 == 1:
             ax.axvspan(k * T, (k + 1) * T, color="0.9", lw=0)
@@ -358,7 +360,7 @@ def _posture_figure(out: Path, runs: list[dict], plt) -> None:
         ax.plot(p0[:, 0], p0[:, 1], p0[:, 2], "-o", color="0.6", ms=3, lw=2, label="start (Fig. 6a)")
         ax.plot(p1[:, 0], p1[:, 1], p1[:, 2], "-o", color=COLORS[r["objective"]], ms=3, lw=2.5, label="converged")
         xx, yy = np.meshgrid([0.3, 0.8], [-0.35, 0.3])
-        ax.plot_surface(xx, yy, np.full_like(xx, scenario_module.TABLE_HEIGHT_M), color="tan", alpha=0.3)
+        ax.plot_surface(xx, yy, np.full_like(xx, stroke_module.TABLE_HEIGHT_M), color="tan", alpha=0.3)
         ax.set_xlim(-0.1, 0.8)
         ax.set_ylim(-0.45, 0.45)
         ax.set_zlim(0.0, 0.9)
@@ -826,7 +828,7 @@ def findings_in_words(doc: dict) -> list[str]:
             f"(margin > 0 and stable: {sum(p and s for p, s in predicted)}; margin < 0 and contact lost: "
             f"{sum((not p) and (not s) for p, s in predicted)})."
         )
-    late_spring = scenario_module.CONTACT_STIFFNESS_N_PER_M * 1e-3  # k·Δt of a one-step-late contact spring
+    late_spring = stroke_module.CONTACT_STIFFNESS_N_PER_M * 1e-3  # k·Δt of a one-step-late contact spring
     close = [e for e in summary if e["margin"]["mean"] is not None and 0.0 <= e["margin"]["mean"] < late_spring]
     if close:
         out.append(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.scenarios import polish as scenario_module
+from app.scenarios import polish_stroke as stroke_module
 from app.scenarios.polish import PolishScenario
 
 V_EPS_CHECK_M_PER_S = (0.001, 0.002, 0.01)  # friction regularisation re-measured each run (W_j hold, μ = 1)
@@ -21,8 +21,8 @@ def v_eps_check(v_eps: float, seed: int = 0) -> dict:
     session.set_param("contact", "v_eps_m_per_s", v_eps)
     f: list[float] = []
     res = session.run(
-        scenario_module.CONTACT_TIME_S + V_EPS_HOLD_S,
-        record=lambda r: f.append(r.signals["contact_force_n"]) if r.t >= scenario_module.CONTACT_TIME_S else None,
+        stroke_module.CONTACT_TIME_S + V_EPS_HOLD_S,
+        record=lambda r: f.append(r.signals["contact_force_n"]) if r.t >= stroke_module.CONTACT_TIME_S else None,
     )
     arr = np.asarray(f)
     return {

@@ -234,7 +234,7 @@ def _polish(**values):
 
 
 def _strokes(value: int) -> None:
-    from app.scenarios.polish import N_SEGMENTS
+    from app.scenarios.polish_stroke import N_SEGMENTS
 
     if not 1 <= int(value) <= N_SEGMENTS:
         raise ValueError(f"strokes must be 1 to {N_SEGMENTS}, got {value}")

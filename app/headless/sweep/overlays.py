@@ -51,7 +51,8 @@ def planned_swivels() -> dict[str, dict]:
     """Per plan cost: the swivel (deg, wrapped to (−180, 180]) planned from the Fig. 6a start over the six
     segments, and its span."""
     import robots
-    from app.scenarios.polish import PolishScenario, planned_path
+    from app.scenarios.polish import PolishScenario
+    from app.scenarios.polish_plan import planned_path
     from control.model import RobotModel
 
     robot = robots.load(robots.chosen("rizon4s"))
@@ -105,22 +106,25 @@ def _loop_postures() -> tuple[np.ndarray, np.ndarray]:
 def posture_margin_at(psi_index: int, mu: float) -> float:
     """K_f^d margin (N s/m, > 0 stable) of loop posture `psi_index` at friction μ [T12], as the polish
     experiment computes it (both friction directions, speeds from rest to the segments' peak)."""
-    from app.scenarios import polish as sc
+    from app.scenarios import polish_stroke as stroke_module
     from control.coupling import POLISH_SUBSPACES
     from control.gains import MotionForceGains
     from control.margin import ContactLoop, posture_margin
 
     _, lambdas = _loop_postures()
     loop = ContactLoop(
-        stiffness_n_per_m=sc.CONTACT_STIFFNESS_N_PER_M,
+        stiffness_n_per_m=stroke_module.CONTACT_STIFFNESS_N_PER_M,
         mu=float(mu),
-        normal_force_n=sc.DESIRED_FORCE_N,
-        speed_m_s=sc.PEAK_SPEED_M_S,
-        v_eps_m_per_s=sc.FRICTION_V_EPS_M_PER_S,
-        sensor_cutoff_hz=sc.SENSOR_CUTOFF_HZ,
+        normal_force_n=stroke_module.DESIRED_FORCE_N,
+        speed_m_s=stroke_module.PEAK_SPEED_M_S,
+        v_eps_m_per_s=stroke_module.FRICTION_V_EPS_M_PER_S,
+        sensor_cutoff_hz=stroke_module.SENSOR_CUTOFF_HZ,
     )
-    dirs = [sc.friction_direction(1.5 * sc.SEGMENT_DURATION_S), sc.friction_direction(0.5 * sc.SEGMENT_DURATION_S)]
-    speeds = (0.0, 0.3 * sc.PEAK_SPEED_M_S, sc.PEAK_SPEED_M_S)
+    dirs = [
+        stroke_module.friction_direction(1.5 * stroke_module.SEGMENT_DURATION_S),
+        stroke_module.friction_direction(0.5 * stroke_module.SEGMENT_DURATION_S),
+    ]
+    speeds = (0.0, 0.3 * stroke_module.PEAK_SPEED_M_S, stroke_module.PEAK_SPEED_M_S)
     return float(posture_margin(lambdas[psi_index], POLISH_SUBSPACES, MotionForceGains(), loop, dirs, speeds).kd_margin)
 
 
