@@ -126,7 +126,7 @@ class PoseTask:
         return -self.kd * de - self.kp * e
 
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
-        """`rows_reference` in one compiled call (`control.kernels.pose_task_target_fused`)."""
+        """`rows_reference` in one compiled call (`control.kernels.compliance.pose_task_target_fused`)."""
         b = pose_task_target_fused(dyn.record, target_arrays(target), self.kernel_record, ddq_e)
         return TaskRows(dyn.J, b, self.gains.weight, None)
 
@@ -191,7 +191,7 @@ class PostureTask:
         return -self.kd * (dyn.dq - dq_ref) - self.kp * e - self.ki * self.integral
 
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
-        """`rows_reference` in one compiled call (`control.kernels.posture_target_fused`)."""
+        """`rows_reference` in one compiled call (`control.kernels.compliance.posture_target_fused`)."""
         q_ref = self.q_hold if target.q_posture is None else target.q_posture
         dq_ref = self.velocity_reference()
         b = posture_target_fused(dyn.record, q_ref, dq_ref, self.integral, self.kernel_record, ddq_e)

@@ -115,7 +115,7 @@ def coupling_terms(
     """
     A, B, D, A_inv, D_hat, P_f, P_a, P_d, _, _, _ = coupling_fused(
         Lambda, Lambda_inv, sub.perm, sub.n_m, exact_inverse
-    )  # compiled `control.kernels.coupling_reference`
+    )  # compiled `control.kernels.coupling.coupling_reference`
     return CouplingTerms(A, B, D, A_inv, D_hat, P_f, P_a, P_d)
 
 

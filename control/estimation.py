@@ -75,7 +75,7 @@ class MomentumObserver:
             self._M_prev, self._dq_prev, self._h_prev = previous
 
     def update(self, dyn: Dynamics, tau_prev: np.ndarray) -> np.ndarray:
-        """`update_reference` in one compiled call (`control.kernels.momentum_observer_fused`)."""
+        """`update_reference` in one compiled call (`control.kernels.estimation.momentum_observer_fused`)."""
         if self._M_prev is None:
             self._store(dyn)
             return self.r

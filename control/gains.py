@@ -13,11 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from control.params import ParamError, ParamGroup, param
-from control.qp import BACKENDS, DEFAULT_BACKEND
 
 TASK_AXES = ("px", "py", "pz", "rx", "ry", "rz")
 JOINTS7 = tuple(f"joint {i + 1}" for i in range(7))
 GAMMA_MAX = 1.2  # Γ 0 … 1.2 like the authors' own GUI (DESIGN §3)
+QP_BACKENDS = ("dense", "osqp")  # the QP backends of `control.qp` (a choice of `SolverParams`)
+DEFAULT_QP_BACKEND = "dense"
 CONTROL_PERIOD_S = (
     1e-3  # s, the controller's sampling period (1 kHz: one MuJoCo step), e.g. of the [T12] force integral
 )
@@ -455,8 +456,8 @@ class SolverParams(ParamGroup):
     title = "QP solver"
 
     qp_backend: str = param(
-        DEFAULT_BACKEND,
+        DEFAULT_QP_BACKEND,
         label="QP solver",
-        choices=BACKENDS,
+        choices=QP_BACKENDS,
         help="dense: DAQP active set (exact, a few µs); osqp: the ADMM reference; both executors' QPs",
     )

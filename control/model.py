@@ -184,7 +184,7 @@ class RobotModel:
         """Fill one `Dynamics` snapshot at (q, q̇).
 
         Pinocchio gives M (CRBA), h and J in one `computeAllTerms`; the algebra of [T2-5] runs in one
-        compiled kernel (`control.kernels.snapshot_into`, tested against its numpy reference), which
+        compiled kernel (`control.kernels.snapshot.snapshot_into`, tested against its numpy reference), which
         also forms J̇q̇ from J and q̇ on a serial revolute chain (else Pinocchio's classical acceleration).
         """
         model, data, fid = self.model, self.data, self.tcp_frame_id
@@ -203,7 +203,7 @@ class RobotModel:
         return dyn
 
     def compute_reference(self, q: np.ndarray, dq: np.ndarray) -> Dynamics:
-        """`compute` with the plain-numpy algebra (`control.kernels.snapshot_reference`): the readable
+        """`compute` with the plain-numpy algebra (`control.kernels.snapshot.snapshot_reference`): the readable
         statement of [T2-5] that the compiled snapshot is tested against."""
         model, data, fid = self.model, self._data_hessian, self.tcp_frame_id
         q = np.array(q, dtype=float)

@@ -45,6 +45,7 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from control.gains import DEFAULT_QP_BACKEND, QP_BACKENDS
 from control.kernels import dense_qp
 from control.kernels.line_qp import nullspace_line_qp_fused
 
@@ -62,8 +63,8 @@ USABLE = (SOLVED, SOLVED_INACCURATE)
 # numeric codes for the step log (OSQP 1.x's `SolverStatus` values where it has one)
 STATUS_CODES = {SOLVED: 1, SOLVED_INACCURATE: 2, INFEASIBLE: 3, MAX_ITER: 7, FAILED: 11, NON_FINITE: -1}
 
-BACKENDS = ("dense", "osqp")
-DEFAULT_BACKEND = "dense"
+BACKENDS = QP_BACKENDS  # declared with the solver's parameter group (`control.gains.SolverParams`)
+DEFAULT_BACKEND = DEFAULT_QP_BACKEND
 BACKEND_ENV = "TORQUELAB_QP_BACKEND"  # overrides DEFAULT_BACKEND (set by the CLI's --qp-backend)
 OSQP_INTERNAL_VERSIONS = ((1, 1, 3), (1, 2, 0))  # [first checked, first unchecked) for `OSQP._solver`
 

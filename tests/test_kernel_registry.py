@@ -1,4 +1,4 @@
-"""Every compiled kernel has a plain-numpy reference, and the two agree (`control.kernels.registry`).
+"""Every compiled kernel has a plain-numpy reference, and the two agree (`control.kernel_registry`).
 
 The registry test enumerates every numba dispatcher defined in a `control.kernels` module: one that
 is not in `KERNELS` fails. No compiled function (the kernels and the simulator's) takes more than
@@ -24,7 +24,7 @@ from numba.core.registry import CPUDispatcher
 
 import app.sim
 import control.kernels
-from control.kernels.registry import KERNELS
+from control.kernel_registry import KERNELS
 
 MAX_ARGUMENTS = 10  # per compiled function; more than this: group them into a record
 
@@ -53,7 +53,7 @@ def test_every_compiled_kernel_has_a_reference_in_the_registry():
     dispatchers = _dispatchers()
     assert len(dispatchers) >= 40
     missing = sorted(set(dispatchers) - set(KERNELS))
-    assert not missing, f"compiled kernels without a reference in control.kernels.registry: {missing}"
+    assert not missing, f"compiled kernels without a reference in control.kernel_registry: {missing}"
     for name, pair in KERNELS.items():
         assert pair.compiled is dispatchers[name], name
         assert not isinstance(pair.reference, CPUDispatcher), name

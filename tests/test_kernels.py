@@ -18,10 +18,18 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from control import kernels as K
 from control.coupling import Subspaces, coupling_gradient, coupling_gradient_direct, terms_of
 from control.gains import MotionForceGains, NullspaceGains
+from control.kernels import chain as Kchain
+from control.kernels import compliance as Kcompliance
+from control.kernels import coupling as Kcoupling
 from control.kernels import dense_qp as KQ
+from control.kernels import estimation as Kestimation
+from control.kernels import geometry as Kgeometry
+from control.kernels import gradients as Kgradients
+from control.kernels import law as Klaw
+from control.kernels import line_qp as Kline_qp
+from control.kernels import snapshot as Ksnapshot
 from control.model import SINGULAR_EIGENVALUE, RobotModel
 from tests.conftest import random_configurations
 
@@ -86,7 +94,9 @@ def test_snapshot_kernel_for_more_than_one_redundant_joint_uses_the_pseudo_inver
     A = rng.standard_normal((8, 8))
     M = A @ A.T + 8 * np.eye(8)
     J = rng.standard_normal((6, 8))
-    for a, b in zip(K.snapshot_fused(np.triu(M), J, 1e-6), K.snapshot_reference(np.triu(M), J, 1e-6), strict=True):
+    for a, b in zip(
+        Ksnapshot.snapshot_fused(np.triu(M), J, 1e-6), Ksnapshot.snapshot_reference(np.triu(M), J, 1e-6), strict=True
+    ):
         assert _rel(a, b) < RTOL
 
 
@@ -96,8 +106,8 @@ def test_coupling_kernel_equals_numpy_reference(robot, sub):
     for q in _states(robot, seed=12):
         dyn = model.compute(q, np.zeros(7))
         for exact in (True, False):
-            fused = K.coupling_fused(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact)
-            ref = K.coupling_reference(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact)
+            fused = Kcoupling.coupling_fused(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact)
+            ref = Kcoupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact)
             tol = _tolerance(dyn.Lambda_inv)
             for i, (a, b) in enumerate(zip(fused, ref, strict=True)):
                 # D̂ = D − BᵀA⁻¹B (inexact path) is a difference of terms of the size of D
@@ -109,7 +119,7 @@ def test_kinematic_hessian_from_J_equals_pinocchio(robot):
     model = RobotModel(robot.model)
     assert model.revolute_chain
     for q in _states(robot, seed=13):
-        H = K.kinematic_hessian_reference(model.tcp_jacobian(q))
+        H = Kchain.kinematic_hessian_reference(model.tcp_jacobian(q))
         H_pin = model.tcp_jacobian_derivative(q)
         assert np.max(np.abs(H - H_pin)) < 1e-12 * max(1.0, np.abs(H_pin).max())
 
@@ -126,9 +136,9 @@ def test_tcp_bias_acceleration_from_J_equals_pinocchio(robot):
         expected = pin.getFrameClassicalAcceleration(
             model.model, model.data, model.tcp_frame_id, pin.LOCAL_WORLD_ALIGNED
         ).vector.copy()
-        ref = K.tcp_bias_acceleration_reference(J, dq)
+        ref = Kchain.tcp_bias_acceleration_reference(J, dq)
         fused = np.empty(6)
-        K.tcp_bias_acceleration_into(J, dq, fused)
+        Kchain.tcp_bias_acceleration_into(J, dq, fused)
         assert _rel(ref, expected) < 1e-12
         assert _rel(fused, ref) < 1e-13
         assert _rel(model.compute(q, dq).dJ_dq, expected) < 1e-12
@@ -143,8 +153,8 @@ def test_gradient_contraction_kernel_equals_numpy_reference(robot, sub, objectiv
         t = terms_of(dyn, sub)
         P = {"f": t.P_f, "a": t.P_a, "d": t.P_d}[objective]
         args = (dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, t.A_inv, sub.perm, sub.n_m)
-        fused = K.gradient_contraction_fused(K.OBJECTIVE_CODES[objective], dyn.J, *args)
-        ref = K.gradient_contraction_reference(objective, dyn.J, model.tcp_jacobian_derivative(q), *args)
+        fused = Kgradients.gradient_contraction_fused(Kgradients.OBJECTIVE_CODES[objective], dyn.J, *args)
+        ref = Kgradients.gradient_contraction_reference(objective, dyn.J, model.tcp_jacobian_derivative(q), *args)
         for a, b in zip(fused, ref, strict=True):
             assert _rel(a, b) < _tolerance(dyn.Lambda_inv), dyn.min_eig_Lambda_inv
 
@@ -185,7 +195,7 @@ def test_projection_law_kernels_equal_numpy_reference(robot, sub, shaping):
         dyn = model.compute(q, rng.uniform(-1, 1, 7))
         t = terms_of(dyn, sub)
         e, velocity, acceleration = (rng.standard_normal(6) for _ in range(3))
-        law = K.law_record(
+        law = Klaw.law_record(
             MotionForceGains(force_kp=0.5, force_kd=200.0, shaping=shaping), NullspaceGains(), objective=0, k0=1.0,
             n_m=sub.n_m, perm=sub.perm, kp_m=rng.uniform(10, 4000, sub.n_m), kd_scale_m=rng.uniform(0.5, 200, sub.n_m),
             q_lower=robot.q_lower, q_upper=robot.q_upper, dq_limit=robot.dq_max, endless=robot.endless, kn=np.ones(7),
@@ -196,12 +206,12 @@ def test_projection_law_kernels_equal_numpy_reference(robot, sub, shaping):
             dyn.record, target, e, t.A, t.P_d, t.P_f, rng.standard_normal(6), rng.standard_normal(sub.n_f),
             rng.standard_normal(sub.n_f), law,
         )  # fmt: skip
-        fused, ref = K.task_wrench_fused(*args), K.task_wrench_reference(*args)
+        fused, ref = Klaw.task_wrench_fused(*args), Klaw.task_wrench_reference(*args)
         tol = _tolerance(dyn.Lambda_inv)
         for a, b in zip(fused, ref, strict=True):
             assert _rel(a, b) < tol
         targs = (dyn.J, ref[1], dyn.N, dyn.Lambda_n, rng.uniform(1, 100, 7), rng.standard_normal(7), dyn.dq, dyn.h)
-        assert _rel(K.joint_torque_fused(*targs), K.joint_torque_reference(*targs)) < tol
+        assert _rel(Klaw.joint_torque_fused(*targs), Klaw.joint_torque_reference(*targs)) < tol
 
 
 def test_damper_bounds_kernel_equals_numpy_reference(robot):
@@ -217,7 +227,7 @@ def test_damper_bounds_kernel_equals_numpy_reference(robot):
         edge = np.where(rng.random(7) < 0.5, robot.q_lower, robot.q_upper)
         q = edge + rng.uniform(-0.35, 0.35, 7)  # around a limit: outside, inside d_s, inside d_i, free
         ref = damper_bounds(q, robot.q_lower, robot.q_upper, dq_limit, endless, gains)
-        fused = K.damper_bounds_fused(
+        fused = Klaw.damper_bounds_fused(
             q, robot.q_lower, robot.q_upper, dq_limit, endless,
             gains.damper_influence, gains.damper_safety, gains.damper_speed,
         )  # fmt: skip
@@ -237,7 +247,7 @@ def test_swivel_of_points_equals_swivel_angle(robot):
         points = [data.oMi[j].translation for j in (2, 4, 6)]
         assert abs(swivel_of_points(*points) - swivel_angle(model, q)) < 1e-12
         anchors = np.array([data.oMi[j].translation for j in range(robot.model.njoints)])
-        assert abs(K.swivel_of_anchors_fused(anchors, 2, 4, 6) - swivel_of_points(*points)) < 1e-14
+        assert abs(Kgeometry.swivel_of_anchors_fused(anchors, 2, 4, 6) - swivel_of_points(*points)) < 1e-14
 
 
 def test_inertia_contraction_kernel_equals_rnea_derivatives(robot):
@@ -247,7 +257,7 @@ def test_inertia_contraction_kernel_equals_rnea_derivatives(robot):
     for q in _states(robot, seed=22):
         a, b = rng.standard_normal(7), rng.standard_normal(7)
         ref = model.mass_matrix_derivative_times(q, b).T @ a
-        assert _rel(K.inertia_contraction_fused(q, *model.chain, a, b), ref) < RTOL
+        assert _rel(Kchain.inertia_contraction_fused(q, *model.chain, a, b), ref) < RTOL
 
 
 @pytest.mark.parametrize("form", ["proposed", "classic"])
@@ -289,8 +299,8 @@ def test_nullspace_line_qp_kernel_equals_numpy_reference(robot):
             k = rng.integers(7)
             lower[k], upper[k] = 0.05, 1.0
         x = np.full(7, np.nan)
-        code = K.nullspace_line_qp_fused(J, g, lower, upper, x)
-        ref = K.nullspace_line_qp_reference(J, g, lower, upper)
+        code = Kline_qp.nullspace_line_qp_fused(J, g, lower, upper, x)
+        ref = Kline_qp.nullspace_line_qp_reference(J, g, lower, upper)
         if ref is None:
             assert code == -1
             continue
@@ -303,8 +313,8 @@ def test_nullspace_line_qp_kernel_equals_numpy_reference(robot):
     assert solved >= 40 and active >= 10
     J = model.compute(robot.home, np.zeros(7)).J.copy()
     J[5] = J[4]  # rank 5: a two-dimensional kernel, not a line
-    assert K.nullspace_line_qp_reference(J, np.ones(7), -np.ones(7), np.ones(7)) is None
-    assert K.nullspace_line_qp_fused(J, np.ones(7), -np.ones(7), np.ones(7), np.empty(7)) == -1
+    assert Kline_qp.nullspace_line_qp_reference(J, np.ones(7), -np.ones(7), np.ones(7)) is None
+    assert Kline_qp.nullspace_line_qp_fused(J, np.ones(7), -np.ones(7), np.ones(7), np.empty(7)) == -1
 
 
 @pytest.mark.parametrize("objective", ["j", "f", "a", "d"])
@@ -365,7 +375,7 @@ def test_log3_kernel_equals_pinocchio_log3():
         axis = rng.standard_normal(3)
         axis /= np.linalg.norm(axis)
         R = pin.exp3(angle * axis)
-        ours = K.log3_fused(R)
+        ours = Kgeometry.log3_fused(R)
         assert float(np.max(np.abs(ours - angle * axis))) < 1e-14
         assert float(np.max(np.abs(ours - pin.log3(R)))) < (1e-12 if angle < 3.0 else 1e-10)
 
@@ -392,7 +402,7 @@ def test_pose_task_rows_and_objective_kernels_equal_numpy_reference(robot):
         assert _rel(fused.b, ref.b) < RTOL
         P, qv = rng.standard_normal((7, 7)), rng.standard_normal(7)
         P_ref, q_ref = P + (ref.J.T * 3.0) @ ref.J, qv - (ref.J.T * 3.0) @ ref.b
-        K.add_task_rows_fused(P, qv, ref.J, ref.b, 3.0)
+        Kcompliance.add_task_rows_fused(P, qv, ref.J, ref.b, 3.0)
         assert _rel(P, P_ref) < RTOL and _rel(qv, q_ref) < RTOL
 
 
@@ -420,12 +430,12 @@ def test_posture_torque_rows_and_inverse_dynamics_kernels_equal_numpy_reference(
             assert _rel(fused.rows(dyn, target, ddq_e).b, ref.rows_reference(dyn, target, ddq_e).b) < RTOL
         tau_fb = rng.standard_normal(7) * 5
         A, lo, up = np.zeros((7, 7)), np.zeros(7), np.zeros(7)
-        K.torque_rows_fused(dyn.M, dyn.h, tau_fb, tau_max, A, lo, up, True, 1e30)
+        Kcompliance.torque_rows_fused(dyn.M, dyn.h, tau_fb, tau_max, A, lo, up, True, 1e30)
         assert np.array_equal(A, dyn.M)
         assert np.array_equal(lo, -tau_max - dyn.h + tau_fb) and np.array_equal(up, tau_max - dyn.h + tau_fb)
         ddq = rng.standard_normal(7) * 50
         for clip in (False, True):
-            tau, cmd, saturated = K.inverse_dynamics_fused(dyn.M, ddq, dyn.h, tau_fb, tau_max, clip)
+            tau, cmd, saturated = Kcompliance.inverse_dynamics_fused(dyn.M, ddq, dyn.h, tau_fb, tau_max, clip)
             tau_ref = dyn.M @ ddq + dyn.h - tau_fb
             tau_ref = np.clip(tau_ref, -tau_max, tau_max) if clip else tau_ref
             assert _rel(tau, tau_ref) < RTOL
@@ -450,7 +460,7 @@ def test_estimation_kernels_equal_numpy_reference(robot):
             hp_fused.update(dyn.J.T @ wrench)
             hp_ref.update(dyn.J.T @ wrench)
             continue
-        tau_s, hp = K.sensor_high_pass_fused(dyn.J, wrench, hp_fused.lp, hp_fused.a)
+        tau_s, hp = Kestimation.sensor_high_pass_fused(dyn.J, wrench, hp_fused.lp, hp_fused.a)
         assert _rel(tau_s, dyn.J.T @ wrench) < RTOL
         assert _rel(hp, hp_ref.update(dyn.J.T @ wrench), scale=float(np.abs(tau_s).max())) < RTOL
 
@@ -460,7 +470,7 @@ def test_moved_wrench_equals_numpy_reference():
     rng = np.random.default_rng(8)
     for _ in range(50):
         w, a, b = rng.normal(size=6) * 30, rng.normal(size=3), rng.normal(size=3)
-        assert _rel(K.move_wrench_fused(w, a, b), K.move_wrench_reference(w, a, b)) < 1e-14
+        assert _rel(Kgeometry.move_wrench_fused(w, a, b), Kgeometry.move_wrench_reference(w, a, b)) < 1e-14
 
 
 # ---- [C] QP kernels (control/kernels/dense_qp.py) ---------------------------------------------------

@@ -1,7 +1,7 @@
 """Compile before the URL: every compiled kernel the loop meets is compiled (or loaded from numba's
 cache) before `serve` says where the page is, so the first drag or Pause never waits on a compile.
 
-Two passes, with a progress line each: every registered kernel (`control.kernels.registry.KERNELS`)
+Two passes, with a progress line each: every registered kernel (`control.kernel_registry.KERNELS`)
 called once on its first sample input, then 1.1 s of every preset with every executor on the chosen
 robot (the argument types the loop itself builds), followed by a hard drag (the paths a saturated
 force or a failing QP take). Run on the calling thread before the loop
@@ -29,7 +29,7 @@ WARM_STEPS = 1100  # steps of each preset × executor: 1.1 s, the polish live ma
 
 def warm_registered_kernels() -> int:
     """Call every registered compiled kernel on its first sample; how many were called."""
-    from control.kernels.registry import KERNELS
+    from control.kernel_registry import KERNELS
 
     rng = np.random.default_rng(0)
     for pair in KERNELS.values():
