@@ -84,6 +84,9 @@ def test_the_hook_renders_every_subcommand_and_each_lessons_steps():
     a lesson's steps are numbered as many as the lesson has."""
     import importlib.util
 
+    import pytest
+
+    pytest.importorskip("mkdocs", reason="the hook is a MkDocs hook: pip install -e '.[docs]'")
     from app.cli import build_parser
     from app.live.lessons import LESSONS
 
