@@ -7,6 +7,7 @@ import time
 from types import SimpleNamespace
 
 import msgspec
+import numpy as np
 import pytest
 import viser
 from websockets.sync.client import connect
@@ -338,3 +339,123 @@ def test_a_failing_frame_build_stage_in_the_running_loop_is_reported_once_and_co
         assert _shown_grows(app, "scene_updates"), stage  # back by itself
     assert stage not in frames.stages.failing
     assert sent.count("Display problem") == 1  # ten failures, one notice
+
+
+def _logged_plots(app):
+    """The app's plots with a second of logged history (the loop stepped, the plots updated)."""
+    plots = app.publisher.plots
+    before = app.publisher.plot_updates
+    app.loop.submit(StepOnce(1000))
+    app.loop.sync(timeout=60.0)
+    assert wait_until(lambda: app.publisher.plot_updates > before and len(plots.history.t) > 20)
+    return plots
+
+
+def test_a_redraw_reads_the_replay_instant_once_so_replay_clearing_it_meanwhile_cannot_break_it(app, monkeypatch):
+    """Replay clears `replay_t` from another thread; here it is cleared right after each read, the worst
+    moment. The redraw reads it once and draws that instant (it read it twice, and the second read's
+    None raised in the middle of a frame)."""
+    plots = _logged_plots(app)
+    reads = [0]
+
+    class ClearedAfterEachRead(type(plots)):  # type: ignore[misc]
+        @property  # type: ignore[override]
+        def replay_t(self):
+            reads[0] += 1
+            value = self.__dict__.get("_replay_t_value")
+            self.__dict__["_replay_t_value"] = None  # Replay switched off right after this read
+            return value
+
+        @replay_t.setter
+        def replay_t(self, value):
+            self.__dict__["_replay_t_value"] = value
+
+    monkeypatch.setattr(plots, "__class__", ClearedAfterEachRead)
+    t = plots.history.t
+    for instant in np.linspace(float(t[len(t) // 4]), float(t[-1]), 20):
+        plots.replay_t = float(instant)
+        reads[0] = 0
+        plots.redraw()  # raised TypeError when the second read met None
+        assert reads[0] == 1
+
+
+def test_replay_toggled_from_another_thread_during_redraws_breaks_no_redraw(app):
+    """A thread switches the replay instant on and off as fast as it can while 300 redraws run."""
+    import threading
+
+    plots = _logged_plots(app)
+    t = plots.history.t
+    instant = float(t[len(t) // 2])
+    stop = threading.Event()
+    toggles = [0]
+
+    def toggle() -> None:
+        while not stop.is_set():
+            plots.replay_t = instant if toggles[0] % 2 == 0 else None
+            toggles[0] += 1
+
+    thread = threading.Thread(target=toggle, daemon=True)
+    thread.start()
+    try:
+        for _ in range(300):
+            plots.redraw()
+    finally:
+        stop.set()
+        thread.join(5.0)
+        plots.replay_t = None
+    assert toggles[0] > 300
+
+
+def test_the_framer_writes_cameras_on_the_servers_event_loop_while_pages_connect_and_leave(app):
+    """The publisher frames the pages while 40 raw websocket clients connect (sending their camera, so
+    they are framed too) and leave: every camera write runs on the server's event loop thread, and none
+    of the framings from the publisher's side raises (asyncio's "deque mutated during iteration" did)."""
+    import threading
+
+    import app.live.ui.camera as camera_module
+
+    pub = app.publisher
+    assert wait_until(lambda: _shown_grows(app) and pub.last_frame is not None and pub.last_frame.scene is not None)
+    loop_thread: list[int] = []
+    app.server.get_event_loop().call_soon_threadsafe(lambda: loop_thread.append(threading.get_ident()))
+    assert wait_until(lambda: bool(loop_thread))
+    writers: list[int] = []
+    # the function that writes the cameras (`frame_cameras` wrote them on its caller's thread)
+    name = "write_cameras" if hasattr(camera_module, "write_cameras") else "frame_cameras"
+    real_write = getattr(camera_module, name)
+
+    def recorded(*args, **kwargs):
+        writers.append(threading.get_ident())
+        return real_write(*args, **kwargs)
+
+    setattr(camera_module, name, recorded)
+    errors: list[BaseException] = []
+    stop = threading.Event()
+    framings = [0]
+
+    def frame_again() -> None:
+        while not stop.is_set():
+            try:
+                assert pub.frame_view()
+                framings[0] += 1
+            except BaseException as exc:
+                errors.append(exc)
+                return
+
+    thread = threading.Thread(target=frame_again, daemon=True)
+    thread.start()
+    sub = [f"viser-v{viser.__version__}"]
+    try:
+        for _ in range(40):
+            ws = connect(f"ws://127.0.0.1:{app.port}", subprotocols=sub, open_timeout=10)
+            ws.send(camera_message())
+            time.sleep(0.02)
+            ws.close()
+    finally:
+        stop.set()
+        thread.join(10.0)
+        setattr(camera_module, name, real_write)
+    assert not errors, errors[0]
+    assert framings[0] >= 40 and writers
+    elsewhere = sum(1 for w in writers if w != loop_thread[0])
+    assert elsewhere == 0, f"{elsewhere} of {len(writers)} camera writes ran outside the server's event loop"

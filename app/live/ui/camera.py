@@ -12,10 +12,16 @@ more than `FOLLOW_TOLERANCE_M`, the pages whose camera is still where the app pu
 on everything seen since the switch (widened by `FOLLOW_PAD` about its middle, not compounding), at
 most once per `FOLLOW_PERIOD_S`, and not while a link is dragged. A page whose camera a person moved
 is left alone until the next switch or *Frame the robot*.
+
+The cameras are written on the server's event loop thread (`on_server_loop`), where viser's asyncio
+objects live: written from the publisher thread, a page connecting or leaving meanwhile made asyncio
+raise "deque mutated during iteration" (its event's waiters changed while the write woke them).
 """
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import math
 import threading
 import time
@@ -36,6 +42,7 @@ FOLLOW_TOLERANCE_M = 0.03  # a point this far outside the framed box (across the
 FOLLOW_PAD = 1.1  # a new framing takes what was seen, widened about its middle by this factor
 FOLLOW_PERIOD_S = 0.5  # at most one new framing per this many seconds
 PLACED_TOLERANCE_M = 0.01  # a camera within this of where the app put it is still the app's
+LOOP_WAIT_S = 5.0  # the longest a framing waits for the server's event loop to write the cameras
 
 
 def view_direction() -> np.ndarray:
@@ -88,7 +95,44 @@ def robot_points(scene: Any, extra: np.ndarray | None = None) -> np.ndarray | No
     return np.vstack(parts)
 
 
+def on_server_loop(server: Any, fn: Callable[[], Any], timeout: float = LOOP_WAIT_S) -> Any:
+    """`fn()` run on the server's event loop thread, waited for (TimeoutError after `timeout`); run here
+    when called on that thread, or for a server without an event loop (a stand-in in tests). A stopped
+    server's closed loop runs nothing: None."""
+    get_loop = getattr(server, "get_event_loop", None)
+    if get_loop is None:
+        return fn()
+    loop = get_loop()
+    try:
+        running = asyncio.get_running_loop()
+    except RuntimeError:
+        running = None
+    if running is loop:
+        return fn()
+    done: concurrent.futures.Future = concurrent.futures.Future()
+
+    def run() -> None:
+        try:
+            done.set_result(fn())
+        except BaseException as exc:
+            done.set_exception(exc)
+
+    try:
+        loop.call_soon_threadsafe(run)
+    except RuntimeError:  # the loop is closed: no page to write to
+        return None
+    return done.result(timeout)
+
+
 def frame_cameras(
+    server: viser.ViserServer, points: np.ndarray, clients: Iterable[viser.ClientHandle] | None = None
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """`write_cameras` on the server's event loop thread (see the module docstring); {} for a stopped server."""
+    chosen = None if clients is None else list(clients)
+    return on_server_loop(server, lambda: write_cameras(server, points, chosen)) or {}
+
+
+def write_cameras(
     server: viser.ViserServer, points: np.ndarray, clients: Iterable[viser.ClientHandle] | None = None
 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Frame `points` for the initial camera and the given clients (every connected client when None);
@@ -174,8 +218,13 @@ class Framer:
             middle = 0.5 * (seen.min(axis=0) + seen.max(axis=0))
             self.framed = middle + FOLLOW_PAD * (seen - middle)
             self._next = self._clock() + FOLLOW_PERIOD_S
-            clients = [c for cid, c in self.server.get_clients().items() if self._still_placed(cid, c)]
-            self.placed.update(frame_cameras(self.server, self.framed, clients))
+            framed = self.framed
+
+            def still_placed() -> dict[int, tuple[np.ndarray, np.ndarray]]:  # the clients read on the loop too
+                clients = [c for cid, c in self.server.get_clients().items() if self._still_placed(cid, c)]
+                return write_cameras(self.server, framed, clients)
+
+            self.placed.update(on_server_loop(self.server, still_placed) or {})
             self.reframes += 1
             return True
 

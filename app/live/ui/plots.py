@@ -663,13 +663,14 @@ class Plots:
         """Draw again from the history (e.g. at a new replay instant)."""
         self._redraw()
 
-    def _window(self, history: SignalHistory) -> dict[str, np.ndarray]:
-        """The shown window of a history: up to now, or while replaying up to the chosen instant."""
-        if self.replay_t is None:
+    def _window(self, history: SignalHistory, replay_t: float | None) -> dict[str, np.ndarray]:
+        """The shown window of a history: up to now, or while replaying (`replay_t`, read once per
+        redraw: Replay may clear it from another thread meanwhile) up to that instant."""
+        if replay_t is None:
             return history.window(self._window_s)
         t = history.t
-        end = int(np.searchsorted(t, self.replay_t, side="right"))
-        start = int(np.searchsorted(t, self.replay_t - self._window_s))
+        end = int(np.searchsorted(t, replay_t, side="right"))
+        start = int(np.searchsorted(t, replay_t - self._window_s))
         return {k: v[start:end] for k, v in history.columns.items()}
 
     def _previous_at(self, key: str, t: np.ndarray) -> np.ndarray:
@@ -693,7 +694,8 @@ class Plots:
         plot = self._last
         if plot is None:
             return
-        c = self._window(self.history)
+        replay_t = self.replay_t  # once per redraw: every chart of this redraw shows the same instant
+        c = self._window(self.history, replay_t)
         t = c.get("t", np.zeros(0))
         if len(t) < 2 or "Fd_z" not in c:
             if not self.freeze.value:
@@ -711,8 +713,8 @@ class Plots:
         self._draw_rate(c, s, x, now)
         self._draw_torque(plot, c, s, x, now)
         self._draw_deflection(c, s, x, now)
-        self._update_phase(plot)
-        m = self._window(self.monitor)
+        self._update_phase(plot, c)
+        m = self._window(self.monitor, replay_t)
         mt = m.get("t", np.zeros(0))
         if len(mt) >= 2:
             ms = slice(None, None, _stride(len(mt)))
@@ -873,9 +875,9 @@ class Plots:
         value = getattr(damper, field, None)
         return float(value) if value is not None else default
 
-    def _update_phase(self, plot: PlotData) -> None:
+    def _update_phase(self, plot: PlotData, c: dict[str, np.ndarray]) -> None:
+        """The phase portrait of the chosen joint from the redraw's window `c`."""
         j = int(self.joint.value) - 1
-        c = self._window(self.history)
         q, dq = c[f"q_{j + 1}"], c[f"dq_{j + 1}"]
         s = slice(None, None, _stride(len(q)))
         q, dq = q[s], dq[s]
