@@ -91,6 +91,9 @@ class TableContact:
     ):
         self.height = float(height)
         self.implicit = bool(implicit)  # False: the explicit law (kept to show why it is not used)
+        # the spring acts on the TCP position this many steps old: 0, the position at the step's start
+        # (`apply` reads the current `site_xpos`); a run records it with its contact settings
+        self.spring_lag_steps = 0
         self.set_params(
             "contact", ContactParams(mu=mu, stiffness_n_per_m=stiffness_n_per_m, v_eps_m_per_s=v_eps_m_per_s)
         )

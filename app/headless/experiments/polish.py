@@ -38,6 +38,7 @@ from app.headless.experiments.polish_rows import (
 )
 from app.headless.experiments.polish_runs import RUNS_DIR, _finished_runs, load_run, save_run
 from app.headless.experiments.polish_v_eps import V_EPS_CHECK_M_PER_S, v_eps_check
+from app.headless.experiments.run_config import parse_settings, run_configuration
 from app.headless.sweep.engine import open_executor
 from app.scenarios import polish_plan as plan_module
 from app.scenarios import polish_stroke as stroke_module
@@ -200,7 +201,10 @@ def simulate(spec: dict) -> dict:
         "contact": {
             **dataclasses.asdict(ran["contact"]),  # type: ignore[call-overload]
             "implicit_friction": bool(session.environment.contact.implicit),  # type: ignore[attr-defined]
+            "spring_lag_steps": int(session.environment.contact.spring_lag_steps),  # type: ignore[attr-defined]
         },
+        "robot": session.robot.name,
+        "config": run_configuration(session),
         "timestep_s": float(session.world.model.opt.timestep),
         "converged": bool(clock.converged),
         "convergence_time_s": clock.convergence_time_s,
@@ -272,7 +276,7 @@ def posture_figures(session, q: np.ndarray, mu: float, shaping: bool) -> dict:
     dirs["retract"] = stroke_module.friction_direction(0.5 * stroke_module.SEGMENT_DURATION_S)
     gains = replace(session.executor.gains, shaping=shaping)  # type: ignore[attr-defined]
     loop = ContactLoop(
-        stiffness_n_per_m=stroke_module.CONTACT_STIFFNESS_N_PER_M,
+        stiffness_n_per_m=session.environment.contact.stiffness_n_per_m,  # the run's own contact
         mu=mu,
         normal_force_n=stroke_module.DESIRED_FORCE_N,
         speed_m_s=peak_speed(),
@@ -293,6 +297,17 @@ def posture_figures(session, q: np.ndarray, mu: float, shaping: bool) -> dict:
             "kd_critical_retract": _finite_or_none(pm.kd_critical_per_direction[1]),
             "worst_direction": ("stretch", "retract")[pm.worst_direction],
             "worst_speed_m_s": pm.worst_speed_m_s,
+            # the linearised loop the margin is computed on, as the run had it
+            "loop": {
+                "stiffness_n_per_m": loop.stiffness_n_per_m,
+                "speed_m_s": loop.speed_m_s,
+                "sensor_cutoff_hz": loop.sensor_cutoff_hz,
+                "sensing_delay_steps": loop.sensing_delay_steps,
+                "actuation_delay_steps": loop.actuation_delay_steps,
+                "force_kp": float(gains.force_kp),
+                "force_ki": float(gains.force_ki),
+                "shaping": bool(gains.shaping),
+            },
         },
     }
 
@@ -421,17 +436,20 @@ def run(args: argparse.Namespace) -> int:
         specs += armature_specs(max(mus))
     if not getattr(args, "no_latency", False) and not getattr(args, "only_armature", False):
         specs += latency_specs(quick, only)
+    settings = [list(x) for x in parse_settings(getattr(args, "set", []))]  # --set: every run, after its own
+    for spec in specs:
+        spec["session_params"] = [*spec.get("session_params", ()), *settings]
     t0 = time.perf_counter()
     print(f"polish: {len(specs)} runs on {jobs} process(es)", file=sys.stderr, flush=True)
     outputs, reused = _map(simulate, specs, jobs, t0, out / RUNS_DIR, bool(getattr(args, "resume", False)))
     results = [o["result"] for o in outputs]
     series = [o["series"] for o in outputs]
-    v_eps = [] if quick else [v_eps_check(v) for v in V_EPS_CHECK_M_PER_S]
+    v_eps = [] if quick else [v_eps_check(v, settings=settings) for v in V_EPS_CHECK_M_PER_S]
 
     from app.headless.experiments.polish_report import armature_basins, scan_at_start, write_figures, write_report
 
-    scan = scan_at_start()
     table = [r for r in results if r["group"] == "table"]
+    scan = scan_at_start(_table_scale(table), _model_armature(table))
     doc = {
         "experiment": "polish",
         "settings": {**_settings(args, mus, quick), "reused_runs": reused},
@@ -442,7 +460,7 @@ def run(args: argparse.Namespace) -> int:
         "summary": summarise(table),
         "armature": {
             "runs": [r for r in results if r["group"] == "armature"] + [r for r in table if _is_fig6a_start(r, mus)],
-            "basins": armature_basins(ARMATURE_SCALES),
+            "basins": armature_basins(ARMATURE_SCALES, _model_armature(table)),
         },
         "v_eps": v_eps,
         "swivel_scan": scan["summary"],
@@ -520,7 +538,7 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
     )
     settings["mu"] = mus
     settings["seeds"] = max(d["settings"]["seeds"] for d in docs)
-    scan = scan_at_start()
+    scan = scan_at_start(_table_scale(table), _model_armature(table))
     basins: list = next((d["armature"]["basins"] for d in docs if d["armature"]["basins"]), [])
     doc = {
         "experiment": "polish",
@@ -576,6 +594,22 @@ def _recompute_margins(results: list[dict]) -> None:
         session.set_param("sensor", "reading_delay_steps", int(r.get("reading_delay_steps", 0)))
         session.set_param("world", "torque_delay_ms", float(r.get("torque_delay_ms", 0.0)))
         r.update(posture_figures(session, np.array(r["q_converged"]), float(r["mu"]), bool(r["shaping"])))
+
+
+def _model_armature(runs: list[dict]) -> list[float] | None:
+    """The controller model's armature (kg m²) the runs had before their scenario's armature scale (their
+    recorded configuration over that scale), for the swivel scans; None when no run recorded it."""
+    for r in runs:
+        scale = float(r.get("armature_scale", 1.0))
+        if scale > 0 and (r.get("config") or {}).get("armature_model_kg_m2"):
+            return [a / scale for a in r["config"]["armature_model_kg_m2"]]
+    return None
+
+
+def _table_scale(runs: list[dict]) -> float:
+    """The scenario's armature scale of the table's runs (1 when they differ or there are none)."""
+    scales = {float(r.get("armature_scale", 1.0)) for r in runs}
+    return scales.pop() if len(scales) == 1 else 1.0
 
 
 def _is_fig6a_start(r: dict, mus: list[float]) -> bool:
@@ -668,6 +702,7 @@ def _settings(args: argparse.Namespace, mus: list, quick: bool) -> dict:
         + (f" --robot {robot}" if robot in robots.available() else f" --urdf {robot}" if robot else "")
         + (" --quick" if quick else f" --seeds {args.seeds}")
         + (f" --rows {args.rows}" if getattr(args, "rows", None) else "")
+        + "".join(f" --set {x}" for x in getattr(args, "set", []) or [])
         + f" --mu {','.join(f'{m:g}' for m in mus)}",
         "code": code_record(),
         "quick": quick,

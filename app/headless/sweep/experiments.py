@@ -273,7 +273,7 @@ def polish_cell(values: dict, seed: int) -> dict:
     if "strokes" in values:
         spec["strokes"] = int(values["strokes"])
     r = simulate(spec)["result"]
-    drop = ("per_segment", "q_start", "q_converged", "posture_change_deg", "plan", "stroke_margin")
+    drop = ("per_segment", "q_start", "q_converged", "posture_change_deg", "plan", "stroke_margin", "config")
     keep = {k: v for k, v in r.items() if k not in drop}
     return {"metrics": {**_scalars(keep), **calibration_metrics(r)}, "stable": bool(r["stable"])}
 
