@@ -51,13 +51,37 @@ def float_array(owner: str, name: str, value: object, shape: tuple[int, ...] | N
     return a
 
 
+# each field of a task target and its shape (None: a non-empty vector); q_posture may be None
+TARGET_SHAPES: dict[str, tuple[int, ...] | None] = {
+    "position": (3,), "rotation": (3, 3), "velocity": (6,), "acceleration": (6,), "wrench": (6,), "q_posture": None,
+}  # fmt: skip
+
+
+def _checked_target_field(name: str, value: object) -> object:
+    """A target field's value as the one type the kernels are compiled for (`float_array`); the
+    per-step case (already that type, finite) passes with one finiteness check."""
+    shape = TARGET_SHAPES[name]
+    if value is None and name == "q_posture":
+        return None
+    a = value
+    if (
+        type(a) is _ARRAY and a.dtype is _F64 and _plain(a)
+        and (a.shape == shape if shape is not None else (a.ndim == 1 and a.shape[0] > 0))
+    ):  # fmt: skip
+        flat = a.reshape(-1)
+        if math.isfinite(float(flat.dot(flat))):
+            return a
+    return float_array("TaskTarget", name, value, shape)
+
+
 @dataclass
 class TaskTarget:
     """Desired TCP motion and contact force, world-aligned axes [px py pz rx ry rz].
 
-    Every field is coerced at construction to a float64 array of its shape with finite entries
-    (`float_array`): a bad one is a ValueError here, never a recompilation or a type error inside
-    a compiled step."""
+    Every field is coerced to a float64 array of its shape with finite entries (`float_array`) when
+    it is assigned, at construction and after it (`target.position = (0.4, 0, 0.3)` stores a float64
+    array): a bad one is a ValueError naming the field at the assignment, never a recompilation or a
+    type error inside a compiled step. A name that is not a field is an AttributeError."""
 
     position: np.ndarray  # (3,) m
     rotation: np.ndarray  # (3, 3) world ← tcp
@@ -80,39 +104,48 @@ class TaskTarget:
         finite, C-contiguous): no check here. For a builder that makes one target per control step from
         inputs it checked once, at its own construction (`app.scenarios.polish.PolishTarget`)."""
         target = object.__new__(cls)
-        target.position, target.rotation, target.velocity = position, rotation, velocity
-        target.acceleration, target.wrench, target.q_posture = acceleration, wrench, q_posture
+        d = target.__dict__
+        d["position"], d["rotation"], d["velocity"] = position, rotation, velocity
+        d["acceleration"], d["wrench"], d["q_posture"] = acceleration, wrench, q_posture
         return target
 
-    def __post_init__(self) -> None:
-        p, R, v, a, w, qp = self.position, self.rotation, self.velocity, self.acceleration, self.wrench, self.q_posture
-        # the per-step case first (float64 arrays of the right shape, not read-only: one combined
-        # finiteness check); anything else takes `float_array`, field by field
-        if (
-            type(p) is _ARRAY and type(R) is _ARRAY and type(v) is _ARRAY and type(a) is _ARRAY and type(w) is _ARRAY
-            and p.dtype is _F64 and R.dtype is _F64 and v.dtype is _F64 and a.dtype is _F64 and w.dtype is _F64
-            and p.shape == (3,) and R.shape == (3, 3) and v.shape == (6,) and a.shape == (6,) and w.shape == (6,)
-            and (qp is None or (type(qp) is _ARRAY and qp.dtype is _F64 and qp.ndim == 1 and qp.shape[0] > 0))
-            and _plain(p) and _plain(R) and _plain(v) and _plain(a) and _plain(w) and (qp is None or _plain(qp))
-        ):  # fmt: skip
-            r = R.reshape(9)  # `dot` costs a third of `@` on these sizes
-            s = float(p.dot(p)) + float(v.dot(v)) + float(a.dot(a)) + float(w.dot(w)) + float(r.dot(r))
-            if qp is not None:
-                s += float(qp.dot(qp))
-            if math.isfinite(s):
-                return
-        self.position = float_array("TaskTarget", "position", self.position, (3,))
-        self.rotation = float_array("TaskTarget", "rotation", self.rotation, (3, 3))
-        self.velocity = float_array("TaskTarget", "velocity", self.velocity, (6,))
-        self.acceleration = float_array("TaskTarget", "acceleration", self.acceleration, (6,))
-        self.wrench = float_array("TaskTarget", "wrench", self.wrench, (6,))
-        if self.q_posture is not None:
-            self.q_posture = float_array("TaskTarget", "q_posture", self.q_posture, None)
+    def __setattr__(self, name: str, value: object) -> None:
+        if name not in TARGET_SHAPES:
+            raise AttributeError(f"TaskTarget has no field {name!r} (its fields: {', '.join(TARGET_SHAPES)})")
+        self.__dict__[name] = _checked_target_field(name, value)
+
+
+def _checked_input(name: str, value: object) -> object:
+    """A `ControlInputs` field as the type the executors and kernels take (see `ControlInputs`)."""
+    if name == "t":
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValueError(f"ControlInputs.t must be a number of seconds, got {value!r:.60}")
+        return float(value)
+    if name == "target":
+        if not isinstance(value, TaskTarget):
+            raise ValueError(f"ControlInputs.target must be a TaskTarget, got {type(value).__name__}")
+        return value
+    if value is None:
+        return None
+    if name == "wrench_tcp":  # NaN kept: a faulty sensor is the executor's to survive
+        if type(value) is _ARRAY and value.dtype is _F64 and value.shape == (6,) and _plain(value):
+            return value
+        return float_array("ControlInputs", "wrench_tcp", value, (6,), False)
+    if name == "tau_ext_oracle":
+        if type(value) is _ARRAY and value.dtype is _F64 and value.ndim == 1 and _plain(value):
+            return value
+        return float_array("ControlInputs", "tau_ext_oracle", value, None, False)
+    raise AttributeError(f"ControlInputs has no field {name!r} (its fields: t, target, wrench_tcp, tau_ext_oracle)")
 
 
 @dataclass
 class ControlInputs:
-    """Everything besides the Dynamics snapshot that a controller may read in one step."""
+    """Everything besides the Dynamics snapshot that a controller may read in one step.
+
+    Each field is checked as it is assigned (at construction and after): t a number (stored as
+    float), the target a `TaskTarget`, the reading float64 (6,) and the oracle torque a float64
+    vector (NaN kept), converted when they are numbers of another type; anything else is a ValueError
+    naming the field."""
 
     t: float  # s
     target: TaskTarget
@@ -127,16 +160,12 @@ class ControlInputs:
         reading (6,)): no check here. For the session's step, whose reading comes from a compiled
         kernel and whose oracle torque is a fresh copy of the world's (`app.core.session.Session.step`)."""
         inputs = object.__new__(cls)
-        inputs.t, inputs.target, inputs.wrench_tcp, inputs.tau_ext_oracle = t, target, wrench_tcp, tau_ext_oracle
+        d = inputs.__dict__
+        d["t"], d["target"], d["wrench_tcp"], d["tau_ext_oracle"] = t, target, wrench_tcp, tau_ext_oracle
         return inputs
 
-    def __post_init__(self) -> None:
-        """The reading as float64 (6,) (NaN kept: a faulty sensor is the executor's to survive)."""
-        w, tau = self.wrench_tcp, self.tau_ext_oracle
-        if w is not None and not (type(w) is _ARRAY and w.dtype is _F64 and w.shape == (6,) and _plain(w)):
-            self.wrench_tcp = float_array("ControlInputs", "wrench_tcp", w, (6,), False)
-        if tau is not None and not (type(tau) is _ARRAY and tau.dtype is _F64 and tau.ndim == 1 and _plain(tau)):
-            self.tau_ext_oracle = float_array("ControlInputs", "tau_ext_oracle", tau, None, False)
+    def __setattr__(self, name: str, value: object) -> None:
+        self.__dict__[name] = _checked_input(name, value)
 
 
 @dataclass

@@ -129,6 +129,8 @@ class Dynamics:
     def __setattr__(self, name: str, value: Any) -> None:
         if name in _FIELD_NAMES:
             raise AttributeError(f"Dynamics.{name} is a view of the snapshot's record: write into it ({name}[...] = …)")
+        if name in ("record", "_block", "_at"):  # the compiled kernels take the record whole
+            raise AttributeError(f"Dynamics.{name} is fixed at construction: write into the record's fields")
         object.__setattr__(self, name, value)
 
     def __getstate__(self) -> dict:

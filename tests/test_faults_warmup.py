@@ -1,17 +1,23 @@
 """Compiled before the URL: after the warm-up the loop meets no kernel signature it has not compiled
-(that `serve` says the kernels are ready before it prints the URL: the smoke test in tests/test_cli.py)."""
+(that `serve` says the kernels are ready before it prints the URL: the smoke test in tests/test_cli.py).
+
+As in `serve`, the warm-up here ends with every dispatcher closed (`app.live.closed_kernels`): a
+signature the warm-up missed would halt the arm with a `NotWarmed` error, which the tests look for."""
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
 import robots
 from app.core.commands import DragCommand, Play, SetParam, SwitchSession
+from app.live import closed_kernels
 from app.live.loop import SimLoop
+from app.live.ui.snapshot import capture
 from app.live.warmup import warm_up
 
 MAX_STEP_CPU_S = 0.010  # a step of the loop thread after a switch: no compile (that takes 0.1-10 s) in it
@@ -32,11 +38,22 @@ def _signatures() -> dict[str, int]:
 
 
 @pytest.fixture(scope="module")
-def warm_lines() -> list[str]:
+def warm_lines() -> Iterator[list[str]]:
     """`serve`'s warm-up on the default robot, once for this module; its progress lines."""
     lines: list[str] = []
     warm_up(None, lines.append)
-    return lines
+    closed_kernels.close()
+    yield lines
+    closed_kernels.reopen()
+
+
+def _synced(lp: SimLoop) -> str:
+    """Wait for the loop's queue; the scenario it runs (a halt for a kernel not warmed fails here)."""
+    status = lp.sync(timeout=120.0)
+    assert "not compiled" not in status.halted and not lp.failure, (status.halted, lp.failure)
+    refused = [n.body for n in lp.take_notices() if "not compiled" in n.body]  # (the scene capture's)
+    assert not refused, refused
+    return status.scenario
 
 
 def _hard_drag(lp: SimLoop, seconds: float) -> None:
@@ -56,14 +73,14 @@ def test_after_the_warm_up_switches_and_a_hard_drag_compile_nothing_new(warm_lin
     assert lines[0].startswith("compiling or loading") and any(line.startswith("[15/15]") for line in lines)
     before = _signatures()
     assert len(before) >= 30
-    lp = SimLoop("free", capture=lambda s: None)
+    lp = SimLoop("free", capture=capture)  # the page's scene capture too
     lp.start(running=True)
     try:
         for scenario, executor in (("free", "projection"), ("limit-drop", "projection"), ("polish", "compliance-qp")):
             lp.submit(SwitchSession(scenario=scenario, executor=executor))
             lp.submit(Play())
             _hard_drag(lp, 1.5)
-            lp.sync(timeout=120.0)
+            _synced(lp)
     finally:
         lp.stop()
     after = _signatures()
@@ -103,9 +120,9 @@ def test_a_switch_to_every_robot_and_backend_the_page_offers_compiles_nothing_an
                     lp.submit(SwitchSession(scenario=scenario, robot=robot, executor=executor))
                     lp.submit(SetParam("solver", "qp_backend", backend))
                     lp.submit(Play())
-                    assert lp.sync(timeout=120.0).scenario == scenario
+                    assert _synced(lp) == scenario
                     _hard_drag(lp, 0.6)
-                    lp.sync(timeout=120.0)
+                    _synced(lp)
     finally:
         lp.stop()
     after = _signatures()

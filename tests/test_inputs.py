@@ -150,3 +150,144 @@ def test_no_kernel_compiles_after_a_preset_executor_or_robot_switch(warm_kernels
                 assert not _new_signatures(before), (robot, scenario, executor, _new_signatures(before))
     for scenario, seconds in slowest.items():
         assert seconds < (0.050 if scenario == "polish" else 0.010), (scenario, seconds)
+
+
+WRONG_TYPES = {  # what a page, a script or a test might assign to an array field, by kind
+    "tuple": lambda a: tuple(a.ravel().tolist()) if a.ndim == 1 else tuple(map(tuple, a.tolist())),
+    "list": lambda a: a.tolist(),
+    "int64": lambda a: np.rint(a).astype(np.int64),
+    "float32": lambda a: a.astype(np.float32),
+    "read-only": lambda a: _read_only(a),
+    "None": lambda a: None,
+    "text": lambda a: "0.5",
+    "int": lambda a: 3,
+}
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    out = a.copy()
+    out.flags.writeable = False
+    return out
+
+
+def _assign(owner: object, name: str, value: object) -> str | None:
+    """Assign; the error's text, or None when the assignment was taken."""
+    try:
+        setattr(owner, name, value)
+    except (ValueError, AttributeError) as exc:
+        assert "\n" not in str(exc) and name in str(exc), (name, str(exc))
+        return str(exc)
+    return None
+
+
+def test_each_wrong_type_assigned_to_each_field_is_converted_or_refused_at_once_and_no_kernel_compiles(rizon):
+    """Issue 34 (3): a tuple, list, int64, float32, read-only array, None, text or int assigned after
+    construction to each field of a task target, of the step's inputs and of the polish target's
+    arrays is converted to the kernels' type or refused there with a ValueError naming the field;
+    a snapshot's record cannot be rebound. Then the executors step on what was taken with every
+    dispatcher closed (`app.live.closed_kernels`): a type they did not meet would be a `NotWarmed`
+    error at once, never a compile, and none comes; no dispatcher gains a signature."""
+    from app.live import closed_kernels
+    from app.scenarios.polish_plan import PolishTarget
+    from app.scenarios.polish_stroke import PhaseClock
+    from control.executor import TARGET_SHAPES
+
+    model = RobotModel(rizon.model)
+    dyn = model.compute(rizon.home, np.full(7, 0.1))
+    good = {
+        "position": dyn.tcp_position_world + 0.01, "rotation": np.eye(3), "velocity": np.full(6, 0.1),
+        "acceleration": np.full(6, 0.2), "wrench": np.array([0.0, 0.0, 5.0, 0.0, 0.0, 0.0]), "q_posture": rizon.home,
+    }  # fmt: skip
+    executors = _executors(rizon, model)
+    for ex in executors:  # every signature these steps take, loaded (or compiled on a cold cache) first
+        ex.reset(dyn, TaskTarget(**good))
+        ex.step(dyn, ControlInputs(0.0, TaskTarget(**good), np.ones(6), np.zeros(7)))
+    before = _signatures()
+    closed_kernels.close()
+    try:
+        taken, refused = 0, 0
+        for name in TARGET_SHAPES:
+            for kind, make in WRONG_TYPES.items():
+                target = TaskTarget(**{k: v.copy() for k, v in good.items()})
+                error = _assign(target, name, make(good[name]))
+                if error is not None:
+                    assert error.startswith(f"TaskTarget.{name} "), (name, kind, error)
+                    refused += 1
+                    continue
+                taken += 1
+                value = getattr(target, name)
+                if kind == "None":  # only q_posture may be None (the executors then hold the posture)
+                    assert name == "q_posture" and value is None, (name, kind)
+                else:
+                    assert type(value) is np.ndarray and value.dtype == np.float64, (name, kind)
+                    assert value.flags.c_contiguous and value.flags.writeable, (name, kind)
+                    np.testing.assert_array_equal(value, np.asarray(make(good[name]), dtype=float))
+                inputs = ControlInputs(0.0, target, np.ones(6), np.zeros(7))
+                for field_name, wrong in (("wrench_tcp", np.ones(6, np.float32)), ("tau_ext_oracle", [0] * 7)):
+                    assert _assign(inputs, field_name, wrong) is None
+                    assert getattr(inputs, field_name).dtype == np.float64
+                for ex in executors:
+                    out = ex.step(dyn, inputs)  # a NotWarmed (a type never met) would raise here
+                    assert np.all(np.isfinite(out.tau)), (name, kind, ex.name)
+        # the refused: every text, None where a vector is needed, a bare number
+        assert refused == 3 * len(TARGET_SHAPES) - 1 and taken == 5 * len(TARGET_SHAPES) + 1, (refused, taken)
+        inputs = ControlInputs(0.0, TaskTarget(**good), np.ones(6))
+        for field_name in ("t", "target", "wrench_tcp", "tau_ext_oracle"):
+            assert _assign(inputs, field_name, "0.5") is not None, field_name
+        assert _assign(inputs, "t", np.float32(0.25)) is None and type(inputs.t) is float
+        assert _assign(inputs, "wrench_tcp", (1, 2)) is not None
+        with pytest.raises(AttributeError, match="TaskTarget has no field 'positon'"):
+            inputs.target.positon = (0.0, 0.0, 0.0)  # a misspelt field is not a silent new attribute
+        with pytest.raises(AttributeError, match=r"^Dynamics\.record "):
+            dyn.record = dyn.record.copy()
+        polish = PolishTarget(good["position"], np.eye(3), rizon.home, PhaseClock())
+        for name, shape in PolishTarget._CHECKED.items():
+            for kind, make in WRONG_TYPES.items():
+                base = getattr(polish, name)
+                error = _assign(polish, name, make(base))
+                value = getattr(polish, name)
+                assert value.dtype == np.float64 and value.flags.writeable and value.ndim == len(shape or (7,))
+                assert (error is None) == (kind not in ("None", "text", "int")), (name, kind, error)
+                setattr(polish, name, base)
+        for ex in executors:
+            ex.step(dyn, ControlInputs(0.0, polish(0.5), np.zeros(6)))
+    finally:
+        closed_kernels.reopen()
+    assert not _new_signatures(before), _new_signatures(before)
+
+
+def test_after_the_warm_up_every_kernel_refuses_a_type_it_was_not_compiled_for_without_compiling():
+    """`closed_kernels.close()` closes every dispatcher of the project (the registered kernels and
+    the simulator's): each registered kernel still runs on its own sample, and refuses the same call
+    with its first float array (else its first argument) as complex numbers with one `NotWarmed`
+    naming it, adding no signature."""
+    from app.live import closed_kernels
+    from control.kernel_registry import KERNELS
+
+    rng = np.random.default_rng(1)
+    calls = {}
+    for name, pair in KERNELS.items():
+        args = pair.samples(rng)[0]
+        pair.compiled(*args)  # loaded from numba's cache (compiled on a cold one) before the closing
+        calls[name] = args
+    found = closed_kernels.dispatchers()
+    assert len(found) >= len(KERNELS) + 5 and any(k.startswith("app.sim.") for k in found)
+    counts = {k: len(d.signatures) for k, d in found.items()}
+    assert closed_kernels.close() == len(found) and closed_kernels.is_closed()
+    try:
+        for name, args in calls.items():
+            KERNELS[name].compiled(*args)
+            at = next((i for i, a in enumerate(args) if isinstance(a, np.ndarray) and a.dtype == np.float64), None)
+            if at is None:  # no float array (records, scalars): complex numbers for the first argument
+                at, wrong = 0, np.zeros(3, np.complex128)
+            else:
+                wrong = args[at].astype(np.complex128)
+            t0 = time.perf_counter()
+            with pytest.raises(closed_kernels.NotWarmed, match=rf"\.{name} was not compiled for these") as err:
+                KERNELS[name].compiled(*args[:at], wrong, *args[at + 1 :])
+            assert time.perf_counter() - t0 < 1.0, name  # a compile takes 0.1-10 s; a refusal microseconds
+            assert "complex128" in str(err.value) and "\n" not in str(err.value), name
+    finally:
+        closed_kernels.reopen()
+    assert not closed_kernels.is_closed()
+    assert {k: len(d.signatures) for k, d in found.items()} == counts

@@ -28,6 +28,7 @@ import robots
 import robots.meshes
 from app.core.commands import DragCommand
 from app.core.params import parse_settings
+from app.live import closed_kernels
 from app.live.loop import SimLoop
 from app.live.memory import freeze_start_up_objects
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
@@ -265,7 +266,8 @@ def serve(args: argparse.Namespace) -> int:
     busy = args.port != 0 and not port_is_free(args.host, args.port)
     if getattr(args, "warm", False):  # the CLI's default (--no-warmup skips it); tests warm elsewhere
         took = warm_up(robot, _progress_line)
-        print(f"torquelab: kernels ready in {took:.1f} s", flush=True)
+        closed = closed_kernels.close()  # from here on a kernel refuses a new type instead of compiling
+        print(f"torquelab: kernels ready in {took:.1f} s ({closed} closed to new argument types)", flush=True)
     print(f"torquelab: starting scenario {scenario!r} …", flush=True)
     app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)
     # a `kill` or a closed terminal stops the app as Ctrl-C does (the session's CPU share given back)

@@ -3,6 +3,8 @@ planned nullspace path over it (`control.planner`), cached per robot, start, cos
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from app.scenarios.polish_stroke import (
@@ -87,7 +89,13 @@ class PolishTarget:
 
     Its inputs (start, rotation, posture, the plan's postures) are checked here, once, as the
     executors' type (`control.executor.float_array`); each step's target is built from them by
-    arithmetic that keeps that type, so it takes `TaskTarget.trusted` (no check per step)."""
+    arithmetic that keeps that type, so it takes `TaskTarget.trusted` (no check per step). The arrays
+    it builds from are checked again whenever one is assigned (`_CHECKED`), after construction too."""
+
+    # the arrays each step's target is built from, and their shapes (None: a non-empty vector)
+    _CHECKED: ClassVar[dict[str, tuple[int, ...] | None]] = {
+        "start": (3,), "rotation": (3, 3), "q_posture": None, "wrench": (6,),
+    }  # fmt: skip
 
     def __init__(
         self,
@@ -98,9 +106,9 @@ class PolishTarget:
         plan: Plan | None = None,
         plan_lead_s: float = 0.0,
     ):
-        self.start = float_array("PolishTarget", "start_position", start_position, (3,))
-        self.rotation = float_array("PolishTarget", "rotation", rotation, (3, 3))
-        self.q_posture = float_array("PolishTarget", "q_posture", q_posture, None)
+        self.start = float_array("PolishTarget", "start_position", start_position, (3,))  # named as the argument
+        self.rotation = rotation
+        self.q_posture = q_posture
         self.clock = clock
         if plan is not None:
             n = self.q_posture.shape[0]
@@ -110,6 +118,12 @@ class PolishTarget:
         self.plan_lead_s = float(plan_lead_s)
         self.corners = segment_waypoints((float(self.start[0]), float(self.start[1])))
         self.wrench = np.array([0.0, 0.0, DESIRED_FORCE_N, 0.0, 0.0, 0.0])
+
+    def __setattr__(self, name: str, value: object) -> None:
+        shape = self._CHECKED.get(name, ())
+        if shape != ():
+            value = float_array("PolishTarget", name, value, shape)
+        object.__setattr__(self, name, value)
 
     def __call__(self, t: float) -> TaskTarget:
         """The target at time t."""
