@@ -132,3 +132,13 @@ def camera_message() -> bytes:
             "up_direction": [0.0, 0.0, 1.0],
         }
     )
+
+
+def browser_update(handle, value, client_id: int = 1) -> None:
+    """What viser does when a browser changes an input: set the value, run the callbacks."""
+    from app.live.ui.viser_seam import input_state
+
+    state = input_state(handle)
+    state.value = value
+    for cb in state.update_cb:
+        cb(viser.GuiEvent(client=None, client_id=client_id, target=handle))

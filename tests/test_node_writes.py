@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from app.live.ui.node_writes import set_pose, set_position, set_prop, set_wxyz
+from app.live.ui.viser_seam import node_state
 
 
 @contextmanager
@@ -50,7 +51,7 @@ def _plain(value):
 
 
 def _state(handle) -> dict:
-    props = {k: _plain(v) for k, v in vars(handle._impl.props).items()}
+    props = {k: _plain(v) for k, v in vars(node_state(handle, "props").props).items()}
     return {"position": handle.position.tolist(), "wxyz": handle.wxyz.tolist(), "props": props}
 
 
@@ -115,10 +116,10 @@ def test_fast_writes_cover_labels_meshes_and_frames(server):
         with recorded(server) as via_fast:
             set_pose(b, p, q)
         _same_messages(via_setter, via_fast, a.name, b.name)
-        extra = {"text": "W_a = 0.5"} if hasattr(a._impl.props, "text") else {}
-        if hasattr(a._impl.props, "color"):
+        extra = {"text": "W_a = 0.5"} if hasattr(node_state(a, "props").props, "text") else {}
+        if hasattr(node_state(a, "props").props, "color"):
             extra["color"] = (200, 10, 10)
-        if hasattr(a._impl.props, "scale"):
+        if hasattr(node_state(a, "props").props, "scale"):
             extra["scale"] = (0.1, 0.2, 0.3)
         for kind, value in extra.items():
             for _ in range(2):  # the second is a repeat: nothing queued

@@ -6,7 +6,6 @@ import time
 
 import numpy as np
 import pytest
-import viser
 
 from app.live.server import start_app
 from app.live.ui.panels.nullspace import NullspacePanel
@@ -15,6 +14,7 @@ from app.scenarios import get_scenario
 from app.sim.world import World
 from control import coupling as c
 from control.model import RobotModel
+from tests.conftest import browser_update
 
 
 def _nullspace_descent(model: RobotModel, q: np.ndarray, objective: str, step_rad: float = 0.01) -> np.ndarray:
@@ -77,19 +77,13 @@ def test_ghost_link_poses_match_the_simulated_bodies(rizon):
     np.testing.assert_allclose(np.abs(np.sum(wxyz * world.data.xquat[ids], axis=1)), 1.0, atol=1e-12)
 
 
-def _browser_update(handle, value, client_id: int = 1) -> None:
-    handle._impl.value = value
-    for cb in handle._impl.update_cb:
-        cb(viser.GuiEvent(client=None, client_id=client_id, target=handle))
-
-
 def test_the_app_draws_the_ghost_at_the_flow_target_and_hides_it_when_off():
     app = start_app(port=0, scenario="polish", running=False)
     try:
         panel = next(p for p in app.panels if isinstance(p, NullspacePanel))
         preview = panel.preview
         assert not preview.ghost_visible
-        _browser_update(preview.enabled, True)
+        browser_update(preview.enabled, True)
         assert preview.wait_scans(1, timeout=30.0)
         assert preview._in_process  # the scan ran in the scan process, not on the server's interpreter
         deadline = time.monotonic() + 5.0
@@ -101,7 +95,7 @@ def test_the_app_draws_the_ghost_at_the_flow_target_and_hides_it_when_off():
         assert "flow settles" in preview.text.content
         x = np.asarray(preview.plot.data[0])
         assert len(x) == len(latest.W) > 50
-        _browser_update(preview.enabled, False)
+        browser_update(preview.enabled, False)
         deadline = time.monotonic() + 5.0
         while preview.ghost_visible and time.monotonic() < deadline:
             time.sleep(0.02)

@@ -17,17 +17,11 @@ from websockets.sync.client import connect
 from app.core.commands import DragCommand, StepOnce
 from app.live.server import port_is_free, start_app
 from app.live.ui.panels.base import KnobPanel
-from tests.conftest import camera_message, wait_until
+from app.live.ui.viser_seam import input_uuid
+from tests.conftest import browser_update, camera_message, wait_until
 
 # the loop thread is timed here: the kernels are compiled (or loaded) before, not inside it
 pytestmark = pytest.mark.usefixtures("warm_kernels")
-
-
-def _browser_update(handle, value, client_id: int) -> None:
-    """What viser does when a browser changes an input: set the value, run the callbacks."""
-    handle._impl.value = value
-    for cb in handle._impl.update_cb:
-        cb(viser.GuiEvent(client=None, client_id=client_id, target=handle))
 
 
 def _knob_handle(app, key: str):
@@ -97,11 +91,11 @@ def test_panel_refuses_nonsense_values_and_applies_valid_ones(app):
     _panel, _knob, handle = _knob_handle(app, "max_force_n")
     before = app.loop.settings.values["drag"]["max_force_n"]
     for nonsense in ("abc", float("nan"), float("inf"), -10.0, 1e9, None, [1, 2]):
-        _browser_update(handle, nonsense, client_id=12345)
+        browser_update(handle, nonsense, client_id=12345)
     app.loop.sync()
     assert app.loop.alive
     assert app.loop.settings.values["drag"]["max_force_n"] == before
-    _browser_update(handle, 55.0, client_id=12345)
+    browser_update(handle, 55.0, client_id=12345)
     app.loop.sync()
     assert app.loop.session.drag.max_force_n == 55.0
     assert wait_until(lambda: app.loop.settings.values["drag"]["max_force_n"] == 55.0)
@@ -183,7 +177,7 @@ def test_nonsense_sent_over_the_websocket_is_refused_and_the_server_keeps_runnin
         for value in ("abc", float("nan"), -1e300, None, [1, 2], {"x": 1}, 1e308):
             ws.send(
                 msgspec.msgpack.encode(
-                    {"type": "GuiUpdateMessage", "uuid": handle._impl.uuid, "updates": {"value": value}}
+                    {"type": "GuiUpdateMessage", "uuid": input_uuid(handle), "updates": {"value": value}}
                 )
             )
         ws.send(b"\x00not msgpack at all")
@@ -308,7 +302,7 @@ def test_page_settings_load_applies_good_entries_lists_bad_ones_and_restore_defa
     default_force = defaults["drag"].max_force_n
     good = 0.5 * default_force
     text = f"[drag]\nmax_force_n = {good}\n[world]\ntorque_delay_ms = 1e9\n"
-    _browser_update(buttons.load_button, UploadedFile("s.toml", text.encode()), client_id=12345)
+    browser_update(buttons.load_button, UploadedFile("s.toml", text.encode()), client_id=12345)
     assert app.loop.sync().t >= 0.0
     assert app.loop.session.drag.max_force_n == pytest.approx(good)
     assert app.loop.session.params()["world"].torque_delay_ms == defaults["world"].torque_delay_ms
@@ -328,17 +322,17 @@ def test_a_refused_or_adjusted_number_is_replaced_in_the_input_by_the_value_in_f
     import app.live.ui.panels.base as base
 
     panel, knob, handle = _knob_handle(app, "max_force_n")
-    _browser_update(handle, 60.0, client_id=12345)
+    browser_update(handle, 60.0, client_id=12345)
     assert handle.value == pytest.approx(60.0) and app.loop.session.drag.max_force_n == pytest.approx(60.0)
     notices: list[tuple[str, str]] = []
     monkeypatch.setattr(base, "notify", lambda server, cid, title, body, error=True: notices.append((title, body)))
     log = app.loop.lab.notice_log
     refused_before = sum(n.title == "Value refused" for n in log)
-    _browser_update(handle, 1e9, client_id=12345)  # out of range: refused by the group
+    browser_update(handle, 1e9, client_id=12345)  # out of range: refused by the group
     assert handle.value == pytest.approx(60.0)  # back in the input when the callback returns
     assert sum(n.title == "Value refused" for n in log) == refused_before + 1
     assert notices == []  # the refusal's own notice says why; no second one
-    _browser_update(handle, 19.0, client_id=12345)  # e.g. "1e9" parsed by the browser: applied as is
+    browser_update(handle, 19.0, client_id=12345)  # e.g. "1e9" parsed by the browser: applied as is
     assert handle.value == pytest.approx(19.0) and app.loop.session.drag.max_force_n == pytest.approx(19.0)
     assert notices == []
 
@@ -442,7 +436,7 @@ def test_settle_now_button_shows_in_polishs_settle_phase_and_runs_it(app):
         app.loop.submit(SwitchSession(scenario="polish", executor="projection"))
         app.loop.submit(SetParam("nullspace", "objective", "j"))
         assert wait_until(lambda: app.loop.sync().scenario == "polish" and panel.settle.visible, 60), app.loop.status
-        _browser_update(panel.settle, True, client_id=1)
+        browser_update(panel.settle, True, client_id=1)
         assert wait_until(lambda: not app.loop.sync().can_settle, 120), app.loop.status
         status = app.loop.sync()
         assert status.running and not status.settling and status.t > 1.0, status
@@ -460,7 +454,7 @@ def test_a_paused_page_shows_the_value_in_force_once_the_touched_inputs_hold_has
 
     app.loop.submit(Pause())
     _, _, handle = _knob_handle(app, "max_force_n")
-    _browser_update(handle, 100.0, client_id=1)
+    browser_update(handle, 100.0, client_id=1)
     app.loop.submit(SetParam("drag", "max_force_n", 120.0))
     app.loop.sync()
     assert app.loop.session.drag.max_force_n == 120.0 and not app.loop.status.running

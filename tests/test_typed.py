@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import pytest
 
 from app.live.ui.typed import TYPED_JS, TypedNumbers, page_html, parse_typed
+from app.live.ui.viser_seam import input_uuid
 
 
 @pytest.mark.parametrize(
@@ -54,18 +55,18 @@ def test_the_channel_sends_a_registered_inputs_text_to_its_handler(server):
     box = server.gui.add_number("Seconds", 10.0, min=0.1, max=60.0)
     got: list[tuple[str, int | None]] = []
     typed.register(box, lambda text, cid: got.append((text, cid)))
-    typed._on_channel(_event(json.dumps({"id": box._impl.uuid, "text": "1e9", "n": 1})))
+    typed._on_channel(_event(json.dumps({"id": input_uuid(box), "text": "1e9", "n": 1})))
     typed._on_channel(_event("not json"))  # not what the page sends: ignored
-    typed._on_channel(_event(json.dumps({"id": box._impl.uuid, "text": "x"}), client_id=None))  # our own write
+    typed._on_channel(_event(json.dumps({"id": input_uuid(box), "text": "x"}), client_id=None))  # our own write
     assert got == [("1e9", 7)] and typed.received == 1
 
 
 def test_an_unregistered_number_box_is_clamped_to_its_range_or_kept(server):
     typed = TypedNumbers(server)
     box = server.gui.add_number("Seconds", 10.0, min=0.1, max=60.0)
-    typed._on_channel(_event(json.dumps({"id": box._impl.uuid, "text": "1e9"})))
+    typed._on_channel(_event(json.dumps({"id": input_uuid(box), "text": "1e9"})))
     assert box.value == pytest.approx(60.0)
-    typed._on_channel(_event(json.dumps({"id": box._impl.uuid, "text": "NaN"})))
+    typed._on_channel(_event(json.dumps({"id": input_uuid(box), "text": "NaN"})))
     assert box.value == pytest.approx(60.0)
-    typed._on_channel(_event(json.dumps({"id": box._impl.uuid, "text": "2.5"})))
+    typed._on_channel(_event(json.dumps({"id": input_uuid(box), "text": "2.5"})))
     assert box.value == pytest.approx(2.5)

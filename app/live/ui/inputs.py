@@ -4,9 +4,10 @@ A browser sends `GuiUpdateMessage`s (an input's uuid and new property values); v
 the input's current type and stores it as the value every client sees, then runs the callbacks. A raw
 websocket can send anything there: a dropdown value that is none of its options, text for a number,
 NaN, a list of the wrong length, a property the input lacks. `guard_gui_updates(server)` puts
-`check_update` in front of viser's handler: a refused update changes nothing (the value every client
-sees stays) and its sender alone gets one notice per input per minute (`ErrorBudget`); the
-panels' own checks (`control.params`) still judge the values that pass.
+`check_update` in front of viser's handler (reached through `app.live.ui.viser_seam`): a refused
+update changes nothing (the value every client sees stays) and its sender alone gets one notice per
+input per minute (`ErrorBudget`); the panels' own checks (`control.params`) still judge the values
+that pass.
 """
 
 from __future__ import annotations
@@ -18,9 +19,9 @@ from collections.abc import Callable
 from typing import Any
 
 import viser
-from viser import _messages
 
 from app.live.supervise import ErrorBudget
+from app.live.ui.viser_seam import GuiUpdateMessage, gui_update_handlers, input_by_uuid, input_state
 
 MAX_TEXT = 10_000  # characters a text input takes
 
@@ -91,19 +92,18 @@ class GuiUpdateGuard:
         self.budget = budget if budget is not None else ErrorBudget()
         self.refused = 0  # updates refused
         self.notified: Counter[int] = Counter()  # notices sent, per client id
-        api = server.gui
-        self._gui = api
-        handlers: list[Any] = server.scene._websock_interface._incoming_handlers.get(_messages.GuiUpdateMessage, [])
+        handlers = gui_update_handlers(server)
         self._inner: list[Callable[..., Any]] = list(handlers)
         handlers[:] = [self.handle]
 
-    async def handle(self, client_id: int, message: _messages.GuiUpdateMessage) -> None:
+    async def handle(self, client_id: int, message: GuiUpdateMessage) -> None:
         """Check one update; pass it to viser's handlers, or refuse it with a notice to its sender."""
-        handle = self._gui._gui_input_handle_from_uuid.get(message.uuid, None)
-        if handle is not None and not handle._impl.removed:
-            why = check_update(handle._impl, message.updates)
+        handle = input_by_uuid(self.server, message.uuid)
+        if handle is not None:
+            state = input_state(handle)
+            why = check_update(state, message.updates)
             if why:
-                self._refuse(client_id, _label(handle._impl), why)
+                self._refuse(client_id, _label(state), why)
                 return
         for inner in self._inner:
             result = inner(client_id, message)

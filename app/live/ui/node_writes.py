@@ -6,7 +6,8 @@ pose, and each generic property write (`points`, `scale`, `color`, `text`) evalu
 `npt.NDArray[…]` type aliases before it compares. On a 2-core machine shared with the browser that
 was close to half of the publisher's CPU time. The functions here queue the very same messages and
 keep the handle's state the same as the setters do (tests/test_node_writes.py checks both against
-the setters), with plain float comparisons instead.
+the setters), with plain float comparisons instead; what they need of viser's private API comes
+from `app.live.ui.viser_seam`.
 
 The write is skipped when the new value equals the stored one exactly; viser's setters skip within
 `np.allclose` tolerances. A pose that moves by less than that tolerance is therefore sent here and
@@ -20,14 +21,8 @@ from typing import Any
 
 import numpy as np
 import viser
-from viser import _messages
 
-
-def _live_impl(handle: viser.SceneNodeHandle, name: str) -> Any:
-    impl = handle._impl
-    if impl.removed:
-        raise RuntimeError(f"Cannot assign to {name!r} on a removed {type(handle).__name__}.")
-    return impl
+from app.live.ui.viser_seam import node_state, queue_orientation, queue_position, queue_prop_update
 
 
 def set_position(handle: viser.SceneNodeHandle, xyz: Sequence[float] | np.ndarray) -> None:
@@ -35,11 +30,10 @@ def set_position(handle: viser.SceneNodeHandle, xyz: Sequence[float] | np.ndarra
     if len(xyz) != 3:
         raise ValueError(f"Expected a position of length 3, got {len(xyz)}")
     value = (float(xyz[0]), float(xyz[1]), float(xyz[2]))
-    impl = _live_impl(handle, "position")
-    if tuple(impl.position.tolist()) == value:
+    state = node_state(handle, "position")
+    if tuple(state.position.tolist()) == value:
         return
-    impl.position[:] = value
-    impl.api._queue_scene_message(_messages.SetPositionMessage(impl.name, value))
+    queue_position(state, value)
 
 
 def set_wxyz(handle: viser.SceneNodeHandle, wxyz: Sequence[float] | np.ndarray) -> None:
@@ -47,11 +41,10 @@ def set_wxyz(handle: viser.SceneNodeHandle, wxyz: Sequence[float] | np.ndarray) 
     if len(wxyz) != 4:
         raise ValueError(f"Expected a quaternion of length 4, got {len(wxyz)}")
     value = (float(wxyz[0]), float(wxyz[1]), float(wxyz[2]), float(wxyz[3]))
-    impl = _live_impl(handle, "wxyz")
-    if tuple(impl.wxyz.tolist()) == value:
+    state = node_state(handle, "wxyz")
+    if tuple(state.wxyz.tolist()) == value:
         return
-    impl.wxyz[:] = value
-    impl.api._queue_scene_message(_messages.SetOrientationMessage(impl.name, value))
+    queue_orientation(state, value)
 
 
 def set_pose(
@@ -72,8 +65,8 @@ def set_prop(handle: viser.SceneNodeHandle, name: str, value: Any) -> None:
     if isinstance(getattr(type(handle), name, None), property):  # a setter of its own: let it run
         setattr(handle, name, value)
         return
-    impl = _live_impl(handle, name)
-    current = getattr(impl.props, name)
+    state = node_state(handle, name)
+    current = getattr(state.props, name)
     if isinstance(current, np.ndarray):
         if not isinstance(value, np.ndarray) or value.dtype != current.dtype:
             setattr(handle, name, value)
@@ -83,7 +76,7 @@ def set_prop(handle: viser.SceneNodeHandle, name: str, value: Any) -> None:
                 return
             current[:] = value
         else:
-            setattr(impl.props, name, value.copy())
+            setattr(state.props, name, value.copy())
         queued: Any = value.copy()  # neither the caller's array nor the stored one goes on the wire
     else:
         if isinstance(value, np.ndarray):
@@ -91,7 +84,6 @@ def set_prop(handle: viser.SceneNodeHandle, name: str, value: Any) -> None:
             return
         if current == value:
             return
-        setattr(impl.props, name, value)
+        setattr(state.props, name, value)
         queued = value
-    handle._queue_update(name, queued)
-    handle._on_prop_assigned(name)
+    queue_prop_update(handle, name, queued)

@@ -23,6 +23,8 @@ from typing import Any
 
 import viser
 
+from app.live.ui.viser_seam import input_by_uuid, input_state, input_uuid
+
 CHANNEL_LABEL = "typed number"  # the hidden text input the page's script writes to
 CHANNEL_ORDER = 1e9  # below everything (and hidden)
 MAX_TYPED = 200  # characters of typed text the server looks at
@@ -197,7 +199,7 @@ class TypedNumbers:
 
     def register(self, handle: Any, handler: TypedHandler) -> None:
         """Send the text typed into `handle`'s box to `handler(text, client_id)`."""
-        self.handlers[handle._impl.uuid] = handler
+        self.handlers[input_uuid(handle)] = handler
 
     def _on_channel(self, event: viser.GuiEvent) -> None:
         if event.client_id is None:
@@ -212,8 +214,8 @@ class TypedNumbers:
         if handler is not None:
             handler(text, event.client_id)
             return
-        handle = self.server.gui._gui_input_handle_from_uuid.get(uuid)
-        if handle is not None and not handle._impl.removed:
+        handle = input_by_uuid(self.server, uuid)
+        if handle is not None:
             self._set_plain(handle, text, event.client_id)
 
     def _set_plain(self, handle: Any, text: str, client_id: int | None) -> None:
@@ -221,7 +223,7 @@ class TypedNumbers:
         current = handle.value
         if isinstance(current, bool) or not isinstance(current, (int, float)):
             return
-        props = handle._impl.props
+        props = input_state(handle).props
         lo, hi = getattr(props, "min", None), getattr(props, "max", None)
         value, why = parse_typed(text, lo, hi)
         label = str(getattr(props, "label", "") or "a number box")

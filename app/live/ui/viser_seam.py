@@ -1,0 +1,85 @@
+"""Every use of viser's private API, in one place: what the app relies on beyond the `add_*` handles.
+
+viser's public surface is the handles `add_*` returns and their properties. Three jobs of the app
+need more, and each reaches past that surface only through the functions here:
+- checking a client's GUI update before viser applies it (`app.live.ui.inputs`): the websocket
+  interface's list of handlers for `GuiUpdateMessage` (`gui_update_handlers`), and an input's
+  state by its uuid (`input_by_uuid`, `input_state`);
+- the typed-number channel (`app.live.ui.typed`): an input's uuid and props (`input_uuid`,
+  `input_state`, `input_by_uuid`);
+- the publisher's per-frame node writes (`app.live.ui.node_writes`): a scene node's state
+  (`node_state`), its position and orientation messages queued directly (`queue_position`,
+  `queue_orientation`) and a property update queued the way the setters queue it
+  (`queue_prop_update`).
+
+`VISER_RANGE` is the version range pinned in `pyproject.toml` (`tests/test_viser_seam.py` holds the
+two equal and the installed viser inside it). The same tests check each attribute, message field
+and method named here on a real server, so an upgrade that renames or reshapes one fails there,
+by name, instead of breaking a page silently; `tests/test_node_writes.py` holds the queued
+messages and the state equal to those of viser's own setters.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import viser
+from viser import _messages
+
+VISER_RANGE = ">=1.1.1,<1.2"  # as pinned in pyproject.toml; checked against the installed viser
+
+GuiUpdateMessage = _messages.GuiUpdateMessage  # a client's new property values for one input: uuid, updates
+
+
+def gui_update_handlers(server: viser.ViserServer) -> list[Callable[..., Any]]:
+    """The list (viser's own, mutable in place) of handlers the server runs on each `GuiUpdateMessage`."""
+    handlers: dict[type, list[Callable[..., Any]]] = server.scene._websock_interface._incoming_handlers
+    return handlers.setdefault(GuiUpdateMessage, [])
+
+
+def input_by_uuid(server: viser.ViserServer, uuid: str) -> Any | None:
+    """The GUI input handle with this uuid, None when there is none or it was removed."""
+    handle = server.gui._gui_input_handle_from_uuid.get(uuid, None)
+    if handle is None or handle._impl.removed:
+        return None
+    return handle
+
+
+def input_uuid(handle: Any) -> str:
+    """The uuid that names a GUI input in the messages between the page and the server."""
+    return str(handle._impl.uuid)
+
+
+def input_state(handle: Any) -> Any:
+    """A GUI input's state as viser keeps it: `value`, `props` (label, options, min, max, …),
+    `is_button`, `removed` and the callbacks `update_cb`."""
+    return handle._impl
+
+
+def node_state(handle: viser.SceneNodeHandle, name: str) -> Any:
+    """A scene node's state as viser keeps it: the `position` and `wxyz` arrays, `props` (its
+    properties, arrays stored as given) and `name`; RuntimeError naming the property `name` being
+    written when the node was removed."""
+    impl = handle._impl
+    if impl.removed:
+        raise RuntimeError(f"Cannot assign to {name!r} on a removed {type(handle).__name__}.")
+    return impl
+
+
+def queue_position(state: Any, value: tuple[float, float, float]) -> None:
+    """Store and send a node's position (`node_state`'s), as `handle.position = value` does."""
+    state.position[:] = value
+    state.api._queue_scene_message(_messages.SetPositionMessage(state.name, value))
+
+
+def queue_orientation(state: Any, value: tuple[float, float, float, float]) -> None:
+    """Store and send a node's orientation (`node_state`'s), as `handle.wxyz = value` does."""
+    state.wxyz[:] = value
+    state.api._queue_scene_message(_messages.SetOrientationMessage(state.name, value))
+
+
+def queue_prop_update(handle: viser.SceneNodeHandle, name: str, value: Any) -> None:
+    """Send a property already stored in the node's props, as viser's generic setter does after storing."""
+    handle._queue_update(name, value)
+    handle._on_prop_assigned(name)
