@@ -111,6 +111,16 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_false",
         help="skip compiling every kernel before the URL (the first steps then compile on the loop thread)",
     )
+    p.add_argument(
+        "--watch-only",
+        action="store_true",
+        help="every page sees the arm and steers nothing (its inputs are refused by the server)",
+    )
+    p.add_argument(
+        "--steer-local",
+        action="store_true",
+        help="with --watch-only: pages opened on this machine steer, pages from other machines watch",
+    )
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("check", help="cross-check Pinocchio against MuJoCo")

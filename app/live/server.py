@@ -55,6 +55,7 @@ from app.live.ui.snapshot import capture
 from app.live.ui.typed import typed_numbers
 from app.live.ui.visuals import VisualSettings, VisualsPanel
 from app.live.warmup import warm_up
+from app.live.watch import WatchGate, install_watch_gate
 from app.scenarios import SCENARIOS
 
 
@@ -73,6 +74,7 @@ class App:
     stopped: bool = False
     autogroup_niceness_before: int | None = None  # given back on stop when start_app raised it
     input_guard: GuiUpdateGuard | None = None  # checks every GUI update a page sends
+    watch_gate: WatchGate | None = None  # which pages only watch; refuses their steering
 
     def stop(self) -> None:
         """Stop the publisher, the loop and the web server (again: nothing happens)."""
@@ -132,13 +134,18 @@ def start_app(
     executor: str | None = None,
     running: bool = True,
     verbose: bool = False,
+    watch_only: bool = False,
+    steer_local: bool = False,
 ) -> App:
-    """Start loop, server, panels and scene; returns at once. `port=0` picks any free port."""
+    """Start loop, server, panels and scene; returns at once. `port=0` picks any free port. With
+    `watch_only` every page watches and steers nothing (with `steer_local` too, pages from this machine
+    steer); a page the classroom lobby opens as a watcher watches either way (app/live/watch.py)."""
     loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
     quiet_failed_handshakes()
     out = io.StringIO()
     with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
+    watch_gate = install_watch_gate(server, watch_only=watch_only, steer_local=steer_local)  # before any page
     input_guard = guard_gui_updates(server)  # every GUI update checked on arrival
     typed_numbers(server)  # text typed into a number box reaches the server (at the root, hidden)
     server.gui.configure_theme(control_width="large")
@@ -198,6 +205,7 @@ def start_app(
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
     app = App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)
     app.input_guard = input_guard
+    app.watch_gate = watch_gate
     # the server's session before the browser's in the CPU's division between sessions (app/live/priority.py)
     app.autogroup_niceness_before = raise_autogroup_priority(SERVER_NICENESS)
     atexit.register(app.stop)  # threads that step MuJoCo must end before the interpreter does
@@ -269,7 +277,13 @@ def serve(args: argparse.Namespace) -> int:
         closed = closed_kernels.close()  # from here on a kernel refuses a new type instead of compiling
         print(f"torquelab: kernels ready in {took:.1f} s ({closed} closed to new argument types)", flush=True)
     print(f"torquelab: starting scenario {scenario!r} …", flush=True)
-    app = start_app(host=args.host, port=args.port, scenario=scenario, robot=robot)
+    watch_only = bool(getattr(args, "watch_only", False))
+    steer_local = bool(getattr(args, "steer_local", False))
+    if steer_local and not watch_only:
+        raise ValueError("--steer-local goes with --watch-only (pages from this machine steer, the others watch)")
+    app = start_app(
+        host=args.host, port=args.port, scenario=scenario, robot=robot, watch_only=watch_only, steer_local=steer_local
+    )
     # a `kill` or a closed terminal stops the app as Ctrl-C does (the session's CPU share given back)
     for signum in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
         if signum is not None:
@@ -286,6 +300,9 @@ def serve(args: argparse.Namespace) -> int:
         elif busy or app.port != args.port:
             print(f"torquelab: port {args.port} is busy; using port {app.port} instead", flush=True)
         print(f"torquelab: open {app.url} in a browser (Ctrl-C to stop)", flush=True)
+        if watch_only:
+            who = "pages from other machines" if steer_local else "every page"
+            print(f"torquelab: watch-only: {who} sees the arm and steers nothing", flush=True)
         if args.host not in ("127.0.0.1", "localhost", "::1"):
             print(f"torquelab: listening on {args.host}: reachable from other machines", flush=True)
         while app.loop.alive and not display_failure:

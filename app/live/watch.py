@@ -1,0 +1,122 @@
+"""Watch mode: pages that see everything and steer nothing.
+
+A page is a *watcher* when the server runs `--watch-only` (every page, or every page from another
+machine with `--steer-local`), or when its websocket opening request carries `X-Torquelab-Role: watch`
+(the classroom lobby sets it on the connections it opens for the teacher's read-only view and for the
+spotlight; a browser cannot set it itself, and it can only take rights away). A watcher's messages are
+checked where viser receives them, before any handler: only its own camera passes; a slider, a button,
+a drag, a hotkey, an upload, a form, a transform gizmo are refused and change nothing. A refused input
+is set back in that page alone, and the page says it is watching in a notice that stays.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from collections import Counter
+from collections.abc import Callable, Coroutine
+from typing import Any
+
+import viser
+from viser import _messages
+
+from app.live.supervise import ErrorBudget
+
+ROLE_HEADER = "X-Torquelab-Role"
+WATCH_ROLE = "watch"
+PASSES = (_messages.ViewerCameraMessage, _messages.GetRenderResponseMessage)  # a watcher's own view only
+WATCHING_TITLE = "Watching"
+WATCHING_BODY = "This page shows the arm live and steers nothing: its sliders, buttons and drags change nothing."
+
+Handler = Callable[[int, Any], Coroutine[Any, Any, None]]
+
+
+def is_loopback(address: Any) -> bool:
+    """True if a peer address (host, port, ...) is this machine's (127.0.0.0/8 or ::1)."""
+    try:
+        return ipaddress.ip_address(str(address[0]).split("%")[0]).is_loopback
+    except (ValueError, TypeError, IndexError):
+        return False
+
+
+class WatchGate:
+    """Decides each page's role when its websocket opens and refuses a watcher's steering messages."""
+
+    def __init__(self, server: viser.ViserServer, watch_only: bool = False, steer_local: bool = False):
+        self.server = server
+        self.watch_only = watch_only
+        self.steer_local = steer_local
+        self.watchers: set[int] = set()
+        self.refused: Counter[str] = Counter()  # refused messages by type
+        self.budget = ErrorBudget()
+        self._connections: dict[int, Any] = {}
+        ws = server._websock_server
+        self._ws = ws
+        ws._handle_incoming_message = self._gated(ws._handle_incoming_message)  # type: ignore[method-assign,assignment,arg-type]
+        ws.on_client_connect(self._opened)
+        ws.on_client_disconnect(self._closed)
+        server.on_client_connect(self._say_watching)
+
+    def role_of(self, request_headers: Any, remote_address: Any) -> str:
+        """ "watch" or "steer" for a websocket opened with these headers from this peer."""
+        if request_headers is not None and str(request_headers.get(ROLE_HEADER, "")).lower() == WATCH_ROLE:
+            return WATCH_ROLE
+        if self.watch_only and not (self.steer_local and is_loopback(remote_address)):
+            return WATCH_ROLE
+        return "steer"
+
+    def is_watcher(self, client_id: int) -> bool:
+        """True if the page with this client id only watches."""
+        return client_id in self.watchers
+
+    def _opened(self, conn: Any) -> None:
+        live = self._ws._live_connections.get(conn.client_id)
+        request = getattr(live, "request", None)
+        headers = getattr(request, "headers", None)
+        address = getattr(live, "remote_address", None)
+        if self.role_of(headers, address) == WATCH_ROLE:
+            self.watchers.add(conn.client_id)
+        self._connections[conn.client_id] = conn
+        # the page's own handlers (its camera, client-scoped inputs) are behind the same gate
+        conn._handle_incoming_message = self._gated(conn._handle_incoming_message)
+
+    def _closed(self, conn: Any) -> None:
+        self.watchers.discard(conn.client_id)
+        self._connections.pop(conn.client_id, None)
+
+    def _gated(self, inner: Handler) -> Handler:
+        async def handle(client_id: int, message: Any) -> None:
+            if client_id in self.watchers and not isinstance(message, PASSES):
+                self._refuse(client_id, message)
+                return
+            await inner(client_id, message)
+
+        return handle
+
+    def _refuse(self, client_id: int, message: Any) -> None:
+        kind = type(message).__name__
+        self.refused[kind] += 1
+        conn = self._connections.get(client_id)
+        if conn is None:
+            return
+        if isinstance(message, _messages.GuiUpdateMessage):  # the page's input back to the value every page sees
+            handle = self.server.gui._gui_input_handle_from_uuid.get(message.uuid)
+            if handle is not None and "value" in message.updates:
+                conn.queue_message(_messages.GuiUpdateMessage(message.uuid, {"value": handle._impl.value}))
+        if self.budget.should_report(f"{client_id}: {kind}"):
+            client = self.server.get_clients().get(client_id)
+            if client is not None:
+                try:
+                    client.add_notification(
+                        "Watching only", "This page steers nothing.", auto_close_seconds=4.0, color="yellow"
+                    )
+                except Exception:  # the tab may have closed meanwhile
+                    pass
+
+    def _say_watching(self, client: viser.ClientHandle) -> None:
+        if client.client_id in self.watchers:
+            client.add_notification(WATCHING_TITLE, WATCHING_BODY, with_close_button=False, color="blue")
+
+
+def install_watch_gate(server: viser.ViserServer, watch_only: bool = False, steer_local: bool = False) -> WatchGate:
+    """Put the gate in front of every message a page sends (once, before any page connects)."""
+    return WatchGate(server, watch_only=watch_only, steer_local=steer_local)
