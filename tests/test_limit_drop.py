@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from app.core.session import Session
-from app.headless.experiments.limit_drop import count_oscillations, run_drop
+from app.headless.experiments.limit_drop import run_drop
 from app.scenarios.limit_drop import FALLING_JOINT, LimitDropScenario
+from app.scenarios.metrics import velocity_reversals
 from control.compliance_qp import ComplianceQPExecutor
 from control.gains import DamperGains
 
@@ -71,9 +72,9 @@ def _gen3():
 
 def test_oscillation_count_counts_velocity_reversals():
     t = np.linspace(0, 1, 1000)
-    assert count_oscillations(np.exp(-5 * t)) == 0
-    assert count_oscillations(np.sin(2 * np.pi * 3 * t)) == 5
-    assert count_oscillations(0.01 * np.sin(2 * np.pi * 3 * t)) == 0  # inside the hysteresis band
+    assert velocity_reversals(np.exp(-5 * t)) == 0
+    assert velocity_reversals(np.sin(2 * np.pi * 3 * t)) == 5
+    assert velocity_reversals(0.01 * np.sin(2 * np.pi * 3 * t)) == 0  # inside the hysteresis band
 
 
 def test_a_few_ms_of_torque_delay_make_a_high_lambda_ring_but_not_a_low_one():

@@ -10,10 +10,10 @@ from app.scenarios.mass_drop import (
     MODES,
     PAYLOAD_KG,
     RELEASE_TIME_S,
-    STABLE_BAND_M,
     MassDropParams,
     MassDropScenario,
 )
+from app.scenarios.metrics import STABLE_BAND_M
 
 
 def test_metrics_of_a_known_deviation_curve():

@@ -9,9 +9,12 @@ F^e), fallback, then every scalar signal the executor and environment report, ad
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from app.core.session import StepRecord
+from app.scenarios.metrics import MIN_SEGMENT_SAMPLES, Fold
 
 WRENCH = ("x", "y", "z", "rx", "ry", "rz")
 N_SEGMENTS = 6  # polish zig-zag S1…S6 (signal "segment")
@@ -58,6 +61,7 @@ class StepLog:
         self._q_min = np.full(n, np.nan)
         self._seg_scanned = 0  # rows already folded into the per-segment force-error moments
         self._seg_moments = np.zeros((N_SEGMENTS + 1, 3))  # per segment: count, mean, sum of squared deviations
+        self._folds: dict[str, tuple[Fold, int]] = {}  # running metrics (`fold`) and the rows each has taken
 
     def clear(self) -> None:
         """Forget every row (columns are kept)."""
@@ -69,6 +73,7 @@ class StepLog:
         self._q_min.fill(np.nan)
         self._seg_scanned = 0
         self._seg_moments.fill(0.0)
+        self._folds.clear()
 
     def extremes(self) -> tuple[np.ndarray, np.ndarray]:
         """(max |τ_i|, max q_i) per joint over every row since the last clear — every 1 ms step, not a
@@ -84,6 +89,28 @@ class StepLog:
             np.fmin(self._q_min, np.min(block[:, self._sl_q], axis=0), out=self._q_min)
             self._scanned = self.count
         return self._abs_tau_max.copy(), self._q_max.copy()
+
+    def fold(self, key: str, make: Callable[[], Fold | None]) -> Fold | None:
+        """The running metric `key` over every row since the last clear (`app.scenarios.metrics`): made by
+        `make()` at its first use, then fed the rows appended since its previous call — so it covers the
+        whole run, not only the rows the ring still holds (rows overwritten before a call are missed, as in
+        `extremes()`). None when `make` gives none; it waits while one of its columns was never logged."""
+        entry = self._folds.get(key)
+        if entry is None:
+            fold = make()
+            if fold is None:
+                return None
+            entry = (fold, 0)
+        fold, taken = entry
+        new = self.count - taken
+        if new > 0:
+            c = self.signal(fold.names, rows=new)
+            if c is None:
+                self._folds[key] = (fold, taken)
+                return fold
+            fold.add(c)
+        self._folds[key] = (fold, self.count)
+        return fold
 
     def q_min(self) -> np.ndarray:
         """min q_i per joint over the rows `extremes()` has folded in (NaN before the first)."""
@@ -127,7 +154,8 @@ class StepLog:
     def segment_force_error_std(self) -> dict[int, float]:
         """STD (N) of the force error over each polish segment S1…S6 (signal "segment") from every row
         since the last clear — the executor's own "force_error_n" when it reports one, else F̂_z − F_z.
-        Incremental like `extremes()`; a segment with fewer than 5 rows is left out."""
+        Incremental like `extremes()` (the running form of `metrics.segment_std`); a segment with fewer
+        than MIN_SEGMENT_SAMPLES rows is left out."""
         new = self.count - self._seg_scanned
         seg_col = self._signal_col.get("segment")
         if new > 0 and seg_col is not None:
@@ -146,7 +174,9 @@ class StepLog:
         if new > 0:
             self._seg_scanned = self.count
         m = self._seg_moments
-        return {k: float(np.sqrt(m[k, 2] / m[k, 0])) for k in range(1, N_SEGMENTS + 1) if m[k, 0] >= 5}
+        return {
+            k: float(np.sqrt(m[k, 2] / m[k, 0])) for k in range(1, N_SEGMENTS + 1) if m[k, 0] >= MIN_SEGMENT_SAMPLES
+        }
 
     def _merge_moments(self, k: int, values: np.ndarray) -> None:
         """Fold a batch into segment k's (count, mean, M2) (Chan et al.'s parallel update)."""
@@ -165,16 +195,16 @@ class StepLog:
         self.columns.append(key)
         return idx
 
-    def signal(self, names: tuple[str, ...]) -> dict[str, np.ndarray] | None:
-        """Every row since the last clear (as far as the capacity holds) of the columns `names` and "t";
-        None when one of them was never logged."""
+    def signal(self, names: tuple[str, ...], rows: int | None = None) -> dict[str, np.ndarray] | None:
+        """Every row since the last clear (as far as the capacity holds; the newest `rows` with it) of the
+        columns `names` and "t"; None when one of them was never logged."""
         cols = [0]
         for name in names:
             idx = self._signal_col.get(name)
             if idx is None:
                 return None
             cols.append(idx)
-        rows = min(self.count, self.capacity)
+        rows = min(self.count, self.capacity, self.count if rows is None else rows)
         idx_rows = np.arange(self.count - rows, self.count) % self.capacity
         block = self._data[np.ix_(idx_rows, np.array(cols, dtype=np.intp))]
         return {name: block[:, i] for i, name in enumerate(("t", *names))}

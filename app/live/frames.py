@@ -260,8 +260,12 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
 
 def deflection_readouts(log: StepLog, scenario: Any) -> dict[str, float] | None:
     """The scenario's deflection readouts (mass drop: peak, stabilisation time, residual error of the TCP;
-    compliance: TCP and elbow under each push) over every logged step since the reset; None elsewhere."""
-    return scenario.deflection_readouts(log.signal) if getattr(scenario, "logs_deflection", False) else None
+    compliance: TCP and elbow under each push) over every logged step since the reset, kept running in the
+    log (`StepLog.fold`: the whole run, not only the rows the log still holds); None elsewhere."""
+    if not getattr(scenario, "logs_deflection", False):
+        return None
+    fold = log.fold("deflection", scenario.deflection_fold)
+    return fold.value() if fold is not None else None
 
 
 def _with_posture_objective(

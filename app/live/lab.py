@@ -46,6 +46,7 @@ from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.core.variants import make_variant
 from app.scenarios import Offload, Scenario
+from app.scenarios.metrics import DeflectionProbe
 from control.params import ParamError, ParamGroup
 from robots import guessed_text
 
@@ -54,7 +55,6 @@ SPEED_RANGE = (0.01, UNPACED_SPEED)
 MAX_SINGLE_STEP = 10_000  # steps one StepOnce may ask for
 RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
 KEPT_ON_PRESET_SWITCH = ("drag",)  # parameter groups a new preset keeps from the old one
-ELBOW_JOINT = 3  # 0-based: the body carrying joint 4 is the elbow of a 7-DOF arm (deflection signals)
 OVERPOWERED_NOTICE_S = 2.0  # simulated time between two "overpowered" notices
 OVERPOWERED_CHECK_STEPS = 10  # steps between two looks for an overpowered joint (a look costs ~10 µs)
 
@@ -132,7 +132,7 @@ class Lab:
         self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice (for tests and logs)
         self.dirty = True  # something changed since the last frame
         self.defaults = self.session.params()  # the preset's (and case's) own values, before any change
-        self._deflection: tuple[np.ndarray, np.ndarray, int] | None = None  # (TCP, elbow at t = 0, elbow body)
+        self._deflection: DeflectionProbe | None = None  # TCP and elbow at t = 0 (`app.scenarios.metrics`)
         self._arm_deflection()
         self.settings = Settings(0, self._read_settings())
         # a preset switch whose preset needs a costly computation first (a swivel plan) raises
@@ -205,10 +205,7 @@ class Lab:
 
         def record(rec: StepRecord) -> None:
             if deflection is not None:  # the scenario's `logs_deflection`: distances from the t = 0 pose
-                tcp0, elbow0, elbow_body = deflection
-                rec.signals["tcp_dev_mm"] = 1e3 * float(np.linalg.norm(session.dyn.tcp_position_world - tcp0))
-                elbow = session.world.data.xpos[elbow_body]
-                rec.signals["elbow_dev_mm"] = 1e3 * float(np.linalg.norm(elbow - elbow0))
+                rec.signals["tcp_dev_mm"], rec.signals["elbow_dev_mm"] = deflection.read(session)
             log.append(rec)
             self.total_steps += 1
             if rec.fallback:
@@ -498,13 +495,7 @@ class Lab:
         """Take the TCP's and the elbow's positions now (t = 0) as the reference of the deflection signals,
         in the presets that log them (`Scenario.logs_deflection`)."""
         s = self.session
-        if not getattr(s.scenario, "logs_deflection", False):
-            self._deflection = None
-            return
-        model = s.world.model
-        elbow_body = int(model.jnt_bodyid[model.joint(s.robot.joint_names[ELBOW_JOINT]).id])
-        tcp0 = np.array(s.dyn.tcp_position_world, dtype=float)
-        self._deflection = (tcp0, s.world.data.xpos[elbow_body].copy(), elbow_body)
+        self._deflection = DeflectionProbe(s) if getattr(s.scenario, "logs_deflection", False) else None
 
     def _switch_executor(self, name: str) -> None:
         if name not in EXECUTORS:

@@ -24,6 +24,7 @@ from app.core.commands import Command, Play, RestoreDefaults, SetParam, SettleNo
 from app.core.params import field_spec
 from app.live.frames import LoopStatus, deflection_readouts
 from app.live.lab import Lab
+from app.scenarios.metrics import PUSH_AFTER_S, REVERSAL_HYSTERESIS_RAD_S, velocity_reversals
 
 Obs = dict[str, float]  # one step's measured numbers
 Memo = dict[str, Obs]  # the lesson's earlier steps' numbers, by step key
@@ -64,12 +65,6 @@ class Lesson:
 
 
 # ---- measurements (loop thread) -------------------------------------------------------------------
-def velocity_reversals(dq: np.ndarray, floor: float = 1e-3) -> int:
-    """Sign changes of a joint velocity, ignoring |q̇| ≤ `floor` rad/s (at rest)."""
-    signs = np.sign(dq[np.abs(dq) > floor])
-    return int(np.count_nonzero(np.diff(signs) != 0))
-
-
 def measure(lab: Lab) -> Obs:
     """The numbers of the run since the last reset that the lessons' claims use (every 1 ms step)."""
     s = lab.session
@@ -228,7 +223,7 @@ def drop_claim(baseline: str | None = None) -> Callable[[Obs, Memo], str]:
         text = (
             f"{label}: joint 4 peaked at |τ₄| = {o['peak_tau_4']:.1f} N m (limit {o['tau_max_4']:.0f} N m), "
             f"went {o['beyond_ds_mrad']:.1f} mrad beyond d_s and reversed its velocity "
-            f"{o['reversals_first_3s']:.0f} times in the first 3 s."
+            f"{o['reversals_first_3s']:.0f} times in the first 3 s (by more than ±{REVERSAL_HYSTERESIS_RAD_S:g} rad/s)."
         )
         before = memo.get(baseline) if baseline else None
         if before is not None and "peak_tau_4" in before:
@@ -259,7 +254,8 @@ def thrash_claim(o: Obs, memo: Memo) -> str:
     return (
         thrash + f"{fallback}; the tool ended {o['tcp_height_m']:.2f} m above the floor. "
         f"In the last {CHATTER_WINDOW_S:g} s τ₄ reached {o['late_peak_tau']:.1f} N m "
-        f"(limit {o['tau_max_4']:.0f} N m) and q̇₄ reversed {o['reversals_late']:.0f} times."
+        f"(limit {o['tau_max_4']:.0f} N m) and q̇₄ reversed {o['reversals_late']:.0f} times (by more than "
+        f"±{REVERSAL_HYSTERESIS_RAD_S:g} rad/s)."
     )
 
 
@@ -270,7 +266,8 @@ def push_claim(label: str) -> Callable[[Obs, Memo], str]:
         if "tcp_push_tcp_mm" not in o or "elbow_push_tcp_mm" not in o:
             return "The two pushes (TCP at 0.5 s, elbow at 2 s) have not both happened since the last reset."
         text = (
-            f"{label}: under the push at the TCP the TCP moved {o['tcp_push_tcp_mm']:.1f} mm and the elbow "
+            f"{label} (peaks over each push and the {PUSH_AFTER_S:g} s after it): under the push at the TCP the TCP "
+            f"moved {o['tcp_push_tcp_mm']:.1f} mm and the elbow "
             f"{o['tcp_push_elbow_mm']:.1f} mm; under the push at the elbow the TCP moved "
             f"{o['elbow_push_tcp_mm']:.1f} mm and the elbow {o['elbow_push_elbow_mm']:.1f} mm."
         )

@@ -24,6 +24,7 @@ from typing import Any, Protocol
 import mujoco
 import numpy as np
 
+from app.scenarios.metrics import Fold
 from app.sim.sensor import Sensor
 from app.sim.world import World
 from control.executor import TaskTarget
@@ -131,11 +132,10 @@ class Scenario:
         """Take a new validated "scenario" group; ParamError for a group it lacks."""
         expect(name, group, None)
 
-    def deflection_readouts(
-        self, signal: Callable[[tuple[str, ...]], Mapping[str, np.ndarray] | None]
-    ) -> dict[str, float] | None:
-        """The preset's deflection numbers over every logged step since the reset, from `signal(names)`
-        (the step log's columns `names` and "t", None if one was never logged); None: it has none."""
+    def deflection_fold(self) -> Fold | None:
+        """A fresh running metric of the preset's deflection readouts (`app.scenarios.metrics`: the mass
+        drop's peak, settle time and residual, the compliance pushes' peaks), fed every logged step since
+        the reset; None: it has none."""
         return None
 
     def pending_work(self, robot: RobotDescription) -> Work | None:

@@ -16,12 +16,12 @@ Constants, chosen once, not tuned afterwards:
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor
 from app.scenarios.mass_drop import wrist_ft_sensor
+from app.scenarios.metrics import WindowPeaks, push_windows
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor, PoseTask
 from control.gains import EstimatorGains, PoseTaskGains, PostureTaskGains
@@ -85,18 +85,10 @@ class ComplianceScenario(Scenario):
     def make_environment(self, world: World, rng: np.random.Generator) -> Environment:
         return ScriptedPushes(world)
 
-    def deflection_readouts(self, signal: Any) -> dict[str, float] | None:
-        """The TCP's and the elbow's largest deflection (mm) during each push, over every logged step."""
-        c = signal(("tcp_dev_mm", "elbow_dev_mm", "push_tcp", "push_elbow"))
-        if c is None:
-            return None
-        out: dict[str, float] = {}
-        for push in ("tcp", "elbow"):
-            during = c[f"push_{push}"] > 0.5
-            if np.any(during):
-                out[f"{push}_push_tcp_mm"] = float(np.max(c["tcp_dev_mm"][during]))
-                out[f"{push}_push_elbow_mm"] = float(np.max(c["elbow_dev_mm"][during]))
-        return out
+    def deflection_fold(self) -> WindowPeaks:
+        """The TCP's and the elbow's largest deflection (mm) over each push and the PUSH_AFTER_S after it
+        ("tcp_push_tcp_mm", "elbow_push_elbow_mm", …; the experiment's figures too)."""
+        return WindowPeaks(push_windows(PUSHES), ("tcp_dev_mm", "elbow_dev_mm"))
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         return wrist_ft_sensor(rng)

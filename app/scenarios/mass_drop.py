@@ -45,6 +45,7 @@ import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor
 from app.scenarios.drop_postures import mass_drop_start, mass_drop_target
+from app.scenarios.metrics import DropFold, run_fold
 from app.scenarios.payload import PayloadEnvironment, add_payload_body, set_inertial_at_origin
 from app.sim.rope import Rope
 from app.sim.sensor import FTSensor
@@ -67,29 +68,13 @@ OBSERVER_GAIN = 50.0  # 1/s
 FORCE_NOISE_STD = 0.1  # N
 TORQUE_NOISE_STD = 0.005  # N m (sensor moment channels)
 ACTUATOR_RIPPLE_STD = 0.05  # N m
-STABLE_BAND_M = 1e-3
-RESIDUAL_WINDOW_S = 0.5  # the residual error is the mean deviation over the last 0.5 s of the window
 
 
 def drop_metrics(t: np.ndarray, deviation_m: np.ndarray) -> dict:
-    """Peak deflection, stabilisation time (after the release, the last exit from the STABLE_BAND_M
-    band; the time of the last sample if it never came back) and residual error (the mean deviation
-    over the last RESIDUAL_WINDOW_S) of the TCP after the release — the mass-drop experiment's and the
-    app's. Empty before the release."""
-    after = t >= RELEASE_TIME_S - 1e-9
-    if not np.any(after):
-        return {}
-    ta, da = t[after] - RELEASE_TIME_S, deviation_m[after]
-    outside = np.flatnonzero(da > STABLE_BAND_M)
-    settle = float(ta[outside[-1] + 1]) if outside.size and outside[-1] + 1 < ta.size else 0.0
-    if outside.size and outside[-1] + 1 >= ta.size:
-        settle = float(ta[-1])  # never settled within the window
-    tail = ta >= ta[-1] - RESIDUAL_WINDOW_S
-    return {
-        "peak_deflection_mm": 1e3 * float(np.max(da)),
-        "stabilization_time_s": settle,
-        "residual_error_mm": 1e3 * float(np.mean(da[tail])),
-    }
+    """Peak deflection, stabilisation time and residual error of the TCP after the release
+    (`metrics.DropFold`, the app's readouts too) of one run's deviation (m) over time; empty before the
+    release."""
+    return run_fold(DropFold(RELEASE_TIME_S, "dev_mm"), {"t": t, "dev_mm": 1e3 * np.asarray(deviation_m)})
 
 
 @dataclass(frozen=True)
@@ -281,13 +266,10 @@ class MassDropScenario(Scenario):
         self.case = case
         self.rig = params or MassDropParams()  # not `params`: that is the Scenario's parameter groups
 
-    def deflection_readouts(self, signal: Any) -> dict[str, float] | None:
-        """The TCP's peak deflection, stabilisation time and residual error after the release (`drop_metrics`,
-        as the experiment measures them), over every logged step."""
-        c = signal(("tcp_dev_mm",))
-        if c is None or not len(c["t"]):
-            return None
-        return drop_metrics(c["t"], 1e-3 * c["tcp_dev_mm"])
+    def deflection_fold(self) -> DropFold:
+        """The TCP's peak deflection, stabilisation time and residual error after the release (as the
+        experiment measures them), kept running over every logged step."""
+        return DropFold(RELEASE_TIME_S)
 
     def params(self) -> dict[str, ParamGroup]:
         """ "scenario": the rig (rope, drop height, mass error), used from the next reset."""

@@ -1,7 +1,9 @@
 """compliance: the three compliance modes of [C] §IV-E (Fig. 6) under the same scripted pushes.
 
 Stiff (Γ = 0), nullspace-compliant (Γ₀ = I) and fully compliant (Γ = I): TCP linear and angular
-velocity norms, joint velocity norm, TCP displacement and posture deviation per mode and push.
+velocity norms, joint velocity norm, the TCP's and the elbow's deflection (mm, `metrics.DeflectionProbe`,
+as the page shows them) and the posture deviation per mode and push, each the peak over the push and the
+`metrics.PUSH_AFTER_S` after it (`metrics.WindowPeaks`, the page's readout and the lesson's claim too).
 Writes compliance.json, fig6.png and report.html.
 """
 
@@ -27,6 +29,7 @@ from app.headless.experiments.c_common import (
 )
 from app.headless.experiments.run_config import apply_settings, parse_settings, run_configuration
 from app.scenarios.compliance import DURATION_S, MODES, PUSH_N, PUSHES, ComplianceScenario
+from app.scenarios.metrics import PUSH_AFTER_S, DeflectionProbe, WindowPeaks, push_windows
 from control.compliance_qp import ComplianceQPExecutor
 
 LABELS = {"stiff": "Γ = 0 (stiff)", "nullspace": "Γ₀ = I (nullspace compliant)", "full": "Γ = I (full compliance)"}
@@ -34,9 +37,6 @@ LABELS = {"stiff": "Γ = 0 (stiff)", "nullspace": "Γ₀ = I (nullspace complian
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of this experiment (none besides the common ones)."""
-
-
-AFTER_PUSH_S = 0.5  # the peaks are taken over each push and this long after it
 
 
 def run_mode(mode: str, settings: tuple = ()) -> dict:
@@ -49,9 +49,9 @@ def run_mode(mode: str, settings: tuple = ()) -> dict:
     scenario.configure_executor(executor, session.robot)
     apply_settings(session, settings)
     session.reset()
-    p0 = session.target_fn(0.0).position.copy()
+    probe = DeflectionProbe(session)  # the TCP and the elbow where they stand at the reset
     q0 = session.world.q
-    cols = ("t", "v", "w", "dq", "disp", "posture", "force", "est")
+    cols = ("t", "v", "w", "dq", "tcp_dev_mm", "elbow_dev_mm", "posture", "force", "est")
     rec: dict[str, list[float]] = {c: [] for c in cols}
 
     def record(r) -> None:
@@ -61,24 +61,31 @@ def run_mode(mode: str, settings: tuple = ()) -> dict:
         rec["v"].append(float(np.linalg.norm(twist[:3])))
         rec["w"].append(float(np.linalg.norm(twist[3:])))
         rec["dq"].append(float(np.linalg.norm(r.dq)))
-        rec["disp"].append(float(np.linalg.norm(dyn.tcp_position_world - p0)))
+        tcp_mm, elbow_mm = probe.read(session)
+        rec["tcp_dev_mm"].append(tcp_mm)
+        rec["elbow_dev_mm"].append(elbow_mm)
         rec["posture"].append(float(np.linalg.norm(r.q - q0)))
         rec["force"].append(PUSH_N * (r.signals.get("push_tcp", 0.0) + r.signals.get("push_elbow", 0.0)))
         rec["est"].append(r.signals.get("tau_ext_estimate_norm", 0.0))
 
     result = session.run(DURATION_S, record=record)  # a halted run keeps what it ran (stop says why)
     arr = {c: np.array(v) for c, v in rec.items()}
+    windows = push_windows(PUSHES)  # each push and the PUSH_AFTER_S after it
+    peaks = WindowPeaks(windows, ("tcp_dev_mm", "elbow_dev_mm", "v", "w", "dq", "posture"))
+    peaks.add(arr)
+    found = peaks.value()
     phases = {}
-    for where, start, end in PUSHES:
-        sel = (arr["t"] >= start) & (arr["t"] < end + AFTER_PUSH_S)  # the push and the time after it
-        if not sel.any():
+    for where, _, _ in PUSHES:
+        window = f"{where}_push"
+        if WindowPeaks.key(window, "tcp_dev_mm") not in found:
             continue
         phases[where] = {
-            "peak_tcp_speed_m_s": float(arr["v"][sel].max()),
-            "peak_tcp_angular_speed_rad_s": float(arr["w"][sel].max()),
-            "peak_joint_speed_rad_s": float(arr["dq"][sel].max()),
-            "peak_tcp_displacement_mm": 1e3 * float(arr["disp"][sel].max()),
-            "peak_posture_deviation_rad": float(arr["posture"][sel].max()),
+            "peak_tcp_speed_m_s": found[WindowPeaks.key(window, "v")],
+            "peak_tcp_angular_speed_rad_s": found[WindowPeaks.key(window, "w")],
+            "peak_joint_speed_rad_s": found[WindowPeaks.key(window, "dq")],
+            "peak_tcp_deflection_mm": found[WindowPeaks.key(window, "tcp_dev_mm")],
+            "peak_elbow_deflection_mm": found[WindowPeaks.key(window, "elbow_dev_mm")],
+            "peak_posture_deviation_rad": found[WindowPeaks.key(window, "posture")],
         }
     traces = {c: arr[c][::4].tolist() for c in cols}
     return {
@@ -127,7 +134,7 @@ def findings(runs: list[dict]) -> list[dict]:
     def worst(mode: str, key: str) -> float:
         return max(p[key] for p in by[mode].values())
 
-    disp = {m: worst(m, "peak_tcp_displacement_mm") for m in MODES}
+    disp = {m: worst(m, "peak_tcp_deflection_mm") for m in MODES}
     post = {m: worst(m, "peak_posture_deviation_rad") for m in MODES}
     yield_ratio = post["nullspace"] / max(post["stiff"], 1e-9)
     follow_ratio = disp["full"] / max(disp["nullspace"], 1e-9)
@@ -185,7 +192,8 @@ def setup_html(doc: dict) -> str:
         f"K_d = {posture['damping']:g}, weight {posture['weight']:g}), {html.escape(est['source'])} estimate "
         f"(K_I = {est['observer_gain']:g} s⁻¹){noise}, feedback {'on' if p['compliance_qp']['feedback'] else 'off'}, "
         f"control period {config['timestep_s'] * 1e3:g} ms. Pushes of {doc['push_n']:g} N along +y: {pushes}. "
-        f"Peaks over each push and the {doc['after_push_s']:g} s after it. Wall time {doc['wall_s']:.1f} s.</p>"
+        f"Peaks over each push and the {doc['after_push_s']:g} s after it; TCP and elbow moved: their distance from "
+        f"where they stood at t = 0 (the page's deflection readout and plot). Wall time {doc['wall_s']:.1f} s.</p>"
     )
 
 
@@ -203,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
         "modes": summary,
         "push_n": PUSH_N,
         "pushes": [list(p) for p in PUSHES],
-        "after_push_s": AFTER_PUSH_S,
+        "after_push_s": PUSH_AFTER_S,
         "posture": "home",  # the scenario's initial posture (`Scenario.initial_q`)
         "config": runs[0]["config"],  # the stiff run's; each mode's own under "configs"
         "configs": {r["mode"]: r["config"] for r in runs},
@@ -221,6 +229,7 @@ def run(args: argparse.Namespace) -> int:
         "‖ω‖ max (rad/s)",
         "‖q̇‖ max (rad/s)",
         "TCP moved (mm)",
+        "elbow moved (mm)",
         "posture (rad)",
     ]
     rows = [

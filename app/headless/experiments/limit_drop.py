@@ -35,12 +35,12 @@ from app.scenarios.limit_drop import (
     PAYLOAD_KG,
     LimitDropScenario,
 )
+from app.scenarios.metrics import REVERSAL_HYSTERESIS_RAD_S, velocity_reversals
 from control.compliance_qp import ComplianceQPExecutor
 
 LAMBDAS_AT_M3 = (70.0, 100.0, 300.0, 500.0)
 DELAY_STEPS = 5  # sensitivity check only: torque applied 5 ms late (a few ms of torque-loop/link latency)
 MS_AT_L100 = (1.5, 2.0, 3.0, 5.0)
-VELOCITY_HYSTERESIS = 0.02  # rad/s: velocity reversals smaller than this are not counted as oscillations
 STOP_SPEED = 0.01  # rad/s: joint 4 counts as stopped below this speed ...
 STOP_HOLD_S = 0.2  # ... held this long
 FALLEN_RAD = 0.05  # rad: ... once it has fallen at least this far
@@ -63,20 +63,6 @@ def variants(quick: bool = False) -> list[tuple[str, float, float]]:
     out += [("proposed", 100.0, M) for M in MS_AT_L100 if M != 3.0]
     out.append(("classic", 100.0, 2.0))
     return out
-
-
-def count_oscillations(dq: np.ndarray, hysteresis: float = VELOCITY_HYSTERESIS) -> int:
-    """Velocity reversals with a hysteresis band: 0 for a fall that stops without rebounding."""
-    sign = 0
-    reversals = 0
-    for v in dq:
-        if v > hysteresis and sign <= 0:
-            reversals += sign < 0
-            sign = 1
-        elif v < -hysteresis and sign >= 0:
-            reversals += sign > 0
-            sign = -1
-    return int(reversals)
 
 
 def run_drop(
@@ -171,7 +157,7 @@ def run_drop(
         "limit": limit,
         "max_violation": violation,
         "overshoot_beyond_ds": float(np.max(toward) + d_s),
-        "oscillations": count_oscillations(dq),
+        "oscillations": velocity_reversals(dq),
         "peak_torque": float(np.max(np.abs(tau))),
         "peak_velocity": float(np.max(speed)),
         "brake_onset_margin": float(-toward[k_brake]),
@@ -578,7 +564,7 @@ def run(args: argparse.Namespace) -> int:
         "config": runs[0]["config"],  # the first drop's; the runs differ only in the damper, feedback, K_I, delay
         "criteria": {
             "duration_cap_s": args.duration,
-            "velocity_hysteresis_rad_s": VELOCITY_HYSTERESIS,
+            "velocity_hysteresis_rad_s": REVERSAL_HYSTERESIS_RAD_S,
             "stop_speed_rad_s": STOP_SPEED,
             "stop_hold_s": STOP_HOLD_S,
             "fallen_rad": FALLEN_RAD,

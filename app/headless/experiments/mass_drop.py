@@ -39,12 +39,12 @@ from app.scenarios.mass_drop import (
     CASES,
     MODES,
     RELEASE_TIME_S,
-    STABLE_BAND_M,
     WINDOW_S,
     MassDropParams,
     MassDropScenario,
     drop_metrics,
 )
+from app.scenarios.metrics import RESIDUAL_WINDOW_S, STABLE_BAND_M
 
 METRICS = ("peak_deflection_mm", "stabilization_time_s", "residual_error_mm")
 CONTEXT = ("peak_rope_tension_n", "saturated_steps", "relaxed_steps")
@@ -334,8 +334,8 @@ def scenario_record() -> dict:
         "nominal_mass_kg": m.PAYLOAD_KG,
         "release_time_s": m.RELEASE_TIME_S,
         "window_s": m.WINDOW_S,
-        "stable_band_m": m.STABLE_BAND_M,
-        "residual_window_s": m.RESIDUAL_WINDOW_S,
+        "stable_band_m": STABLE_BAND_M,
+        "residual_window_s": RESIDUAL_WINDOW_S,
         "pid_pole_rad_s": m.PID_OMEGA,
         "actuator_ripple_std_n_m": m.ACTUATOR_RIPPLE_STD,
     }

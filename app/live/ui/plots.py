@@ -33,6 +33,7 @@ import viser.uplot as uplot
 
 from app.live.loop import PlotData
 from app.live.ui.signals import SignalChoice, masked, series_shown, signal_specs
+from app.scenarios import metrics
 
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2")
 MARKER_COLOR = "#7a7a7a"
@@ -202,7 +203,8 @@ class Marker:
 def phase_markers(columns: dict[str, np.ndarray]) -> list[Marker]:
     """Where the scenario's phase changes in these samples: polish segments S1…S6 and their end
     (signal "segment"), the mass drop's release (signal "mass_released" going to 1), a payload release
-    (signal "payload_attached" going to 0)."""
+    (signal "payload_attached" going to 0), the compliance preset's pushes (signals "push_tcp",
+    "push_elbow" going to 1)."""
     t = columns.get("t", np.zeros(0))
     out: list[Marker] = []
     seg = columns.get("segment")
@@ -222,20 +224,20 @@ def phase_markers(columns: dict[str, np.ndarray]) -> list[Marker]:
     if attached is not None and len(attached) == len(t):
         idx = np.flatnonzero((attached[:-1] > 0.5) & (attached[1:] < 0.5)) + 1
         out.extend(Marker(float(t[i]), "release") for i in idx)
+    for where, text in (("tcp", "TCP push"), ("elbow", "elbow push")):
+        push = columns.get(f"push_{where}")
+        if push is not None and len(push) == len(t):
+            idx = np.flatnonzero((np.nan_to_num(push[:-1]) < 0.5) & (push[1:] > 0.5)) + 1
+            out.extend(Marker(float(t[i]), text) for i in idx)
     return sorted(out, key=lambda m: m.t)
 
 
 def segment_std(columns: dict[str, np.ndarray], key: str) -> dict[int, float]:
-    """STD of column `key` over each polish segment present (segment index → N)."""
+    """STD of column `key` over each polish segment present (segment index → N; `metrics.segment_std`)."""
     seg, values = columns.get("segment"), columns.get(key)
-    out: dict[int, float] = {}
     if seg is None or values is None:
-        return out
-    for k in range(1, SEGMENTS + 1):
-        sel = (seg == k) & np.isfinite(values)
-        if np.count_nonzero(sel) >= 5:
-            out[k] = float(np.std(values[sel]))
-    return out
+        return {}
+    return metrics.segment_std(seg, values, range(1, SEGMENTS + 1))
 
 
 def force_error(columns: dict[str, np.ndarray]) -> np.ndarray:
@@ -822,7 +824,7 @@ class Plots:
                 out[f"twin_force_error_std_S{k}"] = v
             if main:
                 head = " · ".join(f"S{k} {v:.1f}" for k, v in main.items())
-                lines.append(f"Force-error STD (N): {head}")
+                lines.append(f"Force-error STD (N, over every step of each stroke since the reset): {head}")
                 if twin:
                     lines.append("twin: " + " · ".join(f"S{k} {v:.1f}" for k, v in twin.items()))
         joint = self._focus_joint
@@ -851,15 +853,17 @@ class Plots:
         if "peak_deflection_mm" in d:
             out.update(d)
             lines.append(
-                f"TCP after the drop: peak {d['peak_deflection_mm']:.1f} mm · settled after "
-                f"{d['stabilization_time_s']:.2f} s · residual {d['residual_error_mm']:.2f} mm"
+                f"TCP after the drop (every step since the release): peak {d['peak_deflection_mm']:.1f} mm · "
+                f"back within {1e3 * metrics.STABLE_BAND_M:g} mm for good {d['stabilization_time_s']:.2f} s after "
+                f"it · residual (mean of the last {metrics.RESIDUAL_WINDOW_S:g} s) {d['residual_error_mm']:.2f} mm"
             )
         for push in ("tcp", "elbow"):
             if f"{push}_push_tcp_mm" in d:
                 out[f"{push}_push_tcp_mm"] = d[f"{push}_push_tcp_mm"]
                 out[f"{push}_push_elbow_mm"] = d[f"{push}_push_elbow_mm"]
                 lines.append(
-                    f"Push at the {'TCP' if push == 'tcp' else 'elbow'}: TCP moved {d[f'{push}_push_tcp_mm']:.1f} mm, "
+                    f"Push at the {'TCP' if push == 'tcp' else 'elbow'} (peak over the push and the "
+                    f"{metrics.PUSH_AFTER_S:g} s after it): TCP moved {d[f'{push}_push_tcp_mm']:.1f} mm, "
                     f"elbow {d[f'{push}_push_elbow_mm']:.1f} mm"
                 )
         if self.markers:
