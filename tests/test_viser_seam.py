@@ -26,8 +26,13 @@ from app.live.ui.viser_seam import (
     input_state,
     input_uuid,
     node_state,
+    on_connection_close,
+    on_connection_open,
+    opening_request,
     queue_orientation,
     queue_position,
+    queue_to_connection,
+    wrap_dispatch,
 )
 
 if sys.version_info >= (3, 11):
@@ -108,3 +113,75 @@ def test_a_nodes_state_is_its_pose_and_props_and_a_removed_node_says_so(server):
     label.remove()
     with pytest.raises(RuntimeError, match="'wxyz' on a removed"):
         node_state(label, "wxyz")
+
+
+def test_a_connection_is_seen_opening_with_its_request_its_messages_pass_the_wrappers_and_it_can_be_sent_to(server):
+    """`on_connection_open` runs before the page's first message with its client id; `opening_request`
+    gives the opening request's headers and peer; `wrap_dispatch` on the server and on the connection
+    sees the page's messages (and a wrapper that drops one stops it); `queue_to_connection` reaches that
+    page; `on_connection_close` runs when it closes."""
+    import time
+
+    import msgspec
+    import zstandard
+    from websockets.sync.client import connect
+
+    from tests.conftest import camera_message, wait_until
+
+    opened: list[tuple[int, object, object]] = []
+    closed: list[int] = []
+    seen: list[tuple[str, int, str]] = []
+
+    def wrapper(where: str):
+        def wrap(inner):
+            async def dispatch(client_id, message):
+                seen.append((where, client_id, type(message).__name__))
+                if not (client_id in conns and type(message).__name__ == "CommandTriggerMessage"):  # dropped
+                    await inner(client_id, message)
+
+            return dispatch
+
+        return wrap
+
+    conns: dict[int, object] = {}
+
+    def on_open(conn):
+        opened.append((conn.client_id, *opening_request(server, conn.client_id)))
+        conns[conn.client_id] = conn
+        wrap_dispatch(conn, wrapper("page"))
+
+    wrap_dispatch(server, wrapper("server"))
+    on_connection_open(server, on_open)
+    on_connection_close(server, lambda conn: closed.append(conn.client_id))
+    triggered: list[int] = []
+    command = server.gui.add_command("seam command")
+    command.on_trigger(lambda event: triggered.append(1))
+    ws = connect(
+        f"ws://127.0.0.1:{server.get_port()}",
+        subprotocols=[f"viser-v{viser.__version__}"],
+        additional_headers={"X-Seam": "yes"},
+        open_timeout=10,
+    )
+    try:
+        ws.send(camera_message())
+        assert wait_until(lambda: len(opened) == 1 and ("page", opened[0][0], "ViewerCameraMessage") in seen)
+        client_id, headers, peer = opened[0]
+        assert headers is not None and headers.get("X-Seam") == "yes" and peer[0] == "127.0.0.1"
+        assert ("server", client_id, "ViewerCameraMessage") in seen
+        ws.send(msgspec.msgpack.encode({"type": "CommandTriggerMessage", "uuid": command._impl.uuid}))
+        assert wait_until(lambda: ("server", client_id, "CommandTriggerMessage") in seen)
+        time.sleep(0.3)
+        assert triggered == []  # the wrapper dropped it
+        queue_to_connection(conns[client_id], GuiUpdateMessage("seam-uuid", {"value": 42}))
+        got: list[dict] = []
+        deadline = time.monotonic() + 5.0
+        while not any(m.get("uuid") == "seam-uuid" for m in got) and time.monotonic() < deadline:
+            data = ws.recv(timeout=max(0.01, deadline - time.monotonic()))
+            size, packed = int.from_bytes(data[:8], "little"), int.from_bytes(data[8:16], "little")
+            inner = zstandard.ZstdDecompressor().decompress(data[16 : 16 + packed], max_output_size=size)
+            got.extend(msgspec.msgpack.decode(inner)["messages"])
+        (sent,) = [m for m in got if m.get("uuid") == "seam-uuid"]
+        assert sent["type"] == "GuiUpdateMessage" and sent["updates"] == {"value": 42}
+    finally:
+        ws.close()
+    assert wait_until(lambda: closed == [client_id])

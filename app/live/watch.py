@@ -20,6 +20,15 @@ import viser
 from viser import _messages
 
 from app.live.supervise import ErrorBudget
+from app.live.ui.viser_seam import (
+    input_by_uuid,
+    input_state,
+    on_connection_close,
+    on_connection_open,
+    opening_request,
+    queue_to_connection,
+    wrap_dispatch,
+)
 
 ROLE_HEADER = "X-Torquelab-Role"
 WATCH_ROLE = "watch"
@@ -49,11 +58,9 @@ class WatchGate:
         self.refused: Counter[str] = Counter()  # refused messages by type
         self.budget = ErrorBudget()
         self._connections: dict[int, Any] = {}
-        ws = server._websock_server
-        self._ws = ws
-        ws._handle_incoming_message = self._gated(ws._handle_incoming_message)  # type: ignore[method-assign,assignment,arg-type]
-        ws.on_client_connect(self._opened)
-        ws.on_client_disconnect(self._closed)
+        wrap_dispatch(server, self._gated)
+        on_connection_open(server, self._opened)
+        on_connection_close(server, self._closed)
         server.on_client_connect(self._say_watching)
 
     def role_of(self, request_headers: Any, remote_address: Any) -> str:
@@ -69,15 +76,12 @@ class WatchGate:
         return client_id in self.watchers
 
     def _opened(self, conn: Any) -> None:
-        live = self._ws._live_connections.get(conn.client_id)
-        request = getattr(live, "request", None)
-        headers = getattr(request, "headers", None)
-        address = getattr(live, "remote_address", None)
+        headers, address = opening_request(self.server, conn.client_id)
         if self.role_of(headers, address) == WATCH_ROLE:
             self.watchers.add(conn.client_id)
         self._connections[conn.client_id] = conn
         # the page's own handlers (its camera, client-scoped inputs) are behind the same gate
-        conn._handle_incoming_message = self._gated(conn._handle_incoming_message)
+        wrap_dispatch(conn, self._gated)
 
     def _closed(self, conn: Any) -> None:
         self.watchers.discard(conn.client_id)
@@ -99,9 +103,10 @@ class WatchGate:
         if conn is None:
             return
         if isinstance(message, _messages.GuiUpdateMessage):  # the page's input back to the value every page sees
-            handle = self.server.gui._gui_input_handle_from_uuid.get(message.uuid)
+            handle = input_by_uuid(self.server, message.uuid)
             if handle is not None and "value" in message.updates:
-                conn.queue_message(_messages.GuiUpdateMessage(message.uuid, {"value": handle._impl.value}))
+                value = input_state(handle).value
+                queue_to_connection(conn, _messages.GuiUpdateMessage(message.uuid, {"value": value}))
         if self.budget.should_report(f"{client_id}: {kind}"):
             client = self.server.get_clients().get(client_id)
             if client is not None:

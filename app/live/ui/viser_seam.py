@@ -10,7 +10,11 @@ need more, and each reaches past that surface only through the functions here:
 - the publisher's per-frame node writes (`app.live.ui.node_writes`): a scene node's state
   (`node_state`), its position and orientation messages queued directly (`queue_position`,
   `queue_orientation`) and a property update queued the way the setters queue it
-  (`queue_prop_update`).
+  (`queue_prop_update`);
+- watch mode (`app.live.watch`): each websocket's opening request (`opening_request`), a callback
+  when one opens or closes (`on_connection_open`, `on_connection_close`), the dispatch of every
+  message a page sends, server-wide and per connection (`wrap_dispatch`), and a message queued to
+  one connection (`queue_to_connection`).
 
 `VISER_RANGE` is the version range pinned in `pyproject.toml` (`tests/test_viser_seam.py` holds the
 two equal and the installed viser inside it). The same tests check each attribute, message field
@@ -83,3 +87,38 @@ def queue_prop_update(handle: viser.SceneNodeHandle, name: str, value: Any) -> N
     """Send a property already stored in the node's props, as viser's generic setter does after storing."""
     handle._queue_update(name, value)
     handle._on_prop_assigned(name)
+
+
+# the dispatch of one incoming message: (client id, message) -> awaitable
+Dispatch = Callable[[int, Any], Any]
+
+
+def wrap_dispatch(target: Any, wrap: Callable[[Dispatch], Dispatch]) -> None:
+    """Put `wrap(dispatch)` in front of every message `target` dispatches: `target` is a server (the
+    handlers every page shares) or a connection from `on_connection_open` (that page's own: its camera,
+    client-scoped inputs). A message the wrapper does not pass on reaches no handler."""
+    interface = target._websock_server if isinstance(target, viser.ViserServer) else target
+    interface._handle_incoming_message = wrap(interface._handle_incoming_message)  # type: ignore[method-assign,arg-type]
+
+
+def on_connection_open(server: viser.ViserServer, cb: Callable[[Any], None]) -> None:
+    """Run `cb(connection)` as a page's websocket opens, before any of its messages is dispatched
+    (`connection.client_id` is the page's client id)."""
+    server._websock_server.on_client_connect(cb)
+
+
+def on_connection_close(server: viser.ViserServer, cb: Callable[[Any], None]) -> None:
+    """Run `cb(connection)` when a page's websocket closes."""
+    server._websock_server.on_client_disconnect(cb)
+
+
+def opening_request(server: viser.ViserServer, client_id: int) -> tuple[Any, Any]:
+    """(headers, peer address) of the websocket opening request of an open page; (None, None) when gone."""
+    live = server._websock_server._live_connections.get(client_id)
+    request = getattr(live, "request", None)
+    return getattr(request, "headers", None), getattr(live, "remote_address", None)
+
+
+def queue_to_connection(connection: Any, message: Any) -> None:
+    """Send a message to that one page (a connection from `on_connection_open`)."""
+    connection.queue_message(message)
