@@ -129,9 +129,20 @@ def save_settings(session: Session) -> str:
     return "# torquelab settings: one table per parameter group\n" + dumps(session.overrides())
 
 
+MAX_SETTINGS_BYTES = 64 * 1024  # a file of every parameter of every preset is a few kB
+
+
 def parse_settings(text: str) -> tuple[list[tuple[str, str, Any]], list[str]]:
     """The (group, field, value) entries of a TOML settings text, in file order, and one line per
-    entry that is not of that shape (a syntax error gives no entries and one line)."""
+    entry that is not of that shape (a syntax error, or a text over MAX_SETTINGS_BYTES, gives no
+    entries and one line). The size bound keeps a parse short wherever it runs: a megabyte of TOML
+    takes a second of one core in Python, and the interpreter's lock with it."""
+    size = len(text.encode("utf-8", "surrogatepass"))
+    if size > MAX_SETTINGS_BYTES:
+        return [], [
+            f"not a TOML settings file: {size / 1024:,.0f} kB, and a settings file is at most "
+            f"{MAX_SETTINGS_BYTES // 1024} kB (every parameter of a preset takes a few kB); nothing applied"
+        ]
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -23,9 +23,14 @@ def save_settings_text(loop: SimLoop, timeout: float = 60.0) -> str:
 
 
 def load_settings_text(loop: SimLoop, text: str, timeout: float = 60.0) -> list[str]:
-    """Apply a TOML settings text to the running session through the loop (each value validated by
-    its group, remembered like any change); returns one line per refused entry."""
-    commands, refused = loop.call(lambda s: settings_commands(s.params(), text), timeout)
+    """Apply a TOML settings text to the running session (each value validated by its group, remembered
+    like any change); returns one line per refused entry. The text is parsed and checked here, on the
+    caller's thread, against the parameters in force (the loop's published `Settings`, taken once every
+    command queued before has applied): the loop thread receives only the ready `SetParam` commands, one
+    per accepted entry, each validated again when it applies (a megabyte of TOML parsed on the loop
+    thread stopped the 1 kHz loop for over a second)."""
+    loop.sync(timeout)  # the parameters in force include every change queued before this load
+    commands, refused = settings_commands(loop.settings.groups, text)
     for cmd in commands:
         loop.submit(cmd)
     loop.sync(timeout)
