@@ -345,3 +345,32 @@ def test_the_signals_chosen_for_a_plot_are_the_ones_it_draws_across_a_switch_and
     with pytest.raises(ValueError, match="no series 'tau_99'"):
         plots.choose_signals("torque", ["tau_1", "tau_99"])
     assert plots.signals.as_dict() == before
+
+
+def test_the_readouts_name_the_run_they_were_measured_on_and_a_change_during_it(server):
+    """The readout line's first line names the run (preset, case, robot, controller, the values changed
+    from the preset's defaults); a parameter changed after the reset is named as mixing two set-ups."""
+    from app.core.commands import SetParam
+    from app.live.frames import FrameBuilder
+    from app.live.lab import Lab
+
+    lab = Lab("limit-drop")
+    builder = FrameBuilder(publish_period=1 / 30, plot_period=0.1)
+    lab.advance(300)
+    plots = Plots(server)
+    plots.focus(3)
+    plot = builder.build(lab, now=0.0).plot
+    assert plot is not None and plot.run.startswith("limit-drop (case position) on gen3, compliance-qp")
+    assert "(the preset's defaults)" in plot.run and "changed during this run" not in plot.run
+    plots.update(plot, session=1)
+    first = plots.readout.content.split("  \n")[0]
+    assert first == f"*Run:* {plot.run}" and "peak |τ|" in plots.readout.content
+    lab.apply(SetParam("damper", "lambda_", 400.0))
+    lab.advance(100)
+    plot = builder.build(lab, now=1.0).plot
+    assert plot is not None and "λ (damper.lambda_) = 400 1/s" in plot.run
+    assert "changed during this run (damper.lambda_ = 400.0)" in plot.run
+    lab.reset()
+    lab.advance(100)
+    plot = builder.build(lab, now=2.0).plot
+    assert plot is not None and "λ (damper.lambda_) = 400 1/s" in plot.run and "changed during" not in plot.run

@@ -23,6 +23,7 @@ from app.core.session import Session
 from app.core.steplog import StepLog
 from app.core.variants import variant_of
 from app.live.lab import Lab, Settings
+from app.live.run_identity import describe, identity_from
 from app.live.supervise import Stages
 from control.executor import StepView
 
@@ -82,6 +83,7 @@ class PlotData:
     deflection: dict[str, float] | None = None  # the deflection readouts over every step (`deflection_readouts`)
     low_q: np.ndarray | None = None  # min q_i per joint over every step since the reset
     fall_direction: int = 1  # the limit drop's joint falls toward its upper (+1) or lower (−1) limit
+    run: str = ""  # the run the readouts were measured on, in words (`run_text`)
 
 
 @dataclass(frozen=True)
@@ -147,6 +149,7 @@ class FrameBuilder:
             maxlen=round(PLOT_WINDOW_S / publish_period) + 2
         )
         self._restarts = -1
+        self._edits_at_restart = 0  # the lab's edit count when this run started (`run_text`)
         self._seq = 0
         self._next_plot = 0.0
         self._plot: PlotData | None = None
@@ -178,12 +181,14 @@ class FrameBuilder:
         if lab.restarts != self._restarts:
             self._monitor.clear()  # a reset or a new session: the monitor series start over
             self._restarts = lab.restarts
+            self._edits_at_restart = lab.edits
         scene = self._scene(lab)
         status = make_status(lab, rtf, load, getattr(scene, "step", None))
         self._monitor.append(_monitor_row(status, scene))
         if now >= self._next_plot or not lab.running:
             self._next_plot = now + self.plot_period - self._plot_slack
-            self._plot = plot_data(lab, self._monitor)
+            run = run_text(lab, status, self._edits_at_restart)
+            self._plot = dataclasses.replace(plot_data(lab, self._monitor), run=run)
             self._plot_seq += 1
         self._seq += 1
         return Frame(
@@ -256,6 +261,21 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
         low_q=lab.log.q_min(),
         fall_direction=fall_direction,
     )
+
+
+def run_text(lab: Lab, status: LoopStatus, edits_at_restart: int) -> str:
+    """The run the readouts are about: preset, case, robot, controller and every value the person changed
+    from the preset's defaults; and, when a setting changed since the reset, that the figures since the
+    reset mix the set-ups before and after it."""
+    keys = list(dict.fromkeys(f"{o.group}.{o.field}" for o in lab.overrides))
+    text = describe(identity_from(status, lab.settings), keys)
+    text += "" if keys else " (the preset's defaults)"
+    if lab.edits != edits_at_restart:
+        text += (
+            f"; changed during this run ({lab.last_edit}): the figures since the reset mix the set-ups before and "
+            "after it (Reset starts a run with one)"
+        )
+    return text
 
 
 def deflection_readouts(log: StepLog, scenario: Any) -> dict[str, float] | None:

@@ -12,9 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from app.core.commands import SetParam
+from app.live.frames import make_status
 from app.live.lab import Lab
 from app.live.lessons import Memo, Obs, Step, measure
-from app.live.run_identity import RunIdentity, describe, differences, identity_of
+from app.live.run_identity import RunIdentity, describe, differences, identity_from
 
 # the parameters each preset's claims rest on, named with every claim (besides those the step sets)
 CLAIM_KEYS: dict[str, tuple[str, ...]] = {
@@ -38,6 +39,11 @@ class BoundStep:
     @property
     def key(self) -> tuple[str, str]:
         return (self.lesson, self.step)
+
+
+def identity_of(lab: Lab) -> RunIdentity:
+    """The identity of the lab's run now (on the loop thread)."""
+    return identity_from(make_status(lab), lab.settings)
 
 
 def bind(lab: Lab, lesson: str, step: str) -> BoundStep:

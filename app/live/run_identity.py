@@ -9,13 +9,15 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from app.core.params import field_spec
-from app.live.frames import LoopStatus, make_status
-from app.live.lab import Lab, Settings
+
+if TYPE_CHECKING:  # the frames name runs with this module: types only, no import cycle
+    from app.live.frames import LoopStatus
+    from app.live.lab import Settings
 
 
 @dataclass(frozen=True)
@@ -37,11 +39,6 @@ class RunIdentity:
 def identity_from(status: LoopStatus, settings: Settings) -> RunIdentity:
     """The identity of the run a loop status and the settings in force describe (a published frame's)."""
     return RunIdentity(status.scenario, status.variant, status.robot, status.executor, flat_values(settings.groups))
-
-
-def identity_of(lab: Lab) -> RunIdentity:
-    """The identity of the lab's run now (on the loop thread)."""
-    return identity_from(make_status(lab), lab.settings)
 
 
 def flat_values(groups: Mapping[str, Any]) -> tuple[tuple[str, Any], ...]:

@@ -866,6 +866,8 @@ class Plots:
                     f"{metrics.PUSH_AFTER_S:g} s after it): TCP moved {d[f'{push}_push_tcp_mm']:.1f} mm, "
                     f"elbow {d[f'{push}_push_elbow_mm']:.1f} mm"
                 )
+        if lines and plot.run:  # the figures name the run they were measured on
+            lines.insert(0, f"*Run:* {plot.run}")
         if self.markers:
             lines.append("Markers: " + " · ".join(f"{m.label} {m.t:.1f} s" for m in self.markers[-8:]))
         self.readouts = out
