@@ -462,3 +462,29 @@ def test_the_framer_writes_cameras_on_the_servers_event_loop_while_pages_connect
     assert framings[0] >= 40 and writers
     elsewhere = sum(1 for w in writers if w != loop_thread[0])
     assert elsewhere == 0, f"{elsewhere} of {len(writers)} camera writes ran outside the server's event loop"
+
+
+@pytest.mark.parametrize("urdf", sorted(p.name for p in __import__("robots").ROBOTS_DIR.glob("*.urdf")))
+def test_every_shipped_urdf_loaded_by_path_without_its_sidecar_gives_every_presets_first_scene(tmp_path, urdf):
+    """A shipped URDF copied alone to a folder (no sidecar: the arm starts at its zero posture, Gen3
+    stretched straight up, a singular posture) and loaded by path: the first frame of every preset has
+    its scene, with the coupling shapes hidden where the posture is singular (the coupling kernel
+    divided by the zero force-axis entry of Λx⁻¹ and raised ZeroDivisionError in free and compliance)."""
+    import shutil
+
+    import robots
+    from app.live.ui.snapshot import capture
+    from app.scenarios import SCENARIOS
+
+    path = tmp_path / urdf
+    shutil.copy(robots.ROBOTS_DIR / urdf, path)
+    assert not list(tmp_path.glob("*.toml"))
+    for scenario in SCENARIOS:
+        lab = Lab(scenario, robot=str(path))
+        frames = FrameBuilder(1 / 30, 0.1, capture)
+        frame = frames.publish(lab, now=0.0)
+        failing = {stage: frames.stages.last_error.get(stage) for stage in frames.stages.failing}
+        assert frame is not None and frame.scene is not None and not failing, (scenario, failing)
+        snap = frame.scene
+        if not snap.near_singular:
+            assert all(np.isfinite(snap.W[k]) for k in ("W_f", "W_a", "W_d")), (scenario, snap.W)

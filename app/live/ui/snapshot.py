@@ -149,10 +149,12 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         W = {k: float(view.W[k]) for k in ("W_f", "W_a", "W_d")}
     else:  # the controller has no split (or another one is asked for): compute them here
         try:
-            terms = coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub)
+            # near a singularity Λx⁻¹ is not the inverse of the damped Λx: the block identities would
+            # divide by its zero force-axis entry (Gen3 stretched straight up, loaded without its sidecar)
+            terms = coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub, exact_inverse=not dyn.near_singular)
             P = {"P_f": terms.P_f.copy(), "P_a": terms.P_a.copy(), "P_d": terms.P_d.copy()}
             W = coupling_values(terms)
-        except np.linalg.LinAlgError:  # a singular motion block (diverged state): nothing to draw
+        except (np.linalg.LinAlgError, ZeroDivisionError):  # a singular block (diverged state): nothing to draw
             nan = np.full((sub.n_f, sub.n_m), np.nan)
             P = {"P_f": nan, "P_a": nan.copy(), "P_d": nan.copy()}
             W = {"W_f": float("nan"), "W_a": float("nan"), "W_d": float("nan")}
