@@ -43,6 +43,7 @@ def _v_eps_head(v_eps: list[dict]) -> str:
     )
 
 
+SCAN_STEP_DEG = 1.0  # the swivel scan's spacing along the self-motion loop
 PAPER_STABLE_MU1 = {"j": False, "f": False, "a": True, "d": True}  # [T] Fig. 9: W_j/W_f oscillate at μ = 1
 
 
@@ -65,7 +66,7 @@ def scan_at_start(armature_scale: float = 1.0, armature: list[float] | None = No
     robot.set_armature(scenario.armature(nominal))
     model = RobotModel(robot.model)
     q0 = scenario.initial_q(robot)
-    scan = swivel_scan(model, q0, POLISH_SUBSPACES, robot.q_lower, robot.q_upper, step_rad=np.deg2rad(1.0))
+    scan = swivel_scan(model, q0, POLISH_SUBSPACES, robot.q_lower, robot.q_upper, step_rad=np.deg2rad(SCAN_STEP_DEG))
     psi = (np.rad2deg(scan.swivel_rad) + 180.0) % 360.0 - 180.0
     order = np.argsort(psi)
     stretch = stroke_module.friction_direction(1.5 * stroke_module.SEGMENT_DURATION_S)  # S2: +X motion

@@ -93,8 +93,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             "wall_s": wall,
         }
     )
+    if exp.model_facts is not None:  # the model's figures the report prints, kept beside the cells
+        meta["model_facts"] = exp.model_facts()
     meta_path.write_text(json.dumps(meta, indent=2))
-    report = write_report(out, exp, axes, args.seeds, result.records, meta["invocations"])
+    report = write_report(out, exp, axes, args.seeds, result.records, meta["invocations"], meta.get("model_facts"))
     cpu = sum(float(r.get("cpu_s") or 0.0) for r in result.records)
     failed_total = sum(r.get("status") != "ok" for r in result.records)
     print(
@@ -115,6 +117,9 @@ def _report_only(exp, axes, seeds: int, out: Path, meta: dict) -> int:
     if not records:
         raise SweepError(f"no finished cells of this grid in {out / 'cells.jsonl'}")
     write_csv(out / "cells.csv", records)
-    report = write_report(out, exp, axes, seeds, records, meta["invocations"])
+    if exp.model_facts is not None and "model_facts" not in meta:  # a sweep made before they were kept
+        meta["model_facts"] = exp.model_facts()
+        (out / "sweep.json").write_text(json.dumps(meta, indent=2))
+    report = write_report(out, exp, axes, seeds, records, meta["invocations"], meta.get("model_facts"))
     print(f"{len(records)} of {len(cells(axes, seeds))} cells finished; wrote {report}")
     return 0

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from app.headless.experiments.polish_calibration import calibration_metrics
 from app.headless.sweep.grid import SweepError
 from app.headless.sweep.knobs import RUN, Knob, positive
-from app.headless.sweep.overlays import polish_notes, polish_overlay
+from app.headless.sweep.overlays import polish_model_facts, polish_notes, polish_overlay
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,8 @@ class SweepExperiment:
     seeded: bool = True  # False: the run does not depend on the seed (seeds repeat it)
     groups: Callable[[], dict] | None = None  # the default session's parameter groups by name
     overlay: Callable | None = None  # (ax, axes, records) → extra layers on its maps
-    report_notes: Callable | None = None  # (axes, records) → HTML paragraph for the report
+    report_notes: Callable | None = None  # (axes, records, model facts) → HTML paragraph for the report
+    model_facts: Callable | None = None  # () → the model's figures its maps and notes draw (kept in sweep.json)
     any_param: bool = False  # "GROUP.FIELD" sweeps any session parameter (the cell sets it by set_param)
 
     def check_combination(self, names: list[str]) -> None:
@@ -306,6 +307,7 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         any_param=True,
         overlay=polish_overlay,
         report_notes=polish_notes,
+        model_facts=polish_model_facts,
     ),
 }
 

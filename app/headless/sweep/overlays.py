@@ -162,7 +162,7 @@ def _margin_layer(ax, axes: list[Axis], records: list[dict]) -> None:
     unstable = [key for key, (pred, _) in _cell_predictions(axes, records).items() if not pred]
     for k, key in enumerate(unstable):
         x, y = x_axis.values.index(key[0]), y_axis.values.index(key[1])
-        label = "margin predicts contact loss" if k == 0 else None
+        label = "start-pose margin negative" if k == 0 else None
         ax.plot(x, y, "o", mfc="none", mec="magenta", ms=11, mew=1.5, label=label)
     if x_axis.name != "hold_swivel" or len(y_axis) < 2:
         return
@@ -209,35 +209,66 @@ def polish_overlay(ax, axes: list[Axis], records: list[dict]) -> None:
         ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=3, frameon=False)  # below the map
 
 
-def polish_notes(axes: list[Axis], records: list[dict]) -> str:
-    """What the overlay shows, with its numbers, and where the runs ended along the loop."""
+def polish_model_facts() -> dict:
+    """The model's figures the polish maps and notes draw, for sweep.json beside the cells: the robot, the
+    W_a minima and ridges along the start pose's self-motion loop and each planned path's swivel span and
+    cost (computed from the model with the robot file's armature, not from the runs)."""
+    import robots
+    from app.headless.experiments.polish_report import SCAN_STEP_DEG
+
     basins = wa_basins()
+    return {
+        "scan_step_deg": SCAN_STEP_DEG,
+        "robot": robots.load(robots.chosen("rizon4s")).name,
+        "armature": "the robot file's (scenario armature scale ×1)",
+        "W_a_minima_deg": basins["minima"],
+        "W_a_ridges_deg": basins["ridges"],
+        "plans": {c: {"lo_deg": p["lo"], "hi_deg": p["hi"], "cost": p["cost"]} for c, p in planned_swivels().items()},
+    }
+
+
+def polish_notes(axes: list[Axis], records: list[dict], facts: dict | None = None) -> str:
+    """What the overlay shows, with its numbers (`facts`: `polish_model_facts` as sweep.json recorded
+    them; None: computed now), and where the runs ended along the loop."""
+    facts = facts or polish_model_facts()
     fmt = ", ".join
     text = (
-        "<p>Self-motion loop at the polish start pose (swivel scan, 2° steps): W_a has feasible local minima "
-        f"at {fmt(f'{d:+.0f}°' for d in basins['minima']) or 'none'} (solid lines: the basins the W_a flow "
-        f"ends in) and ridges at {fmt(f'{d:+.0f}°' for d in basins['ridges']) or 'none'} (dashed: basin "
+        f"<p>Self-motion loop of the {facts['robot']} at the polish start pose (swivel scan, "
+        f"{facts['scan_step_deg']:g}° steps, "
+        f"{facts['armature']} armature): W_a has feasible local minima "
+        f"at {fmt(f'{d:+.0f}°' for d in facts['W_a_minima_deg']) or 'none'} (solid lines: the basins the W_a flow "
+        f"ends in) and ridges at {fmt(f'{d:+.0f}°' for d in facts['W_a_ridges_deg']) or 'none'} (dashed: basin "
         "borders); grey: outside the joint limits.</p>"
     )
-    plans = planned_swivels()
     text += (
         "<p>Planned nullspace paths over the zig-zag (dynamic programming over the swivel grid, "
         "`control.planner`) from the Fig. 6a start, as the polish table runs them (hatched bands: the "
         "swivels each plan visits during the six segments): "
         + fmt(
-            f"cost {PLAN_STYLES[c][0]} {p['lo']:+.0f}°…{p['hi']:+.0f}° (plan cost {p['cost']:.3g})"
-            for c, p in plans.items()
+            f"cost {PLAN_STYLES[c][0]} {p['lo_deg']:+.0f}°…{p['hi_deg']:+.0f}° (plan cost {p['cost']:.3g})"
+            for c, p in facts["plans"].items()
         )
         + ".</p>"
     )
     if len(axes) >= 2 and axes[1].name == "mu":
         pred = _cell_predictions(axes, records)
         agree = sum(p == s for p, s in pred.values())
+        cutoffs = sorted(
+            {
+                float(r["metrics"]["sensor_cutoff_hz"])
+                for r in records
+                if (r.get("metrics") or {}).get("sensor_cutoff_hz")
+            }
+        )
+        lag = (
+            "the " + "/".join(f"{c:g}" for c in cutoffs) + " Hz sensor low-pass" if cutoffs else "the sensor's low-pass"
+        )
         text += (
-            "<p>Linearised force-loop margin ([T12] loop with contact stiffness, K_f^p, K_f^d, the 25 Hz sensor "
-            "lag and the shaping term; `control.margin.posture_margin`) at each run's converged posture: "
-            f"it predicts the simulated outcome (all seeds stable or not) in "
-            f"{agree} of {len(pred)} cells; circles mark the cells it predicts to lose contact"
+            f"<p>Linearised force-loop margin ([T12] loop with contact stiffness, K_f^p, K_f^d, K_f^i, {lag}, the "
+            "reading's and the torque's delay and the shaping term; `control.margin.posture_margin`) at each run's "
+            "converged posture, before the strokes (it leaves out how the posture moves along them, the noise, and "
+            f"contact loss itself): its sign and the simulated outcome (all seeds stable or not) agree in "
+            f"{agree} of {len(pred)} cells; circles mark the cells where it is negative"
             + ("; the dotted line is its zero over (held swivel, μ)." if axes[0].name == "hold_swivel" else ".")
             + "</p>"
         )
@@ -247,10 +278,10 @@ def polish_notes(axes: list[Axis], records: list[dict]) -> str:
         for r in records
         if r.get("status") == "ok" and r.get("metrics") and r["metrics"].get("converged_swivel_deg") is not None
     ]
-    if ended and basins["minima"]:
-        mins = np.asarray(basins["minima"])
+    if ended and facts["W_a_minima_deg"]:
+        mins = np.asarray(facts["W_a_minima_deg"])
         nearest = [float(mins[np.argmin(np.abs((mins - e + 180.0) % 360.0 - 180.0))]) for e in ended]
-        counts = {m: nearest.count(m) for m in basins["minima"]}
+        counts = {m: nearest.count(m) for m in facts["W_a_minima_deg"]}
         text += (
             "<p>Where the runs' postures were when the trajectory started (nearest W_a minimum): "
             + fmt(f"{m:+.0f}°: {c} run(s)" for m, c in counts.items())

@@ -175,8 +175,10 @@ def write_report(
     seeds: int,
     records: list[dict],
     invocations: list[dict],
+    facts: dict | None = None,
 ) -> Path:
-    """Figures and `out/report.html` for the grid's finished cells."""
+    """Figures and `out/report.html` for the grid's finished cells; `facts`: the model's figures the
+    experiment's notes print, as sweep.json keeps them (`SweepExperiment.model_facts`)."""
     out = Path(out)
     figures = []
     for metric in experiment.map_metrics:
@@ -231,7 +233,7 @@ def write_report(
     ]
     sections += [(f"Map: {m}" if len(axes) >= 2 else f"Line: {m}", _img(p)) for m, p in figures]
     if experiment.report_notes is not None:
-        sections.append(("Notes", experiment.report_notes(axes, records)))
+        sections.append(("Notes", experiment.report_notes(axes, records, facts)))
     if failed:
         rows = [
             [", ".join(f"{k}={_label(v)}" for k, v in r["params"].items()), r["seed"], r.get("error", "")]
