@@ -1012,6 +1012,62 @@ def test_the_compliance_lesson_in_the_page_compares_the_gamma_modes(app, page):
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
 
 
+_CHART_DATA_JS = """(title) => {
+    for (const v of Object.values((window.__viserTestpoints || {}).uplots || {})) {
+        const c = v.chart;
+        if (!c.root.isConnected || !(c.root.querySelector('.u-title')?.textContent || '').startsWith(title)) continue;
+        return c.data.map(a => Array.from(a || [], y => (y === null || !Number.isFinite(y)) ? null : y));
+    }
+    return null;
+}"""
+_ELBOW_PUSH = re.compile(
+    r"Push at the elbow \(peak over the push and the ([\d.]+) s after it\): TCP moved ([\d.]+) mm, elbow ([\d.]+) mm"
+)
+
+
+def test_the_compliance_readout_its_plot_and_its_report_agree_on_the_elbow_push_in_the_page(app, page):
+    """Compliance, Γ₀ = I, both pushes run, paused: the elbow's deflection under the elbow push as the page's
+    readout prints it, as the page's deflection chart draws it (its samples in the push and the 0.5 s after
+    it) and as `torquelab experiment compliance` measures it agree to 0.1 mm; the chart marks both pushes."""
+    from app.core.commands import Pause, Play, SwitchSession
+    from app.headless.experiments.compliance import run_mode
+    from app.scenarios.compliance import PUSHES
+
+    pg, _ = page
+    try:
+        app.loop.submit(SwitchSession(scenario="compliance", robot="", variant="nullspace"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "compliance" and app.loop.status.t >= 4.0, 120, "both pushes")
+        app.loop.submit(Pause())
+        text = wait_for(
+            lambda: (m := _ELBOW_PUSH.search(pg.locator("body").inner_text())) and m, 60, "the elbow push's readout"
+        )
+        after_s, readout = float(text.group(1)), float(text.group(3))
+        (_, t0, t1) = next(p for p in PUSHES if p[0] == "elbow")
+        report = run_mode("nullspace")["phases"]["elbow"]["peak_elbow_deflection_mm"]
+
+        def drawn() -> tuple[float, list[float]] | None:
+            data = pg.evaluate(_CHART_DATA_JS, "Deflection")
+            now = float(app.publisher.plots.history.t[-1])
+            if not data or len(data) < 4:
+                return None
+            x, elbow, marker = data[0], data[2], data[3]
+            inside = [e for xi, e in zip(x, elbow, strict=True) if e is not None and t0 <= xi + now < t1 + after_s]
+            marks = sorted({round(xi + now, 2) for xi, m in zip(x, marker, strict=True) if m is not None})
+            return (max(inside), marks) if inside else None
+
+        peak, marks = wait_for(drawn, 30, "the deflection chart's samples of the elbow push")
+        print(f"elbow under the elbow push in the page: readout {readout} mm, chart {peak:.3f} mm, report {report:.3f}")
+        assert after_s == 0.5 and readout > 5.0
+        assert peak == pytest.approx(readout, abs=0.1) and report == pytest.approx(readout, abs=0.1)
+        for _, start, _ in PUSHES:  # each push is marked where it starts
+            assert any(abs(m - start) <= 0.025 for m in marks), (start, marks)
+    finally:
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
 _SIGNALS_FOLD_JS = """(title) => {
     for (const v of Object.values((window.__viserTestpoints || {}).uplots || {})) {
         const c = v.chart;
