@@ -13,7 +13,6 @@ def _tcp_push(mode: str) -> tuple[float, float]:
     """(max TCP displacement m, max posture deviation rad) over the first push (0.5–1.0 s) + 0.3 s."""
     scenario = ComplianceScenario(mode)
     session = qp_session(scenario)
-    scenario.configure_executor(session.executor, session.robot)  # type: ignore[arg-type]
     session.reset()
     p0 = session.target_fn(0.0).position.copy()
     q0 = session.world.q

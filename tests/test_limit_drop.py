@@ -11,7 +11,6 @@ from app.headless.experiments.limit_drop import run_drop
 from app.scenarios.limit_drop import FALLING_JOINT, LimitDropScenario
 from app.scenarios.metrics import velocity_reversals
 from control.compliance_qp import ComplianceQPExecutor
-from control.gains import DamperGains
 
 DURATION = 1.8  # s: the fall and the braking (λ = 100, M = 2) are over after about 1.3 s
 
@@ -43,7 +42,8 @@ def _braking_torques(torque_limits: bool) -> tuple[np.ndarray, float]:
     session = Session(scenario, executor="compliance-qp", q0=q0)
     ex = session.executor
     assert isinstance(ex, ComplianceQPExecutor)
-    scenario.configure_executor(ex, session.robot, DamperGains(lambda_=100.0, M=1.5), feedback=True)
+    session.set_param("damper", "lambda_", 100.0)
+    session.set_param("damper", "M", 1.5)
     session.set_param("compliance_qp", "torque_limits", torque_limits)
     ex.tau_max[FALLING_JOINT] = 16.0  # holding the arm and the mass needs about 13 N m
     session.reset()

@@ -103,7 +103,6 @@ def test_released_mass_falls_freely_then_the_rope_pulls_tcp_and_mass_equally():
     params = MassDropParams(rope_length_m=0.05)
     scenario = MassDropScenario("position", params=params)
     session = qp_session(scenario, seed=0)
-    scenario.configure_executor(session.executor, session.robot)
     session.reset()
     session.run(RELEASE_TIME_S)
     fall = np.sqrt(2 * params.drop_height / 9.81)  # s of free fall before the rope goes taut

@@ -24,9 +24,7 @@ from typing import Any
 
 from app.core.commands import SetParam
 from app.core.session import Session, TargetParams
-from app.scenarios.mass_drop import MassDropParams
-from app.scenarios.payload import PayloadParams
-from app.scenarios.polish import PolishParams
+from app.scenarios import SCENARIOS, get_scenario
 from app.sim.contact import ContactParams
 from app.sim.disturbances import SanderParams
 from app.sim.drag import DragParams
@@ -62,15 +60,33 @@ GROUP_TYPES: dict[str, type] = {
     "joint_hold": JointHoldGains,
     "contact": ContactParams,
     "sander": SanderParams,
-    "payload": PayloadParams,
     "sensor": SensorParams,
     "world": WorldParams,
     "drag": DragParams,
     "target": TargetParams,
-    "scenario": PolishParams,  # one class per preset: see SCENARIO_TYPES
 }
-# the "scenario" group is the preset's own: a different dataclass per preset that has one
-SCENARIO_TYPES: tuple[type, ...] = (PolishParams, MassDropParams)
+
+
+def _preset_groups() -> dict[str, tuple[type, ...]]:
+    """The groups the presets declare (`Scenario.groups`), by name: a preset's own "scenario" group is
+    a different dataclass per preset that has one."""
+    out: dict[str, tuple[type, ...]] = {}
+    for name in SCENARIOS:
+        for group, cls in get_scenario(name).groups.items():
+            if cls not in out.get(group, ()):
+                out[group] = (*out.get(group, ()), cls)
+    return out
+
+
+_PRESET_GROUPS = _preset_groups()
+for _group, _types in _PRESET_GROUPS.items():
+    if _group != "scenario":
+        if len(_types) != 1 or GROUP_TYPES.get(_group, _types[0]) is not _types[0]:
+            raise RuntimeError(f"the presets declare the group {_group!r} as {_types}: one dataclass a name")
+        GROUP_TYPES[_group] = _types[0]
+SCENARIO_TYPES: tuple[type, ...] = _PRESET_GROUPS.get("scenario", ())
+if SCENARIO_TYPES:
+    GROUP_TYPES["scenario"] = SCENARIO_TYPES[0]  # one class per preset: see SCENARIO_TYPES
 
 
 def group_types(group: str) -> tuple[type, ...]:

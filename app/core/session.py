@@ -175,9 +175,7 @@ class Session:
                 self._set_scenario_param(c)
         self.robot = robots.load(robot or robots.chosen(self.scenario.default_robot))
         self._armature_nominal = self.robot.armature.copy()  # what `Scenario.armature` scales
-        prepare = getattr(self.scenario, "prepare_robot", None)
-        if callable(prepare):  # e.g. the table placed for an arm without sidecar postures
-            prepare(self.robot)
+        self.scenario.prepare_robot(self.robot)  # e.g. the table placed for an arm without sidecar postures
         self.robot.set_armature(self.scenario.armature(self._armature_nominal))  # before model and world
         work = self.scenario.pending_work(self.robot)
         if work is not None and defer_work:
@@ -224,7 +222,11 @@ class Session:
         self.environment.connect(_weakly(self.params), self.offload, _weakly(self._dynamics))
         self.sensor: Sensor = self.scenario.make_sensor(rng)
         self.dyn: Dynamics = self.model.compute(self.world.q, self.world.dq)
-        self.target_fn: Callable[[float], TaskTarget] = self.scenario.make_target(self.robot, self.model, self.dyn)
+        self._apply_executor_changes()  # a "scenario" change may have changed them (e.g. holding a swivel)
+        gains = self.executor.params()
+        self.target_fn: Callable[[float], TaskTarget] = self.scenario.make_target(
+            self.robot, self.model, self.dyn, gains
+        )
         self._reinstall(("environment", "sensor", "target"))
         self.executor.reset(self.dyn, self.target_fn(0.0))
         self.steps = 0
@@ -239,10 +241,31 @@ class Session:
         self.executor.reset(self.dyn, self.target_fn(self.world.time))
 
     def _configure_executor_for_scenario(self) -> None:
-        """Let the scenario set up the executor it runs with (tasks, Γ, estimator), if it has a hook."""
-        hook = getattr(self.scenario, "configure_executor", None)
-        if callable(hook):
-            hook(self.executor, self.robot)
+        """The scenario sets up the executor it runs with: its tasks and limits (`prepare_executor`),
+        then its parameter changes (`_apply_executor_changes`)."""
+        self.scenario.prepare_executor(self.executor, self.robot)
+        self._apply_executor_changes()
+
+    def _apply_executor_changes(self) -> None:
+        """Hand the scenario's parameter changes (`Scenario.executor_changes`) to the executor, then
+        the values set with `set_param` on its groups again (they stay in force)."""
+        changes = self.scenario.executor_changes(self.executor.params(), self.robot)
+        if not changes:
+            return
+        for name, new in changes.items():
+            self.executor.set_params(name, new)
+        mine = self.executor.params()
+        for name, fields in self.overrides().items():
+            if name not in changes or name not in mine:
+                continue
+            current = mine[name]
+            for field_name, value in fields.items():
+                try:
+                    spec_of(current, field_name)
+                    current = replaced(current, field_name, value)
+                except ParamError:
+                    continue
+            self.executor.set_params(name, current)
 
     @property
     def preset(self) -> Scenario:

@@ -2,7 +2,7 @@
 compliance: stiff / nullspace / full; limit drop: position / velocity limit).
 
 A scenario class lists its cases in `cases` and takes its case as one constructor argument named
-by `case_arg` (kept as the attribute of that name); `variant_of` names the argument, the choices
+by `case_arg` (the one it runs in is `chosen_case`); `variant_of` names the argument, the choices
 and the current one, and `make_variant` builds the scenario for a choice. Scenarios without cases
 have no variants.
 """
@@ -26,7 +26,7 @@ def variant_of(scenario: Scenario) -> Variant | None:
     """The cases of a scenario instance, or None."""
     if not scenario.cases:
         return None
-    return Variant(scenario.case_arg, tuple(scenario.cases), str(getattr(scenario, scenario.case_arg)))
+    return Variant(scenario.case_arg, tuple(scenario.cases), scenario.chosen_case)
 
 
 def make_variant(name: str, choice: str) -> Scenario:

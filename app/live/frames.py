@@ -25,6 +25,7 @@ from app.core.variants import variant_of
 from app.live.lab import Lab, Settings
 from app.live.run_identity import describe, identity_from
 from app.live.supervise import Stages
+from app.scenarios import Scenario
 from control.executor import StepView
 
 PLOT_WINDOW_S = 10.0
@@ -238,8 +239,8 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
         if "segment" in twin:
             columns["twin_segment"] = twin["segment"]
     peak_abs_tau, peak_q = lab.log.extremes()
-    fall = getattr(lab.session.scenario, "fall", None)  # the limit drop: which limit its joint falls toward
-    fall_direction = fall(lab.session.robot).direction if fall is not None else 1
+    fall = lab.session.scenario.fall(lab.session.robot)  # a drop preset's: which limit its joint falls toward
+    fall_direction = fall.direction if fall is not None else 1
     segment_std = lab.log.segment_force_error_std()
     twin_segment_std = lab.twin.log.segment_force_error_std() if lab.twin is not None else None
     deflection = deflection_readouts(lab.log, lab.session.scenario)
@@ -278,11 +279,11 @@ def run_text(lab: Lab, status: LoopStatus, edits_at_restart: int) -> str:
     return text
 
 
-def deflection_readouts(log: StepLog, scenario: Any) -> dict[str, float] | None:
+def deflection_readouts(log: StepLog, scenario: Scenario) -> dict[str, float] | None:
     """The scenario's deflection readouts (mass drop: peak, stabilisation time, residual error of the TCP;
     compliance: TCP and elbow under each push) over every logged step since the reset, kept running in the
     log (`StepLog.fold`: the whole run, not only the rows the log still holds); None elsewhere."""
-    if not getattr(scenario, "logs_deflection", False):
+    if not scenario.logs_deflection:
         return None
     fold = log.fold("deflection", scenario.deflection_fold)
     return fold.value() if fold is not None else None

@@ -495,7 +495,7 @@ class Lab:
         """Take the TCP's and the elbow's positions now (t = 0) as the reference of the deflection signals,
         in the presets that log them (`Scenario.logs_deflection`)."""
         s = self.session
-        self._deflection = DeflectionProbe(s) if getattr(s.scenario, "logs_deflection", False) else None
+        self._deflection = DeflectionProbe(s) if s.scenario.logs_deflection else None
 
     def _switch_executor(self, name: str) -> None:
         if name not in EXECUTORS:

@@ -97,8 +97,7 @@ def measure(lab: Lab) -> Obs:
         hi, lo = float(s.robot.q_upper[j]), float(s.robot.q_lower[j])
         damper = s.params().get("damper")
         d_s = float(getattr(damper, "safety_fraction", 0.01)) * (hi - lo)
-        fall = getattr(s.scenario, "fall", None)  # the limit joint 4 falls toward (the upper one on the Gen3)
-        drop = fall(s.robot) if fall else None
+        drop = s.scenario.fall(s.robot)  # the limit joint 4 falls toward (the upper one on the Gen3)
         sign, limit = (drop.direction, drop.limit) if drop else (1, hi)
         past = float(np.nanmax(sign * (c[f"q_{j + 1}"] - limit)))  # > 0 beyond the limit
         out["beyond_ds_mrad"] = 1e3 * max(0.0, past + d_s)

@@ -7,10 +7,15 @@ the web app and the headless experiments both use the same Session, so they agre
 
 Each scenario module adds itself to `SCENARIOS` (name -> module under app.scenarios that defines
 `SCENARIO`, an instance of a `Scenario` subclass). What a runner needs from a preset comes through
-hooks every scenario may implement, so the runner names no preset: `Scenario.pending_work` (a
-computation to do, perhaps elsewhere, before the session is built), `Environment.settle_pending`
-(a settle phase is under way) and `Environment.connect` (the session's parameter groups, to read,
-and an `Offload` where the runner has one: a place off its loop thread for costly page signals).
+the hooks `Scenario` declares (each with a default, so a preset overrides only those it has), and
+the runner names no preset and looks up no hook by name: the parameter groups it brings
+(`Scenario.groups`), the robot's preparation (`prepare_robot`), the executor's tasks and limits
+(`prepare_executor`) and the parameter changes it makes to the executor's groups
+(`executor_changes`, applied by the Session like any other group change), a costly computation to
+do first (`pending_work`), the strokes of its task (`segments`), the limit a joint falls to
+(`fall`), its deflection readouts, and on the environment `Environment.settle_pending` (a settle
+phase is under way) and `Environment.connect` (the session's parameter groups, to read, and an
+`Offload` where the runner has one: a place off its loop thread for costly page signals).
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import importlib
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import mujoco
 import numpy as np
@@ -27,10 +32,13 @@ import numpy as np
 from app.scenarios.metrics import Fold
 from app.sim.sensor import Sensor
 from app.sim.world import World
-from control.executor import TaskTarget
+from control.executor import Executor, TaskTarget
 from control.model import Dynamics, RobotModel
 from control.params import ParamGroup, expect
 from robots import RobotDescription
+
+if TYPE_CHECKING:
+    from app.scenarios.drop_postures import Fall
 
 # name -> module under app.scenarios with a module-level SCENARIO
 SCENARIOS: dict[str, str] = {
@@ -122,6 +130,36 @@ class Scenario:
     # a preset whose lesson is how far the arm is pushed off its pose: the live lab logs the TCP's and the
     # elbow's distance from where they stood at t = 0 ("tcp_dev_mm", "elbow_dev_mm")
     logs_deflection = False
+    # the parameter groups this preset brings beyond the controller's and the simulator's, by name: its own
+    # "scenario" group and its environment's (the panels and settings files read them before a session has them)
+    groups: ClassVar[Mapping[str, type[ParamGroup]]] = {}
+    # the strokes of its task, counted by the environment's "segment" signal (1…segments while they run,
+    # segments + 1 after, 0 before): 0 for a preset without strokes
+    segments: int = 0
+
+    @property
+    def chosen_case(self) -> str:
+        """The case it runs in (one of `cases`; "" for a preset without cases)."""
+        return ""
+
+    def prepare_robot(self, robot: RobotDescription) -> None:
+        """Adapt to the robot before the model and the world are built (e.g. place the table for an arm
+        without sidecar postures, or find its start); nothing by default."""
+
+    def prepare_executor(self, executor: Executor, robot: RobotDescription) -> None:
+        """Set up what is not a parameter of the executor it runs with (its tasks, its limits) when the
+        session builds or switches the executor; nothing by default. Its gains come from `executor_changes`."""
+
+    def executor_changes(self, groups: Mapping[str, ParamGroup], robot: RobotDescription) -> dict[str, ParamGroup]:
+        """The executor's parameter groups this preset sets, from its groups in force (`groups`): the
+        Session hands them to the executor after `prepare_executor` and at every reset, before the
+        changes made with `set_param`, which stay in force. None by default."""
+        return {}
+
+    def fall(self, robot: RobotDescription) -> Fall | None:
+        """Where a joint of the arm falls from the start (joint, direction, the limit it falls toward),
+        for a preset that drops one; None by default."""
+        return None
 
     def params(self) -> dict[str, ParamGroup]:
         """The scenario's own parameters (e.g. the polish start swivel) as group "scenario", if any;
@@ -170,8 +208,11 @@ class Scenario:
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         return Sensor()
 
-    def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
-        """The task target as a function of time; default: hold the initial TCP pose and posture."""
+    def make_target(
+        self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics, gains: Mapping[str, ParamGroup]
+    ) -> Callable[[float], TaskTarget]:
+        """The task target as a function of time, built at each reset with the executor's groups in
+        force (`gains`); default: hold the initial TCP pose and posture."""
         hold = TaskTarget(
             position=dyn0.tcp_position_world.copy(), rotation=dyn0.tcp_rotation_world.copy(), q_posture=dyn0.q.copy()
         )

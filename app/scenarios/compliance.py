@@ -15,7 +15,7 @@ Constants, chosen once, not tuned afterwards:
 
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -24,7 +24,9 @@ from app.scenarios.mass_drop import wrist_ft_sensor
 from app.scenarios.metrics import WindowPeaks, push_windows
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor, PoseTask
+from control.executor import Executor
 from control.gains import EstimatorGains, PoseTaskGains, PostureTaskGains
+from control.params import ParamGroup, replaced
 from robots import RobotDescription
 
 MODES = ("stiff", "nullspace", "full")
@@ -93,18 +95,28 @@ class ComplianceScenario(Scenario):
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         return wrist_ft_sensor(rng)
 
-    def configure_executor(self, executor: object, robot: RobotDescription) -> None:
-        """Pose + posture tasks with this mode's Γ, fusion estimate, feedback on.
+    @property
+    def chosen_case(self) -> str:
+        """The compliance mode (`MODES`)."""
+        return self.mode
 
-        Other executors are left as they are (the Session may call this for any executor).
-        """
-        if not isinstance(executor, ComplianceQPExecutor):
-            return
+    def prepare_executor(self, executor: Executor, robot: RobotDescription) -> None:
+        """One pose task (the [C] QP executor; other executors are left as they are)."""
+        if isinstance(executor, ComplianceQPExecutor):
+            executor.set_tasks([PoseTask()])
+
+    def executor_changes(self, groups: Mapping[str, ParamGroup], robot: RobotDescription) -> dict[str, ParamGroup]:
+        """This mode's Γ on the pose and posture tasks, the fusion estimate, feedback on (the [C] QP
+        executor's groups; none for another executor)."""
+        if "compliance_qp" not in groups:
+            return {}
         g_task, g_posture = GAMMAS[self.mode]
-        executor.set_tasks([PoseTask(PoseTaskGains(stiffness=100.0, damping=20.0, weight=1e4, compliance=g_task))])
-        executor.posture.configure(PostureTaskGains(stiffness=1.0, damping=2.0, weight=1.0, compliance=g_posture))
-        executor.estimator.configure(EstimatorGains(source="fusion", observer_gain=OBSERVER_GAIN))
-        executor.set_params("compliance_qp", replace(executor.settings, feedback=True))
+        return {
+            "pose_task": PoseTaskGains(stiffness=100.0, damping=20.0, weight=1e4, compliance=g_task),
+            "posture_task": PostureTaskGains(stiffness=1.0, damping=2.0, weight=1.0, compliance=g_posture),
+            "estimator": EstimatorGains(source="fusion", observer_gain=OBSERVER_GAIN),
+            "compliance_qp": replaced(groups["compliance_qp"], "feedback", True),
+        }
 
 
 SCENARIO = ComplianceScenario()

@@ -23,20 +23,21 @@ Constants, chosen once from the paper and not tuned afterwards:
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import replace
+from collections.abc import Callable, Mapping
+from typing import ClassVar
 
 import mujoco
 import numpy as np
 
 from app.scenarios import Environment, Scenario
 from app.scenarios.drop_postures import FALLING_JOINT, Fall, fall_from, limit_drop_start
-from app.scenarios.payload import PayloadEnvironment, add_payload_body
+from app.scenarios.payload import PayloadEnvironment, PayloadParams, add_payload_body
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor
-from control.executor import TaskTarget
-from control.gains import DamperGains, EstimatorGains, PostureTaskGains
+from control.executor import Executor, TaskTarget
+from control.gains import EstimatorGains, PostureTaskGains
 from control.model import Dynamics, RobotModel
+from control.params import ParamGroup, replaced
 from robots import RobotDescription
 
 PAYLOAD_KG = 1.25  # [C] §IV-B
@@ -62,11 +63,17 @@ class LimitDropScenario(Scenario):
     default_executor = "compliance-qp"
     focus_joint = FALLING_JOINT
     starts_paused = True  # the drop is over in seconds
+    groups: ClassVar[Mapping[str, type[ParamGroup]]] = {"payload": PayloadParams}
 
     def __init__(self, limit: str = "position"):
         if limit not in ("position", "velocity"):
             raise ValueError(f"limit must be 'position' or 'velocity', got {limit!r}")
         self.limit = limit
+
+    @property
+    def chosen_case(self) -> str:
+        """Which limit the drop meets: "position" or "velocity" (lowered)."""
+        return self.limit
 
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         return self.named_posture(robot, "l_shape")
@@ -102,7 +109,9 @@ class LimitDropScenario(Scenario):
     def make_environment(self, world: World, rng: np.random.Generator) -> Environment:
         return PayloadEnvironment(world, PAYLOAD_KG, release_time_s=None)
 
-    def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
+    def make_target(
+        self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics, gains: Mapping[str, ParamGroup]
+    ) -> Callable[[float], TaskTarget]:
         hold = TaskTarget(
             position=dyn0.tcp_position_world.copy(), rotation=dyn0.tcp_rotation_world.copy(), q_posture=dyn0.q.copy()
         )
@@ -115,28 +124,27 @@ class LimitDropScenario(Scenario):
             dq_max[FALLING_JOINT] = LOWERED_VELOCITY_LIMIT
         return dq_max
 
-    def configure_executor(
-        self,
-        executor: object,
-        robot: RobotDescription,
-        dampers: DamperGains | None = None,
-        feedback: bool = True,
-    ) -> None:
-        """Posture-only QP, Γ₀ = e₄, fusion estimate, the damper variant and the feedback switch.
+    def prepare_executor(self, executor: Executor, robot: RobotDescription) -> None:
+        """Posture only (no task) and this case's velocity limits on the dampers (the [C] QP executor;
+        other executors are left as they are)."""
+        if isinstance(executor, ComplianceQPExecutor):
+            executor.set_tasks([])
+            executor.damper.configure(executor.damper.gains, dq_max=self.velocity_limits(robot))
 
-        Other executors are left as they are (the Session may call this for any executor).
-        """
-        if not isinstance(executor, ComplianceQPExecutor):
-            return
+    def executor_changes(self, groups: Mapping[str, ParamGroup], robot: RobotDescription) -> dict[str, ParamGroup]:
+        """Γ₀ = e₄ on the posture task, the fusion estimate, feedback on (the [C] QP executor's
+        groups; none for another executor)."""
+        if "compliance_qp" not in groups:
+            return {}
         gamma0 = np.zeros(robot.nq)
         gamma0[FALLING_JOINT] = 1.0
-        executor.set_tasks([])
-        executor.posture.configure(
-            PostureTaskGains(stiffness=POSTURE_STIFFNESS, damping=POSTURE_DAMPING, compliance=tuple(gamma0))
-        )
-        executor.estimator.configure(EstimatorGains(source="fusion", observer_gain=OBSERVER_GAIN))
-        executor.damper.configure(dampers or DamperGains(), dq_max=self.velocity_limits(robot))
-        executor.set_params("compliance_qp", replace(executor.settings, feedback=feedback))
+        return {
+            "posture_task": PostureTaskGains(
+                stiffness=POSTURE_STIFFNESS, damping=POSTURE_DAMPING, compliance=tuple(gamma0)
+            ),
+            "estimator": EstimatorGains(source="fusion", observer_gain=OBSERVER_GAIN),
+            "compliance_qp": replaced(groups["compliance_qp"], "feedback", True),
+        }
 
 
 SCENARIO = LimitDropScenario()

@@ -37,8 +37,9 @@ cord and knot) and the true mass (±10 % about the 1.25 kg, which no controller 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
@@ -46,13 +47,14 @@ import numpy as np
 from app.scenarios import Environment, Scenario, Sensor
 from app.scenarios.drop_postures import mass_drop_start, mass_drop_target
 from app.scenarios.metrics import DropFold, run_fold
-from app.scenarios.payload import PayloadEnvironment, add_payload_body, set_inertial_at_origin
+from app.scenarios.payload import PayloadEnvironment, PayloadParams, add_payload_body, set_inertial_at_origin
 from app.sim.rope import Rope
 from app.sim.sensor import FTSensor
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor, PoseTask
+from control.executor import Executor
 from control.gains import EstimatorGains, PoseTaskGains, PostureTaskGains
-from control.params import ParamError, ParamGroup, expect, param
+from control.params import ParamError, ParamGroup, expect, param, replaced
 from robots import RobotDescription
 
 MODES = ("position", "torque-residual", "torque-fusion")
@@ -256,6 +258,7 @@ class MassDropScenario(Scenario):
     starts_paused = True  # the release is over in seconds
     default_executor = "compliance-qp"
     logs_deflection = True
+    groups: ClassVar[Mapping[str, type[ParamGroup]]] = {"scenario": MassDropParams, "payload": PayloadParams}
 
     def __init__(self, mode: str = "torque-fusion", case: str = "rope-drop", params: MassDropParams | None = None):
         if mode not in MODES:
@@ -313,28 +316,39 @@ class MassDropScenario(Scenario):
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         return wrist_ft_sensor(rng)
 
-    def configure_executor(self, executor: object, robot: RobotDescription) -> None:
-        """Position: joint PID, no estimate. Torque modes: stiff pose task, compliant nullspace.
+    @property
+    def chosen_case(self) -> str:
+        """The controller mode (`MODES`)."""
+        return self.mode
 
-        Other executors are left as they are (the Session may call this for any executor).
-        """
-        if not isinstance(executor, ComplianceQPExecutor):
-            return
+    def prepare_executor(self, executor: Executor, robot: RobotDescription) -> None:
+        """Position: no task (the posture task is the joint PID). Torque modes: one pose task. Only the
+        [C] QP executor; other executors are left as they are."""
+        if isinstance(executor, ComplianceQPExecutor):
+            executor.set_tasks([] if self.mode == "position" else [PoseTask()])
+
+    def executor_changes(self, groups: Mapping[str, ParamGroup], robot: RobotDescription) -> dict[str, ParamGroup]:
+        """Position: joint PID, no estimate, feedback off. Torque modes: stiff pose task, compliant
+        nullspace, the mode's estimate, feedback on (the [C] QP executor's groups; none for another)."""
+        if "compliance_qp" not in groups:
+            return {}
         if self.mode == "position":
             w = PID_OMEGA
-            executor.set_tasks([])
-            executor.posture.configure(
-                PostureTaskGains(stiffness=3 * w * w, damping=3 * w, integral=w**3, weight=1.0, compliance=0.0)
-            )
-            executor.estimator.configure(EstimatorGains(source="none", observer_gain=OBSERVER_GAIN))
-            executor.set_params("compliance_qp", replace(executor.settings, feedback=False))
-            return
+            return {
+                "posture_task": PostureTaskGains(
+                    stiffness=3 * w * w, damping=3 * w, integral=w**3, weight=1.0, compliance=0.0
+                ),
+                "estimator": EstimatorGains(source="none", observer_gain=OBSERVER_GAIN),
+                "compliance_qp": replaced(groups["compliance_qp"], "feedback", False),
+            }
         w = TASK_OMEGA
-        executor.set_tasks([PoseTask(PoseTaskGains(stiffness=w * w, damping=2 * w, weight=1e4, compliance=0.0))])
-        executor.posture.configure(PostureTaskGains(stiffness=1.0, damping=2.0, weight=1.0, compliance=1.0))
         source = "residual" if self.mode == "torque-residual" else "fusion"
-        executor.estimator.configure(EstimatorGains(source=source, observer_gain=OBSERVER_GAIN))
-        executor.set_params("compliance_qp", replace(executor.settings, feedback=True))
+        return {
+            "pose_task": PoseTaskGains(stiffness=w * w, damping=2 * w, weight=1e4, compliance=0.0),
+            "posture_task": PostureTaskGains(stiffness=1.0, damping=2.0, weight=1.0, compliance=1.0),
+            "estimator": EstimatorGains(source=source, observer_gain=OBSERVER_GAIN),
+            "compliance_qp": replaced(groups["compliance_qp"], "feedback", True),
+        }
 
 
 SCENARIO = MassDropScenario()

@@ -14,9 +14,9 @@ the same line) and is not re-tuned to match the paper's tables.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from app.scenarios.polish_stroke import (
     CONVERGE_MIN_S,
     CONVERGE_TIMEOUT_S,
     FRICTION_V_EPS_M_PER_S,
+    N_SEGMENTS,
     SANDER_AMPLITUDE_N,
     SENSOR_CUTOFF_HZ,
     START_GAP_M,
@@ -53,6 +54,7 @@ from app.sim.sensor import FTSensor
 from app.sim.world import World
 from control.coupling import move_to_swivel, project_to_pose
 from control.executor import TaskTarget
+from control.gains import NullspaceGains
 from control.model import Dynamics, RobotModel
 from control.params import ParamGroup, expect, param, replaced
 from control.planner import PLAN_COSTS, Plan
@@ -107,6 +109,14 @@ def _chain_length(robot: RobotDescription) -> float:
     return length + float(np.linalg.norm(model.frames[model.getFrameId("tcp")].placement.translation))
 
 
+def plan_lead_s(gains: Mapping[str, ParamGroup]) -> float:
+    """How far the target leads the planned path (s): W_j [T18] follows a moving q_d with the lag
+    1/k0_j of the nullspace group; 0 without one (an executor without the [T] nullspace)."""
+    nullspace = gains.get("nullspace")
+    k0_j = float(nullspace.k0_j) if isinstance(nullspace, NullspaceGains) else 0.0
+    return 1.0 / k0_j if k0_j > 0 else 0.0
+
+
 class PolishScenario(Scenario):
     """Scenario 1 of DESIGN §5 with its settings: friction μ, sander, start swivel."""
 
@@ -121,8 +131,8 @@ class PolishScenario(Scenario):
     default_robot = "rizon4s"
     default_executor = "projection"
     table_height = TABLE_HEIGHT_M
-    cases = MODES
-    case_arg = "mode"
+    groups: ClassVar[Mapping[str, type[ParamGroup]]] = {"scenario": PolishParams}
+    segments = N_SEGMENTS
 
     def __init__(
         self,
@@ -167,9 +177,12 @@ class PolishScenario(Scenario):
         self.start_xy = START_XY_M
         self._clock: PhaseClock | None = None
         self.plan: Plan | None = None
-        self._plan_lead_s = 0.0
-        self._executor: object | None = None
         self._environment: PolishEnvironment | None = None
+
+    @property
+    def chosen_case(self) -> str:
+        """The app's case: how the posture is chosen (`MODES`)."""
+        return self.mode
 
     @property
     def start_swivel_used_deg(self) -> float:
@@ -222,15 +235,12 @@ class PolishScenario(Scenario):
                 return False
         return True
 
-    def configure_executor(self, executor: object, robot: RobotDescription) -> None:
-        """Holding a swivel or following a plan runs the W_j objective [T18] on the target's posture."""
-        groups: dict = getattr(executor, "params", dict)()
-        if (self.hold_swivel_deg is not None or self.plan_cost is not None) and "nullspace" in groups:
-            executor.set_params("nullspace", replaced(groups["nullspace"], "objective", "j"))  # type: ignore[attr-defined]
-        self._executor = executor
-        k0_j = getattr(getattr(executor, "nullspace", None), "k0_j", 0.0)
-        # W_j [T18] follows a moving q_d with the lag 1/k0_j: the target leads the plan by that much
-        self._plan_lead_s = 1.0 / k0_j if k0_j > 0 else 0.0
+    def executor_changes(self, groups: Mapping[str, ParamGroup], robot: RobotDescription) -> dict[str, ParamGroup]:
+        """Holding a swivel or following a plan runs the W_j objective [T18] on the target's posture
+        (the projection executor's nullspace group; none for another executor)."""
+        if (self.hold_swivel_deg is None and self.plan_cost is None) or "nullspace" not in groups:
+            return {}
+        return {"nullspace": replaced(groups["nullspace"], "objective", "j")}
 
     def armature(self, nominal: np.ndarray) -> np.ndarray:
         """The nominal armature × `armature_scale`, for the controller model and the simulated arm alike
@@ -254,8 +264,6 @@ class PolishScenario(Scenario):
         self.start_swivel_deg = p.start_swivel_deg
         self.hold_swivel_deg = p.start_swivel_deg if p.hold_swivel else None
         self.armature_scale = p.armature_scale
-        if self.hold_swivel_deg is not None and self._executor is not None:
-            self.configure_executor(self._executor, None)  # type: ignore[arg-type]  # holding runs W_j
 
     def pending_work(self, robot: RobotDescription) -> Work | None:
         """The planned swivel path of a planned case, while it is not cached."""
@@ -312,8 +320,11 @@ class PolishScenario(Scenario):
         """F/T sensor of [T] §IV-A (noise off when sensor_noise is False; the filter stays)."""
         return FTSensor(rng, cutoff_hz=SENSOR_CUTOFF_HZ, noise=self.sensor_noise)
 
-    def make_target(self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics) -> Callable[[float], TaskTarget]:
-        """Hold the start XY with 20 N, then the zig-zag once the clock starts it."""
+    def make_target(
+        self, robot: RobotDescription, model: RobotModel, dyn0: Dynamics, gains: Mapping[str, ParamGroup]
+    ) -> Callable[[float], TaskTarget]:
+        """Hold the start XY with 20 N, then the zig-zag once the clock starts it; a plan is led by the
+        W_j lag 1/k0_j of the nullspace group in force (`gains`)."""
         clock = self._clock if self._clock is not None else PhaseClock()
         p0, R0 = self.start_pose()
         q_posture = dyn0.q.copy()
@@ -323,7 +334,7 @@ class PolishScenario(Scenario):
                 raise ValueError("the planned cases plan on the paper's table; this arm's table was moved to its reach")
             self.plan = planned_path(robot, model, self.start_swivel_used_deg, self.plan_cost, self.armature_scale)
             clock.earliest_end_s = CONTACT_TIME_S + self.plan.transfer_s
-        target = PolishTarget(p0, R0, q_posture, clock, self.plan, self._plan_lead_s)
+        target = PolishTarget(p0, R0, q_posture, clock, self.plan, plan_lead_s(gains))
         if self._environment is not None:
             self._environment.target = target
         return target

@@ -46,7 +46,6 @@ def run_mode(mode: str, settings: tuple = ()) -> dict:
     session = qp_session(scenario)
     executor = session.executor
     assert isinstance(executor, ComplianceQPExecutor)
-    scenario.configure_executor(executor, session.robot)
     apply_settings(session, settings)
     session.reset()
     probe = DeflectionProbe(session)  # the TCP and the elbow where they stand at the reset

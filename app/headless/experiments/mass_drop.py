@@ -96,7 +96,6 @@ def run_mass_drop(
     rig = params if params is not None else draw_rig(seed)
     scenario = MassDropScenario(mode, case)
     session = qp_session(scenario, seed=seed)
-    scenario.configure_executor(session.executor, session.robot)
     changes = [("scenario", f.name, getattr(rig, f.name)) for f in dataclasses.fields(rig)]
     if observer_gain is not None:
         changes.append(("estimator", "observer_gain", float(observer_gain)))

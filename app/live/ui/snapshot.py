@@ -114,16 +114,9 @@ def split_of(force_axes: tuple) -> Subspaces:
 
 
 def subspaces_of(session, view: StepView | None = None) -> Subspaces:
-    """The force/motion split the running controller's step used (its view), else the scenario's
-    `force_axes`, else pz only."""
+    """The force/motion split the running controller's step used (its view), else pz only."""
     if view is not None and view.force_axes is not None:
         return split_of(tuple(view.force_axes))
-    axes = getattr(session.scenario, "force_axes", None)
-    if axes:
-        try:
-            return split_of(tuple(axes))
-        except (TypeError, ValueError):
-            pass
     return POLISH_SUBSPACES
 
 
