@@ -62,6 +62,14 @@ def test_the_per_run_files_are_linked_with_what_each_run_was(tmp_path):
     (runs / "abc.npz").write_bytes(b"")
     text = run_files_html(tmp_path)
     assert 'href="runs/abc.json"' in text and 'href="runs/abc.npz"' in text and "row W_j, mu 1" in text
+    # what the run had (its result) over what it was asked: an armature set by --set, a swivel measured
+    result = {"row": "W_j", "seed": 0, "wall_s": 7.0, "armature_scale": 1.5, "start_swivel_deg": -1.5e-05}
+    (runs / "abc.json").write_text(json.dumps({"spec": {**spec, "armature_scale": 1.0}, "result": result}))
+    (runs / "old.json").write_text(json.dumps({"spec": spec, "result": {**result, "wall_s": 3.0}}))
+    doc = {"runs": [result]}
+    text = run_files_html(tmp_path, doc)
+    assert "start_swivel_deg 0°, armature_scale 1.5" in text and "Per-run files (1)" in text
+    assert "old.json" not in text  # an earlier invocation's run in the same directory is not this report's
 
 
 def test_table_iii_has_the_papers_rows_and_columns_with_ours_and_theirs_in_each_cell():

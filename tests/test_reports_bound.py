@@ -3,9 +3,10 @@ run by default and with changed sensor and armature settings (--set), no sentenc
 robot and every number in the text is a value of the run's JSON (at the precision printed, in the
 report's units: ×10³, ×10⁻³, ×100, 1/x for a rate from a period, √x for a σ from a variance).
 
-The runs are the smallest each experiment offers (one polish row at one μ and one seed, limit-drop
---quick, mass-drop with two repetitions per case, the three compliance modes, sweeps of a few cells);
-they are made once for the module."""
+The runs are the smallest each experiment offers that still print each of its sections (one polish
+row at one μ and one seed, with the v_ε check, and with --quick's latency table; the whole limit-drop
+and --quick; mass-drop with two repetitions per case; the three compliance modes; sweeps of a few
+cells); they are made once for the module (about a minute and a half on one core)."""
 
 from __future__ import annotations
 
@@ -38,10 +39,10 @@ RUNS = {  # name: (command words, the JSON files of the run)
         ["polish.json"],
     ),
     "polish-changed": (
-        ["experiment", "polish", "--quick", "--rows", "a", "--mu", "1", "--no-latency", *_sets(POLISH_CHANGED)],
+        ["experiment", "polish", "--quick", "--rows", "a", "--mu", "1", *_sets(POLISH_CHANGED)],  # + latency table
         ["polish.json"],
     ),
-    "limit-drop": (["experiment", "limit-drop", "--quick"], ["limit_drop.json", "limit_drop_traces.json"]),
+    "limit-drop": (["experiment", "limit-drop"], ["limit_drop.json", "limit_drop_traces.json"]),  # every item
     "limit-drop-changed": (
         ["experiment", "limit-drop", "--quick", *_sets(LIMIT_DROP_CHANGED)],
         ["limit_drop.json", "limit_drop_traces.json"],

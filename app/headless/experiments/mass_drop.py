@@ -54,6 +54,7 @@ STIFFNESS_SPREAD = 0.2  # cord and knot: ±20 % of the nominal stiffness
 MASS_SPREAD = 0.1  # the true mass within ±10 % of the nominal 1.25 kg
 SIMILAR = (0.8, 1.25)  # a ratio of means inside this band counts as "similar" (±25 % either way)
 BOOTSTRAP_RESAMPLES = 2000
+CONFIDENCE = 0.95  # the bootstrap intervals' level
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -159,6 +160,7 @@ def ratio_of_means(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict:
         paired=True,
         vectorized=True,
         n_resamples=BOOTSTRAP_RESAMPLES,
+        confidence_level=CONFIDENCE,
         method="percentile",
         rng=np.random.default_rng(seed),
     )
@@ -193,7 +195,7 @@ def summarize(runs: list[dict]) -> dict:
 def _fmt_ratio(r: dict) -> str:
     if r["ratio"] is None:
         return "undefined (denominator 0)"
-    return f"{r['ratio']:.3g} (95 % CI {r['low']:.3g}–{r['high']:.3g})"
+    return f"{r['ratio']:.3g} ({CONFIDENCE:.0%} CI {r['low']:.3g}–{r['high']:.3g})"
 
 
 def _smaller(r: dict) -> bool:
@@ -423,7 +425,7 @@ def run(args: argparse.Namespace) -> int:
         "held_repetitions": args.held_repetitions,
         "configs": configs,  # each mode's first run's configuration (the modes differ in their executor)
         "scenario": scenario_record(),
-        "statistics": {"confidence": 0.95, "resamples": BOOTSTRAP_RESAMPLES, "similar_band": list(SIMILAR)},
+        "statistics": {"confidence": CONFIDENCE, "resamples": BOOTSTRAP_RESAMPLES, "similar_band": list(SIMILAR)},
         "halted": len(halted),
         "wall_s": elapsed,
         "command": command_line(args),

@@ -691,8 +691,8 @@ stretching (S2) and a retracting (S1) segment. {html.escape(start_margin_text(do
 {latency_html(doc)}
 <h2>Armature sensitivity</h2>
 <p>{html.escape(armature_text(doc))} Basins below are where each gradient flow from the Fig. 6a start
-ends along the swivel scan with the armature scaled (model and simulation alike); PTP is the simulated
-μ = {max(s["mu"]):g} force-error PTP (seed 0) where that run was made.</p>
+ends along the swivel scan with the armature scaled (× the robot file's armature, model and simulation
+alike); PTP is the simulated μ = {max(s["mu"]):g} force-error PTP (seed 0) where that run was made.</p>
 <table><tr><th>armature</th><th>W_f flow</th><th>W_a flow</th><th>W_d flow</th><th>W_a ridge</th>
 <th>W_j PTP</th><th>W_f PTP</th><th>W_a PTP</th><th>W_d PTP</th></tr>{arm_rows}</table>
 {_v_eps_head(doc.get("v_eps", [])) + v_rows + "</table>" if v_rows else ""}
@@ -719,7 +719,23 @@ def _figure_html(name: str) -> str:
     return f'<h3>{title}</h3><p><a href="{name}.png">{name}.png</a></p><img src="{name}.png">'
 
 
-RUN_KEYS = ("group", "row", "mu", "seed", "start_swivel_deg", "armature_scale")  # a run file's line names these
+RUN_KEYS = (  # a run file's line names these
+    "group",
+    "row",
+    "mu",
+    "seed",
+    "start_swivel_deg",
+    "armature_scale",
+    "reading_delay_steps",
+    "torque_delay_ms",
+)
+
+
+def _run_value(key: str, value) -> str:
+    """A run file's value as its line prints it: a swivel in whole degrees, other numbers in short form."""
+    if key == "start_swivel_deg" and isinstance(value, int | float):
+        return _deg(float(value)) + "°"
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def run_files_html(out: Path, doc: dict | None = None) -> str:
@@ -745,9 +761,7 @@ def run_files_html(out: Path, doc: dict | None = None) -> str:
             continue
         # what the run had (its result), over what it was asked (its spec) where it recorded no value
         spec = {**stored.get("spec", {}), **{k: v for k, v in (stored.get("result") or {}).items() if k in RUN_KEYS}}
-        what = ", ".join(
-            f"{k} {spec[k]:g}" if isinstance(spec.get(k), float) else f"{k} {spec[k]}" for k in RUN_KEYS if k in spec
-        )
+        what = ", ".join(f"{k} {_run_value(k, spec[k])}" for k in RUN_KEYS if k in spec)
         arrays = meta.with_suffix(".npz")
         link = f' · <a href="runs/{arrays.name}">signals</a>' if arrays.exists() else ""
         lines.append(f'<li><a href="runs/{meta.name}">{html.escape(meta.stem)}</a> ({html.escape(what)}){link}</li>')
