@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import subprocess
 
+import pytest
+
 from app.core import provenance
 from app.core.provenance import code_text, code_version
 from app.headless.experiments.c_common import command_line, write_report
@@ -55,3 +57,15 @@ def test_the_code_version_is_the_commit_with_dirty_when_the_tree_differs_and_the
     provenance.git_commit.cache_clear()
     assert provenance.git_commit() is None and provenance.code_text().startswith("no git checkout, source hash ")
     provenance.git_commit.cache_clear()
+
+
+def test_set_options_become_typed_session_parameters_and_a_malformed_one_is_one_line():
+    from app.headless.experiments.run_config import parse_settings
+
+    got = parse_settings(["sensor.cutoff_hz=15", "sensor.noise=off", "world.armature_scale=1.5", "damper.form=classic"])
+    assert got == [("sensor", "cutoff_hz", 15), ("sensor", "noise", False), ("world", "armature_scale", 1.5),
+                   ("damper", "form", "classic")]  # fmt: skip
+    for bad in ("cutoff_hz=15", "sensor.cutoff_hz", "sensor.=1", "a.b.c=1", "sensor.cutoff_hz="):
+        with pytest.raises(ValueError, match=r"expected GROUP\.FIELD=VALUE") as err:
+            parse_settings([bad])
+        assert "\n" not in str(err.value)

@@ -918,8 +918,12 @@ def findings_in_words(doc: dict) -> list[str]:
             f"W_a basins: along the scan at the start pose W_a has local minima at {wa['local_minima_swivel_deg']}°, "
             f"the flow from 0° ends at {_deg(wa['flow_from_start_deg'])}° (W_a {wa['flow_from_start_value']:.3f}), "
             f"the feasible minimum is at {_deg(wa['feasible_min_swivel_deg'])}° (W_a {wa['feasible_min']:.3f}) "
-            f"and the ridge between the "
-            f"basins at {_fmt(wa.get('ridge_swivel_deg'), 0)}°. {txt}."
+            + (
+                f"and the ridge between the basins at {_deg(wa['ridge_swivel_deg'])}°"
+                if wa.get("ridge_swivel_deg") is not None
+                else "and no swivel of the scan flows to another basin (no ridge)"
+            )
+            + f". {txt}."
         )
     pd = scan.get("Pd_fhat_stretch")
     if wa.get("basins") and pd:

@@ -5,7 +5,7 @@ Polish, along a swivel axis: the W_a basins of the self-motion loop at the start
 (where the gradient flow of [T15] ends), a dashed line at each ridge between two minima (the
 basin border) and grey where the loop leaves the joint limits. With a μ axis: the linearised
 force-loop margin (`control.margin.posture_margin`, as each run reports it at its converged
-posture): a circle where the margin predicts contact loss (K_f^d below the critical damping),
+posture): a circle where that start-pose margin is negative (K_f^d below the critical damping),
 and for a held swivel its zero line over (swivel, μ) along the start-pose loop. The planned
 nullspace paths (`control.planner`, [T] §IV-B) over the zig-zag from the Fig. 6a start (the
 table's): a hatched band over the swivels each plan visits during the six segments.
