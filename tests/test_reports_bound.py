@@ -229,3 +229,39 @@ def test_the_number_check_finds_a_number_the_json_does_not_hold():
     assert [m.split()[0] for m in missing] == ["'0.0124'", "'7.5'"]
     text, codes = visible_text("<p>Run: <code>torquelab x</code> [C23] Figs. 2–3 Table III §IV-B–C ok 5</p>")
     assert text == "Run: ok 5" and codes == ["torquelab x"]
+
+
+def test_limit_drop_names_the_joint_that_moved_most_from_the_runs_not_a_fixed_one():
+    from app.headless.experiments.limit_drop import other_joints_item
+
+    def run(feedback: bool, drift: list[float]) -> dict:
+        return {"feedback": feedback, "falling_joint": 4, "other_joints_drift": max(drift), "stop": "until",
+                "other_joints_drift_per_joint": drift, "limit": "position", "form": "proposed", "lambda": 100.0,
+                "M": 2.0, "oscillations": 0}  # fmt: skip
+
+    derived: dict = {}
+    text = other_joints_item([run(True, [0.0] * 7), run(False, [0.1, 0.2, 0.0, 0.0, 0.9, 0.3, 0.0])], derived)
+    assert "most at joint 5 (0.90 rad)" in text and "joint 2" not in text and "sags" not in text
+    assert derived["most_moved_joint_without_feedback"] == 5
+    assert "every one of these runs had stopped before the cap" in text
+
+
+def test_the_start_pose_margin_is_described_with_what_it_omits_and_names_the_runs_it_gets_wrong():
+    from app.headless.experiments.polish_report import findings_in_words, start_margin_text
+
+    loop = {"stiffness_n_per_m": 30000.0, "force_kp": 0.5, "force_ki": 0.0, "sensor_cutoff_hz": 25.0,
+            "sensing_delay_steps": 1, "actuation_delay_steps": 0, "shaping": True, "speed_m_s": 0.157}  # fmt: skip
+
+    def run(row: str, margin: float | None, stable: bool) -> dict:
+        return {"row": row, "mu": 1.0, "seed": 0, "margin": margin, "stable": stable, "converged": True,
+                "convergence_time_s": 3.0, "margin_detail": {"loop": loop}}  # fmt: skip
+
+    doc = {"runs": [run("W_a", -3.0, True), run("W_d", -1.0, True), run("W_j", 20.0, False), run("W_f", 5.0, True)]}
+    text = start_margin_text(doc)
+    assert "K_f^i = 0" in text and "the reading 1 and the torque 0 control period(s) late" in text
+    assert "leaves out how the posture moves along the strokes" in text
+    assert "agree in 1 of 4 runs" in text and "W_a μ = 1 seed 0 (margin -3, stable)" in text
+    assert "W_d μ = 1 seed 0 (margin -1, stable)" in text and "W_j μ = 1 seed 0 (margin +20" in text
+    assert "predict" not in text.replace("no prediction", "")
+    doc.update(summary=[], settings={"settle": {"cap_s": 120.0}})
+    assert not any("margin" in f for f in findings_in_words(doc))  # the margin is no finding of the run

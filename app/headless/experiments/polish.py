@@ -345,6 +345,7 @@ def stroke_margin_figures(session, stroke_q: list[tuple[float, np.ndarray]], sha
             "desired_force_n": stroke_module.DESIRED_FORCE_N,
             "noise_floor_n": floor,
             "headroom_budget_np": budget,
+            "sample_s": MARGIN_SAMPLE_S,  # the postures' spacing along the strokes
         },
     }
 
