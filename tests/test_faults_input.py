@@ -19,6 +19,7 @@ from app.live.ui.scene import SceneView
 from control.gains import DamperGains
 from control.params import ParamError, replaced
 from tests import urdf_fixtures as fx
+from tests.conftest import wait_until
 
 HUGE = 10**400
 
@@ -297,3 +298,123 @@ def test_a_page_opened_after_start_gets_the_missing_mesh_notice_once(tmp_path, m
         for ws in pages:
             ws.close()
         app.stop()
+
+
+def _raw_page(app):
+    """A raw websocket to the app that has sent its camera (a page, as viser counts them)."""
+    from websockets.sync.client import connect
+
+    from tests.conftest import camera_message
+
+    ws = connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10)
+    ws.send(camera_message())
+    return ws
+
+
+JUNK = (
+    "a text frame",  # text, not binary
+    b"\xc1\xc1 not msgpack",  # bytes that are no MessagePack
+    __import__("msgspec").msgpack.encode({"type": "NoSuchMessage", "x": 1}),  # no such message type
+    __import__("msgspec").msgpack.encode({"type": "ViewerCameraMessage", "wxyz": "junk"}),  # wrong fields
+)
+
+
+def test_junk_frames_are_skipped_in_one_log_line_per_client_and_kind_and_a_flood_drops_the_connection(app, capfd):
+    """One raw client sends each of four kinds of junk frame 4 times (16, under the drop rate): the connection
+    stays and is served on; the log has one line per kind with no traceback. Then it floods: each
+    connection is dropped at the stated rate (DROP_AFTER within DROP_WINDOW_S), with
+    one line more: a flood over 15 connections, 25 frames each, all dropped, adds that one line within
+    the minute. (viser logged a traceback per frame and dropped the connection at the first.)"""
+    from websockets.exceptions import ConnectionClosed
+    from websockets.protocol import State
+
+    capfd.readouterr()
+    before = set(app.server.get_clients())
+    ws = _raw_page(app)
+    try:
+        assert wait_until(lambda: set(app.server.get_clients()) - before)
+        (page,) = set(app.server.get_clients()) - before
+        for _ in range(4):
+            for frame in JUNK:
+                ws.send(frame)
+        ws.send(__import__("msgspec").msgpack.encode({"type": "GuiUpdateMessage", "uuid": "none", "updates": {}}))
+        guard = getattr(app, "junk_guard", None)
+        # until the junk is counted, or the page is let go
+        wait_until(lambda: page not in app.server.get_clients() or (guard is not None and guard.log.received >= 16))
+        assert page in app.server.get_clients() and ws.protocol.state is State.OPEN, "the page's junk ended it"
+        assert ws.ping().wait(10.0) and ws.protocol.state is State.OPEN  # and it is served on
+    finally:
+        ws.close()
+    err = capfd.readouterr().err
+    lines = [ln for ln in err.splitlines() if "junk from" in ln]
+    assert len(lines) == 4, err[-3000:]
+    assert "Traceback" not in err and app.junk_guard.dropped == 0
+    from app.live.ui.junk import DROP_AFTER
+
+    assert DROP_AFTER > 16
+    dropped = app.junk_guard.dropped
+    for k in range(15):  # a flood over reconnects: each connection dropped at the rate
+        before = set(app.server.get_clients())
+        ws = _raw_page(app)
+        try:
+            assert wait_until(lambda b=before: set(app.server.get_clients()) - b)
+            (page,) = set(app.server.get_clients()) - before
+            try:
+                for _ in range(DROP_AFTER + 5):
+                    ws.send(JUNK[1])
+            except ConnectionClosed:  # a send after the drop
+                pass
+            assert wait_until(lambda k=k: app.junk_guard.dropped - dropped == k + 1), k
+            assert wait_until(lambda p=page: p not in app.server.get_clients()), k  # the server let it go
+        finally:
+            ws.close()
+    assert app.junk_guard.dropped - dropped == 15
+    err = capfd.readouterr().err
+    assert "Traceback" not in err
+    assert len([ln for ln in err.splitlines() if "junk from" in ln]) == 1, err[-3000:]  # the drops' one line
+
+
+def test_the_junk_log_writes_one_line_per_client_and_kind_per_minute_with_the_count_since():
+    from app.live.ui.junk import JunkLog
+
+    now = [0.0]
+    lines: list[str] = []
+    log = JunkLog(lines.append, clock=lambda: now[0], capacity=8)
+    for _ in range(500):  # 500 of one kind within 50 s from one client
+        log.record("10.0.0.1", "text frames")
+        now[0] += 0.1
+    assert len(lines) == 1 and "text frames, 1 since" in lines[0]
+    log.record("10.0.0.2", "text frames")  # another client: its own line
+    assert len(lines) == 2
+    now[0] += 60.0
+    log.record("10.0.0.1", "text frames")  # a minute later: the count of the silent ones with it
+    assert len(lines) == 3 and "text frames, 500 since" in lines[2]
+    for i in range(100):  # kinds that vary: memory stays bounded
+        log.record(f"10.0.1.{i}", "frames that are not MessagePack")
+    assert len(log._pairs) <= 8 and log.received == 602
+
+
+def test_a_value_sent_to_the_load_settings_button_is_refused_with_a_clear_notice(app):
+    """A GuiUpdateMessage carrying a value (not a file) for the Load settings upload button: refused on
+    arrival with a notice to its sender saying a file is uploaded with the button, nothing raised (it
+    passed the guard and viser raised TypeError)."""
+    import msgspec
+
+    scenario = app.panels[0]
+    button = scenario.settings.load_button
+    guard = app.input_guard
+    refused, notified = guard.refused, dict(guard.notified)
+    before = button.value
+    ws = _raw_page(app)
+    try:
+        for value in ("junk.toml", 7, {"name": "x.toml"}, None):
+            msg = {"type": "GuiUpdateMessage", "uuid": button._impl.uuid, "updates": {"value": value}}
+            ws.send(msgspec.msgpack.encode(msg))
+        assert wait_until(lambda: guard.refused - refused == 4)
+    finally:
+        ws.close()
+    assert button.value == before
+    assert sum(guard.notified.values()) - sum(notified.values()) == 1
+    from app.live.ui.inputs import check_value
+
+    assert "uploaded with the button" in check_value(before, None, "junk.toml")

@@ -185,3 +185,19 @@ def test_a_connection_is_seen_opening_with_its_request_its_messages_pass_the_wra
     finally:
         ws.close()
     assert wait_until(lambda: closed == [client_id])
+
+
+def test_the_per_connection_receive_loop_guard_frames_replaces_is_viser_s_and_takes_what_it_passes():
+    """`guard_frames` puts its consumer in place of viser's module-level `_message_consumer`, which viser's
+    connection handler looks up at each connection with (websocket, handle_message, message_class)."""
+    import inspect
+
+    from viser.infra import _infra
+
+    from app.live.ui import viser_seam
+
+    original = viser_seam._viser_consumer
+    assert inspect.iscoroutinefunction(original)
+    assert list(inspect.signature(original).parameters) == ["websocket", "handle_message", "message_class"]
+    assert "_message_consumer(" in inspect.getsource(_infra.WebsockServer._background_worker)
+    assert _infra._message_consumer in (original, viser_seam._guarded_consumer)

@@ -34,6 +34,7 @@ from app.live.memory import freeze_start_up_objects
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
 from app.live.settings_io import check_settings_text, load_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
+from app.live.ui.junk import JunkGuard, guard_junk
 from app.live.ui.keys import add_hotkeys
 from app.live.ui.panels import ALL_FIELDS
 from app.live.ui.panels.compliance import CompliancePanel
@@ -74,6 +75,7 @@ class App:
     stopped: bool = False
     autogroup_niceness_before: int | None = None  # given back on stop when start_app raised it
     input_guard: GuiUpdateGuard | None = None  # checks every GUI update a page sends
+    junk_guard: JunkGuard | None = None  # skips and counts the malformed frames a page sends
     watch_gate: WatchGate | None = None  # which pages only watch; refuses their steering
 
     def stop(self) -> None:
@@ -147,6 +149,7 @@ def start_app(
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
     watch_gate = install_watch_gate(server, watch_only=watch_only, steer_local=steer_local)  # before any page
     input_guard = guard_gui_updates(server)  # every GUI update checked on arrival
+    junk_guard = guard_junk(server)  # malformed frames skipped and counted in bounded log lines
     typed_numbers(server)  # text typed into a number box reaches the server (at the root, hidden)
     server.gui.configure_theme(control_width="large")
     server.gui.main_panel.dock_right()  # the 3D view is the canvas between the panels
@@ -205,6 +208,7 @@ def start_app(
     shown_host = "127.0.0.1" if host in ("0.0.0.0", "") else host
     app = App(server, loop, publisher, f"http://{shown_host}:{actual}", actual, port, panels, visual_settings)
     app.input_guard = input_guard
+    app.junk_guard = junk_guard
     app.watch_gate = watch_gate
     # the server's session before the browser's in the CPU's division between sessions (app/live/priority.py)
     app.autogroup_niceness_before = raise_autogroup_priority(SERVER_NICENESS)

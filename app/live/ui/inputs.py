@@ -42,6 +42,8 @@ def _number(value: Any) -> float | None:
 
 def check_value(current: Any, props: Any, value: Any) -> str:
     """ "" if `value` can be an input's value (one with this current value and these props), else why not."""
+    if isinstance(current, viser.UploadedFile):  # a file comes in through the upload's own messages
+        return f"a file is uploaded with the button, not sent as a value (got {_short(value)})"
     if isinstance(current, bool):
         return "" if isinstance(value, bool) else f"expected true or false, got {_short(value)}"
     if isinstance(current, (int, float)):
@@ -71,8 +73,8 @@ def check_update(state: Any, updates: Any) -> str:
     for name, value in updates.items():
         if name != "value":
             return f"a page does not set {_short(name)}"
-        if state.is_button:
-            continue  # a click: viser ignores the value
+        if state.is_button and not isinstance(state.value, viser.UploadedFile):
+            continue  # a click: viser ignores the value (an upload button casts it, and raised)
         why = check_value(state.value, state.props, value)
         if why:
             return why

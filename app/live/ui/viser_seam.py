@@ -11,6 +11,10 @@ need more, and each reaches past that surface only through the functions here:
   (`node_state`), its position and orientation messages queued directly (`queue_position`,
   `queue_orientation`) and a property update queued the way the setters queue it
   (`queue_prop_update`);
+- junk from a page (`app.live.ui.junk`): each frame a connection receives is decoded by
+  `guard_frames`' consumer in place of viser's (`viser.infra._infra._message_consumer`, which let a
+  frame that is no message end the connection with a logged traceback), so a malformed frame is
+  handed to the app's policy and skipped, or ends the connection when the policy says so;
 - watch mode (`app.live.watch`): each websocket's opening request (`opening_request`), a callback
   when one opens or closes (`on_connection_open`, `on_connection_close`), the dispatch of every
   message a page sends, server-wide and per connection (`wrap_dispatch`), and a message queued to
@@ -25,11 +29,14 @@ messages and the state equal to those of viser's own setters.
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 from typing import Any
 
 import viser
+import websockets.exceptions
 from viser import _messages
+from viser.infra import _infra
 
 VISER_RANGE = ">=1.1.1,<1.2"  # as pinned in pyproject.toml; checked against the installed viser
 
@@ -122,3 +129,52 @@ def opening_request(server: viser.ViserServer, client_id: int) -> tuple[Any, Any
 def queue_to_connection(connection: Any, message: Any) -> None:
     """Send a message to that one page (a connection from `on_connection_open`)."""
     connection.queue_message(message)
+
+
+# a malformed frame's fate: (the connection's websocket, the error decoding it) -> keep the connection?
+FrameHook = Callable[[Any, BaseException], bool]
+_frame_hooks: dict[int, FrameHook] = {}  # server port -> its hook (a process may run several servers)
+_viser_consumer = _infra._message_consumer
+JUNK_CLOSE_CODE = 1008  # websocket close code "policy violation": the connection sent too much junk
+_closing: set[asyncio.Task] = set()  # the close handshakes under way of connections dropped for junk
+
+
+def frame_port(websocket: Any) -> int | None:
+    """The server port a connection came in on (None when its socket is gone)."""
+    address = getattr(websocket, "local_address", None)
+    return int(address[1]) if address else None
+
+
+async def _guarded_consumer(websocket: Any, handle_message: Callable[[Any], None], message_class: Any) -> None:
+    """viser's per-connection receive loop, with each frame's decoding in an error boundary: a frame that
+    is no message goes to the server's hook and is skipped, or closes the connection (JUNK_CLOSE_CODE)
+    when the hook answers False."""
+    hook = _frame_hooks.get(frame_port(websocket) or -1)
+    if hook is None:
+        await _viser_consumer(websocket, handle_message, message_class)
+        return
+    while True:
+        raw = await websocket.recv()
+        try:
+            if not isinstance(raw, bytes):
+                raise TypeError("a text frame (a page sends binary MessagePack frames)")
+            message = message_class.deserialize(raw)
+        except Exception as exc:
+            if hook(websocket, exc):
+                continue
+            # the close handshake in a task of its own (a producer may be waiting to send), and the
+            # handler ended as by a closed connection: viser tears the page down without a traceback
+            closing = asyncio.get_running_loop().create_task(
+                websocket.close(code=JUNK_CLOSE_CODE, reason="too many malformed messages")
+            )
+            _closing.add(closing)  # kept until done (the loop holds tasks weakly)
+            closing.add_done_callback(_closing.discard)
+            raise websockets.exceptions.ConnectionClosedOK(None, None) from None
+        handle_message(message)
+
+
+def guard_frames(server: viser.ViserServer, hook: FrameHook) -> None:
+    """Decode every frame that comes in on `server`'s port in an error boundary, `hook` deciding a malformed
+    one's fate (see `_guarded_consumer`); connections opened from now on."""
+    _frame_hooks[server.get_port()] = hook
+    _infra._message_consumer = _guarded_consumer
