@@ -174,7 +174,7 @@ def setup_html(doc: dict) -> str:
         else ""
     )
     pushes = "; ".join(
-        f"at the {where} {start:g}–{end:g} s"
+        f"at the {'TCP' if where == 'tcp' else where} {start:g}–{end:g} s"
         + (
             " (seen by the F/T sensor)"
             if where == "tcp"

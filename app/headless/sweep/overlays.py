@@ -220,7 +220,7 @@ def polish_model_facts() -> dict:
     return {
         "scan_step_deg": SCAN_STEP_DEG,
         "robot": robots.load(robots.chosen("rizon4s")).name,
-        "armature": "the robot file's (scenario armature scale ×1)",
+        "armature": "the robot file's armature (scenario armature scale ×1)",
         "W_a_minima_deg": basins["minima"],
         "W_a_ridges_deg": basins["ridges"],
         "plans": {c: {"lo_deg": p["lo"], "hi_deg": p["hi"], "cost": p["cost"]} for c, p in planned_swivels().items()},
@@ -234,8 +234,7 @@ def polish_notes(axes: list[Axis], records: list[dict], facts: dict | None = Non
     fmt = ", ".join
     text = (
         f"<p>Self-motion loop of the {facts['robot']} at the polish start pose (swivel scan, "
-        f"{facts['scan_step_deg']:g}° steps, "
-        f"{facts['armature']} armature): W_a has feasible local minima "
+        f"{facts['scan_step_deg']:g}° steps, {facts['armature']}): W_a has feasible local minima "
         f"at {fmt(f'{d:+.0f}°' for d in facts['W_a_minima_deg']) or 'none'} (solid lines: the basins the W_a flow "
         f"ends in) and ridges at {fmt(f'{d:+.0f}°' for d in facts['W_a_ridges_deg']) or 'none'} (dashed: basin "
         "borders); grey: outside the joint limits.</p>"
