@@ -845,7 +845,7 @@ def test_replay_moves_the_arm_and_the_plots_to_the_same_instant(app, page):
 def run_lesson_in_the_page(app: Any, pg: Any, lesson: str, steps: int | None = None) -> dict[str, str]:
     """Open the Lessons tab, pick `lesson`, click "Set up this step" for each step (the first `steps`
     of them when given) and wait for its result line; returns the claims the page showed, by step key."""
-    from app.live.lessons import LESSONS
+    from app.live.curriculum import LESSONS
     from app.live.ui.panels.lessons import LessonsPanel
 
     panel = next(p for p in app.panels if isinstance(p, LessonsPanel))

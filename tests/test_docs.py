@@ -69,7 +69,7 @@ def test_every_readme_picture_exists():
 def test_every_lesson_has_a_page_that_renders_its_steps():
     """Each lesson of the Lessons tab has a page under docs/lessons/ whose steps are generated from
     app.live.lessons (the marker the docs hook fills), and no page names a lesson that is gone."""
-    from app.live.lessons import LESSONS
+    from app.live.curriculum import LESSONS
 
     marked = {}
     for page in (DOCS / "lessons").glob("*.md"):
@@ -88,7 +88,7 @@ def test_the_hook_renders_every_subcommand_and_each_lessons_steps():
 
     pytest.importorskip("mkdocs", reason="the hook is a MkDocs hook: pip install -e '.[docs]'")
     from app.cli import build_parser
-    from app.live.lessons import LESSONS
+    from app.live.curriculum import LESSONS
 
     spec = importlib.util.spec_from_file_location("docs_hook", DOCS / "hooks" / "generated.py")
     assert spec and spec.loader

@@ -78,6 +78,6 @@ def test_the_compliance_readout_its_plot_and_its_report_agree_on_the_elbow_push(
     assert drawn == pytest.approx(readout, abs=0.1)
     assert report["peak_elbow_deflection_mm"] == pytest.approx(readout, abs=0.1)
     assert report["peak_tcp_deflection_mm"] == pytest.approx(plot.deflection["elbow_push_tcp_mm"], abs=0.1)
-    markers = {m.label: m.t for m in phase_markers(c)}
+    markers = {m.label: m.t for m in phase_markers(c, 6)}
     for where, start, _ in PUSHES:
         assert markers[f"{'TCP' if where == 'tcp' else 'elbow'} push"] == pytest.approx(start, abs=0.025)

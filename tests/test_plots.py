@@ -132,12 +132,12 @@ def test_markers_and_segment_std_from_the_segment_signal():
     rng = np.random.default_rng(0)
     err = rng.normal(0.0, 1.0, len(t)) * np.where(seg % 2 == 0, 3.0, 1.0)
     columns = {"t": t, "segment": seg, "e": err, "payload_attached": (t < 5.0).astype(float)}
-    marks = phase_markers(columns)
+    marks = phase_markers(columns, 6)
     labels = [m.label for m in marks]
     assert labels == ["S1", "S2", "release", "S3", "S4", "S5", "S6", "end"]
     s1 = next(m for m in marks if m.label == "S1")
     assert s1.t == pytest.approx(2.0, abs=0.021)
-    std = segment_std(columns, "e")
+    std = segment_std(columns, "e", 6)
     assert sorted(std) == [1, 2, 3, 4, 5, 6]
     assert std[2] / std[1] == pytest.approx(3.0, rel=0.25) and std[4] / std[3] == pytest.approx(3.0, rel=0.25)
 
@@ -228,7 +228,7 @@ def test_segment_std_comes_from_every_step_for_the_main_arm_and_the_twin():
         assert lab.session.world.time < 30.0
     for log, got in ((lab.log, main), (lab.twin.log, twin)):
         every = log.window(60.0, lab.dt)
-        want = segment_std({"segment": every["segment"], "e": every["force_error_n"]}, "e")
+        want = segment_std({"segment": every["segment"], "e": every["force_error_n"]}, "e", 6)
         assert set(got) == set(want)
         for k in want:
             assert got[k] == pytest.approx(want[k], abs=1e-9)

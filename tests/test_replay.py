@@ -15,7 +15,9 @@ def test_events_are_the_phase_changes_fallback_onsets_contact_losses_and_a_halt(
     fallback = ((t > 5.0) & (t < 5.5)).astype(float)
     fd = np.full(len(t), 20.0)
     fz = np.where((t > 7.0) & (t < 7.2), 0.0, 20.0)
-    events = find_events({"t": t, "segment": seg, "fallback": fallback, "F_z": fz, "Fd_z": fd}, halted="diverged")
+    events = find_events(
+        {"t": t, "segment": seg, "fallback": fallback, "F_z": fz, "Fd_z": fd}, halted="diverged", segments=6
+    )
     got = [(e.label, round(e.t, 2)) for e in events]
     assert got == [("S1", 2.0), ("S2", 4.0), ("QP fallback", 5.01), ("contact lost", 7.01), ("halt", 9.99)]
 

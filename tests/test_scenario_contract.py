@@ -6,13 +6,16 @@ looked up at run time (a `getattr(scenario, "hook", None)` finds a hook no contr
 preset that spells it differently is silently skipped). The first test runs each preset through
 the live lab and fails if code of the app outside `app/scenarios` reads an attribute of a preset
 that `Scenario` does not declare. The second holds the polish plan lead to the nullspace gain in
-force after a reset (1/k0_j), which the preset read once from its own executor before.
+force after a reset (1/k0_j), which the preset read once from its own executor before. The last
+ones grep the live app and the core for a preset's name, module or copied constant.
 """
 
 from __future__ import annotations
 
+import re
 import sys
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -103,3 +106,38 @@ def test_the_polish_plan_lead_is_one_over_k0_j_in_force_after_a_reset(monkeypatc
     expected = np.array([np.interp(s, plan.t, plan.q[:, j]) for j in range(plan.q.shape[1])])
     np.testing.assert_allclose(target.planned_posture(t), expected, rtol=0, atol=1e-12)
     assert session.params()["nullspace"].objective == "j" and session.params()["nullspace"].k0_j == 4.0
+
+
+ROOT = Path(__file__).resolve().parents[1]
+# the one module of the live app that names presets: the lessons' scripts, which switch to a preset by
+# name as a person picks it from the menu (everything they measure and claim reads the contract)
+CURRICULUM = ROOT / "app" / "live" / "curriculum.py"
+
+
+def _preset_words() -> list[re.Pattern[str]]:
+    """What naming a preset looks like in code: its name as a string, its module, a constant of its own."""
+    words = [re.compile(rf"""["']{re.escape(name)}["']""") for name in SCENARIOS]
+    words += [re.compile(rf"app\.scenarios\.{module}\b") for module in SCENARIOS.values()]
+    words += [re.compile(r"\bapp\.scenarios\.(polish_\w+|payload|drop_postures)\b")]
+    words += [re.compile(r"^\s*[A-Z_]*(SEGMENTS|CONTACT_TIME|CONTACT_S)\w*\s*=", re.M)]  # a copied constant
+    return words
+
+
+def preset_mentions(text: str) -> list[str]:
+    """The lines of `text` that name a preset (comments included: they go stale the same way)."""
+    return [line.strip() for line in text.splitlines() if any(w.search(line) for w in _preset_words())]
+
+
+def test_the_grep_finds_a_preset_named_in_code():
+    assert preset_mentions('if name == "polish":\n    pass') == ['if name == "polish":']
+    assert preset_mentions("SEGMENTS = 6\n") == ["SEGMENTS = 6"]
+    assert preset_mentions("from app.scenarios.polish_stroke import N_SEGMENTS\n")
+    assert preset_mentions('group.compliance\nx = "compliance_qp"\nscenario.segments\n') == []
+
+
+@pytest.mark.parametrize("package", ["live", "core"])
+def test_the_live_app_and_the_core_name_no_preset(package):
+    files = [p for p in sorted((ROOT / "app" / package).rglob("*.py")) if p != CURRICULUM]
+    assert len(files) >= 10
+    found = {str(p.relative_to(ROOT)): preset_mentions(p.read_text()) for p in files}
+    assert {k: v for k, v in found.items() if v} == {}

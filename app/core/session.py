@@ -33,7 +33,7 @@ import pinocchio as pin
 import robots
 from app.core.commands import SetParam
 from app.core.executors import make_executor
-from app.scenarios import Environment, Offload, Scenario, Sensor, Work, get_scenario
+from app.scenarios import PLAIN_PRESET, Environment, Offload, Scenario, Sensor, Work, get_scenario
 from app.sim.drag import DragSpring
 from app.sim.world import World, WorldParams
 from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
@@ -153,7 +153,7 @@ class Session:
 
     def __init__(
         self,
-        scenario: str | Scenario = "free",
+        scenario: str | Scenario = PLAIN_PRESET,
         robot: str | None = None,
         executor: str | None = None,
         seed: int = 0,

@@ -17,7 +17,6 @@ from app.core.session import StepRecord
 from app.scenarios.metrics import MIN_SEGMENT_SAMPLES, Fold
 
 WRENCH = ("x", "y", "z", "rx", "ry", "rz")
-N_SEGMENTS = 6  # polish zig-zag S1…S6 (signal "segment")
 
 
 def base_columns(n_joints: int) -> list[str]:
@@ -35,8 +34,11 @@ def base_columns(n_joints: int) -> list[str]:
 class StepLog:
     """Fixed-capacity ring buffer of step rows with growable signal columns."""
 
-    def __init__(self, n_joints: int, capacity: int = 60_000, max_signals: int = 64):
+    def __init__(self, n_joints: int, capacity: int = 60_000, max_signals: int = 64, segments: int = 0):
+        """A log of `capacity` rows for an arm of `n_joints`; `segments`: the strokes of the preset run
+        (`Scenario.segments`, signal "segment"), over which `segment_force_error_std` folds the force error."""
         self.n = n_joints
+        self.segments = int(segments)
         self.capacity = int(capacity)
         self.columns = base_columns(n_joints)
         self._n_base = len(self.columns)
@@ -60,7 +62,7 @@ class StepLog:
         self._q_max = np.full(n, np.nan)
         self._q_min = np.full(n, np.nan)
         self._seg_scanned = 0  # rows already folded into the per-segment force-error moments
-        self._seg_moments = np.zeros((N_SEGMENTS + 1, 3))  # per segment: count, mean, sum of squared deviations
+        self._seg_moments = np.zeros((self.segments + 1, 3))  # per segment: count, mean, sum of squared deviations
         self._folds: dict[str, tuple[Fold, int]] = {}  # running metrics (`fold`) and the rows each has taken
 
     def clear(self) -> None:
@@ -152,7 +154,7 @@ class StepLog:
         return np.array(cols, dtype=np.intp)
 
     def segment_force_error_std(self) -> dict[int, float]:
-        """STD (N) of the force error over each polish segment S1…S6 (signal "segment") from every row
+        """STD (N) of the force error over each stroke S1…S`segments` (signal "segment") from every row
         since the last clear — the executor's own "force_error_n" when it reports one, else F̂_z − F_z.
         Incremental like `extremes()` (the running form of `metrics.segment_std`); a segment with fewer
         than MIN_SEGMENT_SAMPLES rows is left out."""
@@ -167,7 +169,7 @@ class StepLog:
             fd_z, f_z = block[:, self._sl_fd.start + 2], block[:, self._sl_f.start + 2]
             err = np.where(np.isfinite(err), err, fd_z - f_z)
             seg = block[:, seg_col]
-            for k in range(1, N_SEGMENTS + 1):
+            for k in range(1, self.segments + 1):
                 values = err[(seg == k) & np.isfinite(err)]
                 if values.size:
                     self._merge_moments(k, values)
@@ -175,7 +177,7 @@ class StepLog:
             self._seg_scanned = self.count
         m = self._seg_moments
         return {
-            k: float(np.sqrt(m[k, 2] / m[k, 0])) for k in range(1, N_SEGMENTS + 1) if m[k, 0] >= MIN_SEGMENT_SAMPLES
+            k: float(np.sqrt(m[k, 2] / m[k, 0])) for k in range(1, self.segments + 1) if m[k, 0] >= MIN_SEGMENT_SAMPLES
         }
 
     def _merge_moments(self, k: int, values: np.ndarray) -> None:

@@ -45,7 +45,9 @@ class Twin:
         for o in overrides:
             self.set_param(o.group, o.field, o.value, o.index)
         self.dt = dt
-        self.log = StepLog(self.session.robot.nq, capacity=round(log_seconds / dt))  # as the main log
+        self.log = StepLog(  # as the main log
+            self.session.robot.nq, capacity=round(log_seconds / dt), segments=self.session.scenario.segments
+        )
 
     def _own_objective(self, executor: str) -> None:
         if "nullspace" not in self.session.params():

@@ -84,6 +84,7 @@ class PlotData:
     deflection: dict[str, float] | None = None  # the deflection readouts over every step (`deflection_readouts`)
     low_q: np.ndarray | None = None  # min q_i per joint over every step since the reset
     fall_direction: int = 1  # the limit drop's joint falls toward its upper (+1) or lower (−1) limit
+    segments: int = 0  # the strokes of the preset (`Scenario.segments`): signal "segment" counts them
     run: str = ""  # the run the readouts were measured on, in words (`run_text`)
 
 
@@ -261,6 +262,7 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
         deflection,
         low_q=lab.log.q_min(),
         fall_direction=fall_direction,
+        segments=lab.session.scenario.segments,
     )
 
 

@@ -45,7 +45,7 @@ from app.core.settings import finite_number, plain
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.core.variants import make_variant
-from app.scenarios import Offload, Scenario
+from app.scenarios import PLAIN_PRESET, Offload, Scenario
 from app.scenarios.metrics import DeflectionProbe
 from control.params import ParamError, ParamGroup
 from robots import guessed_text
@@ -93,7 +93,7 @@ class Lab:
 
     def __init__(
         self,
-        scenario: str | Scenario = "free",
+        scenario: str | Scenario = PLAIN_PRESET,
         robot: str | None = None,
         executor: str | None = None,
         seed: int = 0,
@@ -104,7 +104,9 @@ class Lab:
         self.session = Session(scenario, robot=robot or None, executor=executor or None, seed=seed)
         self.dt = float(self.session.world.model.opt.timestep)
         self._log_seconds = log_seconds
-        self.log = StepLog(self.session.robot.nq, capacity=round(log_seconds / self.dt))
+        self.log = StepLog(
+            self.session.robot.nq, capacity=round(log_seconds / self.dt), segments=self.session.scenario.segments
+        )
         self.twin: Twin | None = None  # a second session in lockstep with another objective (app.core.twin)
         self._healthy = 0  # overrides[:_healthy] were all in force while the simulation ran healthy
         self._steps_since_change = 0  # steps run without a halt since the last override
@@ -347,7 +349,9 @@ class Lab:
         self.session = session
         self.session_id += 1
         self.defaults = session.params()
-        self.log = StepLog(session.robot.nq, capacity=round(self._log_seconds / self.dt))
+        self.log = StepLog(
+            session.robot.nq, capacity=round(self._log_seconds / self.dt), segments=session.scenario.segments
+        )
         twin, self.twin = self.twin, None  # the old twin belongs to the old session
         refused = session.replay(changes)
         self._healthy -= sum(1 for i in refused if i < self._healthy)

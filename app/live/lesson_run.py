@@ -16,13 +16,15 @@ from app.live.frames import make_status
 from app.live.lab import Lab
 from app.live.lessons import Memo, Obs, Step, measure
 from app.live.run_identity import RunIdentity, describe, differences, identity_from
+from app.scenarios import SCENARIOS, get_scenario
 
-# the parameters each preset's claims rest on, named with every claim (besides those the step sets)
-CLAIM_KEYS: dict[str, tuple[str, ...]] = {
-    "polish": ("contact.mu", "nullspace.objective", "sensor.reading_delay_steps"),
-    "limit-drop": ("damper.lambda_", "world.torque_delay_ms"),
-    "compliance": ("pose_task.compliance", "posture_task.compliance"),
-}
+
+def preset_claim_keys(preset: str) -> tuple[str, ...]:
+    """The parameters every claim on `preset` rests on (`Scenario.claim_keys`), named with each claim
+    besides those the step sets."""
+    return get_scenario(preset).claim_keys if preset in SCENARIOS else ()
+
+
 AGAIN = "press *Set up this step* to run it again."
 
 
@@ -67,9 +69,9 @@ def cancel_line(bound: BoundStep, now: RunIdentity, edits: int | None = None, la
 
 
 def claim_keys(step: Step, identity: RunIdentity) -> tuple[str, ...]:
-    """The parameters a step's claim rests on: those its set-up sets and its preset's `CLAIM_KEYS`."""
+    """The parameters a step's claim rests on: those its set-up sets and its preset's `claim_keys`."""
     keys = [f"{c.group}.{c.field}" for c in step.setup(None) if isinstance(c, SetParam)]
-    keys += [k for k in CLAIM_KEYS.get(identity.preset, ()) if k not in keys]
+    keys += [k for k in preset_claim_keys(identity.preset) if k not in keys]
     return tuple(keys)
 
 

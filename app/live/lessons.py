@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from app.core.commands import Command, Play, RestoreDefaults, SetParam, SettleNow, SwitchSession
+from app.core.commands import Command
 from app.core.params import field_spec
 from app.live.frames import LoopStatus, deflection_readouts
 from app.live.lab import Lab
@@ -29,17 +29,9 @@ from app.scenarios.metrics import PUSH_AFTER_S, REVERSAL_HYSTERESIS_RAD_S, veloc
 Obs = dict[str, float]  # one step's measured numbers
 Memo = dict[str, Obs]  # the lesson's earlier steps' numbers, by step key
 
-POLISH_END_SEGMENT = 7  # the polish phase signal after S6 (the rest at the end)
-SEGMENTS = 6
 DROP_WATCH_S = 3.0  # a limit drop is over after this much simulated time (joint 4 at rest or chattering)
-THRASH_WATCH_S = 16.0  # the delayed λ = 500 drop: the thrashing lasts about 12 s, then τ₄ chatters
 THRASH_SPEED_RAD_S = 0.5  # a joint other than the falling one moving faster than this counts as thrashing
 CHATTER_WINDOW_S = 2.0  # reversals of q̇₄ are counted over the last seconds of the run
-PUSH_DONE_S = 4.0  # the compliance preset's two pushes are over (compliance.DURATION_S)
-FALLING_JOINT = 3  # 0-based: joint 4 of the limit drop
-LESSON_DELAY_MS = 5.0  # the torque delay of the dampers lesson (a real arm's motor driver and bus)
-HIGH_LAMBDA = 500.0
-FRICTION_MU = 1.0
 
 
 @dataclass(frozen=True)
@@ -73,11 +65,12 @@ def measure(lab: Lab) -> Obs:
     t = c.get("t", np.zeros(0))
     if not len(t):
         return out
-    name = s.scenario.name
-    if name == "polish":
+    segments = s.scenario.segments  # a preset with strokes: the force error and headroom per stroke
+    if segments:
+        out["segments"] = float(segments)
         for k, v in lab.log.segment_force_error_std().items():
             out[f"std_S{k}"] = v
-        out.update(least_headroom(c))
+        out.update(least_headroom(c, segments))
         found = delay_field()
         if found is not None and found[0] in s.params():
             out["reading_delay"] = float(getattr(s.params()[found[0]], found[1]))
@@ -87,8 +80,9 @@ def measure(lab: Lab) -> Obs:
         out[f"swing_{j + 1}"] = float(np.nanmax(q) - np.nanmin(q))
         out[f"peak_tau_{j + 1}"] = float(np.nanmax(np.abs(c[f"tau_{j + 1}"])))
         out[f"tau_max_{j + 1}"] = float(s.robot.tau_max[j])
-    if name == "limit-drop":
-        j = FALLING_JOINT
+    drop = s.scenario.fall(s.robot)  # a preset that drops a joint: the joint and the limit it falls toward
+    if drop is not None:
+        j = drop.joint
         dq = c[f"dq_{j + 1}"]
         out["reversals_first_3s"] = float(velocity_reversals(dq[t <= t[0] + DROP_WATCH_S]))
         late = t >= t[-1] - CHATTER_WINDOW_S
@@ -97,8 +91,7 @@ def measure(lab: Lab) -> Obs:
         hi, lo = float(s.robot.q_upper[j]), float(s.robot.q_lower[j])
         damper = s.params().get("damper")
         d_s = float(getattr(damper, "safety_fraction", 0.01)) * (hi - lo)
-        drop = s.scenario.fall(s.robot)  # the limit joint 4 falls toward (the upper one on the Gen3)
-        sign, limit = (drop.direction, drop.limit) if drop else (1, hi)
+        sign, limit = drop.direction, drop.limit
         past = float(np.nanmax(sign * (c[f"q_{j + 1}"] - limit)))  # > 0 beyond the limit
         out["beyond_ds_mrad"] = 1e3 * max(0.0, past + d_s)
         out["lambda"] = float(getattr(damper, "lambda_", math.nan))  # the run's own, for the claim's label
@@ -117,14 +110,14 @@ def measure(lab: Lab) -> Obs:
     return out
 
 
-def least_headroom(c: dict[str, np.ndarray]) -> Obs:
+def least_headroom(c: dict[str, np.ndarray], segments: int) -> Obs:
     """The least live stroke headroom (Np, signal "margin_headroom_np": the polish margin along each
-    stroke) per logged segment, "headroom_S{k}"; none for a segment without a finite value."""
+    stroke) per logged stroke 1…`segments`, "headroom_S{k}"; none for a stroke without a finite value."""
     out: Obs = {}
     h, seg = c.get("margin_headroom_np"), c.get("segment")
     if h is None or seg is None:
         return out
-    for k in range(1, SEGMENTS + 1):
+    for k in range(1, segments + 1):
         values = h[(seg == k) & np.isfinite(h)]
         if values.size:
             out[f"headroom_S{k}"] = float(np.min(values))
@@ -132,11 +125,20 @@ def least_headroom(c: dict[str, np.ndarray]) -> Obs:
 
 
 # ---- what a claim says -----------------------------------------------------------------------------
+def _stroke_numbers(o: Obs) -> range:
+    """The strokes 1…segments of the measured preset (`Scenario.segments`, "segments" in `measure`);
+    empty for one without strokes (a claim on strokes then says it has no numbers)."""
+    n = int(o.get("segments", 0))
+    return range(1, n + 1) if n else range(1, 0)
+
+
 def _strokes(o: Obs) -> tuple[list[float], list[float]] | None:
-    """(S2, S4, S6) and (S1, S3, S5) force-error STDs, or None while a segment is missing."""
-    if not all(f"std_S{k}" in o for k in range(1, SEGMENTS + 1)):
+    """The stretching (even: S2, S4, S6) and the retracting (odd) strokes' force-error STDs, or None
+    while a stroke is missing (or the preset has fewer than four)."""
+    strokes = _stroke_numbers(o)
+    if len(strokes) < 4 or not all(f"std_S{k}" in o for k in strokes):
         return None
-    return [o[f"std_S{k}"] for k in (2, 4, 6)], [o[f"std_S{k}"] for k in (1, 3, 5)]
+    return [o[f"std_S{k}"] for k in strokes if k % 2 == 0], [o[f"std_S{k}"] for k in strokes if k % 2 == 1]
 
 
 def _fmt(values: list[float]) -> str:
@@ -168,11 +170,11 @@ def strokes_claim(label: str) -> Callable[[Obs, Memo], str]:
 
 def headroom_claim(o: Obs) -> str:
     """The margin's least stroke headroom on S2/S4/S6 and S1/S3/S5 in words ("" without it)."""
-    if not all(f"headroom_S{k}" in o for k in range(1, SEGMENTS + 1)):
+    if not _stroke_numbers(o) or not all(f"headroom_S{k}" in o for k in _stroke_numbers(o)):
         return ""
-    forward = [o[f"headroom_S{k}"] for k in (2, 4, 6)]
-    back = [o[f"headroom_S{k}"] for k in (1, 3, 5)]
-    short = [f"S{k}" for k in range(1, SEGMENTS + 1) if o[f"headroom_S{k}"] < 0.0]
+    forward = [o[f"headroom_S{k}"] for k in _stroke_numbers(o) if k % 2 == 0]
+    back = [o[f"headroom_S{k}"] for k in _stroke_numbers(o) if k % 2 == 1]
+    short = [f"S{k}" for k in _stroke_numbers(o) if o[f"headroom_S{k}"] < 0.0]
     verdict = (
         f"below 0 on {', '.join(short)}: the model predicted a disturbance at the noise floor to reach the "
         "desired force before those strokes end"
@@ -294,173 +296,3 @@ def delay_field(lab: Lab | None = None) -> tuple[str, str] | None:
     except (KeyError, ValueError):
         return None
     return READING_DELAY
-
-
-def polish_setup(objective: str, delay: str = "default") -> Callable[[Lab | None], list[Command]]:
-    """Polish from its defaults, μ = 1, the objective, the F/T delay (default / zero), Settle now."""
-
-    def setup(lab: Lab | None) -> list[Command]:
-        cmds: list[Command] = [
-            RestoreDefaults(),  # first: the switch then keeps nothing of the person's earlier values
-            SwitchSession(scenario="polish", robot="", variant="flow"),
-            SetParam("contact", "mu", FRICTION_MU),
-            SetParam("nullspace", "objective", objective),
-        ]
-        found = delay_field()
-        if delay == "zero" and found is not None:
-            cmds.append(SetParam(found[0], found[1], 0))
-        cmds.append(SettleNow())
-        return cmds
-
-    return setup
-
-
-def drop_setup(lambda_: float, delay_ms: float) -> Callable[[Lab | None], list[Command]]:
-    """The limit drop from its defaults with λ and the torque delay, then Play."""
-
-    def setup(lab: Lab | None) -> list[Command]:
-        return [
-            RestoreDefaults(),
-            SwitchSession(scenario="limit-drop", robot="", variant="position"),
-            SetParam("damper", "lambda_", lambda_),
-            SetParam("world", "torque_delay_ms", delay_ms),
-            Play(),
-        ]
-
-    return setup
-
-
-def compliance_setup(mode: str) -> Callable[[Lab | None], list[Command]]:
-    """The compliance preset in one Γ mode, from its defaults, then Play."""
-
-    def setup(lab: Lab | None) -> list[Command]:
-        return [RestoreDefaults(), SwitchSession(scenario="compliance", robot="", variant=mode), Play()]
-
-    return setup
-
-
-def polish_done(st: LoopStatus) -> bool:
-    """The zig-zag has run through S6."""
-    return st.scenario == "polish" and st.signals.get("segment", 0.0) >= POLISH_END_SEGMENT
-
-
-def after(scenario: str, seconds: float) -> Callable[[LoopStatus], bool]:
-    """The preset has run `seconds` of simulated time since its reset."""
-    return lambda st: st.scenario == scenario and st.t >= seconds
-
-
-LESSONS: tuple[Lesson, ...] = (
-    Lesson(
-        "posture",
-        "Posture and friction",
-        "Which elbow posture the nullspace picks decides whether friction shakes the contact force ([T] §IV-B).",
-        (
-            Step(
-                "wj",
-                "W_j at μ = 1",
-                "The polish preset with friction μ = 1 and the joint-space objective W_j; Settle now runs the "
-                "settle phase, then the zig-zag S1…S6. Watch the force-error plot on the stretching strokes "
-                "S2, S4, S6.",
-                polish_setup("j"),
-                polish_done,
-                strokes_claim("W_j, μ = 1"),
-            ),
-            Step(
-                "wa",
-                "W_a at μ = 1",
-                "The same with the dynamic-coupling objective W_a: the elbow flows to another posture first "
-                "(almost a minute of simulated time; Settle now runs it fast). Compare the stretching strokes.",
-                polish_setup("a"),
-                polish_done,
-                compare_strokes("W_a, μ = 1", "wj", "W_j"),
-            ),
-        ),
-    ),
-    Lesson(
-        "latency",
-        "Latency",
-        "A sampled controller answers a force reading at least one period late; that delay is what makes a "
-        "coupled posture oscillate.",
-        (
-            Step(
-                "delay0",
-                "No sensing delay",
-                "W_j at μ = 1 with the F/T reading's delay set to 0 periods (an ideal, instantaneous loop). "
-                "Watch S2, S4, S6.",
-                polish_setup("j", delay="zero"),
-                polish_done,
-                strokes_claim("W_j, μ = 1, no sensing delay"),
-            ),
-            Step(
-                "delay1",
-                "The default delay",
-                "The same with the reading's default delay back. Compare the stretching strokes with the step before.",
-                polish_setup("j"),
-                polish_done,
-                compare_strokes("W_j, μ = 1, default sensing delay", "delay0", "no delay"),
-            ),
-        ),
-    ),
-    Lesson(
-        "dampers",
-        "Dampers at the joint limit",
-        "Joint 4 falls into its limit under an unknown 1.25 kg; the [C24] damper's λ and the motors' delay "
-        "decide how it stops.",
-        (
-            Step(
-                "l100",
-                "λ = 100, ideal motors",
-                "The limit drop with the default damper. Press Play if it waits; watch the phase plot of joint 4 "
-                "reach d_s (dotted) before the limit.",
-                drop_setup(100.0, 0.0),
-                after("limit-drop", DROP_WATCH_S),
-                drop_claim(),
-            ),
-            Step(
-                "l500",
-                "λ = 500, ideal motors",
-                "A five times stiffer damper: the joint brakes later and harder. Watch the torque plot.",
-                drop_setup(HIGH_LAMBDA, 0.0),
-                after("limit-drop", DROP_WATCH_S),
-                drop_claim(baseline="l100"),
-            ),
-            Step(
-                "l500d",
-                "λ = 500 with 5 ms of torque delay",
-                "The motors now answer 5 ms late, as a real arm's drivers do. Watch the whole arm, not only "
-                "joint 4, for about 15 s.",
-                drop_setup(HIGH_LAMBDA, LESSON_DELAY_MS),
-                after("limit-drop", THRASH_WATCH_S),
-                thrash_claim,
-            ),
-            Step(
-                "l100d",
-                "λ = 100 with the same delay",
-                "The default damper with the same 5 ms delay. Watch joint 4's phase plot.",
-                drop_setup(100.0, LESSON_DELAY_MS),
-                after("limit-drop", DROP_WATCH_S),
-                drop_claim(),
-            ),
-        ),
-    ),
-    Lesson(
-        "compliance",
-        "Compliance under a push",
-        "One pose task and one posture task; only Γ changes. 5 N pushes the TCP at 0.5 s and the elbow at 2 s ([C9]).",
-        tuple(
-            Step(
-                f"gamma-{mode}",
-                title,
-                f"Case {mode}: {what} Watch the deflection plot: TCP (blue) and elbow (green).",
-                compliance_setup(mode),
-                after("compliance", PUSH_DONE_S),
-                push_claim(title),
-            )
-            for mode, title, what in (
-                ("stiff", "Γ = 0, stiff", "the arm resists both pushes."),
-                ("nullspace", "Γ₀ = I, nullspace-compliant", "the TCP holds, the elbow may yield."),
-                ("full", "Γ = I, fully compliant", "the whole arm may move with the hand."),
-            )
-        ),
-    ),
-)

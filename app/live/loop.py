@@ -41,6 +41,7 @@ from app.live.memory import trim_heap_soon
 from app.live.offload import LiveOffload
 from app.live.pacing import Pacer, RateMeter, next_frame_due
 from app.live.plan_worker import BackgroundPlanner
+from app.scenarios import PLAIN_PRESET
 
 __all__ = ["SPEED_RANGE", "Frame", "LoopStatus", "Notice", "PlotData", "Settings", "SimLoop"]
 
@@ -122,7 +123,7 @@ class SimLoop:
 
     def __init__(
         self,
-        scenario: str = "free",
+        scenario: str = PLAIN_PRESET,
         robot: str | None = None,
         executor: str | None = None,
         seed: int = 0,

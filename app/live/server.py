@@ -57,7 +57,7 @@ from app.live.ui.typed import typed_numbers
 from app.live.ui.visuals import VisualSettings, VisualsPanel
 from app.live.warmup import warm_up
 from app.live.watch import WatchGate, install_watch_gate
-from app.scenarios import SCENARIOS
+from app.scenarios import APP_PRESET, SCENARIOS
 
 
 @dataclass
@@ -131,7 +131,7 @@ def quiet_failed_handshakes() -> None:
 def start_app(
     host: str = "127.0.0.1",
     port: int = 8080,
-    scenario: str = "polish",
+    scenario: str = APP_PRESET,
     robot: str | None = None,
     executor: str | None = None,
     running: bool = True,

@@ -13,9 +13,11 @@ the runner names no preset and looks up no hook by name: the parameter groups it
 (`prepare_executor`) and the parameter changes it makes to the executor's groups
 (`executor_changes`, applied by the Session like any other group change), a costly computation to
 do first (`pending_work`), the strokes of its task (`segments`), the limit a joint falls to
-(`fall`), its deflection readouts, and on the environment `Environment.settle_pending` (a settle
-phase is under way) and `Environment.connect` (the session's parameter groups, to read, and an
-`Offload` where the runner has one: a place off its loop thread for costly page signals).
+(`fall`), its deflection readouts, its phase in words (`phase_text`), its charts and panels
+(`plot_layout`, `tune_first`) and the parameters its lessons' claims rest on (`claim_keys`), and on
+the environment `Environment.settle_pending` (a settle phase is under way) and
+`Environment.connect` (the session's parameter groups, to read, and an `Offload` where the runner
+has one: a place off its loop thread for costly page signals).
 """
 
 from __future__ import annotations
@@ -48,6 +50,8 @@ SCENARIOS: dict[str, str] = {
     "compliance": "compliance",
     "polish": "polish",
 }
+APP_PRESET = "polish"  # the web app opens on it (`torquelab serve`)
+PLAIN_PRESET = "free"  # a lab or session built without naming one runs it
 
 
 @dataclass(frozen=True)
@@ -136,6 +140,11 @@ class Scenario:
     # the strokes of its task, counted by the environment's "segment" signal (1…segments while they run,
     # segments + 1 after, 0 before): 0 for a preset without strokes
     segments: int = 0
+    # the page's view of it: the charts of the Plots tab in order (`app.live.ui.plots` names them), the
+    # Tune tab's folders shown first, and the parameters ("group.field") every lesson claim on it rests on
+    plot_layout: tuple[str, ...] = ("coupling", "torque", "force")
+    tune_first: tuple[str, ...] = ("Nullspace", "Motion–force")
+    claim_keys: tuple[str, ...] = ()
 
     @property
     def chosen_case(self) -> str:
@@ -155,6 +164,12 @@ class Scenario:
         Session hands them to the executor after `prepare_executor` and at every reset, before the
         changes made with `set_param`, which stay in force. None by default."""
         return {}
+
+    def phase_text(self, status: Any, scene: Any, memory: dict[str, Any]) -> str:
+        """The phase it is in, in words, for the status line ("" when it has none): from the loop's
+        `status` (t, signals, variant, focus_joint) and the frame's `scene` (q, objective, W; None
+        without one); `memory` is the reader's own, kept between frames of one run."""
+        return ""
 
     def fall(self, robot: RobotDescription) -> Fall | None:
         """Where a joint of the arm falls from the start (joint, direction, the limit it falls toward),

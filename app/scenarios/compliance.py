@@ -78,6 +78,9 @@ class ComplianceScenario(Scenario):
     default_robot = "gen3"
     default_executor = "compliance-qp"
     logs_deflection = True
+    plot_layout = ("deflection", "torque")
+    tune_first = ("Compliance", "Safety")
+    claim_keys = ("pose_task.compliance", "posture_task.compliance")
 
     def __init__(self, mode: str = "nullspace"):
         if mode not in MODES:

@@ -24,7 +24,7 @@ Constants, chosen once from the paper and not tuned afterwards:
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
@@ -45,6 +45,7 @@ POSTURE_STIFFNESS = 1.0  # 1/s², mc_rtc posture-task default
 POSTURE_DAMPING = 2.0  # 1/s, critical damping for K_p = 1
 OBSERVER_GAIN = 50.0  # 1/s
 LOWERED_VELOCITY_LIMIT = 0.5  # rad/s, case (b)
+REST_SPEED_RAD_S = 0.02  # a falling joint slower than this counts as at rest (the phase line)
 DURATION_S = 6.0  # s: the cap; the experiment stops a drop once joint 4 is at rest
 
 
@@ -64,6 +65,9 @@ class LimitDropScenario(Scenario):
     focus_joint = FALLING_JOINT
     starts_paused = True  # the drop is over in seconds
     groups: ClassVar[Mapping[str, type[ParamGroup]]] = {"payload": PayloadParams}
+    plot_layout = ("phase", "torque")
+    tune_first = ("Safety", "Latency", "Compliance")
+    claim_keys = ("damper.lambda_", "world.torque_delay_ms")
 
     def __init__(self, limit: str = "position"):
         if limit not in ("position", "velocity"):
@@ -92,6 +96,24 @@ class LimitDropScenario(Scenario):
             f" {PAYLOAD_KG:g} kg load (a search, app/scenarios/drop_postures.py, not [C]'s L-shape): the speed at"
             " which it meets the dampers depends on that torque"
         )
+
+    def phase_text(self, status: Any, scene: Any, memory: dict[str, Any]) -> str:
+        """The drop while the falling joint moves, at rest once it has stopped (its speed, from the
+        posture of successive frames, kept in `memory`)."""
+        joint = status.focus_joint
+        q = getattr(scene, "q", None)
+        if joint is None or q is None:
+            return "drop"
+        now = (float(status.t), float(q[joint]))
+        last, memory["last_q"] = memory.get("last_q"), now
+        if last is None or now[0] <= last[0]:
+            memory["moved"] = False
+            return f"drop: joint {joint + 1} falls" if status.t < 0.05 else "drop"
+        speed = abs(now[1] - last[1]) / (now[0] - last[0])
+        memory["moved"] = memory.get("moved", False) or speed > REST_SPEED_RAD_S
+        if speed > REST_SPEED_RAD_S or not memory["moved"]:
+            return f"drop: joint {joint + 1} falls ({speed:.2f} rad/s)"
+        return f"done: joint {joint + 1} at rest"
 
     def fall(self, robot: RobotDescription) -> Fall:
         """Where joint 4 falls from the start: toward the limit the payload's torque points to there

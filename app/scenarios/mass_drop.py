@@ -259,6 +259,15 @@ class MassDropScenario(Scenario):
     default_executor = "compliance-qp"
     logs_deflection = True
     groups: ClassVar[Mapping[str, type[ParamGroup]]] = {"scenario": MassDropParams, "payload": PayloadParams}
+    plot_layout = ("deflection", "torque")
+    tune_first = ("Compliance", "Safety")
+
+    def phase_text(self, status: Any, scene: Any, memory: dict[str, Any]) -> str:
+        """Holding the mass, then dropped (signal "mass_released")."""
+        released = status.signals.get("mass_released")
+        if released is None:
+            return ""
+        return "dropped: the mass hangs on the rope" if released > 0.5 else "holding the mass"
 
     def __init__(self, mode: str = "torque-fusion", case: str = "rope-drop", params: MassDropParams | None = None):
         if mode not in MODES:

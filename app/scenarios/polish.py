@@ -14,6 +14,7 @@ the same line) and is not re-tuned to match the paper's tables.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -117,6 +118,37 @@ def plan_lead_s(gains: Mapping[str, ParamGroup]) -> float:
     return 1.0 / k0_j if k0_j > 0 else 0.0
 
 
+def phase_text(t: float, sig: Mapping[str, float], scene: Any, variant: str = "") -> str:
+    """The polish phase in words at time t from the step's signals and the frame's scene (see
+    `PolishScenario.phase_text`)."""
+    segment = sig.get("segment", math.nan)
+    if math.isfinite(segment) and 1 <= segment <= N_SEGMENTS:
+        stroke = "back" if int(segment) % 2 == 1 else "forward"
+        return f"S{int(segment)} ({stroke} stroke)"
+    if math.isfinite(segment) and segment > N_SEGMENTS:
+        return "done: the zig-zag is over"
+    if t < CONTACT_TIME_S:
+        return "contact: pressing onto the table"
+    swivel = sig.get("swivel_deg", math.nan)
+    seconds = sig.get("settle_s", max(t - CONTACT_TIME_S, 0.0))
+    if variant.startswith("planned"):  # the posture follows the planned swivel path, no objective's gradient
+        planned = sig.get("swivel_plan_deg", math.nan)
+        parts = [f"moving to the {variant} path's start"]
+        if math.isfinite(swivel):
+            parts.append(f"swivel {swivel:+.0f}°" + (f" (planned {planned:+.0f}°)" if math.isfinite(planned) else ""))
+        parts.append(f"{seconds:.1f} s")
+        return parts[0] + ": " + ", ".join(parts[1:])
+    parts = ["settling"]
+    objective = getattr(scene, "objective", None)
+    W = (getattr(scene, "W", None) or {}).get(f"W_{objective}", sig.get(f"W_{objective}")) if objective else None
+    if W is not None and np.isfinite(W):
+        parts.append(f"W_{objective} = {W:.3g}")
+    if math.isfinite(swivel):
+        parts.append(f"swivel {swivel:+.0f}°")
+    parts.append(f"{seconds:.1f} s")
+    return parts[0] + ": " + ", ".join(parts[1:])
+
+
 class PolishScenario(Scenario):
     """Scenario 1 of DESIGN §5 with its settings: friction μ, sander, start swivel."""
 
@@ -133,6 +165,9 @@ class PolishScenario(Scenario):
     table_height = TABLE_HEIGHT_M
     groups: ClassVar[Mapping[str, type[ParamGroup]]] = {"scenario": PolishParams}
     segments = N_SEGMENTS
+    plot_layout = ("force", "coupling", "torque")
+    tune_first = ("Motion–force", "Nullspace", "Latency")
+    claim_keys = ("contact.mu", "nullspace.objective", "sensor.reading_delay_steps")
 
     def __init__(
         self,
@@ -234,6 +269,11 @@ class PolishScenario(Scenario):
             if float(np.max(np.abs(model.frame_pose(q, "tcp").translation - p))) > 1e-6 or not reach.inside(robot, q):
                 return False
         return True
+
+    def phase_text(self, status: Any, scene: Any, memory: dict[str, Any]) -> str:
+        """Contact, settling (objective W, swivel, seconds; a planned case: the swivel and the planned
+        one), S1…S6, done (signals "segment", "settle_s", "swivel_deg")."""
+        return phase_text(status.t, status.signals, scene, str(getattr(status, "variant", "") or ""))
 
     def executor_changes(self, groups: Mapping[str, ParamGroup], robot: RobotDescription) -> dict[str, ParamGroup]:
         """Holding a swivel or following a plan runs the W_j objective [T18] on the target's posture

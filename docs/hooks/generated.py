@@ -2,7 +2,7 @@
 
 - `<!-- cli-reference -->` in a page becomes the `--help` of every `torquelab` subcommand (and of
   each experiment under `torquelab experiment`), rendered from `app.cli.build_parser()`.
-- `<!-- lesson: KEY -->` becomes the purpose and the steps of that lesson (`app.live.lessons.LESSONS`),
+- `<!-- lesson: KEY -->` becomes the purpose and the steps of that lesson (`app.live.curriculum.LESSONS`),
   as the Lessons tab shows them.
 - In a table row, `\\|` inside a code span is GitHub's way to keep a pipe in a cell; Python-Markdown
   keeps code spans' pipes already and would print the backslash, so the hook drops it.
@@ -96,11 +96,11 @@ def cli_reference() -> str:
 
 def lesson_steps(key: str) -> str:
     """The lesson's purpose and its numbered steps, each with its title and what to do and watch."""
-    from app.live.lessons import LESSONS
+    from app.live.curriculum import LESSONS
 
     lessons = {lesson.key: lesson for lesson in LESSONS}
     if key not in lessons:
-        raise KeyError(f"no lesson {key!r} in app.live.lessons (there are: {', '.join(lessons)})")
+        raise KeyError(f"no lesson {key!r} in app.live.curriculum (there are: {', '.join(lessons)})")
     lesson = lessons[key]
     out = [f"*{lesson.purpose}*", ""]
     for i, step in enumerate(lesson.steps, 1):

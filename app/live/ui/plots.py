@@ -1,9 +1,10 @@
 """Live plots (viser uPlot) in their own dockable panel, beside the control panel.
 
-Force error along the force axis (the twin's dashed when a twin runs); the polish force loop's decay
-margin (`app.scenarios.polish_margin`): the stroke headroom h (< 0 where a disturbance at the noise
-floor reaches F̂ within the stroke) with the decay rate σ beside it (< 0 where a mode grows); W_f, W_a, W_d (Fig. 8 of
-[T]) in three small single-axis plots; the (q, q̇) phase of one joint with its velocity limits,
+Force error along the force axis (the twin's dashed when a twin runs); the force loop's decay
+margin a contact preset publishes (signals "margin_headroom_np", "margin_rate"): the stroke headroom
+h (< 0 where a disturbance at the noise floor reaches F̂ within the stroke) with the decay rate σ
+beside it (< 0 where a mode grows); W_f, W_a, W_d (Fig. 8 of [T]) in three small single-axis plots;
+the (q, q̇) phase of one joint with its velocity limits,
 the plot's x range being the joint's position range (Fig. 2–4 of [C]); joint torques as a share of
 their limits; the real-time factor. A window of 10, 30 or 60 s of simulated time, a Freeze switch
 that holds the picture (the history keeps filling), vertical markers where the scenario's phase
@@ -33,7 +34,7 @@ import viser.uplot as uplot
 
 from app.live.loop import PlotData
 from app.live.ui.signals import SignalChoice, masked, series_shown, signal_specs
-from app.scenarios import metrics
+from app.scenarios import SCENARIOS, Scenario, get_scenario, metrics
 
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2")
 MARKER_COLOR = "#7a7a7a"
@@ -44,7 +45,6 @@ NO_SETPOINT_TITLE = "F̂_z − F_z: no force setpoint here, so this is minus the
 WINDOWS = {"10 s": 10.0, "30 s": 30.0, "60 s": 60.0}
 HISTORY_S = 60.0
 MAX_POINTS = 600  # per series sent to the browser, whatever the window
-SEGMENTS = 6  # polish zig-zag S1…S6
 FORCE_RANGE_N = 10.0  # ± N before any widening
 TORQUE_RANGE_PCT = 110.0
 RTF_RANGE = 1.2
@@ -67,8 +67,8 @@ Y_LABELS = {
 LIMIT_COLOR, DS_COLOR, DI_COLOR = "#555555", "#d62728", "#ff9f1c"
 PREVIOUS_COLOR = "rgba(90, 90, 90, 0.35)"  # the run before this one, faint, for A/B
 PHASE_MARGIN = 0.06  # the phase plot's x range reaches this share of the joint's range beyond each limit
-# The charts, each in its own folder of the Plots tab; a preset shows its lesson's charts first (LAYOUTS)
-# and the others only with "Show all plots".
+# The charts, each in its own folder of the Plots tab; a preset shows its lesson's charts first (its
+# `Scenario.plot_layout`) and the others only with "Show all plots".
 CHARTS = ("force", "coupling", "torque", "phase", "deflection", "rtf")
 CHART_TITLES = {
     "force": "Force error",
@@ -77,13 +77,6 @@ CHART_TITLES = {
     "phase": "Joint phase",
     "deflection": "Deflection",
     "rtf": "Real-time factor",
-}
-LAYOUTS: dict[str, tuple[str, ...]] = {
-    "polish": ("force", "coupling", "torque"),
-    "free": ("coupling", "torque", "force"),
-    "limit-drop": ("phase", "torque"),
-    "mass-drop": ("deflection", "torque"),
-    "compliance": ("deflection", "torque"),
 }
 NEW_RUN = "*A new run: its plots start at t = 0.*"
 STATUS_ORDER = 0.45  # the app's status line: after the Window, Freeze and Replay controls, before the readouts
@@ -200,11 +193,11 @@ class Marker:
     label: str
 
 
-def phase_markers(columns: dict[str, np.ndarray]) -> list[Marker]:
-    """Where the scenario's phase changes in these samples: polish segments S1…S6 and their end
-    (signal "segment"), the mass drop's release (signal "mass_released" going to 1), a payload release
-    (signal "payload_attached" going to 0), the compliance preset's pushes (signals "push_tcp",
-    "push_elbow" going to 1)."""
+def phase_markers(columns: dict[str, np.ndarray], segments: int) -> list[Marker]:
+    """Where the scenario's phase changes in these samples: the strokes S1…S`segments` of a preset
+    that has them (`Scenario.segments`, signal "segment") and their end, the mass drop's release
+    (signal "mass_released" going to 1), a payload release (signal "payload_attached" going to 0),
+    the compliance preset's pushes (signals "push_tcp", "push_elbow" going to 1)."""
     t = columns.get("t", np.zeros(0))
     out: list[Marker] = []
     seg = columns.get("segment")
@@ -212,9 +205,9 @@ def phase_markers(columns: dict[str, np.ndarray]) -> list[Marker]:
         idx = np.flatnonzero(np.diff(np.nan_to_num(seg, nan=-1.0)) != 0) + 1
         for i in idx:
             k = seg[i]
-            if np.isfinite(k) and 1 <= k <= SEGMENTS:
+            if np.isfinite(k) and 1 <= k <= segments:
                 out.append(Marker(float(t[i]), f"S{int(k)}"))
-            elif np.isfinite(k) and k > SEGMENTS:
+            elif np.isfinite(k) and k > segments:
                 out.append(Marker(float(t[i]), "end"))
     released = columns.get("mass_released")
     if released is not None and len(released) == len(t):
@@ -232,12 +225,12 @@ def phase_markers(columns: dict[str, np.ndarray]) -> list[Marker]:
     return sorted(out, key=lambda m: m.t)
 
 
-def segment_std(columns: dict[str, np.ndarray], key: str) -> dict[int, float]:
-    """STD of column `key` over each polish segment present (segment index → N; `metrics.segment_std`)."""
+def segment_std(columns: dict[str, np.ndarray], key: str, segments: int) -> dict[int, float]:
+    """STD of column `key` over each stroke 1…`segments` present (segment index → N; `metrics.segment_std`)."""
     seg, values = columns.get("segment"), columns.get(key)
     if seg is None or values is None:
         return {}
-    return metrics.segment_std(seg, values, range(1, SEGMENTS + 1))
+    return metrics.segment_std(seg, values, range(1, segments + 1))
 
 
 def force_error(columns: dict[str, np.ndarray]) -> np.ndarray:
@@ -315,7 +308,8 @@ class Plots:
         self._blank = False  # the charts show a new run's empty axes
         self._settings: Any = None
         self._focus_joint: int | None = None  # the joint the preset is about (readouts)
-        self.layout: tuple[str, ...] = LAYOUTS["polish"]
+        self.layout: tuple[str, ...] = Scenario.plot_layout
+        self.segments = 0  # the strokes of the preset plotted (`Scenario.segments`)
         self.panel = gui.add_panel(order=order)
         self.replay_t: float | None = None  # while replaying: the instant the plots end at
         self.previous: dict[str, np.ndarray] | None = None  # the run before, drawn faint until cleared
@@ -462,7 +456,7 @@ class Plots:
         self.freeze.on_update(lambda _: self._redraw())
         self.joint.on_update(lambda _: self._redraw())
         self.show_all.on_update(lambda _: self.arrange(None))
-        self.arrange("polish")
+        self.arrange(None)
         server.on_client_connect(lambda _: self._resend_later(*RESEND_AFTER_CONNECT_S))
 
     # ---- signals --------------------------------------------------------------------------------
@@ -529,7 +523,7 @@ class Plots:
         """Put the preset's charts first (its lesson's metric on top) and show the others only with
         "Show all plots"; None keeps the preset and applies the switch."""
         if scenario is not None:
-            self.layout = LAYOUTS.get(scenario, LAYOUTS["polish"])
+            self.layout = get_scenario(scenario).plot_layout if scenario in SCENARIOS else Scenario.plot_layout
         show_all = bool(self.show_all.value)
         rest = [c for c in CHARTS if c not in self.layout]
         changed = False
@@ -704,7 +698,8 @@ class Plots:
                 self._clear_charts()
             return
         self._blank = False
-        self.markers = phase_markers(self.history.columns)
+        self.segments = plot.segments
+        self.markers = phase_markers(self.history.columns, plot.segments)
         self._update_readouts(plot)
         if self.freeze.value:
             return
@@ -811,13 +806,15 @@ class Plots:
         lines: list[str] = []
         if "segment" in c and np.any(np.isfinite(c["segment"])):
             # every 1 ms step since the reset when the loop counted them, else the plotted samples
-            main = plot.segment_std if plot.segment_std is not None else _std_by_segment(c, force_error(c))
+            main = (
+                plot.segment_std if plot.segment_std is not None else _std_by_segment(c, force_error(c), plot.segments)
+            )
             twin: dict[int, float] = {}
             if plot.twin_segment_std is not None:
                 twin = plot.twin_segment_std
             elif "twin_force_error_n" in c:  # on the twin's own segments (its zig-zag may run at other times)
                 twin_seg = c["twin_segment"] if "twin_segment" in c else c["segment"]
-                twin = segment_std({"segment": twin_seg, "v": c["twin_force_error_n"]}, "v")
+                twin = segment_std({"segment": twin_seg, "v": c["twin_force_error_n"]}, "v", plot.segments)
             for k, v in main.items():
                 out[f"force_error_std_S{k}"] = v
             for k, v in twin.items():
@@ -971,5 +968,5 @@ class Plots:
             traceback.print_exc()
 
 
-def _std_by_segment(columns: dict[str, np.ndarray], values: np.ndarray) -> dict[int, float]:
-    return segment_std({"segment": columns["segment"], "v": values}, "v")
+def _std_by_segment(columns: dict[str, np.ndarray], values: np.ndarray, segments: int) -> dict[int, float]:
+    return segment_std({"segment": columns["segment"], "v": values}, "v", segments)

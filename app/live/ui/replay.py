@@ -50,10 +50,11 @@ class Event:
     label: str
 
 
-def find_events(columns: dict[str, np.ndarray], halted: str = "") -> list[Event]:
-    """The events in logged columns: phase markers, QP fallback onsets, contact lost, a halt at the end."""
+def find_events(columns: dict[str, np.ndarray], halted: str = "", segments: int = 0) -> list[Event]:
+    """The events in logged columns: phase markers (the preset's `segments` strokes among them), QP
+    fallback onsets, contact lost, a halt at the end."""
     t = columns.get("t", np.zeros(0))
-    out = [Event(m.t, m.label) for m in phase_markers(columns)]
+    out = [Event(m.t, m.label) for m in phase_markers(columns, segments)]
     fb = columns.get("fallback")
     if fb is not None and len(fb) == len(t) and len(t) > 1:
         on = np.flatnonzero((fb[1:] > 0.5) & (fb[:-1] < 0.5)) + 1
@@ -176,7 +177,7 @@ class ReplayPanel:
             return
         with self._lock:
             self.columns = columns
-            self.events = find_events(columns, halted)
+            self.events = find_events(columns, halted, lab.session.scenario.segments)
             self._poser, self._poser_session = poser, session_id
         self.slider.min, self.slider.max = float(t[0]), float(t[-1])
         self.slider.value = float(t[-1])

@@ -9,6 +9,7 @@ import viser
 
 from app.live.loop import Settings, SimLoop
 from app.live.ui.panels.base import KnobPanel, knob
+from control.gains import PostureTaskGains
 
 SUMMARY = "[C9, C25–26] How much of a push each task lets through (Γ) and where τ̂_e comes from."
 INTRO = (
@@ -54,7 +55,7 @@ class CompliancePanel(KnobPanel):
             if handle.visible != projection:
                 handle.visible = projection
         group = settings.groups.get("posture_task")
-        text = gamma0_text(getattr(group, "compliance", None)) if group is not None else ""
+        text = gamma0_text(group.compliance) if isinstance(group, PostureTaskGains) else ""
         if self.gamma0.content != text:
             self.gamma0.content = text
         if self.gamma0.visible != bool(text):

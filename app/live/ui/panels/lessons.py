@@ -17,8 +17,9 @@ from typing import Any
 import viser
 
 from app.core.commands import Pause
+from app.live.curriculum import LESSONS
 from app.live.lesson_run import BoundStep, bind, cancel_line, finish
-from app.live.lessons import LESSONS, Lesson, Memo, Step
+from app.live.lessons import Lesson, Memo, Step
 from app.live.loop import Frame, SimLoop
 from app.live.run_identity import identity_from
 

@@ -1,7 +1,7 @@
 """The Tune tab's order: the folders of the running preset's experiment first.
 
-Each preset is about one part of a controller (polish: the [T] motion–force law and the nullspace;
-the limit drop: the [C] dampers; the compliance and mass-drop presets: Γ and the τ̂_e source), so
+Each preset is about one part of a controller and names the folders of that part
+(`Scenario.tune_first`: e.g. the [T] motion–force law and the nullspace, or the [C] dampers), so
 the Tune tab puts those folders on top when the preset changes and the rest below in their usual
 order. Only the folders' `order` changes; nothing is rebuilt.
 """
@@ -11,19 +11,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-FIRST: dict[str, tuple[str, ...]] = {
-    "polish": ("Motion–force", "Nullspace", "Latency"),
-    "free": ("Nullspace", "Motion–force"),
-    "limit-drop": ("Safety", "Latency", "Compliance"),
-    "mass-drop": ("Compliance", "Safety"),
-    "compliance": ("Compliance", "Safety"),
-}
+from app.scenarios import SCENARIOS, get_scenario
 
 
 def tune_order(scenario: str, titles: Sequence[str]) -> list[str]:
     """The folder titles in the order the Tune tab shows them for `scenario`: its own first (in the
-    order FIRST gives), then the others in their usual order."""
-    first = [t for t in FIRST.get(scenario, ()) if t in titles]
+    order its `Scenario.tune_first` gives), then the others in their usual order."""
+    own = get_scenario(scenario).tune_first if scenario in SCENARIOS else ()
+    first = [t for t in own if t in titles]
     return first + [t for t in titles if t not in first]
 
 
