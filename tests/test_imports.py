@@ -103,7 +103,8 @@ def runtime_edges(direct: dict[str, set[str]]) -> dict[str, set[str]]:
 
 
 def _project_edges() -> dict[str, set[str]]:
-    graph = grimp.build_graph(*PACKAGES, cache_dir=None)
+    # imports under `if TYPE_CHECKING:` never run: a type named both ways is no circle of imports
+    graph = grimp.build_graph(*PACKAGES, exclude_type_checking_imports=True, cache_dir=None)
     modules = set(graph.modules)
     return runtime_edges({m: graph.find_modules_directly_imported_by(m) & modules for m in modules})
 
