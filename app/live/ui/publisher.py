@@ -29,6 +29,7 @@ from app.live.loop import Frame, SimLoop, raise_thread_priority
 from app.live.supervise import Stages, error_text
 from app.live.ui.camera import Framer, frame_on_connect, robot_points
 from app.live.ui.mesh_notice import MeshNotice
+from app.live.ui.page_lag import PageClock
 from app.live.ui.panel_guard import PanelGuard
 from app.live.ui.panels.base import notify
 from app.live.ui.plots import Plots
@@ -46,6 +47,7 @@ STAGE_TEXT = {  # what each publisher stage does, for the notice
     "scene": "drawing the 3D scene",
     "panels": "refreshing the panels",
     "plots": "drawing the plots",
+    "page clock": "stamping the pages' clock",
 }
 
 
@@ -86,6 +88,7 @@ class Publisher:
         self._live_state: tuple[bool, str, float, int, int] | None = None
         self._frame_pending = True  # frame the robot once a new scene has a snapshot
         self.framer = Framer(server)  # frames the pages on the arm and keeps it in view
+        self.page_clock = PageClock(server)  # a page that falls behind says so (app.live.ui.page_lag)
         # pages whose camera was framed on connect (client ids)
         self.framed_clients = frame_on_connect(
             self.framer, lambda: self._points(self.last_frame.scene if self.last_frame is not None else None)
@@ -181,6 +184,7 @@ class Publisher:
         self._next_live = now + LIVE_PERIOD_S
         with self.server.atomic():
             self.stages.run("panels", self._refresh_panels, frame)
+            self.stages.run("page clock", self.page_clock.tick, frame.status.t)
 
     def _refresh_panels(self, frame: Frame) -> None:
         for guard in self.panel_guards:  # each panel in its own boundary: one that raises stops no other
@@ -220,6 +224,7 @@ class Publisher:
         self.stages.run("scene", self._show_scene, frame)
         self.stages.run("panels", self._show_panels, frame)
         self.stages.run("plots", self._show_plots, frame)
+        self.stages.run("page clock", self.page_clock.tick, frame.status.t)
 
     def _show_scene(self, frame: Frame) -> None:
         if frame.session_id != self.scene_session_id:
