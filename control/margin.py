@@ -251,23 +251,6 @@ def dominant_mode(phi: np.ndarray, dt: float) -> tuple[float, float]:
     return float(abs(lam)), float(abs(np.angle(lam)) / (2.0 * math.pi * dt))
 
 
-def critical_force_kd(
-    Lambda: np.ndarray,
-    sub: Subspaces,
-    gains: MotionForceGains,
-    loop: ContactLoop,
-    friction_dir: np.ndarray,
-    kd_max: float = 2000.0,
-    tol: float = 0.5,
-) -> float | None:
-    """Lowest K_f^d (N s/m) of the stable interval that holds the gains' own K_f^d (or, when that one
-    is unstable, the lowest stable K_f^d above it on a 25 N s/m grid up to kd_max), by bisection;
-    0.0 when K_f^d = 0 is already stable, None when no K_f^d up to kd_max is. (Too large a K_f^d
-    is unstable again in the 1 ms step, and sooner with delay, so the stable set is bounded on both
-    sides.)"""
-    return _critical_kd(_step_map(Lambda, sub, gains, loop, friction_dir), gains.force_kd, kd_max, tol)
-
-
 def _critical_kd(
     phi: Callable[[float], np.ndarray], force_kd: float, kd_max: float = 2000.0, tol: float = 0.5
 ) -> float | None:

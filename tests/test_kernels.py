@@ -20,6 +20,7 @@ import pytest
 
 from control.coupling import Subspaces, coupling_gradient, coupling_gradient_direct, terms_of
 from control.gains import MotionForceGains, NullspaceGains
+from control.kernel_registry import qp_problem
 from control.kernels import chain as Kchain
 from control.kernels import compliance as Kcompliance
 from control.kernels import coupling as Kcoupling
@@ -474,27 +475,6 @@ def test_moved_wrench_equals_numpy_reference():
 
 
 # ---- [C] QP kernels (control/kernels/dense_qp.py) ---------------------------------------------------
-def _qp_problem(rng: np.random.Generator, n: int, m: int, active: bool):
-    """A strictly convex problem whose unconstrained optimum meets every bound and row (active
-    False) or violates some (active True)."""
-    G = rng.normal(size=(n, n))
-    P = G @ G.T + 0.1 * np.eye(n)
-    x_unc = rng.normal(size=n)
-    q = -P @ x_unc
-    A = rng.normal(size=(m, n))
-    lb, ub = x_unc - rng.uniform(0.1, 1.0, n), x_unc + rng.uniform(0.1, 1.0, n)
-    l, u = A @ x_unc - rng.uniform(0.1, 1.0, m), A @ x_unc + rng.uniform(0.1, 1.0, m)
-    if active:
-        k = rng.integers(n + m)
-        if k < n:
-            ub[k] = x_unc[k] - 0.05
-            lb[k] = min(lb[k], ub[k] - 1.0)
-        else:
-            l[k - n] = (A @ x_unc)[k - n] + 0.05
-            u[k - n] = max(u[k - n], l[k - n] + 1.0)
-    return P, q, A, l, u, lb, ub
-
-
 def test_dense_qp_load_kernel_equals_numpy_reference():
     """Same outcome code, same buffer and the same fast-path x (1e-10 relative) on feasible and
     active unconstrained optima, ±inf bounds, NaN, crossed bounds, a semidefinite P and
@@ -503,7 +483,7 @@ def test_dense_qp_load_kernel_equals_numpy_reference():
     seen = set()
     for k in range(120):
         n, m = (7, 7) if k % 3 else (5, 9)
-        P, q, A, l, u, lb, ub = _qp_problem(rng, n, m, active=k % 4 == 0)
+        P, q, A, l, u, lb, ub = qp_problem(rng, n, m, active=k % 4 == 0)
         n_eq = 2 if k % 17 == 5 else 0
         if k % 10 == 3:
             ub[1], l[0] = np.inf, -np.inf
@@ -537,7 +517,7 @@ def test_unconstrained_optimum_kernel_agrees_with_the_backend_load_and_refuses_b
     rng = np.random.default_rng(22)
     n_fast = 0
     for k in range(80):
-        P, q, A, l, u, lb, ub = _qp_problem(rng, 7, 7, active=k % 3 == 0)
+        P, q, A, l, u, lb, ub = qp_problem(rng, 7, 7, active=k % 3 == 0)
         data, x_ref, x = KQ.dense_qp_buffer(7, 7), np.zeros(7), np.zeros(7)
         code = KQ.dense_qp_load_reference(data, KQ.dense_qp_setup(7, 7, 0, 1e30, 1e-6), P, q, A, l, u, lb, ub, x_ref)
         took = KQ.unconstrained_optimum_fused(P, q, A, lb, l, ub, u, 1e-6, x)

@@ -65,7 +65,8 @@ class Reset:
 
 @dataclass(frozen=True)
 class SetSpeed:
-    """Simulated seconds per wall second requested, 0.1 … 1."""
+    """Simulated seconds per wall second requested: 0.01 … 1000 (`app.live.lab.SPEED_RANGE`; 1000 means
+    as fast as the machine allows, every wake-up a full burst); the Lab refuses a value outside."""
 
     factor: float
 

@@ -17,6 +17,7 @@ sidecar names none (a foreign URDF): documented searches, not choices.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -118,6 +119,20 @@ def limit_drop_start(robot: RobotDescription, mass_kg: float, joint: int = FALLI
             " a limit all the way; give the limit drop's start as posture `l_shape` in the sidecar"
         )
     return best[1], best[2]
+
+
+def guess_posture(
+    robot: RobotDescription, posture: str, guessed_as: str, find: Callable[[], tuple[np.ndarray, str]]
+) -> None:
+    """For an arm without sidecar postures that lacks `posture`: `find()` gives the posture and, in
+    words, how it was found; the posture is stored under its name and the words among the robot's
+    guessed values as `guessed_as` (the page and the reports name them). Nothing for an arm whose
+    sidecar gives it."""
+    if "postures" not in robot.guessed or posture in robot.postures:
+        return
+    q, how = find()
+    robot.postures[posture] = q
+    robot.guessed[guessed_as] = how
 
 
 def arm_size(robot: RobotDescription) -> float:

@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 
 from app.scenarios import Environment, Scenario
-from app.scenarios.drop_postures import FALLING_JOINT, Fall, fall_from, limit_drop_start
+from app.scenarios.drop_postures import FALLING_JOINT, Fall, fall_from, guess_posture, limit_drop_start
 from app.scenarios.payload import PayloadEnvironment, PayloadParams, add_payload_body
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor
@@ -47,6 +47,18 @@ OBSERVER_GAIN = 50.0  # 1/s
 LOWERED_VELOCITY_LIMIT = 0.5  # rad/s, case (b)
 REST_SPEED_RAD_S = 0.02  # a falling joint slower than this counts as at rest (the phase line)
 DURATION_S = 6.0  # s: the cap; the experiment stops a drop once joint 4 is at rest
+
+
+def _searched_start(robot: RobotDescription) -> tuple[np.ndarray, str]:
+    """The limit drop's start found by `limit_drop_start`, and how, in words."""
+    q, fall = limit_drop_start(robot, PAYLOAD_KG)
+    side = "upper" if fall.direction > 0 else "lower"
+    return q, (
+        f"the limit drop starts at joint 4 = {q[FALLING_JOINT]:.3f} rad, joint 2 = {q[1]:.3f} rad, falling toward"
+        f" its {side} limit {fall.limit:.3f} rad under {fall.torque.min():.1f}–{fall.torque.max():.1f} N m of the"
+        f" {PAYLOAD_KG:g} kg load (a search, app/scenarios/drop_postures.py, not [C]'s L-shape): the speed at"
+        " which it meets the dampers depends on that torque"
+    )
 
 
 class LimitDropScenario(Scenario):
@@ -85,17 +97,7 @@ class LimitDropScenario(Scenario):
     def prepare_robot(self, robot: RobotDescription) -> None:
         """For an arm without sidecar postures, find its start (`drop_postures.limit_drop_start`) and
         say so among the guessed values."""
-        if "postures" not in robot.guessed or "l_shape" in robot.postures:
-            return
-        q, fall = limit_drop_start(robot, PAYLOAD_KG)
-        robot.postures["l_shape"] = q
-        side = "upper" if fall.direction > 0 else "lower"
-        robot.guessed["limit_drop"] = (
-            f"the limit drop starts at joint 4 = {q[FALLING_JOINT]:.3f} rad, joint 2 = {q[1]:.3f} rad, falling toward"
-            f" its {side} limit {fall.limit:.3f} rad under {fall.torque.min():.1f}–{fall.torque.max():.1f} N m of the"
-            f" {PAYLOAD_KG:g} kg load (a search, app/scenarios/drop_postures.py, not [C]'s L-shape): the speed at"
-            " which it meets the dampers depends on that torque"
-        )
+        guess_posture(robot, "l_shape", "limit_drop", lambda: _searched_start(robot))
 
     def phase_text(self, status: Any, scene: Any, memory: dict[str, Any]) -> str:
         """The drop while the falling joint moves, at rest once it has stopped (its speed, from the

@@ -38,14 +38,14 @@ cord and knot) and the true mass (±10 % about the 1.25 kg, which no controller 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor
-from app.scenarios.drop_postures import mass_drop_start, mass_drop_target
+from app.scenarios.drop_postures import guess_posture, mass_drop_start, mass_drop_target
 from app.scenarios.metrics import DropFold, run_fold
 from app.scenarios.payload import PayloadEnvironment, PayloadParams, add_payload_body, set_inertial_at_origin
 from app.sim.rope import Rope
@@ -243,6 +243,16 @@ class RopeDrop(Environment):
         return {"rope_end": end}
 
 
+def _searched_start(robot: RobotDescription) -> tuple[np.ndarray, str]:
+    """The mass drop's start found by `mass_drop_start`, and how, in words."""
+    x, _, z = mass_drop_target(robot)
+    return mass_drop_start(robot), (
+        f"the mass drop starts with the TCP tool down at ({x:.2f}, 0, {z:.2f}) m, half the arm's size in front"
+        " of the shoulder at its height (app/scenarios/drop_postures.py), not [C]'s nominal posture: the"
+        " TCP's deflection after the catch depends on the posture (the arm's inertia and torque margins there)"
+    )
+
+
 class MassDropScenario(Scenario):
     name = "mass-drop"
     cases = MODES
@@ -291,25 +301,13 @@ class MassDropScenario(Scenario):
         """A new rig for the next reset (the mass is set on the compiled model then)."""
         self.rig = expect(name, group, MassDropParams if name == "scenario" else None)
 
-    def with_params(self, **changes: object) -> MassDropScenario:
-        """A copy with some rig parameters changed (validated by `MassDropParams`)."""
-        return MassDropScenario(self.mode, self.case, replace(self.rig, **changes))  # type: ignore[arg-type]
-
     def initial_q(self, robot: RobotDescription) -> np.ndarray:
         return self.named_posture(robot, "mass_drop_nominal")
 
     def prepare_robot(self, robot: RobotDescription) -> None:
         """For an arm without sidecar postures, find its start (`drop_postures.mass_drop_start`) and
         say so among the guessed values."""
-        if "postures" not in robot.guessed or "mass_drop_nominal" in robot.postures:
-            return
-        robot.postures["mass_drop_nominal"] = mass_drop_start(robot)
-        x, _, z = mass_drop_target(robot)
-        robot.guessed["mass_drop"] = (
-            f"the mass drop starts with the TCP tool down at ({x:.2f}, 0, {z:.2f}) m, half the arm's size in front"
-            " of the shoulder at its height (app/scenarios/drop_postures.py), not [C]'s nominal posture: the"
-            " TCP's deflection after the catch depends on the posture (the arm's inertia and torque margins there)"
-        )
+        guess_posture(robot, "mass_drop_nominal", "mass_drop", lambda: _searched_start(robot))
 
     def customize_world(self, spec: mujoco.MjSpec, robot: RobotDescription) -> None:
         if self.case == "held-release":

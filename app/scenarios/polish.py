@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from app.scenarios import Environment, Scenario, Sensor, Work, reach
+from app.scenarios.drop_postures import arm_size
 from app.scenarios.polish_environment import PolishEnvironment
 from app.scenarios.polish_plan import (
     PolishTarget,
@@ -101,13 +102,6 @@ class PolishParams(ParamGroup):
         help="scales the (unpublished) rotor armature of the model and the simulated arm alike; applies at Reset",
         tag="robots/rizon4s.toml",
     )
-
-
-def _chain_length(robot: RobotDescription) -> float:
-    """Sum of the distances between the joints from joint 2 to the TCP (m): the arm's size."""
-    model = robot.model
-    length = sum(float(np.linalg.norm(model.jointPlacements[j].translation)) for j in range(2, model.njoints))
-    return length + float(np.linalg.norm(model.frames[model.getFrameId("tcp")].placement.translation))
 
 
 def plan_lead_s(gains: Mapping[str, ParamGroup]) -> float:
@@ -239,7 +233,7 @@ class PolishScenario(Scenario):
         import robots
 
         # the paper's geometry first, then the scales nearest this arm's size beside the Rizon 4s's
-        ratio = _chain_length(robot) / _chain_length(robots.load(PolishScenario.default_robot))
+        ratio = arm_size(robot) / arm_size(robots.load(PolishScenario.default_robot))
         for scale in (1.0, *sorted((s for s in PLACEMENT_SCALES if s != 1.0), key=lambda s: abs(s - ratio))):
             xy = (START_XY_M[0] * scale, START_XY_M[1] * scale)
             height = TABLE_HEIGHT_M * scale

@@ -130,11 +130,6 @@ class PhaseClock:
     last_w: float = float("nan")
 
     @property
-    def settle_start(self) -> float:
-        """Time the settle phase begins (the TCP is on the table)."""
-        return CONTACT_TIME_S
-
-    @property
     def convergence_time_s(self) -> float | None:
         """Seconds from the settle start to the trajectory start (None while settling)."""
         return None if self.trajectory_start is None else self.trajectory_start - CONTACT_TIME_S
