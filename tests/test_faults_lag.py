@@ -8,7 +8,6 @@ page that showed t = 117 s "running" while another read 248 s did.
 from __future__ import annotations
 
 import re
-import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -77,7 +76,7 @@ def test_a_page_that_falls_behind_says_how_far_and_the_banner_goes_once_it_caugh
 
 
 def test_a_page_too_far_behind_says_it_gave_up_catching_up(lab_page):
-    app, page, cdp = lab_page
+    _, page, cdp = lab_page
     wait_for(lambda: _caught_up(page), 120, "the page to be on time")
     page.evaluate("window.__torquelabLag.giveUpS = 1.5; window.__torquelabLag.texts = []")
     cdp.send("Emulation.setCPUThrottlingRate", {"rate": THROTTLE})

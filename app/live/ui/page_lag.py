@@ -61,7 +61,8 @@ LAG_JS = r"""
     state.maxShownS = Math.max(state.maxShownS, lag);
     const shows = Number.isFinite(simT) ? ` (it shows t = ${simT.toFixed(1)} s)` : "";
     if (lag > state.giveUpS) {
-      say(`This page is ${lag.toFixed(0)} s behind the simulation${shows} and gave up catching up: reload it to see the simulation now.`);
+      const reload = "reload it to see the simulation now";
+      say(`This page is ${lag.toFixed(0)} s behind the simulation${shows} and gave up catching up: ${reload}.`);
     } else {
       say(`This page is ${lag.toFixed(1)} s behind the simulation${shows}; catching up.`);
     }
