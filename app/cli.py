@@ -143,6 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="memory slope of the web app over MINUTES with preset switches, drags and a headless browser",
     )
     p.add_argument("--no-browser", action="store_true", help="with --soak: no browser")
+    p.add_argument("--pages", type=int, default=1, metavar="N", help="with --soak: N browsers on the page")
+    p.add_argument("--junk", action="store_true", help="with --soak: a client that sends malformed frames too")
     p.add_argument("--no-switches", action="store_true", help="with --soak: no preset switches")
     p.add_argument("--no-drags", action="store_true", help="with --soak: no drags")
     p.add_argument(
@@ -219,6 +221,7 @@ COUNTS: dict[str, tuple[str, int]] = {
     "repetitions": ("--repetitions", 1),
     "held_repetitions": ("--held-repetitions", 0),
     "first_seed": ("--first-seed", 0),
+    "pages": ("--pages", 1),
 }
 DURATIONS: dict[str, tuple[str, str]] = {
     "seconds": ("--seconds", "seconds"),

@@ -12,18 +12,28 @@ Not part of the test suite: it takes minutes.
 Beside RSS each sample has, to tell where memory grows: its anonymous and file-backed parts, the
 thread count, glibc's heap in use and kept free over all its arenas (mallinfo2), and the browser's
 RSS over all its processes; each gets a slope too. `--no-switches`, `--no-drags` and `--no-browser`
-leave a part out, `--trim-every S` also hands the free heap back every S seconds.
+leave a part out, `--trim-every S` also hands the free heap back every S seconds, `--pages N` opens N
+browsers on the page, and `--junk` adds a client that sends junk (`junk_client`): every JUNK_EVERY_S a
+new connection with a few malformed frames of each kind, and every JUNK_FLOOD_EVERY_S a flood that gets
+its connection dropped.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import threading
 import time
 from typing import Any
 
+import msgspec
 import numpy as np
+import viser
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+from websockets.typing import Subprotocol
 
 from app.core.commands import DragCommand, SwitchSession
 from app.live.memory import heap_mb, trim_heap
@@ -36,6 +46,33 @@ DRAG_EVERY_S = 5.0
 SAMPLE_EVERY_S = 5.0
 WARMUP_S = 60.0
 DRAG_CLIENT = -7  # a client id no page has: the soak's own drags
+JUNK_EVERY_S = 2.0  # the junk client opens a connection with a few malformed frames this often
+JUNK_FLOOD_EVERY_S = 30.0  # and floods one this often (its connection is dropped)
+JUNK_FRAMES: tuple[str | bytes, ...] = (
+    "a text frame",
+    b"\xc1\xc1 not msgpack",
+    msgspec.msgpack.encode({"type": "NoSuchMessage", "x": 1}),
+    msgspec.msgpack.encode({"type": "ViewerCameraMessage", "wxyz": "junk"}),
+)
+
+
+def junk_client(url: str, stop: threading.Event, sent: list[int]) -> None:
+    """Until `stop`: every JUNK_EVERY_S a websocket to `url` sends each of JUNK_FRAMES once and closes; every
+    JUNK_FLOOD_EVERY_S one sends 30 malformed frames (its connection is dropped). `sent[0]` counts frames."""
+    ws_url = url.replace("http://", "ws://")
+    next_flood = time.monotonic() + JUNK_FLOOD_EVERY_S
+    while not stop.wait(JUNK_EVERY_S):
+        flood = time.monotonic() >= next_flood
+        frames = [JUNK_FRAMES[1]] * 30 if flood else list(JUNK_FRAMES)
+        if flood:
+            next_flood += JUNK_FLOOD_EVERY_S
+        try:
+            with connect(ws_url, subprotocols=[Subprotocol(f"viser-v{viser.__version__}")], open_timeout=10) as ws:
+                for frame in frames:
+                    ws.send(frame)
+                    sent[0] += 1
+        except (ConnectionClosed, OSError, TimeoutError):  # dropped for its junk, or the server busy
+            pass
 
 
 def rss_mb() -> float:
@@ -93,9 +130,9 @@ def _group_rss_mb(pgid: int) -> float:
     return total
 
 
-def _sample(t_s: float, browser_pgid: int | None) -> dict[str, float]:
+def _sample(t_s: float, browser_pgids: list[int]) -> dict[str, float]:
     """One sample: the server's RSS split into anonymous and file-backed memory, its threads, glibc's
-    heap in use and kept free, and the browser's RSS over all its processes."""
+    heap in use and kept free, and the browsers' RSS over all their processes."""
     status = proc_status()
     row = {
         "t": round(t_s, 1),
@@ -105,8 +142,8 @@ def _sample(t_s: float, browser_pgid: int | None) -> dict[str, float]:
         "threads": status.get("Threads", 0.0),
         **heap_mb(),
     }
-    if browser_pgid is not None:
-        row["browser"] = _group_rss_mb(browser_pgid)
+    if browser_pgids:
+        row["browser"] = sum(_group_rss_mb(pgid) for pgid in browser_pgids)
     return {k: round(v, 2) for k, v in row.items()}
 
 
@@ -117,10 +154,14 @@ def run_soak(
     switches: bool = True,
     drags: bool = True,
     trim_every_s: float = 0.0,
+    pages: int = 1,
+    junk: bool = False,
 ) -> dict[str, Any]:
     """Run the soak (see the module docstring); the samples, counts and slopes. `switches` / `drags` /
-    `browser` False leave that part out; `trim_every_s` > 0 also trims the heap that often."""
+    `browser` False leave that part out; `trim_every_s` > 0 also trims the heap that often; `pages`
+    browsers show the page; `junk` adds the junk client."""
     app = start_app(port=0, scenario="polish", running=True)
+    junk_guard = app.junk_guard
     names = list(SCENARIOS)
     samples: list[dict[str, float]] = []
     n_switches = n_drags = late = 0
@@ -131,13 +172,18 @@ def run_soak(
     next_drag = t0 + DRAG_EVERY_S if drags else never
     next_trim = t0 + trim_every_s if trim_every_s > 0 else never
     next_sample = t0
+    stop_junk = threading.Event()
+    junk_sent = [0]
     try:
-        ctx = headless_chromium(app.url) if browser else None
-        proc = ctx.__enter__() if ctx is not None else None
+        browsers = contextlib.ExitStack()
+        procs = [browsers.enter_context(headless_chromium(app.url)) for _ in range(pages if browser else 0)]
+        junk_thread = threading.Thread(target=junk_client, args=(app.url, stop_junk, junk_sent), daemon=True)
+        if junk:
+            junk_thread.start()
         try:
             while (now := time.monotonic()) < end:
                 if now >= next_sample:
-                    samples.append(_sample(now - t0, proc.pid if proc is not None else None))
+                    samples.append(_sample(now - t0, [p.pid for p in procs]))
                     next_sample += SAMPLE_EVERY_S
                     if progress:
                         print("soak: " + "  ".join(f"{k} {v:g}" for k, v in samples[-1].items()), flush=True)
@@ -159,8 +205,10 @@ def run_soak(
                     raise RuntimeError(f"the simulation loop stopped: {app.loop.failure}")
                 time.sleep(0.2)
         finally:
-            if ctx is not None:
-                ctx.__exit__(None, None, None)
+            stop_junk.set()
+            if junk:
+                junk_thread.join(30.0)
+            browsers.close()
     finally:
         app.stop()
     t = np.array([s["t"] for s in samples])
@@ -171,6 +219,11 @@ def run_soak(
     return {
         "minutes": minutes,
         "browser": browser,
+        "pages": pages if browser else 0,
+        "junk_frames_sent": junk_sent[0],
+        "junk_received": junk_guard.log.received if junk_guard is not None else 0,
+        "junk_log_lines": junk_guard.log.lines if junk_guard is not None else 0,
+        "junk_connections_dropped": junk_guard.dropped if junk_guard is not None else 0,
         "switches": n_switches,
         "drags": n_drags,
         "late_answers": late,
@@ -207,6 +260,8 @@ def cmd_soak(args: argparse.Namespace) -> int:
         switches=not getattr(args, "no_switches", False),
         drags=not getattr(args, "no_drags", False),
         trim_every_s=getattr(args, "trim_every", 0.0) or 0.0,
+        pages=getattr(args, "pages", 1) or 1,
+        junk=getattr(args, "junk", False),
     )
     if args.json:
         print(json.dumps(report, indent=2))
@@ -215,7 +270,10 @@ def cmd_soak(args: argparse.Namespace) -> int:
         print(
             f"soak {report['minutes']:g} min, {report['switches']} switches, {report['drags']} drags "
             f"({report['late_answers']} late), "
-            f"browser {'on' if report['browser'] else 'off'}: RSS {report['rss_start_mb']:.1f} → "
+            f"{report['pages']} page(s), junk client {'on' if report['junk_frames_sent'] else 'off'} "
+            f"({report['junk_frames_sent']} frames sent, {report['junk_received']} counted in "
+            f"{report['junk_log_lines']} log lines, {report['junk_connections_dropped']} connections dropped): "
+            f"RSS {report['rss_start_mb']:.1f} → "
             f"{report['rss_end_mb']:.1f} MB, slope {report['slope_mb_per_min']:+.3f} MB/min after the first "
             f"{report['warmup_s']:g} s ({report['slope_all_mb_per_min']:+.3f} over the whole run, "
             f"{report['slope_second_half_mb_per_min']:+.3f} over its second half); "
