@@ -153,14 +153,21 @@ def run_fold(fold: Fold, columns: Mapping[str, np.ndarray]) -> dict[str, float]:
 
 
 # ---- per-segment STD and reversals ---------------------------------------------------------------------
+def force_error_std(values: np.ndarray) -> float:
+    """Population STD (N) of a stroke's force error over its finite samples (NaN without one)."""
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    return float(np.std(finite)) if finite.size else float("nan")
+
+
 def segment_std(segment: np.ndarray, error: np.ndarray, segments: range = range(1, 7)) -> dict[int, float]:
-    """Population STD of `error` over each segment k (samples where `segment` == k and the error is
-    finite), for the segments with at least MIN_SEGMENT_SAMPLES samples."""
+    """`force_error_std` of `error` over each segment k (samples where `segment` == k), for the segments
+    with at least MIN_SEGMENT_SAMPLES finite samples."""
     out: dict[int, float] = {}
     for k in segments:
-        values = error[(segment == k) & np.isfinite(error)]
-        if values.size >= MIN_SEGMENT_SAMPLES:
-            out[k] = float(np.std(values))
+        values = error[segment == k]
+        if np.count_nonzero(np.isfinite(values)) >= MIN_SEGMENT_SAMPLES:
+            out[k] = force_error_std(values)
     return out
 
 

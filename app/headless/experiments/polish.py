@@ -42,6 +42,7 @@ from app.headless.experiments.run_config import parse_settings, run_configuratio
 from app.headless.sweep.engine import open_executor
 from app.scenarios import polish_plan as plan_module
 from app.scenarios import polish_stroke as stroke_module
+from app.scenarios.metrics import force_error_std
 from app.scenarios.polish import PolishScenario
 from app.scenarios.polish_margin import MARGIN_SAMPLE_S
 from app.scenarios.polish_stroke import N_SEGMENTS
@@ -362,7 +363,7 @@ def peak_speed() -> float:
 def _stats(e: np.ndarray) -> dict:
     if e.size == 0:
         return {"ma": None, "ptp": None, "std": None}
-    return {"ma": float(np.mean(np.abs(e))), "ptp": float(np.ptp(e)), "std": float(np.std(e))}
+    return {"ma": float(np.mean(np.abs(e))), "ptp": float(np.ptp(e)), "std": force_error_std(e)}
 
 
 def _mean(x: np.ndarray) -> float | None:
