@@ -87,6 +87,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_classroom(args: argparse.Namespace) -> int:
+    from app.live.classroom.command import run_classroom
+
+    return run_classroom(args)
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     from app.live.server import serve
 
@@ -121,7 +127,21 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="with --watch-only: pages opened on this machine steer, pages from other machines watch",
     )
+    p.add_argument(
+        "--seat", action="store_true", help=argparse.SUPPRESS
+    )  # started by `classroom`: see app/live/classroom
     p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser("classroom", help="one link for a class: each student an own lab (a seat), a teacher's view")
+    _robot_arg(p)
+    p.add_argument("--seats", type=int, default=4, help="labs that can run at once, one per student (default 4)")
+    p.add_argument("--scenario", default="polish", help="the preset each seat starts on (default polish)")
+    p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1, local only)")
+    p.add_argument("--port", type=int, default=8080, help="the lobby's TCP port (0: any free port)")
+    p.add_argument(
+        "--idle", type=float, default=600.0, metavar="SECONDS", help="free a seat with no page open this long (600)"
+    )
+    p.set_defaults(func=cmd_classroom)
 
     p = sub.add_parser("check", help="cross-check Pinocchio against MuJoCo")
     _robot_arg(p)
@@ -222,11 +242,13 @@ COUNTS: dict[str, tuple[str, int]] = {
     "held_repetitions": ("--held-repetitions", 0),
     "first_seed": ("--first-seed", 0),
     "pages": ("--pages", 1),
+    "seats": ("--seats", 1),
 }
 DURATIONS: dict[str, tuple[str, str]] = {
     "seconds": ("--seconds", "seconds"),
     "duration": ("--duration", "seconds"),
     "soak": ("--soak", "minutes"),
+    "idle": ("--idle", "seconds"),
 }
 MAX_COUNT = 10**7  # more than any run needs: a larger count is a typo, refused before it allocates
 

@@ -15,6 +15,7 @@ import atexit
 import contextlib
 import io
 import logging
+import os
 import signal
 import socket
 import sys
@@ -29,6 +30,7 @@ import robots.meshes
 from app.core.commands import DragCommand
 from app.core.params import parse_settings
 from app.live import closed_kernels
+from app.live.classroom.seat import SECRET_ENV, SeatChannel
 from app.live.loop import SimLoop
 from app.live.memory import freeze_start_up_objects
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
@@ -138,16 +140,19 @@ def start_app(
     verbose: bool = False,
     watch_only: bool = False,
     steer_local: bool = False,
+    seat_secret: str = "",
 ) -> App:
     """Start loop, server, panels and scene; returns at once. `port=0` picks any free port. With
     `watch_only` every page watches and steers nothing (with `steer_local` too, pages from this machine
-    steer); a page the classroom lobby opens as a watcher watches either way (app/live/watch.py)."""
+    steer); a page the classroom lobby opens as a watcher watches either way; with `seat_secret` (a
+    classroom seat) only connections that carry it are served (app/live/watch.py)."""
     loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
     quiet_failed_handshakes()
     out = io.StringIO()
     with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
         server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
-    watch_gate = install_watch_gate(server, watch_only=watch_only, steer_local=steer_local)  # before any page
+    # before any page
+    watch_gate = install_watch_gate(server, watch_only=watch_only, steer_local=steer_local, seat_secret=seat_secret)
     input_guard = guard_gui_updates(server)  # every GUI update checked on arrival
     junk_guard = guard_junk(server)  # malformed frames skipped and counted in bounded log lines
     typed_numbers(server)  # text typed into a number box reaches the server (at the root, hidden)
@@ -285,9 +290,21 @@ def serve(args: argparse.Namespace) -> int:
     steer_local = bool(getattr(args, "steer_local", False))
     if steer_local and not watch_only:
         raise ValueError("--steer-local goes with --watch-only (pages from this machine steer, the others watch)")
+    seat = bool(getattr(args, "seat", False))  # a classroom seat: started by the lobby, reached through it
+    seat_secret = os.environ.get(SECRET_ENV, "") if seat else ""
+    if seat and not seat_secret:
+        raise ValueError(f"--seat needs the lobby's secret in {SECRET_ENV}")
     app = start_app(
-        host=args.host, port=args.port, scenario=scenario, robot=robot, watch_only=watch_only, steer_local=steer_local
+        host=args.host,
+        port=args.port,
+        scenario=scenario,
+        robot=robot,
+        watch_only=watch_only,
+        steer_local=steer_local,
+        seat_secret=seat_secret,
     )
+    if seat:
+        SeatChannel(app).start()
     # a `kill` or a closed terminal stops the app as Ctrl-C does (the session's CPU share given back)
     for signum in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
         if signum is not None:

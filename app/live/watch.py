@@ -7,10 +7,15 @@ spotlight; a browser cannot set it itself, and it can only take rights away). A 
 checked where viser receives them, before any handler: only its own camera passes; a slider, a button,
 a drag, a hotkey, an upload, a form, a transform gizmo are refused and change nothing. A refused input
 is set back in that page alone, and the page says it is watching in a notice that stays.
+
+A classroom seat is given a secret (`seat_secret`): a connection whose opening request lacks it in
+`X-Torquelab-Seat` (one not opened by the lobby) is closed at once and none of its messages is
+dispatched.
 """
 
 from __future__ import annotations
 
+import hmac
 import ipaddress
 from collections import Counter
 from collections.abc import Callable, Coroutine
@@ -21,6 +26,7 @@ from viser import _messages
 
 from app.live.supervise import ErrorBudget
 from app.live.ui.viser_seam import (
+    close_connection,
     input_by_uuid,
     input_state,
     on_connection_close,
@@ -31,6 +37,7 @@ from app.live.ui.viser_seam import (
 )
 
 ROLE_HEADER = "X-Torquelab-Role"
+SEAT_HEADER = "X-Torquelab-Seat"
 WATCH_ROLE = "watch"
 PASSES = (_messages.ViewerCameraMessage, _messages.GetRenderResponseMessage)  # a watcher's own view only
 WATCHING_TITLE = "Watching"
@@ -50,8 +57,12 @@ def is_loopback(address: Any) -> bool:
 class WatchGate:
     """Decides each page's role when its websocket opens and refuses a watcher's steering messages."""
 
-    def __init__(self, server: viser.ViserServer, watch_only: bool = False, steer_local: bool = False):
+    def __init__(
+        self, server: viser.ViserServer, watch_only: bool = False, steer_local: bool = False, seat_secret: str = ""
+    ):
         self.server = server
+        self.seat_secret = seat_secret
+        self.shut: set[int] = set()  # connections closed for lacking the seat's secret
         self.watch_only = watch_only
         self.steer_local = steer_local
         self.watchers: set[int] = set()
@@ -77,6 +88,14 @@ class WatchGate:
 
     def _opened(self, conn: Any) -> None:
         headers, address = opening_request(self.server, conn.client_id)
+        if self.seat_secret and not hmac.compare_digest(
+            str((headers or {}).get(SEAT_HEADER, "")).encode(), self.seat_secret.encode()
+        ):
+            self.shut.add(conn.client_id)
+            self.watchers.add(conn.client_id)
+            wrap_dispatch(conn, self._gated)
+            close_connection(self.server, conn.client_id, "open this seat through the classroom's lobby")
+            return
         if self.role_of(headers, address) == WATCH_ROLE:
             self.watchers.add(conn.client_id)
         self._connections[conn.client_id] = conn
@@ -85,11 +104,12 @@ class WatchGate:
 
     def _closed(self, conn: Any) -> None:
         self.watchers.discard(conn.client_id)
+        self.shut.discard(conn.client_id)
         self._connections.pop(conn.client_id, None)
 
     def _gated(self, inner: Handler) -> Handler:
         async def handle(client_id: int, message: Any) -> None:
-            if client_id in self.watchers and not isinstance(message, PASSES):
+            if client_id in self.shut or (client_id in self.watchers and not isinstance(message, PASSES)):
                 self._refuse(client_id, message)
                 return
             await inner(client_id, message)
@@ -122,6 +142,8 @@ class WatchGate:
             client.add_notification(WATCHING_TITLE, WATCHING_BODY, with_close_button=False, color="blue")
 
 
-def install_watch_gate(server: viser.ViserServer, watch_only: bool = False, steer_local: bool = False) -> WatchGate:
+def install_watch_gate(
+    server: viser.ViserServer, watch_only: bool = False, steer_local: bool = False, seat_secret: str = ""
+) -> WatchGate:
     """Put the gate in front of every message a page sends (once, before any page connects)."""
-    return WatchGate(server, watch_only=watch_only, steer_local=steer_local)
+    return WatchGate(server, watch_only=watch_only, steer_local=steer_local, seat_secret=seat_secret)

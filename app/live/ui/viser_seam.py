@@ -18,7 +18,8 @@ need more, and each reaches past that surface only through the functions here:
 - watch mode (`app.live.watch`): each websocket's opening request (`opening_request`), a callback
   when one opens or closes (`on_connection_open`, `on_connection_close`), the dispatch of every
   message a page sends, server-wide and per connection (`wrap_dispatch`), and a message queued to
-  one connection (`queue_to_connection`).
+  one connection (`queue_to_connection`), and a connection closed by the server (`close_connection`);
+- the classroom lobby: the page viser serves (`client_page_bytes`).
 
 `VISER_RANGE` is the version range pinned in `pyproject.toml` (`tests/test_viser_seam.py` holds the
 two equal and the installed viser inside it). The same tests check each attribute, message field
@@ -178,3 +179,18 @@ def guard_frames(server: viser.ViserServer, hook: FrameHook) -> None:
     one's fate (see `_guarded_consumer`); connections opened from now on."""
     _frame_hooks[server.get_port()] = hook
     _infra._message_consumer = _guarded_consumer
+
+
+def close_connection(server: viser.ViserServer, client_id: int, reason: str) -> None:
+    """Close an open page's websocket from the server side (policy violation, with `reason`); from any thread."""
+    live = server._websock_server._live_connections.get(client_id)
+    if live is not None:
+        asyncio.run_coroutine_threadsafe(live.close(1008, reason), server.get_event_loop())
+
+
+def client_page_bytes() -> bytes:
+    """viser's page (one self-contained HTML file, the same every server serves): the classroom's lobby
+    serves it for the seats it proxies. Its websocket opens on the page's own path."""
+    from pathlib import Path
+
+    return (Path(viser.__file__).parent / "client" / "build" / "index.html").read_bytes()

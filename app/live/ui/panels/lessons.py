@@ -42,6 +42,7 @@ class LessonsPanel:
         self.armed: BoundStep | None = None  # the step set up and not yet measured, bound to its run
         self.results: dict[str, Memo] = {}  # lesson key → step key → numbers
         self.claims: dict[tuple[str, str], str] = {}  # what each step showed (tests read them)
+        self.last_claim = ""  # the latest claim or cancel line (the classroom's teacher view shows it)
         self._lock = threading.Lock()
         self.folder = gui.add_folder("Lessons", order=order)
         with self.folder:
@@ -123,6 +124,7 @@ class LessonsPanel:
         else:
             text = cancelled
         self.claims[armed.key] = text
+        self.last_claim = text
         if self.lesson is lesson and self.step is step:
             self.result_md.content = result_text(text)
 
