@@ -13,13 +13,37 @@ def test_events_are_the_phase_changes_fallback_onsets_contact_losses_and_a_halt(
     t = np.arange(0.0, 10.0, 0.01)
     seg = np.where(t < 2.0, 0.0, np.where(t < 4.0, 1.0, 2.0))
     fallback = ((t > 5.0) & (t < 5.5)).astype(float)
-    fd = np.full(len(t), 20.0)
-    fz = np.where((t > 7.0) & (t < 7.2), 0.0, 20.0)
+    contact = np.where((t > 7.0) & (t < 7.2), 0.0, 20.0)  # the true normal contact force (N)
+    contact[(t > 0.05) & (t < 0.1)] = 0.0  # a bounce while landing, before the strokes: not watched
     events = find_events(
-        {"t": t, "segment": seg, "fallback": fallback, "F_z": fz, "Fd_z": fd}, halted="diverged", segments=6
+        {"t": t, "segment": seg, "fallback": fallback, "contact_force_n": contact}, halted="diverged", segments=6
     )
     got = [(e.label, round(e.t, 2)) for e in events]
     assert got == [("S1", 2.0), ("S2", 4.0), ("QP fallback", 5.01), ("contact lost", 7.01), ("halt", 9.99)]
+
+
+def test_every_event_is_listed_and_fallback_onsets_close_together_are_one_burst():
+    """40 fallbacks 0.2 s apart are 40 events (no cap at 20); 5 onsets 10 ms apart are one burst of 5."""
+    t = np.arange(0.0, 12.0, 0.005)
+    fallback = np.zeros(len(t))
+    for k in range(40):
+        fallback[(t >= 0.2 * k + 0.1) & (t < 0.2 * k + 0.12)] = 1.0
+    for k in range(5):
+        fallback[(t >= 10.0 + 0.01 * k) & (t < 10.005 + 0.01 * k)] = 1.0
+    events = find_events({"t": t, "fallback": fallback})
+    assert len(events) == 41
+    assert events[-1].label == "QP fallback ×5" and events[-1].t == pytest.approx(10.0, abs=0.006)
+
+
+def test_polish_lists_no_contact_loss_while_the_tool_lands_and_holds():
+    """The tool lands, bounces once and presses through the first 1.5 s of polish: the F/T reading is
+    below 1 N at 0.02 s and the true force is zero around 0.08 s, but the strokes have not begun and the
+    contact is not lost (the old rule, F/T reading < 1 N with the setpoint > 5 N, listed 0.02 s)."""
+    lab = Lab("polish")
+    lab.advance(1500)
+    columns = lab.log.window(60.0, lab.dt, 5)
+    assert float(np.min(columns["contact_force_n"])) <= 0.0  # the landing's bounce is in the log
+    assert [e for e in find_events(columns) if e.label == "contact lost"] == []
 
 
 def test_the_poser_puts_the_links_where_the_simulation_had_them():

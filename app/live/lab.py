@@ -208,6 +208,10 @@ class Lab:
         def record(rec: StepRecord) -> None:
             if deflection is not None:  # the scenario's `logs_deflection`: distances from the t = 0 pose
                 rec.signals["tcp_dev_mm"], rec.signals["elbow_dev_mm"] = deflection.read(session)
+            # the task target, for the replay's scene (the target of a planned or contact task is not a
+            # function of time alone)
+            signals, target = rec.signals, rec.target.position
+            signals["target_x_m"], signals["target_y_m"], signals["target_z_m"] = target[0], target[1], target[2]
             log.append(rec)
             self.total_steps += 1
             if rec.fallback:

@@ -204,6 +204,7 @@ def start_app(
     replay.publisher = publisher
     scenario_panel = panels[0]
     scenario_panel.on_frame = publisher.frame_view
+    replay.status_hook = scenario_panel.show_replay
     add_hotkeys(server, loop, scenario_panel.toggle_run, scenario_panel.reset_preset, publisher.frame_view)
     # Everything built so far lives as long as the app: keep it out of the garbage collector's
     # full passes, which otherwise stop every thread for ~50 ms now and then.

@@ -236,7 +236,15 @@ class RopeDrop(Environment):
                 world.apply_force(self.body_id, end, force)
                 world.apply_force(world.wrist_body, anchor, -force)
         _ripple(world, self.rng)
-        return {"mass_released": float(self.released), "rope_tension_n": self.tension, "rope_stretch_mm": 1e3 * stretch}
+        x, y, z = world.data.xipos[self.body_id].tolist()  # where the mass is, for the replay's scene
+        return {
+            "mass_released": float(self.released),
+            "rope_tension_n": self.tension,
+            "rope_stretch_mm": 1e3 * stretch,
+            "payload_x_m": x,
+            "payload_y_m": y,
+            "payload_z_m": z,
+        }
 
     def overlay(self) -> dict[str, np.ndarray]:
         end, _ = self.mass_state()

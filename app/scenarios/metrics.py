@@ -11,7 +11,10 @@ and the experiments' reports all compute them here.
 - per-segment STD: the population standard deviation of the force error over each polish segment, from
   `MIN_SEGMENT_SAMPLES` samples (`segment_std`; `app.core.steplog` keeps the same figure running);
 - reversals: sign changes of a joint velocity outside a `REVERSAL_HYSTERESIS_RAD_S` band
-  (`velocity_reversals`).
+  (`velocity_reversals`);
+- contact lost: the true normal contact force at or below zero while the strokes run (`contact_lost`),
+  counted from each step it drops there (`contact_loss_onsets`); the approach before the strokes, where
+  the tool lands and may bounce, is not watched.
 
 The running forms (`DropFold`, `WindowPeaks`) take a run's samples in blocks as they are logged, so a
 figure "since the reset" covers the whole run however long it is; fed a whole run at once they give
@@ -184,3 +187,26 @@ def velocity_reversals(dq: np.ndarray, hysteresis: float = REVERSAL_HYSTERESIS_R
             reversals += sign > 0
             sign = -1
     return int(reversals)
+
+
+# ---- contact ----------------------------------------------------------------------------------------
+def contact_watched(segment: float) -> bool:
+    """True while the strokes run (polish signal "segment" 1…N, or after them): contact is expected."""
+    return bool(segment >= 1.0)
+
+
+def contact_lost(contact_force_n: np.ndarray, segment: np.ndarray) -> np.ndarray:
+    """Per sample: the true normal contact force (N) is at or below zero while contact is watched
+    (`contact_watched`; the experiments' "contact lost" steps)."""
+    force = np.asarray(contact_force_n, dtype=float)
+    watched = np.asarray(segment, dtype=float) >= 1.0
+    return watched & (force <= 0.0)
+
+
+def contact_loss_onsets(contact_force_n: np.ndarray, segment: np.ndarray) -> np.ndarray:
+    """Indices of the samples where contact is lost (`contact_lost`) and was not at the sample before."""
+    lost = contact_lost(contact_force_n, segment)
+    if lost.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    before = np.concatenate([[False], lost[:-1]])
+    return np.flatnonzero(lost & ~before)

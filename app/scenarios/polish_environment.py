@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from app.scenarios import Environment, Offload
+from app.scenarios.metrics import contact_watched
 from app.scenarios.polish_margin import (
     StrokeHeadroom,
     contact_loop,
@@ -42,6 +43,7 @@ LIVE_MARGIN_EVERY_S = 1.0  # the live force-loop margin signal is recomputed onc
 LIVE_RATE_EVERY_S = 0.1  # the live decay rate σ at the step's posture and stroke state: 10 Hz of simulated time
 LIVE_POLL_EVERY_S = 0.01  # the offload's answers are looked for every 10 ms of simulated time (a 100 Hz display)
 LIVE_PENDING_MAX = 10  # live figures under way in the offload at most (1 s of σ): beyond, a sample is skipped
+MAX_LIFTS = 200  # contact-loss marks kept per run
 
 
 class PolishEnvironment(Environment):
@@ -52,6 +54,10 @@ class PolishEnvironment(Environment):
         self.sander = sander
         self.clock = clock
         self._sander_force = np.zeros(3)
+        # where and when the tool lifted off the table while the strokes ran (`metrics.contact_loss_onsets`,
+        # step by step): the scene leaves a mark there; at most MAX_LIFTS, the latest kept
+        self.lifts: deque[tuple[float, np.ndarray]] = deque(maxlen=MAX_LIFTS)
+        self.contact_lost = False  # the contact is lost now (`metrics.contact_lost`)
         self._world: World | None = None
         self._joints: list[int] = []
         self.target: PolishTarget | None = None  # set by the scenario once the target exists
@@ -103,6 +109,10 @@ class PolishEnvironment(Environment):
         friction = state.friction_force if state.friction_force is not None else np.zeros(3)
         friction_x, friction_y, _ = friction.tolist()
         segment, _ = self.clock.segment(t)
+        lost = contact_watched(segment) and state.normal_force_n <= 0.0
+        if lost and not self.contact_lost and state.point is not None:
+            self.lifts.append((t, state.point.copy()))
+        self.contact_lost = lost
         return {
             "contact_force_n": state.normal_force_n,
             "friction_x_n": friction_x,

@@ -1,4 +1,4 @@
-"""Overlays at the tool: coupling ellipse, P Pᵀ ellipsoid, task inertia, force arrows, trail, path.
+"""Overlays at the tool: coupling ellipse, P Pᵀ ellipsoid, task inertia, force arrows, trail, path, contact.
 
 The geometry is pure functions of arrays (tested in tests/test_scene.py); `Overlays` owns a
 dozen viser nodes created once and afterwards only moved, rescaled, recoloured or hidden.
@@ -6,6 +6,12 @@ dozen viser nodes created once and afterwards only moved, rescaled, recoloured o
 Coupling ellipse (DESIGN §6): the unit circle (sphere) of the translational motion axes is
 mapped by v ↦ (v, s·P v) — the motion components stay, the translational force axes get s·P v.
 It is a flat disc in the motion plane when P = 0 and tilts by atan(s·|P|) as coupling grows.
+
+Contact (a table preset): a dot at the contact point, the normal force and the friction force as arrows
+from it (the force scale, m per N, of the other force arrows), a ring on the table around the tool, green
+in contact and red while contact is lost (`metrics.contact_lost`) and `LOST_RING_HOLD_S` after, and a red
+cross on the table where the tool lifted at each loss of this run (`metrics.contact_loss_onsets`),
+labelled at the latest.
 """
 
 from __future__ import annotations
@@ -35,6 +41,16 @@ COUPLING_OPACITY = 0.3  # the wrist and the tool stay visible through the disc
 COUPLING_MAX_SPAN = 2.0
 SIDE_GAP_M = 0.03  # gap between a coupling shape and a payload at the tool
 LABEL_GAP_M = 0.01  # the coupling label sits this far above the disc's top (it moves with the disc)
+
+CONTACT_RING_RADIUS_M = 0.035  # the ring on the table around the tool
+CONTACT_RING_SEGMENTS = 32
+LOST_RING_HOLD_S = 0.5  # the ring stays red this long (simulated) after a loss, however short the loss was
+LIFT_MARK_HALF_M = 0.025  # half the span of a lift mark's cross
+TABLE_GAP_M = 0.002  # contact marks sit this far above the table top (not hidden in its surface)
+NORMAL_COLOR = (20, 160, 170)  # contact normal force
+FRICTION_COLOR = (240, 200, 20)  # friction force
+LOST_COLOR = (230, 30, 30)
+IN_CONTACT_COLOR = (40, 190, 80)
 
 GREEN = np.array([60, 200, 90], dtype=float)
 YELLOW = np.array([240, 200, 40], dtype=float)
@@ -189,6 +205,30 @@ def polyline_segments(points: np.ndarray) -> np.ndarray:
     return np.stack([pts[:-1], pts[1:]], axis=1)
 
 
+def ring_segments(center: np.ndarray, radius: float, n: int = CONTACT_RING_SEGMENTS) -> np.ndarray:
+    """(n, 2, 3) segments of a horizontal circle of `radius` around `center`."""
+    a = np.linspace(0.0, 2 * np.pi, n + 1)
+    pts = np.asarray(center, dtype=float) + radius * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
+    return polyline_segments(pts)
+
+
+def cross_segments(points: np.ndarray, half: float = LIFT_MARK_HALF_M) -> np.ndarray:
+    """(2k, 2, 3) segments of a horizontal cross (an X) at each of k points."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    d1, d2 = np.array([half, half, 0.0]), np.array([half, -half, 0.0])
+    segs = [np.stack([p - d, p + d]) for p in pts for d in (d1, d2)]
+    return np.array(segs).reshape(-1, 2, 3)
+
+
+def on_table(point: np.ndarray, table: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """The point moved onto the table's top (plus TABLE_GAP_M); unchanged without a table."""
+    out = np.array(point, dtype=float)
+    if table is not None:
+        center, half = table
+        out[..., 2] = float(center[2] + half[2]) + TABLE_GAP_M
+    return out
+
+
 # ---- scene nodes -------------------------------------------------------------------------------
 class Trail:
     """Recent TCP positions, thinned to one point per 2 mm or 50 ms, at most `seconds` old."""
@@ -245,6 +285,21 @@ class Overlays:
             f"{root}/path", np.zeros((1, 2, 3)), colors=(120, 120, 120), thickness=0.002
         )
         self.target = sc.add_icosphere(f"{root}/target", radius=0.008, color=(120, 120, 120), visible=False)
+        self.contact_dot = sc.add_icosphere(f"{root}/contact_point", radius=0.008, color=(20, 20, 20), visible=False)
+        self.normal_arrow = _add_arrow(sc, f"{root}/contact_normal", NORMAL_COLOR)
+        self.friction_arrow = _add_arrow(sc, f"{root}/contact_friction", FRICTION_COLOR)
+        self.contact_ring = sc.add_line_segments(
+            f"{root}/contact_ring", np.zeros((1, 2, 3)), colors=IN_CONTACT_COLOR, thickness=0.004, visible=False
+        )
+        self.lost_ring = sc.add_line_segments(
+            f"{root}/contact_lost_ring", np.zeros((1, 2, 3)), colors=LOST_COLOR, thickness=0.008, visible=False
+        )
+        self.lift_marks = sc.add_line_segments(
+            f"{root}/contact_lifts", np.zeros((1, 2, 3)), colors=LOST_COLOR, thickness=0.006, visible=False
+        )
+        self.lift_label = sc.add_label(
+            f"{root}/contact_lift_label", "", font_screen_scale=0.8, visible=False, anchor="bottom-center"
+        )
         self.payload = sc.add_icosphere(f"{root}/payload", radius=PAYLOAD_RADIUS_M, color=(70, 70, 75), visible=False)
         # below the ball, to its left: clear of the coupling label, which sits above the tool, to its right
         self.payload_label = sc.add_label(
@@ -268,6 +323,37 @@ class Overlays:
         self._update_arrows(snap, s)
         self._update_lines(snap, s)
         self._update_payload(snap, s)
+        self._update_contact(snap, s)
+
+    def _update_contact(self, snap: SceneSnapshot, s: VisualSettings) -> None:
+        """Contact point, normal and friction arrows, the ring at the tool and the marks where it lifted."""
+        point, force = snap.contact_point, snap.contact_force
+        has = s.contact and point is not None and force is not None
+        touching = has and force is not None and float(force[2]) > 0.0
+        self.contact_dot.visible = bool(touching)
+        if touching and point is not None:
+            set_position(self.contact_dot, point)
+        normal = None if force is None else np.array([0.0, 0.0, float(force[2])])
+        friction = None if force is None else np.array([float(force[0]), float(force[1]), 0.0])
+        _set_arrow(self.normal_arrow, bool(touching), point, normal, s.force_m_per_n)
+        _set_arrow(self.friction_arrow, bool(touching), point, friction, s.force_m_per_n)
+        ring_at = None if not has or point is None else on_table(point, snap.table)
+        times = snap.contact_lift_times
+        lost = bool(has and (snap.contact_lost or (len(times) > 0 and 0.0 <= snap.t - times[-1] <= LOST_RING_HOLD_S)))
+        self.contact_ring.visible = bool(touching) and not lost
+        self.lost_ring.visible = lost
+        if ring_at is not None and (touching or lost):
+            ring = ring_segments(ring_at, CONTACT_RING_RADIUS_M).astype(np.float32)
+            set_prop(self.lost_ring if lost else self.contact_ring, "points", ring)
+        lifts = snap.contact_lifts
+        shown = s.contact and len(lifts) > 0
+        self.lift_marks.visible = shown
+        self.lift_label.visible = shown and s.labels
+        if shown:
+            marks = on_table(lifts, snap.table)
+            set_prop(self.lift_marks, "points", cross_segments(marks).astype(np.float32))
+            set_position(self.lift_label, marks[-1] + np.array([0.0, 0.0, LIFT_MARK_HALF_M]))
+            set_prop(self.lift_label, "text", f"contact lost ×{len(lifts)}" if len(lifts) > 1 else "contact lost")
 
     def coupling_extent(self) -> np.ndarray | None:
         """(8, 3) corners of a box around the coupling disc as last drawn (None while it is hidden): what
@@ -306,6 +392,13 @@ class Overlays:
             self.target,
             self.payload,
             self.payload_label,
+            self.contact_dot,
+            self.normal_arrow,
+            self.friction_arrow,
+            self.contact_ring,
+            self.lost_ring,
+            self.lift_marks,
+            self.lift_label,
         )
 
     def _update_coupling(self, snap: SceneSnapshot, s: VisualSettings) -> None:

@@ -5,14 +5,21 @@ Turning *Replay* on pauses the simulation and takes the last minute of the step 
 `REPLAY_EVERY` steps) on the loop thread. The slider picks an instant: the plots draw their window
 up to it (`Plots.replay_t`), and the arm is posed from the logged joint positions with MuJoCo's
 forward kinematics on a private `MjData` of the same model (the simulation's own data is never
-touched). The coupling ellipse follows the tool, and its shape and W value are computed again at the
-instant's posture from the arm's model (`ArmPoser.coupling`: the controller's terms are not logged);
-arrows and the commanded path are hidden while replaying.
+touched). Every scene object follows: a payload fixed to the arm is posed with it, the task target is
+the logged one, the contact point, normal and friction forces are the logged ones at the tool, the
+contact ring is red where contact was lost and the lift marks are those before the instant. The
+coupling ellipse follows the tool, and its shape and W value are computed again at the instant's
+posture from the arm's model (`ArmPoser.coupling`: the controller's terms are not logged). The
+commanded path ahead, a drag and the twin arm are hidden while replaying. The status line says it is a
+replay and shows the instant (`status_hook`).
 
-Events: the phase markers of the plots (S1…S6, the drop, a payload release), the first step of each
-QP fallback, contact lost (polish: the F/T reading falls below `CONTACT_LOST_N` while the setpoint
-asks for force) and a halt. *Pause at events* pauses a running simulation `EVENT_HOLD_S` after an event
-(the end of a drop, a stroke), so a person can look at it and replay it.
+Events: the phase markers of the plots (S1…S6, the drop, a payload release), each QP fallback
+(onsets closer than `FALLBACK_BURST_S` to the one before count as one burst), contact lost
+(`metrics.contact_loss_onsets`: the true contact force reaching zero while the strokes run) and a
+halt; all of them, listed in *Jump to event*, which follows the slider to the latest event at or before
+the instant. *Pause at events* pauses a running simulation `EVENT_HOLD_S` after an event (the end of a
+drop, a stroke), so a person can look at it and replay it. A preset switch or a Reset ends a replay
+and resets its controls.
 """
 
 from __future__ import annotations
@@ -31,13 +38,13 @@ import viser
 from app.core.commands import Pause
 from app.live.loop import SimLoop
 from app.live.ui.plots import Plots, phase_markers
+from app.scenarios.metrics import contact_loss_onsets, contact_lost
 from control.coupling import Subspaces, coupling_terms, coupling_values
 from control.model import RobotModel
 
 REPLAY_EVERY = 5  # logged steps per replay sample (5 ms)
 REPLAY_SECONDS = 60.0
-CONTACT_LOST_N = 1.0  # |F_z| below this while the setpoint asks for more than SETPOINT_N: contact lost
-SETPOINT_N = 5.0
+FALLBACK_BURST_S = 0.05  # QP fallback onsets within this of the previous one are one burst
 EVENT_HOLD_S = 1.0  # Pause at events: this long after an event
 PLAY_GRACE_S = 1.5  # a running frame this soon after turning replay on is one built before the pause
 
@@ -50,20 +57,39 @@ class Event:
     label: str
 
 
+def fallback_bursts(t: np.ndarray, fallback: np.ndarray, gap_s: float = FALLBACK_BURST_S) -> list[Event]:
+    """One event per burst of QP fallback onsets (an onset within `gap_s` of the previous one joins its
+    burst), labelled with the burst's count when above one."""
+    on = np.flatnonzero((fallback[1:] > 0.5) & (fallback[:-1] < 0.5)) + 1
+    if len(fallback) and fallback[0] > 0.5:
+        on = np.concatenate([[0], on])
+    out: list[Event] = []
+    start, count, last = None, 0, -np.inf
+    for i in on:
+        ti = float(t[i])
+        if start is not None and ti - last <= gap_s:
+            count += 1
+        else:
+            if start is not None:
+                out.append(Event(start, "QP fallback" if count == 1 else f"QP fallback ×{count}"))
+            start, count = ti, 1
+        last = ti
+    if start is not None:
+        out.append(Event(start, "QP fallback" if count == 1 else f"QP fallback ×{count}"))
+    return out
+
+
 def find_events(columns: dict[str, np.ndarray], halted: str = "", segments: int = 0) -> list[Event]:
-    """The events in logged columns: phase markers (the preset's `segments` strokes among them), QP
-    fallback onsets, contact lost, a halt at the end."""
+    """Every event in logged columns: phase markers (the preset's `segments` strokes among them), QP
+    fallback bursts, contact losses, a halt at the end."""
     t = columns.get("t", np.zeros(0))
     out = [Event(m.t, m.label) for m in phase_markers(columns, segments)]
     fb = columns.get("fallback")
     if fb is not None and len(fb) == len(t) and len(t) > 1:
-        on = np.flatnonzero((fb[1:] > 0.5) & (fb[:-1] < 0.5)) + 1
-        out += [Event(float(t[i]), "QP fallback") for i in on[:20]]
-    fz, fd = columns.get("F_z"), columns.get("Fd_z")
-    if fz is not None and fd is not None and len(t) > 1:
-        lost = (np.abs(fz) < CONTACT_LOST_N) & (np.abs(fd) > SETPOINT_N)
-        starts = np.flatnonzero(lost[1:] & ~lost[:-1]) + 1
-        out += [Event(float(t[i]), "contact lost") for i in starts[:20]]
+        out += fallback_bursts(t, fb)
+    force, segment = columns.get("contact_force_n"), columns.get("segment")
+    if force is not None and segment is not None and len(force) == len(t):
+        out += [Event(float(t[i]), "contact lost") for i in contact_loss_onsets(force, segment)]
     if halted and len(t):
         out.append(Event(float(t[-1]), "halt"))
     return sorted(out, key=lambda e: e.t)
@@ -83,6 +109,10 @@ class ArmPoser:
         self.q_lower, self.q_upper = np.array(robot.q_lower), np.array(robot.q_upper)
         self.endless = np.array(robot.endless, dtype=bool)
         self.dynamics = RobotModel(robot.model.copy())  # private: the session's model is the loop's
+
+    def body_com(self, body: int) -> np.ndarray:
+        """A body's centre of mass as of the last `pose` (a payload fixed to the arm moves with it)."""
+        return self.data.xipos[body].copy()
 
     def coupling(self, q: np.ndarray, sub: Subspaces) -> tuple[dict[str, np.ndarray], dict[str, float]] | None:
         """(P_f, P_a, P_d and W_f, W_a, W_d) of [T] Table I at joint positions q (q̇ = 0), for the
@@ -112,6 +142,78 @@ class ArmPoser:
         )
 
 
+def logged_index(times: np.ndarray, t: float) -> int:
+    """The logged row shown for instant t: the first at or after it (the last one beyond the window)."""
+    return int(np.clip(np.searchsorted(times, t), 0, len(times) - 1))
+
+
+def instant_snapshot(live: Any, columns: dict[str, np.ndarray], poser: ArmPoser, t: float) -> Any:
+    """The live snapshot with every scene object moved to the logged instant t (see the module docstring);
+    the live one when the row's posture is not finite."""
+    times = columns["t"]
+    i = logged_index(times, t)
+    q = np.array([columns[f"q_{j + 1}"][i] for j in range(len(live.joint_margins))])
+    if not np.all(np.isfinite(q)):
+        return live
+    positions, wxyz, tcp, rot = poser.pose(q)
+    body = live.payload_body
+    payload = None  # a free mass (mass-drop's) as logged, a payload fixed to the arm posed with it
+    if live.payload_position is not None:
+        payload = _logged_vector(columns, ("payload_x_m", "payload_y_m", "payload_z_m"), i)
+        if payload is None and body is not None:
+            payload = poser.body_com(body)
+    coupling = poser.coupling(q, live.subspaces)
+    P, W = coupling if coupling is not None else (live.P, live.W)
+    target = _logged_vector(columns, ("target_x_m", "target_y_m", "target_z_m"), i)
+    contact: dict[str, Any] = {"contact_point": None, "contact_force": None, "contact_lost": False}
+    force = _logged_vector(columns, ("friction_x_n", "friction_y_n", "contact_force_n"), i)
+    segment = columns.get("segment")
+    lifts, lift_times = np.zeros((0, 3)), np.zeros(0)
+    if force is not None and segment is not None and live.contact_point is not None:
+        lost = contact_lost(columns["contact_force_n"][: i + 1], segment[: i + 1])
+        contact = {"contact_point": tcp, "contact_force": force, "contact_lost": bool(lost[-1])}
+        onsets = contact_loss_onsets(columns["contact_force_n"][: i + 1], segment[: i + 1])
+        lifts = np.array([lift_point(poser, columns, k, len(q)) for k in onsets]).reshape(-1, 3)
+        lift_times = np.array(times[onsets], dtype=float)
+    return dataclasses.replace(
+        live,
+        P=P,
+        W=W,
+        t=float(times[i]),
+        link_positions=positions,
+        link_wxyz=wxyz,
+        tcp_position=tcp,
+        tcp_rotation=rot,
+        joint_margins=poser.margins(q),
+        q=q,
+        drag_point=None,
+        drag_target=None,
+        drag_force=None,
+        **contact,
+        contact_lifts=lifts,
+        contact_lift_times=lift_times,
+        target_position=target,
+        payload_position=payload,
+        path=np.zeros((0, 3)),
+        twin_link_positions=None,
+        twin_link_wxyz=None,
+    )
+
+
+def lift_point(poser: ArmPoser, columns: dict[str, np.ndarray], i: int, n: int) -> np.ndarray:
+    """Where the tool was at logged row i (a contact loss's onset)."""
+    q = np.array([columns[f"q_{j + 1}"][i] for j in range(n)])
+    return poser.pose(q)[2]
+
+
+def _logged_vector(columns: dict[str, np.ndarray], names: tuple[str, str, str], i: int) -> np.ndarray | None:
+    """The three logged columns at row i as a vector; None when one is missing or not finite."""
+    if not all(name in columns for name in names):
+        return None
+    v = np.array([float(columns[name][i]) for name in names])
+    return v if np.all(np.isfinite(v)) else None
+
+
 class ReplayPanel:
     """The Replay fold of the Plots panel (see the module docstring); the publisher asks it for the scene
     to show (`scene_for`) and calls it like a panel."""
@@ -131,6 +233,8 @@ class ReplayPanel:
         self._hold_until: float | None = None
         self._run: tuple[int, int] | None = None
         self._since = 0.0  # wall time replay was turned on (frames built before the pause still say running)
+        self._shown_run: tuple[int, int] | None = None  # the run (session, restarts) the controls belong to
+        self.status_hook: Any = None  # called with the instant shown (None: live) to rewrite the status line
         gui = server.gui
         with plots.panel_tab:
             self.folder = gui.add_folder("Replay", order=order, expand_by_default=True)
@@ -165,6 +269,7 @@ class ReplayPanel:
             self.slider.disabled = True
             self.jump.disabled = True
             self.info.content = ""
+            self._status(None)
             self._redraw()
             return
         self._since = time.monotonic()
@@ -186,9 +291,9 @@ class ReplayPanel:
         self.jump.options = labels
         self.jump.disabled = not self.events
         self.info.content = (
-            f"Replaying {t[0]:.2f}…{t[-1]:.2f} s; {len(self.events)} event(s) marked. "
-            "The arm and the plots show the chosen instant; the coupling ellipse follows the tool with the "
-            "values of the live instant; arrows and the commanded path are hidden."
+            f"Replaying {t[0]:.2f}…{t[-1]:.2f} s; {len(self.events)} event(s), all in *Jump to event*. "
+            "The arm, the payload, the target, the contact forces and marks and the plots show the chosen "
+            "instant; the coupling ellipse is computed at its posture; the path ahead and the twin are hidden."
         )
         self.show(float(t[-1]))
 
@@ -214,11 +319,45 @@ class ReplayPanel:
 
     # ---- showing an instant -------------------------------------------------------------------------
     def show(self, t: float) -> None:
-        """Move the arm and every plot to simulated time t (within the logged window)."""
+        """Move the arm and every plot to simulated time t (within the logged window); *Jump to event*
+        and the status line follow."""
         with self._lock:
             self.t = t
         self.plots.replay_t = t
+        label = self.event_at(t)
+        if label is not None and self.jump.value != label:
+            self.jump.value = label
+        self._status(t)
         self._redraw()
+
+    def event_at(self, t: float) -> str | None:
+        """The *Jump to event* entry of the latest event at or before t (the first one before any)."""
+        if not self.events:
+            return None
+        labels = list(self.jump.options)
+        times = np.array([e.t for e in self.events])
+        k = max(int(np.searchsorted(times, t + 1e-9, side="right")) - 1, 0)
+        return labels[k] if k < len(labels) else None
+
+    def _status(self, t: float | None) -> None:
+        if self.status_hook is not None:
+            try:
+                self.status_hook(t)
+            except Exception:  # the status line is decoration here; the replay goes on
+                traceback.print_exc()
+
+    def reset_controls(self) -> None:
+        """Back to live with the controls as on a fresh run: no range, no events."""
+        if self.t is not None or self.active.value:
+            self.active.value = False
+            self.set_active(False)
+        with self._lock:
+            self.columns, self.events = {}, []
+        self.slider.min, self.slider.max = 0.0, 1.0
+        self.slider.value = 1.0
+        self.jump.options = ("–",)
+        self.jump.disabled = True
+        self.info.content = ""
 
     def _redraw(self) -> None:
         pub = self.publisher
@@ -233,52 +372,30 @@ class ReplayPanel:
             traceback.print_exc()
 
     def scene_for(self, live: Any, session_id: int) -> Any:
-        """The snapshot to draw: the live one, or while replaying the arm at the chosen instant."""
+        """The snapshot to draw: the live one, or while replaying every object at the chosen instant."""
         with self._lock:
             t, columns, poser = self.t, self.columns, self._poser
             same = session_id == self._poser_session
         if t is None or live is None or poser is None or not same:
             return live
-        times = columns["t"]
-        i = int(np.clip(np.searchsorted(times, t), 0, len(times) - 1))
-        q = np.array([columns[f"q_{j + 1}"][i] for j in range(len(live.joint_margins))])
-        if not np.all(np.isfinite(q)):
-            return live
-        positions, wxyz, tcp, rot = poser.pose(q)
-        coupling = poser.coupling(q, live.subspaces)
-        P, W = coupling if coupling is not None else (live.P, live.W)
-        return dataclasses.replace(
-            live,
-            P=P,
-            W=W,
-            t=float(times[i]),
-            link_positions=positions,
-            link_wxyz=wxyz,
-            tcp_position=tcp,
-            tcp_rotation=rot,
-            joint_margins=poser.margins(q),
-            drag_point=None,
-            drag_target=None,
-            drag_force=None,
-            contact_point=None,
-            contact_force=None,
-            path=np.zeros((0, 3)),
-            twin_link_positions=None,
-            twin_link_wxyz=None,
-        )
+        return instant_snapshot(live, columns, poser, t)
 
     # ---- panel hooks --------------------------------------------------------------------------------
     def refresh(self, settings: Any) -> None:
         """Nothing: the replay follows the log."""
 
     def live(self, frame: Any) -> None:
-        """Pause at events: a running simulation pauses EVENT_HOLD_S after a new event. Play ends a replay."""
+        """Pause at events: a running simulation pauses EVENT_HOLD_S after a new event. Play ends a replay;
+        a preset switch or a Reset resets the controls."""
+        run = (frame.session_id, frame.restarts)
+        if self._shown_run is not None and run != self._shown_run:
+            self.reset_controls()
+        self._shown_run = run
         if frame.status.running and self.t is not None and time.monotonic() - self._since > PLAY_GRACE_S:
             self.active.value = False
             self.set_active(False)
         if not self.pause_at_events.value or not frame.status.running or self.t is not None:
             return
-        run = (frame.session_id, frame.restarts)
         if run != self._run:
             self._run, self._seen_events, self._hold_until = run, set(), None
         markers = self.plots.markers

@@ -48,7 +48,11 @@ class SceneSnapshot:
     drag_target: np.ndarray | None = None  # (3,) where the spring pulls it
     drag_force: np.ndarray | None = None  # (3,) N, applied spring force
     contact_point: np.ndarray | None = None  # (3,)
-    contact_force: np.ndarray | None = None  # (3,) N, true contact force on the robot
+    contact_force: np.ndarray | None = None  # (3,) N, true contact force on the robot (normal + friction)
+    contact_lost: bool = False  # the contact is lost now while the strokes run (`metrics.contact_lost`)
+    # (k, 3) m: where the tool was at each contact loss of this run so far (`metrics.contact_loss_onsets`)
+    contact_lifts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    contact_lift_times: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (k,) s, the losses' onsets
     target_position: np.ndarray | None = None  # (3,) current task target
     path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (k, 3) target over the next seconds
     table: tuple[np.ndarray, np.ndarray] | None = None  # (center, half sizes) of the table box
@@ -57,6 +61,7 @@ class SceneSnapshot:
     near_singular: bool = False  # Λx damped or ill-conditioned (NEAR_SINGULAR_EIG): no coupling shapes
     payload_position: np.ndarray | None = None  # (3,) attached payload mass (mass-drop, limit-drop), if any
     payload_mass_kg: float = 0.0
+    payload_body: int | None = None  # the payload's MuJoCo body id (the replay poses it with the arm)
     # what Γ_x = Λ̂x⁻¹Λx of the running [T] projection executor is computed from, on the first read of
     # `gamma_x_sym_eigs` / `gamma_x_skew` (by the reader, not on the loop thread): (Λx copy (6, 6), the
     # split its step used, shaping); None for other executors
@@ -177,6 +182,7 @@ def capture(session, subspaces: Subspaces | None = None) -> SceneSnapshot:
         drag_force=None if drag is None else np.array(drag.force_world, dtype=float),
         contact_point=overlay.get("contact_point"),
         contact_force=overlay.get("contact_force"),
+        **_contact_marks(session),
         target_position=target_position,
         path=_sample_path(session, float(world.time)),
         table=_table_box(model),
@@ -220,7 +226,21 @@ def _payload(session) -> dict:
     return {
         "payload_position": np.array(session.world.data.xipos[body_id], dtype=float),
         "payload_mass_kg": float(getattr(env, "mass_kg", 0.0)),
+        "payload_body": body_id,
     }
+
+
+def _contact_marks(session) -> dict:
+    """Whether the environment's contact is lost now and where it was lost so far (empty without a contact)."""
+    env = getattr(session, "environment", None)
+    lifts = getattr(env, "lifts", None)
+    if lifts is None:
+        return {}
+    kept = list(lifts)
+    points = np.array([p for _, p in kept], dtype=float).reshape(-1, 3)
+    times = np.array([t for t, _ in kept], dtype=float)
+    lost = bool(getattr(env, "contact_lost", False))
+    return {"contact_lost": lost, "contact_lifts": points, "contact_lift_times": times}
 
 
 def _limit_zone(view: StepView, n: int) -> np.ndarray | None:

@@ -39,6 +39,7 @@ class VisualSettings:
     trail: bool = True
     trail_seconds: float = 4.0
     path: bool = True
+    contact: bool = True  # contact point, normal and friction arrows, the ring at the tool, lift marks
     limit_colors: bool = True
     limit_zone_rad: float = 0.2  # d_i for controllers without a joint-limit damper of their own
     labels: bool = True
@@ -73,6 +74,10 @@ LEGEND = (
     "- **Purple ellipsoid**: P Pᵀ in the force subspace [T21]. **Blue ellipsoid**: the task inertia Λx.\n"
     "- **Orange arrow and line**: your drag's spring force and the grabbed point; **magenta arrow**: the "
     "F/T reading; **red arrow**: the coupled response P_f·F_m.\n"
+    "- **Contact** (polish): a **black dot** at the contact point, a **teal arrow** (the table's normal force) "
+    "and a **yellow arrow** (friction) from it, at the force scale (0.003 m/N: the 20 N setpoint is 6 cm); "
+    "a **green ring** on the table around the tool while it touches, **red** while contact is lost (and 0.5 s "
+    "after), and a **red cross** (label *contact lost*) left on the table where it lifted, each time.\n"
     "- **Blue line**: the tool's trail; **grey line**: the commanded path; **small grey ball**: the task "
     "target (where the controller wants the tool now).\n"
     "- **Dark ball** (label: its mass): a payload hanging from the tool (mass-drop, limit-drop).\n"
@@ -105,7 +110,18 @@ class VisualsPanel:
             self._check(gui, "drag_force", "Drag force", "Arrow of the spring force at the grabbed point.")
             self._check(gui, "measured_force", "Measured force", "F/T reading at the tool (what the controller sees).")
             self._check(gui, "coupled_response", "Coupled response", "P_f·F_m: force-axis acceleration from F_m.")
-            self._slider(gui, "force_m_per_n", "Force scale (m/N)", 0.001, 0.03, 0.001, "Arrow length per newton.")
+            self._check(
+                gui, "contact", "Contact", "Contact point, normal and friction arrows; ring red and a cross where lost."
+            )
+            self._slider(
+                gui,
+                "force_m_per_n",
+                "Force scale (m/N)",
+                0.001,
+                0.03,
+                0.001,
+                "Arrow length per newton of every force arrow (drag, F/T, contact): at 0.003, 20 N is 6 cm.",
+            )
             self._slider(gui, "response_m_per_mps2", "Response scale (m per m/s²)", 0.005, 0.5, 0.005, "Arrow length.")
             self._check(gui, "trail", "Tool trail", "Where the tool has been in the last seconds.")
             self._slider(gui, "trail_seconds", "Trail length (s)", 0.5, 20.0, 0.5, "Seconds of trail kept.")

@@ -96,6 +96,8 @@ class ScenarioPanel(KnobPanel):
     ):
         self._extra_robots = extra_robots
         self._status_box = status_box  # where the status line goes (the top of the plots); None: this folder
+        self.replay_t: float | None = None  # the instant the replay shows (None: live)
+        self._last_frame: Frame | None = None
         self._last_fallback_wall = -1e9
         self._seen_fallback_steps = 0
         self._rtf = AveragedRate()
@@ -236,8 +238,15 @@ class ScenarioPanel(KnobPanel):
         self.loop.submit(SetSpeed(value))
 
     # ---- live view ------------------------------------------------------------------------------
+    def show_replay(self, t: float | None) -> None:
+        """The status line for a replayed instant t (None: live again), written at once."""
+        self.replay_t = t
+        if self._last_frame is not None:
+            self.live(self._last_frame)
+
     def live(self, frame: Frame) -> None:
         """Status line, fallback badge, divergence message and the dropdowns in force."""
+        self._last_frame = frame
         st = frame.status
         _set(self.preset, st.scenario)
         options = st.variants or (NO_CASE,)
@@ -269,6 +278,11 @@ class ScenarioPanel(KnobPanel):
         status = (
             f"t = {st.t:.3f} s · {state} · {rate} ({pace}, compute {100 * st.load:.0f} %)  \n{st.robot} · {st.executor}"
         )
+        if self.replay_t is not None:
+            status = (
+                f"**⏪ Replay** at t = {self.replay_t:.3f} s (the run is paused at t = {st.t:.3f} s; "
+                f"turn Replay off to go back)  \n{st.robot} · {st.executor}"
+            )
         step = getattr(frame.scene, "step", None)  # the controller's view of its latest step
         if step is not None and step.qp_status is not None:
             solve = "closed form in the law" if math.isnan(step.qp_solve_us) else f"{step.qp_solve_us:.0f} µs"
