@@ -1466,3 +1466,74 @@ def test_bench_serve_runs_the_app_with_a_plain_headless_chromium_and_reports_wha
     assert stalls["seconds"] == 3.0 and stalls["wakeups"] > 100
     left = subprocess.run(["pgrep", "-f", "torquelab-chromium-"], capture_output=True, text=True).stdout.split()
     assert left == []
+
+
+def test_contact_loss_is_marked_in_the_3d_view_live_and_in_replay_and_a_reset_clears_the_replay(app, page):
+    """Polish with μ = 1 and W_j loses contact on S2 (about 6 s). Live: the red cross where the tool lifted
+    is drawn in the page (red pixels where the camera projects it). Replay at the first loss + 10 ms: the
+    status line says it is a replay at that instant, *Jump to event* names that loss, the ring is red and
+    the target stands where it was logged. Reset: the replay ends and its controls hold no range nor event."""
+    from app.core.commands import Play, Reset, RestoreDefaults, SetParam, SetSpeed, SwitchSession
+    from app.scenarios.metrics import contact_loss_onsets
+
+    pg, client = page
+    replay = app.publisher.replay
+    loop = app.loop
+    for cmd in (
+        RestoreDefaults(),
+        SwitchSession(scenario="polish", robot="rizon4s", executor="projection"),
+        SetParam("contact", "mu", 1.0),
+        SetParam("nullspace", "objective", "j"),
+        SetSpeed(1000.0),
+        Play(),
+    ):
+        loop.submit(cmd)
+    try:
+        overlays = lambda: app.publisher.scene.overlays  # noqa: E731
+        wait_for(lambda: loop.status.scenario == "polish" and loop.status.t > 6.4, 180, "polish past S2's first loss")
+        loop.submit(SetSpeed(1.0))
+        wait_for(lambda: overlays().lift_marks.visible, 30, "the live lift mark")
+        box = pg.get_by_label("Replay", exact=True)
+        box.scroll_into_view_if_needed()
+        box.check()
+        wait_for(lambda: replay.t is not None and not loop.status.running, 30, "the replay to start, paused")
+        cols = replay.columns
+        onsets = contact_loss_onsets(cols["contact_force_n"], cols["segment"])
+        assert len(onsets) >= 1
+        lift_t = float(cols["t"][onsets[0]])
+        mark = overlays().lift_marks
+        cross = np.asarray(mark.points, dtype=float)[:2].reshape(-1, 3).mean(axis=0)
+        set_camera(client, cross + np.array([0.35, -0.55, 0.35]), cross)
+        canvas = pg.locator(SCENE_CANVAS).bounding_box()
+        u, v = project(client, canvas, cross)
+        around = {"x": u - 40, "y": v - 40, "width": 80, "height": 80}
+        ARTIFACTS.mkdir(exist_ok=True)
+        pg.screenshot(path=str(ARTIFACTS / "scene-contact-lost.png"))
+        assert red_pixels(pg, around) > 30  # the red cross (and the red ring beside it) in the page
+
+        type_number(pg, r"^At t \(s\)", f"{lift_t + 0.01:.3f}")
+        wait_for(lambda: replay.t is not None and abs(replay.t - (lift_t + 0.01)) < 0.003, 20, "the replay instant")
+        wait_for(lambda: overlays().lost_ring.visible, 20, "the red ring at the replayed loss")
+        label = f"contact lost at {cols['t'][onsets[0]]:.2f} s"
+        assert replay.jump.value == label
+        pg.get_by_text(re.compile(r"Replay at t = " + re.escape(f"{replay.t:.3f}"))).first.wait_for(timeout=20_000)
+        i = int(np.searchsorted(cols["t"], replay.t))
+        logged_target = np.array([cols[f"target_{a}_m"][i] for a in "xyz"])
+        wait_for(
+            lambda: np.allclose(np.asarray(overlays().target.position), logged_target, atol=1e-6),
+            20,
+            "the target at its logged place",
+        )
+        pg.screenshot(path=str(ARTIFACTS / "scene-contact-replay.png"))
+
+        loop.submit(Reset())
+        wait_for(lambda: replay.t is None and tuple(replay.jump.options) == ("–",), 30, "the replay's controls reset")
+        assert replay.slider.disabled and not replay.active.value
+    finally:
+        if replay.t is not None:
+            replay.set_active(False)
+        loop.submit(RestoreDefaults())
+        loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        loop.submit(SetSpeed(1.0))
+        loop.submit(Play())
+        wait_for(lambda: loop.status.scenario == "polish", 60, "polish again")

@@ -280,7 +280,7 @@ class ScenarioPanel(KnobPanel):
         )
         if self.replay_t is not None:
             status = (
-                f"**⏪ Replay** at t = {self.replay_t:.3f} s (the run is paused at t = {st.t:.3f} s; "
+                f"**Replay** at t = {self.replay_t:.3f} s (the run is paused at t = {st.t:.3f} s; "
                 f"turn Replay off to go back)  \n{st.robot} · {st.executor}"
             )
         step = getattr(frame.scene, "step", None)  # the controller's view of its latest step
