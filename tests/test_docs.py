@@ -119,3 +119,15 @@ def test_the_glossary_defines_every_term_the_readme_sends_a_reader_there_for():
     missing = [t for t in terms if not any(re.search(rf"(^|[\s,(]){re.escape(t)}($|[\s,)])", d) for d in defined)]
     assert len(terms) >= 10, terms
     assert not missing, f"glossary terms {missing} are not defined (defined: {defined})"
+
+
+def test_the_readme_links_every_page_of_the_sites_navigation():
+    """The README is the way into the documentation on GitHub as on the site: each page mkdocs.yml's
+    nav lists (but the site's own home page) has a link from it."""
+    nav = re.findall(
+        r"^\s*-\s+(?:[^:\n]+:\s+)?([\w/.-]+\.md)\s*$", (ROOT / "mkdocs.yml").read_text(encoding="utf-8"), re.M
+    )
+    assert len(nav) >= 15, nav
+    linked = {u.partition("#")[0] for u in LINK.findall(readme())}
+    missing = [page for page in nav if page != "index.md" and f"docs/{page}" not in linked]
+    assert not missing, f"pages without a link from the README: {missing}"
