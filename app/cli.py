@@ -63,6 +63,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from app.tools.soak import cmd_soak
 
         return cmd_soak(args)
+    if getattr(args, "classroom", False):
+        from app.tools.bench_classroom import cmd_bench_classroom
+
+        return cmd_bench_classroom(args)
     if getattr(args, "serve", False):
         from app.tools.bench_serve import cmd_bench_serve
 
@@ -154,7 +158,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=300)
     p.add_argument("--only", nargs="*", default=None, help="benchmark names to run")
     p.add_argument("--serve", action="store_true", help="real-time factor of the web app with one headless browser")
-    p.add_argument("--scenario", default="polish", help="scenario for --serve (default polish)")
+    p.add_argument(
+        "--classroom",
+        action="store_true",
+        help="seats' real-time factors and the frames their pages get, for several seat and watcher counts",
+    )
+    p.add_argument("--seat-counts", default="1,2,4,8", metavar="N,N,...", help="with --classroom (default 1,2,4,8)")
+    p.add_argument(
+        "--watcher-counts", default="1,10,30", metavar="K,K,...", help="with --classroom: watchers of one seat"
+    )
+    p.add_argument("--scenario", default="polish", help="scenario for --serve and --classroom (default polish)")
     p.add_argument(
         "--soak",
         type=float,

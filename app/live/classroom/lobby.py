@@ -326,6 +326,7 @@ class Lobby:
                     "rtf": st.get("rtf"),
                     "running": st.get("running"),
                     "t": st.get("t"),
+                    "wall": st.get("wall"),
                     "scenario": st.get("scenario", ""),
                     "idle_s": round(now - seat.last_seen, 1) if seat.token and seat.pages == 0 else 0.0,
                 }

@@ -31,7 +31,8 @@ def seat_status(app: Any) -> dict[str, Any]:
     st = app.loop.status
     lessons = next((p for p in app.panels if isinstance(p, LessonsPanel)), None)
     out: dict[str, Any] = {
-        "t": round(st.t, 3),
+        "wall": time.monotonic(),  # the seat's clock (system-wide): Δt / Δwall is its real-time factor
+        "t": round(st.t, 4),
         "running": st.running,
         "rtf": round(st.rtf, 4),
         "scenario": st.scenario,
