@@ -100,10 +100,11 @@ def test_a_urdf_that_does_not_parse_gives_one_line_with_its_path_and_no_parser_n
     assert lines[0].startswith(f"torquelab: error: cannot parse URDF {path.resolve()}") and needle in lines[0]
 
 
-def test_serve_warms_up_before_the_url_serves_on_a_free_port_and_stops_cleanly_on_sigterm():
+def test_serve_prints_the_url_first_warms_up_then_runs_the_arm_and_stops_cleanly_on_sigterm():
     """The smoke test of the real command (`python -m app.cli serve`), the one test that starts it in a
-    process of its own: the kernels are ready before the URL is printed, `--port 0` says which port it
-    took and the page is served there; `kill` (SIGTERM) stops it as Ctrl-C does (the Ctrl-C path is
+    process of its own: the URL comes first (`--port 0` says which port it took) and the page is
+    served there while the kernels are made ready (compiled in worker processes or loaded); then the
+    kernels are ready, then the arm runs; `kill` (SIGTERM) stops it as Ctrl-C does (the Ctrl-C path is
     tested in process, tests/test_server.py): exit code 0 and, where it raised its session's autogroup
     niceness (app/live/priority.py), the value it found is back."""
     import signal
@@ -122,18 +123,23 @@ def test_serve_warms_up_before_the_url_serves_on_a_free_port_and_stops_cleanly_o
     )
     try:
         assert proc.stdout is not None
-        lines = []
+        lines: list[str] = []
+        served_before_ready = None
         for line in proc.stdout:
             lines.append(line)
             if "open http://" in line:
+                port = int(re.search(r"using free port (\d+)", "".join(lines)).group(1))  # type: ignore[union-attr]
+                assert f"open http://127.0.0.1:{port} " in line
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=10) as resp:
+                    served_before_ready = resp.status
+            if "the arm is running" in line or "error" in line:
                 break
         text = "".join(lines)
-        ready = [i for i, line in enumerate(lines) if "kernels ready in" in line]
-        assert ready and ready[0] < len(lines) - 1, text
-        port = int(re.search(r"using free port (\d+)", text).group(1))  # type: ignore[union-attr]
-        assert port > 0 and f"open http://127.0.0.1:{port} " in text
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=10) as resp:
-            assert resp.status == 200
+        at = {key: next((i for i, ln in enumerate(lines) if key in ln), None)
+              for key in ("open http://", "kernels ready in", "the arm is running")}  # fmt: skip
+        assert None not in at.values(), text
+        assert at["open http://"] < at["kernels ready in"] < at["the arm is running"], text
+        assert served_before_ready == 200 and "closed to new argument types" in text, text
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=60) == 0  # a clean exit; a loaded machine may take a while
         if found is not None:
@@ -203,7 +209,8 @@ def test_serve_settings_of_which_nothing_applies_is_one_line_and_exit_2_before_a
     from app.live import server
 
     begun: list[str] = []
-    monkeypatch.setattr(server, "warm_up", lambda *a: begun.append("warm-up") or 0.0)
+    monkeypatch.setattr(server, "first_start", lambda *a: begun.append("warm-up") or (0.0, False, []))
+    monkeypatch.setattr(server, "open_server", lambda *a: begun.append("server"))
     monkeypatch.setattr(server.robots.meshes, "warm_in_background", lambda names: begun.append("mesh child"))
     threads = set(threading.enumerate())
     path = tmp_path / "huge.toml"

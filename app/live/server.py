@@ -21,7 +21,7 @@ import socket
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import viser
 
@@ -57,7 +57,8 @@ from app.live.ui.scene import SceneView
 from app.live.ui.snapshot import capture
 from app.live.ui.typed import typed_numbers
 from app.live.ui.visuals import VisualSettings, VisualsPanel
-from app.live.warmup import warm_up
+from app.live.ui.warmup_page import WarmupPage
+from app.live.warm_workers import WarmProgress, first_start, progress_text
 from app.live.watch import WatchGate, install_watch_gate
 from app.scenarios import APP_PRESET, SCENARIOS
 
@@ -130,6 +131,33 @@ def quiet_failed_handshakes() -> None:
         logger.addFilter(not_a_failed_handshake)
 
 
+class OpenServer(NamedTuple):
+    """A web server that serves, with the guards that must be there before any page connects."""
+
+    server: viser.ViserServer
+    watch_gate: WatchGate  # which pages only watch (and, for a seat, which connections are served)
+    junk_guard: JunkGuard  # skips and counts the malformed frames a page sends
+
+
+def open_server(
+    host: str,
+    port: int,
+    verbose: bool = False,
+    watch_only: bool = False,
+    steer_local: bool = False,
+    seat_secret: str = "",
+) -> OpenServer:
+    """The web server, serving at once (on the next free port if `port` is taken; any with 0), with
+    the watch gate and the junk guard in front of every page's messages (see `start_app`)."""
+    quiet_failed_handshakes()
+    with contextlib.redirect_stdout(io.StringIO()) if not verbose else contextlib.nullcontext():
+        server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
+    # before any page
+    watch_gate = install_watch_gate(server, watch_only=watch_only, steer_local=steer_local, seat_secret=seat_secret)
+    junk_guard = guard_junk(server)  # malformed frames skipped and counted in bounded log lines
+    return OpenServer(server, watch_gate, junk_guard)
+
+
 def start_app(
     host: str = "127.0.0.1",
     port: int = 8080,
@@ -141,20 +169,19 @@ def start_app(
     watch_only: bool = False,
     steer_local: bool = False,
     seat_secret: str = "",
+    opened: OpenServer | None = None,
 ) -> App:
     """Start loop, server, panels and scene; returns at once. `port=0` picks any free port. With
     `watch_only` every page watches and steers nothing (with `steer_local` too, pages from this machine
     steer); a page the classroom lobby opens as a watcher watches either way; with `seat_secret` (a
-    classroom seat) only connections that carry it are served (app/live/watch.py)."""
+    classroom seat) only connections that carry it are served (app/live/watch.py). With `opened`
+    (`open_server`'s, as `serve` starts it to show the warm-up) the lab is built on that server, whose
+    gate was set up with these three."""
     loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
-    quiet_failed_handshakes()
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out) if not verbose else contextlib.nullcontext():
-        server = viser.ViserServer(host=host, port=port, label="torquelab", verbose=verbose)
-    # before any page
-    watch_gate = install_watch_gate(server, watch_only=watch_only, steer_local=steer_local, seat_secret=seat_secret)
+    if opened is None:
+        opened = open_server(host, port, verbose, watch_only, steer_local, seat_secret)
+    server, watch_gate, junk_guard = opened
     input_guard = guard_gui_updates(server)  # every GUI update checked on arrival
-    junk_guard = guard_junk(server)  # malformed frames skipped and counted in bounded log lines
     typed_numbers(server)  # text typed into a number box reaches the server (at the root, hidden)
     server.gui.configure_theme(control_width="large")
     server.gui.main_panel.dock_right()  # the 3D view is the canvas between the panels
@@ -222,16 +249,54 @@ def start_app(
     return app
 
 
-def _progress_line(line: str) -> None:
-    """A warm-up progress line: each on its own line, but the per-preset steps overwrite one another
-    on a terminal."""
-    if line.startswith("["):
-        if sys.stdout.isatty():
-            print(f"\rtorquelab: {line}\033[K", end="", flush=True)
-        return
+def _print_url(args: argparse.Namespace, busy: bool, port: int, watch_only: bool, steer_local: bool) -> None:
+    """The lines that say where the page is (and why on another port than asked) and who steers."""
+    if args.port == 0:
+        print(f"torquelab: --port 0: using free port {port}", flush=True)
+    elif busy or port != args.port:
+        print(f"torquelab: port {args.port} is busy; using port {port} instead", flush=True)
+    shown_host = "127.0.0.1" if args.host in ("0.0.0.0", "") else args.host
+    print(f"torquelab: open http://{shown_host}:{port} in a browser (Ctrl-C to stop)", flush=True)
+    if watch_only:
+        who = "pages from other machines" if steer_local else "every page"
+        print(f"torquelab: watch-only: {who} sees the arm and steers nothing", flush=True)
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"torquelab: listening on {args.host}: reachable from other machines", flush=True)
+
+
+def _warm_up_on_page(server: viser.ViserServer, robot: str | None) -> None:
+    """The warm-up (`app.live.warm_workers.first_start`) with its progress on the page and the
+    terminal, then every kernel closed to new argument types."""
+    page = WarmupPage(server)
+
+    def show(progress: WarmProgress) -> None:
+        page.show(progress)
+        if sys.stdout.isatty():  # one line, overwritten (the page shows the same)
+            print(f"\rtorquelab: {progress_text(progress)}\033[K", end="", flush=True)
+
+    print("torquelab: compiling or loading the kernels (the page shows how far) …", flush=True)
+    took, compiled, failures = first_start(robot, show)
     if sys.stdout.isatty():
         print("\r\033[K", end="")
-    print(f"torquelab: {line}", flush=True)
+    for failure in failures:  # compiled by the last pass instead
+        print(f"torquelab: a warm-up worker failed: {failure}", flush=True)
+    closed = closed_kernels.close()  # from here on a kernel refuses a new type instead of compiling
+    how = "compiled in worker processes and loaded" if compiled else "loaded from the cache"
+    print(f"torquelab: kernels ready in {took:.1f} s ({how}; {closed} closed to new argument types)", flush=True)
+    page.remove()
+
+
+def _say_when_running(app: App, scenario: str, timeout: float = 30.0) -> None:
+    """Print that the arm moves once the loop has stepped (a preset that waits for Play says so)."""
+    if starts_paused(scenario):
+        print("torquelab: ready (this preset waits for Play)", flush=True)
+        return
+    deadline = time.monotonic() + timeout
+    while app.loop.alive and time.monotonic() < deadline:
+        if app.loop.status.steps > 0:
+            print("torquelab: the arm is running", flush=True)
+            return
+        time.sleep(0.02)
 
 
 def _interrupt(signum: int, frame: Any) -> None:
@@ -282,11 +347,6 @@ def serve(args: argparse.Namespace) -> int:
     # the other robots of the page's selector converted in a niced child: a switch reads the cache
     robots.meshes.warm_in_background(tuple(n for n in robots.available() if n != robot))
     busy = args.port != 0 and not port_is_free(args.host, args.port)
-    if getattr(args, "warm", False):  # the CLI's default (--no-warmup skips it); tests warm elsewhere
-        took = warm_up(robot, _progress_line)
-        closed = closed_kernels.close()  # from here on a kernel refuses a new type instead of compiling
-        print(f"torquelab: kernels ready in {took:.1f} s ({closed} closed to new argument types)", flush=True)
-    print(f"torquelab: starting scenario {scenario!r} …", flush=True)
     watch_only = bool(getattr(args, "watch_only", False))
     steer_local = bool(getattr(args, "steer_local", False))
     if steer_local and not watch_only:
@@ -295,21 +355,30 @@ def serve(args: argparse.Namespace) -> int:
     seat_secret = os.environ.get(SECRET_ENV, "") if seat else ""
     if seat and not seat_secret:
         raise ValueError(f"--seat needs the lobby's secret in {SECRET_ENV}")
-    app = start_app(
-        host=args.host,
-        port=args.port,
-        scenario=scenario,
-        robot=robot,
-        watch_only=watch_only,
-        steer_local=steer_local,
-        seat_secret=seat_secret,
-    )
-    if seat:
-        SeatChannel(app).start()
-    # a `kill` or a closed terminal stops the app as Ctrl-C does (the session's CPU share given back)
+    # the page is there at once (its guards before any page connects); the warm-up shows on it
+    opened = open_server(args.host, args.port, False, watch_only, steer_local, seat_secret)
+    _print_url(args, busy, opened.server.get_port(), watch_only, steer_local)
+    # a `kill` or a closed terminal stops the app as Ctrl-C does (the session's CPU share given back),
+    # during the warm-up too (its worker processes end with it)
     for signum in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
         if signum is not None:
             signal.signal(signum, _interrupt)
+    try:
+        if getattr(args, "warm", False):  # the CLI's default (--no-warmup skips it); tests warm elsewhere
+            _warm_up_on_page(opened.server, robot)
+        print(f"torquelab: starting scenario {scenario!r} …", flush=True)
+        app = start_app(
+            host=args.host, port=args.port, scenario=scenario, robot=robot, watch_only=watch_only,
+            steer_local=steer_local, seat_secret=seat_secret, opened=opened,
+        )  # fmt: skip
+    except BaseException as exc:
+        with contextlib.redirect_stdout(io.StringIO()):
+            opened.server.stop()
+        if isinstance(exc, KeyboardInterrupt):
+            return 0
+        raise
+    if seat:
+        SeatChannel(app).start()
     display_failure = ""
     try:
         if settings_text is not None:
@@ -317,16 +386,7 @@ def serve(args: argparse.Namespace) -> int:
             for line in refused:
                 print(f"torquelab: {settings_file}: refused: {line}", flush=True)
             print(f"torquelab: settings from {settings_file} applied ({len(refused)} refused)", flush=True)
-        if args.port == 0:
-            print(f"torquelab: --port 0: using free port {app.port}", flush=True)
-        elif busy or app.port != args.port:
-            print(f"torquelab: port {args.port} is busy; using port {app.port} instead", flush=True)
-        print(f"torquelab: open {app.url} in a browser (Ctrl-C to stop)", flush=True)
-        if watch_only:
-            who = "pages from other machines" if steer_local else "every page"
-            print(f"torquelab: watch-only: {who} sees the arm and steers nothing", flush=True)
-        if args.host not in ("127.0.0.1", "localhost", "::1"):
-            print(f"torquelab: listening on {args.host}: reachable from other machines", flush=True)
+        _say_when_running(app, scenario)
         while app.loop.alive and not display_failure:
             display_failure = app.publisher.supervise()  # a dead publisher thread is restarted
             time.sleep(0.5)

@@ -1,11 +1,13 @@
-"""Compile before the URL: every compiled kernel the loop meets is compiled (or loaded from numba's
-cache) before `serve` says where the page is, so the first drag or Pause never waits on a compile.
+"""Compile before the loop: every compiled kernel the loop meets is compiled (or loaded from numba's
+cache) before the loop starts, so the first drag or Pause never waits on a compile. `serve` prints the
+URL first and, on a cold cache, has worker processes compile these passes' pieces as separate jobs
+(`app.live.warm_workers`, which also runs `warm_up` itself afterwards: then it only loads).
 
 Two passes, with a progress line each: every registered kernel (`control.kernel_registry.KERNELS`)
 called once on its first sample input, then 1.1 s of every preset with every executor on the chosen
 robot (the argument types the loop itself builds), followed by a hard drag (the paths a saturated
-force or a failing QP take). Run on the calling thread before the loop
-starts; on a fresh install this is where the minute of compiling goes, afterwards seconds of loading.
+force or a failing QP take). Run on the calling thread before the loop starts; in one process, on a
+fresh install, this is where the minute of compiling goes, afterwards seconds of loading.
 
 One robot and the default QP backend cover every robot the page offers and both backends: numba
 compiles per argument type (every arm's state is float64 arrays), not per arm or backend, and the
@@ -15,6 +17,7 @@ every robot × backend × QP executor with a hard drag: no new signature, no ste
 
 from __future__ import annotations
 
+import importlib
 import time
 from collections.abc import Callable
 
@@ -27,41 +30,97 @@ WARM_CLIENT = -1  # the warm-up's own drag (no page has this client id)
 WARM_STEPS = 1100  # steps of each preset × executor: 1.1 s, the polish live margin included (as tests/conftest.py)
 
 
-def warm_registered_kernels() -> int:
-    """Call every registered compiled kernel on its first sample; how many were called."""
+# registered kernels whose sample inputs need no state of the arm (no `RobotModel.compute`, itself
+# compiled): a worker can compile these while another compiles the arm's snapshot
+# (tests/test_warm_workers.py holds the list to the registry)
+NO_ARM_STATE = (
+    "_matmul_into", "_matmul_bt_into", "_matmul", "_matmul_bt", "_symmetrise", "_sym_from_eig", "_cholesky_into",
+    "_spd_inverse_into", "_inverse", "_sqnorm", "_cross", "_mat3_vec", "_mat3_mat", "_np_max", "unpack_chain_fused",
+    "log3_fused", "move_wrench_fused", "swivel_of_anchors_fused", "damper_bounds_fused", "add_task_rows_fused",
+    "acceleration_bounds_fused", "dense_qp_load_fused", "unconstrained_optimum_fused",
+)  # fmt: skip
+
+
+def import_kernels() -> None:
+    """Import every module that defines a compiled kernel (a warm-up worker's start, before its jobs)."""
+    from app.live.closed_kernels import KERNEL_MODULES
+
+    for name in KERNEL_MODULES:
+        importlib.import_module(name)
+
+
+def warm_kernel(name: str) -> float:
+    """Call the registered kernel `name` on its first sample (compiled, or loaded from numba's cache);
+    the seconds it took. A module-level function: a warm-up worker process runs it."""
     from control.kernel_registry import KERNELS
 
-    rng = np.random.default_rng(0)
-    for pair in KERNELS.values():
-        samples = pair.samples(rng)
-        if samples:
-            args = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in samples[0])
-            pair.compiled(*args)
+    t0 = time.perf_counter()
+    samples = KERNELS[name].samples(np.random.default_rng(0))
+    if samples:
+        args = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in samples[0])
+        KERNELS[name].compiled(*args)
+    return time.perf_counter() - t0
+
+
+def warm_arm_state() -> float:
+    """One state of the shipped arm (`RobotModel.compute`: the snapshot's kernels); the seconds it took."""
+    from control.kernel_registry import states
+
+    t0 = time.perf_counter()
+    states(np.random.default_rng(0), 1)
+    return time.perf_counter() - t0
+
+
+def warm_registered_kernels(progress: Callable[[int, int, str], None] | None = None) -> int:
+    """Call every registered compiled kernel on its first sample; how many were called. `progress`
+    hears (i, count, name) before each."""
+    from control.kernel_registry import KERNELS
+
+    for i, name in enumerate(KERNELS, 1):
+        if progress is not None:
+            progress(i, len(KERNELS), name)
+        warm_kernel(name)
     return len(KERNELS)
+
+
+def preset_pairs() -> list[tuple[str, str]]:
+    """Every (preset, executor) the page offers, in the warm-up's order."""
+    from app.core.executors import EXECUTORS
+    from app.scenarios import SCENARIOS
+
+    return [(s, e) for s in SCENARIOS for e in EXECUTORS]
+
+
+def warm_preset(robot: str | None, scenario: str, executor: str) -> str:
+    """WARM_STEPS of one preset with one executor on `robot`, then a hard drag for DRAG_STEPS; "" or,
+    when the arm lacks the preset's posture (the page then runs it on the preset's own arm, as here),
+    why. A module-level function: a warm-up worker process runs it."""
+    from app.live.lab import Lab
+
+    note = ""
+    try:
+        lab = Lab(scenario, robot=robot, executor=executor)
+    except ValueError as exc:
+        if robot is None:
+            raise
+        note, lab = f"on its own arm ({exc})", Lab(scenario, executor=executor)
+    lab.advance(WARM_STEPS)
+    link = lab.session.robot.link_names[-1]
+    tip = np.array(lab.session.world.data.xpos[-1], dtype=float)
+    lab.apply(DragCommand("grab", WARM_CLIENT, body_name=link, point_world=tuple(tip)))
+    lab.apply(DragCommand("move", WARM_CLIENT, body_name=link, target_world=tuple(tip - (0.0, 0.0, 1.0))))
+    lab.advance(DRAG_STEPS)
+    return note
 
 
 def warm_presets(robot: str | None, progress: Callable[[str], None]) -> int:
     """A few steps of every preset with every executor; how many pairs ran."""
-    from app.core.executors import EXECUTORS
-    from app.live.lab import Lab
-    from app.scenarios import SCENARIOS
-
-    pairs = [(s, e) for s in SCENARIOS for e in EXECUTORS]
+    pairs = preset_pairs()
     for i, (scenario, executor) in enumerate(pairs, 1):
         progress(f"[{i}/{len(pairs)}] {scenario} / {executor}")
-        try:
-            lab = Lab(scenario, robot=robot, executor=executor)
-        except ValueError as exc:  # the arm lacks the preset's posture: the page runs it on the preset's own arm
-            if robot is None:
-                raise
-            progress(f"[{i}/{len(pairs)}] {scenario} / {executor} on its own arm ({exc})")
-            lab = Lab(scenario, executor=executor)
-        lab.advance(WARM_STEPS)
-        link = lab.session.robot.link_names[-1]
-        tip = np.array(lab.session.world.data.xpos[-1], dtype=float)
-        lab.apply(DragCommand("grab", WARM_CLIENT, body_name=link, point_world=tuple(tip)))
-        lab.apply(DragCommand("move", WARM_CLIENT, body_name=link, target_world=tuple(tip - (0.0, 0.0, 1.0))))
-        lab.advance(DRAG_STEPS)
+        note = warm_preset(robot, scenario, executor)
+        if note:
+            progress(f"[{i}/{len(pairs)}] {scenario} / {executor} {note}")
     return len(pairs)
 
 
