@@ -172,10 +172,11 @@ LESSONS: tuple[Lesson, ...] = (
             Step(
                 "l100d",
                 "λ = 100 with the same delay",
-                "The default damper with the same 5 ms delay. Watch joint 4's phase plot.",
+                "The default damper with the same 5 ms delay. Watch joint 4's phase plot and the whole arm: "
+                "does λ = 100 tolerate the delay?",
                 drop_setup(100.0, LESSON_DELAY_MS),
                 after("limit-drop", DROP_WATCH_S),
-                drop_claim(),
+                drop_claim(delayed_stiff="l500d"),
             ),
         ),
     ),

@@ -213,9 +213,37 @@ def drop_label(o: Obs) -> str:
     return f"λ = {o.get('lambda', math.nan):g}" + (f", {delay:g} ms delay" if delay > 0 else "")
 
 
-def drop_claim(baseline: str | None = None) -> Callable[[Obs, Memo], str]:
+def delay_verdict(o: Obs, memo: Memo, delayed_stiff: str) -> str:
+    """Whether this run's damper tolerated its torque delay, from its own numbers: it did when no joint but
+    4 thrashed (moved faster than THRASH_SPEED_RAD_S, the failure of the stiffer damper under the delay) and
+    joint 4's peak torque stayed below its limit; beside it, how the stiffer damper's run `delayed_stiff` did
+    with the same delay."""
+    thrashed, reversed_, peak, limit = o["thrash_end_s"], o["reversals_first_3s"], o["peak_tau_4"], o["tau_max_4"]
+    stops = "without reversing" if reversed_ == 0 else f"after {reversed_:.0f} reversal(s)"
+    if thrashed <= 0 and peak < limit:
+        text = (
+            f" **So {drop_label(o)} tolerates the delay in this run:** no joint but 4 moved faster than "
+            f"{THRASH_SPEED_RAD_S:g} rad/s and joint 4 stopped {stops} at {100 * peak / limit:.0f} % of its "
+            "torque limit."
+        )
+    else:
+        why = [f"the arm thrashed for {thrashed:.1f} s"] if thrashed > 0 else []
+        why += ["|τ₄| reached its limit"] if peak >= limit else []
+        text = f" **So {drop_label(o)} does not tolerate the delay in this run:** {'; '.join(why)}."
+    stiff = memo.get(delayed_stiff)
+    if stiff is not None and "thrash_end_s" in stiff:
+        text += (
+            f" With the same delay, {drop_label(stiff)} thrashed for {stiff['thrash_end_s']:.1f} s."
+            if stiff["thrash_end_s"] > 0
+            else f" With the same delay, {drop_label(stiff)} did not thrash either."
+        )
+    return text
+
+
+def drop_claim(baseline: str | None = None, delayed_stiff: str | None = None) -> Callable[[Obs, Memo], str]:
     """The limit-drop claim: joint 4's peak torque, how far it went beyond d_s and its reversals, labelled
-    with the run's own λ and delay."""
+    with the run's own λ and delay; with `delayed_stiff` (the step of the stiffer damper under the same
+    delay), whether this run tolerated its delay (`delay_verdict`)."""
 
     def claim(o: Obs, memo: Memo) -> str:
         if "peak_tau_4" not in o:
@@ -229,6 +257,8 @@ def drop_claim(baseline: str | None = None) -> Callable[[Obs, Memo], str]:
         before = memo.get(baseline) if baseline else None
         if before is not None and "peak_tau_4" in before:
             text += f" That is {o['peak_tau_4'] / before['peak_tau_4']:.1f}× the peak torque of {drop_label(before)}."
+        if delayed_stiff is not None and "thrash_end_s" in o:
+            text += delay_verdict(o, memo, delayed_stiff)
         return text
 
     return claim

@@ -285,6 +285,9 @@ class Overlays:
             f"{root}/path", np.zeros((1, 2, 3)), colors=(120, 120, 120), thickness=0.002
         )
         self.target = sc.add_icosphere(f"{root}/target", radius=0.008, color=(120, 120, 120), visible=False)
+        self.target_label = sc.add_label(
+            f"{root}/target_label", "task target", font_screen_scale=0.7, visible=False, anchor="bottom-center"
+        )
         self.contact_dot = sc.add_icosphere(f"{root}/contact_point", radius=0.008, color=(20, 20, 20), visible=False)
         self.normal_arrow = _add_arrow(sc, f"{root}/contact_normal", NORMAL_COLOR)
         self.friction_arrow = _add_arrow(sc, f"{root}/contact_friction", FRICTION_COLOR)
@@ -390,6 +393,7 @@ class Overlays:
             self.trail_line,
             self.path_line,
             self.target,
+            self.target_label,
             self.payload,
             self.payload_label,
             self.contact_dot,
@@ -483,8 +487,10 @@ class Overlays:
         if has_path:
             set_prop(self.path_line, "points", polyline_segments(snap.path).astype(np.float32))
         self.target.visible = s.path and snap.target_position is not None
+        self.target_label.visible = self.target.visible and s.labels
         if snap.target_position is not None and s.path:
             set_position(self.target, snap.target_position)
+            set_position(self.target_label, snap.target_position + np.array([0.0, 0.0, 0.015]))
 
     def remove(self) -> None:
         """Remove every overlay node."""

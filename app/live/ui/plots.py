@@ -67,6 +67,10 @@ Y_LABELS = {
 LIMIT_COLOR, DS_COLOR, DI_COLOR = "#555555", "#d62728", "#ff9f1c"
 PREVIOUS_COLOR = "rgba(90, 90, 90, 0.35)"  # the run before this one, faint, for A/B
 PHASE_MARGIN = 0.06  # the phase plot's x range reaches this share of the joint's range beyond each limit
+# zoomed on the nearer limit, the phase plot shows from this many d_i before it to this many d_s beyond: the
+# last degrees where the damper acts, d_s several times wider than in the whole range
+PHASE_ZOOM_DI = 1.25
+PHASE_ZOOM_DS = 1.5
 # The charts, each in its own folder of the Plots tab; a preset shows its lesson's charts first (its
 # `Scenario.plot_layout`) and the others only with "Show all plots".
 CHARTS = ("force", "coupling", "torque", "phase", "deflection", "rtf")
@@ -401,6 +405,12 @@ class Plots:
                 self.joint: Any = gui.add_dropdown(
                     "Phase plot joint", tuple(str(i + 1) for i in range(n_joints)), initial_value="4"
                 )
+                self.phase_zoom: Any = gui.add_checkbox(
+                    "Zoom on the limit",
+                    False,
+                    hint="Show the last degrees before the joint's nearer limit: the limit, d_s and d_i apart",
+                )
+                self.phase_zoom.on_update(lambda _: self._phase_zoom_changed())
                 self.phase = gui.add_uplot(
                     _empty(7),
                     (
@@ -584,6 +594,9 @@ class Plots:
         if joint is not None and 0 <= joint < self.n and self.joint.value != str(joint + 1):
             self.joint.value = str(joint + 1)
         if scenario is not None:
+            zoom = joint is not None  # a preset about one joint is about it reaching its limit
+            if self.phase_zoom.value != zoom:
+                self.phase_zoom.value = zoom
             self.arrange(scenario)
 
     def update(self, plot: PlotData, session: object = None, settings: Any = None) -> None:
@@ -893,21 +906,34 @@ class Plots:
         pad = PHASE_MARGIN * (hi - lo)  # the stop is inside the plot, not on its edge
         d_s = self._damper_fraction("safety_fraction", math.nan) * (hi - lo) if limited else math.nan
         d_i = self._damper_fraction("influence_fraction", math.nan) * (hi - lo) if limited else math.nan
+        x_range = (lo - pad, hi + pad)
+        zoom = None  # the limit zoomed on (its sign: +1 upper, −1 lower)
+        finite_q = q[np.isfinite(q)]
+        if self.phase_zoom.value and limited and math.isfinite(d_s) and math.isfinite(d_i) and finite_q.size:
+            zoom = 1 if float(finite_q[-1]) >= 0.5 * (lo + hi) else -1
+            limit = hi if zoom > 0 else lo
+            near, beyond = limit - zoom * PHASE_ZOOM_DI * d_i, limit + zoom * PHASE_ZOOM_DS * d_s
+            x_range = (min(near, beyond), max(near, beyond))
         # NaN-free (NaN != NaN would send the chart's options again at every redraw, rebuilding it)
-        key = (*(v if math.isfinite(v) else None for v in (lo, hi, vlim, d_s, d_i)), j)
+        key = (*(v if math.isfinite(v) else None for v in (lo, hi, vlim, d_s, d_i)), j, zoom)
         if self._phase_range != key:
             self._phase_range = key
             self.phase.scales = {
-                "x": {"time": False, "auto": False, "range": (lo - pad, hi + pad)},
+                "x": {"time": False, "auto": False, "range": x_range},
                 "y": {"auto": False, "range": (-top, top)},
             }
             self.phase.axes = (x_axis("q (rad)"), y_axis("q̇ (rad/s)", -top, top))
             zones = " · d_s dotted red, d_i dashed orange" if math.isfinite(d_s) else ""
-            self.phase.title = f"Joint {j + 1} phase (q, q̇): limits [{lo:.2f}, {hi:.2f}] rad{zones}"
+            where = (
+                f", zoomed on the {'upper' if zoom > 0 else 'lower'} limit {hi if zoom > 0 else lo:.2f} rad"
+                if zoom is not None
+                else f": limits [{lo:.2f}, {hi:.2f}] rad"
+            )
+            self.phase.title = f"Joint {j + 1} phase (q, q̇){where}{zones}"
         # rows after the trajectory: two carry the velocity limits across the whole width, then for each
         # of limit, d_s and d_i its two vertical lines, joined far above the plot (uPlot joins across NaN,
         # so the join runs outside the drawn range instead)
-        xs = [*q, lo - pad, hi + pad]
+        xs = [*q, *x_range]
         ys: list[list[float]] = [[math.nan] * len(xs) for _ in range(6)]  # series 1…6
         ys[0][: len(q)] = dq.tolist()
         ys[1][len(q) :] = [vlim, vlim]
@@ -922,6 +948,11 @@ class Plots:
                 for k in range(6):
                     ys[k].append(y if k == series - 1 else math.nan)
         self.phase.data = (np.array(xs), *(np.array(y) for y in ys))
+
+    def _phase_zoom_changed(self) -> None:
+        """The zoom switched: draw the phase plot again (its range follows the switch)."""
+        with self._redraw_lock:
+            self._redraw()
 
     def resend_axes(self) -> None:
         """Send every chart's scales and axes again: a chart the page built before its panel had its
