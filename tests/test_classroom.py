@@ -306,6 +306,11 @@ def test_a_seat_killed_with_sigkill_is_noticed_within_2_s_and_the_other_keeps_ru
         status, _, _ = _get(lobby, "/lab/", b)  # the student reloads: a fresh lab on the same seat
         assert status == 200 and victim.state in ("starting", "ready")
         assert wait_until(lambda: victim.state == "ready", 90.0)
+        pushed = next(x for x in LESSONS if x.key == lobby.pushed["lesson"])  # the teacher's last push
+        assert wait_until(  # the fresh lab starts on the class's step
+            lambda: victim.status.get("lesson") == pushed.key and victim.status.get("step") == lobby.pushed["step"] + 1,
+            30.0,
+        )
     finally:
         teacher.close()
 

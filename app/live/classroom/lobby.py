@@ -66,11 +66,13 @@ class Lobby:
     pages: dict[int, set[Any]] = field(default_factory=dict)  # seat number → its proxied connections
     events: list[tuple[float, str]] = field(default_factory=list)  # (monotonic time, what happened)
     bound_port: int = 0
+    pushed: dict[str, Any] | None = None  # the lesson step the teacher last pushed: a seat that starts later gets it
     _stop: asyncio.Event | None = None
     _loop: asyncio.AbstractEventLoop | None = None
 
     def __post_init__(self) -> None:
         self.pool.on_stop = self._seat_stopped
+        self.pool.on_ready = self._seat_ready
         self._page = client_page_bytes()
 
     # ---- running --------------------------------------------------------------------------------
@@ -122,6 +124,12 @@ class Lobby:
                 self.note(f"seat {number} reclaimed after {self.pool.idle_s:g} s without a page")
                 if self.spotlight == number:
                     self.spotlight = None
+
+    def _seat_ready(self, seat: Seat) -> None:
+        if self.pushed is not None:  # a late arrival joins the class where it is
+            command = self.pushed
+            asyncio.get_running_loop().create_task(self.pool.send(seat, command))
+            self.note(f"seat {seat.number} started on the class's step")
 
     def _seat_stopped(self, seat: Seat) -> None:
         if seat.state == "stopped":
@@ -287,9 +295,14 @@ class Lobby:
             if lesson is None or not isinstance(step, int) or not 0 <= step < len(lesson.steps):
                 return "no such lesson step"
             command = {"cmd": "step", "lesson": lesson.key, "step": step}
+            self.pushed = command
             sent = [s.number for s in self.pool.seats if await self.pool.send(s, command)]
+            starting = sum(s.state == "starting" for s in self.pool.seats)
             self.note(f"step {step + 1} of {lesson.title!r} pushed to seats {sent}")
-            return f"{lesson.title}, step {step + 1}: set up on {len(sent)} seat(s)"
+            later = f"; {starting} starting seat(s) get it when they start" if starting else ""
+            return (
+                f"{lesson.title}, step {step + 1}: set up on {len(sent)} seat(s){later}; seats taken later get it too"
+            )
         return f"unknown action {kind!r}"
 
     # ---- what the pages show --------------------------------------------------------------------

@@ -88,6 +88,7 @@ class SeatPool:
         serve_args: tuple[str, ...] = (),
         python: str = sys.executable,
         on_stop: Callable[[Seat], None] | None = None,
+        on_ready: Callable[[Seat], None] | None = None,
     ):
         if seats < 1:
             raise ValueError(f"a classroom needs at least 1 seat, got {seats}")
@@ -98,6 +99,7 @@ class SeatPool:
         self.serve_args = serve_args
         self.python = python
         self.on_stop = on_stop  # the lobby closes the seat's pages
+        self.on_ready = on_ready  # the lobby sets up the class's current lesson step on it
         self.reclaimed = 0  # seats reclaimed for idleness
 
     # ---- who holds what -------------------------------------------------------------------------
@@ -171,6 +173,8 @@ class SeatPool:
                 seat.port = int(m.group(1))
                 seat.state, seat.status_at = "ready", time.monotonic()
                 seat.ready.set()
+                if self.on_ready is not None:
+                    self.on_ready(seat)
 
     def _stopped(self, seat: Seat, proc: asyncio.subprocess.Process | None, reason: str) -> None:
         seat.state, seat.stop_reason, seat.stopped_at = "stopped", reason, time.monotonic()
