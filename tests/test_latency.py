@@ -95,8 +95,12 @@ def test_a_session_sets_the_reading_delay_and_refuses_a_bad_one_in_one_line():
 
 
 # ---- the polish experiment's latency table ------------------------------------------------------------
-def _run(row: str, ds: int, da: float, stds: list[float], lost: int = 0) -> dict:
-    """A polish run record with only what the latency table reads."""
+def _run(row: str, ds: int, da: float, band: float | None, lost: int = 0, threshold: float = 0.5) -> dict:
+    """A polish run record with only what the latency table reads: its worst stroke band RMS, the
+    threshold it was held against and the verdict they give (`app.scenarios.verdict`)."""
+    from app.scenarios import verdict as V
+
+    metrics = {"band_rms_max_n": band, "oscillation_threshold_n": threshold, "contact_lost_ms": lost}
     return {
         "row": row,
         "objective": "j",
@@ -104,7 +108,10 @@ def _run(row: str, ds: int, da: float, stds: list[float], lost: int = 0) -> dict
         "seed": 0,
         "reading_delay_steps": ds,
         "torque_delay_ms": da,
-        "per_segment": [{"force_error": {"std": s}} for s in stds],
+        "band_rms_max_n": band,
+        "oscillation_threshold_n": threshold,
+        "band_floor_n": threshold / 2.0,
+        "verdict": V.verdict_of_metrics(metrics) if band is not None else V.STABLE,
         "contact_lost_ms": lost,
         "diverged": False,
         "force_error": {"ptp": 10.0},
@@ -113,28 +120,29 @@ def _run(row: str, ds: int, da: float, stds: list[float], lost: int = 0) -> dict
     }
 
 
-def test_the_latency_table_gives_the_smallest_delay_that_oscillates_or_loses_contact():
-    from app.headless.experiments.polish_latency import OSCILLATION_STD_FACTOR, latency_table
+def test_the_latency_table_gives_the_smallest_delay_that_the_one_verdict_calls_not_stable():
+    """A run is not stable in the latency table exactly when the one verdict says so: a stroke band RMS
+    at the threshold oscillates, 1 % under it does not, a lost contact counts whatever the band RMS."""
+    from app.headless.experiments.polish_latency import latency_table
 
-    calm = [2.0, 2.0, 2.0, 2.0, 2.0, 2.0]  # median 2 N: the reference
-    loud = [2.0, 2.0 * OSCILLATION_STD_FACTOR, 2.0, 2.0, 2.0, 2.0]  # one segment at exactly the factor
-    just_under = [2.0, 2.0 * OSCILLATION_STD_FACTOR * 0.99, 2.0, 2.0, 2.0, 2.0]
     runs = [
-        _run("coupled", 0, 0.0, calm),
-        _run("coupled", 1, 0.0, just_under),
-        _run("coupled", 2, 0.0, loud),
-        _run("coupled", 0, 1.0, calm, lost=3),  # contact lost counts whatever the STD
-        _run("decoupled", 0, 0.0, calm),
-        _run("decoupled", 1, 0.0, calm),
-        _run("decoupled", 0, 1.0, just_under),
+        _run("coupled", 0, 0.0, 0.3),
+        _run("coupled", 1, 0.0, 0.5 * 0.99),
+        _run("coupled", 2, 0.0, 0.5),
+        _run("coupled", 0, 1.0, 0.3, lost=3),
+        _run("decoupled", 0, 0.0, 0.3),
+        _run("decoupled", 1, 0.0, 0.3),
+        _run("decoupled", 0, 1.0, 0.5 * 0.99),
     ]
     table = latency_table(runs)
     by = {e["row"]: e for e in table["rows"]}
     assert by["coupled"]["smallest_sensing_delay_steps"] == 2 and by["coupled"]["smallest_torque_delay_ms"] == 1.0
     assert by["decoupled"]["smallest_sensing_delay_steps"] is None
     assert by["decoupled"]["smallest_torque_delay_ms"] is None
-    assert by["coupled"]["reference_median_segment_std"] == 2.0
-    assert table["criterion"]["std_factor"] == OSCILLATION_STD_FACTOR
+    cells = by["coupled"]["cells"]
+    assert [c["band_ratio"] for c in cells[:3]] == pytest.approx([0.6, 0.99, 1.0])
+    assert [c["verdict"] for c in cells] == ["stable", "stable", "oscillating", "lost contact"]
+    assert table["criterion"]["threshold_n"] == 0.5 and table["criterion"]["floor_n"] == 0.25
 
 
 def test_latency_runs_vary_one_stage_at_a_time_at_mu_1():
@@ -157,7 +165,7 @@ def test_the_latency_report_states_the_criterion_of_the_run_and_ranks_no_posture
     from app.headless.experiments.polish_latency import latency_table
     from app.headless.experiments.polish_report import latency_html
 
-    calm, loud = [2.0] * 6, [2.0, 9.0, 2.0, 9.0, 2.0, 9.0]
+    calm, loud = 0.3, 2.0
     runs = [
         _run("coupled", 0, 0.0, calm),
         _run("coupled", 1, 0.0, loud),
@@ -165,9 +173,9 @@ def test_the_latency_report_states_the_criterion_of_the_run_and_ranks_no_posture
         _run("decoupled", 1, 0.0, calm),
     ]
     doc = {"latency": {**latency_table(runs), "runs": runs}}
-    doc["latency"]["criterion"]["std_factor"] = 2.5  # as a sweep that changed it would record
+    doc["latency"]["criterion"]["threshold_n"] = 0.62  # as a run with another sensor would record
     text = latency_html(doc)
-    assert "at least 2.5× the median segment STD" in text and "3×" not in text
+    assert "at least 0.62 N" in text and "0.50 N" not in text and "the sensor&#x27;s floor" in text
     # P_d·f̂ at the trajectory start does not order the latency tolerance (the README says why): no ranking
     assert "P_d·f̂" not in text and "decoupled posture" not in text
 
@@ -222,45 +230,49 @@ def test_the_w_d_flip_explanation_is_printed_only_when_w_d_did_not_flip():
 
 def test_a_still_hold_that_oscillates_or_loses_contact_has_its_verdict_and_a_calm_or_flowing_one_has_none():
     """The latency runs stop while held once the verdict is known (`HoldWatch`): the posture still
-    (swivel within still_deg over the window), then contact lost in the window or the STD over it at
-    least the threshold, looked at every `every` steps. A posture still flowing gets no verdict yet."""
-    from app.headless.experiments.polish_latency import HoldWatch, latency_table
+    (swivel within still_deg over the window, the settle phase's own test), then the one verdict of that
+    window (lost contact, or the reading's band RMS at least the threshold), looked at every `every`
+    steps. A posture still flowing gets no verdict yet."""
+    from app.headless.experiments.polish_latency import HOLD_STILL_DEG, HoldWatch, latency_table
+    from app.scenarios.polish_stroke import SETTLE_SPEED_RAD_S, SETTLE_WINDOW_S
 
+    assert HOLD_STILL_DEG == pytest.approx(np.rad2deg(SETTLE_SPEED_RAD_S * SETTLE_WINDOW_S))
     rng = np.random.default_rng(0)
     t = 1e-3 * np.arange(3000)
-    still = np.full(t.size, 75.0) + rng.normal(0.0, 0.005, t.size)  # jitter ≪ 0.1°
+    still = np.full(t.size, 75.0) + rng.normal(0.0, 0.005, t.size)  # jitter ≪ 0.057°
     flowing = 10.0 + 0.2 * t  # 0.2°/s: the slowest settle flow
 
     def watch() -> HoldWatch:
-        return HoldWatch(threshold_n=4.0, window=1000, dt=1e-3, every=100, still_deg=0.1)
+        return HoldWatch(threshold_n=0.5, window=1000, dt=1e-3, every=100, still_deg=HOLD_STILL_DEG)
 
     calm = watch()
-    noise = rng.normal(0.0, 1.5, t.size)
-    assert all(calm.add(tk, e, e, 20.0, sw) is None for tk, e, sw in zip(t, noise, still, strict=True))
-    assert calm.verdict is None and calm.window_std_n is not None and 1.3 < calm.window_std_n < 1.7
+    noise = 20.0 + rng.normal(0.0, 1.5, t.size) + 2.0 * np.sin(2 * np.pi * t)  # broadband + 1 Hz: 0.2 N in band
+    contact = np.full(t.size, 20.0)
+    assert all(calm.add(tk, e, c, sw) is None for tk, e, c, sw in zip(t, noise, contact, still, strict=True))
+    assert calm.verdict is None and calm.window_band_rms_n is not None and calm.window_band_rms_n < 0.5
     record = calm.result(stopped=False)
-    assert record["verdict"] is None and record["window_s"] == 1.0 and record["still_deg"] == 0.1
-    assert record["threshold_n"] == 4.0 and record["contact_lost_ms"] == 0 and record["stopped"] is False
-    wave = 6.0 * np.sin(2 * np.pi * 30.0 * t)  # STD 4.24 N ≥ 4 N
+    assert record["verdict"] is None and record["window_s"] == 1.0 and record["still_deg"] == HOLD_STILL_DEG
+    assert record["threshold_n"] == 0.5 and record["contact_lost_ms"] == 0 and record["stopped"] is False
+    wave = 20.0 + 2.0 * np.sin(2 * np.pi * 13.0 * t)  # band RMS 1.41 N ≥ 0.5 N
     loud = watch()
-    verdicts = [loud.add(tk, e, e, 20.0, sw) for tk, e, sw in zip(t, wave, still, strict=True)]
+    verdicts = [loud.add(tk, e, c, sw) for tk, e, c, sw in zip(t, wave, contact, still, strict=True)]
     first = next(k for k, v in enumerate(verdicts) if v)
-    assert first == 999 and loud.verdict == "oscillation" and abs(loud.window_std_n - 6.0 / np.sqrt(2)) < 0.05
+    assert first == 999 and loud.verdict == "oscillating" and abs(loud.window_band_rms_n - np.sqrt(2.0)) < 0.1
     assert loud.at_swivel_deg is not None and abs(loud.at_swivel_deg - 75.0) < 0.1
     moving = watch()
-    assert all(moving.add(tk, e, e, 20.0, sw) is None for tk, e, sw in zip(t, wave, flowing, strict=True))
+    assert all(moving.add(tk, e, c, sw) is None for tk, e, c, sw in zip(t, wave, contact, flowing, strict=True))
     lost = watch()
-    errors = np.where(np.arange(t.size) == 500, 20.0, 1.0)  # contact lost at one step (0.5 s)
-    verdicts = [lost.add(tk, 1.0, e, 20.0, sw) for tk, e, sw in zip(t, errors, still, strict=True)]
-    assert next(k for k, v in enumerate(verdicts) if v) == 999 and lost.verdict == "contact lost"
+    force = np.where(np.arange(t.size) == 500, 0.0, 20.0)  # contact lost at one step (0.5 s)
+    verdicts = [lost.add(tk, 20.0, c, sw) for tk, c, sw in zip(t, force, still, strict=True)]
+    assert next(k for k, v in enumerate(verdicts) if v) == 999 and lost.verdict == "lost contact"
     assert lost.contact_lost_ms == 1
-    # a run stopped while held oscillates in the latency table, whatever its (absent) strokes say
-    ref = _run("row", 0, 0.0, [2.0] * 6)
-    held = dict(_run("row", 3, 0.0, []), held=loud.result(stopped=True))
+    # a run stopped while held is not stable in the latency table, whatever its (absent) strokes say
+    ref = _run("row", 0, 0.0, 0.3)
+    held = dict(_run("row", 3, 0.0, None), held=loud.result(stopped=True))
     table = latency_table([ref, held])
     assert table["rows"][0]["smallest_sensing_delay_steps"] == 3
-    assert table["criterion"]["held_std_n"] == 4.0 and table["criterion"]["held_window_s"] == 1.0
-    assert [c["held"] for c in table["rows"][0]["cells"]] == [None, "oscillation"]
+    assert table["criterion"]["held_window_s"] == 1.0
+    assert [c["held"] for c in table["rows"][0]["cells"]] == [None, "oscillating"]
 
 
 def test_only_the_latency_runs_stop_at_a_verdict_while_held():

@@ -319,7 +319,7 @@ def test_a_quick_one_row_experiment_writes_a_report_from_its_own_runs(tmp_path):
     assert f"<td>{pd['mean']:+.3f}</td><td>{pd['max']:+.3f}</td>" in page and "Agreement " in page
 
 
-def test_armature_table_flags_runs_that_did_not_converge_or_lost_contact():
+def test_armature_table_flags_runs_that_did_not_converge_or_were_not_stable_with_their_verdict():
     from app.headless.experiments.polish_report import _arm_ptp
 
     def run(objective, converged, stable):
@@ -330,11 +330,12 @@ def test_armature_table_flags_runs_that_did_not_converge_or_lost_contact():
             "converged_swivel_deg": -86.2,
             "converged": converged,
             "stable": stable,
+            "verdict": "stable" if stable else "oscillating",
         }
 
     doc = {"armature": {"runs": [run("d", False, True), run("f", True, False), run("a", True, True)]}}
     assert _arm_ptp(doc, 0.0, "d") == "10.6 (-86°, not converged)"
-    assert _arm_ptp(doc, 0.0, "f") == "10.6 (-86°, contact lost)"
+    assert _arm_ptp(doc, 0.0, "f") == "10.6 (-86°, oscillating)"
     assert _arm_ptp(doc, 0.0, "a") == "10.6 (-86°)"
     assert _arm_ptp(doc, 1.0, "a") == "-"
 

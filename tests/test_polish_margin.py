@@ -67,32 +67,36 @@ def test_the_operating_point_is_the_commanded_speed_against_the_segments_frictio
     assert f0[0] > 0.9 and f_mid[0] < -0.9  # S1 retracts along −X (friction +X), S2 stretches along +X
 
 
-def _run(stds, lost=0, rate=-1.0, growth=0.0, sensor=None):
+def _run(band, lost=0, rate=-1.0, growth=0.0, sensor=None):
     return {
         "row": "W_j",
         "mu": 1.0,
         "seed": 0,
         "diverged": False,
         "contact_lost_ms": lost,
-        "per_segment": [{"force_error": {"std": s}} for s in stds],
+        "band_rms_max_n": band,
         "stroke": {"rate_min_per_s": rate, "growth_max_np": growth},
         **({"sensor": sensor} if sensor is not None else {}),
     }
 
 
-def test_outcome_is_contact_loss_or_a_stroke_std_above_three_noise_floors_of_the_runs_sensor():
-    """The noise floor of the default sensor is √(5 α/(2 − α) + 2) N; a stroke at 3× it oscillates; a
-    run with another sensor is held against its own floor."""
-    a = 1.0 - np.exp(-2.0 * np.pi * 25.0 * 1e-3)
-    floor = np.sqrt(5.0 * a / (2.0 - a) + 2.0)
+def test_outcome_is_the_one_verdict_against_the_runs_own_sensor_at_any_threshold_scale():
+    """The margin's floor is the default sensor's noise in the contact mode's band (not its 1 Hz
+    sinusoid); the outcome is the verdict with the threshold of the run's sensor, × 0.5 / 1 / 2."""
+    from app.scenarios import verdict as V
+
+    floor = V.band_floor_n(5.0, 25.0, 1e-3)
     assert C.run_floor_n({}) == pytest.approx(floor, rel=1e-12)
-    limit = 3.0 * floor
-    assert C.outcome(_run([1.8, limit * 0.99]))["why"] == ""
-    assert C.outcome(_run([1.8, limit * 1.01]))["why"] == "oscillation"
-    assert C.outcome(_run([1.8, 1.9], lost=3))["why"] == "contact lost"
-    quiet = {"force_noise_var": 0.0, "sine_amplitude_n": 1.0}  # floor √0.5 N
-    assert C.outcome(_run([1.8, 2.2], sensor=quiet))["why"] == "oscillation"
-    assert C.oscillation_threshold_n(quiet) == pytest.approx(3.0 * np.sqrt(0.5), rel=1e-12)
+    assert C.run_floor_n({"sensor": {"sine_amplitude_n": 5.0}}) == pytest.approx(floor, rel=1e-12)
+    limit = C.run_threshold_n({})
+    assert limit == pytest.approx(V.reading_floor_n(5.0, 2.0, 25.0, 1e-3), rel=1e-12)
+    assert C.outcome(_run(limit * 0.99))["why"] == "stable"
+    assert C.outcome(_run(limit * 1.01))["why"] == "oscillating"
+    assert [C.outcome(_run(limit * 0.6), s)["unstable"] for s in (0.5, 1.0, 2.0)] == [True, False, False]
+    assert C.outcome(_run(0.1, lost=3))["why"] == "lost contact"
+    noisier = {"force_noise_var": 50.0}  # a higher floor: √(50 α/(2 − α) + 2) = 2.52 N
+    assert not C.outcome(_run(limit * 1.5, sensor=noisier))["unstable"]
+    assert C.outcome({"contact_lost_ms": 0, "diverged": False})["why"] == "stable"  # a record before the verdict
 
 
 def test_the_verdict_is_the_sign_of_the_least_headroom_and_sigma_is_kept_beside_it():
@@ -100,13 +104,30 @@ def test_the_verdict_is_the_sign_of_the_least_headroom_and_sigma_is_kept_beside_
     predicted stable; a growth beyond it, unstable; the budget follows the run's sensor."""
     budget = C.headroom_budget({})
     assert budget == pytest.approx(np.log(20.0 / C.run_floor_n({})), rel=1e-12)
-    slow = _run([1.0], rate=-0.9, growth=0.5 * budget)
-    fast = _run([1.0], rate=-9.0, growth=1.5 * budget)
+    slow = _run(0.1, rate=-0.9, growth=0.5 * budget)
+    fast = _run(0.1, rate=-9.0, growth=1.5 * budget)
     assert C.headroom_min(slow) == pytest.approx(0.5 * budget) and not C.predicted_unstable(slow)
     assert C.predicted_unstable(fast) and C.predicted_unstable_by_rate(slow) and C.predicted_unstable_by_rate(fast)
-    noisier = _run([1.0], growth=0.9 * budget, sensor={"force_noise_var": 50.0})  # a higher floor, less budget
+    noisier = _run(0.1, growth=0.9 * budget, sensor={"force_noise_var": 50.0})  # a higher floor, less budget
     assert C.headroom_budget(noisier) < budget and C.predicted_unstable(noisier)
     assert C.predicted_unstable({"stroke": {}}) is None
+
+
+def _record(swivel, seed, predicted, band, lost=0):
+    budget = C.headroom_budget({})
+    return {
+        "status": "ok",
+        "params": {"hold_swivel": swivel, "mu": 1.0},
+        "seed": seed,
+        "metrics": {
+            "stroke_growth_max_np": (1.5 if predicted else 0.5) * budget,
+            "stroke_rate_min_per_s": -1.0,  # σ says unstable everywhere
+            "band_rms_max_n": band,
+            "oscillation_threshold_n": 0.5,
+            "contact_lost_ms": lost,
+            "diverged": False,
+        },
+    }
 
 
 def test_confusion_counts_and_the_report_names_the_disagreeing_runs():
@@ -115,25 +136,33 @@ def test_confusion_counts_and_the_report_names_the_disagreeing_runs():
     pairs = [(True, True), (True, False), (False, False), (False, False), (False, True)]
     c = C.confusion(pairs)
     assert (c["tp"], c["fp"], c["tn"], c["fn"], c["n"]) == (1, 1, 2, 1, 5) and c["agreement"] == pytest.approx(0.6)
-    budget = C.headroom_budget({})
-    records = [
-        {"status": "ok", "params": {"hold_swivel": sw, "mu": 1.0}, "seed": 0, "metrics": m}
-        for sw, (p, s) in zip((-80, -40, 0, 20, 40), pairs, strict=True)
-        for m in [
-            {
-                "stroke_growth_max_np": (1.5 if p else 0.5) * budget,
-                "stroke_rate_min_per_s": -1.0,  # σ says unstable everywhere
-                "simulated_unstable": s,
-                "outcome": "oscillation" if s else "stable",
-            }
-        ]
-    ]
+    records = [_record(sw, 0, p, 5.0 if s else 0.1) for sw, (p, s) in zip((-80, -40, 0, 20, 40), pairs, strict=True)]
     page = C.sweep_section(["hold_swivel", "mu"], records)
     first, second = page.split("The same runs by the sign of the worst σ")
     assert "Agreement 3 of 5 (60 %)" in first and "Disagreeing runs by the sign of the headroom (2)" in first
     assert "<td>-40</td>" in first and "<td>40</td>" in first and "<td>20</td>" not in first
     assert "Agreement 2 of 5 (40 %)" in second and "Disagreeing runs by the sign of σ (3)" in second
-    assert f"starts with {budget:.2f} Np" in page
+    assert f"starts with {C.headroom_budget({}):.2f} Np" in page
+
+
+def test_the_threshold_sensitivity_judges_each_cells_seeds_together_and_names_those_that_disagree():
+    """Three seeds per cell: a cell whose seeds straddle the threshold is "seeds disagree" and counted
+    for neither side at that scale, decided at the scales where they do not; boundary cells (a band RMS
+    within a factor 2 of the threshold) with fewer than 3 seeds are named."""
+    records = (
+        [_record(-80, k, False, 0.1) for k in range(3)]  # calm, predicted calm: agrees at every scale
+        + [_record(-40, k, True, b) for k, b in enumerate((0.45, 0.55, 0.6))]  # straddles × 1
+        + [_record(0, k, True, 3.0, lost=5) for k in range(3)]  # lost, predicted: agrees
+        + [_record(20, 0, False, 0.7)]  # one seed, at 1.4× the threshold: short of seeds, disagrees at × 1
+    )
+    sens = C.threshold_sensitivity(["hold_swivel", "mu"], records)
+    by = {e["scale"]: e for e in sens["scales"]}
+    assert by[1.0]["seeds_disagree"] == [(-40, 1.0)] and (by[1.0]["agree"], by[1.0]["decided"]) == (2, 3)
+    assert by[0.5]["seeds_disagree"] == [] and (by[0.5]["agree"], by[0.5]["decided"]) == (3, 4)
+    assert by[2.0]["seeds_disagree"] == [] and (by[2.0]["agree"], by[2.0]["decided"]) == (3, 4)
+    assert [b["cell"] for b in sens["boundary"]] == [(-40, 1.0), (20, 1.0)] and sens["boundary_short"] == [(20, 1.0)]
+    page = C.sweep_section(["hold_swivel", "mu"], records)
+    assert "hold_swivel -40, mu 1.0" in page and "1 with fewer than 3 seeds" in page
 
 
 def test_the_live_rate_is_recomputed_every_100_steps_from_the_logged_posture_and_shown(rizon):
@@ -312,3 +341,21 @@ def test_the_live_margin_in_the_worker_process_is_the_inline_one_and_leaves_the_
     assert len(away) == len(inline) == 5 and all(np.isfinite(inline[k][0]) for k in range(5))
     for (rate, kd), (rate_in, kd_in) in zip(away, inline, strict=True):
         assert rate == pytest.approx(rate_in, rel=1e-9, abs=1e-9) and kd == pytest.approx(kd_in, rel=1e-9, abs=1e-9)
+
+
+def test_the_headroom_is_stated_as_a_sign_outside_its_band_and_checked_against_the_verdict():
+    """h ± the calibration's growth error: below 0 all through the band predicts lost contact, above it
+    keeps contact, a band across 0 is too close to call; after the stroke the prediction is checked
+    against the one verdict's lost contact only (the margin's event)."""
+    band = PM.HEADROOM_BAND_NP
+    shake = PM.headroom_statement(-band - 0.1)
+    calm = PM.headroom_statement(band + 0.1)
+    close = PM.headroom_statement(0.5 * band)
+    assert (shake.sign, calm.sign, close.sign) == (-1, 1, 0)
+    assert shake.high_np == pytest.approx(-0.1) and calm.low_np == pytest.approx(0.1)
+    assert "shake off the table (lose contact) within this stroke" in shake.words and "keep contact" in calm.words
+    assert "too close to call" in close.words and PM.headroom_statement(float("nan")).sign == 0
+    assert PM.headroom_came_true(shake, "lost contact").startswith("came true")
+    assert PM.headroom_came_true(shake, "oscillating").startswith("did not come true")
+    assert PM.headroom_came_true(calm, "oscillating").startswith("came true")
+    assert PM.headroom_came_true(close, "stable").startswith("no prediction")

@@ -24,6 +24,7 @@ from app.core.commands import Command
 from app.core.params import field_spec
 from app.live.frames import LoopStatus, deflection_readouts
 from app.live.lab import Lab
+from app.scenarios import verdict as V
 from app.scenarios.metrics import PUSH_AFTER_S, REVERSAL_HYSTERESIS_RAD_S, velocity_reversals
 
 Obs = dict[str, float]  # one step's measured numbers
@@ -71,6 +72,7 @@ def measure(lab: Lab) -> Obs:
         for k, v in lab.log.segment_force_error_std().items():
             out[f"std_S{k}"] = v
         out.update(least_headroom(c, segments))
+        out.update(stroke_verdicts(c, s.params().get("sensor"), lab.dt))
         found = delay_field()
         if found is not None and found[0] in s.params():
             out["reading_delay"] = float(getattr(s.params()[found[0]], found[1]))
@@ -124,6 +126,20 @@ def least_headroom(c: dict[str, np.ndarray], segments: int) -> Obs:
     return out
 
 
+def stroke_verdicts(c: dict[str, np.ndarray], sensor: object, dt: float) -> Obs:
+    """The one verdict (`app.scenarios.verdict`) of each logged stroke: "verdict_S{k}" (its index in
+    `verdict.SEVERITY`), "band_S{k}" (the F/T reading's band RMS, N) and the threshold it was held to."""
+    out: Obs = {}
+    seg, fz, contact = c.get("segment"), c.get("F_z"), c.get("contact_force_n")
+    if seg is None or fz is None or contact is None or sensor is None:
+        return out
+    for s in V.strokes(seg, fz, contact, sensor, dt):
+        out[f"verdict_S{s.segment}"] = float(V.SEVERITY.index(s.verdict))
+        out[f"band_S{s.segment}"] = s.band_rms_n
+        out["oscillation_threshold_n"] = s.threshold_n
+    return out
+
+
 # ---- what a claim says -----------------------------------------------------------------------------
 def _stroke_numbers(o: Obs) -> range:
     """The strokes 1…segments of the measured preset (`Scenario.segments`, "segments" in `measure`);
@@ -162,10 +178,27 @@ def strokes_claim(label: str) -> Callable[[Obs, Memo], str]:
         return (
             f"{label}{delay}: the stretching strokes S2/S4/S6 had a force-error STD of {_fmt(forward)} N against "
             f"{_fmt(back)} N on S1/S3/S5 — S4's {o['std_S4']:.1f} N is {ratio:.1f}× S3's {o['std_S3']:.1f} N."
+            + verdict_claim(o)
             + headroom_claim(o)
         )
 
     return claim
+
+
+def _verdict_of(o: Obs, k: int) -> str | None:
+    v = o.get(f"verdict_S{k}")
+    return None if v is None else V.SEVERITY[int(v)]
+
+
+def verdict_claim(o: Obs) -> str:
+    """Each stroke's verdict in words ("" without them)."""
+    if not all(f"verdict_S{k}" in o for k in range(1, SEGMENTS + 1)):
+        return ""
+    words = ", ".join(f"S{k} {_verdict_of(o, k)} ({o[f'band_S{k}']:.2f} N)" for k in range(1, SEGMENTS + 1))
+    return (
+        f" By the one verdict (F/T band RMS around the 13 Hz contact mode, oscillating from "
+        f"{o['oscillation_threshold_n']:.2f} N; lost contact: the contact force reached 0): {words}."
+    )
 
 
 def headroom_claim(o: Obs) -> str:
@@ -182,9 +215,21 @@ def headroom_claim(o: Obs) -> str:
         else "above 0 on every stroke: the model predicted every stroke to end before a disturbance at the "
         "noise floor reaches the desired force"
     )
+    came = ""
+    if all(f"verdict_S{k}" in o for k in range(1, SEGMENTS + 1)):
+        wrong = [
+            f"S{k}"
+            for k in range(1, SEGMENTS + 1)
+            if (o[f"headroom_S{k}"] < 0.0) != (_verdict_of(o, k) in (V.LOST, V.DIVERGED))
+        ]
+        came = (
+            " By the verdict's lost contact, that came true on every stroke."
+            if not wrong
+            else f" By the verdict's lost contact, that did not come true on {', '.join(wrong)}."
+        )
     return (
         f" The margin's stroke headroom fell to {'/'.join(f'{v:+.1f}' for v in forward)} Np on S2/S4/S6 and "
-        f"{'/'.join(f'{v:+.1f}' for v in back)} Np on S1/S3/S5, {verdict}."
+        f"{'/'.join(f'{v:+.1f}' for v in back)} Np on S1/S3/S5, {verdict}.{came}"
     )
 
 

@@ -12,8 +12,8 @@ G (nepers) that the frozen-posture rates accumulate over the stroke: G_k = max(0
 the log of how much a disturbance at the noise level can be amplified before the stroke ends.
 
 The margin itself is the stroke's headroom h_k = ln(F̂ / floor) − G_k (nepers): the growth still
-allowed before a disturbance at the sensor's noise floor (`noise_floor_std_n`) reaches the desired
-force F̂, i.e. lifts the tool off the table. h > 0 all along a stroke: the stroke ends first; h < 0:
+allowed before a disturbance at the sensor's noise floor in the contact mode's band (`sensor_floor_n`)
+reaches the desired force F̂, i.e. lifts the tool off the table. h > 0 all along a stroke: the stroke ends first; h < 0:
 it does not. σ and the K_f^d margin stay as the instantaneous diagnostics: a slowly growing mode
 (σ slightly negative) on a 2.5 s stroke does not use up the headroom.
 """
@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.scenarios import polish_stroke as P
+from app.scenarios import verdict as V
 from control.coupling import POLISH_SUBSPACES
 from control.gains import MotionForceGains
 from control.margin import ContactLoop, force_loop_margin, loop_rate, posture_margin
@@ -34,37 +35,56 @@ from control.planner import Plan
 MARGIN_SAMPLE_S = 0.025  # 100 samples per 2.5 s stroke: finer than the ≈ 0.3 s the rates change over
 
 
-def noise_floor_std_n(
-    force_noise_var_n2: float, sine_amplitude_n: float, cutoff_hz: float, dt: float, noise: bool = True
-) -> float:
-    """STD (N) of the F/T reading's noise and sinusoid after its first-order low-pass ([T] §IV-A):
-    white noise of variance σ² leaves σ² α/(2 − α); a slow sinusoid of amplitude A passes with A²/2;
-    0 without noise."""
-    if not noise:
-        return 0.0
-    alpha = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz * dt) if cutoff_hz > 0 else 1.0
-    return math.sqrt(force_noise_var_n2 * alpha / (2.0 - alpha) + 0.5 * sine_amplitude_n**2)
-
-
 def sensor_floor_n(sensor: object, dt: float) -> float:
-    """`noise_floor_std_n` of a sensor group (`SensorParams`) or of its fields as a mapping."""
-
-    def field(name: str) -> object:
-        return sensor.get(name) if isinstance(sensor, dict) else getattr(sensor, name)
-
-    return noise_floor_std_n(
-        float(field("force_noise_var")),  # type: ignore[arg-type]
-        float(field("sine_amplitude_n")),  # type: ignore[arg-type]
-        float(field("cutoff_hz")),  # type: ignore[arg-type]
-        dt,
-        bool(field("noise")),
-    )
+    """The margin's noise floor (N) of a sensor group (`SensorParams`) or its fields as a mapping: the
+    RMS of its force noise in the contact mode's band, after its low-pass (`verdict.sensor_band_floor_n`;
+    0 with the noise off). The 1 Hz sinusoid is left out: it cannot seed the 12–14 Hz mode."""
+    return V.sensor_band_floor_n(sensor, dt, noise_switch=True)
 
 
 def headroom_budget_np(force_n: float, floor_n: float) -> float:
     """ln(F̂ / floor) (nepers): the growth that takes a disturbance at the noise floor to the desired
     force, the headroom a stroke starts with (inf for a sensor without noise)."""
     return math.log(force_n / floor_n) if floor_n > 0 else math.inf
+
+
+# The margin's growth G against the growth the runs showed (the calibration's predicted-against-observed
+# figure, `polish_calibration.growth_comparison`): its RMS error over the runs with G > 0 that kept contact.
+# The headroom's sign is stated only outside ± this band; inside it the prediction is too close to call.
+HEADROOM_BAND_NP = 1.75
+
+
+@dataclass(frozen=True)
+class HeadroomStatement:
+    """The margin of a stroke as it may be shown: the sign of its least headroom h, the band h ± the
+    growth error within which that sign is not decided, and the words."""
+
+    sign: int  # −1: predicted to lose contact; +1: predicted to keep it; 0: too close to call
+    low_np: float
+    high_np: float
+    words: str
+
+
+def headroom_statement(headroom_np: float, band_np: float = HEADROOM_BAND_NP) -> HeadroomStatement:
+    """What the least headroom h of a stroke predicts, with its band h ± band_np (module docstring)."""
+    if not math.isfinite(headroom_np):
+        return HeadroomStatement(0, math.nan, math.nan, "no prediction on this stroke")
+    low, high = headroom_np - band_np, headroom_np + band_np
+    if high < 0.0:
+        return HeadroomStatement(-1, low, high, "predicted to shake off the table (lose contact) within this stroke")
+    if low > 0.0:
+        return HeadroomStatement(1, low, high, "predicted to keep contact through this stroke")
+    return HeadroomStatement(0, low, high, "too close to call: the headroom is within the margin's error of 0")
+
+
+def headroom_came_true(statement: HeadroomStatement, verdict: str) -> str:
+    """After the stroke, against its one verdict (`app.scenarios.verdict`): whether the prediction came
+    true, in words (the margin predicts lost contact: its event is the contact force reaching 0)."""
+    lost = verdict in (V.LOST, V.DIVERGED)
+    if statement.sign == 0:
+        return f"no prediction to check; the stroke was {verdict}"
+    came = (statement.sign < 0) == lost
+    return f"{'came true' if came else 'did not come true'}: the stroke was {verdict}"
 
 
 class StrokeHeadroom:

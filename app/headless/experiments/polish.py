@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from app.core.provenance import code_record
-from app.headless.experiments.polish_calibration import observed_mode, oscillation_threshold_n, runs_by_row
+from app.headless.experiments.polish_calibration import observed_mode, runs_by_row
 from app.headless.experiments.polish_latency import HoldWatch, _latency_of, format_latency, latency_specs, latency_table
 from app.headless.experiments.polish_report import _deg, _num
 from app.headless.experiments.polish_rows import (
@@ -42,6 +42,7 @@ from app.headless.experiments.run_config import parse_settings, run_configuratio
 from app.headless.sweep.engine import open_executor
 from app.scenarios import polish_plan as plan_module
 from app.scenarios import polish_stroke as stroke_module
+from app.scenarios import verdict as V
 from app.scenarios.metrics import force_error_std
 from app.scenarios.polish import PolishScenario
 from app.scenarios.polish_margin import MARGIN_SAMPLE_S
@@ -146,7 +147,7 @@ def simulate(spec: dict) -> dict:
     dt = float(session.world.model.opt.timestep)
     margin_every = max(1, round(MARGIN_SAMPLE_S / dt))
     hold = HoldWatch(
-        oscillation_threshold_n(dataclasses.asdict(ran["sensor"]), dt),  # type: ignore[call-overload]
+        V.oscillation_threshold_n(ran["sensor"], dt),
         round(stroke_module.SETTLE_WINDOW_S / dt),
         dt,
     )
@@ -155,8 +156,7 @@ def simulate(spec: dict) -> dict:
     def record(r) -> None:
         sig = r.signals
         if clock.trajectory_start is None and r.t >= stroke_module.CONTACT_TIME_S:  # held, settling
-            desired = stroke_module.DESIRED_FORCE_N
-            hold.add(r.t, desired - r.wrench_tcp[2], desired - sig["contact_force_n"], desired, sig["swivel_deg"])
+            hold.add(r.t, r.wrench_tcp[2], sig["contact_force_n"], sig["swivel_deg"])
         if 1 <= sig["segment"] <= N_SEGMENTS and len(rec["t"]) % margin_every == 0:
             stroke_q.append((r.t - float(clock.trajectory_start), r.q.copy()))
         if not q_converged and clock.trajectory_start is not None:
@@ -182,6 +182,7 @@ def simulate(spec: dict) -> dict:
     qc = q_converged[0] if q_converged else session.world.q.copy()
     model = session.model
     traj = (series["segment"] >= 1) & (series["segment"] <= N_SEGMENTS)
+    contact_n = stroke_module.DESIRED_FORCE_N - series["force_error_true"]  # the true contact force
     mu, shaping = float(ran["contact"].mu), bool(ran["motion_force"].shaping)  # type: ignore[attr-defined]
     posture = posture_figures(session, qc, mu, shaping)
     stroke = stroke_margin_figures(session, stroke_q, shaping)
@@ -215,7 +216,7 @@ def simulate(spec: dict) -> dict:
         **posture,
         "force_error": _stats(series["force_error"][traj]),
         "force_error_true_contact": _stats(series["force_error_true"][traj]),
-        "contact_lost_ms": int(np.sum(series["force_error_true"][traj] >= stroke_module.DESIRED_FORCE_N)),
+        "contact_lost_ms": int(np.sum(V.contact_lost(contact_n[traj]))),
         "run_stop": result_run.stop,
         "diverged": result_run.stop == "diverged",
         "held": held,
@@ -224,7 +225,23 @@ def simulate(spec: dict) -> dict:
         "q_start": [float(x) for x in q_start],
         "q_converged": [float(x) for x in qc],
     }
-    result["stable"] = bool(result_run.stop != "diverged" and result["contact_lost_ms"] == 0 and np.any(traj))
+    # the one verdict (app.scenarios.verdict) per stroke, from the F/T reading and the true contact force
+    judged = V.strokes(
+        series["segment"],
+        stroke_module.DESIRED_FORCE_N - series["force_error"],
+        contact_n,
+        ran["sensor"],
+        dt,
+    )
+    verdict = V.run_verdict(judged, diverged=result["diverged"])
+    if verdict != V.DIVERGED and held["verdict"]:  # stopped while held (the latency runs)
+        verdict = held["verdict"]
+    result["verdict"] = verdict if np.any(traj) or verdict != V.STABLE else "no strokes"
+    result["stable"] = result["verdict"] == V.STABLE
+    result["band_floor_n"] = V.sensor_band_floor_n(ran["sensor"], dt)
+    result["oscillation_threshold_n"] = V.oscillation_threshold_n(ran["sensor"], dt)
+    result["band_rms_max_n"] = max((s.band_rms_n for s in judged), default=None)
+    by_segment = {s.segment: s for s in judged}
     if plan_cost is not None:
         plan = session.scenario.plan  # type: ignore[attr-defined]  # the session's copy of the scenario
         assert plan is not None
@@ -250,7 +267,9 @@ def simulate(spec: dict) -> dict:
                 "segment": seg_k,
                 "direction": "retract (-X)" if seg_k % 2 == 1 else "stretch (+X)",
                 "force_error": _stats(series["force_error"][sel]),
-                "contact_lost_ms": int(np.sum(series["force_error_true"][sel] >= stroke_module.DESIRED_FORCE_N)),
+                "contact_lost_ms": int(np.sum(V.contact_lost(contact_n[sel]))),
+                "verdict": by_segment[seg_k].verdict if seg_k in by_segment else None,
+                "band_rms_n": by_segment[seg_k].band_rms_n if seg_k in by_segment else None,
                 # the true contact force's mode on this stroke, beside the margin's (polish_calibration)
                 "observed": observed_mode(series["force_error_true"], int(idx[0]), int(idx[-1]) + 1, dt)
                 if idx.size

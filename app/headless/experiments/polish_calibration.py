@@ -2,28 +2,32 @@
 
 Predicted unstable: the stroke headroom h = ln(F̂ / noise floor) − G (`app.scenarios.polish_margin`,
 with the run's μ, sensor and latency) falls below 0 on some stroke: a disturbance at the sensor's
-noise floor grows to the desired force before the stroke ends. The sign of the worst decay rate σ
-over the strokes is kept beside it as the instantaneous verdict.
-Simulated unstable: the run diverged, lost contact during the strokes (true contact force ≤ 0 for
-at least one 1 ms step), or oscillated: some stroke's force-error STD is at least
-`OSCILLATION_FACTOR` times the noise floor, the STD that the run's sensor noise and sinusoid alone
-give after its low-pass (`polish_margin.noise_floor_std_n`).
+noise floor in the contact mode's band grows to the desired force before the stroke ends. The sign of
+the worst decay rate σ over the strokes is kept beside it as the instantaneous verdict.
+Simulated unstable: the one verdict (`app.scenarios.verdict`) is not "stable": the run diverged, lost
+contact, or some stroke oscillated. The calibration shows the agreement at the verdict's threshold
+× 0.5, × 1 and × 2 (`threshold_sensitivity`), each cell's seeds judged together: a cell whose seeds
+disagree is named as such, not counted for either side.
 """
 
 from __future__ import annotations
 
+import base64
 import dataclasses
 import html
+import io
 from collections.abc import Mapping
 
 import numpy as np
 
 from app.scenarios import polish_stroke as PS
+from app.scenarios import verdict as V
 from app.scenarios.polish_margin import headroom_budget_np, sensor_floor_n
 from app.sim.sensor import SensorParams
 
-OSCILLATION_FACTOR = 3.0  # calm strokes sit at 1.2-1.5x the floor, the S2/S4/S6 limit cycles at 6-8x (issue 24)
 DEFAULT_DT_S = 1e-3  # the step of runs that did not record theirs
+THRESHOLD_SCALES = (0.5, 1.0, 2.0)  # the verdict's oscillation threshold × these: its sensitivity
+MIN_BOUNDARY_SEEDS = 3  # seeds a cell within a factor 2 of the threshold needs
 
 
 def run_sensor(result: Mapping) -> dict:
@@ -36,33 +40,46 @@ def run_sensor(result: Mapping) -> dict:
     return {k: result.get(f"sensor_{k}", v) for k, v in defaults.items()}
 
 
+def run_dt(result: Mapping) -> float:
+    """The run's step (s)."""
+    return float(result.get("timestep_s") or DEFAULT_DT_S)
+
+
 def run_floor_n(result: Mapping) -> float:
-    """The run's noise floor (N): its sensor's noise and sinusoid after its low-pass."""
-    return sensor_floor_n(run_sensor(result), float(result.get("timestep_s") or DEFAULT_DT_S))
+    """The margin's noise floor of the run (N): its sensor's noise in the contact mode's band."""
+    return sensor_floor_n(run_sensor(result), run_dt(result))
 
 
-def oscillation_threshold_n(sensor: Mapping | None = None, dt: float = DEFAULT_DT_S) -> float:
-    """The stroke force-error STD (N) from which a stroke counts as oscillating: `OSCILLATION_FACTOR`
-    noise floors of this sensor (its fields; None: the defaults)."""
-    return OSCILLATION_FACTOR * run_floor_n({"sensor": dict(sensor or {}), "timestep_s": dt})
+def run_threshold_n(result: Mapping) -> float:
+    """The run's oscillation threshold (N): as recorded, else from its sensor (`verdict`)."""
+    own = result.get("oscillation_threshold_n")
+    return float(own) if own is not None else V.oscillation_threshold_n(run_sensor(result), run_dt(result))
 
 
-def outcome(result: dict) -> dict:
-    """What the run did: unstable (bool) and why ("diverged", "contact lost", "oscillation", "" when
-    stable), the largest stroke STD and the threshold it was held against."""
-    stds = [s["force_error"]["std"] for s in result.get("per_segment", []) if s["force_error"]["std"] is not None]
-    worst = max(stds) if stds else None
-    limit = OSCILLATION_FACTOR * run_floor_n(result)
-    why = (
-        "diverged"
-        if result.get("diverged")
-        else "contact lost"
-        if result.get("contact_lost_ms", 0) > 0
-        else "oscillation"
-        if worst is not None and worst >= limit
-        else ""
-    )
-    return {"unstable": bool(why), "why": why, "stroke_std_max_n": worst, "threshold_n": limit}
+def run_verdict(result: Mapping, scale: float = 1.0) -> str:
+    """The run's one verdict with the threshold × scale: recomputed from its recorded band RMS, as
+    recorded when it has none (a run stopped while held), else from its divergence and lost contact
+    alone (a record made before the verdict)."""
+    if result.get("diverged"):
+        return V.DIVERGED
+    rms = result.get("band_rms_max_n")
+    if rms is not None:
+        return V.judge(float(rms), int(result.get("contact_lost_ms") or 0), run_threshold_n(result), scale)
+    if result.get("verdict"):
+        return str(result["verdict"])
+    return V.DIVERGED if result.get("diverged") else V.LOST if (result.get("contact_lost_ms") or 0) > 0 else V.STABLE
+
+
+def outcome(result: Mapping, scale: float = 1.0) -> dict:
+    """What the run did by the one verdict: unstable (bool), the verdict, the worst stroke's band RMS
+    and the threshold it was held against."""
+    verdict = run_verdict(result, scale)
+    return {
+        "unstable": V.unstable(verdict),
+        "why": verdict,
+        "band_rms_max_n": result.get("band_rms_max_n"),
+        "threshold_n": scale * run_threshold_n(result),
+    }
 
 
 OBSERVED_BAND_HZ = (5.0, 40.0)  # where the force loop's modes lie (the linearised loop's: 13-14 Hz)
@@ -202,19 +219,19 @@ def _verdicts_text(force_n: float, floor_n: float, budget_np: float, threshold_n
     """The two verdicts and the outcome in words, with the run's F̂, floor and threshold."""
     return (
         "Predicted unstable (the margin's verdict): the stroke headroom h = ln(F̂ / floor) − G falls below 0 "
-        f"on some stroke, with F̂ = {force_n:g} N and the sensor's noise floor {floor_n:.2f} N (its noise and "
-        f"sinusoid after its low-pass), so each stroke starts with {budget_np:.2f} Np and G is the growth "
+        f"on some stroke, with F̂ = {force_n:g} N and the sensor's noise floor in the contact mode's band "
+        f"{floor_n:.3f} N, so each stroke starts with {budget_np:.2f} Np and G is the growth "
         "G_k = max(0, G_{k−1} − σ_k Δt) the rates accumulate along it: a disturbance at the noise floor "
         "reaches the desired force before the stroke ends. Beside it, the instantaneous verdict: the worst "
-        "σ over the strokes is negative. Simulated unstable: the run diverged, lost contact, or a stroke's "
-        f"force-error STD reached {threshold_n:.1f} N ({OSCILLATION_FACTOR:g}× the noise floor)."
+        "σ over the strokes is negative. Simulated unstable: the one verdict is not stable. "
+        + V.definition_text(threshold_n)
     )
 
 
 def _run_figures(runs: list[dict]) -> tuple[float, float, float, float]:
-    """(F̂, floor, budget, oscillation threshold) of the first run, the runs' common sensor."""
+    """(F̂, margin floor, budget, oscillation threshold) of the first run, the runs' common sensor."""
     r = runs[0]
-    return desired_force_n(r), run_floor_n(r), headroom_budget(r), OSCILLATION_FACTOR * run_floor_n(r)
+    return desired_force_n(r), run_floor_n(r), headroom_budget(r), run_threshold_n(r)
 
 
 def report_section(runs: list[dict]) -> str:
@@ -237,14 +254,14 @@ def report_section(runs: list[dict]) -> str:
         cells = "".join(f"<td>{_f(seg[k]['rate_min_per_s']) if k in seg else '-'}</td>" for k in range(1, 7))
         verdict = "-" if pred is None else ("unstable" if pred else "stable")
         verdict_rate = "-" if pred_rate is None else ("unstable" if pred_rate else "stable")
-        sim = o["why"] or "stable"
+        sim = o["why"]
         mark = "" if pred is None or pred == o["unstable"] else " style='background:#fdd'"
         rows.append(
             f"<tr{mark}><td>{html.escape(str(r['row']))}</td><td>{r['mu']:g}</td><td>{r['seed']}</td>{cells}"
             f"<td>{_f(r['stroke'].get('kd_margin_min'), 0)}</td><td>{r['stroke']['growth_max_np']:.1f}</td>"
             f"<td>{_f(headroom_min(r), 2)}</td>"
             f"<td>{_f(pd.get('mean'), 3)}</td><td>{_f(pd.get('max'), 3)}</td><td>{verdict}</td><td>{verdict_rate}</td>"
-            f"<td>{sim} ({_f(o['stroke_std_max_n'])} N)</td></tr>"
+            f"<td>{sim} ({_f(o['band_rms_max_n'], 2)} N)</td></tr>"
         )
     loops = {(r["stroke_loop"]["sensing_delay_steps"], r["stroke_loop"]["actuation_delay_steps"]) for r in runs}
     latency = "; ".join(f"d_s = {ds}, d_a = {da} periods" for ds, da in sorted(loops))
@@ -273,7 +290,7 @@ def report_section(runs: list[dict]) -> str:
         "<table><tr><th>row</th><th>μ</th><th>seed</th>"
         + "".join(f"<th>σ S{k}</th>" for k in range(1, 7))
         + "<th>K_f^d margin</th><th>G</th><th>h_min</th><th>P_d·f̂ mean</th><th>P_d·f̂ max</th>"
-        "<th>predicted (h)</th><th>predicted (σ)</th><th>simulated (max stroke STD)</th></tr>"
+        "<th>predicted (h)</th><th>predicted (σ)</th><th>simulated (worst stroke band RMS)</th></tr>"
         + "".join(rows)
         + "</table><p>By the sign of the headroom (the margin's verdict):</p>"
         + confusion_table_html(confusion(by_h), "h_min &lt; 0", "h_min ≥ 0")
@@ -292,8 +309,7 @@ def calibration_metrics(result: dict) -> dict:
         "headroom_min_np": headroom_min(result),
         "headroom_budget_np": headroom_budget(result),
         "simulated_unstable": o["unstable"],
-        "outcome": o["why"] or "stable",
-        "stroke_std_max_n": o["stroke_std_max_n"],
+        "outcome": o["why"],
         **growth_stroke(result),
     }
 
@@ -318,20 +334,24 @@ def growth_stroke(result: dict) -> dict:
 
 
 def sweep_section(names: list[str], records: list[dict]) -> str:
-    """HTML for a polish sweep: the confusion tables over its runs (one per cell and seed) of the
-    headroom's verdict and of σ's, each followed by every run where it and the outcome disagree, by
-    its swept values. Both verdicts come from each record's own metrics (its growth, worst σ, sensor
-    and F̂), so a redrawn report of older records judges them alike. Empty without verdicts."""
+    """HTML for a polish sweep: the margin's agreement with the one verdict at the threshold × 0.5,
+    × 1, × 2 over the grid's cells (seeds judged together, `threshold_sensitivity`) with the cells
+    whose seeds disagree and the boundary cells; then the confusion tables over its runs (one per cell
+    and seed) of the headroom's verdict and of σ's, each followed by every run where it and the
+    outcome disagree; then the margin's growth against the observed one (`growth_comparison`). Both
+    verdicts come from each record's own metrics (its growth, worst σ, sensor, F̂, band RMS), so a
+    redrawn report of older records judges them alike. Empty without verdicts."""
     runs = [r for r in records if r.get("status") == "ok" and headroom_min(r.get("metrics") or {}) is not None]
     if not runs:
         return ""
     metrics = [r["metrics"] for r in runs]
-    sim = [bool(m["simulated_unstable"]) for m in metrics]
+    sim = [outcome(m)["unstable"] for m in metrics]
     by_h = [bool(predicted_unstable(m)) for m in metrics]
     text = (
         "<h3>Calibration of the force-loop margin</h3>"
         f"<p>{html.escape(_sweep_verdicts_text(metrics))}</p>"
-        "<p>By the sign of the headroom (the margin's verdict):</p>"
+        + sensitivity_html(names, threshold_sensitivity(names, runs))
+        + "<p>Per run, at the threshold × 1, by the sign of the headroom (the margin's verdict):</p>"
         + confusion_table_html(confusion(list(zip(by_h, sim, strict=True))), "h_min &lt; 0", "h_min ≥ 0")
         + _disagreeing(names, runs, by_h, sim, "the sign of the headroom")
     )
@@ -343,20 +363,185 @@ def sweep_section(names: list[str], records: list[dict]) -> str:
             + confusion_table_html(confusion(list(zip(by_rate, sim, strict=True))))
             + _disagreeing(names, runs, by_rate, sim, "the sign of σ")
         )
-    return text
+    return text + growth_html(growth_comparison(metrics))
+
+
+def cell_key(names: list[str], record: Mapping) -> tuple:
+    """The grid point of a sweep record (its swept values in the grid's order)."""
+    return tuple(record["params"].get(n) for n in names)
+
+
+def threshold_sensitivity(names: list[str], runs: list[dict], scales: tuple = THRESHOLD_SCALES) -> dict:
+    """Per threshold scale: each cell's simulated verdict over its seeds (all seeds unstable, all
+    stable, or "seeds disagree") and the margin's (likewise), the agreement over the cells where both
+    are decided, and the cells left undecided; beside them the boundary cells (a seed's worst band RMS
+    within a factor 2 of the threshold × 1) and those of them with fewer than `MIN_BOUNDARY_SEEDS` seeds."""
+    cells: dict[tuple, list[dict]] = {}
+    for r in runs:
+        cells.setdefault(cell_key(names, r), []).append(r)
+    per_scale = []
+    for scale in scales:
+        rows, agree, decided = [], 0, 0
+        for key, rs in cells.items():
+            sims = {outcome(r["metrics"], scale)["unstable"] for r in rs}
+            preds = {bool(predicted_unstable(r["metrics"])) for r in rs}
+            sim = None if len(sims) > 1 else sims.pop()
+            pred = None if len(preds) > 1 else preds.pop()
+            if sim is not None and pred is not None:
+                decided += 1
+                agree += int(sim == pred)
+            rows.append({"cell": key, "seeds": len(rs), "simulated": sim, "predicted": pred})
+        per_scale.append(
+            {
+                "scale": scale,
+                "cells": rows,
+                "decided": decided,
+                "agree": agree,
+                "agreement": agree / decided if decided else None,
+                "seeds_disagree": [c["cell"] for c in rows if c["simulated"] is None],
+                "margin_seeds_disagree": [c["cell"] for c in rows if c["predicted"] is None],
+            }
+        )
+    boundary: list[dict] = []
+    for key, rs in cells.items():
+        ratios = [
+            float(m["band_rms_max_n"]) / run_threshold_n(m)
+            for m in (r["metrics"] for r in rs)
+            if m.get("band_rms_max_n") is not None and not (m.get("contact_lost_ms") or m.get("diverged"))
+        ]
+        if any(0.5 <= x <= 2.0 for x in ratios):
+            verdicts = sorted({outcome(r["metrics"])["why"] for r in rs})
+            boundary.append({"cell": key, "seeds": len(rs), "ratios": ratios, "verdicts": verdicts})
+    return {
+        "scales": per_scale,
+        "boundary": boundary,
+        "boundary_short": [b["cell"] for b in boundary if int(b["seeds"]) < MIN_BOUNDARY_SEEDS],
+        "cells": len(cells),
+    }
+
+
+def _cell_text(names: list[str], key: tuple) -> str:
+    return ", ".join(f"{n} {v}" for n, v in zip(names, key, strict=True))
+
+
+def sensitivity_html(names: list[str], sens: dict) -> str:
+    """The agreement table at each threshold scale, the cells whose seeds disagree, the boundary cells."""
+
+    def pct(x) -> str:
+        return "-" if x is None else f"{100 * x:.0f} %"
+
+    rows = "".join(
+        f"<tr><td>× {e['scale']:g}</td><td>{e['agree']} of {e['decided']}</td><td>{pct(e['agreement'])}</td>"
+        f"<td>{len(e['seeds_disagree'])}</td><td>{len(e['margin_seeds_disagree'])}</td>"
+        f"<td>{sum(1 for c in e['cells'] if c['simulated'])}</td></tr>"
+        for e in sens["scales"]
+    )
+    undecided = "".join(
+        f"<li>× {e['scale']:g}: " + html.escape("; ".join(_cell_text(names, k) for k in e["seeds_disagree"])) + "</li>"
+        for e in sens["scales"]
+        if e["seeds_disagree"]
+    )
+    boundary = "".join(
+        f"<tr><td>{html.escape(_cell_text(names, b['cell']))}</td><td>{b['seeds']}</td>"
+        f"<td>{' / '.join(f'{x:.2f}' for x in b['ratios'])}</td><td>{html.escape(', '.join(b['verdicts']))}</td></tr>"
+        for b in sens["boundary"]
+    )
+    short = sens["boundary_short"]
+    return (
+        f"<p>Threshold sensitivity over the {sens['cells']} cells: the margin's sign (h_min &lt; 0) against the "
+        "one verdict with its oscillation threshold halved, as defined and doubled. A cell is decided when all "
+        "its seeds give the same verdict (and the margin the same sign); a cell whose seeds disagree is "
+        "reported as such and counted for neither side.</p>"
+        "<table><tr><th>threshold</th><th>cells agreeing</th><th>agreement</th><th>seeds disagree</th>"
+        f"<th>margin's seeds disagree</th><th>cells unstable (all seeds)</th></tr>{rows}</table>"
+        + (
+            f"<p>Cells whose seeds disagree:</p><ul>{undecided}</ul>"
+            if undecided
+            else "<p>No cell's seeds disagree.</p>"
+        )
+        + f"<p>Boundary cells (a seed's worst stroke band RMS within a factor 2 of the threshold, contact kept; "
+        f"{len(sens['boundary'])} cells, {len(short)} with fewer than {MIN_BOUNDARY_SEEDS} seeds"
+        + (": " + html.escape("; ".join(_cell_text(names, k) for k in short)) if short else "")
+        + "):</p><table><tr><th>cell</th><th>seeds</th><th>band RMS / threshold per seed</th><th>verdicts</th></tr>"
+        + boundary
+        + "</table>"
+    )
+
+
+def growth_comparison(metrics: list[dict]) -> dict | None:
+    """The margin's growth G on each run's stroke of largest G against the growth the run's band envelope
+    showed there (`observed_mode`), over the runs that kept contact (a lost contact ends the
+    linear growth): the pairs, the mean and RMS error (predicted − observed, Np) and the error
+    over the runs with G > 0. None without pairs."""
+    pairs = [
+        (float(m["growth_segment_np"]), float(m["growth_segment_observed_np"]))
+        for m in metrics
+        if m.get("growth_segment_np") is not None
+        and m.get("growth_segment_observed_np") is not None
+        and not (m.get("contact_lost_ms") or m.get("diverged"))
+    ]
+    if not pairs:
+        return None
+    p = np.array(pairs)
+    err = p[:, 0] - p[:, 1]
+    grew = p[:, 0] > 0.0
+    return {
+        "pairs": pairs,
+        "n": len(pairs),
+        "mean_error_np": float(np.mean(err)),
+        "rms_error_np": float(np.sqrt(np.mean(err**2))),
+        "n_growing": int(np.sum(grew)),
+        "rms_error_growing_np": float(np.sqrt(np.mean(err[grew] ** 2))) if np.any(grew) else None,
+        "max_abs_error_np": float(np.max(np.abs(err))),
+    }
+
+
+def growth_html(g: dict | None) -> str:
+    """The predicted-against-observed growth figure (inline PNG) with its errors ("" without pairs)."""
+    if g is None:
+        return ""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p = np.array(g["pairs"])
+    fig, ax = plt.subplots(figsize=(4.8, 4.2))
+    ax.scatter(p[:, 1], p[:, 0], s=14)
+    top = float(max(1.0, p.max()) * 1.05)
+    ax.plot([0, top], [0, top], "k--", lw=0.8, label="predicted = observed")
+    ax.set_xlabel("observed growth of the mode's band envelope (Np)")
+    ax.set_ylabel("margin's growth G (Np)")
+    ax.set_title("Stroke of the largest G, runs that kept contact", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    grow = "-" if g["rms_error_growing_np"] is None else f"{g['rms_error_growing_np']:.2f}"
+    return (
+        "<p>The margin's growth G against the observed growth (the largest rise of the band envelope of the "
+        f"true contact force over 0.25 s bins) on each run's stroke of the largest G, over {g['n']} runs that "
+        f"kept contact: mean error (G − observed) {g['mean_error_np']:+.2f} Np, RMS {g['rms_error_np']:.2f} Np, "
+        f"largest {g['max_abs_error_np']:.2f} Np; over the {g['n_growing']} runs with G &gt; 0, RMS {grow} Np.</p>"
+        f"<img alt='predicted against observed growth' src='data:image/png;base64,"
+        f"{base64.b64encode(buf.getvalue()).decode()}'>"
+    )
 
 
 def _sweep_verdicts_text(metrics: list[dict]) -> str:
     """`_verdicts_text` with the records' F̂, floor and budget (their range when the sweep varies them)."""
     force = sorted({desired_force_n(m) for m in metrics})
     floors = sorted({round(run_floor_n(m), 6) for m in metrics})
-    if len(force) == 1 and len(floors) == 1:
-        return _verdicts_text(force[0], floors[0], headroom_budget(metrics[0]), OSCILLATION_FACTOR * floors[0])
+    thresholds = sorted({round(run_threshold_n(m), 6) for m in metrics})
+    if len(force) == 1 and len(floors) == 1 and len(thresholds) == 1:
+        return _verdicts_text(force[0], floors[0], headroom_budget(metrics[0]), thresholds[0])
     return (
         "Predicted unstable: the stroke headroom h = ln(F̂ / floor) − G falls below 0 on some stroke (F̂ "
-        f"{force[0]:g}–{force[-1]:g} N, noise floor {floors[0]:.2f}–{floors[-1]:.2f} N, each run's own); "
-        "beside it, the worst σ is negative. Simulated unstable: diverged, lost contact, or a stroke's "
-        f"force-error STD of at least {OSCILLATION_FACTOR:g}× the run's noise floor."
+        f"{force[0]:g}–{force[-1]:g} N, noise floor in the mode's band {floors[0]:.3f}–{floors[-1]:.3f} N, each "
+        "run's own); beside it, the worst σ is negative. Simulated unstable: the one verdict is not stable "
+        f"(oscillation threshold {thresholds[0]:.2f}–{thresholds[-1]:.2f} N, each run's own). "
+        + V.definition_text(thresholds[0])
     )
 
 
@@ -371,8 +556,8 @@ def _disagreeing(names: list[str], runs: list[dict], predicted: list[bool], sim:
         + "".join(f"<td>{html.escape(str(r['params'].get(n)))}</td>" for n in names)
         + f"<td>{r.get('seed', '-')}</td><td>{_f(m.get('stroke_rate_min_per_s'), 2)}</td>"
         f"<td>{_f(m.get('stroke_growth_max_np'), 1)}</td><td>{_f(headroom_min(m), 2)}</td>"
-        f"<td>{'unstable' if p else 'stable'}</td><td>{html.escape(str(m['outcome']))}</td>"
-        f"<td>{_f(m.get('stroke_std_max_n'), 1)}</td><td>{m.get('contact_lost_ms', '-')}</td>"
+        f"<td>{'unstable' if p else 'stable'}</td><td>{html.escape(outcome(m)['why'])}</td>"
+        f"<td>{_f(m.get('band_rms_max_n'), 2)}</td><td>{m.get('contact_lost_ms', '-')}</td>"
         f"<td>S{m.get('growth_segment', '-')}: {_f(m.get('growth_segment_mode_hz'), 1)} / "
         f"{_f(m.get('growth_segment_peak_hz'), 1)}</td><td>{_f(m.get('growth_segment_observed_np'), 1)}</td></tr>"
         for r, p in bad
@@ -381,7 +566,7 @@ def _disagreeing(names: list[str], runs: list[dict], predicted: list[bool], sim:
     return (
         f"<p>Disagreeing runs by {verdict} ({len(bad)}):</p>"
         f"<table><tr>{head}<th>seed</th><th>σ_min (1/s)</th><th>G (Np)</th><th>h_min (Np)</th>"
-        "<th>predicted</th><th>simulated</th><th>max stroke STD (N)</th>"
+        "<th>predicted</th><th>simulated</th><th>worst stroke band RMS (N)</th>"
         "<th>contact lost (ms)</th><th>stroke of the largest G: mode Hz, model / simulation</th>"
         f"<th>observed growth there (Np)</th></tr>{rows}</table>"
     )

@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.headless.experiments.polish_calibration import OSCILLATION_FACTOR
 from app.headless.experiments.polish_report import _deg
 from app.headless.experiments.polish_rows import ROWS
+from app.scenarios import verdict as V
+from app.scenarios.polish_stroke import SETTLE_SPEED_RAD_S, SETTLE_WINDOW_S
 
 # The latency table: each stage of the loop's latency alone (the other at 0), at μ = 1, seed 0.
 LATENCY_ROWS = ("j", "f", "a", "d", "mirror", "planned_a", "planned")
@@ -17,17 +18,14 @@ LATENCY_SENSING_STEPS = (0, 1, 2, 3, 4)  # F/T reading age, control periods
 LATENCY_TORQUE_MS = (0.0, 1.0, 2.0, 3.0, 4.0)  # actuation delay
 LATENCY_QUICK_MAX = 2  # --quick: delays up to this many periods (ms)
 LATENCY_MU = 1.0
-# "Oscillates or leaves the table": contact lost, a divergence, or a segment whose force-error STD is
-# at least this many times the median segment STD of the same row with no latency at all.
-OSCILLATION_STD_FACTOR = 3.0
 # A latency run whose force loop already oscillates or loses contact while the TCP is held (the settle
-# phase, before the strokes) has its verdict there and stops (`HoldWatch`): at 3-4 periods of delay the
-# hold oscillates, W never settles and the run would otherwise sit out the settle cap.
+# phase, before the strokes) has its verdict there (`app.scenarios.verdict` over the held second) and
+# stops (`HoldWatch`): at 3-4 periods of delay the hold oscillates, W never settles and the run would
+# otherwise sit out the settle cap.
 HOLD_CHECK_EVERY = 100  # steps between two looks at the hold's last second
-# ... once the posture has stopped flowing: the swivel moved at most this much over that second (half
-# the slowest flow a settle passes through, W_a's ≈ 0.2°/s on its plateau; a posture held in place by an
-# oscillating loop jitters by ≤ 0.04°)
-HOLD_STILL_DEG = 0.1
+# ... once the posture has stopped flowing, by the settle phase's own test: the swivel moved at most what
+# the converged nullspace speed (polish.SETTLE_SPEED_RAD_S) moves it over the settle window
+HOLD_STILL_DEG = float(np.rad2deg(SETTLE_SPEED_RAD_S * SETTLE_WINDOW_S))
 
 
 def latency_specs(quick: bool = False, only: list[str] | None = None, mu: float = LATENCY_MU) -> list[dict]:
@@ -56,27 +54,27 @@ def latency_specs(quick: bool = False, only: list[str] | None = None, mu: float 
 
 def latency_table(runs: list[dict]) -> dict:
     """Per row of the latency runs: the smallest F/T reading age and the smallest torque delay at which
-    the run oscillates or leaves the table (`oscillates`), with each run's worst segment STD ratio to
-    the row's zero-latency reference and its lost contact. None: no delay tried did it."""
+    the run is not stable by the one verdict (`app.scenarios.verdict`: oscillating, lost contact or
+    diverged, on a stroke or while held), with each run's worst stroke band RMS over its oscillation
+    threshold and its lost contact. None: no delay tried did it."""
     rows: list[dict] = []
     for name in dict.fromkeys(r["row"] for r in runs):
         rs = [r for r in runs if r["row"] == name]
         ref = next((r for r in rs if r["reading_delay_steps"] == 0 and r["torque_delay_ms"] == 0.0), None)
-        ref_std = _median_segment_std(ref) if ref is not None else None
         cells = []
         for r in sorted(rs, key=lambda x: (x["torque_delay_ms"], x["reading_delay_steps"])):
-            ratio = None if ref_std is None else _worst_segment_std(r) / ref_std
             cells.append(
                 {
                     "reading_delay_steps": r["reading_delay_steps"],
                     "torque_delay_ms": r["torque_delay_ms"],
-                    "std_ratio": ratio,
+                    "band_ratio": band_ratio(r),
                     "contact_lost_ms": r["contact_lost_ms"],
                     "diverged": r["diverged"],
                     "ptp": r["force_error"]["ptp"],
-                    "oscillates": oscillates(r, ref_std),
+                    "verdict": run_verdict(r),
+                    "oscillates": oscillates(r),
                     "held": (r.get("held") or {}).get("verdict"),
-                    "held_std_n": (r.get("held") or {}).get("window_std_n"),
+                    "held_band_rms_n": (r.get("held") or {}).get("window_band_rms_n"),
                     "held_swivel_deg": (r.get("held") or {}).get("at_swivel_deg"),
                     "converged": r.get("converged"),
                     "converged_swivel_deg": r["converged_swivel_deg"],
@@ -88,7 +86,6 @@ def latency_table(runs: list[dict]) -> dict:
             {
                 "row": name,
                 "objective": rs[0]["objective"],
-                "reference_median_segment_std": ref_std,
                 "swivel_deg": ref["converged_swivel_deg"] if ref is not None else None,
                 "smallest_sensing_delay_steps": next(
                     (c["reading_delay_steps"] for c in sensing if c["oscillates"]), None
@@ -101,9 +98,8 @@ def latency_table(runs: list[dict]) -> dict:
         )
     held = next((r["held"] for r in runs if r.get("held")), None)
     criterion = {
-        "std_factor": OSCILLATION_STD_FACTOR,
-        "held_std_n": None if held is None else held["threshold_n"],
-        "held_floor_factor": OSCILLATION_FACTOR,  # held_std_n is this many noise floors
+        "threshold_n": next((r["oscillation_threshold_n"] for r in runs if r.get("oscillation_threshold_n")), None),
+        "floor_n": next((r["band_floor_n"] for r in runs if r.get("band_floor_n")), None),
         "held_window_s": None if held is None else held["window_s"],
         "held_still_deg": None if held is None else held.get("still_deg"),
         "settle_cap_s": next((r["settle_cap_s"] for r in runs if r.get("settle_cap_s") is not None), None),
@@ -111,24 +107,34 @@ def latency_table(runs: list[dict]) -> dict:
     return {"criterion": criterion, "mu": runs[0]["mu"] if runs else None, "rows": rows}
 
 
-def oscillates(r: dict, reference_median_std: float | None) -> bool:
-    """The latency table's criterion: the run diverged, lost contact, oscillated or lost contact while
-    held (`HoldWatch`), or has a segment whose force-error STD is ≥ OSCILLATION_STD_FACTOR × the
-    reference's median segment STD."""
-    if r["diverged"] or r["contact_lost_ms"] > 0 or (r.get("held") or {}).get("verdict"):
-        return True
-    if reference_median_std is None or reference_median_std <= 0.0:
-        return False
-    return _worst_segment_std(r) >= OSCILLATION_STD_FACTOR * reference_median_std
+def run_verdict(r: dict) -> str:
+    """The run's verdict: as stopped while held (`HoldWatch`), else as the run recorded it; a run made
+    before the verdict was recorded: from its divergence and lost contact alone."""
+    held = (r.get("held") or {}).get("verdict")
+    if held:
+        return str(held)
+    if r.get("verdict"):
+        return str(r["verdict"])
+    return V.DIVERGED if r["diverged"] else V.LOST if r["contact_lost_ms"] > 0 else V.STABLE
+
+
+def oscillates(r: dict) -> bool:
+    """The latency table's criterion: the run is not stable by the one verdict (`run_verdict`)."""
+    return V.unstable(run_verdict(r))
+
+
+def band_ratio(r: dict) -> float | None:
+    """The run's worst stroke band RMS over its oscillation threshold (None without them)."""
+    rms, threshold = r.get("band_rms_max_n"), r.get("oscillation_threshold_n")
+    return None if rms is None or not threshold else float(rms) / float(threshold)
 
 
 class HoldWatch:
     """What the force loop does while the TCP is held (the settle phase), judged only once the posture
     has stopped flowing: the swivel moved at most `still_deg` over the last `window` steps (so the
-    verdict is on the posture the row settles in, not one it passes through). Then the verdict is
-    "contact lost" when the true contact force was ≤ 0 at some step of that window, or "oscillation"
-    when the force-error STD over it is at least `threshold_n` (looked at every `every` steps; the
-    polish threshold is `OSCILLATION_FACTOR` × the sensor's noise floor, `oscillation_threshold_n`)."""
+    verdict is on the posture the row settles in, not one it passes through). Then the one verdict
+    (`app.scenarios.verdict.window`) of that window, judged as a stroke against `threshold_n` (the
+    sensor's oscillation threshold, `verdict.oscillation_threshold_n`), looked at every `every` steps."""
 
     def __init__(
         self,
@@ -143,36 +149,34 @@ class HoldWatch:
         self.threshold_n, self.window, self.every = float(threshold_n), max(1, int(window)), max(1, int(every))
         self.window_s = self.window * float(dt)
         self.still_deg = float(still_deg)
-        self._errors: deque[float] = deque(maxlen=self.window)
+        self.dt = float(dt)
+        self._readings: deque[float] = deque(maxlen=self.window)
+        self._contact: deque[float] = deque(maxlen=self.window)
         self._swivels: deque[float] = deque(maxlen=self.window)
-        self._lost: deque[bool] = deque(maxlen=self.window)
         self._n = 0
         self.verdict: str | None = None
         self.at_s: float | None = None
         self.at_swivel_deg: float | None = None
-        self.window_std_n: float | None = None  # the STD that gave the verdict, else the largest seen
+        self.window_band_rms_n: float | None = None  # the band RMS that gave the verdict, else the largest seen
         self.contact_lost_ms = 0
 
-    def add(
-        self, t: float, force_error_n: float, true_error_n: float, desired_n: float, swivel_deg: float
-    ) -> str | None:
-        """One held step: the filtered and the true force error (N) and the swivel (°). Returns the
-        verdict (None: none yet)."""
-        lost = true_error_n >= desired_n
-        self.contact_lost_ms += int(lost)
-        self._errors.append(force_error_n)
+    def add(self, t: float, reading_n: float, contact_force_n: float, swivel_deg: float) -> str | None:
+        """One held step: the F/T reading along the force axis and the true contact force (N), and the
+        swivel (°). Returns the verdict (None: none yet)."""
+        self.contact_lost_ms += int(V.contact_lost(np.array([contact_force_n]))[0])
+        self._readings.append(reading_n)
+        self._contact.append(contact_force_n)
         self._swivels.append(swivel_deg)
-        self._lost.append(lost)
         self._n += 1
-        if self.verdict is not None or len(self._errors) < self.window or self._n % self.every:
+        if self.verdict is not None or len(self._readings) < self.window or self._n % self.every:
             return self.verdict
-        std = float(np.std(self._errors))
-        self.window_std_n = std if self.window_std_n is None else max(self.window_std_n, std)
+        verdict, rms = V.window(np.asarray(self._readings), np.asarray(self._contact), self.threshold_n, self.dt)
+        self.window_band_rms_n = rms if self.window_band_rms_n is None else max(self.window_band_rms_n, rms)
         if not max(self._swivels) - min(self._swivels) <= self.still_deg:  # still flowing (or NaN)
             return None
-        verdict = "contact lost" if any(self._lost) else "oscillation" if std >= self.threshold_n else None
-        if verdict is not None:
-            self.verdict, self.at_s, self.at_swivel_deg, self.window_std_n = verdict, float(t), float(swivel_deg), std
+        if V.unstable(verdict):
+            self.verdict, self.at_s, self.at_swivel_deg = verdict, float(t), float(swivel_deg)
+            self.window_band_rms_n = rms
         return self.verdict
 
     def result(self, stopped: bool) -> dict:
@@ -181,27 +185,13 @@ class HoldWatch:
             "verdict": self.verdict,
             "at_s": self.at_s,
             "at_swivel_deg": self.at_swivel_deg,
-            "window_std_n": self.window_std_n,
+            "window_band_rms_n": self.window_band_rms_n,
             "threshold_n": self.threshold_n,
             "window_s": self.window_s,
             "still_deg": self.still_deg,
             "contact_lost_ms": self.contact_lost_ms,
             "stopped": bool(stopped),
         }
-
-
-def _segment_stds(r: dict) -> list[float]:
-    return [s["force_error"]["std"] for s in r["per_segment"] if s["force_error"]["std"] is not None]
-
-
-def _median_segment_std(r: dict) -> float | None:
-    stds = _segment_stds(r)
-    return float(np.median(stds)) if stds else None
-
-
-def _worst_segment_std(r: dict) -> float:
-    stds = _segment_stds(r)
-    return float(max(stds)) if stds else float("nan")
 
 
 def _latency_of(r: dict) -> tuple:
@@ -211,27 +201,30 @@ def _latency_of(r: dict) -> tuple:
 
 def _held_rule(criterion: dict) -> str:
     """The hold's stop rule of a latency table, as text ("" for tables made without it)."""
-    if criterion.get("held_std_n") is None:
+    if criterion.get("held_window_s") is None:
         return ""
     return (
-        f"; held: a run whose posture has stopped flowing (swivel within {criterion.get('held_still_deg')}° over "
-        f"{criterion['held_window_s']:g} s) while the TCP is held, and that lost contact or whose force-error STD "
-        f"reached {criterion['held_std_n']:.2f} N over that time, stops there with that verdict"
+        f"; held: a run whose posture has stopped flowing (swivel within {criterion.get('held_still_deg'):.3f}° "
+        f"over {criterion['held_window_s']:g} s) while the TCP is held, and whose verdict over that time is not "
+        "stable, stops there with that verdict"
     )
 
 
 def format_latency(latency: dict) -> str:
     """The latency table as text: per row, the smallest F/T reading age and torque delay at which the
-    run oscillates or leaves the table, and each delay's worst segment STD ratio (! = oscillates)."""
+    run is not stable, and each delay's worst stroke band RMS over the threshold (! = not stable)."""
 
     def smallest(x, unit: str, tried: list) -> str:
         return f"{x:g} {unit}" if x is not None else f"none ≤ {max(tried):g} {unit}" if tried else "-"
 
+    threshold = latency["criterion"].get("threshold_n")
     lines = [
-        f"latency at μ = {latency['mu']:g}: oscillates = contact lost, diverged, or a segment force-error STD ≥ "
-        f"{latency['criterion']['std_factor']:g}× the row's zero-latency median segment STD"
+        f"latency at μ = {latency['mu']:g}: not stable = diverged, lost contact, or a stroke's F/T band RMS ≥ "
+        + ("-" if threshold is None else f"{threshold:.2f} N")
+        + " (the one verdict, app.scenarios.verdict)"
         + _held_rule(latency["criterion"]),
-        f"{'row':22s} {'swivel':>7s} {'sensing':>14s} {'torque':>14s}  STD ratio per delay (sensing | torque)",
+        f"{'row':22s} {'swivel':>7s} {'sensing':>14s} {'torque':>14s}  "
+        "band RMS / threshold per delay (sensing | torque)",
     ]
     for e in latency["rows"]:
 
@@ -240,8 +233,8 @@ def format_latency(latency: dict) -> str:
                 f"held:{c['held']}!"
                 if c.get("held")
                 else "-"
-                if c["std_ratio"] is None
-                else f"{c['std_ratio']:.1f}{'!' if c['oscillates'] else ''}"
+                if c["band_ratio"] is None
+                else f"{c['band_ratio']:.1f}{'!' if c['oscillates'] else ''}"
                 for c in cells
             )
 

@@ -509,7 +509,7 @@ def start_margin_text(doc: dict) -> str:
         f"start ({parts}; worst over both friction directions and the speeds of a segment). It leaves out how "
         "the posture moves along the strokes, the sensor noise and sinusoid, and contact loss itself (the "
         "linearised contact never opens): negative says a small disturbance grows at the start posture, not that "
-        'the run loses contact. "stable": no divergence and the TCP never left the table in the six segments.'
+        'the run loses contact. "stable": the one verdict over the six segments: ' + _verdict_text(_runs_criterion(doc))
     )
     pairs = [(r, r["margin"] is not None and r["margin"] > 0) for r in doc["runs"]]
     differ = [r for r, positive in pairs if positive != bool(r["stable"])]
@@ -519,7 +519,7 @@ def start_margin_text(doc: dict) -> str:
             + ", ".join(
                 f"{r['row']} μ = {r['mu']:g} seed {r['seed']} (margin "
                 + ("none" if r["margin"] is None else _num(r["margin"], 0, sign=True))
-                + f", {'stable' if r['stable'] else 'contact lost or diverged'})"
+                + f", {r.get('verdict') or ('stable' if r['stable'] else 'not stable')})"
                 for r in differ
             )
             + ", so the start-pose margin is no prediction of contact loss in this run."
@@ -531,8 +531,8 @@ def start_margin_text(doc: dict) -> str:
 
 def latency_html(doc: dict) -> str:
     """The latency table: per row, the smallest F/T reading age and torque delay at which the run
-    oscillates or leaves the table, and each delay's worst segment STD over the row's zero-latency
-    median segment STD (bold: oscillates), with the contact it lost."""
+    is not stable by the one verdict (`app.scenarios.verdict`), and each delay's worst stroke band RMS
+    over the oscillation threshold (bold: not stable), with the contact it lost."""
     lat = doc.get("latency")
     if not lat or not lat["rows"]:
         return ""
@@ -543,11 +543,11 @@ def latency_html(doc: dict) -> str:
         c = next((x for x in e["cells"] if x["reading_delay_steps"] == ds and x["torque_delay_ms"] == da), None)
         if c is None:
             return "<td>-</td>"
-        ratio = "-" if c["std_ratio"] is None else f"{c['std_ratio']:.1f}×"
+        ratio = "-" if c.get("band_ratio") is None else f"{c['band_ratio']:.1f}×"
         lost = f", {c['contact_lost_ms']} ms lost" if c["contact_lost_ms"] else ""
         text = f"{ratio}{lost}{', diverged' if c['diverged'] else ''}"
         if c.get("held"):  # stopped while held (the settle phase): no strokes run
-            std = "" if c.get("held_std_n") is None else f", {c['held_std_n']:.1f} N"
+            std = "" if c.get("held_band_rms_n") is None else f", {c['held_band_rms_n']:.2f} N"
             at = "" if c.get("held_swivel_deg") is None else f" at {_deg(c['held_swivel_deg'])}°"
             text = f"held{at}: {c['held']}{std}"
         elif c.get("converged") is False:
@@ -572,27 +572,44 @@ def latency_html(doc: dict) -> str:
     return f"""<h2>Latency: how much delay each posture tolerates at μ = {lat["mu"]:g}</h2>
 <p>Each stage of the loop's latency alone, the other at 0: the F/T reading's age in control periods (torque
 delay 0) and the torque delay in ms (reading age 0); seed(s) {", ".join(str(x) for x in seeds)}. A run
-<b>oscillates or leaves the table</b> when it diverges, loses contact, or has a segment whose force-error STD
-is at least {lat["criterion"]["std_factor"]:g}× the median segment STD of the same row with no latency at all.
-{_held_html(lat["criterion"])}Cells: the worst segment's STD over that reference median (bold: oscillates).</p>
+is <b>not stable</b> by the one verdict: {html.escape(_verdict_text(lat["criterion"]))}
+{_held_html(lat["criterion"])}Cells: the worst stroke's band RMS over the oscillation threshold (bold: not stable).</p>
 <table><tr><th>row</th><th>swivel (no latency)</th><th>smallest F/T age</th><th>smallest torque delay</th>
 {head}</tr>{body}</table>
 """
 
 
+def _verdict_text(criterion: dict) -> str:
+    """The one verdict's definition with the table's threshold and floor."""
+    from app.scenarios.verdict import definition_text
+
+    threshold = criterion.get("threshold_n")
+    if threshold is None:
+        return "diverged or lost contact (runs made before the verdict recorded its band RMS)."
+    return definition_text(threshold)
+
+
 def _held_html(criterion: dict) -> str:
     """The latency runs' stop rule while the TCP is held, from the table's criterion ("" without it)."""
-    if criterion.get("held_std_n") is None:
+    if criterion.get("held_window_s") is None:
         return ""
     cap = criterion.get("settle_cap_s")
     return (
         "A run whose posture has stopped flowing while the TCP is still held before the strokes (the swivel "
-        f"within {criterion.get('held_still_deg')}° over the last {criterion['held_window_s']:g} s) and that "
-        f"lost contact or whose force-error STD reached {criterion['held_std_n']:.2f} N "
-        f"({criterion.get('held_floor_factor', float('nan')):g}× the sensor's noise floor) over that time "
+        f"within {criterion.get('held_still_deg'):.3f}° over the last {criterion['held_window_s']:g} s) and whose "
+        "verdict over that time, judged as a stroke, is not stable "
         "stops there with that verdict (cell <i>held</i>, with the swivel it stopped at)"
         + (f"; a settle that has not converged after {cap:g} s starts its strokes and says so. " if cap else ". ")
     )
+
+
+def _runs_criterion(doc: dict) -> dict:
+    """The verdict's threshold and floor as the table's runs recorded them."""
+    runs = doc.get("runs", [])
+    return {
+        "threshold_n": next((r["oscillation_threshold_n"] for r in runs if r.get("oscillation_threshold_n")), None),
+        "floor_n": next((r["band_floor_n"] for r in runs if r.get("band_floor_n")), None),
+    }
 
 
 def table_iii_html(summary: list[dict]) -> str:
@@ -781,7 +798,8 @@ def _arm_ptp(doc: dict, scale: float, objective: str) -> str:
     """PTP (swivel reached) of the armature run, flagged where it did not converge or lost contact."""
     for r in doc["armature"]["runs"]:
         if r["armature_scale"] == scale and r["objective"] == objective and r["force_error"]["ptp"] is not None:
-            flags = [w for w, bad in (("not converged", not r["converged"]), ("contact lost", not r["stable"])) if bad]
+            why = str(r.get("verdict") or "not stable")
+            flags = [w for w, bad in (("not converged", not r["converged"]), (why, not r["stable"])) if bad]
             return (
                 f"{r['force_error']['ptp']:.1f} ({_deg(r['converged_swivel_deg'])}°{''.join(', ' + f for f in flags)})"
             )
@@ -903,10 +921,10 @@ def findings_in_words(doc: dict) -> list[str]:
             e = next((x for x in summary if x["row"] == NAMES[o] and x["mu"] == hi), None)
             if e is None or hi != 1.0:
                 continue
+            same = (e["stable"] == e["n"]) == paper_stable
             out.append(
-                f"{NAMES[o]} at μ = 1: {e['stable']}/{e['n']} runs stay on the table (no divergence, no contact "
-                f"lost); the paper's Fig. 9 has it {'stable' if paper_stable else 'oscillating'}, a criterion this "
-                "column does not judge (the stroke verdicts are in the margin section)."
+                f"{NAMES[o]} at μ = 1: {e['stable']}/{e['n']} runs stable by the one verdict; the paper's Fig. 9 "
+                f"has it {'stable' if paper_stable else 'oscillating'}: {'same' if same else 'different'} outcome."
             )
     out += _close_to_boundary(doc)
     scan = doc.get("swivel_scan", {})

@@ -18,6 +18,7 @@ from app.headless.experiments.polish_calibration import calibration_metrics
 from app.headless.sweep.grid import SweepError
 from app.headless.sweep.knobs import RUN, Knob, positive
 from app.headless.sweep.overlays import polish_model_facts, polish_notes, polish_overlay
+from app.scenarios import verdict as V
 
 
 @dataclass(frozen=True)
@@ -259,7 +260,8 @@ def polish_groups() -> dict:
 
 
 def polish_cell(values: dict, seed: int) -> dict:
-    """One polish run (`polish.simulate`); stable = never diverged and never lost contact. The cell's
+    """One polish run (`polish.simulate`); stable = the one verdict (`app.scenarios.verdict`) over its
+    strokes is "stable": no divergence, no lost contact, no stroke oscillating. The cell's
     session parameters (μ, start swivel, k0…) reach the run only through the parameter path
     (`session_params`, set by `Session.set_param` as the GUI's are); the run's own arguments (objective,
     a held swivel, the settle cap) are the spec's."""
@@ -276,7 +278,7 @@ def polish_cell(values: dict, seed: int) -> dict:
     r = simulate(spec)["result"]
     drop = ("per_segment", "q_start", "q_converged", "posture_change_deg", "plan", "stroke_margin", "config")
     keep = {k: v for k, v in r.items() if k not in drop}
-    return {"metrics": {**_scalars(keep), **calibration_metrics(r)}, "stable": bool(r["stable"])}
+    return {"metrics": {**_scalars(keep), **calibration_metrics(r)}, "stable": r["verdict"] == V.STABLE}
 
 
 EXPERIMENTS: dict[str, SweepExperiment] = {
@@ -302,7 +304,9 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         POLISH_KNOBS,
         polish_cell,
         ("stable", "force_error_ptp", "force_error_ma", "contact_lost_ms", "converged_swivel_deg"),
-        "no divergence and no contact loss during the six segments",
+        "the one verdict (app.scenarios.verdict) is stable on every stroke: no divergence, the contact force "
+        "never reaches 0, and no stroke's F/T reading in the contact mode's band (one octave around 13 Hz) "
+        "has an RMS of 2× the sensor noise's RMS there or more",
         groups=polish_groups,
         any_param=True,
         overlay=polish_overlay,
