@@ -234,7 +234,7 @@ def simulate(spec: dict) -> dict:
         dt,
     )
     verdict = V.run_verdict(judged, diverged=result["diverged"])
-    if verdict != V.DIVERGED and held["verdict"]:  # stopped while held (the latency runs)
+    if verdict != V.DIVERGED and held["stopped"]:  # stopped while held at a verdict (the latency runs)
         verdict = held["verdict"]
     result["verdict"] = verdict if np.any(traj) or verdict != V.STABLE else "no strokes"
     result["stable"] = result["verdict"] == V.STABLE
