@@ -224,6 +224,13 @@ def test_the_posture_lesson_shows_the_coupled_posture_shaking_on_the_stretching_
     assert min(wa[f"headroom_S{k}"] for k in range(1, 7)) > 0.5
     assert "below 0 on S2, S4, S6:" in claims["wj"] and "above 0 on every stroke" in claims["wa"]
     assert "/".join(f"{wj[f'headroom_S{k}']:+.1f}" for k in (2, 4, 6)) in claims["wj"]
+    # the one verdict per stroke (app.scenarios.verdict), in the claim with its band RMS: W_j's stretching
+    # strokes are not stable, and the claim checks the headroom's prediction against the lost contact
+    assert all(verdict_of(wj, k) != "stable" for k in (2, 4, 6))
+    for key, o in memo.items():
+        for k in range(1, 7):
+            assert f"S{k} {verdict_of(o, k)} ({o[f'band_S{k}']:.2f} N)" in claims[key]
+        assert "By the verdict's lost contact, that" in claims[key]
 
 
 def test_the_latency_lesson_shows_that_the_sensing_delay_makes_the_posture_shake():
@@ -235,6 +242,18 @@ def test_the_latency_lesson_shows_that_the_sensing_delay_makes_the_posture_shake
     assert "0 period(s) late" in claims["delay0"]
     assert stretching_mean(default) > 2.0 * stretching_mean(ideal)
     assert f"{stretching_mean(default) / stretching_mean(ideal):.2f}×" in claims["delay1"]
+    # whether the margin's prediction came true is said, by the verdict's lost contact, stroke by stroke
+    lost = [k for k in range(1, 7) if verdict_of(ideal, k) == "lost contact"]
+    wrong = [k for k in range(1, 7) if (ideal[f"headroom_S{k}"] < 0.0) != (k in lost)]
+    said = "came true on every stroke" if not wrong else "did not come true on " + ", ".join(f"S{k}" for k in wrong)
+    assert said in claims["delay0"]
+
+
+def verdict_of(o: dict, k: int) -> str:
+    """A stroke's verdict as `measure` recorded it (its index in `verdict.SEVERITY`)."""
+    from app.scenarios.verdict import SEVERITY
+
+    return SEVERITY[int(o[f"verdict_S{k}"])]
 
 
 def test_the_lessons_panel_cancels_the_repro_as_soon_as_the_preset_changes_and_claims_an_untouched_run():
