@@ -961,7 +961,7 @@ def test_the_posture_and_latency_lessons_in_the_page_show_the_shaking_and_its_ca
         assert wj_fw >= 3.0 * wj_bk, (wj_fw, wj_bk)
         assert wa_fw < 1.5 * wa_bk, (wa_fw, wa_bk)
         # the live margin as the page states it: the stroke headroom below 0 on W_j's stretching strokes,
-        # above 0 on every stroke of W_a (on the Lab −6.9/−8.0/−7.3 Np and ≥ +1.6 Np, tests/test_lessons.py)
+        # above 0 on every stroke of W_a (on the Lab −5.1/−6.2/−5.5 Np and ≥ +3.4 Np, tests/test_lessons.py)
         wj_h, _ = stroke_headroom(posture["wj"])
         wa_fw_h, wa_bk_h = stroke_headroom(shown_result(pg, posture["wa"]))
         wa_h = wa_fw_h + wa_bk_h
