@@ -309,7 +309,7 @@ def test_a_polish_cell_sets_its_session_parameters_only_through_the_parameter_pa
 
     def fake(spec: dict) -> dict:
         seen.append(spec)
-        return {"result": {"stable": True}}
+        return {"result": {"stable": True, "verdict": "stable"}}
 
     monkeypatch.setattr(polish_experiment, "simulate", fake)
     values = {"mu": 1.0, "swivel": 30.0, "k0_a": 0.5, "sander": True, "objective": "d", "converge_timeout": 20.0}
