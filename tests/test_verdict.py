@@ -145,7 +145,8 @@ def test_the_verdict_module_is_the_only_place_a_stable_oscillating_or_lost_thres
     """No module but app/scenarios/verdict.py defines a constant named for a stable / oscillating / lost
     threshold (the three rules it replaced were OSCILLATION_FACTOR, OSCILLATION_STD_FACTOR and the
     replay's CONTACT_LOST_N); the calibration, the latency table, the sweep's polish cell, the polish
-    runs, the replay and the lessons import it."""
+    runs and the lessons import it (the replay takes its contact-lost events from the same
+    `metrics.contact_lost` the verdict does)."""
     own = ROOT / "app" / "scenarios" / "verdict.py"
     offenders = {
         str(p.relative_to(ROOT)): hits
@@ -162,7 +163,6 @@ def test_the_verdict_module_is_the_only_place_a_stable_oscillating_or_lost_thres
         "app/headless/experiments/polish.py",
         "app/headless/sweep/experiments.py",
         "app/live/lessons.py",
-        "app/live/ui/replay.py",
         "app/scenarios/polish_margin.py",
     )
     for rel in users:

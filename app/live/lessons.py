@@ -72,7 +72,7 @@ def measure(lab: Lab) -> Obs:
         for k, v in lab.log.segment_force_error_std().items():
             out[f"std_S{k}"] = v
         out.update(least_headroom(c, segments))
-        out.update(stroke_verdicts(c, s.params().get("sensor"), lab.dt))
+        out.update(stroke_verdicts(c, s.params().get("sensor"), lab.dt, segments))
         found = delay_field()
         if found is not None and found[0] in s.params():
             out["reading_delay"] = float(getattr(s.params()[found[0]], found[1]))
@@ -126,14 +126,14 @@ def least_headroom(c: dict[str, np.ndarray], segments: int) -> Obs:
     return out
 
 
-def stroke_verdicts(c: dict[str, np.ndarray], sensor: object, dt: float) -> Obs:
+def stroke_verdicts(c: dict[str, np.ndarray], sensor: object, dt: float, segments: int) -> Obs:
     """The one verdict (`app.scenarios.verdict`) of each logged stroke: "verdict_S{k}" (its index in
     `verdict.SEVERITY`), "band_S{k}" (the F/T reading's band RMS, N) and the threshold it was held to."""
     out: Obs = {}
     seg, fz, contact = c.get("segment"), c.get("F_z"), c.get("contact_force_n")
     if seg is None or fz is None or contact is None or sensor is None:
         return out
-    for s in V.strokes(seg, fz, contact, sensor, dt):
+    for s in V.strokes(seg, fz, contact, sensor, dt, range(1, segments + 1)):
         out[f"verdict_S{s.segment}"] = float(V.SEVERITY.index(s.verdict))
         out[f"band_S{s.segment}"] = s.band_rms_n
         out["oscillation_threshold_n"] = s.threshold_n
@@ -192,9 +192,10 @@ def _verdict_of(o: Obs, k: int) -> str | None:
 
 def verdict_claim(o: Obs) -> str:
     """Each stroke's verdict in words ("" without them)."""
-    if not all(f"verdict_S{k}" in o for k in range(1, SEGMENTS + 1)):
+    strokes = _stroke_numbers(o)
+    if not strokes or not all(f"verdict_S{k}" in o for k in strokes):
         return ""
-    words = ", ".join(f"S{k} {_verdict_of(o, k)} ({o[f'band_S{k}']:.2f} N)" for k in range(1, SEGMENTS + 1))
+    words = ", ".join(f"S{k} {_verdict_of(o, k)} ({o[f'band_S{k}']:.2f} N)" for k in strokes)
     return (
         f" By the one verdict (F/T band RMS around the 13 Hz contact mode, oscillating from "
         f"{o['oscillation_threshold_n']:.2f} N; lost contact: the contact force reached 0): {words}."
@@ -216,10 +217,10 @@ def headroom_claim(o: Obs) -> str:
         "noise floor reaches the desired force"
     )
     came = ""
-    if all(f"verdict_S{k}" in o for k in range(1, SEGMENTS + 1)):
+    if all(f"verdict_S{k}" in o for k in _stroke_numbers(o)):
         wrong = [
             f"S{k}"
-            for k in range(1, SEGMENTS + 1)
+            for k in _stroke_numbers(o)
             if (o[f"headroom_S{k}"] < 0.0) != (_verdict_of(o, k) in (V.LOST, V.DIVERGED))
         ]
         came = (
