@@ -1537,3 +1537,37 @@ def test_contact_loss_is_marked_in_the_3d_view_live_and_in_replay_and_a_reset_cl
         loop.submit(SetSpeed(1.0))
         loop.submit(Play())
         wait_for(lambda: loop.status.scenario == "polish", 60, "polish again")
+
+
+def test_the_lambda_box_refuses_minus_5_in_its_own_words_and_takes_250_5_as_typed(app, page, paused):
+    """Limit-drop, Tune, the damper's λ box (a slider's, step 1): "-5" is refused with a notice in the
+    page that names λ, not the parameter's internal name, and λ stays; "250.5" is taken as typed (the
+    page dropped the "." of a step-1 box and sent 250) and the box shows 250.5."""
+    from app.core.commands import SetParam, SwitchSession
+
+    pg, _ = page
+    app.loop.submit(SwitchSession(scenario="limit-drop", robot=""))
+    wait_for(lambda: app.loop.status.scenario == "limit-drop", 60, "the limit drop")
+    label = "λ (1/s)"
+    _, k = _knob(app, label)
+    before = float(param(app, k.group, k.field))
+    open_tab(pg, "Tune", timeout_ms=120_000)
+    pg.set_default_timeout(120_000)
+    try:
+        seen = len(app.loop.lab.notice_log)
+        type_number(pg, "^" + re.escape(label) + "$", "-5")
+        words = "λ must be between 1 and 1000 1/s, got -5"
+        notices = wait_for(
+            lambda: [n for n in list(app.loop.lab.notice_log)[seen:] if n.title == "Value refused"], 30, "the refusal"
+        )
+        assert notices[0].body == words and "lambda_" not in notices[0].body
+        wait_for(lambda: pg.get_by_text(words, exact=False).count() > 0, 20, "the refusal shown in the page")
+        assert float(param(app, k.group, k.field)) == pytest.approx(before)
+        type_number(pg, "^" + re.escape(label) + "$", "250.5")
+        wait_for(lambda: float(param(app, k.group, k.field)) == pytest.approx(250.5), 30, "λ = 250.5 in force")
+        assert number_text(pg, "^" + re.escape(label) + "$") == "250.5"
+    finally:
+        pg.set_default_timeout(30_000)
+        app.loop.submit(SetParam(k.group, k.field, before))
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")

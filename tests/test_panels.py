@@ -146,3 +146,5 @@ def test_the_gamma0_line_lists_each_joints_value_and_says_when_the_slider_shows_
     same = gamma0_text(np.full(7, 0.5))
     assert same.count("0.50") == 7 and "mean" not in same
     assert gamma0_text(None) == ""
+    one = gamma0_text(1.0)  # one value for every joint: no "by joint 1…1"
+    assert one == "**Γ₀:** 1.00 on every joint"

@@ -15,6 +15,7 @@ from app.live.ui.plots import (
     COUPLING_TITLE,
     FORCE_RANGE_N,
     FORCE_TITLE,
+    NEUTRAL_FORCE_TITLE,
     NO_SETPOINT_TITLE,
     Plots,
     SignalHistory,
@@ -65,6 +66,22 @@ def polish():
 @pytest.fixture(scope="module")
 def drop():
     return _plot_data("limit-drop")
+
+
+def test_a_run_paused_at_its_start_is_not_said_to_have_no_force_setpoint(server, polish, drop):
+    """After limit-drop (no setpoint), polish reset and paused at t = 0 (one row, no setpoint yet) is titled
+    neither way; its first samples with the setpoint name it."""
+    import dataclasses
+
+    plots = Plots(server)
+    plots.update(drop, session=1)
+    assert plots.force.title == NO_SETPOINT_TITLE
+    start = {k: v[:1].copy() for k, v in polish.columns.items()}
+    start["Fd_z"][:] = 0.0
+    plots.update(dataclasses.replace(polish, columns=start), session=2)
+    assert plots.force.title == NEUTRAL_FORCE_TITLE
+    plots.update(polish, session=2)
+    assert plots.force.title == FORCE_TITLE
 
 
 def test_force_plot_says_when_there_is_no_force_setpoint(server, polish, drop):

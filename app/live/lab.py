@@ -40,6 +40,7 @@ from app.core.commands import (
     SwitchSession,
 )
 from app.core.executors import EXECUTORS
+from app.core.params import field_spec
 from app.core.session import Lockstep, RunResult, Session, StepRecord, WorkPending
 from app.core.settings import finite_number, plain
 from app.core.steplog import StepLog
@@ -388,7 +389,7 @@ class Lab:
         try:
             self.session.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
         except ParamError as exc:
-            self.notify("error", "Value refused", str(exc), cmd.client_id)
+            self.notify("error", "Value refused", in_knob_words(str(exc), cmd.group, cmd.field), cmd.client_id)
             self._settings_changed()  # the panels show the value that is still in force
             return
         after = self.session.params().get(cmd.group)
@@ -674,3 +675,16 @@ def _reason(exc: BaseException) -> str:
     if isinstance(exc, TypeError) and "unexpected keyword" in text:
         return f"this controller has no such setting ({text})"
     return text
+
+
+def in_knob_words(message: str, group: str, field: str) -> str:
+    """A refusal as the page's knob says it: "λ must be between 1 and 1000 1/s, got -5" for the
+    parameter's "damper.lambda_ must be …" (the knob's label instead of the group and field names)."""
+    try:
+        label_text = field_spec(group, field).label
+    except ParamError:
+        return message
+    prefix = f"{group}.{field}"
+    if not label_text or not message.startswith(prefix):
+        return message
+    return label_text + message[len(prefix) :]

@@ -42,6 +42,8 @@ TWIN_COLOR = "#ff9f1c"  # the twin arm, here and in the 3D scene
 COUPLING_TITLE = "Coupling W_f, W_a, W_d [T22]"
 FORCE_TITLE = "Force error F̂_z − F_z"
 NO_SETPOINT_TITLE = "F̂_z − F_z: no force setpoint here, so this is minus the F/T reading"
+NEUTRAL_FORCE_TITLE = "F̂_z − F_z"  # before a run has shown whether it has a force setpoint
+NO_SETPOINT_AFTER_S = 0.1  # a run is said to have no force setpoint once this long has passed without one
 WINDOWS = {"10 s": 10.0, "30 s": 30.0, "60 s": 60.0}
 HISTORY_S = 60.0
 MAX_POINTS = 600  # per series sent to the browser, whatever the window
@@ -616,6 +618,8 @@ class Plots:
                 if "Fd_z" in old:
                     self.previous["force_error"] = force_error(old).copy()
             self.replay_t = None
+            if self.force.title != NEUTRAL_FORCE_TITLE:  # the old run's setpoint says nothing of the new one's
+                self.force.title = NEUTRAL_FORCE_TITLE
             self.history.clear()
             self.monitor.clear()
             self.markers = []
@@ -766,7 +770,12 @@ class Plots:
         twin_y = twin[s] if has_twin and twin is not None else np.zeros(len(x))
         prev = masked(self._previous_at("force_error", c["t"][s]), shown("force", "previous"))
         self.force.data = _with_markers(x, [err[s], twin_y], self.markers, now, -hi, hi, after=[prev])
-        title = FORCE_TITLE if np.any(c["Fd_z"] != 0.0) else NO_SETPOINT_TITLE
+        t = c["t"][np.isfinite(c["t"])]
+        span = float(t[-1] - t[0]) if t.size else 0.0
+        if np.any(c["Fd_z"] != 0.0):
+            title = FORCE_TITLE
+        else:  # a run paused at its start has not shown its setpoint yet: say nothing about it
+            title = NO_SETPOINT_TITLE if span >= NO_SETPOINT_AFTER_S else NEUTRAL_FORCE_TITLE
         if self.force.title != title:
             self.force.title = title
 

@@ -35,6 +35,9 @@ TOUCH_HOLD_S = 0.6  # after a person moves a knob, the panel does not overwrite 
 _PATH = re.compile(r"^(\w+)\.(\w+)(?:\[(\d+)(?::(\d+))?\])?$")
 
 
+FLOAT_DIGITS = 4  # decimals a number box of a real-valued knob takes as typed
+
+
 @dataclass(frozen=True)
 class Knob:
     """One input bound to `group.field` (elements `lo_index` … `hi_index` − 1 of a vector field,
@@ -252,6 +255,10 @@ class KnobPanel:
                 handle = gui.add_number(k.label, lo_f, min=lo_f, max=hi_f, step=k.step, hint=hint)
             else:
                 handle = gui.add_slider(k.label, lo_f, hi_f, k.step, lo_f, hint=hint)
+            if k.spec.kind != "int" and handle.precision < FLOAT_DIGITS:
+                # the box keeps the decimals a person types (viser's precision follows the step: with a step
+                # of 1 the page dropped the "." and 250.5 arrived as 250); the slider still moves by its step
+                handle.precision = FLOAT_DIGITS
         handle.disabled = True  # until the loop says the running session has this group
         handle.visible = not self.hide_missing
 

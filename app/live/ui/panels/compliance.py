@@ -90,6 +90,8 @@ def gamma0_text(value: Any) -> str:
         return ""
     arr = np.asarray(value, dtype=float)
     diag = np.diag(arr) if arr.ndim == 2 else np.atleast_1d(arr)
+    if diag.size == 1:  # one value for every joint
+        return f"**Γ₀:** {float(diag[0]):.2f} on every joint"
     same = bool(np.allclose(diag, diag[0]))
     listed = " · ".join(f"{x:.2f}" for x in diag)
     note = "" if same else " (they differ: the slider shows their mean; set each one in Per-joint Γ₀)"

@@ -290,7 +290,7 @@ class ScenarioPanel(KnobPanel):
         phase = self._phase.text(st, frame.scene)
         if phase:
             status += f"  \n**Phase:** {phase}"
-        if not st.running and starts_paused(st.scenario) and st.t < 1e-6 and not st.halted:
+        if not st.running and st.t < 1e-6 and not st.halted:  # any preset paused at its start (Pause carries over)
             status += "  \n**Press Play** (or Space) to start."
         if st.drag_client is not None:
             status += f" · dragging ({st.signals.get('drag_force_n', 0.0):.0f} N)"
