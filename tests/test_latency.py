@@ -145,20 +145,40 @@ def test_the_latency_table_gives_the_smallest_delay_that_the_one_verdict_calls_n
     assert table["criterion"]["threshold_n"] == 0.5 and table["criterion"]["floor_n"] == 0.25
 
 
-def test_latency_runs_vary_one_stage_at_a_time_at_mu_1():
+def test_latency_runs_vary_each_stage_alone_and_then_both_at_mu_1():
+    """Each stage alone (the other at 0), then both at once: the F/T reading one period old with 1 ms at
+    the drive (1 + 1 periods), in the table, its text and the report beside the single stages."""
     from app.headless.experiments.polish_latency import (
+        LATENCY_COMBINED,
         LATENCY_ROWS,
         LATENCY_SENSING_STEPS,
         LATENCY_TORQUE_MS,
+        format_latency,
         latency_specs,
+        latency_table,
     )
+    from app.headless.experiments.polish_report import latency_html
 
     specs = latency_specs()
     assert {s["mu"] for s in specs} == {1.0} and {s["seed"] for s in specs} == {0}
-    assert all(s["reading_delay_steps"] == 0 or s["torque_delay_ms"] == 0.0 for s in specs)
-    per_row = len(LATENCY_SENSING_STEPS) + len(LATENCY_TORQUE_MS) - 1  # (0, 0) once
+    both = [s for s in specs if s["reading_delay_steps"] > 0 and s["torque_delay_ms"] > 0.0]
+    assert LATENCY_COMBINED == ((1, 1.0),)
+    assert {(s["reading_delay_steps"], s["torque_delay_ms"]) for s in both} == set(LATENCY_COMBINED)
+    per_row = len(LATENCY_SENSING_STEPS) + len(LATENCY_TORQUE_MS) - 1 + len(LATENCY_COMBINED)  # (0, 0) once
     assert len(specs) == len(LATENCY_ROWS) * per_row
     assert len({(s["row"], s["reading_delay_steps"], s["torque_delay_ms"]) for s in specs}) == len(specs)
+    quick = latency_specs(quick=True)
+    assert any(s["reading_delay_steps"] == 1 and s["torque_delay_ms"] == 1.0 for s in quick)
+    runs = [_run("row", 0, 0.0, 0.3), _run("row", 1, 0.0, 0.3), _run("row", 0, 1.0, 0.3), _run("row", 1, 1.0, 2.0)]
+    table = latency_table(runs)
+    (row,) = table["rows"]
+    assert row["smallest_sensing_delay_steps"] is None and row["smallest_torque_delay_ms"] is None
+    assert row["combined"] == [
+        {"reading_delay_steps": 1, "torque_delay_ms": 1.0, "oscillates": True, "verdict": "oscillating"}
+    ]
+    assert "| 1+1: 4.0!" in format_latency(table)
+    page = latency_html({"latency": {**table, "runs": runs}})
+    assert "<th>F/T 1 + τ 1 ms</th>" in page and "<td><b>4.0×</b></td></tr>" in page
 
 
 def test_the_latency_report_states_the_criterion_of_the_run_and_ranks_no_posture_by_its_start_coupling():

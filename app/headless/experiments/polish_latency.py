@@ -1,6 +1,6 @@
 """The polish experiment's latency table: each stage of the loop's latency alone (the F/T reading's age,
-the actuation delay) per row at μ = 1, the smallest delay at which a run oscillates or leaves the
-table, the hold's early verdict (`HoldWatch`) and the table as text."""
+the actuation delay) and both together per row at μ = 1, the smallest delay at which a run is not
+stable by the one verdict, the hold's early verdict (`HoldWatch`) and the table as text."""
 
 from __future__ import annotations
 
@@ -17,6 +17,9 @@ LATENCY_QUICK_ROWS = ("j", "a")
 LATENCY_SENSING_STEPS = (0, 1, 2, 3, 4)  # F/T reading age, control periods
 LATENCY_TORQUE_MS = (0.0, 1.0, 2.0, 3.0, 4.0)  # actuation delay
 LATENCY_QUICK_MAX = 2  # --quick: delays up to this many periods (ms)
+# both stages at once: the F/T reading one period old and 1 ms at the drive (1 + 1 periods, the 1 + 0 and
+# 0 + 1 cases being the single stages above), as a rig with an F/T path and a command path both has
+LATENCY_COMBINED = ((1, 1.0),)
 LATENCY_MU = 1.0
 # A latency run whose force loop already oscillates or loses contact while the TCP is held (the settle
 # phase, before the strokes) has its verdict there (`app.scenarios.verdict` over the held second) and
@@ -31,12 +34,14 @@ HOLD_STILL_DEG = float(np.rad2deg(SETTLE_SPEED_RAD_S * SETTLE_WINDOW_S))
 def latency_specs(quick: bool = False, only: list[str] | None = None, mu: float = LATENCY_MU) -> list[dict]:
     """The latency table's runs: per row, the F/T reading age over `LATENCY_SENSING_STEPS` with no
     torque delay, and the torque delay over `LATENCY_TORQUE_MS` with a same-step reading (each stage
-    alone; both 0 is the zero-latency reference); seed 0, μ = 1. `quick`: W_j and W_a, delays up to
+    alone; both 0 is the zero-latency reference), then both stages at once (`LATENCY_COMBINED`);
+    seed 0, μ = 1. `quick`: W_j and W_a, delays up to
     `LATENCY_QUICK_MAX`; `only` keeps the rows among these keys."""
     keys = [k for k in (LATENCY_QUICK_ROWS if quick else LATENCY_ROWS) if not only or k in only]
     cap = LATENCY_QUICK_MAX if quick else None
     pairs = [(d, 0.0) for d in LATENCY_SENSING_STEPS if cap is None or d <= cap]
     pairs += [(0, ms) for ms in LATENCY_TORQUE_MS if ms > 0 and (cap is None or ms <= cap)]
+    pairs += [(d, ms) for d, ms in LATENCY_COMBINED if cap is None or d + ms <= cap]
     base = {
         "sander": False,
         "start_swivel_deg": 0.0,
@@ -82,6 +87,7 @@ def latency_table(runs: list[dict]) -> dict:
             )
         sensing = [c for c in cells if c["torque_delay_ms"] == 0.0]
         torque = [c for c in cells if c["reading_delay_steps"] == 0]
+        both = [c for c in cells if c["reading_delay_steps"] > 0 and c["torque_delay_ms"] > 0.0]
         rows.append(
             {
                 "row": name,
@@ -93,6 +99,15 @@ def latency_table(runs: list[dict]) -> dict:
                 "smallest_torque_delay_ms": next((c["torque_delay_ms"] for c in torque if c["oscillates"]), None),
                 "sensing_tried": [c["reading_delay_steps"] for c in sensing],
                 "torque_tried": [c["torque_delay_ms"] for c in torque],
+                "combined": [
+                    {
+                        "reading_delay_steps": c["reading_delay_steps"],
+                        "torque_delay_ms": c["torque_delay_ms"],
+                        "oscillates": c["oscillates"],
+                        "verdict": c["verdict"],
+                    }
+                    for c in both
+                ],
                 "cells": cells,
             }
         )
@@ -240,8 +255,12 @@ def format_latency(latency: dict) -> str:
 
         sensing = [c for c in e["cells"] if c["torque_delay_ms"] == 0.0]
         torque = [c for c in e["cells"] if c["reading_delay_steps"] == 0]
+        both = [c for c in e["cells"] if c["reading_delay_steps"] > 0 and c["torque_delay_ms"] > 0.0]
         sw = "-" if e["swivel_deg"] is None else f"{_deg(e['swivel_deg'])}°"
         first_s = smallest(e["smallest_sensing_delay_steps"], "periods", e["sensing_tried"])
         first_t = smallest(e["smallest_torque_delay_ms"], "ms", e["torque_tried"])
-        lines.append(f"{e['row']:22s} {sw:>7s} {first_s:>14s} {first_t:>14s}  {ratios(sensing)} | {ratios(torque)}")
+        combined = "".join(f" | {c['reading_delay_steps']}+{c['torque_delay_ms']:g}: {ratios([c])}" for c in both)
+        lines.append(
+            f"{e['row']:22s} {sw:>7s} {first_s:>14s} {first_t:>14s}  {ratios(sensing)} | {ratios(torque)}{combined}"
+        )
     return "\n".join(lines)

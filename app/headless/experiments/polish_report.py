@@ -538,6 +538,14 @@ def latency_html(doc: dict) -> str:
         return ""
     sensing = sorted({c["reading_delay_steps"] for e in lat["rows"] for c in e["cells"] if c["torque_delay_ms"] == 0})
     torque = sorted({c["torque_delay_ms"] for e in lat["rows"] for c in e["cells"] if c["reading_delay_steps"] == 0})
+    both = sorted(
+        {
+            (c["reading_delay_steps"], c["torque_delay_ms"])
+            for e in lat["rows"]
+            for c in e["cells"]
+            if c["reading_delay_steps"] > 0 and c["torque_delay_ms"] > 0
+        }
+    )
 
     def cell(e: dict, ds: int, da: float) -> str:
         c = next((x for x in e["cells"] if x["reading_delay_steps"] == ds and x["torque_delay_ms"] == da), None)
@@ -558,12 +566,14 @@ def latency_html(doc: dict) -> str:
         return f"{x:g} {unit}" if x is not None else (f"none up to {max(tried):g} {unit}" if tried else "-")
 
     head = "".join(f"<th>F/T {d} period(s)</th>" for d in sensing) + "".join(f"<th>τ {m:g} ms</th>" for m in torque)
+    head += "".join(f"<th>F/T {d} + τ {m:g} ms</th>" for d, m in both)
     body = "".join(
         f"<tr><td>{html.escape(e['row'])}</td><td>{_fmt(e['swivel_deg'], 0)}°</td>"
         f"<td>{first(e['smallest_sensing_delay_steps'], 'period(s)', e['sensing_tried'])}</td>"
         f"<td>{first(e['smallest_torque_delay_ms'], 'ms', e['torque_tried'])}</td>"
         + "".join(cell(e, d, 0.0) for d in sensing)
         + "".join(cell(e, 0, m) for m in torque)
+        + "".join(cell(e, d, m) for d, m in both)
         + "</tr>"
         for e in lat["rows"]
     )
@@ -571,7 +581,8 @@ def latency_html(doc: dict) -> str:
     seeds = sorted({r["seed"] for r in runs})
     return f"""<h2>Latency: how much delay each posture tolerates at μ = {lat["mu"]:g}</h2>
 <p>Each stage of the loop's latency alone, the other at 0: the F/T reading's age in control periods (torque
-delay 0) and the torque delay in ms (reading age 0); seed(s) {", ".join(str(x) for x in seeds)}. A run
+delay 0) and the torque delay in ms (reading age 0); then both at once (the last columns);
+seed(s) {", ".join(str(x) for x in seeds)}. A run
 is <b>not stable</b> by the one verdict: {html.escape(_verdict_text(lat["criterion"]))}
 {_held_html(lat["criterion"])}Cells: the worst stroke's band RMS over the oscillation threshold (bold: not stable).</p>
 <table><tr><th>row</th><th>swivel (no latency)</th><th>smallest F/T age</th><th>smallest torque delay</th>
