@@ -203,6 +203,8 @@ class StepLog:
         cols = [0]
         for name in names:
             idx = self._signal_col.get(name)
+            if idx is None and name in self.columns[: self._n_base]:  # a fixed column (q_1, F_z, …)
+                idx = self.columns.index(name)
             if idx is None:
                 return None
             cols.append(idx)

@@ -26,6 +26,7 @@ from app.live.lab import Lab, Settings
 from app.live.run_identity import describe, identity_from
 from app.live.supervise import Stages
 from app.scenarios import Scenario
+from app.scenarios.stroke_outcomes import StrokeOutcome, stroke_outcomes
 from control.executor import StepView
 
 PLOT_WINDOW_S = 10.0
@@ -86,6 +87,7 @@ class PlotData:
     fall_direction: int = 1  # the limit drop's joint falls toward its upper (+1) or lower (−1) limit
     segments: int = 0  # the strokes of the preset (`Scenario.segments`): signal "segment" counts them
     run: str = ""  # the run the readouts were measured on, in words (`run_text`)
+    strokes: tuple[StrokeOutcome, ...] = ()  # the polish strokes over since the reset: prediction and verdict
 
 
 @dataclass(frozen=True)
@@ -152,6 +154,8 @@ class FrameBuilder:
         )
         self._restarts = -1
         self._edits_at_restart = 0  # the lab's edit count when this run started (`run_text`)
+        self._strokes_key: tuple[int, float] | None = None  # (restarts, segment) the strokes were judged at
+        self._strokes: tuple[StrokeOutcome, ...] = ()
         self._seq = 0
         self._next_plot = 0.0
         self._plot: PlotData | None = None
@@ -190,7 +194,8 @@ class FrameBuilder:
         if now >= self._next_plot or not lab.running:
             self._next_plot = now + self.plot_period - self._plot_slack
             run = run_text(lab, status, self._edits_at_restart)
-            self._plot = dataclasses.replace(plot_data(lab, self._monitor), run=run)
+            strokes = self._strokes_over(lab, status)
+            self._plot = dataclasses.replace(plot_data(lab, self._monitor), run=run, strokes=strokes)
             self._plot_seq += 1
         self._seq += 1
         return Frame(
@@ -204,6 +209,23 @@ class FrameBuilder:
             plot_seq=self._plot_seq,
             restarts=lab.restarts,
         )
+
+    def _strokes_over(self, lab: Lab, status: LoopStatus) -> tuple[StrokeOutcome, ...]:
+        """The polish strokes the zig-zag has left since the reset, each with the margin's prediction and
+        its verdict (`stroke_outcomes`), judged again only when a stroke ends; () in other presets."""
+        segment, segments = status.signals.get("segment"), lab.session.scenario.segments
+        if not segments or segment is None or segment != segment:
+            return ()
+        key = (lab.restarts, float(segment))
+        if key != self._strokes_key:
+            self._strokes_key = key
+            c = lab.log.signal(("segment", "margin_headroom_np", "F_z", "contact_force_n", "margin_rate"))
+            if c is None:
+                c = lab.log.signal(("segment", "margin_headroom_np", "F_z", "contact_force_n"))
+            sensor = lab.settings.groups.get("sensor")
+            found = stroke_outcomes(c, sensor, lab.dt, segments) if c is not None else []
+            self._strokes = tuple(x for x in found if x.verdict is not None)
+        return self._strokes
 
     def _scene(self, lab: Lab) -> Any:
         if self.capture is None:

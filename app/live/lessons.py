@@ -26,6 +26,7 @@ from app.live.frames import LoopStatus, deflection_readouts
 from app.live.lab import Lab
 from app.scenarios import verdict as V
 from app.scenarios.metrics import PUSH_AFTER_S, REVERSAL_HYSTERESIS_RAD_S, velocity_reversals
+from app.scenarios.stroke_outcomes import StrokeOutcome, band_words, headroom_statement
 
 Obs = dict[str, float]  # one step's measured numbers
 Memo = dict[str, Obs]  # the lesson's earlier steps' numbers, by step key
@@ -202,36 +203,31 @@ def verdict_claim(o: Obs) -> str:
     )
 
 
+def _named(keys: list[int]) -> str:
+    return ", ".join(f"S{k}" for k in keys)
+
+
+def _grouped(items: list[tuple[int, str]]) -> str:
+    """ "S1, S3, S5: words; S2, S4, S6: other words" from (stroke, words), strokes with the same words together."""
+    groups: dict[str, list[int]] = {}
+    for k, words in items:
+        groups.setdefault(words, []).append(k)
+    return "; ".join(f"{_named(ks)}: {words}" for words, ks in groups.items())
+
+
 def headroom_claim(o: Obs) -> str:
-    """The margin's least stroke headroom on S2/S4/S6 and S1/S3/S5 in words ("" without it)."""
-    if not _stroke_numbers(o) or not all(f"headroom_S{k}" in o for k in _stroke_numbers(o)):
+    """What the margin predicted for each stroke, in words (the sign of its least headroom with its band,
+    `stroke_outcomes`; no magnitude), and after the strokes whether that came true and whether contact was
+    kept, by the stroke's one verdict ("" without the headroom)."""
+    strokes = _stroke_numbers(o)
+    if not strokes or not all(f"headroom_S{k}" in o for k in strokes):
         return ""
-    forward = [o[f"headroom_S{k}"] for k in _stroke_numbers(o) if k % 2 == 0]
-    back = [o[f"headroom_S{k}"] for k in _stroke_numbers(o) if k % 2 == 1]
-    short = [f"S{k}" for k in _stroke_numbers(o) if o[f"headroom_S{k}"] < 0.0]
-    verdict = (
-        f"below 0 on {', '.join(short)}: the model predicted a disturbance at the noise floor to reach the "
-        "desired force before those strokes end"
-        if short
-        else "above 0 on every stroke: the model predicted every stroke to end before a disturbance at the "
-        "noise floor reaches the desired force"
-    )
-    came = ""
-    if all(f"verdict_S{k}" in o for k in _stroke_numbers(o)):
-        wrong = [
-            f"S{k}"
-            for k in _stroke_numbers(o)
-            if (o[f"headroom_S{k}"] < 0.0) != (_verdict_of(o, k) in (V.LOST, V.DIVERGED))
-        ]
-        came = (
-            " By the verdict's lost contact, that came true on every stroke."
-            if not wrong
-            else f" By the verdict's lost contact, that did not come true on {', '.join(wrong)}."
-        )
-    return (
-        f" The margin's stroke headroom fell to {'/'.join(f'{v:+.1f}' for v in forward)} Np on S2/S4/S6 and "
-        f"{'/'.join(f'{v:+.1f}' for v in back)} Np on S1/S3/S5, {verdict}.{came}"
-    )
+    outcomes = [StrokeOutcome(k, headroom_statement(o[f"headroom_S{k}"]), _verdict_of(o, k)) for k in strokes]
+    text = f" The force-loop margin ({band_words()}): " + _grouped([(x.segment, x.statement.words) for x in outcomes])
+    if any(x.verdict is None for x in outcomes):
+        return text + ". No verdict of the strokes: whether that came true is not known."
+    after = _grouped([(x.segment, x.checked) for x in outcomes])
+    return text + f". After the strokes: {after}."
 
 
 def compare_strokes(label: str, other_key: str, other_label: str) -> Callable[[Obs, Memo], str]:

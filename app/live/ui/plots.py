@@ -35,6 +35,7 @@ import viser.uplot as uplot
 from app.live.loop import PlotData
 from app.live.ui.signals import SignalChoice, masked, series_shown, signal_specs
 from app.scenarios import SCENARIOS, Scenario, get_scenario, metrics
+from app.scenarios.stroke_outcomes import HEADROOM_BAND_NP
 
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2")
 MARKER_COLOR = "#7a7a7a"
@@ -53,7 +54,10 @@ RTF_RANGE = 1.2
 RATE_RANGE_PER_S = 10.0  # ± of the margin plot (headroom in Np, σ in 1/s) before any widening
 RATE_ASPECT = 2.2  # width / height of the margin plot: tall enough for its ticks to stand apart
 RATE_TICKS = 2  # about two tick intervals on its y axis (−max, 0): no crowding in a short plot
-RATE_TITLE = "Stroke headroom h (Np; < 0: noise grows to F̂ within the stroke) and σ (1/s)"
+RATE_TITLE = (
+    f"Stroke headroom h (Np; a prediction only outside the dashed ±{HEADROOM_BAND_NP:g} band: below it the tool is "
+    "predicted to lift off within the stroke) and σ (1/s)"
+)
 W_SERIES = (("W_f", "1/kg²", COLORS[0]), ("W_a", "kg²", COLORS[1]), ("W_d", "1", COLORS[2]))
 LEGEND = {"live": False}  # labels only: no "--" / "NaN" values beside them
 DEFLECTION_RANGE_MM = 10.0
@@ -356,13 +360,16 @@ class Plots:
                     padding=(24, 12, 0, 0),
                 )
                 self.sensor_note = gui.add_markdown("")
+                band = f"{HEADROOM_BAND_NP:g}"
                 self.rate = gui.add_uplot(
-                    _empty(5),
+                    _empty(7),
                     (
                         {"label": X_LABEL},
                         _series("h (Np)", COLORS[6]),
                         _series("σ (1/s)", COLORS[5], width=1),
-                        _series("0", "#888888", width=1, dash=(4.0, 4.0)),
+                        _series("0", "#888888", width=1, dash=(1.0, 3.0)),
+                        _series(f"h +{band}: keeps contact above", COLORS[6], width=1, dash=(4.0, 4.0)),
+                        _series(f"h −{band}: lifts off below", COLORS[6], width=1, dash=(4.0, 4.0)),
                         _marker_series(),
                     ),
                     title=RATE_TITLE,
@@ -659,7 +666,7 @@ class Plots:
         self.torque.data = (x, *([nan2] * (self.n + 3)))
         self.deflection.data = (x, nan2, nan2, nan2, nan2)
         self.rtf.data = (x, nan2)
-        self.rate.data = (x, nan2, nan2, nan2, nan2)
+        self.rate.data = (x, nan2, nan2, nan2, nan2, nan2, nan2)
         for handle in self.w_plots.values():
             handle.data = (x, nan2, nan2)
         self.phase.data = (np.array([-1.0, 1.0]), *([nan2] * 6))
@@ -790,7 +797,11 @@ class Plots:
         values = np.abs(both[np.isfinite(both)])
         hi = nice_ceiling(1.1 * float(values.max()), RATE_RANGE_PER_S) if values.size else RATE_RANGE_PER_S
         self._set_range("rate", self.rate, (-hi, hi))
-        self.rate.data = _with_markers(x, [headroom[s], rate[s], np.zeros(len(x))], self.markers, now, -hi, hi)
+        # only the sign outside the band is a prediction; drawn where the preset has a headroom
+        band = np.full(len(x), HEADROOM_BAND_NP if np.any(np.isfinite(headroom)) else np.nan)
+        self.rate.data = _with_markers(
+            x, [headroom[s], rate[s], np.zeros(len(x)), band, -band], self.markers, now, -hi, hi
+        )
 
     def _draw_torque(self, plot: PlotData, c: dict[str, np.ndarray], s: slice, x: np.ndarray, now: float) -> None:
         ratio = [

@@ -11,6 +11,7 @@ from app.core.commands import SetTwin
 from app.live.loop import Frame, Settings, SimLoop
 from app.live.ui.panels.base import TOUCH_HOLD_S, Knob, KnobPanel, notify
 from app.live.ui.selfmotion import SelfMotionPreview
+from app.scenarios.stroke_outcomes import StrokeOutcome, band_words, headroom_statement
 from control.gains import TANG_OBJECTIVES, NullspaceGains
 
 SUMMARY = "[T15–22] What the elbow does while the tool is held: the objective W and its gain k0."
@@ -99,7 +100,8 @@ class NullspacePanel(KnobPanel):
         for name in ("W_j", "W_f", "W_a", "W_d"):
             value = sig.get(name, scene_W.get(name))
             parts.append(w_text(name, value, singular))
-        text = "**Live:** " + " · ".join(parts) + _polish_lines(sig)
+        strokes = frame.plot.strokes if frame.plot is not None else ()
+        text = "**Live:** " + " · ".join(parts) + _polish_lines(sig, strokes)
         if self.values.content != text:
             self.values.content = text
 
@@ -114,20 +116,26 @@ def w_text(name: str, value: float | None, singular: bool) -> str:
     return f"{name} = {value:.4g}"
 
 
-def _polish_lines(sig: dict) -> str:
-    """Settle progress and the force-loop margin (polish preset signals), or "" elsewhere."""
+def _polish_lines(sig: dict, strokes: tuple[StrokeOutcome, ...] = ()) -> str:
+    """Settle progress and the force-loop margin (polish preset signals), or "" elsewhere: on a stroke what
+    the margin predicts for it in words (the sign of its least headroom so far with its band, no magnitude:
+    `stroke_outcomes`), and for the last stroke that is over whether that came true (`strokes`)."""
     out = ""
     headroom = sig.get("margin_headroom_np")
     if headroom is not None and headroom == headroom:  # not NaN: on a stroke
         least = sig.get("margin_headroom_stroke_min_np")
-        low = f", least on this stroke {least:+.1f} Np" if least is not None and least == least else ""
-        verdict = (
-            "the stroke ends first" if headroom > 0 else "a disturbance at the noise floor reaches F̂ within the stroke"
-        )
+        h = least if least is not None and least == least else headroom
+        statement = headroom_statement(h)
+        segment = sig.get("segment")
+        on = f" on S{int(segment)}" if segment is not None and segment == segment else ""
         out += (
-            f"  \n**Force-loop margin (stroke headroom):** {headroom:+.1f} Np now{low} "
-            f"(ln(F̂/noise floor) − the growth so far on this stroke; {verdict})"
+            f"  \n**Force-loop margin{on}:** {statement.words} (so far on this stroke; {band_words()}; "
+            "it predicts whether a disturbance at the sensor's noise floor grows to F̂, lifting the tool)"
         )
+    if strokes:
+        last = strokes[-1]
+        rate_words = last.rate_text()
+        out += f"  \n**Last stroke:** {last.text()}" + (f"; {rate_words}" if rate_words else "")
     # no K_f^d margin line: it is the worst case over both stroke directions, at rest and at full speed, so it
     # read "unstable" through calm strokes beside σ's "decays"; the signal stays in the log and the reports
     rate = sig.get("margin_rate")
@@ -135,7 +143,10 @@ def _polish_lines(sig: dict) -> str:
         worst = sig.get("margin_rate_stroke_min")
         stroke = f", worst on this stroke {worst:+.1f} 1/s" if worst is not None and worst == worst else ""
         state = "decays" if rate > 0 else "grows"
-        out += f"  \n**Force-loop decay rate σ:** {rate:+.1f} 1/s now (a disturbance {state}){stroke}"
+        out += (
+            f"  \n**Force-loop decay rate σ:** {rate:+.1f} 1/s now (the linearised loop at this posture predicts that "
+            f"a disturbance {state}){stroke}"
+        )
     settle = sig.get("settle_s")
     if settle is not None:
         converged = sig.get("settle_converged")
