@@ -325,6 +325,8 @@ def _read_settings_file(path: str, scenario: str, robot: str | None) -> str:
 
 def serve(args: argparse.Namespace) -> int:
     """`torquelab serve`: start the app, print the URL, run until Ctrl-C."""
+    if getattr(args, "seat", False) and hasattr(signal, "SIGPIPE"):
+        signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # a seat whose lobby is gone ends at its next line, quietly
     scenario = args.scenario
     if scenario not in SCENARIOS:
         raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")

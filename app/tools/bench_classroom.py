@@ -122,7 +122,9 @@ class Classroom:
         self.host: str = host
         self.port: str = port
         self.rows: list[dict[str, Any]] = []
+        self.lobby_cores = float("nan")  # CPU the lobby used per wall second while measured
         self.samples: dict[int, list[tuple[float, float, bool]]] = {}
+        self.cpu: dict[int, list[tuple[float, float]]] = {}  # seat → (its clock, its process's CPU seconds)
         self.teacher = connect(
             f"ws://{self.host}:{self.port}/teacher/ws",
             additional_headers={"Cookie": f"torquelab_teacher={self.token}"},
@@ -142,6 +144,8 @@ class Classroom:
                         samples = self.samples.setdefault(row["seat"], [])
                         if not samples or row["wall"] > samples[-1][0]:
                             samples.append((row["wall"], row["t"], bool(row["running"])))
+                            if row.get("cpu_s") is not None:
+                                self.cpu.setdefault(row["seat"], []).append((row["wall"], row["cpu_s"]))
         except Exception:
             pass
 
@@ -156,6 +160,15 @@ class Classroom:
         if resp.status != 302 or not cookie:
             raise RuntimeError(f"no seat given (HTTP {resp.status})")
         return cookie.split(";")[0]
+
+    def lobby_cpu_s(self) -> float:
+        """CPU seconds the lobby's process has used (Linux /proc; NaN elsewhere)."""
+        try:
+            with open(f"/proc/{self.proc.pid}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, IndexError, ValueError):
+            return float("nan")
 
     def ws_url(self, path: str) -> str:
         return f"ws://{self.host}:{self.port}{path}"
@@ -189,11 +202,21 @@ def _wait_running(room: Classroom, seats: int, clients: list[Client]) -> None:
     raise RuntimeError(f"the seats did not all run {WARM_SIM_S} s within {START_TIMEOUT_S:.0f} s")
 
 
+def _cores(samples: list[tuple[float, float]], t0: float, t1: float) -> float:
+    """CPU seconds per wall second between the samples nearest t0 and t1 (of the seat's clock)."""
+    inside = [s for s in samples if t0 <= s[0] <= t1]
+    if len(inside) < 2:
+        return float("nan")
+    return (inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0])
+
+
 def _measure(room: Classroom, clients: list[Client], seconds: float) -> tuple[list[dict[str, Any]], float, float]:
     start = {n: len(s) for n, s in room.samples.items()}
     t0 = time.monotonic()
+    lobby0 = room.lobby_cpu_s()
     time.sleep(seconds)
     t1 = time.monotonic()
+    room.lobby_cores = (room.lobby_cpu_s() - lobby0) / (t1 - t0)
     seats = []
     for number, samples in sorted(room.samples.items()):
         window = samples[max(0, start.get(number, 0) - 1) :]
@@ -206,6 +229,7 @@ def _measure(room: Classroom, clients: list[Client], seconds: float) -> tuple[li
                 "rtf_median_1s": statistics.median(ones) if ones else float("nan"),
                 "rtf_worst_1s": min(ones) if ones else float("nan"),
                 "windows": len(ones),
+                "cores": _cores(room.cpu.get(number, []), t0, t1),
             }
         )
     return seats, t0, t1
@@ -223,7 +247,13 @@ def bench_seats(n: int, scenario: str, seconds: float) -> dict[str, Any]:
         _wait_running(room, n, clients)
         seats, t0, t1 = _measure(room, clients, seconds)
         rates = [c.rate(t0, t1) for c in clients]
-        return {"seats": n, "per_seat": seats, "client_msgs_per_s": rates, "load_average_1min": os.getloadavg()[0]}
+        return {
+            "seats": n,
+            "per_seat": seats,
+            "client_msgs_per_s": rates,
+            "lobby_cores": room.lobby_cores,
+            "load_average_1min": os.getloadavg()[0],
+        }
     finally:
         for c in clients:
             with contextlib.suppress(Exception):
@@ -252,6 +282,7 @@ def bench_watchers(k: int, scenario: str, seconds: float) -> dict[str, Any]:
             "seat": seats[0] if seats else {},
             "student_msgs_per_s": rates[0],
             "watcher_msgs_per_s": rates[1:],
+            "lobby_cores": room.lobby_cores,
             "load_average_1min": os.getloadavg()[0],
         }
     finally:
@@ -304,24 +335,33 @@ def cmd_bench_classroom(args: argparse.Namespace) -> int:
         "RTF: simulated / wall time of each seat's own clock"
     )
     print(
-        "| seats | RTF of each seat | median 1 s RTF (worst seat) | worst 1 s RTF | msgs/s per client (min / median) |"
+        "| seats | RTF of each seat | median 1 s RTF (worst seat) | worst 1 s RTF | msgs/s per client (min / median) "
+        "| cores per seat (mean) | lobby cores |"
     )
-    print("|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|")
     for row in report["seats"]:
         per = row["per_seat"]
         rtfs = " ".join(f"{s['rtf']:.3f}" for s in per)
         medians = min((s["rtf_median_1s"] for s in per), default=float("nan"))
         worst = min((s["rtf_worst_1s"] for s in per), default=float("nan"))
-        print(f"| {row['seats']} | {rtfs} | {medians:.3f} | {worst:.3f} | {_fmt_rates(row['client_msgs_per_s'])} |")
+        cores = statistics.fmean(s["cores"] for s in per) if per else float("nan")
+        print(
+            f"| {row['seats']} | {rtfs} | {medians:.3f} | {worst:.3f} | {_fmt_rates(row['client_msgs_per_s'])} "
+            f"| {cores:.2f} | {row['lobby_cores']:.2f} |"
+        )
     print()
     print("one seat watched read-only through the lobby (its student's client steering)")
-    print("| watchers | seat RTF | median 1 s RTF | worst 1 s RTF | student msgs/s | watcher msgs/s (min / median) |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "| watchers | seat RTF | median 1 s RTF | worst 1 s RTF | student msgs/s | watcher msgs/s (min / median) "
+        "| seat cores | lobby cores |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
     for row in report["watch"]:
         s = row["seat"]
         print(
             f"| {row['watchers']} | {s.get('rtf', float('nan')):.3f} | {s.get('rtf_median_1s', float('nan')):.3f} "
             f"| {s.get('rtf_worst_1s', float('nan')):.3f} | {row['student_msgs_per_s']:.1f} "
-            f"| {_fmt_rates(row['watcher_msgs_per_s'])} |"
+            f"| {_fmt_rates(row['watcher_msgs_per_s'])} | {s.get('cores', float('nan')):.2f} "
+            f"| {row['lobby_cores']:.2f} |"
         )
     return 0

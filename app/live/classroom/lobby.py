@@ -340,6 +340,7 @@ class Lobby:
                     "running": st.get("running"),
                     "t": st.get("t"),
                     "wall": st.get("wall"),
+                    "cpu_s": st.get("cpu_s"),
                     "scenario": st.get("scenario", ""),
                     "idle_s": round(now - seat.last_seen, 1) if seat.token and seat.pages == 0 else 0.0,
                 }

@@ -32,6 +32,7 @@ def seat_status(app: Any) -> dict[str, Any]:
     lessons = next((p for p in app.panels if isinstance(p, LessonsPanel)), None)
     out: dict[str, Any] = {
         "wall": time.monotonic(),  # the seat's clock (system-wide): Δt / Δwall is its real-time factor
+        "cpu_s": time.process_time(),  # CPU seconds the seat's process used (all its threads): Δcpu / Δwall cores
         "t": round(st.t, 4),
         "running": st.running,
         "rtf": round(st.rtf, 4),
