@@ -189,6 +189,8 @@ class SeatPool:
         seat.ready.set()  # a page waiting for the start learns the seat is gone
         if self.on_stop is not None:
             self.on_stop(seat)
+        if proc is not None and proc.stdin is not None:
+            proc.stdin.close()  # its command pipe closed (a seat ends when it is), and no transport left open
         if proc is not None and proc.returncode is None:
             with contextlib.suppress(ProcessLookupError):
                 proc.terminate()
