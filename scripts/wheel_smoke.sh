@@ -48,7 +48,7 @@ try:
         for key, words in (("url", "open http://"), ("ready", "kernels ready in"), ("step", "the arm is running")):
             if words in line and key not in seen:
                 seen[key] = now
-        if "step" in seen or "error" in line:
+        if "the arm" in line or "error" in line:  # running, or not within serve's 120 s
             break
 finally:
     proc.send_signal(signal.SIGINT)

@@ -286,8 +286,9 @@ def _warm_up_on_page(server: viser.ViserServer, robot: str | None) -> None:
     page.remove()
 
 
-def _say_when_running(app: App, scenario: str, timeout: float = 30.0) -> None:
-    """Print that the arm moves once the loop has stepped (a preset that waits for Play says so)."""
+def _say_when_running(app: App, scenario: str, timeout: float = 120.0) -> None:
+    """Print that the arm moves once the loop has stepped (a preset that waits for Play says so, and
+    so does a loop that has not stepped within `timeout` s: a machine busy with other work)."""
     if starts_paused(scenario):
         print("torquelab: ready (this preset waits for Play)", flush=True)
         return
@@ -297,6 +298,8 @@ def _say_when_running(app: App, scenario: str, timeout: float = 30.0) -> None:
             print("torquelab: the arm is running", flush=True)
             return
         time.sleep(0.02)
+    if app.loop.alive:
+        print(f"torquelab: the arm has not stepped within {timeout:.0f} s (a busy machine?)", flush=True)
 
 
 def _interrupt(signum: int, frame: Any) -> None:
