@@ -277,6 +277,16 @@ def test_the_teacher_pushes_a_lesson_step_to_every_seat_and_a_spotlit_seat_is_re
         finally:
             watcher.close()
         teacher.send(json.dumps({"action": "spotlight", "seat": None}))
+        with pytest.raises(InvalidStatus):  # a student cannot open the teacher's read-only view
+            connect(f"ws://127.0.0.1:{lobby.bound_port}/teacher/seat/{number_a}/view", additional_headers={"Cookie": b})
+        view = _ready_page(lobby, f"/teacher/seat/{number_a}/view", f"{TEACHER_COOKIE}={lobby.teacher_token}")
+        try:  # the teacher's view of seat a watches it
+            assert wait_until(lambda: lobby.teacher_status()["seats"][number_a - 1]["watchers"] == 1)
+            view.drag(wrist, (0.0, 0.2, 0.0))
+            time.sleep(1.0)
+            assert not seat_a.status["drag"]
+        finally:
+            view.close()
         assert wait_until(lambda: json.loads(_get(lobby, "/status.json", b)[2])["spotlight"] is None)
     finally:
         teacher.close()
