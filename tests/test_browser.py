@@ -780,6 +780,24 @@ _PHASE_LAST_JS = """() => {
 }"""
 
 
+_PHASE_LINES_JS = """() => {
+    for (const v of Object.values((window.__viserTestpoints || {}).uplots || {})) {
+        const c = v.chart, title = c.root.querySelector('.u-title')?.textContent || '';
+        if (!title.startsWith('Joint ') || !c.root.isConnected || c.root.offsetParent === null) continue;
+        const lines = [4, 5, 6].map(k => {
+            const xs = new Set();
+            for (let i = 0; i < c.data[0].length; i++) {
+                const y = c.data[k][i];
+                if (y !== null && Number.isFinite(y)) xs.add(c.data[0][i]);
+            }
+            return [...xs];
+        });
+        return {min: c.scales.x.min, max: c.scales.x.max, lines: lines};
+    }
+    return null;
+}"""
+
+
 def test_replay_moves_the_arm_and_the_plots_to_the_same_instant(app, page):
     """The limit drop runs 3 s; Replay (Plots panel) pauses it; At t = 0.2 s (joint 4 still falling): every
     link of the 3D arm stands where the logged joint positions of t ≈ 0.2 s put it (MuJoCo kinematics,
@@ -842,9 +860,12 @@ def test_replay_moves_the_arm_and_the_plots_to_the_same_instant(app, page):
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
 
 
-def run_lesson_in_the_page(app: Any, pg: Any, lesson: str, steps: int | None = None) -> dict[str, str]:
+def run_lesson_in_the_page(
+    app: Any, pg: Any, lesson: str, steps: int | None = None, after_step: Callable[[int, str], None] | None = None
+) -> dict[str, str]:
     """Open the Lessons tab, pick `lesson`, click "Set up this step" for each step (the first `steps`
-    of them when given) and wait for its result line; returns the claims the page showed, by step key."""
+    of them when given) and wait for its result line, then call `after_step(index, key)` if given; returns
+    the claims the page showed, by step key."""
     from app.live.curriculum import LESSONS
     from app.live.ui.panels.lessons import LessonsPanel
 
@@ -864,6 +885,8 @@ def run_lesson_in_the_page(app: Any, pg: Any, lesson: str, steps: int | None = N
         wait_for(lambda c=claim: pg.get_by_text(c[:60], exact=False).count() > 0, 30, "the claim in the page")
         assert not app.loop.sync().running  # the run froze at the end of the step
         shown[step.key] = claim
+        if after_step is not None:
+            after_step(i, step.key)
         if i + 1 < len(spec.steps):
             pg.get_by_role("button", name="Next ▶").click()
     return shown
@@ -879,6 +902,7 @@ def test_the_dampers_lesson_in_the_page_tells_the_delay_step_as_it_happens(app, 
 
     pg, _ = page
     panel = next(p for p in app.panels if isinstance(p, LessonsPanel))
+
     try:
         claims = run_lesson_in_the_page(app, pg, "dampers")
         memo = panel.results["dampers"]
@@ -902,6 +926,49 @@ def test_the_dampers_lesson_in_the_page_tells_the_delay_step_as_it_happens(app, 
         app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
         app.loop.submit(Play())
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
+def test_every_dampers_step_draws_the_limit_ds_and_di_in_view_in_the_page(app, page):
+    """Each step of the dampers lesson, set up from the Lessons panel: when it ends, the page's phase chart
+    of joint 4 has the limit, d_s and d_i lines each inside its x range (zoomed on the limit the joint falls
+    to) and d_s more than 5 % of the width from the limit (screenshots lesson-dampers-step1…4.png)."""
+    from app.live.curriculum import LESSONS
+    from app.live.ui.panels.lessons import LessonsPanel
+
+    pg, _ = page
+    panel = next(p for p in app.panels if isinstance(p, LessonsPanel))
+    spec = next(x for x in LESSONS if x.key == "dampers")
+    try:
+        for i, step in enumerate(spec.steps):
+            panel.select("dampers", i)
+            panel.start_step()
+            wait_for(lambda k=step.key: ("dampers", k) in panel.claims, 600, f"the result of {step.title}", period=0.5)
+            lines_in_view(pg, i, step.key)
+    finally:
+        from app.core.commands import Play, SwitchSession
+
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
+def lines_in_view(pg: Any, i: int, key: str) -> None:
+    """The page's phase chart: the limit, d_s and d_i each drawn inside its x range, d_s > 5 % of the
+    width from the limit (the zoom on the limit); then a screenshot lesson-dampers-step{i + 1}.png."""
+
+    def drawn() -> bool:
+        got = pg.evaluate(_PHASE_LINES_JS)
+        if not got:
+            return False
+        lo, hi, lines = got["min"], got["max"], got["lines"]
+        inside = [[x for x in xs if lo <= x <= hi] for xs in lines]
+        if any(len(xs) != 1 for xs in inside):
+            return False
+        return abs(inside[0][0] - inside[1][0]) > 0.05 * (hi - lo)
+
+    wait_for(drawn, 30, f"the limit, d_s and d_i in view in step {key}")
+    ARTIFACTS.mkdir(exist_ok=True)
+    pg.screenshot(path=str(ARTIFACTS / f"lesson-dampers-step{i + 1}.png"), timeout=180_000)  # a loaded machine
 
 
 _STD3 = r"([\d.]+)/([\d.]+)/([\d.]+) N"
