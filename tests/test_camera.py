@@ -8,6 +8,7 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from app.live.ui.camera import (
     DEFAULT_FOV_RAD,
@@ -108,3 +109,27 @@ def test_frame_points_looks_from_the_front_right_above():
     position, look_at = frame_points(ARM)
     direction = (position - look_at) / np.linalg.norm(position - look_at)
     assert direction[0] > 0 and direction[1] < 0 and direction[2] > 0
+
+
+def test_a_new_run_frames_the_arm_at_rest_again_after_a_thrash_widened_the_view():
+    """A thrash swings the arm far out and the pages zoom out; the next run (a Reset) frames the arm at
+    rest again on the pages still placed by the app (the view shrinks back), not on a page a person moved."""
+    now = [0.0]
+    server = FakeServer(2)
+    framer = Framer(server, clock=lambda: now[0])  # type: ignore[arg-type]
+    framer.frame(ARM)
+    page0, moved = server.clients[0].camera, server.clients[1].camera
+    near = float(np.linalg.norm(np.asarray(page0.position) - np.asarray(page0.look_at)))
+    across, up, _ = view_basis()
+    thrash = ARM.copy()
+    thrash[2:] += 0.8 * across + 0.5 * up
+    now[0] += FOLLOW_PERIOD_S + 0.01
+    assert framer.follow(thrash)
+    far = float(np.linalg.norm(np.asarray(page0.position) - np.asarray(page0.look_at)))
+    assert far > 1.2 * near  # zoomed out for the thrash
+    moved.position = np.asarray(moved.position) + np.array([0.3, 0.0, 0.0])
+    person = moved.position.copy()
+    framer.new_run(ARM)
+    again = float(np.linalg.norm(np.asarray(page0.position) - np.asarray(page0.look_at)))
+    assert again == pytest.approx(near, rel=1e-6)  # the arm at rest framed as at the start
+    assert np.allclose(moved.position, person)

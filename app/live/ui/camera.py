@@ -11,7 +11,8 @@ settle phase can swing the elbow far from the start posture): when a point leave
 more than `FOLLOW_TOLERANCE_M`, the pages whose camera is still where the app put it are framed again
 on everything seen since the switch (widened by `FOLLOW_PAD` about its middle, not compounding), at
 most once per `FOLLOW_PERIOD_S`, and not while a link is dragged. A page whose camera a person moved
-is left alone until the next switch or *Frame the robot*.
+is left alone until the next switch or *Frame the robot*. A new run of the same preset (a Reset, a lesson
+step) frames the pages still placed by the app on its arm anew (`new_run`).
 
 The cameras are written on the server's event loop thread (`on_server_loop`), where viser's asyncio
 objects live: written from the publisher thread, a page connecting or leaving meanwhile made asyncio
@@ -189,6 +190,20 @@ class Framer:
                 self.seen = pts if self.seen is None else extremes(np.vstack([self.seen, pts]))
                 self.framed = pts = self.seen if self.framed is None else extremes(np.vstack([self.framed, pts]))
             self.placed.update(frame_cameras(self.server, pts, clients))
+
+    def new_run(self, points: np.ndarray) -> None:
+        """A new run of the same preset (a Reset, a lesson step): forget what the last run swept and frame
+        `points` anew on the pages whose camera is still where the app put it (after a thrash had widened
+        the framed box, those pages stayed zoomed out on an arm at rest)."""
+        with self._lock:
+            self.seen = self.framed = framed = extremes(np.asarray(points, dtype=float))
+            self.reframes = 0
+
+            def still_placed() -> dict[int, tuple[np.ndarray, np.ndarray]]:
+                clients = [c for cid, c in self.server.get_clients().items() if self._still_placed(cid, c)]
+                return write_cameras(self.server, framed, clients)
+
+            self.placed.update(on_server_loop(self.server, still_placed) or {})
 
     def frame_new_client(self, points: np.ndarray | None, client: viser.ClientHandle) -> bool:
         """A page that just connected: frame it on what is framed for the others (else `points`)."""

@@ -87,6 +87,8 @@ class Publisher:
         self._next_live = 0.0
         self._live_state: tuple[bool, str, float, int, int] | None = None
         self._frame_pending = True  # frame the robot once a new scene has a snapshot
+        self._run_restarts: int | None = None  # the run (restart count) the framing belongs to
+        self._new_run = False  # a new run of the same preset: frame its arm anew (`Framer.new_run`)
         self.framer = Framer(server)  # frames the pages on the arm and keeps it in view
         self.page_clock = PageClock(server)  # a page that falls behind says so (app.live.ui.page_lag)
         # pages whose camera was framed on connect (client ids)
@@ -236,6 +238,9 @@ class Publisher:
             self._scene_wanted = self.make_scene is not None
             if self.plots is not None:
                 self.plots.focus(frame.status.focus_joint, frame.status.scenario)
+        if frame.restarts != self._run_restarts:
+            self._new_run = self._run_restarts is not None and not self._frame_pending
+            self._run_restarts = frame.restarts
         if self._scene_wanted and self.make_scene is not None:  # tried again each frame until it builds
             self.scene = self.make_scene(frame.robot)
             self._scene_wanted = False
@@ -250,6 +255,10 @@ class Publisher:
             elif self._frame_pending:
                 self.framer.frame(points)
                 self._frame_pending = False
+                self._new_run = False
+            elif self._new_run and frame.scene.drag_point is None:
+                self.framer.new_run(points)
+                self._new_run = False
             elif frame.scene.drag_point is None:  # never under a person's drag (the pointer would slip)
                 self.framer.follow(points)
 
