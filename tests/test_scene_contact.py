@@ -169,3 +169,30 @@ def test_replay_draws_the_falling_mass_where_it_was_logged(server):
         np.testing.assert_allclose(np.asarray(overlays.payload.position), logged, atol=1e-6)
     fell = columns["payload_z_m"][np.searchsorted(columns["t"], 1.0)] - columns["payload_z_m"][-1]
     assert fell > 0.02  # the mass fell: left at the live place, it would be at the same place every instant
+
+
+def test_replay_poses_the_twin_arm_at_its_logged_posture(server):
+    """Polish with a W_a twin: replayed at a logged instant, the twin's links stand where the live scene
+    had them at that instant (the twin's own posture, not the main arm's nor the live one)."""
+    from app.core.commands import SetTwin
+    from app.live.frames import _with_twin
+
+    lab = Lab("polish")
+    lab.apply(SetParam("nullspace", "objective", "j"))
+    lab.apply(SetTwin("a"))
+    kept = []
+    for _ in range(4):
+        lab.advance(1500)
+        kept.append(_with_twin(capture(lab.session), lab.twin))
+    lab.advance(10)
+    columns = lab.log.window(60.0, lab.dt, 1)
+    assert lab.twin is not None
+    columns |= {f"twin_{k}": v for k, v in lab.twin.columns_at(columns["t"]).items() if k.startswith("q_")}
+    poser = ArmPoser(lab.session.world, tuple(lab.session.robot.link_names))
+    live_now = _with_twin(capture(lab.session), lab.twin)
+    for snap in kept:
+        replayed = instant_snapshot(live_now, columns, poser, snap.t)
+        np.testing.assert_allclose(replayed.twin_link_positions, snap.twin_link_positions, atol=1e-6)
+        np.testing.assert_allclose(replayed.link_positions, snap.link_positions, atol=1e-6)
+    assert float(np.max(np.abs(kept[0].twin_link_positions - live_now.twin_link_positions))) > 1e-3
+    assert max(float(np.max(np.abs(s.twin_link_positions - s.link_positions))) for s in kept) > 1e-3  # its own posture

@@ -7,11 +7,11 @@ up to it (`Plots.replay_t`), and the arm is posed from the logged joint position
 forward kinematics on a private `MjData` of the same model (the simulation's own data is never
 touched). Every scene object follows: a payload fixed to the arm is posed with it, the task target is
 the logged one, the contact point, normal and friction forces are the logged ones at the tool, the
-contact ring is red where contact was lost and the lift marks are those before the instant. The
-coupling ellipse follows the tool, and its shape and W value are computed again at the instant's
-posture from the arm's model (`ArmPoser.coupling`: the controller's terms are not logged). The
-commanded path ahead, a drag and the twin arm are hidden while replaying. The status line says it is a
-replay and shows the instant (`status_hook`).
+contact ring is red where contact was lost and the lift marks are those before the instant, and a
+twin arm stands at its own logged posture of the instant. The coupling ellipse follows the tool, and
+its shape and W value are computed again at the instant's posture from the arm's model
+(`ArmPoser.coupling`: the controller's terms are not logged). The commanded path ahead and a drag are
+hidden while replaying. The status line says it is a replay and shows the instant (`status_hook`).
 
 Events: the phase markers of the plots (S1…S6, the drop, a payload release), each QP fallback
 (onsets closer than `FALLBACK_BURST_S` to the one before count as one burst), contact lost
@@ -175,6 +175,11 @@ def instant_snapshot(live: Any, columns: dict[str, np.ndarray], poser: ArmPoser,
         onsets = contact_loss_onsets(columns["contact_force_n"][: i + 1], segment[: i + 1])
         lifts = np.array([lift_point(poser, columns, k, len(q)) for k in onsets]).reshape(-1, 3)
         lift_times = np.array(times[onsets], dtype=float)
+    twin_positions = twin_wxyz = None  # the twin arm at its logged posture of the instant (same model)
+    if live.twin_link_positions is not None and "twin_q_1" in columns:
+        twin_q = np.array([columns[f"twin_q_{j + 1}"][i] for j in range(len(q))])
+        if np.all(np.isfinite(twin_q)):
+            twin_positions, twin_wxyz, _, _ = poser.pose(twin_q)
     return dataclasses.replace(
         live,
         P=P,
@@ -195,8 +200,8 @@ def instant_snapshot(live: Any, columns: dict[str, np.ndarray], poser: ArmPoser,
         target_position=target,
         payload_position=payload,
         path=np.zeros((0, 3)),
-        twin_link_positions=None,
-        twin_link_wxyz=None,
+        twin_link_positions=twin_positions,
+        twin_link_wxyz=twin_wxyz,
     )
 
 
@@ -293,13 +298,16 @@ class ReplayPanel:
         self.info.content = (
             f"Replaying {t[0]:.2f}…{t[-1]:.2f} s; {len(self.events)} event(s), all in *Jump to event*. "
             "The arm, the payload, the target, the contact forces and marks and the plots show the chosen "
-            "instant; the coupling ellipse is computed at its posture; the path ahead and the twin are hidden."
+            "instant (a twin arm too); the coupling ellipse is computed at its posture; the path ahead is hidden."
         )
         self.show(float(t[-1]))
 
     def _take(self, lab: Any) -> tuple[dict[str, np.ndarray], str, int, ArmPoser]:
         """On the loop thread: the logged window, the halt reason and a poser for the current model."""
         columns = lab.log.window(REPLAY_SECONDS, lab.dt, REPLAY_EVERY)
+        if lab.twin is not None and "t" in columns:  # the twin's postures at the same instants
+            twin = lab.twin.columns_at(columns["t"])
+            columns |= {f"twin_{k}": v for k, v in twin.items() if k.startswith("q_")}
         poser = ArmPoser(lab.session.world, tuple(lab.session.robot.link_names))
         return columns, lab.halted, lab.session_id, poser
 
