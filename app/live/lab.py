@@ -93,16 +93,19 @@ class Lab:
     """One session and the person's changes to it (see the module docstring)."""
 
     def __init__(
-        self,
-        scenario: str | Scenario = PLAIN_PRESET,
-        robot: str | None = None,
-        executor: str | None = None,
-        seed: int = 0,
-        log_seconds: float = 60.0,
+        self, scenario: str | Scenario | Session = PLAIN_PRESET, log_seconds: float = 60.0, **session_args: Any
     ):
-        self.seed = seed
-        self.robot_choice = robot or ""  # "" = the scenario's default robot
-        self.session = Session(scenario, robot=robot or None, executor=executor or None, seed=seed)
+        """A lab over `scenario`: a built `Session`, or a preset (name or object) built into one with
+        `session_args`, `Session`'s own arguments (robot, executor, seed; "" = the preset's default)."""
+        if isinstance(scenario, Session):
+            self.session = scenario
+        else:
+            args: dict[str, Any] = {
+                k: (v or None) if k in ("robot", "executor") else v for k, v in session_args.items()
+            }
+            self.session = Session(scenario, **args)
+        self.seed = self.session.seed
+        self.robot_choice = str(session_args.get("robot") or "")  # "" = the scenario's default robot
         self.dt = float(self.session.world.model.opt.timestep)
         self._log_seconds = log_seconds
         self.log = StepLog(
@@ -337,8 +340,7 @@ class Lab:
     def _rebuild(self, changes: list[SetParam]) -> None:
         """A fresh session of the same preset, robot and executor (after a halt), with `changes`."""
         s = self.session
-        new = Session(s.preset, robot=self.robot_choice or None, executor=s.executor_name, seed=self.seed)
-        self._install(new, changes)
+        self._install(self._new_session(s.preset, self.robot_choice, s.executor_name), changes)
 
     def set_offload(self, offload: Offload | None) -> None:
         """Have this session, its twin and every later one compute their costly page signals (the
@@ -347,6 +349,12 @@ class Lab:
         self.session.set_offload(offload)
         if self.twin is not None:
             self.twin.session.set_offload(offload)
+
+    def _new_session(
+        self, spec: str | Scenario, robot_choice: str, executor: str | None, defer_work: bool = False
+    ) -> Session:
+        """A session of `spec` with this lab's seed (robot "" = the preset's default)."""
+        return Session(spec, robot=robot_choice or None, executor=executor, seed=self.seed, defer_work=defer_work)
 
     def _install(self, session: Session, changes: list[SetParam]) -> None:
         """Make `session` the lab's, with every one of `changes` it accepts; the twin follows."""
@@ -455,14 +463,12 @@ class Lab:
         else:
             spec = scenario
         try:  # with defer_work, raises WorkPending before anything changed
-            new = Session(
-                spec, robot=robot_choice or None, executor=executor, seed=self.seed, defer_work=self.defer_work
-            )
+            new = self._new_session(spec, robot_choice, executor, defer_work=self.defer_work)
         except ValueError as exc:
             if cmd.scenario is None or not robot_choice:
                 raise
             # a preset that needs its own arm (a posture the picked one lacks): run it on its default robot
-            new = Session(spec, robot=None, executor=executor, seed=self.seed)
+            new = self._new_session(spec, "", executor)
             self.notify("info", "Robot changed", f"{exc}. Using {new.robot.name}.")
             robot_choice = ""
         changes = self.overrides
