@@ -114,12 +114,21 @@ ROOT = Path(__file__).resolve().parents[1]
 CURRICULUM = ROOT / "app" / "live" / "curriculum.py"
 
 
+COMMON_WORDS = ("free",)  # preset names that are also ordinary words (a classroom seat is "free" too)
+
+
 def _preset_words() -> list[re.Pattern[str]]:
     """What naming a preset looks like in code: its name as a string, its module, a constant of its own."""
-    words = [re.compile(rf"""["']{re.escape(name)}["']""") for name in SCENARIOS]
+    words = [re.compile(rf"""["']{re.escape(name)}["']""") for name in SCENARIOS if name not in COMMON_WORDS]
+    # a preset named by an ordinary word counts where the line speaks of a scenario or preset
+    words += [
+        re.compile(rf"""(scenario|preset|SCENARIO).*["']{name}["']|["']{name}["'].*(scenario|preset|SCENARIO)""")
+        for name in COMMON_WORDS
+    ]
     words += [re.compile(rf"app\.scenarios\.{module}\b") for module in SCENARIOS.values()]
     words += [re.compile(r"\bapp\.scenarios\.(polish_\w+|payload|drop_postures)\b")]
-    words += [re.compile(r"^\s*[A-Z_]*(SEGMENTS|CONTACT_TIME|CONTACT_S)\w*\s*=", re.M)]  # a copied constant
+    # a copied constant: the stroke count, the contact time, a constant named after a preset
+    words += [re.compile(r"^\s*((N_)?SEGMENTS|\w*CONTACT_TIME\w*|(POLISH|LIMIT_DROP|MASS_DROP)_\w+)\s*=")]
     return words
 
 
@@ -130,9 +139,13 @@ def preset_mentions(text: str) -> list[str]:
 
 def test_the_grep_finds_a_preset_named_in_code():
     assert preset_mentions('if name == "polish":\n    pass') == ['if name == "polish":']
-    assert preset_mentions("SEGMENTS = 6\n") == ["SEGMENTS = 6"]
+    assert preset_mentions("SEGMENTS = 6\nPOLISH_CONTACT_S = 1.0\nCONTACT_RING_SEGMENTS = 32\n") == [
+        "SEGMENTS = 6",
+        "POLISH_CONTACT_S = 1.0",
+    ]
     assert preset_mentions("from app.scenarios.polish_stroke import N_SEGMENTS\n")
     assert preset_mentions('group.compliance\nx = "compliance_qp"\nscenario.segments\n') == []
+    assert preset_mentions('state: str = "free"\nLab(scenario="free")\n') == ['Lab(scenario="free")']
 
 
 @pytest.mark.parametrize("package", ["live", "core"])
