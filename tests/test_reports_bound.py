@@ -128,9 +128,20 @@ def _tolerance(token: str) -> float:
     return 0.5
 
 
+def _field_totals(items: list) -> list[float]:
+    """The sum of each numeric field over a list of records (the cells' CPU seconds, their wall time)."""
+    totals: dict[str, float] = {}
+    for item in items:
+        if isinstance(item, dict):
+            for key, v in item.items():
+                if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
+                    totals[key] = totals.get(key, 0.0) + float(v)
+    return list(totals.values())
+
+
 def json_values(docs: list) -> tuple[np.ndarray, set[str]]:
-    """Every number of the documents (and every list's length) in each of the report's units, sorted
-    by magnitude, and the numeric tokens of their strings (a command's options, a date)."""
+    """Every number of the documents (every list's length and its records' totals too) in each of the
+    report's units, sorted by magnitude, and the numeric tokens of their strings (a command's options, a date)."""
     values: list[float] = []
     tokens: set[str] = set()
 
@@ -140,6 +151,7 @@ def json_values(docs: list) -> tuple[np.ndarray, set[str]]:
                 walk(v)
         elif isinstance(x, list):
             values.append(float(len(x)))
+            values.extend(_field_totals(x))  # a report's total over its cells or invocations (CPU, wall time)
             for v in x:
                 walk(v)
         elif isinstance(x, bool) or x is None:

@@ -234,12 +234,23 @@ def window(reading_n: np.ndarray, contact_force_n: np.ndarray, threshold_n: floa
     return judge(rms, lost, threshold_n), rms
 
 
-def definition_text(threshold_n: float) -> str:
-    """The verdict's definition in words, with a run's threshold."""
+def band_facts() -> dict[str, float]:
+    """The band a run's verdict was judged in, for the run's record (a report reads it from there)."""
+    return {"verdict_mode_hz": MODE_HZ, "verdict_band_lo_hz": BAND_HZ[0], "verdict_band_hi_hz": BAND_HZ[1]}
+
+
+def definition_text(threshold_n: float, run: Mapping | None = None) -> str:
+    """The verdict's definition in words, with a run's threshold and the band its record names
+    (`band_facts`; a record without them, made before they were kept, gets the band without numbers)."""
+    keys = ("verdict_band_lo_hz", "verdict_band_hi_hz", "verdict_mode_hz")
+    band = ""
+    if run is not None and all(run.get(k) is not None for k in keys):
+        lo, hi, mode = (float(run[k]) for k in keys)
+        band = f" ({lo:.1f}–{hi:.1f} Hz, one octave around {mode:g} Hz)"
     return (
         "Lost contact: the true contact force reached 0 at a 1 ms step of the stroke. Oscillating: the F/T "
-        f"reading's RMS in the contact mode's band ({BAND_HZ[0]:.1f}–{BAND_HZ[1]:.1f} Hz, one octave around "
-        f"{MODE_HZ:g} Hz) over the stroke is at least {threshold_n:.2f} N, the sensor's floor (the RMS its noise "
+        f"reading's RMS in the contact mode's band{band} over the stroke is at least {threshold_n:.2f} N, the "
+        "sensor's floor (the RMS its noise "
         "and sinusoid leave on a steady reading after its low-pass): the contact mode is louder than "
         "everything the sensor adds. Stable: neither. A run takes its worst stroke's verdict."
     )

@@ -240,6 +240,7 @@ def simulate(spec: dict) -> dict:
     result["stable"] = result["verdict"] == V.STABLE
     result["band_floor_n"] = V.sensor_band_floor_n(ran["sensor"], dt)
     result["oscillation_threshold_n"] = V.oscillation_threshold_n(ran["sensor"], dt)
+    result.update(V.band_facts())  # the band the strokes were judged in, for the reports' definition
     result["band_rms_max_n"] = max((s.band_rms_n for s in judged), default=None)
     by_segment = {s.segment: s for s in judged}
     if plan_cost is not None:

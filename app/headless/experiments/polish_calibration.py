@@ -215,8 +215,9 @@ def _floor(x: dict | None) -> str:
     return f"{x['loop_best_mean']:.3f} ({x['loop_best_max']:.3f}) / {x['plan_mean']:.3f} ({x['plan_max']:.3f})"
 
 
-def _verdicts_text(force_n: float, floor_n: float, budget_np: float, threshold_n: float) -> str:
-    """The two verdicts and the outcome in words, with the run's F̂, floor and threshold."""
+def _verdicts_text(force_n: float, floor_n: float, budget_np: float, threshold_n: float, run: dict) -> str:
+    """The two verdicts and the outcome in words, with the run's F̂, floor and threshold (`run`: the
+    record the verdict's band is read from)."""
     return (
         "Predicted unstable (the margin's verdict): the stroke headroom h = ln(F̂ / floor) − G falls below 0 "
         f"on some stroke, with F̂ = {force_n:g} N and the sensor's noise floor in the contact mode's band "
@@ -224,8 +225,14 @@ def _verdicts_text(force_n: float, floor_n: float, budget_np: float, threshold_n
         "G_k = max(0, G_{k−1} − σ_k Δt) the rates accumulate along it: a disturbance at the noise floor "
         "reaches the desired force before the stroke ends. Beside it, the instantaneous verdict: the worst "
         "σ over the strokes is negative. Simulated unstable: the one verdict is not stable. "
-        + V.definition_text(threshold_n)
+        + V.definition_text(threshold_n, run)
     )
+
+
+def _sample_ms(runs: list[dict]) -> str:
+    """The postures' spacing along the strokes as the runs recorded it ("25 ms")."""
+    spacing = sorted({r.get("stroke_loop", {}).get("sample_s") for r in runs} - {None})
+    return " / ".join(f"{1e3 * s:g} ms" for s in spacing) if spacing else "(spacing not recorded)"
 
 
 def _run_figures(runs: list[dict]) -> tuple[float, float, float, float]:
@@ -282,11 +289,11 @@ def report_section(runs: list[dict]) -> str:
         "<p>σ = −ln ρ(Φ)/Δt (1/s) of the linearised force loop (contact stiffness, friction, the shaped "
         "inertia along z, K_f^p, K_f^d, K_f^i, the sensor's low-pass, the reading d_s periods late and the "
         f"torque d_a periods late; {html.escape(latency)}) at each posture the run passed through every "
-        "25 ms, linearised about the commanded sliding speed and the segment's friction direction; each "
+        f"{_sample_ms(runs)}, linearised about the commanded sliding speed and the segment's friction direction; each "
         "cell is a stroke's worst value (negative: a mode grows). K_f^d margin: the worst over all strokes "
         "(N s/m). G: the largest growth (nepers) the rates accumulate on a stroke; h_min: the least headroom "
         "(Np). P_d·f̂: mean and max over the stretching strokes S2, S4, S6. "
-        f"{html.escape(_verdicts_text(force, floor, budget, limit))} Red rows disagree with the headroom.</p>"
+        f"{html.escape(_verdicts_text(force, floor, budget, limit, runs[0]))} Red rows disagree with the headroom.</p>"
         "<table><tr><th>row</th><th>μ</th><th>seed</th>"
         + "".join(f"<th>σ S{k}</th>" for k in range(1, 7))
         + "<th>K_f^d margin</th><th>G</th><th>h_min</th><th>P_d·f̂ mean</th><th>P_d·f̂ max</th>"
@@ -535,13 +542,13 @@ def _sweep_verdicts_text(metrics: list[dict]) -> str:
     floors = sorted({round(run_floor_n(m), 6) for m in metrics})
     thresholds = sorted({round(run_threshold_n(m), 6) for m in metrics})
     if len(force) == 1 and len(floors) == 1 and len(thresholds) == 1:
-        return _verdicts_text(force[0], floors[0], headroom_budget(metrics[0]), thresholds[0])
+        return _verdicts_text(force[0], floors[0], headroom_budget(metrics[0]), thresholds[0], metrics[0])
     return (
         "Predicted unstable: the stroke headroom h = ln(F̂ / floor) − G falls below 0 on some stroke (F̂ "
         f"{force[0]:g}–{force[-1]:g} N, noise floor in the mode's band {floors[0]:.3f}–{floors[-1]:.3f} N, each "
         "run's own); beside it, the worst σ is negative. Simulated unstable: the one verdict is not stable "
         f"(oscillation threshold {thresholds[0]:.2f}–{thresholds[-1]:.2f} N, each run's own). "
-        + V.definition_text(thresholds[0])
+        + V.definition_text(thresholds[0], metrics[0])
     )
 
 

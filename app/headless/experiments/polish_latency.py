@@ -118,6 +118,7 @@ def latency_table(runs: list[dict]) -> dict:
         "held_window_s": None if held is None else held["window_s"],
         "held_still_deg": None if held is None else held.get("still_deg"),
         "settle_cap_s": next((r["settle_cap_s"] for r in runs if r.get("settle_cap_s") is not None), None),
+        **{k: next((r[k] for r in runs if r.get(k) is not None), None) for k in V.band_facts()},
     }
     return {"criterion": criterion, "mu": runs[0]["mu"] if runs else None, "rows": rows}
 

@@ -18,6 +18,7 @@ from app.scenarios import polish_plan as plan_module
 from app.scenarios import polish_stroke as stroke_module
 from app.scenarios.polish import PolishScenario
 from app.scenarios.polish_stroke import N_SEGMENTS
+from app.scenarios.verdict import band_facts
 
 COLORS = {
     "j": "black",
@@ -597,7 +598,7 @@ def _verdict_text(criterion: dict) -> str:
     threshold = criterion.get("threshold_n")
     if threshold is None:
         return "diverged or lost contact (runs made before the verdict recorded its band RMS)."
-    return definition_text(threshold)
+    return definition_text(threshold, criterion)
 
 
 def _held_html(criterion: dict) -> str:
@@ -620,6 +621,7 @@ def _runs_criterion(doc: dict) -> dict:
     return {
         "threshold_n": next((r["oscillation_threshold_n"] for r in runs if r.get("oscillation_threshold_n")), None),
         "floor_n": next((r["band_floor_n"] for r in runs if r.get("band_floor_n")), None),
+        **{k: next((r[k] for r in runs if r.get(k) is not None), None) for k in band_facts()},
     }
 
 

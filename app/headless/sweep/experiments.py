@@ -29,7 +29,8 @@ class SweepExperiment:
     knobs: tuple[Knob, ...]
     cell: Callable[[dict, int], dict]
     map_metrics: tuple[str, ...]  # metrics drawn as maps / lines in the report
-    stable_means: str  # what "stable" means for this experiment (shown in the report)
+    # what "stable" means for this experiment (shown in the report): fixed words, or words from the cells
+    stable_means: str | Callable[[list[dict]], str]
     seeded: bool = True  # False: the run does not depend on the seed (seeds repeat it)
     groups: Callable[[], dict] | None = None  # the default session's parameter groups by name
     overlay: Callable | None = None  # (ax, axes, records) → extra layers on its maps
@@ -281,6 +282,21 @@ def polish_cell(values: dict, seed: int) -> dict:
     return {"metrics": {**_scalars(keep), **calibration_metrics(r)}, "stable": r["verdict"] == V.STABLE}
 
 
+def polish_stable_means(records: list[dict]) -> str:
+    """The one verdict's definition with the thresholds and the band the cells recorded."""
+    metrics = [r.get("metrics", {}) for r in records if r.get("status") == "ok"]
+    thresholds = sorted({round(m["oscillation_threshold_n"], 2) for m in metrics if m.get("oscillation_threshold_n")})
+    if not thresholds:
+        return "the one verdict (app.scenarios.verdict) is stable on every stroke (no finished cell recorded it)"
+    spread = "" if len(thresholds) == 1 else f" (each cell's own sensor: {thresholds[0]:.2f}–{thresholds[-1]:.2f} N)"
+    return (
+        "the one verdict (app.scenarios.verdict) is stable on every stroke, no divergence"
+        + spread
+        + ". "
+        + V.definition_text(thresholds[0], metrics[0]).rstrip(".")
+    )
+
+
 EXPERIMENTS: dict[str, SweepExperiment] = {
     "limit-drop": SweepExperiment(
         "limit-drop",
@@ -304,9 +320,7 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         POLISH_KNOBS,
         polish_cell,
         ("stable", "force_error_ptp", "force_error_ma", "contact_lost_ms", "converged_swivel_deg"),
-        "the one verdict (app.scenarios.verdict) is stable on every stroke: no divergence, the contact force "
-        "never reaches 0, and no stroke's F/T reading in the contact mode's band (one octave around 13 Hz) "
-        "has an RMS of 2× the sensor noise's RMS there or more",
+        polish_stable_means,
         groups=polish_groups,
         any_param=True,
         overlay=polish_overlay,

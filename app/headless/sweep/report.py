@@ -215,11 +215,13 @@ def write_report(
         ]
         for i in invocations
     ]
+    means = experiment.stable_means
+    stable_means = means if isinstance(means, str) else means(records)
     setup = (
         f"<p>Experiment <b>{html.escape(experiment.name)}</b>, {total} cells "
         f"({' × '.join(str(len(a)) for a in axes)} grid × {seeds} seed{'s' if seeds > 1 else ''}); "
         f"{len(ok)} finished, {len(failed)} failed, {total - len(records)} not run. "
-        f"Stable means: {html.escape(experiment.stable_means)}."
+        f"Stable means: {html.escape(stable_means)}."
         + ("" if experiment.seeded else " This experiment does not depend on the seed: seeds repeat the same run.")
         + "</p>"
         f"<p>Total CPU time of the cells {cpu:.1f} s (their wall time {cell_wall:.1f} s); wall time of the sweep "
