@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from control.kernels.chain import inertia_contraction_fused
-from control.kernels.coupling import coupling_fused
+from control.kernels.coupling import coupling_fused, coupling_weights_reference
 from control.kernels.gradients import OBJECTIVE_CODES, gradient_contraction_fused, gradient_contraction_reference
 from control.model import Dynamics, RobotModel
 
@@ -114,9 +114,31 @@ def coupling_terms(
     D̂ = L_ff⁻¹, BᵀA⁻¹ = −D̂ L_fm and A⁻¹ = L_mm − L_mf D̂ L_fm.
     """
     A, B, D, A_inv, D_hat, P_f, P_a, P_d, _, _, _ = coupling_fused(
-        Lambda, Lambda_inv, sub.perm, sub.n_m, exact_inverse
+        Lambda, Lambda_inv, sub.perm, sub.n_m, exact_inverse, SI_SCALE
     )  # compiled `control.kernels.coupling.coupling_reference`
     return CouplingTerms(A, B, D, A_inv, D_hat, P_f, P_a, P_d)
+
+
+SI_SCALE = np.ones(6)
+SI_SCALE.flags.writeable = False
+
+
+def task_scale(length_m: float = 0.0, mass_kg: float = 1.0) -> np.ndarray:
+    """Scale s (6,) of the task coordinates in which W_f, W_a, W_d are taken (`coupling_fused`).
+
+    Λ̃x = diag(s) Λx diag(s) with s = 1/√m_c on [px py pz] and 1/(L_c √m_c) on [rx ry rz]: the
+    inertia of the coordinates √m_c [p; L_c r] (a rotation counted as the arc it sweeps at radius
+    L_c). Every entry of Λ̃x then has the unit kg·m²/(kg·m²) = 1, so the translational and
+    rotational terms of ‖P‖²_F [T22] add like with like. `length_m` = 0 leaves rotations in radians
+    (s = 1/√m_c everywhere); (0, 1) gives ones, W as [T22].
+    """
+    if not (np.isfinite(length_m) and length_m >= 0.0):
+        raise ValueError(f"the characteristic length must be ≥ 0 m (0: off), got {length_m}")
+    if not (np.isfinite(mass_kg) and mass_kg > 0.0):
+        raise ValueError(f"the characteristic mass must be > 0 kg, got {mass_kg}")
+    s_lin = 1.0 / np.sqrt(mass_kg)
+    s_rot = s_lin / length_m if length_m > 0.0 else s_lin
+    return np.array([s_lin, s_lin, s_lin, s_rot, s_rot, s_rot])
 
 
 def terms_of(dyn: Dynamics, sub: Subspaces) -> CouplingTerms:
@@ -124,9 +146,12 @@ def terms_of(dyn: Dynamics, sub: Subspaces) -> CouplingTerms:
     return coupling_terms(dyn.Lambda, dyn.Lambda_inv, sub, exact_inverse=not dyn.near_singular)
 
 
-def terms_and_values(dyn: Dynamics, sub: Subspaces) -> tuple[CouplingTerms, tuple[float, float, float]]:
-    """`terms_of` and (W_f, W_a, W_d) = ‖P‖²_F [T22] from the same compiled call."""
-    *blocks, W_f, W_a, W_d = coupling_fused(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, not dyn.near_singular)
+def terms_and_values(
+    dyn: Dynamics, sub: Subspaces, scale: np.ndarray = SI_SCALE
+) -> tuple[CouplingTerms, tuple[float, float, float]]:
+    """`terms_of` and (W_f, W_a, W_d) = ‖P‖²_F [T22] from the same compiled call, in the task
+    coordinates of `scale` (`task_scale`; ones: SI units as [T])."""
+    *blocks, W_f, W_a, W_d = coupling_fused(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, not dyn.near_singular, scale)
     return CouplingTerms(*blocks), (W_f, W_a, W_d)
 
 
@@ -168,12 +193,27 @@ def projection(terms: CouplingTerms, objective: str) -> np.ndarray:
     raise ValueError(f"unknown coupling objective {objective!r}; use f, a or d")
 
 
-def coupling_values(terms: CouplingTerms) -> dict[str, float]:
-    """W_f, W_a, W_d = ‖P‖²_F [T22] at one posture."""
+def coupling_weights(sub: Subspaces, scale: np.ndarray = SI_SCALE) -> dict[str, np.ndarray]:
+    """Per objective "f"/"a"/"d" the weights w (n_f, n_m) with W = Σ w ∘ P² in the task
+    coordinates of `scale` (`task_scale`; ones: ‖P‖²_F [T22])."""
+    w_f, w_a, w_d = coupling_weights_reference(np.asarray(scale, dtype=float), sub.perm, sub.n_m)
+    return {"f": w_f, "a": w_a, "d": w_d}
+
+
+def coupling_values(
+    terms: CouplingTerms, scale: np.ndarray | None = None, sub: Subspaces | None = None
+) -> dict[str, float]:
+    """W_f, W_a, W_d = ‖P‖²_F [T22] at one posture; with `scale` (and its `sub`) in the task
+    coordinates of `task_scale`."""
+    w: dict[str, float] | dict[str, np.ndarray] = {"f": 1.0, "a": 1.0, "d": 1.0}
+    if scale is not None:
+        if sub is None:
+            raise ValueError("coupling_values with a scale needs the subspaces")
+        w = coupling_weights(sub, scale)
     return {
-        "W_f": float(np.sum(terms.P_f * terms.P_f)),
-        "W_a": float(np.sum(terms.P_a * terms.P_a)),
-        "W_d": float(np.sum(terms.P_d * terms.P_d)),
+        "W_f": float(np.sum(w["f"] * terms.P_f * terms.P_f)),
+        "W_a": float(np.sum(w["a"] * terms.P_a * terms.P_a)),
+        "W_d": float(np.sum(w["d"] * terms.P_d * terms.P_d)),
     }
 
 
@@ -184,12 +224,18 @@ def joint_objective(q: np.ndarray, q_desired: np.ndarray) -> tuple[float, np.nda
 
 
 def coupling_gradient(
-    terms: CouplingTerms, Lambda_inv: np.ndarray, dLambda: np.ndarray, sub: Subspaces, objective: str
+    terms: CouplingTerms,
+    Lambda_inv: np.ndarray,
+    dLambda: np.ndarray,
+    sub: Subspaces,
+    objective: str,
+    scale: np.ndarray = SI_SCALE,
 ) -> tuple[float, np.ndarray]:
     """W = ‖P‖²_F [T22] and ∂W/∂q [T23-24] for objective "f", "a" or "d".
 
     Each ∂P/∂q_k has the form L ∂Λx_k R [T25-27], so ∂W/∂q_k = Σ 2 P ∘ (L ∂Λx_k R)
-    = 2 ⟨∂Λx_k, Lᵀ P Rᵀ⟩ [T24]: one (n, 36) @ (36,) product for all joints.
+    = 2 ⟨∂Λx_k, Lᵀ P Rᵀ⟩ [T24]: one (n, 36) @ (36,) product for all joints. With `scale`
+    (`task_scale`) W = Σ w ∘ P² and P in the contraction becomes w ∘ P.
     """
     m, f = sub.motion_axes, sub.force_axes
     if objective == "f":  # [T25] ∂P_f = −S_f Λx⁻¹ ∂Λx Λx⁻¹ S_mᵀ
@@ -206,10 +252,11 @@ def coupling_gradient(
         right = sub.S_m.T @ terms.A_inv
     else:
         raise ValueError(f"unknown coupling objective {objective!r}; use f, a or d")
-    G = left.T @ P @ right.T  # (6, 6)
+    w = coupling_weights(sub, scale)[objective]
+    G = left.T @ (w * P) @ right.T  # (6, 6)
     n = dLambda.shape[0]
     grad = 2.0 * (dLambda.reshape(n, 36) @ G.reshape(36))  # [T24]
-    return float(np.sum(P * P)), grad
+    return float(np.sum(w * P * P)), grad
 
 
 def objective_gradient(
@@ -219,10 +266,12 @@ def objective_gradient(
     model: RobotModel | None = None,
     q_desired: np.ndarray | None = None,
     terms: CouplingTerms | None = None,
+    scale: np.ndarray = SI_SCALE,
 ) -> tuple[float, np.ndarray]:
     """(W, ∂W/∂q) for objective "j" [T18] or "f"/"a"/"d" [T22-27] at a snapshot.
 
-    "j" needs `q_desired`; the coupling objectives need `model` for the analytic ∂Λx/∂q.
+    "j" needs `q_desired`; the coupling objectives need `model` for the analytic ∂Λx/∂q;
+    `scale` (`task_scale`) gives their units.
     """
     if objective == "j":
         if q_desired is None:
@@ -232,7 +281,7 @@ def objective_gradient(
         raise ValueError(f"objective {objective!r} needs the RobotModel for ∂Λx/∂q")
     if terms is None:
         terms = terms_of(dyn, sub)
-    return coupling_gradient(terms, dyn.Lambda_inv, model.dLambda_dq(dyn), sub, objective)
+    return coupling_gradient(terms, dyn.Lambda_inv, model.dLambda_dq(dyn), sub, objective, scale)
 
 
 def coupled_response(P_f: np.ndarray, force_motion: np.ndarray) -> np.ndarray:
@@ -366,8 +415,10 @@ def swivel_scan(
     step_rad: float = np.deg2rad(3.0),
     max_steps: int = 400,
     max_joint_step: float = 0.05,
+    scale: np.ndarray | None = None,
 ) -> SwivelScan:
-    """Trace the self-motion loop through q_start at its TCP pose and evaluate W_f, W_a, W_d.
+    """Trace the self-motion loop through q_start at its TCP pose and evaluate W_f, W_a, W_d
+    (in the task coordinates of `scale`, `task_scale`, when given; SI units otherwise).
 
     Predictor–corrector continuation: step along the kernel of J (signed so the swivel angle
     grows), pull back onto the pose with Gauss-Newton, until the swivel angle has advanced by a
@@ -404,7 +455,7 @@ def swivel_scan(
     Q = np.array(qs)
     W = np.empty((len(Q), 3))
     for i, qi in enumerate(Q):
-        vals = coupling_values(terms_of(model.compute(qi, np.zeros(len(qi))), sub))
+        vals = coupling_values(terms_of(model.compute(qi, np.zeros(len(qi))), sub), scale, sub)
         W[i] = vals["W_f"], vals["W_a"], vals["W_d"]
     inside = np.all(within_limits_mod_2pi(Q, q_lower, q_upper), axis=1)
     return SwivelScan(np.array(psis), Q, W[:, 0], W[:, 1], W[:, 2], inside, closed)
@@ -515,7 +566,12 @@ def k0_for_speed(
 
 
 def coupling_gradient_direct(
-    model: RobotModel, dyn: Dynamics, terms: CouplingTerms, sub: Subspaces, objective: str
+    model: RobotModel,
+    dyn: Dynamics,
+    terms: CouplingTerms,
+    sub: Subspaces,
+    objective: str,
+    scale: np.ndarray = SI_SCALE,
 ) -> tuple[float, np.ndarray]:
     """W and ∂W/∂q [T24-27] without forming ∂Λx/∂q: same result as `coupling_gradient`, cheaper.
 
@@ -524,18 +580,20 @@ def coupling_gradient_direct(
     rank ≤ n_f, so X H Xᵀ = Σ_c a_c b_cᵀ and each ⟨∂M_k, a bᵀ⟩ = aᵀ ∂(M b)/∂q_k comes from one
     RNEA-derivative call: n_f calls instead of six. On a serial revolute chain both parts run in
     compiled kernels (`control.kernels`, each tested against its reference: Pinocchio's Hessian and
-    RNEA derivatives).
+    RNEA derivatives). `scale` (`task_scale`) gives W's units: W = Σ w ∘ P².
     """
 
-    P = projection(terms, objective)  # [T25-27]: left and right factors are built in the kernel
+    P = projection(terms, objective)
+    w = coupling_weights(sub, scale)[objective]  # [T25-27]: left and right factors are built in the kernel
     if model.revolute_chain:  # compiled, ∂J from J itself
         term_J, A_, B_ = gradient_contraction_fused(
-            OBJECTIVE_CODES[objective], dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, terms.A_inv, sub.perm, sub.n_m
-        )
+            OBJECTIVE_CODES[objective], dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, terms.A_inv, sub.perm, sub.n_m,
+            w,
+        )  # fmt: skip
     else:
         term_J, A_, B_ = gradient_contraction_reference(
             objective, dyn.J, model.tcp_jacobian_derivative(dyn.q), dyn.M_inv, dyn.Lambda, dyn.Lambda_inv,
-            P, terms.A_inv, sub.perm, sub.n_m,
+            P, terms.A_inv, sub.perm, sub.n_m, w,
         )  # fmt: skip
     term_M = np.zeros(len(dyn.q))
     for c in range(A_.shape[1]):  # [k] = aᵀ ∂(M b)/∂q_k
@@ -543,5 +601,4 @@ def coupling_gradient_direct(
             term_M += inertia_contraction_fused(dyn.q, *model.chain, A_[:, c], B_[:, c])  # type: ignore[call-arg]
         else:  # RNEA derivatives at q̇ = 0, no gravity
             term_M += model.mass_matrix_derivative_times(dyn.q, B_[:, c]).T @ A_[:, c]
-    pr = P.ravel()
-    return float(pr @ pr), -2.0 * (term_J - term_M)
+    return float(np.sum(w * P * P)), -2.0 * (term_J - term_M)

@@ -160,6 +160,27 @@ class NullspaceGains(ParamGroup):
         help="fraction of the joint velocity limits used as q̇min/q̇max",
         tag="[T17]",
     )
+    unit_length_m: float = param(
+        0.0,
+        label="Characteristic length L_c",
+        unit="m",
+        lo=0.0,
+        hi=10.0,
+        step=0.01,
+        help="W_f, W_a, W_d in task coordinates with rotations as arcs of radius L_c, so their terms "
+        "share units (0: off, SI units as [T])",
+        tag="[T22]",
+    )
+    unit_mass_kg: float = param(
+        1.0,
+        label="Characteristic mass m_c",
+        unit="kg",
+        lo=0.01,
+        hi=100.0,
+        step=0.1,
+        help="W_f, W_a, W_d with Λx divided by m_c (W_f × m_c², W_a ÷ m_c², W_d unchanged); 1 kg: as [T]",
+        tag="[T22]",
+    )
     damper_speed: float = param(
         0.5, label="ξ", unit="rad/s", lo=0.0, hi=2.0, step=0.05, help="approach speed of the nullspace damper at d_i"
     )

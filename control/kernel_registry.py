@@ -231,6 +231,8 @@ def _chain_samples(rng):
 
 
 SUBSPACES = ((2,), (0, 5), (1, 2, 3))  # force axes (pz; px+rz; py+pz+rx)
+# task scales of the W's (`control.coupling.task_scale`): SI units, and L_c = 0.3 m with m_c = 4 kg
+SCALES = (np.ones(6), np.r_[np.full(3, 0.5), np.full(3, 0.5 / 0.3)])
 
 
 def _perm(force: tuple[int, ...]) -> tuple[np.ndarray, int]:
@@ -243,14 +245,15 @@ def _coupling_samples(rng):
     for dyn in states(rng, 2):
         for force in SUBSPACES:
             perm, n_m = _perm(force)
-            out += [(dyn.Lambda, dyn.Lambda_inv, perm, n_m, exact) for exact in (True, False)]
+            for scale in SCALES:
+                out += [(dyn.Lambda, dyn.Lambda_inv, perm, n_m, exact, scale) for exact in (True, False)]
     return out
 
 
-def _gradient_reference(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m):
+def _gradient_reference(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m, weight):
     name = "fad"[objective]
     return gradients.gradient_contraction_reference(
-        name, J, chain.kinematic_hessian_reference(J), M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m
+        name, J, chain.kinematic_hessian_reference(J), M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m, weight
     )
 
 
@@ -259,10 +262,12 @@ def _gradient_samples(rng):
     for dyn in states(rng, 2):
         for force in SUBSPACES:
             perm, n_m = _perm(force)
-            blocks = coupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, perm, n_m, True)
+            blocks = coupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, perm, n_m, True, SCALES[0])
             for objective in range(3):
                 P = blocks[5 + objective]
-                out.append((objective, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, blocks[3], perm, n_m))
+                for scale in SCALES:
+                    w = coupling.coupling_weights_reference(scale, perm, n_m)[objective]
+                    out.append((objective, dyn.J, dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, blocks[3], perm, n_m, w))
     return out
 
 
@@ -328,6 +333,7 @@ def _law_args(rng, dyn, objective: int, force: tuple[int, ...], ki: float, close
         gains, nullspace, objective=objective, k0=30.0, n_m=n_m, perm=perm, kp_m=rng.uniform(100, 3000, n_m),
         kd_scale_m=rng.uniform(0.5, 2.0, n_m), q_lower=robot.q_lower, q_upper=robot.q_upper,
         dq_limit=0.5 * robot.dq_max, endless=robot.endless, kn=rng.uniform(1, 100, 7), closed_form=closed_form,
+        task_scale=SCALES[int(rng.random() < 0.5)],
     )  # fmt: skip
     R = _rotation(rng, 0.3) @ dyn.tcp_rotation_world
     target = (
@@ -593,6 +599,11 @@ KERNELS: dict[str, KernelPair] = {
         chain.inertia_contraction_fused, chain.inertia_contraction_reference, _chain_samples
     ),
     "unpack_chain_fused": KernelPair(chain.unpack_chain_fused, chain.unpack_chain_reference, _pack_samples),
+    "coupling_weights_fused": KernelPair(
+        coupling.coupling_weights_fused,
+        coupling.coupling_weights_reference,
+        lambda r: [(scale, *_perm(force)) for scale in SCALES for force in SUBSPACES],
+    ),
     "coupling_fused": KernelPair(
         coupling.coupling_fused, coupling.coupling_reference, _coupling_samples, lambda a: lambda_tolerance(a[1])
     ),

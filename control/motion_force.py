@@ -29,6 +29,7 @@ from control.coupling import (
     CouplingTerms,
     Subspaces,
     coupling_gradient_direct,
+    task_scale,
     terms_and_values,
 )
 from control.executor import ControlInputs, ControlOutput, StepView, TaskTarget
@@ -204,11 +205,13 @@ class ProjectionExecutor:
         self._zeros_f = np.zeros(self.sub.n_f)
         ns = self.nullspace
         self._objective_code = OBJECTIVE_J if ns.objective == "j" else OBJECTIVE_CODES[ns.objective]
+        self._task_scale = task_scale(ns.unit_length_m, ns.unit_mass_kg)
         # what the law's kernels read that changes only here, by name (`law_record`)
         self._law = law_record(
             g, ns, objective=self._objective_code, k0=float(ns.k0), n_m=self.sub.n_m, perm=self.sub.perm,
             kp_m=self._kp_m, kd_scale_m=self._kd_scale_m, q_lower=self.q_lower, q_upper=self.q_upper,
             dq_limit=self._dq_limit, endless=self.endless, kn=self._kn, closed_form=self.qp.closed_form,
+            task_scale=self._task_scale,
         )  # fmt: skip
         self._law_closed_form = self.qp.closed_form
 
@@ -262,7 +265,7 @@ class ProjectionExecutor:
         g, ns = self.gains, self.nullspace
         target = inputs.target
         F_e = inputs.wrench_tcp
-        terms, (W_f, W_a, W_d) = terms_and_values(dyn, self.sub)
+        terms, (W_f, W_a, W_d) = terms_and_values(dyn, self.sub, self._task_scale)
         self._last_terms, self._last_dyn = terms, dyn
         self._last_sub = self.sub
 
@@ -295,7 +298,9 @@ class ProjectionExecutor:
             grad = dyn.q - (dyn.q if q_d is None else q_d)  # [T18]
             W_obj = 0.5 * float(grad @ grad)
         else:
-            W_obj, grad = coupling_gradient_direct(self.model, dyn, terms, self.sub, ns.objective)  # [T24-27]
+            W_obj, grad = coupling_gradient_direct(  # [T24-27]
+                self.model, dyn, terms, self.sub, ns.objective, self._task_scale
+            )
         lower, upper = damper_bounds_fused(
             dyn.q, self.q_lower, self.q_upper, self._dq_limit, self.endless,
             float(ns.damper_influence), float(ns.damper_safety), float(ns.damper_speed),

@@ -10,24 +10,26 @@ from control.model import RobotModel
 from tests.conftest import random_configurations
 
 
-def _w(model: RobotModel, q: np.ndarray, sub: c.Subspaces, objective: str) -> float:
-    return c.coupling_values(c.terms_of(model.compute(q, np.zeros(7)), sub))[f"W_{objective}"]
+def _w(model: RobotModel, q: np.ndarray, sub: c.Subspaces, objective: str, scale: np.ndarray | None = None) -> float:
+    return c.coupling_values(c.terms_of(model.compute(q, np.zeros(7)), sub), scale, sub)[f"W_{objective}"]
 
 
+@pytest.mark.parametrize("units", [(0.0, 1.0), (0.15, 2.5)], ids=["SI", "L_c=0.15m,m_c=2.5kg"])
 @pytest.mark.parametrize("objective", ["f", "a", "d"])
-def test_coupling_gradients_match_central_differences(robot, objective):
+def test_coupling_gradients_match_central_differences(robot, objective, units):
     model = RobotModel(robot.model)
     sub = c.POLISH_SUBSPACES
+    scale = c.task_scale(*units)
     eps = 1e-6
     for q in random_configurations(robot, 3, seed=11):
         dyn = model.compute(q, np.zeros(7))
-        W, grad = c.objective_gradient(objective, dyn, sub, model)
-        assert W == pytest.approx(_w(model, q, sub, objective), rel=1e-12)
+        W, grad = c.objective_gradient(objective, dyn, sub, model, scale=scale)
+        assert W == pytest.approx(_w(model, q, sub, objective, scale), rel=1e-12)
         fd = np.empty(7)
         for k in range(7):
             e = np.zeros(7)
             e[k] = eps
-            fd[k] = (_w(model, q + e, sub, objective) - _w(model, q - e, sub, objective)) / (2 * eps)
+            fd[k] = (_w(model, q + e, sub, objective, scale) - _w(model, q - e, sub, objective, scale)) / (2 * eps)
         rel = np.max(np.abs(grad - fd)) / np.max(np.abs(fd))
         assert rel < 1e-4, (objective, rel)
 

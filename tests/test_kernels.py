@@ -18,7 +18,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from control.coupling import Subspaces, coupling_gradient, coupling_gradient_direct, terms_of
+from control.coupling import (
+    Subspaces,
+    coupling_gradient,
+    coupling_gradient_direct,
+    coupling_weights,
+    task_scale,
+    terms_of,
+)
 from control.gains import MotionForceGains, NullspaceGains
 from control.kernel_registry import qp_problem
 from control.kernels import chain as Kchain
@@ -101,14 +108,18 @@ def test_snapshot_kernel_for_more_than_one_redundant_joint_uses_the_pseudo_inver
         assert _rel(a, b) < RTOL
 
 
+TASK_SCALES = {"SI": task_scale(), "L_c=0.2m,m_c=3kg": task_scale(0.2, 3.0)}
+
+
+@pytest.mark.parametrize("units", TASK_SCALES.values(), ids=TASK_SCALES.keys())
 @pytest.mark.parametrize("sub", SUBSPACES, ids=lambda s: "+".join(s.names()[1]))
-def test_coupling_kernel_equals_numpy_reference(robot, sub):
+def test_coupling_kernel_equals_numpy_reference(robot, sub, units):
     model = RobotModel(robot.model)
     for q in _states(robot, seed=12):
         dyn = model.compute(q, np.zeros(7))
         for exact in (True, False):
-            fused = Kcoupling.coupling_fused(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact)
-            ref = Kcoupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact)
+            fused = Kcoupling.coupling_fused(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact, units)
+            ref = Kcoupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, sub.perm, sub.n_m, exact, units)
             tol = _tolerance(dyn.Lambda_inv)
             for i, (a, b) in enumerate(zip(fused, ref, strict=True)):
                 # D̂ = D − BᵀA⁻¹B (inexact path) is a difference of terms of the size of D
@@ -145,31 +156,34 @@ def test_tcp_bias_acceleration_from_J_equals_pinocchio(robot):
         assert _rel(model.compute(q, dq).dJ_dq, expected) < 1e-12
 
 
+@pytest.mark.parametrize("scale", TASK_SCALES.values(), ids=TASK_SCALES.keys())
 @pytest.mark.parametrize("sub", SUBSPACES, ids=lambda s: "+".join(s.names()[1]))
 @pytest.mark.parametrize("objective", ["f", "a", "d"])
-def test_gradient_contraction_kernel_equals_numpy_reference(robot, sub, objective):
+def test_gradient_contraction_kernel_equals_numpy_reference(robot, sub, objective, scale):
     model = RobotModel(robot.model)
+    weight = coupling_weights(sub, scale)[objective]
     for q in _states(robot, seed=14):
         dyn = model.compute(q, np.zeros(7))
         t = terms_of(dyn, sub)
         P = {"f": t.P_f, "a": t.P_a, "d": t.P_d}[objective]
-        args = (dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, t.A_inv, sub.perm, sub.n_m)
+        args = (dyn.M_inv, dyn.Lambda, dyn.Lambda_inv, P, t.A_inv, sub.perm, sub.n_m, weight)
         fused = Kgradients.gradient_contraction_fused(Kgradients.OBJECTIVE_CODES[objective], dyn.J, *args)
         ref = Kgradients.gradient_contraction_reference(objective, dyn.J, model.tcp_jacobian_derivative(q), *args)
         for a, b in zip(fused, ref, strict=True):
             assert _rel(a, b) < _tolerance(dyn.Lambda_inv), dyn.min_eig_Lambda_inv
 
 
+@pytest.mark.parametrize("scale", TASK_SCALES.values(), ids=TASK_SCALES.keys())
 @pytest.mark.parametrize("objective", ["f", "a", "d"])
-def test_direct_gradient_equals_gradient_through_dLambda(robot, objective):
+def test_direct_gradient_equals_gradient_through_dLambda(robot, objective, scale):
     """The fused ∂W/∂q path against the one through the full (n, 6, 6) ∂Λx/∂q (random states)."""
     model = RobotModel(robot.model)
     sub = SUBSPACES[0]
     for q in random_configurations(robot, 3, seed=15):
         dyn = model.compute(q, np.zeros(7))
         t = terms_of(dyn, sub)
-        W1, g1 = coupling_gradient(t, dyn.Lambda_inv, model.dLambda_dq(dyn), sub, objective)
-        W2, g2 = coupling_gradient_direct(model, dyn, t, sub, objective)
+        W1, g1 = coupling_gradient(t, dyn.Lambda_inv, model.dLambda_dq(dyn), sub, objective, scale)
+        W2, g2 = coupling_gradient_direct(model, dyn, t, sub, objective, scale)
         assert abs(W1 - W2) <= RTOL * abs(W1)
         assert _rel(g2, g1) < 1e-9
 
@@ -200,7 +214,7 @@ def test_projection_law_kernels_equal_numpy_reference(robot, sub, shaping):
             MotionForceGains(force_kp=0.5, force_kd=200.0, shaping=shaping), NullspaceGains(), objective=0, k0=1.0,
             n_m=sub.n_m, perm=sub.perm, kp_m=rng.uniform(10, 4000, sub.n_m), kd_scale_m=rng.uniform(0.5, 200, sub.n_m),
             q_lower=robot.q_lower, q_upper=robot.q_upper, dq_limit=robot.dq_max, endless=robot.endless, kn=np.ones(7),
-            closed_form=False,
+            closed_form=False, task_scale=task_scale(),
         )  # fmt: skip
         target = (np.zeros(3), np.eye(3), velocity, acceleration, np.zeros(6))
         args = (

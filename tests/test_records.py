@@ -20,7 +20,7 @@ def _law_derived(n: int = 7) -> dict:
         "objective": 2, "k0": 12.5, "n_m": 3, "perm": np.array([0, 1, 5, 2, 3, 4]),
         "kp_m": rng.uniform(1, 9, 3), "kd_scale_m": rng.uniform(1, 9, 3), "q_lower": -rng.uniform(1, 3, n),
         "q_upper": rng.uniform(1, 3, n), "dq_limit": rng.uniform(1, 3, n), "endless": (np.arange(n) == 6).astype(float),
-        "kn": rng.uniform(1, 9, n), "closed_form": True,
+        "kn": rng.uniform(1, 9, n), "closed_form": True, "task_scale": rng.uniform(0.5, 2, 6),
     }  # fmt: skip
 
 

@@ -33,10 +33,12 @@ def gradient_contraction_reference(
     A_inv: np.ndarray,
     perm: np.ndarray,
     n_m: int,
+    weight: np.ndarray,
 ) -> tuple:
     """(term_J, a, b): ∂W/∂q = −2 (term_J − term_M) with term_M[k] = Σ_c a_cᵀ ∂(M b_c)/∂q_k [T24].
 
-    ∂W/∂q_k = 2⟨∂Λx_k, G⟩, G = leftᵀ P rightᵀ, and ∂Λx_k = −Λx ∂(Λx⁻¹)_k Λx with
+    W = Σ weight ∘ P² (`weight` (n_f, n_m) from `coupling_weights_reference`; ones: ‖P‖²_F [T22]),
+    so ∂W/∂q_k = 2⟨∂Λx_k, G⟩, G = leftᵀ (weight ∘ P) rightᵀ, and ∂Λx_k = −Λx ∂(Λx⁻¹)_k Λx with
     ∂(Λx⁻¹)_k = ∂J_k X + Xᵀ∂J_kᵀ − Xᵀ∂M_k X (X = M⁻¹Jᵀ). With H = Λx G Λx = U Vᵀ:
     term_J[k] = ⟨∂J_k, (H + Hᵀ) Xᵀ⟩ and ⟨∂M_k, X H Xᵀ⟩ = Σ_c (X U)_cᵀ ∂M_k (X V)_c.
     """
@@ -44,7 +46,7 @@ def gradient_contraction_reference(
     S_f, S_m = eye[perm[n_m:]], eye[perm[:n_m]]
     left, right = _objective_sides(objective, Lambda_inv, P, A_inv, S_f, S_m, perm, n_m)
     U = Lambda @ left.T  # (6, n_f)
-    V = Lambda @ (P @ right.T).T  # (6, n_f)
+    V = Lambda @ ((weight * P) @ right.T).T  # (6, n_f)
     X = M_inv @ J.T
     H = U @ V.T
     n = J.shape[1]
@@ -53,7 +55,7 @@ def gradient_contraction_reference(
 
 
 @njit(cache=True)
-def gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m):
+def gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m, weight):
     """Compiled `gradient_contraction_reference` with ∂J from `kinematic_hessian_reference`'s
     formula (serial revolute chain), never forming the (n, 6, n) Hessian. `objective` is 0/1/2
     for f/a/d (`OBJECTIVE_CODES`)."""
@@ -82,7 +84,7 @@ def gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv
             for c2 in range(n_m):
                 right[perm[c], c2] = A_inv[c, c2]
     U = _matmul_bt(Lambda, left)  # (6, n_f)
-    Pr = _matmul_bt(P, right)  # (n_f, 6) = P rightᵀ
+    Pr = _matmul_bt(weight * P, right)  # (n_f, 6) = (weight ∘ P) rightᵀ
     V = _matmul_bt(Lambda, Pr)  # (6, n_f)
     X = _matmul_bt(M_inv, J)  # (n, 6)
     H = _matmul_bt(U, V)

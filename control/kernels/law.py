@@ -17,7 +17,12 @@ from control.kernels.chain import (
     unpack_chain_fused,
     unpack_chain_reference,
 )
-from control.kernels.coupling import coupling_fused, coupling_reference
+from control.kernels.coupling import (
+    coupling_fused,
+    coupling_reference,
+    coupling_weights_fused,
+    coupling_weights_reference,
+)
 from control.kernels.geometry import log3_fused, log3_reference
 from control.kernels.gradients import gradient_contraction_fused, gradient_contraction_reference
 from control.kernels.line_qp import nullspace_line_qp_fused, nullspace_line_qp_into_reference
@@ -202,6 +207,7 @@ def law_record_dtype(n: int) -> np.dtype:
             ("k0", np.float64),
             ("n_m", np.int64),
             ("perm", np.int64, (6,)),
+            ("task_scale", np.float64, (6,)),  # `control.coupling.task_scale` of the W's units
             ("kp_m", np.float64, (6,)),
             ("kd_scale_m", np.float64, (6,)),
             ("q_lower", np.float64, (n,)),
@@ -273,7 +279,7 @@ def projection_law_fused(snap, target, F_e, force_integral, q_d, law, chain, F_m
             integral[r] = min(max(integral[r] + (F_e[f_idx[r]] - F_hat[r]) * CONTROL_PERIOD_S, -lim), lim)
             u_f_extra[r] = force_ki * integral[r]
     A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_fused(
-        Lambda, Lambda_inv, perm, n_m, not s.near_singular
+        Lambda, Lambda_inv, perm, n_m, not s.near_singular, c.task_scale
     )
     n = q.shape[0]
     grad = np.empty(n)
@@ -285,7 +291,10 @@ def projection_law_fused(snap, target, F_e, force_integral, q_d, law, chain, F_m
         W *= 0.5
     else:  # [T24-27] as `control.coupling.coupling_gradient_direct`
         P = P_f if objective == 0 else (P_a if objective == 1 else P_d)
-        term_J, a_, b_ = gradient_contraction_fused(objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m)
+        weight = coupling_weights_fused(c.task_scale, perm, n_m)[objective]
+        term_J, a_, b_ = gradient_contraction_fused(
+            objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m, weight
+        )
         R_place, p_place, joint_axes, mass, lever, inertia = unpack_chain_fused(chain)
         term_M = np.zeros(n)
         for col in range(a_.shape[1]):
@@ -353,7 +362,10 @@ def projection_law_reference(snap, target, F_e, force_integral, q_d, law, chain,
         lim = force_integral_limit / force_ki
         integral = np.clip(integral + (F_e[f_idx] - F_hat) * CONTROL_PERIOD_S, -lim, lim)
         u_f_extra = force_ki * integral
-    A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_reference(Lambda, Lambda_inv, perm, n_m, exact)
+    scale = c["task_scale"]
+    A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_reference(
+        Lambda, Lambda_inv, perm, n_m, exact, scale
+    )
     if objective == OBJECTIVE_J:  # [T18] W_j = ½‖q − q_d‖²
         grad = q - q_d
         W = 0.5 * float(grad @ grad)
@@ -361,8 +373,9 @@ def projection_law_reference(snap, target, F_e, force_integral, q_d, law, chain,
         P = (P_f, P_a, P_d)[objective]
         name = "fad"[objective]
         term_J, a_, b_ = gradient_contraction_reference(
-            name, J, kinematic_hessian_reference(J), M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m
-        )
+            name, J, kinematic_hessian_reference(J), M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m,
+            coupling_weights_reference(scale, perm, n_m)[objective],
+        )  # fmt: skip
         R_place, p_place, joint_axes, mass, lever, inertia = unpack_chain_reference(chain)
         term_M = np.zeros(q.shape[0])
         for k in range(a_.shape[1]):
