@@ -55,7 +55,8 @@ def test_normalised_W_is_invariant_to_the_length_unit(rizon, axes, unit_m):
 
 
 def test_normalisation_off_is_W_as_T22(rizon):
-    """L_c = 0 and m_c = 1 kg: the same W's as ‖P‖²_F, bit for bit, and the same gradients."""
+    """L_c = 0 and m_c = 1 kg: the same W's as ‖P‖²_F, bit for bit, and the same gradients; so does
+    L_c = 1 m."""
     model = RobotModel(rizon.model)
     sub = c.POLISH_SUBSPACES
     off = c.task_scale(0.0, 1.0)
@@ -68,6 +69,8 @@ def test_normalisation_off_is_W_as_T22(rizon):
             W, grad = c.coupling_gradient_direct(model, dyn, terms, sub, objective)
             W_off, grad_off = c.coupling_gradient_direct(model, dyn, terms, sub, objective, off)
             assert W_off == W and np.array_equal(grad_off, grad)
+        _, one_metre = c.terms_and_values(dyn, sub, c.task_scale(1.0, 1.0))
+        assert one_metre == values  # L_c = 1 m, m_c = 1 kg: the SI values
 
 
 def test_normalised_W_d_weights_rotational_columns_by_L_squared(rizon):

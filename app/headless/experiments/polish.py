@@ -468,7 +468,14 @@ def run(args: argparse.Namespace) -> int:
     series = [o["series"] for o in outputs]
     v_eps = [] if quick else [v_eps_check(v, settings=settings) for v in V_EPS_CHECK_M_PER_S]
 
-    from app.headless.experiments.polish_report import armature_basins, scan_at_start, write_figures, write_report
+    from app.headless.experiments.polish_report import (
+        UNIT_LENGTHS_M,
+        armature_basins,
+        scan_at_start,
+        w_d_by_length,
+        write_figures,
+        write_report,
+    )
 
     table = [r for r in results if r["group"] == "table"]
     scan = scan_at_start(_table_scale(table), _model_armature(table))
@@ -486,6 +493,7 @@ def run(args: argparse.Namespace) -> int:
         },
         "v_eps": v_eps,
         "swivel_scan": scan["summary"],
+        "w_d_by_length": [] if quick else w_d_by_length(UNIT_LENGTHS_M, _table_scale(table), _model_armature(table)),
     }
     latency_runs = [r for r in results if r["group"] == "latency"]
     if latency_runs:
@@ -513,7 +521,13 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
     (e.g. rows run separately); a run (row, μ, seed, armature, latency) present twice is kept from the
     first directory that has it. A directory without polish.json (an invocation that did not finish)
     gives the runs it finished (runs/, `save_run`); at least one directory needs its polish.json."""
-    from app.headless.experiments.polish_report import scan_at_start, write_figures, write_report
+    from app.headless.experiments.polish_report import (
+        UNIT_LENGTHS_M,
+        scan_at_start,
+        w_d_by_length,
+        write_figures,
+        write_report,
+    )
 
     docs: list[dict] = []
     sources: list[tuple[list[dict], list[dict]]] = []  # per directory: its runs and their series
@@ -574,6 +588,7 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
         },
         "v_eps": next((d["v_eps"] for d in docs if d.get("v_eps")), []),
         "swivel_scan": scan["summary"],
+        "w_d_by_length": w_d_by_length(UNIT_LENGTHS_M, _table_scale(table), _model_armature(table)),
         "wall_s": float(sum(d["wall_s"] for d in docs)),
         "combined_from": [str(d) for d in dirs],
     }

@@ -49,15 +49,16 @@ PAPER_STABLE_MU1 = {"j": False, "f": False, "a": True, "d": True}  # [T] Fig. 9:
 
 
 # ---- swivel scan at the start pose (DESIGN §8) -----------------------------------------------------
-def scan_at_start(armature_scale: float = 1.0, armature: list[float] | None = None) -> dict:
+def scan_at_start(armature_scale: float = 1.0, armature: list[float] | None = None, unit_length_m: float = 0.0) -> dict:
     """W_f, W_a, W_d along the self-motion loop at the polish start pose (the run's arm: the Rizon 4s
     unless --robot/--urdf chose another), the basin each gradient flow from the Fig. 6a start
     reaches, the W_a ridge between the basins, and P_d·f̂ [T10] for the stretching friction
     direction along the loop and at each W_a basin (does a basin decouple that friction?).
     `armature`: the controller model's armature the runs had (kg m², their record), × armature_scale;
-    None: the robot file's."""
+    None: the robot file's. `unit_length_m` > 0: W_f, W_a, W_d with that characteristic length
+    (`control.coupling.task_scale`, m_c = 1 kg); 0: SI units."""
     import robots
-    from control.coupling import POLISH_SUBSPACES, flow_minimum, swivel_scan, terms_of
+    from control.coupling import POLISH_SUBSPACES, flow_minimum, swivel_scan, task_scale, terms_of
     from control.model import RobotModel
 
     robot = robots.load(robots.chosen("rizon4s"))
@@ -67,7 +68,10 @@ def scan_at_start(armature_scale: float = 1.0, armature: list[float] | None = No
     robot.set_armature(scenario.armature(nominal))
     model = RobotModel(robot.model)
     q0 = scenario.initial_q(robot)
-    scan = swivel_scan(model, q0, POLISH_SUBSPACES, robot.q_lower, robot.q_upper, step_rad=np.deg2rad(SCAN_STEP_DEG))
+    scan = swivel_scan(
+        model, q0, POLISH_SUBSPACES, robot.q_lower, robot.q_upper, step_rad=np.deg2rad(SCAN_STEP_DEG),
+        scale=task_scale(unit_length_m),
+    )  # fmt: skip
     psi = (np.rad2deg(scan.swivel_rad) + 180.0) % 360.0 - 180.0
     order = np.argsort(psi)
     stretch = stroke_module.friction_direction(1.5 * stroke_module.SEGMENT_DURATION_S)  # S2: +X motion
@@ -184,6 +188,61 @@ def armature_basins(scales: tuple[float, ...], armature: list[float] | None = No
             }
         )
     return out
+
+
+UNIT_LENGTHS_M = (0.05, 0.1, 0.2, 0.3, 0.5, 1.0, 2.0)  # characteristic lengths of the W_d table
+
+
+def w_d_by_length(
+    lengths_m: tuple[float, ...], armature_scale: float = 1.0, armature: list[float] | None = None
+) -> list[dict]:
+    """Per characteristic length L_c (`control.coupling.task_scale`): W_d's local minima along the
+    self-motion loop at the start pose, the feasible minimum, where the flow from the Fig. 6a start
+    settles, the W_d ridge, W_d at the turned-over elbow, and the share of W_d at the start that the
+    rotational columns of P_d hold. L_c = 1 m (with m_c = 1 kg) is W_d in SI units."""
+    out = []
+    for length in lengths_m:
+        sc = scan_at_start(armature_scale, armature, unit_length_m=length)
+        w, inv = sc["summary"]["W_d"], sc["summary"]["inverted"]
+        out.append(
+            {
+                "unit_length_m": length,
+                "local_minima_swivel_deg": w["local_minima_swivel_deg"],
+                "feasible_min_swivel_deg": w["feasible_min_swivel_deg"],
+                "feasible_min": w["feasible_min"],
+                "flow_from_start_deg": w["flow_from_start_deg"],
+                "ridge_swivel_deg": w["ridge_swivel_deg"],
+                "at_start": w["at_start"],
+                "inverted_swivel_deg": inv["swivel_deg"],
+                "inverted_feasible": inv["feasible"],
+                "inverted": inv["W_d"],
+                "feasible_max": w["feasible_max"],
+            }
+        )
+    return out
+
+
+def w_d_by_length_html(rows: list[dict]) -> str:
+    """The W_d-by-characteristic-length table of the report."""
+    if not rows:
+        return ""
+    body = "".join(
+        f"<tr><td>{r['unit_length_m']:g}</td><td>{', '.join(f'{x:+.0f}°' for x in r['local_minima_swivel_deg'])}</td>"
+        f"<td>{_deg(r['feasible_min_swivel_deg'])}° ({r['feasible_min']:.3g})</td>"
+        f"<td>{_deg(r['flow_from_start_deg'])}°</td><td>{_fmt(r['ridge_swivel_deg'], 0)}°</td>"
+        f"<td>{r['at_start']:.3g}</td><td>{r['inverted']:.3g} ({_deg(r['inverted_swivel_deg'])}°"
+        f"{'' if r['inverted_feasible'] else ', outside the limits'})</td><td>{r['feasible_max']:.3g}</td></tr>"
+        for r in rows
+    )
+    return (
+        "<h2>W_d's minima against the characteristic length</h2><p>W_d in task coordinates √m_c [p; L_c r] "
+        "(<code>--set nullspace.unit_length_m=L_c</code>): the rotational columns of P_d weigh L_c², the "
+        "translational ones keep their weight, so the row with L_c = 1 m is W_d in SI units. Swivel scan at the "
+        "start pose, as in the figure below; the turned-over elbow is the scan's swivel nearest ±180°.</p>"
+        "<table><tr><th>L_c (m)</th><th>local minima (feasible)</th><th>feasible minimum (W_d)</th>"
+        "<th>flow from the start</th><th>ridge</th><th>W_d at the start</th><th>W_d at the turned-over elbow</th>"
+        f"<th>feasible maximum</th></tr>{body}</table>"
+    )
 
 
 # ---- figures ------------------------------------------------------------------------------------
@@ -725,6 +784,7 @@ ends along the swivel scan with the armature scaled (× the robot file's armatur
 alike); PTP is the simulated μ = {max(s["mu"]):g} force-error PTP (seed 0) where that run was made.</p>
 <table><tr><th>armature</th><th>W_f flow</th><th>W_a flow</th><th>W_d flow</th><th>W_a ridge</th>
 <th>W_j PTP</th><th>W_f PTP</th><th>W_a PTP</th><th>W_d PTP</th></tr>{arm_rows}</table>
+{w_d_by_length_html(doc.get("w_d_by_length", []))}
 {_v_eps_head(doc.get("v_eps", [])) + v_rows + "</table>" if v_rows else ""}
 <h2>Figures</h2>
 {"".join(_figure_html(f) for f in figs)}
