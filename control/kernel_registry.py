@@ -282,7 +282,7 @@ def _task_wrench_samples(rng):
         for force in SUBSPACES:
             perm, n_m = _perm(force)
             n_f = 6 - n_m
-            blocks = coupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, perm, n_m, True)
+            blocks = coupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, perm, n_m, True, SCALES[0])
             record = _law_args(rng, dyn, 3, force, 0.0)[5]
             for shaping in (True, False):
                 record[0]["shaping"] = shaping
