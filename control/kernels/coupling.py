@@ -96,13 +96,14 @@ def coupling_fused(Lambda, Lambda_inv, perm, n_m, exact, scale):
         A_inv = _inverse(A)
         P_d = _matmul(P_a, A_inv)
         D_hat = D - _matmul(P_d, B)
-    w_f, w_a, w_d = coupling_weights_fused(scale, perm, n_m)
     W_f = 0.0
     W_a = 0.0
     W_d = 0.0
-    for r in range(nf):  # [T22] W = Σ w ∘ P²
+    for r in range(nf):  # [T22] W = Σ w ∘ P², w as `coupling_weights_fused` (no arrays here)
         for c in range(k):
-            W_f += w_f[r, c] * P_f[r, c] * P_f[r, c]
-            W_a += w_a[r, c] * P_a[r, c] * P_a[r, c]
-            W_d += w_d[r, c] * P_d[r, c] * P_d[r, c]
+            prod = scale[perm[k + r]] * scale[perm[c]]
+            ratio = scale[perm[k + r]] / scale[perm[c]]
+            W_f += P_f[r, c] * P_f[r, c] / (prod * prod)
+            W_a += prod * prod * P_a[r, c] * P_a[r, c]
+            W_d += ratio * ratio * P_d[r, c] * P_d[r, c]
     return A, B, D, A_inv, D_hat, P_f, P_a, P_d, W_f, W_a, W_d

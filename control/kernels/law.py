@@ -20,7 +20,6 @@ from control.kernels.chain import (
 from control.kernels.coupling import (
     coupling_fused,
     coupling_reference,
-    coupling_weights_fused,
     coupling_weights_reference,
 )
 from control.kernels.geometry import log3_fused, log3_reference
@@ -291,7 +290,16 @@ def projection_law_fused(snap, target, F_e, force_integral, q_d, law, chain, F_m
         W *= 0.5
     else:  # [T24-27] as `control.coupling.coupling_gradient_direct`
         P = P_f if objective == 0 else (P_a if objective == 1 else P_d)
-        weight = coupling_weights_fused(c.task_scale, perm, n_m)[objective]
+        weight = np.empty((6 - n_m, n_m))  # `coupling_weights_fused`'s one for this objective
+        for r in range(6 - n_m):
+            for col in range(n_m):
+                s_f = c.task_scale[perm[n_m + r]]
+                s_m = c.task_scale[perm[col]]
+                weight[r, col] = (
+                    1.0 / (s_f * s_m) ** 2
+                    if objective == 0
+                    else ((s_f * s_m) ** 2 if objective == 1 else (s_f / s_m) ** 2)
+                )
         term_J, a_, b_ = gradient_contraction_fused(
             objective, J, M_inv, Lambda, Lambda_inv, P, A_inv, perm, n_m, weight
         )
