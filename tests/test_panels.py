@@ -148,3 +148,18 @@ def test_the_gamma0_line_lists_each_joints_value_and_says_when_the_slider_shows_
     assert gamma0_text(None) == ""
     one = gamma0_text(1.0)  # one value for every joint: no "by joint 1…1"
     assert one == "**Γ₀:** 1.00 on every joint"
+
+
+def test_the_nullspace_panel_shows_the_units_of_W_for_the_coupling_objectives_only():
+    """L_c and m_c change W_f, W_a, W_d only: their knobs show with those objectives, not with W_j."""
+    from types import SimpleNamespace
+
+    from app.live.ui.panels.nullspace import FIELDS, UNIT_FIELDS, NullspacePanel
+    from control.gains import NullspaceGains
+
+    assert {f"nullspace.{f}" for f in UNIT_FIELDS} <= set(FIELDS)
+    for objective, shown in (("j", False), ("f", True), ("a", True), ("d", True)):
+        settings = SimpleNamespace(groups={"nullspace": NullspaceGains(objective=objective)})
+        for field in UNIT_FIELDS:
+            knob = SimpleNamespace(group="nullspace", field=field)
+            assert NullspacePanel.wanted(None, knob, settings) is shown, (objective, field)  # type: ignore[arg-type]

@@ -209,3 +209,26 @@ def test_in_the_planned_case_the_scene_and_the_ghost_follow_the_sessions_plan(se
         np.testing.assert_allclose(preview.ghost_q, snap.planned_q, atol=1e-12)
         drawn.append(preview.ghost_q.copy())
     assert np.max(np.abs(drawn[-1] - drawn[0])) > 1e-3  # the ghost moves with the plan's transfer
+
+
+def test_the_preview_takes_W_in_the_controllers_units(rizon):
+    """The preview scans W in the units the controller's nullspace group sets: L_c = 1 m is the SI
+    scan; L_c = 0.1 m moves W_d's flow end further from the elbow-up start (its translational
+    columns weigh more), by more than 30° here."""
+    from types import SimpleNamespace
+
+    from app.live.ui.selfmotion import _units_of
+    from control.gains import NullspaceGains
+
+    model = RobotModel(rizon.model)
+    q0 = get_scenario("polish").initial_q(rizon)
+    frame = SimpleNamespace(settings=SimpleNamespace(groups={"nullspace": NullspaceGains(unit_length_m=0.1)}))
+    np.testing.assert_array_equal(_units_of(frame), c.task_scale(0.1))
+    assert _units_of(SimpleNamespace(settings=SimpleNamespace(groups={}))) is None
+    si = scan_preview(model, rizon, q0, c.POLISH_SUBSPACES, "d")
+    metre = scan_preview(model, rizon, q0, c.POLISH_SUBSPACES, "d", c.task_scale(1.0))
+    np.testing.assert_allclose(metre.W, si.W, rtol=1e-12)
+    short = scan_preview(model, rizon, q0, c.POLISH_SUBSPACES, "d", _units_of(frame))
+    assert np.all(short.W < si.W)
+    wrap = lambda deg: abs((deg + 180.0) % 360.0 - 180.0)  # noqa: E731
+    assert wrap(short.swivel_deg[short.flow]) > wrap(si.swivel_deg[si.flow]) + 30.0

@@ -25,7 +25,8 @@ import viser
 from app.live.ui.scene import add_ghost_arm, hide_ghost_arm, link_meshes, pose_ghost_arm
 from app.live.ui.selfmotion_worker import SCAN_NICENESS, Preview, scan_in_worker, scan_preview
 from app.live.workers import Worker, WorkerLost
-from control.coupling import Subspaces
+from control.coupling import Subspaces, task_scale
+from control.gains import NullspaceGains
 from control.model import RobotModel
 from robots import RobotDescription
 
@@ -59,6 +60,15 @@ def scan_worker() -> Worker:
 def wrap_deg(value: Any) -> Any:
     """Angles in degrees wrapped into [−180, 180)."""
     return (np.asarray(value, dtype=float) + 180.0) % 360.0 - 180.0
+
+
+def _units_of(frame: Any) -> np.ndarray | None:
+    """The task scale of the frame's nullspace group (the units the controller takes W in), or None."""
+    settings = getattr(frame, "settings", None)
+    ns = getattr(settings, "groups", {}).get("nullspace") if settings is not None else None
+    if not isinstance(ns, NullspaceGains):
+        return None
+    return task_scale(ns.unit_length_m, ns.unit_mass_kg)
 
 
 def preview_objective(choice: str, controller_objective: str | None) -> str:
@@ -118,6 +128,7 @@ class SelfMotionPreview:
         self.latest: Preview | None = None
         self.scans = 0
         self._input: tuple[Any, np.ndarray, Subspaces, str | None] | None = None
+        self._scale: np.ndarray | None = None  # the controller's units of W (`control.coupling.task_scale`)
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -153,6 +164,7 @@ class SelfMotionPreview:
         self._planned_q = None if planned_q is None else np.array(planned_q, dtype=float)
         with self._lock:
             self._input = (frame.robot, np.array(q, dtype=float), scene.subspaces, scene.objective)
+            self._scale = _units_of(frame)
         if self._planned_q is not None and self._on_plan():
             self._show_ghost(frame.robot, self._planned_q)  # follows the plan at the panels' rate
 
@@ -232,10 +244,12 @@ class SelfMotionPreview:
                     self._in_process = False
                 else:
                     self.scan_restarts += 1
-        return scan_preview(self._model_for(robot), robot, q, sub, objective)
+        return scan_preview(self._model_for(robot), robot, q, sub, objective, self._scale)
 
     def _in_worker(self, robot: RobotDescription, q: np.ndarray, sub: Subspaces, objective: str) -> Preview:
-        args = (str(robot.urdf_path), robot.model, robot.q_lower, robot.q_upper, q, sub.force_axes, objective)
+        args = (
+            str(robot.urdf_path), robot.model, robot.q_lower, robot.q_upper, q, sub.force_axes, objective, self._scale
+        )  # fmt: skip
         preview = self._worker.call(scan_in_worker, *args, timeout=SCAN_TIMEOUT_S)
         self._scan_failures = 0
         return preview

@@ -56,9 +56,12 @@ def _deg(value: float) -> str:
     return f"{wrapped:+.0f}°"
 
 
-def scan_preview(model: RobotModel, robot, q: np.ndarray, sub: Subspaces, objective: str) -> Preview:
-    """Trace the self-motion loop through q and find the flow's end and the best feasible posture."""
-    scan = swivel_scan(model, np.asarray(q, dtype=float), sub, robot.q_lower, robot.q_upper)
+def scan_preview(
+    model: RobotModel, robot, q: np.ndarray, sub: Subspaces, objective: str, scale: np.ndarray | None = None
+) -> Preview:
+    """Trace the self-motion loop through q and find the flow's end and the best feasible posture;
+    W in the task coordinates of `scale` (`control.coupling.task_scale`, the controller's units)."""
+    scan = swivel_scan(model, np.asarray(q, dtype=float), sub, robot.q_lower, robot.q_upper, scale=scale)
     values = {"f": scan.W_f, "a": scan.W_a, "d": scan.W_d}[objective]
     feasible = np.asarray(scan.within_limits, dtype=bool)
     flow = flow_minimum(values, feasible, start=0, closed=scan.closed)
@@ -75,6 +78,7 @@ def scan_in_worker(
     q: np.ndarray,
     force_axes: tuple[int, ...],
     objective: str,
+    scale: np.ndarray | None = None,
 ) -> Preview:
     """`scan_preview` from picklable arguments (run in the scan process); `key` names the robot
     (its URDF path) so its `RobotModel` is built once per process."""
@@ -83,7 +87,7 @@ def scan_in_worker(
         _MODELS.clear()
         robot_model = _MODELS[key] = RobotModel(model)
     limits = _Limits(np.asarray(q_lower, dtype=float), np.asarray(q_upper, dtype=float))
-    return scan_preview(robot_model, limits, q, Subspaces.from_force_axes(force_axes), objective)
+    return scan_preview(robot_model, limits, q, Subspaces.from_force_axes(force_axes), objective, scale)
 
 
 @dataclass(frozen=True)

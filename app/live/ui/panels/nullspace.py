@@ -24,8 +24,14 @@ OBJECTIVES = tuple(f"W_{o}" for o in TANG_OBJECTIVES)
 TWIN_OFF = "off"
 TWIN_CHOICES = (TWIN_OFF, *OBJECTIVES)
 K0_FIELDS = tuple(NullspaceGains.k0_field(o) for o in TANG_OBJECTIVES)
-# the objective, then the k0 of each objective: only the selected objective's k0 is shown
-FIELDS: tuple[str, ...] = ("nullspace.objective", *(f"nullspace.{k0}" for k0 in K0_FIELDS))
+UNIT_FIELDS = ("unit_length_m", "unit_mass_kg")  # the units of W_f, W_a, W_d (`control.coupling.task_scale`)
+# the objective, then the k0 of each objective (only the selected objective's k0 is shown), then the
+# characteristic length and mass of the coupling objectives (shown for W_f, W_a, W_d)
+FIELDS: tuple[str, ...] = (
+    "nullspace.objective",
+    *(f"nullspace.{k0}" for k0 in K0_FIELDS),
+    *(f"nullspace.{f}" for f in UNIT_FIELDS),
+)
 
 
 class NullspacePanel(KnobPanel):
@@ -59,6 +65,8 @@ class NullspacePanel(KnobPanel):
             return False
         if k.field in K0_FIELDS and isinstance(group, NullspaceGains):
             return k.field == NullspaceGains.k0_field(group.objective)
+        if k.field in UNIT_FIELDS and isinstance(group, NullspaceGains):
+            return group.objective != "j"
         return True
 
     def refresh(self, settings: Settings) -> None:
