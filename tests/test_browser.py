@@ -1647,3 +1647,78 @@ def test_the_lambda_box_refuses_minus_5_in_its_own_words_and_takes_250_5_as_type
         app.loop.submit(SetParam(k.group, k.field, before))
         app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
+LESSON_SHOTS = README_SCREENSHOT.parent / "lessons"
+LESSON_SHOT_BYTES = 300_000  # a docs page's picture: larger ones are cut to a 256-colour palette
+
+
+def save_lesson_shot(pg: Any, name: str, text: str) -> None:
+    """The page with `text` (a step's result line) scrolled into view: test-artifacts/lessons/NAME, copied to
+    static/lessons/ (docs/lessons/*.md show it), as a 256-colour PNG when the full-colour one is too large."""
+    from PIL import Image
+
+    pg.get_by_text(text, exact=False).first.scroll_into_view_if_needed()
+    (ARTIFACTS / "lessons").mkdir(parents=True, exist_ok=True)
+    save_tour_shot(pg, f"lessons/{name}")
+    shot = ARTIFACTS / "lessons" / name
+    if shot.stat().st_size > LESSON_SHOT_BYTES:
+        Image.open(shot).convert("RGB").quantize(256).save(shot, optimize=True)
+    assert Image.open(shot).size == (VIEWPORT["width"], VIEWPORT["height"])
+    LESSON_SHOTS.mkdir(exist_ok=True)
+    shutil.copyfile(shot, LESSON_SHOTS / name)
+
+
+@pytest.mark.skipif(
+    os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") != "1",
+    reason="writes the lesson pages' screenshots (static/lessons/): run with TORQUELAB_UPDATE_SCREENSHOT=1 "
+    "(the lessons' claims are checked by the lesson tests above)",
+)
+def test_the_lesson_screenshots_are_written_on_request(app, page):
+    """Dampers step 1 with λ changed after *Set up this step* (its "Step cancelled" line), then every step of
+    the posture and latency lessons at its end, each with its result line in view: static/lessons/*.png."""
+    from app.core.commands import Pause, Play, SetParam, SwitchSession
+    from app.live.curriculum import LESSONS
+    from app.live.ui.panels.lessons import LessonsPanel
+
+    pg, _ = page
+    panel = next(p for p in app.panels if isinstance(p, LessonsPanel))
+    pg.set_default_timeout(120_000)  # a software-rendered page on a loaded machine takes seconds per click
+    label = "λ (1/s)"
+    _, k = _knob(app, label)
+    before: float | None = None
+    try:
+        spec = next(x for x in LESSONS if x.key == "dampers")
+        open_tab(pg, "Lessons")
+        choose(pg, "Lesson", spec.title)
+        wait_for(lambda: panel.lesson.key == "dampers" and panel.index == 0, 20, "the dampers lesson")
+        pg.get_by_role("button", name="Set up this step").click()
+        wait_for(lambda: panel.armed is not None and app.loop.status.scenario == "limit-drop", 60, "the step set up")
+        app.loop.submit(Pause())  # the step's 3 s would end before a slow page has typed λ
+        before = float(param(app, k.group, k.field))
+        open_tab(pg, "Tune")
+        type_number(pg, "^" + re.escape(label) + "$", "1000")
+        wait_for(lambda: float(param(app, k.group, k.field)) == pytest.approx(1000.0), 30, "λ = 1000 in force")
+        app.loop.submit(Play())
+        key = ("dampers", spec.steps[0].key)
+        claim = wait_for(lambda: panel.claims.get(key), 120, "the step to be cancelled", period=0.5)
+        assert claim.startswith("Cancelled: ") and "λ" in claim, claim
+        open_tab(pg, "Lessons")
+        save_lesson_shot(pg, "dampers-step1-cancelled.png", "Step cancelled")
+        app.loop.submit(SetParam(k.group, k.field, before))
+        for lesson in ("posture", "latency"):
+            run_lesson_in_the_page(
+                app,
+                pg,
+                lesson,
+                after_step=lambda i, key, lesson=lesson: save_lesson_shot(
+                    pg, f"{lesson}-step{i + 1}.png", panel.claims[(lesson, key)][:60]
+                ),
+            )
+    finally:
+        pg.set_default_timeout(30_000)
+        if before is not None:
+            app.loop.submit(SetParam(k.group, k.field, before))
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
