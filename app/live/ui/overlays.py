@@ -301,7 +301,8 @@ class Overlays:
             f"{root}/contact_lifts", np.zeros((1, 2, 3)), colors=LOST_COLOR, thickness=0.006, visible=False
         )
         self.lift_label = sc.add_label(
-            f"{root}/contact_lift_label", "", font_screen_scale=0.8, visible=False, anchor="bottom-center"
+            # under its cross, where the task target's label (above the target, at the tool) cannot cover it
+            f"{root}/contact_lift_label", "", font_screen_scale=0.8, visible=False, anchor="top-center"
         )
         self.payload = sc.add_icosphere(f"{root}/payload", radius=PAYLOAD_RADIUS_M, color=(70, 70, 75), visible=False)
         # below the ball, to its left: clear of the coupling label, which sits above the tool, to its right
@@ -355,7 +356,7 @@ class Overlays:
         if shown:
             marks = on_table(lifts, snap.table)
             set_prop(self.lift_marks, "points", cross_segments(marks).astype(np.float32))
-            set_position(self.lift_label, marks[-1] + np.array([0.0, 0.0, LIFT_MARK_HALF_M]))
+            set_position(self.lift_label, marks[-1] - np.array([0.0, 0.0, LIFT_MARK_HALF_M]))
             set_prop(self.lift_label, "text", f"contact lost ×{len(lifts)}" if len(lifts) > 1 else "contact lost")
 
     def coupling_extent(self) -> np.ndarray | None:

@@ -137,10 +137,15 @@ class LessonsPanel:
         self.result_md.content = result_text(claim) if claim else (WAITING if waiting else "")
 
 
+def _sentence(text: str) -> str:
+    """`text` opening as a sentence does (its first letter in capitals)."""
+    return text[:1].upper() + text[1:]
+
+
 def result_text(claim: str) -> str:
     """A step's result as shown: the claim, or the line saying why the step was cancelled."""
     return (
-        f"**Step cancelled.** {claim.removeprefix('Cancelled: ')}"
+        f"**Step cancelled.** {_sentence(claim.removeprefix('Cancelled: '))}"
         if claim.startswith("Cancelled: ")
         else (f"**What you saw.** {claim}")
     )
