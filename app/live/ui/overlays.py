@@ -302,7 +302,11 @@ class Overlays:
         )
         self.lift_label = sc.add_label(
             # under its cross, where the task target's label (above the target, at the tool) cannot cover it
-            f"{root}/contact_lift_label", "", font_screen_scale=0.8, visible=False, anchor="top-center"
+            f"{root}/contact_lift_label",
+            "",
+            font_screen_scale=0.8,
+            visible=False,
+            anchor="top-center",
         )
         self.payload = sc.add_icosphere(f"{root}/payload", radius=PAYLOAD_RADIUS_M, color=(70, 70, 75), visible=False)
         # below the ball, to its left: clear of the coupling label, which sits above the tool, to its right
