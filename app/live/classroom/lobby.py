@@ -131,11 +131,12 @@ class Lobby:
             asyncio.get_running_loop().create_task(self.pool.send(seat, command))
             self.note(f"seat {seat.number} started on the class's step")
 
-    def _seat_stopped(self, seat: Seat) -> None:
+    def _seat_stopped(self, seat: Seat) -> list[asyncio.Task[Any]]:
         if seat.state == "stopped":
             self.note(f"seat {seat.number} stopped: {seat.stop_reason}")
-        for conn in list(self.pages.get(seat.number, ())):
-            asyncio.get_running_loop().create_task(conn.close(1011, f"seat {seat.number} stopped"))
+        why = f"seat {seat.number} stopped" if seat.state == "stopped" else f"seat {seat.number} freed"
+        loop = asyncio.get_running_loop()
+        return [loop.create_task(conn.close(1011, why)) for conn in list(self.pages.get(seat.number, ()))]
 
     # ---- HTTP -----------------------------------------------------------------------------------
     async def _http(self, connection: ServerConnection, request: Request) -> Response | None:

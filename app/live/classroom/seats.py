@@ -87,7 +87,7 @@ class SeatPool:
         idle_s: float,
         serve_args: tuple[str, ...] = (),
         python: str = sys.executable,
-        on_stop: Callable[[Seat], None] | None = None,
+        on_stop: Callable[[Seat], list[asyncio.Task[Any]]] | None = None,
         on_ready: Callable[[Seat], None] | None = None,
     ):
         if seats < 1:
@@ -98,7 +98,7 @@ class SeatPool:
         self.idle_s = idle_s
         self.serve_args = serve_args
         self.python = python
-        self.on_stop = on_stop  # the lobby closes the seat's pages
+        self.on_stop = on_stop  # the lobby closes the seat's pages (the tasks closing them)
         self.on_ready = on_ready  # the lobby sets up the class's current lesson step on it
         self.reclaimed = 0  # seats reclaimed for idleness
 
@@ -187,8 +187,9 @@ class SeatPool:
         proc, seat.proc = seat.proc, None
         seat.token, seat.secret, seat.state, seat.port, seat.status = "", "", "free", 0, {}
         seat.ready.set()  # a page waiting for the start learns the seat is gone
-        if self.on_stop is not None:
-            self.on_stop(seat)
+        closing = self.on_stop(seat) if self.on_stop is not None else []
+        if closing:  # its pages closed first: the seat's server sees them go before it stops
+            await asyncio.wait(closing, timeout=2.0)
         if proc is not None and proc.stdin is not None:
             proc.stdin.close()  # its command pipe closed (a seat ends when it is), and no transport left open
         if proc is not None and proc.returncode is None:
