@@ -119,8 +119,7 @@ def coupling_terms(
     return CouplingTerms(A, B, D, A_inv, D_hat, P_f, P_a, P_d)
 
 
-SI_SCALE = np.ones(6)
-SI_SCALE.flags.writeable = False
+SI_SCALE = np.ones(6)  # W in SI units (writeable: the compiled kernels take one array type; never written)
 
 
 def task_scale(length_m: float = 0.0, mass_kg: float = 1.0) -> np.ndarray:

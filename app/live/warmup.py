@@ -37,6 +37,7 @@ NO_ARM_STATE = (
     "_matmul_into", "_matmul_bt_into", "_matmul", "_matmul_bt", "_symmetrise", "_sym_from_eig", "_cholesky_into",
     "_spd_inverse_into", "_inverse", "_sqnorm", "_cross", "_mat3_vec", "_mat3_mat", "_np_max", "unpack_chain_fused",
     "log3_fused", "move_wrench_fused", "swivel_of_anchors_fused", "damper_bounds_fused", "add_task_rows_fused",
+    "coupling_weights_fused",
     "acceleration_bounds_fused", "dense_qp_load_fused", "unconstrained_optimum_fused",
 )  # fmt: skip
 
