@@ -1492,28 +1492,6 @@ def test_the_first_look_drag_in_free_moves_the_elbow_along_the_spring(app, page)
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
 
 
-def test_disconnect_during_a_drag_releases_the_force_within_a_second(app, page):
-    """Closing the tab mid-drag (no mouse-up) releases the spring within 1 s, even behind ten seconds
-    of queued single steps; runs last: it closes the page."""
-    from app.core.commands import StepOnce
-
-    pg, client = page
-    start_drag(pg, client, app, DRAG_LINK)
-    view = drag_state(app)
-    assert view.body == DRAG_LINK and view.force_n > 0.0
-    for _ in range(5):
-        app.loop.submit(StepOnce(2000))
-    pg.close()
-    closed = time.monotonic()
-    # read what the loop published (a call() would wait behind the queued steps)
-    wait_for(lambda: app.loop.status.drag_client is None, 20, "the disconnect to release the drag", period=0.01)
-    released_s = time.monotonic() - closed
-    print(f"page closed mid-drag: released after {released_s:.3f} s")
-    assert released_s < 1.0, f"the release took {released_s:.2f} s"
-    assert not app.loop.session.drag.active
-    wait_for(lambda: client.client_id not in app.server.get_clients(), 20, "the server to drop the client")
-
-
 def test_bench_serve_runs_the_app_with_a_plain_headless_chromium_and_reports_what_it_measured(monkeypatch):
     """`bench --serve` opens the page in a Chromium process of its own (no automation driver in the
     server's process), runs the polish preset with every overlay, and reports a run it measured: one
@@ -1722,3 +1700,26 @@ def test_the_lesson_screenshots_are_written_on_request(app, page):
         app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
         app.loop.submit(Play())
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
+# ---- last: it closes the module's page ------------------------------------------------------------
+def test_disconnect_during_a_drag_releases_the_force_within_a_second(app, page):
+    """Closing the tab mid-drag (no mouse-up) releases the spring within 1 s, even behind ten seconds
+    of queued single steps; runs last: it closes the page."""
+    from app.core.commands import StepOnce
+
+    pg, client = page
+    start_drag(pg, client, app, DRAG_LINK)
+    view = drag_state(app)
+    assert view.body == DRAG_LINK and view.force_n > 0.0
+    for _ in range(5):
+        app.loop.submit(StepOnce(2000))
+    pg.close()
+    closed = time.monotonic()
+    # read what the loop published (a call() would wait behind the queued steps)
+    wait_for(lambda: app.loop.status.drag_client is None, 20, "the disconnect to release the drag", period=0.01)
+    released_s = time.monotonic() - closed
+    print(f"page closed mid-drag: released after {released_s:.3f} s")
+    assert released_s < 1.0, f"the release took {released_s:.2f} s"
+    assert not app.loop.session.drag.active
+    wait_for(lambda: client.client_id not in app.server.get_clients(), 20, "the server to drop the client")

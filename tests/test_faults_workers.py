@@ -235,6 +235,7 @@ def test_a_killed_scan_process_is_replaced_and_the_preview_scans_on():
     preview._scan_failures = 0
     preview.scan_restarts = 0
     preview._models = {}
+    preview._scale = None  # W in SI units (no characteristic length set)
     q = np.asarray(rizon.postures.get("polish_start", rizon.home), dtype=float)
     first = preview._scan(rizon, q, POLISH_SUBSPACES, "a")
     assert _kill_worker(preview._worker) == 1

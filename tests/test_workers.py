@@ -135,6 +135,7 @@ def test_the_scans_run_in_the_servers_process_once_no_scan_process_comes_up():
     q = np.asarray(rizon.postures.get("polish_start", rizon.home), dtype=float)
     preview = SelfMotionPreview.__new__(SelfMotionPreview)  # the scan machinery only, no widgets
     preview._in_process, preview._scan_failures, preview.scan_restarts, preview._models = True, 0, 0, {}
+    preview._scale = None  # W in SI units (no characteristic length set)
     preview._worker = scan_worker()
     try:
         there = preview._scan(rizon, q, POLISH_SUBSPACES, "a")

@@ -213,12 +213,31 @@ class StepLog:
         block = self._data[np.ix_(idx_rows, np.array(cols, dtype=np.intp))]
         return {name: block[:, i] for i, name in enumerate(("t", *names))}
 
-    def window(self, seconds: float, dt: float, every: int = 1) -> dict[str, np.ndarray]:
-        """The last `seconds` of rows (every `every`-th row, ending at the newest), by column."""
+    def window(self, seconds: float, dt: float, every: int = 1, peaks: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+        """The last `seconds` of rows by column, every `every`-th row on a grid fixed to the log's rows
+        (row indices every−1, 2·every−1, …: the samples of a trace do not shift from one window to the
+        next) and the newest row last. A column named in `peaks` keeps, at each sample, its value of
+        largest magnitude over the rows the sample stands for (those after the previous sample, up to
+        it: a scope's peak detect, so a decimated plot still reaches the peak a readout measures on
+        every row)."""
         rows = min(self.count, self.capacity, max(1, round(seconds / dt)))
         if rows <= 0 or self.count == 0:
             return {c: np.zeros(0) for c in self.columns}
         newest = self.count - 1
-        idx = np.arange(newest - rows + 1, newest + 1)[::-1][:: max(1, every)][::-1] % self.capacity
-        block = self._data[idx, : len(self.columns)]
-        return {c: block[:, i].copy() for i, c in enumerate(self.columns)}
+        first = newest - rows + 1
+        every = max(1, every)
+        ends = np.arange(first + (every - 1 - first) % every, newest + 1, every)
+        if len(ends) == 0 or ends[-1] != newest:
+            ends = np.append(ends, newest)
+        block = self._data[ends % self.capacity, : len(self.columns)]
+        out = {c: block[:, i].copy() for i, c in enumerate(self.columns)}
+        if every > 1 and peaks:
+            starts = np.maximum(np.concatenate([[ends[0] - every + 1], ends[:-1] + 1]), first)
+            span = np.minimum(starts[:, None] + np.arange(every)[None, :], ends[:, None]) % self.capacity
+            for name in peaks:
+                if name not in out:
+                    continue
+                values = self._data[span, list(self.columns).index(name)]
+                magnitude = np.where(np.isnan(values), -np.inf, np.abs(values))
+                out[name] = values[np.arange(len(ends)), np.argmax(magnitude, axis=1)]
+        return out

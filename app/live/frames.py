@@ -31,6 +31,8 @@ from control.executor import StepView
 
 PLOT_WINDOW_S = 10.0
 PLOT_POINTS = 500  # points per plotted series
+# signals whose chart must reach the peak its readout states (metrics.deflection's): decimated by peak
+PEAK_SIGNALS = ("tcp_dev_mm", "elbow_dev_mm")
 STAGE_TEXT = {  # what each loop-side stage of a frame does, for the notice
     "capture": "capturing the scene",
     "twin poses": "placing the twin arm",
@@ -253,7 +255,7 @@ def _with_twin(scene: Any, twin: Any) -> Any:
 def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]) -> PlotData:
     """The last PLOT_WINDOW_S of the lab's log, decimated to ≈ PLOT_POINTS per series."""
     every = max(1, round(PLOT_WINDOW_S / lab.dt / PLOT_POINTS))
-    columns = lab.log.window(PLOT_WINDOW_S, lab.dt, every)
+    columns = lab.log.window(PLOT_WINDOW_S, lab.dt, every, peaks=PEAK_SIGNALS)
     if lab.twin is not None and "t" in columns:
         # the twin's own segment column: with another objective its zig-zag starts at another time
         twin = lab.twin.columns_at(columns["t"])
