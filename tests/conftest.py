@@ -14,12 +14,12 @@ import socket
 import time
 from collections.abc import Callable
 
-import msgspec
 import numpy as np
 import pytest
 import viser
 
 import robots
+from app.live.ui.viser_seam import camera_message  # noqa: F401  (the first message a browser sends)
 from control.model import RobotModel
 
 
@@ -114,24 +114,6 @@ def wait_until(predicate: Callable[[], object], timeout: float = 10.0) -> bool:
             return True
         time.sleep(0.02)
     return False
-
-
-def camera_message() -> bytes:
-    """The first message a browser sends; viser counts a client as connected after it."""
-    return msgspec.msgpack.encode(
-        {
-            "type": "ViewerCameraMessage",
-            "wxyz": [1.0, 0.0, 0.0, 0.0],
-            "position": [1.5, 1.5, 1.0],
-            "fov": 0.9,
-            "near": 0.01,
-            "far": 100.0,
-            "image_height": 600,
-            "image_width": 800,
-            "look_at": [0.0, 0.0, 0.3],
-            "up_direction": [0.0, 0.0, 1.0],
-        }
-    )
 
 
 def browser_update(handle, value, client_id: int = 1) -> None:

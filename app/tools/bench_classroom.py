@@ -30,18 +30,8 @@ from typing import Any
 import viser
 from websockets.sync.client import connect
 
-CAMERA = {
-    "type": "ViewerCameraMessage",
-    "wxyz": [1.0, 0.0, 0.0, 0.0],
-    "position": [1.5, 1.5, 1.0],
-    "fov": 0.9,
-    "near": 0.01,
-    "far": 100.0,
-    "image_height": 600,
-    "image_width": 800,
-    "look_at": [0.0, 0.0, 0.3],
-    "up_direction": [0.0, 0.0, 1.0],
-}
+from app.live.ui.viser_seam import camera_message
+
 START_TIMEOUT_S = 180.0
 WARM_SIM_S = 2.0  # every seat runs this much simulated time before the measurement
 
@@ -73,7 +63,6 @@ class Client:
     closed: str = ""
 
     def start(self) -> None:
-        import msgspec
 
         self.ws = connect(
             self.url,
@@ -82,7 +71,7 @@ class Client:
             open_timeout=30,
             max_size=None,
         )
-        self.ws.send(msgspec.msgpack.encode(CAMERA))
+        self.ws.send(camera_message())
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self) -> None:

@@ -19,7 +19,8 @@ need more, and each reaches past that surface only through the functions here:
   when one opens or closes (`on_connection_open`, `on_connection_close`), the dispatch of every
   message a page sends, server-wide and per connection (`wrap_dispatch`), and a message queued to
   one connection (`queue_to_connection`), and a connection closed by the server (`close_connection`);
-- the classroom lobby: the page viser serves (`client_page_bytes`).
+- the classroom lobby: the page viser serves (`client_page_bytes`); headless clients: the first
+  message a browser sends (`camera_message`).
 
 `VISER_RANGE` is the version range pinned in `pyproject.toml` (`tests/test_viser_seam.py` holds the
 two equal and the installed viser inside it). The same tests check each attribute, message field
@@ -194,3 +195,25 @@ def client_page_bytes() -> bytes:
     from pathlib import Path
 
     return (Path(viser.__file__).parent / "client" / "build" / "index.html").read_bytes()
+
+
+def camera_message() -> bytes:
+    """The first message a browser sends on viser's websocket (its camera, msgpack as viser's client
+    encodes it): viser counts a connection as a client after it. For headless clients (the classroom
+    bench, the tests)."""
+    import msgspec
+
+    return msgspec.msgpack.encode(
+        {
+            "type": "ViewerCameraMessage",
+            "wxyz": [1.0, 0.0, 0.0, 0.0],
+            "position": [1.5, 1.5, 1.0],
+            "fov": 0.9,
+            "near": 0.01,
+            "far": 100.0,
+            "image_height": 600,
+            "image_width": 800,
+            "look_at": [0.0, 0.0, 0.3],
+            "up_direction": [0.0, 0.0, 1.0],
+        }
+    )
