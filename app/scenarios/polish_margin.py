@@ -78,14 +78,20 @@ def headroom_statement(headroom_np: float, band_np: float = HEADROOM_BAND_NP) ->
     return HeadroomStatement(0, low, high, "too close to call: the headroom is within the margin's error of 0")
 
 
-def headroom_came_true(statement: HeadroomStatement, verdict: str) -> str:
+def prediction_held(statement: HeadroomStatement, verdict: str) -> bool | None:
     """After the stroke, against its one verdict (`app.scenarios.verdict`): whether the prediction came
-    true, in words (the margin predicts lost contact: its event is the contact force reaching 0)."""
-    lost = verdict in (V.LOST, V.DIVERGED)
+    true (the margin predicts lost contact: its event is the contact force reaching 0); None without one."""
     if statement.sign == 0:
+        return None
+    return (statement.sign < 0) == (verdict in (V.LOST, V.DIVERGED))
+
+
+def headroom_came_true(statement: HeadroomStatement, verdict: str) -> str:
+    """`prediction_held` in words, with the stroke's verdict."""
+    held = prediction_held(statement, verdict)
+    if held is None:
         return f"no prediction to check; the stroke was {verdict}"
-    came = (statement.sign < 0) == lost
-    return f"{'came true' if came else 'did not come true'}: the stroke was {verdict}"
+    return f"{'came true' if held else 'did not come true'}: the stroke was {verdict}"
 
 
 class StrokeHeadroom:

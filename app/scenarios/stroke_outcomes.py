@@ -46,8 +46,7 @@ class StrokeOutcome:
     @property
     def came_true(self) -> bool | None:
         """The prediction against the verdict: None while the stroke runs or without a prediction."""
-        text = self.checked
-        return None if not text or text.startswith("no prediction") else text.startswith("came true")
+        return None if self.verdict is None else PM.prediction_held(self.statement, self.verdict)
 
     def rate_text(self) -> str:
         """What the stroke's worst σ predicted (< 0: a disturbance grows there) and, after the stroke,
