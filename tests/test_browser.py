@@ -831,7 +831,10 @@ def test_replay_moves_the_arm_and_the_plots_to_the_same_instant(app, page):
         expected = data.xpos[session.world.body_ids(names)]
 
         def arm_at_instant() -> bool:
-            frames = app.publisher.scene.frames
+            scene = app.publisher.scene
+            if scene is None:  # rebuilding
+                return False
+            frames = scene.frames
             shown = np.array([np.asarray(frames[n].position) for n in names if n in frames])
             return shown.shape == expected.shape and float(np.max(np.abs(shown - expected))) < 1e-3
 
@@ -1543,7 +1546,11 @@ def test_contact_loss_is_marked_in_the_3d_view_live_and_in_replay_and_a_reset_cl
     ):
         loop.submit(cmd)
     try:
-        overlays = lambda: app.publisher.scene.overlays  # noqa: E731
+
+        def overlays() -> Any:
+            """The scene's overlays, once the publisher has built the polish scene (it is None while it rebuilds)."""
+            return wait_for(lambda: app.publisher.scene, 30, "the polish scene").overlays
+
         wait_for(lambda: loop.status.scenario == "polish" and loop.status.t > 6.4, 180, "polish past S2's first loss")
         loop.submit(SetSpeed(1.0))
         wait_for(lambda: overlays().lift_marks.visible, 30, "the live lift mark")
