@@ -1,8 +1,9 @@
 """Every compiled kernel has a plain-numpy reference, and the two agree (`control.kernel_registry`).
 
-The registry test enumerates every numba dispatcher defined in a `control.kernels` module: one that
-is not in `KERNELS` fails. No compiled function (the kernels and the simulator's) takes more than
-`MAX_ARGUMENTS` arguments: a group of them is a named record (`control.kernels.records`).
+The registry test enumerates every numba dispatcher defined in a `control.kernels` module (and in an
+`app.sim` module): one that is not in `KERNELS` (`app.sim.kernel_registry.SIM_KERNELS`) fails. No
+compiled function (the kernels and the simulator's) takes more than `MAX_ARGUMENTS` arguments: a
+group of them is a named record (`control.kernels.records`).
 
 Each pair runs on the same copies of its sample inputs; every output and every argument array the
 kernel writes (scratch excepted; a record's fields each) is held to the entry's relative tolerance
@@ -24,6 +25,7 @@ from numba.core.registry import CPUDispatcher
 
 import app.sim
 import control.kernels
+from app.sim.kernel_registry import SIM_KERNELS
 from control.kernel_registry import KERNELS
 
 MAX_ARGUMENTS = 10  # per compiled function; more than this: group them into a record
@@ -59,6 +61,16 @@ def test_every_compiled_kernel_has_a_reference_in_the_registry():
         assert not isinstance(pair.reference, CPUDispatcher), name
 
 
+def test_every_compiled_function_of_the_simulator_has_a_reference_in_its_registry():
+    dispatchers = _dispatchers(app.sim)
+    assert len(dispatchers) >= 5
+    missing = sorted(set(dispatchers) - set(SIM_KERNELS))
+    assert not missing, f"compiled functions without a reference in app.sim.kernel_registry: {missing}"
+    for name, pair in SIM_KERNELS.items():
+        assert pair.compiled is dispatchers[name], name
+        assert not isinstance(pair.reference, CPUDispatcher), name
+
+
 def _leaves(value) -> list:
     if isinstance(value, (tuple, list)):
         return [leaf for item in value for leaf in _leaves(item)]
@@ -83,9 +95,9 @@ def _assert_close(a, b, tol: float, what: str) -> None:
     assert err <= tol * scale, (what, err / scale, tol)
 
 
-@pytest.mark.parametrize("name", sorted(KERNELS))
+@pytest.mark.parametrize("name", sorted(KERNELS) + sorted(SIM_KERNELS))
 def test_compiled_kernel_equals_its_reference(name):
-    pair = KERNELS[name]
+    pair = KERNELS[name] if name in KERNELS else SIM_KERNELS[name]
     samples = pair.samples(np.random.default_rng(zlib.crc32(name.encode())))
     assert samples, name
     for k, args in enumerate(samples):

@@ -170,6 +170,14 @@ def implicit_friction(
     return np.array([k * (d * v0 - b * v1), k * (a * v1 - cc * v0)])
 
 
+def implicit_contact_reference(depth, velocity, inverse_mass, stiffness, mu, v_eps, dt) -> tuple:
+    """`implicit_contact` by `implicit_friction`: (F_n, F_t x, F_t y) with F_n = k·depth and the
+    backward-Euler friction of μF_n."""
+    f_n = stiffness * depth
+    fx, fy = implicit_friction(mu * f_n, velocity, v_eps, inverse_mass, dt)
+    return f_n, float(fx), float(fy)
+
+
 @njit(cache=True)
 def implicit_contact(depth, velocity, inverse_mass, stiffness, mu, v_eps, dt):
     """Compiled `TableContact.implicit_forces` at a penetration depth > 0: (F_n, F_t x, F_t y), the
@@ -182,6 +190,17 @@ def implicit_contact(depth, velocity, inverse_mass, stiffness, mu, v_eps, dt):
     cc, d = inverse_mass[1, 0] * s, 1.0 + inverse_mass[1, 1] * s
     k = -c / (a * d - b * cc)
     return f_n, k * (d * v0 - b * v1), k * (a * v1 - cc * v0)
+
+
+def contact_step_reference(depth, jacp, qvel, solved, implicit, stiffness, mu, v_eps, dt) -> tuple:
+    """`contact_step` in numpy: v = J_p q̇, G = J_p (M⁻¹ J_pᵀ)ᵀ (tangential block, only with
+    `implicit`, else 0) and `implicit_contact_reference` at a positive depth; (F_n, F_t x, F_t y, ‖v_t‖)."""
+    v = jacp[:2] @ qvel
+    speed = float(np.sqrt(v @ v))
+    if not depth > 0.0:
+        return 0.0, 0.0, 0.0, speed
+    G = jacp[:2] @ solved[:2].T if implicit else np.zeros((2, 2))
+    return (*implicit_contact_reference(depth, v, G, stiffness, mu, v_eps, dt), speed)
 
 
 _NO_SOLVE = np.zeros((3, 1))  # no M⁻¹ J_pᵀ: out of contact, or the explicit law

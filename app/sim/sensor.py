@@ -179,6 +179,16 @@ class FTSensor(Sensor):
         return ring[(head + 1) % n]  # the oldest: d steps before `head`
 
 
+def reading_reference(noise, std, true_wrench, add_sine, sine, filtered, alpha, y) -> np.ndarray:
+    """`_reading` in numpy: x = true + std·noise (+ the sinusoid on the three forces), y ← y + α(x − y)
+    when `filtered` (else y ← x), in place; a copy of y."""
+    x = noise * std + true_wrench
+    if add_sine:
+        x[:3] += sine
+    y[:] = (x - y) * alpha + y if filtered else x
+    return y.copy()
+
+
 @njit(cache=True)
 def _reading(noise, std, true_wrench, add_sine, sine, filtered, alpha, y):
     """One reading: x = true + std·noise (+ the sinusoid on the forces), then the first-order

@@ -586,6 +586,22 @@ class World:
         mujoco.mj_forward(self.model, self.data)
 
 
+def track_stop_depth_reference(qpos: np.ndarray, adr: np.ndarray, stops: np.ndarray) -> None:
+    """`track_stop_depth` in numpy: the depth past the stops d = max(q − q⁺, q⁻ − q) raises the
+    recent and peak rows stops[2], stops[3] in place."""
+    q = qpos[adr]
+    depth = np.maximum(q - stops[1], stops[0] - q)
+    np.maximum(stops[2], depth, out=stops[2])
+    np.maximum(stops[3], depth, out=stops[3])
+
+
+def clip_torque_track_stops_reference(tau, limits, qpos, adr, stops) -> np.ndarray:
+    """`clip_torque_track_stops` in numpy: np.minimum(np.maximum(τ, limits[0]), limits[1]) (NaN kept)
+    and `track_stop_depth_reference`."""
+    track_stop_depth_reference(qpos, adr, stops)
+    return np.minimum(np.maximum(tau, limits[0]), limits[1])
+
+
 @njit(cache=True)
 def track_stop_depth(qpos, adr, stops):
     """stops[2, j], stops[3, j] = their max with how far joint j (at qpos[adr[j]]) is past its stop
