@@ -48,6 +48,16 @@ def spread_order(n: int) -> list[int]:
     return order
 
 
+def grouped(points: list[dict], group: str) -> list[tuple]:
+    """A sort key per grid point that keeps the points sharing a value of axis `group` together (the
+    groups in `spread_order`, the points of a group coarse to fine): a cell's process can reuse what
+    the group's cells share (`SweepExperiment.group_axis`)."""
+    values = list(dict.fromkeys(p[group] for p in points))
+    rank = {values[i]: r for r, i in enumerate(spread_order(len(values)))}
+    inner = coarse_to_fine([{k: v for k, v in p.items() if k != group} for p in points])
+    return [(rank[p[group]], key) for p, key in zip(points, inner, strict=True)]
+
+
 def coarse_to_fine(points: list[dict]) -> list[tuple]:
     """A sort key per grid point: coarse points of every axis first, then the finer ones in between.
 
@@ -80,9 +90,12 @@ def settings_env() -> dict[str, str]:
 
 def run_cell(cell: Callable[[dict, int], dict], params: dict, seed: int, env: dict[str, str] | None = None) -> dict:
     """Run one cell where the executor puts it (with the submitter's `settings_env`); an Exception
-    becomes an "error" record."""
+    becomes an "error" record. Its CPU time counts the processes it forked and waited for
+    (`forked.call_forked`)."""
+    from app.headless.sweep.forked import children_cpu_s
+
     os.environ.update(env or {})
-    t0, c0 = time.perf_counter(), time.process_time()
+    t0, c0, k0 = time.perf_counter(), time.process_time(), children_cpu_s()
     rec: dict = {"worker": worker_id(), "env": dict(env or {})}
     try:
         out = cell(params, seed)
@@ -91,7 +104,7 @@ def run_cell(cell: Callable[[dict, int], dict], params: dict, seed: int, env: di
         tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
         rec.update(status="error", metrics=None, stable=None, error=tb)
     rec["wall_s"] = time.perf_counter() - t0
-    rec["cpu_s"] = time.process_time() - c0
+    rec["cpu_s"] = time.process_time() - c0 + children_cpu_s() - k0
     return rec
 
 
@@ -115,8 +128,10 @@ def run_sweep(
     executor: Executor,
     retry_failed: bool = False,
     progress: bool = True,
+    group: str | None = None,
 ) -> SweepResult:
-    """Run the cells not finished yet in `out/cells.jsonl` on `executor`; write cells.csv."""
+    """Run the cells not finished yet in `out/cells.jsonl` on `executor`; write cells.csv. With `group`
+    (an axis name) the cells sharing its value are sent together (`grouped`)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     store = CellStore(out / "cells.jsonl")
@@ -124,7 +139,8 @@ def run_sweep(
         print(f"{out / 'cells.jsonl'}: dropped a half-written last record ({store.torn} bytes): that cell runs again")
     code, commit = code_version(), git_commit()
     keyed = [(cell_key(experiment, params, seed), params, seed) for params, seed in cells]
-    spread = coarse_to_fine([p for p, _ in cells])
+    points = [p for p, _ in cells]
+    spread = grouped(points, group) if group is not None and points and group in points[0] else coarse_to_fine(points)
     # submission order: every grid point's first seed before any second seed, coarse points first
     order = sorted(range(len(keyed)), key=lambda i: (keyed[i][2], spread[i]))
     todo = [keyed[i] for i in order if not store.finished(keyed[i][0], retry_failed)]
