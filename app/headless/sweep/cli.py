@@ -76,7 +76,14 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         with open_executor(args.cluster, args.jobs) as (executor, engine):
             print(f"sweep {exp.name}: {len(grid)} cells on {engine}", file=sys.stderr, flush=True)
             result = run_sweep(
-                exp.name, exp.cell, grid, out, executor, retry_failed=args.retry_failed, progress=not args.no_progress
+                exp.name,
+                exp.cell,
+                grid,
+                out,
+                executor,
+                retry_failed=args.retry_failed,
+                progress=not args.no_progress,
+                group=exp.group_axis,
             )
     except KeyboardInterrupt:
         print(f"sweep interrupted: finished cells are in {out / 'cells.jsonl'}; run the same command to resume")

@@ -37,6 +37,9 @@ class SweepExperiment:
     report_notes: Callable | None = None  # (axes, records, model facts) → HTML paragraph for the report
     model_facts: Callable | None = None  # () → the model's figures its maps and notes draw (kept in sweep.json)
     any_param: bool = False  # "GROUP.FIELD" sweeps any session parameter (the cell sets it by set_param)
+    group_axis: str | None = None  # cells sharing this axis's value are sent together (their process reuses work)
+    # (out dir, records, model facts, invocations) → HTML: files of its own written beside the report
+    report_files: Callable | None = None
 
     def check_combination(self, names: list[str]) -> None:
         """SweepError for knobs that cannot be swept together."""
@@ -297,6 +300,65 @@ def polish_stable_means(records: list[dict]) -> str:
     )
 
 
+# ---- the stability map: held swivel × μ × latency (app.headless.experiments.polish_map) ---------------
+LATENCY_MAX = 8  # periods per stage a latency value may name (the sensor's and the world's limits check them)
+POLISH_MAP_KNOBS = (
+    Knob(
+        "hold_swivel",
+        RUN,
+        "hold_swivel_deg",
+        "the held swivel, degrees (W_j on the start posture there, as polish's hold_swivel)",
+        check=lambda v: _held_swivel(v),
+    ),
+    Knob("mu", "contact", "mu", "Coulomb friction coefficient μ", ("μ",)),
+    Knob(
+        "latency",
+        RUN,
+        "latency",
+        "READING+DRIVE: the F/T reading's age and the drive's delay in control periods, e.g. 1+0, 1+1",
+        kind=tuple(f"{r}+{d}" for r in range(LATENCY_MAX + 1) for d in range(LATENCY_MAX + 1)),
+        check=lambda v: _latency(v),
+    ),
+)
+
+
+def _latency(text: str) -> None:
+    """Both stages inside their parameter's range (the sensor's reading age, the world's torque delay)."""
+    from app.headless.experiments.polish_map import parse_latency
+    from app.sim.sensor import SensorParams
+    from app.sim.world import WorldParams
+    from control.params import replaced
+
+    reading, drive = parse_latency(text)
+    replaced(SensorParams(), "reading_delay_steps", reading)
+    replaced(WorldParams(), "torque_delay_ms", float(drive))
+
+
+def polish_map_cell(values: dict, seed: int) -> dict:
+    """One cell of the stability map (`polish_map.run_cell`): the held posture's strokes at this μ and
+    latency from the process's settled posture; stable = the one verdict over the strokes is "stable"."""
+    from app.headless.experiments.polish_map import run_cell
+
+    m = run_cell(float(values["hold_swivel"]), float(values.get("mu", 0.25)), str(values.get("latency", "1+0")), seed)
+    metrics = _scalars(m)
+    metrics["stroke_verdicts"] = ",".join(m["stroke_verdicts"])
+    return {"metrics": metrics, "stable": bool(m["stable"])}
+
+
+def polish_map_report(out, records: list[dict], facts: dict | None, invocations: list[dict]) -> str:
+    """The map's figure, its JSON and the margin's agreement (`sweep.stability_map`)."""
+    from app.headless.sweep.stability_map import section
+
+    return section(out, records, facts, invocations)
+
+
+def polish_map_facts() -> dict:
+    """The postures the map marks (`stability_map.marked_postures`), kept in sweep.json."""
+    from app.headless.sweep.stability_map import marked_postures
+
+    return marked_postures()
+
+
 EXPERIMENTS: dict[str, SweepExperiment] = {
     "limit-drop": SweepExperiment(
         "limit-drop",
@@ -326,6 +388,17 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         overlay=polish_overlay,
         report_notes=polish_notes,
         model_facts=polish_model_facts,
+    ),
+    "polish-map": SweepExperiment(
+        "polish-map",
+        POLISH_MAP_KNOBS,
+        polish_map_cell,
+        ("stable",),
+        polish_stable_means,
+        groups=polish_groups,
+        group_axis="hold_swivel",
+        report_files=polish_map_report,
+        model_facts=polish_map_facts,
     ),
 }
 

@@ -236,6 +236,8 @@ def write_report(
     sections += [(f"Map: {m}" if len(axes) >= 2 else f"Line: {m}", _img(p)) for m, p in figures]
     if experiment.report_notes is not None:
         sections.append(("Notes", experiment.report_notes(axes, records, facts)))
+    if getattr(experiment, "report_files", None) is not None:
+        sections.append(("The map", experiment.report_files(out, records, facts, invocations)))
     if failed:
         rows = [
             [", ".join(f"{k}={_label(v)}" for k, v in r["params"].items()), r["seed"], r.get("error", "")]

@@ -1,0 +1,244 @@
+"""The stability map's cell: one held posture × friction μ × latency (F/T reading + drive), its run's
+one verdict (`app.scenarios.verdict`) beside the force-loop margin's prediction (`polish_margin`).
+
+A cell is the polish run of a held swivel (`polish.simulate` with `hold_swivel_deg`: W_j on the start
+posture at that swivel, no self-motion flow): contact, the held second, then the six strokes. What
+repeats across cells is done once per process and swivel (`settled`):
+
+- **The settled posture.** The session is built and stepped through contact and the held second
+  with the session's defaults (μ 0.25, the F/T reading one period old, no drive delay). Each cell
+  then runs in a forked copy of that process (`sweep.forked`), which sets the cell's μ and latency
+  through the parameter path (`Session.set_param`, as the page does) and runs the strokes. The copy
+  continues the full simulator and controller state (filters, integrators, delay lines, the noise
+  generator), so a cell at the defaults is bit for bit the fresh run; a cell with another μ or
+  latency differs from the fresh run only in the held second before the strokes (its latency and μ
+  take effect at the first stroke). `tests/test_polish_map.py` checks the verdicts against fresh runs.
+- **The margin's postures.** The margin is evaluated every `MARGIN_SAMPLE_S` on the strokes, as in
+  every polish run, but at the postures of one calm pass of the strokes at this swivel (μ 0.25, no
+  latency), not at the cell's own: the held posture fixes them up to the tracking error, and a cell
+  that stops early (below) still gets a prediction for all six strokes. Their Λx is computed once;
+  a cell computes σ at them with its own μ, latency, contact, sensor and gains (σ alone: the
+  headroom needs no K_f^d search).
+
+A cell stops at the first step of a stroke whose true contact force is 0: its verdict is then "lost
+contact" whatever follows (only a later divergence would have ranked higher, and the map counts both
+as not stable). Stable and oscillating cells run all six strokes and the final hold.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections import OrderedDict, deque
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from app.scenarios import polish_margin as PM
+from app.scenarios import polish_stroke as S
+from app.scenarios import verdict as V
+
+LATENCY = re.compile(r"^\s*(\d+)\s*\+\s*(\d+)\s*$")
+SETTLED_KEPT = 2  # settled swivels a process keeps (the sweep sends a swivel's cells together)
+REFERENCE_MU = 0.25  # the calm pass whose postures the margin is evaluated at
+REFERENCE_LATENCY = (0, 0)
+
+
+def parse_latency(text: str) -> tuple[int, int]:
+    """ "R+D" → (F/T reading age, drive delay) in control periods; ValueError otherwise."""
+    m = LATENCY.match(str(text))
+    if m is None:
+        raise ValueError(f"latency {text!r}: write it as READING+DRIVE in control periods, e.g. 1+0 or 2+1")
+    return int(m.group(1)), int(m.group(2))
+
+
+@dataclass
+class Settled:
+    """A held posture after contact and the held second, ready to be forked per cell."""
+
+    session: Any
+    pre_rows: list[tuple[float, float, float]]  # (segment, F/T reading z, contact force) of the last rows
+    settle_steps: int
+    taus: np.ndarray  # trajectory times of the margin's postures (s)
+    lambdas: list[np.ndarray]  # Λx at each of them
+    reference_verdict: str  # the calm pass's verdict (its postures are the margin's)
+
+
+_SETTLED: OrderedDict[tuple, Settled] = OrderedDict()
+_STATS = {"settled": 0, "reused": 0}
+
+
+def _session(swivel_deg: float, seed: int):
+    from app.core.session import Session
+    from app.scenarios.polish import PolishScenario
+
+    session = Session(PolishScenario(hold_swivel_deg=float(swivel_deg)), seed=int(seed))
+    session.environment.live_margin_every_s = math.inf  # type: ignore[attr-defined]  # a page signal only
+    return session
+
+
+def _row(rec) -> tuple[float, float, float]:
+    sig = rec.signals
+    return (float(sig["segment"]), float(rec.wrench_tcp[2]), float(sig["contact_force_n"]))
+
+
+def _set_cell(session, mu: float, reading: int, drive: int) -> None:
+    """The cell's μ and latency through the parameter path (drive periods as ms of the world's step)."""
+    dt_ms = float(session.world.model.opt.timestep) * 1e3
+    session.set_param("contact", "mu", float(mu))
+    session.set_param("sensor", "reading_delay_steps", int(reading))
+    session.set_param("world", "torque_delay_ms", float(drive) * dt_ms)
+
+
+def _strokes(session, stop_on_loss: bool, margin_postures: bool = False):
+    """Run the strokes and the final hold from a settled session: (rows, RunResult, [(τ, Λx)], whether
+    it stopped at a lost contact)."""
+    from app.headless.experiments.polish import SAFETY_CAP_S, _run_over
+
+    clock = session.environment.clock
+    start = float(clock.trajectory_start)
+    dt = float(session.world.model.opt.timestep)
+    every = max(1, round(PM.MARGIN_SAMPLE_S / dt))
+    rows: list[tuple[float, float, float]] = []
+    postures: list[tuple[float, np.ndarray]] = []
+    n = len(session.world.q)
+
+    def record(rec) -> None:
+        row = _row(rec)
+        rows.append(row)
+        if margin_postures and 1 <= row[0] <= S.N_SEGMENTS:
+            k = round((rec.t - start) / dt)
+            if k % every == 0:
+                postures.append((rec.t - start, session.model.compute(rec.q, np.zeros(n)).Lambda.copy()))
+
+    lost = [False]
+
+    def over(rec) -> bool:
+        seg, _, force = rows[-1]
+        lost[0] = stop_on_loss and 1 <= seg <= S.N_SEGMENTS and force <= 0.0
+        return lost[0] or _run_over(clock, rec.t, S.N_SEGMENTS)
+
+    result = session.run(SAFETY_CAP_S, until=over, record=record)
+    return rows, result, postures, lost[0]
+
+
+def _verdict(session, rows: list[tuple[float, float, float]], diverged: bool) -> tuple[str, list]:
+    """The one verdict over the rows (as `polish.simulate` judges a run)."""
+    arr = np.asarray(rows, dtype=float).reshape(-1, 3)
+    dt = float(session.world.model.opt.timestep)
+    judged = V.strokes(arr[:, 0], arr[:, 1], arr[:, 2], session.params()["sensor"], dt)
+    verdict = V.run_verdict(judged, diverged=diverged)
+    traj = (arr[:, 0] >= 1) & (arr[:, 0] <= S.N_SEGMENTS)
+    return (verdict if np.any(traj) or verdict != V.STABLE else "no strokes"), judged
+
+
+def _reference_pass(session) -> tuple[np.ndarray, list[np.ndarray], str]:
+    """In a forked copy: the calm pass (μ 0.25, no latency) and the Λx of its stroke postures."""
+    _set_cell(session, REFERENCE_MU, *REFERENCE_LATENCY)
+    rows, result, postures, _ = _strokes(session, stop_on_loss=False, margin_postures=True)
+    verdict, _ = _verdict(session, rows, result.stop == "diverged")
+    return np.array([t for t, _ in postures]), [lam for _, lam in postures], verdict
+
+
+def settled(swivel_deg: float, seed: int) -> tuple[Settled, bool]:
+    """The settled posture of this swivel and seed (built on first use, then kept: `SETTLED_KEPT`);
+    True when it was kept from an earlier cell."""
+    from app.headless.sweep.forked import call_forked
+
+    key = (float(swivel_deg), int(seed))
+    if key in _SETTLED:
+        _SETTLED.move_to_end(key)
+        _STATS["reused"] += 1
+        return _SETTLED[key], True
+    session = _session(swivel_deg, seed)
+    clock = session.environment.clock
+    pre: deque[tuple[float, float, float]] = deque(maxlen=round(V.PAD_S / session.world.model.opt.timestep) + 1)
+    cap = S.CONTACT_TIME_S + clock.timeout_s + 2 * session.world.model.opt.timestep
+    result = session.run(cap, until=lambda r: clock.trajectory_start is not None, record=lambda r: pre.append(_row(r)))
+    if clock.trajectory_start is None:
+        raise RuntimeError(f"the held posture at {swivel_deg:g}° did not reach the strokes ({result.stop})")
+    taus, lambdas, ref_verdict = call_forked(_reference_pass, session)
+    # what the copies would otherwise load each time (the band-pass's imports and filter design, the
+    # margin's): loaded here once, the copies inherit them
+    _verdict(session, list(pre), diverged=False)
+    margin_prediction(session, taus[:2], lambdas[:2])
+    entry = Settled(session, list(pre), result.steps, taus, lambdas, ref_verdict)
+    _SETTLED[key] = entry
+    _STATS["settled"] += 1
+    while len(_SETTLED) > SETTLED_KEPT:
+        _SETTLED.popitem(last=False)
+    return entry, False
+
+
+def margin_prediction(session, taus: np.ndarray, lambdas: list[np.ndarray]) -> dict:
+    """The stroke headroom (`polish_margin`) at the given postures with the session's own loop: per
+    stroke and its least value h_min, and the prediction h_min < 0 (the tool leaves the table)."""
+    from app.headless.experiments.polish import _finite_or_none
+
+    shaping = bool(session.params()["motion_force"].shaping)
+    gains = replace(session.executor.gains, shaping=shaping)
+    loop = PM.contact_loop(session.environment.contact, session.sensor, session.world)
+    samples = [PM.sample(lam, gains, loop, float(tau), find_kd=False) for tau, lam in zip(taus, lambdas, strict=True)]
+    floor = PM.sensor_floor_n(session.params()["sensor"], loop.dt)
+    budget = PM.headroom_budget_np(S.DESIRED_FORCE_N, floor)
+    strokes = PM.per_stroke(taus, samples, budget)
+    summary = PM.summary(strokes)
+    h = summary["headroom_min_np"]
+    statement = PM.headroom_statement(h if h is not None else math.nan)
+    return {
+        "headroom_min_np": _finite_or_none(h) if h is not None else None,
+        "rate_min_per_s": summary["rate_min_per_s"],
+        "growth_max_np": summary["growth_max_np"],
+        "margin_predicts_loss": bool(h is not None and h < 0.0),
+        "margin_sign": statement.sign,
+        "headroom_budget_np": budget,
+        "headroom_per_stroke_np": [s["headroom_min_np"] for s in strokes],
+    }
+
+
+def _cell_in_copy(entry: Settled, mu: float, reading: int, drive: int, stop_on_loss: bool) -> dict:
+    """In a forked copy of the settled process: set the cell, run the strokes, judge them."""
+    session = entry.session
+    _set_cell(session, mu, reading, drive)
+    rows, result, _, stopped = _strokes(session, stop_on_loss)
+    all_rows = entry.pre_rows + rows
+    verdict, judged = _verdict(session, all_rows, result.stop == "diverged")
+    arr = np.asarray(rows, dtype=float).reshape(-1, 3)
+    on = (arr[:, 0] >= 1) & (arr[:, 0] <= S.N_SEGMENTS)
+    dt = float(session.world.model.opt.timestep)
+    return {
+        "verdict": verdict,
+        "stable": verdict == V.STABLE,
+        "stopped_at_loss": bool(stopped),
+        "run_stop": result.stop,
+        "stroke_steps": int(result.steps),
+        "contact_lost_ms": int(np.count_nonzero(V.contact_lost(arr[on, 2]))),
+        "band_rms_max_n": max((s.band_rms_n for s in judged), default=None),
+        "oscillation_threshold_n": V.oscillation_threshold_n(session.params()["sensor"], dt),
+        "stroke_verdicts": [s.verdict for s in judged],
+        **V.band_facts(),
+        **margin_prediction(session, entry.taus, entry.lambdas),
+    }
+
+
+def run_cell(swivel_deg: float, mu: float, latency: str, seed: int = 0, stop_on_loss: bool = True) -> dict:
+    """One map cell (module docstring): its verdict, the margin's prediction and what they rest on."""
+    from app.headless.sweep.forked import call_forked, can_fork
+
+    reading, drive = parse_latency(latency)
+    if not can_fork():
+        raise RuntimeError("the stability map's cells fork the settled posture: this platform has no os.fork")
+    entry, reused = settled(swivel_deg, seed)
+    out = call_forked(_cell_in_copy, entry, float(mu), reading, drive, bool(stop_on_loss))
+    return {
+        "hold_swivel_deg": float(swivel_deg),
+        "mu": float(mu),
+        "reading_delay_steps": reading,
+        "drive_delay_steps": drive,
+        "latency_periods": reading + drive,
+        "settled_reused": bool(reused),
+        "settle_steps": entry.settle_steps,
+        "reference_verdict": entry.reference_verdict,
+        **out,
+    }
