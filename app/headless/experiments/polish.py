@@ -33,7 +33,9 @@ from app.headless.experiments.polish_rows import (
     OBJECTIVE_NAMES,
     PAPER_TABLE_III,
     ROW_KEYS,
+    TABLE_LATENCIES,
     armature_specs,
+    table_latency_specs,
     table_specs,
 )
 from app.headless.experiments.polish_runs import RUNS_DIR, _finished_runs, load_run, save_run
@@ -77,6 +79,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(runs/ in --out: each run is saved as it finishes) with the same code version",
     )
     parser.add_argument("--no-latency", action="store_true", help="skip the latency table's runs")
+    parser.add_argument(
+        "--no-table-latency",
+        action="store_true",
+        help="skip Table III at the other total latencies of one and two control periods (F/T age + torque delay "
+        "1 + 0, 0 + 1, 1 + 1)",
+    )
     parser.add_argument(
         "--rows", default=None, help=f"only these rows of the table, comma separated ({', '.join(ROW_KEYS)})"
     )
@@ -429,6 +437,41 @@ def summarise(runs: list[dict]) -> list[dict]:
     return out
 
 
+def table_latency_of(settings: list) -> tuple[int, float] | None:
+    """(F/T reading age in periods, torque delay in ms) the table's runs start with: the sensor's and the
+    world's defaults; None when --set changes either (the table then runs at that latency alone)."""
+    from app.sim.sensor import SensorParams
+    from app.sim.world import WorldParams
+
+    if any((g, f) in (("sensor", "reading_delay_steps"), ("world", "torque_delay_ms")) for g, f, _ in settings):
+        return None
+    return int(SensorParams().reading_delay_steps), float(WorldParams().torque_delay_ms)
+
+
+def table_at_latencies(table: list[dict], runs: list[dict]) -> dict:
+    """Table III at each total latency (`TABLE_LATENCIES`): per (F/T reading age, torque delay) its
+    runs' `summarise`, with the total in control periods (the torque delay over the runs' period); the
+    table's own runs of the same rows and start give the latency they ran at, the group "table_latency"
+    the others. Returns {"latencies": [...], "runs": runs}."""
+    rows = {r["row"] for r in runs}
+    own = [r for r in table if r["row"] in rows and r["shaping"] and abs(r["start_swivel_deg"]) < 1e-6]
+    order = {pair: i for i, pair in enumerate(TABLE_LATENCIES)}
+    pairs = sorted(set(map(_latency_of, own + runs)), key=lambda p: (order.get(p, len(order)), str(p)))
+    latencies = []
+    for pair in pairs:
+        at = [r for r in own + runs if _latency_of(r) == pair]
+        period_ms = 1e3 * float(at[0]["timestep_s"])
+        latencies.append(
+            {
+                "reading_delay_steps": pair[0],
+                "torque_delay_ms": pair[1],
+                "total_periods": pair[0] + pair[1] / period_ms,
+                "summary": summarise(at),
+            }
+        )
+    return {"latencies": latencies, "runs": runs}
+
+
 def _mean_sd(values: list) -> dict:
     xs = np.array([v for v in values if v is not None], dtype=float)
     if xs.size == 0:
@@ -459,6 +502,10 @@ def run(args: argparse.Namespace) -> int:
     if not getattr(args, "no_latency", False) and not getattr(args, "only_armature", False):
         specs += latency_specs(quick, only)
     settings = [list(x) for x in parse_settings(getattr(args, "set", []))]  # --set: every run, after its own
+    own = table_latency_of(settings)
+    skip = quick or getattr(args, "no_table_latency", False) or getattr(args, "only_armature", False)
+    if own is not None and not skip:
+        specs += table_latency_specs(mus, args.seeds, own, only, int(getattr(args, "first_seed", 0)))
     for spec in specs:
         spec["session_params"] = [*spec.get("session_params", ()), *settings]
     t0 = time.perf_counter()
@@ -498,6 +545,9 @@ def run(args: argparse.Namespace) -> int:
     latency_runs = [r for r in results if r["group"] == "latency"]
     if latency_runs:
         doc["latency"] = {**latency_table(latency_runs), "runs": latency_runs}
+    at_latencies = [r for r in results if r["group"] == "table_latency"]
+    if at_latencies:
+        doc["table_latency"] = table_at_latencies(table, at_latencies)
     doc["wall_s"] = time.perf_counter() - t0
     (out / "polish.json").write_text(json.dumps(doc, indent=2))
     np.savez_compressed(
@@ -510,6 +560,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=2))
     else:
         print(format_table(doc["summary"]))
+        if "table_latency" in doc:
+            print(format_table_latency(doc["table_latency"]))
         if "latency" in doc:
             print(format_latency(doc["latency"]))
         print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} in {doc['wall_s']:.0f} s")
@@ -540,6 +592,7 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
                 doc_d["runs"]
                 + [x for x in doc_d["armature"]["runs"] if x["group"] == "armature"]
                 + doc_d.get("latency", {}).get("runs", [])
+                + doc_d.get("table_latency", {}).get("runs", [])
             )
             with np.load(d / "polish_series.npz") as npz:
                 sources.append((runs_d, [_series_of(npz, r) for r in runs_d]))
@@ -595,6 +648,9 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
     latency_runs = [r for r in results if r["group"] == "latency"]
     if latency_runs:
         doc["latency"] = {**latency_table(latency_runs), "runs": latency_runs}
+    at_latencies = [r for r in results if r["group"] == "table_latency"]
+    if at_latencies:
+        doc["table_latency"] = table_at_latencies(table, at_latencies)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "polish.json").write_text(json.dumps(doc, indent=2))
@@ -605,6 +661,8 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
     write_figures(out, results, series, scan)
     write_report(out, doc)
     print(format_table(doc["summary"]))
+    if "table_latency" in doc:
+        print(format_table_latency(doc["table_latency"]))
     if "latency" in doc:
         print(format_latency(doc["latency"]))
     print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} from {len(dirs)} directories")
@@ -699,6 +757,8 @@ def _label(r: dict) -> str:
         label += f"_arm{r['armature_scale']:g}"
     if r.get("group") == "latency":
         label += f"_latency_ds{r['reading_delay_steps']}_da{r['torque_delay_ms']:g}"
+    if r.get("group") == "table_latency":
+        label += f"_table_ds{r['reading_delay_steps']}_da{r['torque_delay_ms']:g}"
     return label
 
 
@@ -795,3 +855,12 @@ def format_table(summary: list[dict]) -> str:
             f"{e['converged']}/{e['n']} {e['stable']}/{e['n']}"
         )
     return "\n".join(lines)
+
+
+def format_table_latency(at: dict) -> str:
+    """Table III at each total latency (`table_at_latencies`) as text, one `format_table` per latency."""
+    return "\n".join(
+        f"Table III at F/T {x['reading_delay_steps']} + τ {x['torque_delay_ms']:g} ms ({x['total_periods']:g} "
+        f"period(s)):\n" + format_table(x["summary"])
+        for x in at["latencies"]
+    )

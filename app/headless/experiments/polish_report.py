@@ -715,6 +715,67 @@ def table_iii_html(summary: list[dict]) -> str:
     return f"<table>{head}{body}</table>"
 
 
+def _latency_name(e: dict) -> str:
+    """A latency of Table III in words: "F/T 1 + τ 0 ms (1 period)"."""
+    total = e["total_periods"]
+    return (
+        f"F/T {e['reading_delay_steps']} + τ {e['torque_delay_ms']:g} ms ({total:g} period{'' if total == 1 else 's'})"
+    )
+
+
+def table_iii_latency_html(doc: dict) -> str:
+    """Table III's rows at each total latency the run made them at (`polish.table_at_latencies`): per case
+    and μ, MA / PTP / STD (mean ± sd over the seeds) and how many seeds are stable by the one verdict, with
+    the contact lost; then, per latency, the cases stable in every seed ("" without such runs)."""
+    lat = doc.get("table_latency")
+    if not lat or not lat.get("latencies"):
+        return ""
+    latencies = lat["latencies"]
+    cases = list(dict.fromkeys((e["row"], float(e["mu"])) for x in latencies for e in x["summary"]))
+    by = {(i, e["row"], float(e["mu"])): e for i, x in enumerate(latencies) for e in x["summary"]}
+    head = (
+        "<tr><th rowspan='2'>case</th><th rowspan='2'>μ</th>"
+        + "".join(f"<th colspan='4'>{html.escape(_latency_name(x))}</th>" for x in latencies)
+        + "</tr><tr>"
+        + "<th>MA</th><th>PTP</th><th>STD</th><th>stable</th>" * len(latencies)
+        + "</tr>"
+    )
+
+    def cells(e: dict | None) -> str:
+        if e is None:
+            return "<td>-</td>" * 4
+        lost = e["contact_lost_ms"]
+        lost_text = f", {_pm(lost, 0)} ms lost" if lost.get("mean") else ""
+        stable = f"{e['stable']}/{e['n']}{lost_text}"
+        out = "".join(f"<td>{_pm(e[k])}</td>" for k in ("ma", "ptp", "std"))
+        return out + (f"<td>{stable}</td>" if e["stable"] == e["n"] else f"<td><b>{stable}</b></td>")
+
+    body = "".join(
+        f"<tr><th>{html.escape(row)}</th><td>{mu:g}</td>"
+        + "".join(cells(by.get((i, row, mu))) for i in range(len(latencies)))
+        + "</tr>"
+        for row, mu in cases
+    )
+    items = []
+    for x in latencies:
+        calm = [f"{e['row']} at μ = {e['mu']:g}" for e in x["summary"] if e["stable"] == e["n"]]
+        items.append(
+            f"<li>{html.escape(_latency_name(x))}: stable in every seed: "
+            + (html.escape(", ".join(calm)) if calm else "none")
+            + ".</li>"
+        )
+    seeds = sorted({r["seed"] for r in lat.get("runs", [])})
+    return f"""<h2>Table III at total latencies of one and two control periods</h2>
+<p>The paper's four cases again with the loop's latency changed: the F/T reading's age in control periods
+plus the torque delay in ms, in all one or two of the runs' control periods; the table above is one of them;
+seed(s) {", ".join(str(x) for x in seeds)}. Force error MA / PTP / STD in N (mean ± sd over the seeds);
+"stable": the seeds stable by the one verdict (bold where some are not), with the contact lost over the six
+segments. {html.escape(_verdict_text(_runs_criterion(doc)))}</p>
+<table>{head}{body}</table>
+<ul>{"".join(items)}</ul>
+"""
+
+
 def write_report(out: Path, doc: dict) -> None:
     """report.html: Table III (mean ± sd) beside the paper's, the computed findings, figures."""
     s = doc["settings"]
@@ -774,6 +835,7 @@ nullspace speed stayed below {s["settle"]["speed_tol_rad_s"]:g} rad/s and W chan
 {"".join(rows)}</table>
 <p>W, P_f·f̂ (m/s² per N) and P_d·f̂ (N per N) at the trajectory start, f̂ the unit friction direction of a
 stretching (S2) and a retracting (S1) segment. {html.escape(start_margin_text(doc))}</p>
+{table_iii_latency_html(doc)}
 {stroke_margin_html(doc)}
 <h2>Findings (computed from this run)</h2>
 <ul>{findings}</ul>
@@ -837,7 +899,12 @@ def run_files_html(out: Path, doc: dict | None = None) -> str:
     lines = []
     mine = None
     if doc is not None:
-        every = doc["runs"] + doc.get("armature", {}).get("runs", []) + doc.get("latency", {}).get("runs", [])
+        every = (
+            doc["runs"]
+            + doc.get("armature", {}).get("runs", [])
+            + doc.get("latency", {}).get("runs", [])
+            + doc.get("table_latency", {}).get("runs", [])
+        )
         mine = {(r["row"], r["seed"], r.get("wall_s")) for r in every}
     for meta in sorted(runs.glob("*.json")) if runs.is_dir() else []:
         if meta.name.endswith(".tmp.json"):

@@ -29,6 +29,11 @@ ROWS: dict[str, dict[str, Any]] = {
     "planned": {"row": OBJECTIVE_NAMES["planned"], "objective": "planned"},
 }
 ROW_KEYS = tuple(ROWS)
+# [T] Table III again at total latencies of one and two control periods: (F/T reading age in periods,
+# torque delay in ms), the 1 ms torque delay being one period of the 1 kHz loop. The table's own runs
+# are one of them (the defaults: 1 + 0); the others are the group "table_latency".
+TABLE_LATENCIES = ((1, 0.0), (0, 1.0), (1, 1.0))
+TABLE_LATENCY_KEYS = ("j", "f", "a", "d")
 
 
 def table_specs(
@@ -49,6 +54,28 @@ def table_specs(
     base = {"sander": bool(sander), "start_swivel_deg": 0.0, "shaping": True, "armature_scale": 1.0, "group": "table"}
     seeds_used = range(first_seed, first_seed + n_seeds)
     return [{**base, **row, "mu": mu, "seed": s} for row in rows for mu in mus for s in seeds_used]
+
+
+def table_latency_specs(
+    mus: list[float],
+    seeds: int,
+    own: tuple[int, float],
+    only: list[str] | None = None,
+    first_seed: int = 0,
+) -> list[dict]:
+    """Table III's four paper rows (W_j, W_f, W_a, W_d; `only` keeps those among its keys) at each latency
+    of `TABLE_LATENCIES` but `own`, the latency the table's runs have: (row, μ, seed) as `table_specs`,
+    each with its F/T reading age and torque delay, in the group "table_latency"."""
+    keys = [k for k in TABLE_LATENCY_KEYS if not only or k in only]
+    base = {"sander": False, "start_swivel_deg": 0.0, "shaping": True, "armature_scale": 1.0, "group": "table_latency"}
+    return [
+        {**base, **ROWS[k], "mu": mu, "seed": s, "reading_delay_steps": d, "torque_delay_ms": ms}
+        for d, ms in TABLE_LATENCIES
+        if (d, ms) != (int(own[0]), float(own[1]))
+        for k in keys
+        for mu in mus
+        for s in range(first_seed, first_seed + max(1, int(seeds)))
+    ]
 
 
 def armature_specs(mu: float = 1.0) -> list[dict]:
