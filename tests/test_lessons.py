@@ -237,6 +237,27 @@ def test_the_posture_lesson_shows_the_coupled_posture_shaking_on_the_stretching_
         check_outcomes(claims[key], memo[key])
 
 
+def test_the_posture_lesson_shows_the_decoupled_posture_within_one_period_and_not_two():
+    """The posture lesson's third step: W_a at μ = 1 with 1 ms of torque delay on the F/T reading's one
+    period (two periods in all). Its stretching strokes swing at more than twice the STD of W_a's at one
+    period and at least one is not stable by the one verdict, while every stroke of W_a at one period is;
+    the claim names both delays and quotes this run's STDs, verdicts and the ratio to W_a's."""
+    claims, memo = run_lesson("posture")
+    wa, wa2 = memo["wa"], memo["wa2"]
+    assert wa["reading_delay"] == 1 and wa["torque_delay_ms"] == 0.0
+    assert wa2["reading_delay"] == 1 and wa2["torque_delay_ms"] == 1.0
+    assert "(F/T reading 1 period(s) late, torque 1 ms late)" in claims["wa2"]
+    assert "torque" not in claims["wa"].split(":", 1)[0]  # one period: no torque delay named
+    assert "/".join(f"{wa2[f'std_S{k}']:.1f}" for k in (2, 4, 6)) in claims["wa2"]
+    assert stretching_mean(wa2) > 2.0 * stretching_mean(wa)
+    assert f"{stretching_mean(wa2) / stretching_mean(wa):.2f}×" in claims["wa2"]
+    assert all(verdict_of(wa, k) == "stable" for k in range(1, 7))
+    assert any(verdict_of(wa2, k) != "stable" for k in (2, 4, 6))
+    for k in range(1, 7):
+        assert f"S{k} {verdict_of(wa2, k)} ({wa2[f'band_S{k}']:.2f} N)" in claims["wa2"]
+    check_outcomes(claims["wa2"], wa2)
+
+
 def after_the_strokes(claim: str) -> dict[int, str]:
     """What a polish claim says happened on each stroke against the margin's prediction ("After the
     strokes: S1, S5: came true: …; S2: …"), by stroke."""

@@ -29,10 +29,14 @@ PUSH_DONE_S = 4.0  # the compliance preset's two pushes are over (compliance.DUR
 LESSON_DELAY_MS = 5.0  # the torque delay of the dampers lesson (a real arm's motor driver and bus)
 HIGH_LAMBDA = 500.0
 FRICTION_MU = 1.0
+SECOND_PERIOD_MS = 1.0  # the posture lesson's second window: one period of torque delay on the F/T reading's one
 
 
-def polish_setup(objective: str, delay: str = "default") -> Callable[[Lab | None], list[Command]]:
-    """Polish from its defaults, μ = 1, the objective, the F/T delay (default / zero), Settle now."""
+def polish_setup(
+    objective: str, delay: str = "default", torque_delay_ms: float | None = None
+) -> Callable[[Lab | None], list[Command]]:
+    """Polish from its defaults, μ = 1, the objective, the F/T delay (default / zero), the torque delay
+    (None: its default), Settle now."""
 
     def setup(lab: Lab | None) -> list[Command]:
         cmds: list[Command] = [
@@ -44,6 +48,8 @@ def polish_setup(objective: str, delay: str = "default") -> Callable[[Lab | None
         found = delay_field()
         if delay == "zero" and found is not None:
             cmds.append(SetParam(found[0], found[1], 0))
+        if torque_delay_ms is not None:
+            cmds.append(SetParam("world", "torque_delay_ms", torque_delay_ms))
         cmds.append(SettleNow())
         return cmds
 
@@ -109,6 +115,16 @@ LESSONS: tuple[Lesson, ...] = (
                 polish_setup("a"),
                 polish_done,
                 compare_strokes("W_a, μ = 1", "wj", "W_j"),
+            ),
+            Step(
+                "wa2",
+                "W_a with one more period of latency",
+                "W_a again, with the torque reaching the joints 1 ms (one control period) late on top of the F/T "
+                "reading's one period: two periods in all, as a drive that latches each command on its next bus "
+                "cycle would add. Neither paper states its loop's delays. Compare the stretching strokes with W_a's.",
+                polish_setup("a", torque_delay_ms=SECOND_PERIOD_MS),
+                polish_done,
+                compare_strokes("W_a, μ = 1", "wa", "W_a at one period"),
             ),
         ),
     ),

@@ -77,6 +77,9 @@ def measure(lab: Lab) -> Obs:
         found = delay_field()
         if found is not None and found[0] in s.params():
             out["reading_delay"] = float(getattr(s.params()[found[0]], found[1]))
+        world = s.params().get("world")
+        if world is not None:
+            out["torque_delay_ms"] = float(getattr(world, "torque_delay_ms", math.nan))
     n = s.robot.nq
     for j in range(n):
         q = c[f"q_{j + 1}"]
@@ -172,7 +175,7 @@ def strokes_claim(label: str) -> Callable[[Obs, Memo], str]:
         forward, back = s
         ratio = o["std_S4"] / o["std_S3"] if o["std_S3"] > 0 else math.inf
         delay = (
-            f" (F/T reading {o['reading_delay']:g} period(s) late)"
+            f" (F/T reading {o['reading_delay']:g} period(s) late{_torque_delay_words(o)})"
             if "reading_delay" in o
             else " (this build has no F/T reading delay to set)"
         )
@@ -184,6 +187,12 @@ def strokes_claim(label: str) -> Callable[[Obs, Memo], str]:
         )
 
     return claim
+
+
+def _torque_delay_words(o: Obs) -> str:
+    """ ", torque 1 ms late" when the run had a torque delay ("" without one)."""
+    delay = o.get("torque_delay_ms", 0.0)
+    return f", torque {delay:g} ms late" if delay > 0 else ""
 
 
 def _verdict_of(o: Obs, k: int) -> str | None:

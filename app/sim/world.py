@@ -72,7 +72,7 @@ class WorldParams(ParamGroup):
         help="actuation delay: the joints get each torque this late (rounded to whole 1 ms steps). "
         "Default 0: the one period a sampled loop needs end to end sits on the F/T reading "
         "(sensor.reading_delay_steps); a drive that latches its command on the next bus cycle adds "
-        "1 ms here; a few ms make a high λ ring",
+        "1 ms here, and neither paper states its command path's delay; a few ms make a high λ ring",
     )
     armature_scale: float = param(
         1.0,
