@@ -21,6 +21,7 @@ from packaging.version import Version
 from app.live.ui.viser_seam import (
     VISER_RANGE,
     GuiUpdateMessage,
+    connection_state,
     gui_update_handlers,
     input_by_uuid,
     input_state,
@@ -201,3 +202,21 @@ def test_the_per_connection_receive_loop_guard_frames_replaces_is_viser_s_and_ta
     assert list(inspect.signature(original).parameters) == ["websocket", "handle_message", "message_class"]
     assert "_message_consumer(" in inspect.getsource(_infra.WebsockServer._background_worker)
     assert _infra._message_consumer in (original, viser_seam._guarded_consumer)
+
+
+def test_connection_state_counts_what_viser_keeps_for_an_open_page_and_nothing_after_it_closed(server):
+    """`connection_state` reads viser's client table, per-connection states, live websockets and broadcast
+    cursors: all 0 on an idle server, 1 each while one page is open (after its camera), 0 after it closed."""
+    from websockets.sync.client import connect
+
+    from tests.conftest import camera_message, wait_until
+
+    keys = {"clients", "client_states", "live_connections", "broadcast_cursors"}
+    assert connection_state(server) == dict.fromkeys(keys, 0)
+    ws = connect(f"ws://127.0.0.1:{server.get_port()}", subprotocols=[f"viser-v{viser.__version__}"], open_timeout=10)
+    try:
+        ws.send(camera_message())
+        assert wait_until(lambda: connection_state(server) == dict.fromkeys(keys, 1)), connection_state(server)
+    finally:
+        ws.close()
+    assert wait_until(lambda: connection_state(server) == dict.fromkeys(keys, 0)), connection_state(server)

@@ -226,6 +226,8 @@ class SimLoop:
         """Queue a command; the loop applies it between two steps (thread-safe, never blocks)."""
         if isinstance(cmd, DragCommand) and cmd.kind in ("grab", "move"):
             self._drag_seen[cmd.client_id] = self._clock()
+        elif isinstance(cmd, DragCommand) and cmd.kind == "release":
+            self._drag_seen.pop(cmd.client_id, None)  # a page that let go (or left) is watched no more
         self._queue.put(cmd)
         self._wake.set()
 

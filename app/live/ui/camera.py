@@ -256,8 +256,10 @@ class Framer:
 
 def frame_on_connect(framer: Framer, points_of: Callable[[], np.ndarray | None]) -> set[int]:
     """Frame each page's camera once, as soon as it reports its view size (`points_of()` gives the newest
-    scene's points); returns the set of client ids framed so far (it fills as pages connect)."""
+    scene's points); returns the set of the open pages' client ids framed so far (a page leaves it as it
+    disconnects)."""
     framed: set[int] = set()
+    framer.server.on_client_disconnect(lambda client: framed.discard(client.client_id))
 
     @framer.server.on_client_connect
     def _(client: viser.ClientHandle) -> None:

@@ -93,7 +93,8 @@ class GuiUpdateGuard:
         self.server = server
         self.budget = budget if budget is not None else ErrorBudget()
         self.refused = 0  # updates refused
-        self.notified: Counter[int] = Counter()  # notices sent, per client id
+        self.notified: Counter[int] = Counter()  # notices sent, per open page's client id
+        server.on_client_disconnect(lambda client: self.notified.pop(client.client_id, None))
         handlers = gui_update_handlers(server)
         self._inner: list[Callable[..., Any]] = list(handlers)
         handlers[:] = [self.handle]

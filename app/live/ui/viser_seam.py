@@ -20,7 +20,9 @@ need more, and each reaches past that surface only through the functions here:
   message a page sends, server-wide and per connection (`wrap_dispatch`), and a message queued to
   one connection (`queue_to_connection`), and a connection closed by the server (`close_connection`);
 - the classroom lobby: the page viser serves (`client_page_bytes`); headless clients: the first
-  message a browser sends (`camera_message`).
+  message a browser sends (`camera_message`);
+- what viser keeps per connection (`connection_state`): the counts the fault suite holds at zero
+  once every page has gone.
 
 `VISER_RANGE` is the version range pinned in `pyproject.toml` (`tests/test_viser_seam.py` holds the
 two equal and the installed viser inside it). The same tests check each attribute, message field
@@ -217,3 +219,16 @@ def camera_message() -> bytes:
             "up_direction": [0.0, 0.0, 1.0],
         }
     )
+
+
+def connection_state(server: viser.ViserServer) -> dict[str, int]:
+    """What viser keeps per open connection, counted: its pages ("clients", those that sent their camera),
+    each connection's state and message buffer ("client_states"), its websocket ("live_connections")
+    and its cursor in the broadcast buffer ("broadcast_cursors"). All zero once every connection closed."""
+    websock = server._websock_server
+    return {
+        "clients": len(server._connected_clients),
+        "client_states": len(websock._client_state_from_id),
+        "live_connections": len(websock._live_connections),
+        "broadcast_cursors": len(websock._broadcast_buffer.generator_cursors),
+    }
