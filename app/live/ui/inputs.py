@@ -94,10 +94,14 @@ class GuiUpdateGuard:
         self.budget = budget if budget is not None else ErrorBudget()
         self.refused = 0  # updates refused
         self.notified: Counter[int] = Counter()  # notices sent, per open page's client id
-        server.on_client_disconnect(lambda client: self.notified.pop(client.client_id, None))
+        server.on_client_disconnect(self._forget)
         handlers = gui_update_handlers(server)
         self._inner: list[Callable[..., Any]] = list(handlers)
         handlers[:] = [self.handle]
+
+    def _forget(self, client: viser.ClientHandle) -> None:
+        """A page that left: its notice count goes with it."""
+        self.notified.pop(client.client_id, None)
 
     async def handle(self, client_id: int, message: GuiUpdateMessage) -> None:
         """Check one update; pass it to viser's handlers, or refuse it with a notice to its sender."""
