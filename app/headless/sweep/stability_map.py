@@ -90,12 +90,14 @@ def marked_postures() -> dict:
     """Where each objective's posture lies on the loop at the polish start pose (the model's figures,
     not the runs'): W_j holds the start, W_a and W_d end where their flow from it ends, and the two
     planned paths' swivel spans over the strokes; plus the swivels outside the joint limits."""
+    import robots
     from app.headless.experiments.polish_report import scan_at_start
     from app.headless.sweep.overlays import planned_swivels, wa_basins
     from app.scenarios.polish import PolishScenario
 
     summary = scan_at_start()["summary"]
     facts: dict = {
+        "robot": robots.load(robots.chosen("rizon4s")).name,
         "W_j_deg": float(PolishScenario().start_swivel_deg),
         "W_a_deg": float(summary["W_a"]["flow_from_start_deg"]),
         "W_a_minima_deg": [float(d) for d in wa_basins()["minima"]],  # the flow's ends from either side of the ridge
@@ -116,6 +118,7 @@ def write_json(path: Path, records: list[dict], facts: dict | None, run: dict | 
     ok = _ok(records)
     doc = {
         "format": FORMAT,
+        "robot": (facts or {}).get("robot"),
         "latency_unit": "control periods (1 ms): F/T reading age + drive delay",
         "tolerated_means": "the largest total latency L such that every cell of total latency <= L is stable by "
         "the one verdict; -1: unstable without latency; null: a total below it has no finished cell",

@@ -22,6 +22,7 @@ import numpy as np
 import pinocchio as pin
 import viser
 
+from app.live.ui import latency_map
 from app.live.ui.scene import add_ghost_arm, hide_ghost_arm, link_meshes, pose_ghost_arm
 from app.live.ui.selfmotion_worker import SCAN_NICENESS, Preview, scan_in_worker, scan_preview
 from app.live.workers import Worker, WorkerLost
@@ -71,6 +72,14 @@ def _units_of(frame: Any) -> np.ndarray | None:
     return task_scale(ns.unit_length_m, ns.unit_mass_kg)
 
 
+def _mu_of(frame: Any) -> float | None:
+    """The friction μ of the frame's contact group (a scenario with a table), or None."""
+    settings = getattr(frame, "settings", None)
+    contact = getattr(settings, "groups", {}).get("contact") if settings is not None else None
+    mu = getattr(contact, "mu", None)
+    return float(mu) if isinstance(mu, int | float) and np.isfinite(mu) else None
+
+
 def preview_objective(choice: str, controller_objective: str | None) -> str:
     """The objective letter a dropdown choice stands for (W_a when the controller's is W_j or none)."""
     if choice == AS_CONTROLLER:
@@ -110,7 +119,7 @@ class SelfMotionPreview:
             self.ghost_at: Any = gui.add_dropdown("Ghost arm", GHOST_CHOICES, initial_value=GHOST_CHOICES[0])
             self.text = gui.add_markdown("")
             self.plot = gui.add_uplot(
-                tuple(np.zeros(2) for _ in range(7)),
+                tuple(np.zeros(2) for _ in range(7 + len(latency_map.LEVELS))),
                 (
                     {"label": "swivel (°, 0 = elbow up)"},
                     _line("W inside the limits", "#1f77b4", 2.0),
@@ -119,6 +128,10 @@ class SelfMotionPreview:
                     _marker("flow settles", "#6e82ff"),
                     _marker("best", "#2ca02c"),
                     _marker("plan", "#ff7f0e"),
+                    *(
+                        _line(latency_map.level_label(level), colour, 5.0)
+                        for level, colour in zip(latency_map.LEVELS, latency_map.LEVEL_COLOURS, strict=True)
+                    ),
                 ),
                 title="W along the self-motion loop",
                 scales={"x": {"time": False, "auto": False, "range": (-180.0, 180.0)}, "y": {"distr": 3}},
@@ -126,6 +139,12 @@ class SelfMotionPreview:
                 aspect=1.6,
             )
         self.latest: Preview | None = None
+        # the stability map's tolerated latency (`latency_map`), read once; the loop is coloured with it at
+        # the session's μ while the arm is the map's
+        self.latency_map = latency_map.load()
+        self.tolerated: np.ndarray | None = None  # per plotted swivel, the latency the last plot coloured
+        self._mu: float | None = None
+        self._robot_name: str | None = None
         self.scans = 0
         self._input: tuple[Any, np.ndarray, Subspaces, str | None] | None = None
         self._scale: np.ndarray | None = None  # the controller's units of W (`control.coupling.task_scale`)
@@ -165,6 +184,8 @@ class SelfMotionPreview:
         with self._lock:
             self._input = (frame.robot, np.array(q, dtype=float), scene.subspaces, scene.objective)
             self._scale = _units_of(frame)
+            self._mu = _mu_of(frame)
+            self._robot_name = getattr(frame.robot, "name", None)
         if self._planned_q is not None and self._on_plan():
             self._show_ghost(frame.robot, self._planned_q)  # follows the plan at the panels' rate
 
@@ -280,11 +301,27 @@ class SelfMotionPreview:
             if index is not None:
                 m[rank[index]] = p.W[index]
             marks.append(m)
-        self.plot.data = (x, inside, outside, *marks)
+        tolerated = self._tolerated(x)
+        self.tolerated = tolerated
+        self.plot.data = (x, inside, outside, *marks, *latency_map.level_series(inside, tolerated))
         self.plot.title = f"{p.name} along the self-motion loop"
         text = p.summary()
+        if np.any(np.isfinite(tolerated)):
+            text += (
+                f"\n\nColoured by the latency each swivel tolerates at μ = {self._mu:g} in the stability map "
+                "(held postures at the polish start, reading + drive periods: docs/map.md)."
+            )
         if self.text.content != text:
             self.text.content = text
+
+    def _tolerated(self, swivel_deg: np.ndarray) -> np.ndarray:
+        """The map's tolerated latency at each swivel at the session's μ (NaN: no map, no μ, another arm)."""
+        with self._lock:
+            mu, name = self._mu, self._robot_name
+        m = self.latency_map
+        if m is None or mu is None or (m.robot is not None and name != m.robot):
+            return np.full(np.shape(swivel_deg), np.nan)
+        return m.at(mu, swivel_deg)
 
     def _near_the_arm(self, q: np.ndarray) -> bool:
         """True while the ghost's posture is within GHOST_HIDE_RAD of the arm's on every joint (it would
