@@ -86,6 +86,25 @@ def agreement(records: list[dict]) -> dict:
     }
 
 
+def tolerance_rows(records: list[dict]) -> list[dict]:
+    """Per μ: the swivels mapped, how many are stable without latency, the most latency any tolerates
+    and where (the report's table)."""
+    rows = []
+    for mu, row in tolerance(records).items():
+        vals = [v for v in row.values() if v is not None]
+        most = max(vals) if vals else None
+        rows.append(
+            {
+                "mu": mu,
+                "swivels": len(row),
+                "stable_at_0": sum(v >= 0 for v in vals),
+                "most": most,
+                "at": ", ".join(f"{s:+.0f}°" for s, v in row.items() if most is not None and v == most),
+            }
+        )
+    return rows
+
+
 def marked_postures() -> dict:
     """Where each objective's posture lies on the loop at the polish start pose (the model's figures,
     not the runs'): W_j holds the start, W_a and W_d end where their flow from it ends, and the two
@@ -166,7 +185,8 @@ def figure(path: Path, records: list[dict], facts: dict | None) -> None:
     nrow = math.ceil(len(mus) / ncol)
     width = min(4.0 + 0.17 * len(swivels), 10.0)
     fig, axes = plt.subplots(nrow, ncol, figsize=(width * ncol, (1.4 + 0.32 * len(lats)) * nrow), squeeze=False)
-    step = float(np.median(np.diff(swivels))) if len(swivels) > 1 else 10.0
+    # the cells' width: the grid's spacing (≤ 10°, also while only some swivels are finished)
+    step = min(float(np.min(np.diff(swivels))), 10.0) if len(swivels) > 1 else 10.0
     facts = facts or {}
     for k, mu in enumerate(mus):
         ax = axes[k // ncol][k % ncol]
@@ -190,7 +210,8 @@ def figure(path: Path, records: list[dict], facts: dict | None) -> None:
         for p in facts.get("plans", {}).values():  # a plan that keeps one swivel: a band of 3° around it
             lo, hi = min(p["lo_deg"], p["hi_deg"] - 1.5), max(p["hi_deg"], p["lo_deg"] + 1.5)
             ax.axvspan(lo, hi, facecolor="none", edgecolor="#6a1b9a", hatch="////", lw=0.8)
-        ax.set_xlim(swivels[0] - step / 2, swivels[-1] + step / 2)
+        ax.set_xlim(-180.0, 180.0)
+        ax.set_xticks(range(-180, 181, 60))
         ax.set_ylim(-0.5, len(lats) - 0.5)
         ax.set_yticks(range(len(lats)), [f"{lat} ({sum(latency_parts(lat))})" for lat in lats], fontsize=7)
         ax.set_xlabel("held swivel (°)", fontsize=8)
@@ -210,7 +231,7 @@ def figure(path: Path, records: list[dict], facts: dict | None) -> None:
         Patch(facecolor="none", edgecolor="#6a1b9a", hatch="////", label="planned paths"),
         Patch(color="0.6", alpha=0.35, label="outside the joint limits"),
     ]
-    fig.legend(handles=handles, loc="lower center", ncol=5, fontsize=7, frameon=False, bbox_to_anchor=(0.5, -0.12))
+    fig.legend(handles=handles, loc="upper center", ncol=5, fontsize=7, frameon=False, bbox_to_anchor=(0.5, 0.0))
     fig.suptitle("Stability map: the one verdict per cell, the margin's prediction as dots", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110, bbox_inches="tight")
@@ -229,13 +250,21 @@ def section(out: Path, records: list[dict], facts: dict | None, invocations: lis
     a = agreement(records)
     wall = sum(float(i.get("wall_s", 0.0)) for i in invocations)
     cpu = [float(r.get("cpu_s") or 0.0) for r in ok]
+    rows = tolerance_rows(records)
     figure(png, records, facts)
-    run = {"agreement": a, "wall_s": wall, "cpu_s_mean": float(np.mean(cpu)), "cpu_s_max": max(cpu)}
+    run = {
+        "agreement": a,
+        "wall_s": wall,
+        "invocations": len(invocations),
+        "cpu_s_mean": float(np.mean(cpu)),
+        "cpu_s_max": max(cpu),
+        "tolerance_by_mu": rows,
+    }
     write_json(js, records, facts, run)
     text = (
         f"<p>{len(ok)} cells finished in {wall:.1f} s of wall time over {len(invocations)} invocation(s); "
-        f"CPU per cell {np.mean(cpu):.2f} s on average (max {max(cpu):.2f} s), counting the forked copy each "
-        f"cell runs in. {a['stopped_at_loss']} cells stopped at their first lost contact.</p>"
+        f"CPU per cell {run['cpu_s_mean']:.2f} s on average (max {run['cpu_s_max']:.2f} s), counting the forked "
+        f"copy each cell runs in. {a['stopped_at_loss']} cells stopped at their first lost contact.</p>"
         f"<p>Verdicts: {a['cells'] - a['unstable']} stable, {a['oscillating']} oscillating, {a['lost']} lost "
         f"contact or diverged. The margin (stroke headroom h_min at the calm pass's postures) predicts contact "
         f"loss in {a['predicted_loss']} cells. Its sign agrees with the verdict (stable or not) in "
@@ -247,27 +276,19 @@ def section(out: Path, records: list[dict], facts: dict | None, invocations: lis
     facts = facts or {}
     marks = [f"W_j {facts['W_j_deg']:+.0f}°"] if facts.get("W_j_deg") is not None else []
     marks += [f"{n} {facts[k]:+.0f}°" for n, k in (("W_a", "W_a_deg"), ("W_d", "W_d_deg")) if facts.get(k) is not None]
-    marks += [
-        f"W_a's other basin {d:+.0f}°"
-        for d in facts.get("W_a_minima_deg", [])
-        if abs(d - float(facts.get("W_a_deg") or 1e9)) > 1.0
-    ]
+    others = [d for d in facts.get("W_a_minima_deg", []) if abs(d - float(facts.get("W_a_deg") or 1e9)) > 1.0]
+    if others:
+        marks.append("W_a's other minima " + ", ".join(f"{d:+.0f}°" for d in others))
     marks += [f"planned ({c}) {p['lo_deg']:+.0f}°…{p['hi_deg']:+.0f}°" for c, p in facts.get("plans", {}).items()]
     if marks:
         text += "<p>Marked on the swivel axis (the model's loop at the start pose): " + ", ".join(marks) + ".</p>"
-    rows = []
-    for mu, row in tolerance(records).items():
-        vals = [v for v in row.values() if v is not None]
-        rows.append(
-            [
-                f"{mu:g}",
-                len(row),
-                sum(v >= 0 for v in vals),
-                max(vals) if vals else "-",
-                ", ".join(f"{s:+.0f}°" for s, v in row.items() if vals and v == max(vals)),
-            ]
-        )
-    text += _table(["μ", "swivels", "stable without latency", "most latency tolerated (periods)", "at swivels"], rows)
+    text += _table(
+        ["μ", "swivels", "stable without latency", "most latency tolerated (periods)", "at swivels"],
+        [
+            [f"{r['mu']:g}", r["swivels"], r["stable_at_0"], r["most"] if r["most"] is not None else "-", r["at"]]
+            for r in rows
+        ],
+    )
     text += _img(png)
     text += f"<p>Tolerated latency per μ and swivel, and every cell: {html.escape(str(js))}.</p>"
     return text
