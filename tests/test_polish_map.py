@@ -67,6 +67,15 @@ def test_the_sweep_refuses_a_latency_beyond_the_stages_limits():
         build_axes(exp.knobs, [("latency", ["1+x"])], exp.groups)
 
 
+def test_the_map_refuses_a_dask_cluster_before_running_anything(tmp_path, capsys):
+    from app.cli import main
+
+    out = tmp_path / "m"
+    assert main(["sweep", "polish-map", "--grid", "hold_swivel=0", "--cluster", "local", "--out", str(out)]) == 2
+    assert "local pool" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def _rec(swivel, mu, latency, verdict, h):
     return {
         "status": "ok",

@@ -64,6 +64,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         raise SweepError(f"--jobs must be at least 1, got {args.jobs}")
     check_cluster(args.cluster)
+    if args.cluster is not None and exp.local_only:
+        raise SweepError(f"{exp.name}'s cells fork their worker process: it runs on the local pool (--jobs)")
     out = Path(args.out)
     grid = cells(axes, args.seeds)
     meta_path = out / "sweep.json"

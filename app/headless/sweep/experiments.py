@@ -40,6 +40,7 @@ class SweepExperiment:
     group_axis: str | None = None  # cells sharing this axis's value are sent together (their process reuses work)
     # (out dir, records, model facts, invocations) → HTML: files of its own written beside the report
     report_files: Callable | None = None
+    local_only: bool = False  # its cells fork their worker process: the local pool only, no Dask cluster
 
     def check_combination(self, names: list[str]) -> None:
         """SweepError for knobs that cannot be swept together."""
@@ -398,6 +399,7 @@ EXPERIMENTS: dict[str, SweepExperiment] = {
         groups=polish_groups,
         group_axis="hold_swivel",
         report_files=polish_map_report,
+        local_only=True,
         model_facts=polish_map_facts,
     ),
 }
