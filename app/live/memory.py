@@ -7,6 +7,14 @@ to a full pass waits up to minutes for one. What is freed, glibc keeps in its ar
 switch the loop asks for a trim (`trim_heap_soon`) in a short thread of its own (ctypes releases the
 GIL; the loop thread never waits for it). `heap_mb` reads glibc's heap for `bench --soak`.
 Elsewhere than glibc the trim and the heap reading do nothing.
+
+glibc serves a block above its mmap threshold with a mapping of its own, returned when the block is
+freed, but raises the threshold to the size of each such block freed (up to 32 MB): after the first
+switch freed a step log (~30 MB), every later large block (step logs, scene meshes, the frames viser
+serializes for each page) came from the arenas, and what was freed there stayed resident
+(`bench --soak 4 --pages 2 --junk`: 516 MB of RSS with 55-68 MB free in the arenas at the end, against
+431 MB and 8-9 MB with the threshold fixed). `fix_mmap_threshold` fixes it at MMAP_THRESHOLD_BYTES
+(glibc's initial value) before the app allocates its large blocks.
 """
 
 from __future__ import annotations
@@ -32,6 +40,22 @@ def _libc() -> Any:
     except (OSError, AttributeError):
         return None
     return lib
+
+
+MMAP_THRESHOLD_BYTES = 128 * 1024  # blocks from this size up get a mapping of their own
+_M_MMAP_THRESHOLD = -3  # mallopt's parameter number (malloc.h)
+
+
+def fix_mmap_threshold(nbytes: int = MMAP_THRESHOLD_BYTES) -> bool:
+    """Fix glibc's mmap threshold at `nbytes` (no raising it as large blocks are freed; see the module
+    docstring); False where there is no mallopt or it refused."""
+    lib = _libc()
+    fn = getattr(lib, "mallopt", None) if lib is not None else None
+    if fn is None:
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_int]
+    fn.restype = ctypes.c_int
+    return bool(fn(_M_MMAP_THRESHOLD, int(nbytes)))
 
 
 def trim_heap() -> bool:

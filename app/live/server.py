@@ -32,7 +32,7 @@ from app.core.params import parse_settings
 from app.live import closed_kernels
 from app.live.classroom.seat import SECRET_ENV, SeatChannel
 from app.live.loop import SimLoop
-from app.live.memory import freeze_start_up_objects
+from app.live.memory import fix_mmap_threshold, freeze_start_up_objects
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
 from app.live.settings_io import check_settings_text, load_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
@@ -177,6 +177,7 @@ def start_app(
     classroom seat) only connections that carry it are served (app/live/watch.py). With `opened`
     (`open_server`'s, as `serve` starts it to show the warm-up) the lab is built on that server, whose
     gate was set up with these three."""
+    fix_mmap_threshold()  # large blocks freed go back to the system (app.live.memory)
     loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
     if opened is None:
         opened = open_server(host, port, verbose, watch_only, steer_local, seat_secret)
@@ -360,6 +361,7 @@ def serve(args: argparse.Namespace) -> int:
     seat_secret = os.environ.get(SECRET_ENV, "") if seat else ""
     if seat and not seat_secret:
         raise ValueError(f"--seat needs the lobby's secret in {SECRET_ENV}")
+    fix_mmap_threshold()  # before the warm-up's step logs: large blocks freed go back to the system
     # the page is there at once (its guards before any page connects); the warm-up shows on it
     opened = open_server(args.host, args.port, False, watch_only, steer_local, seat_secret)
     _print_url(args, busy, opened.server.get_port(), watch_only, steer_local)
