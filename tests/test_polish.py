@@ -102,6 +102,43 @@ def test_metrics_summary_and_table_helpers():
     assert "W_a" in text and "2.0 ± 1.4" in text and "20.0" in text and "1.6/10.8/2.0" in text
 
 
+def test_table_iii_at_latencies_runs_the_other_latencies_and_groups_every_run_by_the_one_it_had():
+    """The paper's four rows at the total latencies of one and two periods the table's own runs do not
+    have (1 + 0 being the default's, 0 + 1 and 1 + 1 are run), none with a --set of either delay; each
+    latency's Table III takes the runs that had it, the table's own included, with its total in periods."""
+    from app.headless.experiments.polish import table_at_latencies, table_latency_of
+    from app.headless.experiments.polish_rows import table_latency_specs
+
+    own = table_latency_of([])
+    assert own == (1, 0.0)
+    assert table_latency_of([("world", "torque_delay_ms", 1.0)]) is None
+    specs = table_latency_specs([0.25, 1.0], 2, own)
+    assert {(s["reading_delay_steps"], s["torque_delay_ms"]) for s in specs} == {(0, 1.0), (1, 1.0)}
+    assert len(specs) == 2 * 4 * 2 * 2 and {s["objective"] for s in specs} == {"j", "f", "a", "d"}
+    assert all(s["group"] == "table_latency" for s in specs)
+    assert {s["objective"] for s in table_latency_specs([1.0], 1, own, only=["a", "mirror"])} == {"a"}
+
+    def run(row: str, ds: int, da: float, stable: bool, group: str = "table_latency", start: float = 0.0) -> dict:
+        return {
+            "row": row, "objective": row[-1], "group": group, "mu": 1.0, "seed": 0, "start_swivel_deg": start,
+            "shaping": True, "converged": True, "convergence_time_s": 1.0, "converged_swivel_deg": 0.0,
+            "force_error": {"ma": 1.0, "ptp": 10.0, "std": 2.0}, "stable": stable, "margin": 1.0,
+            "contact_lost_ms": 0 if stable else 100, "W": {"f": 0.1, "a": 0.7, "d": 0.5},
+            "Pf_fhat": {"stretch": -0.1, "retract": 0.1}, "Pd_fhat": {"stretch": 0.8, "retract": -0.7},
+            "reading_delay_steps": ds, "torque_delay_ms": da, "timestep_s": 0.001,
+        }  # fmt: skip
+
+    table = [run("W_a", 1, 0.0, True, "table"), run("W_a from -30°", 1, 0.0, True, "table", start=-30.0)]
+    at = table_at_latencies(table, [run("W_a", 1, 1.0, False), run("W_a", 0, 1.0, True)])
+    pairs = [(x["reading_delay_steps"], x["torque_delay_ms"], x["total_periods"]) for x in at["latencies"]]
+    assert pairs == [(1, 0.0, 1.0), (0, 1.0, 1.0), (1, 1.0, 2.0)]
+    assert [[(e["row"], e["stable"], e["n"]) for e in x["summary"]] for x in at["latencies"]] == [
+        [("W_a", 1, 1)],
+        [("W_a", 1, 1)],
+        [("W_a", 0, 1)],
+    ]
+
+
 def test_the_console_tables_print_a_swivel_or_margin_that_rounds_to_zero_as_0_not_minus_0():
     """A posture that settled at −0.3° and a margin of −0.2 N s/m print as "0°" and "0" (the HTML report's
     way), a real −3° keeps its sign."""

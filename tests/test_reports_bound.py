@@ -4,7 +4,8 @@ robot and every number in the text is a value of the run's JSON (at the precisio
 report's units: ×10³, ×10⁻³, ×100, 1/x for a rate from a period, √x for a σ from a variance).
 
 The runs are the smallest each experiment offers that still print each of its sections (one polish
-row at one μ and one seed, with the v_ε check, and with --quick's latency table; the whole limit-drop
+row at one μ and one seed, with the v_ε check and Table III at the other latencies, and with --quick's
+latency table; the whole limit-drop
 and --quick; mass-drop with two repetitions per case; the three compliance modes; sweeps of a few
 cells); they are made once for the module (about a minute and a half on one core)."""
 
