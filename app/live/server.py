@@ -303,8 +303,15 @@ def _say_when_running(app: App, scenario: str, timeout: float = 120.0) -> None:
         print(f"torquelab: the arm has not stepped within {timeout:.0f} s (a busy machine?)", flush=True)
 
 
+STOP_SIGNALS = tuple(s for s in (signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s is not None)
+
+
 def _interrupt(signum: int, frame: Any) -> None:
-    """Signal handler: stop `serve` as Ctrl-C does."""
+    """Signal handler: stop `serve` as Ctrl-C does, once. A second stop signal is ignored: raised again
+    inside the shutdown, it would cut `App.stop` short (a classroom seat gets two, its command pipe
+    closed and a SIGTERM, and logged the web server's half-done stop as tracebacks)."""
+    for signum_ in STOP_SIGNALS:
+        signal.signal(signum_, signal.SIG_IGN)
     raise KeyboardInterrupt
 
 
@@ -367,9 +374,8 @@ def serve(args: argparse.Namespace) -> int:
     _print_url(args, busy, opened.server.get_port(), watch_only, steer_local)
     # a `kill` or a closed terminal stops the app as Ctrl-C does (the session's CPU share given back),
     # during the warm-up too (its worker processes end with it)
-    for signum in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
-        if signum is not None:
-            signal.signal(signum, _interrupt)
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, _interrupt)
     try:
         if getattr(args, "warm", False):  # the CLI's default (--no-warmup skips it); tests warm elsewhere
             _warm_up_on_page(opened.server, robot)

@@ -6,8 +6,10 @@ seat's number). Holding one starts its process on a free loopback port with a se
 lobby sends it with every connection it opens; the seat closes any other). The process's stdout
 says its port (`open http://127.0.0.1:PORT`) and then a status line every 0.25 s (`seat.py`); a seat
 whose process exits (a crash, kill -9) is marked stopped the moment the pool's wait on it returns,
-one whose status lines stop for `STALE_S` is "not responding". A held seat with no page open for
-`idle_s` is reclaimed: its process stopped, its token forgotten, the seat free again.
+one whose status lines stop for `STALE_S` is "not responding". What the process writes to stderr goes
+to the lobby's stderr, each line headed `seat N: `, and its last `LOG_LINES` lines are kept in the
+seat's `log`. A held seat with no page open for `idle_s` is reclaimed: its process stopped, its token
+forgotten, the seat free again.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import secrets
 import signal
 import sys
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,7 +33,16 @@ from app.live.classroom.seat import SECRET_ENV, STATUS_PREFIX
 STALE_S = 2.0  # a running seat whose status is older than this is "not responding"
 STOP_GRACE_S = 5.0  # a reclaimed seat's process gets this long after SIGTERM before SIGKILL
 URL_LINE = re.compile(r"open http://127\.0\.0\.1:(\d+) ")
+LOG_LINES = 200  # the last lines of a seat's stderr kept in its `log`
 SEAT_COMMAND = ("-c", "import sys; from app.cli import main; sys.exit(main())", "serve", "--seat", "--port", "0")
+
+
+@dataclass
+class SeatLog:
+    """The last `LOG_LINES` lines one start of a seat's process wrote to stderr; `ended` once it closed it."""
+
+    lines: deque[str] = field(default_factory=lambda: deque(maxlen=LOG_LINES))
+    ended: bool = False
 
 
 @dataclass
@@ -51,6 +63,7 @@ class Seat:
     pages: int = 0  # the student's pages open on the seat now (through the lobby)
     last_seen: float = 0.0  # monotonic: the student's last request or last page closed
     ready: asyncio.Event = field(default_factory=asyncio.Event)
+    log: SeatLog = field(default_factory=SeatLog)  # the current (or last) process's stderr
 
     def health(self, now: float | None = None) -> str:
         """free | starting | healthy | not responding | stopped: … (what the teacher's view shows)."""
@@ -135,6 +148,7 @@ class SeatPool:
         seat.state, seat.port, seat.status, seat.status_at = "starting", 0, {}, 0.0
         seat.stop_reason, seat.stopped_at, seat.started_at = "", 0.0, time.monotonic()
         seat.ready = asyncio.Event()
+        seat.log = SeatLog()
         asyncio.get_running_loop().create_task(self._run(seat))
 
     async def _run(self, seat: Seat) -> None:
@@ -146,6 +160,7 @@ class SeatPool:
                 *self.serve_args,
                 stdin=asyncio.subprocess.PIPE,
                 stdout=asyncio.subprocess.PIPE,
+                stderr=asyncio.subprocess.PIPE,
                 env=env,
                 start_new_session=True,  # its own session: a Ctrl-C meant for the lobby reaches it through the lobby
             )
@@ -153,11 +168,15 @@ class SeatPool:
             self._stopped(seat, None, f"could not start: {exc.strerror}")
             return
         seat.proc = proc
-        reader = asyncio.get_running_loop().create_task(self._read(seat, proc))
+        loop = asyncio.get_running_loop()
+        readers = [
+            loop.create_task(self._read(seat, proc)),
+            loop.create_task(self._read_errors(seat.number, proc, seat.log)),
+        ]
         code = await proc.wait()
         if seat.proc is proc and seat.state in ("starting", "ready"):
             self._stopped(seat, proc, exit_reason(code))
-        await asyncio.wait([reader], timeout=1.0)
+        await asyncio.wait(readers, timeout=1.0)
 
     async def _read(self, seat: Seat, proc: asyncio.subprocess.Process) -> None:
         assert proc.stdout is not None
@@ -175,6 +194,24 @@ class SeatPool:
                 seat.ready.set()
                 if self.on_ready is not None:
                     self.on_ready(seat)
+
+    @staticmethod
+    async def _read_errors(number: int, proc: asyncio.subprocess.Process, log: SeatLog) -> None:
+        """Pass the process's stderr on to the lobby's, each line headed by the seat's number; keep the last."""
+        assert proc.stderr is not None
+        try:
+            while True:
+                try:
+                    line = await proc.stderr.readline()
+                except ValueError:  # longer than the stream's limit: dropped, and the pipe read on
+                    line = b"(a line too long to pass on)"
+                if not line:
+                    break
+                text = line.decode(errors="replace").rstrip("\n")
+                log.lines.append(text)
+                print(f"seat {number}: {text}", file=sys.stderr, flush=True)
+        finally:
+            log.ended = True
 
     def _stopped(self, seat: Seat, proc: asyncio.subprocess.Process | None, reason: str) -> None:
         seat.state, seat.stop_reason, seat.stopped_at = "stopped", reason, time.monotonic()
