@@ -54,11 +54,12 @@ from control.kernels.compliance import (
 )
 from control.kernels.cqp import (
     cqp_problem_fused,
+    cqp_workspace_dtype,
     pose_record_dtype,
     posture_record_dtype,
     settings_record_dtype,
 )
-from control.kernels.records import fill_record, target_arrays
+from control.kernels.records import fill_record
 from control.model import Dynamics
 from control.params import expect
 
@@ -127,7 +128,7 @@ class PoseTask:
 
     def rows(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
         """`rows_reference` in one compiled call (`control.kernels.compliance.pose_task_target_fused`)."""
-        b = pose_task_target_fused(dyn.record, target_arrays(target), self.kernel_record, ddq_e)
+        b = pose_task_target_fused(dyn.record, target.record, self.kernel_record, ddq_e)
         return TaskRows(dyn.J, b, self.gains.weight, None)
 
     def rows_reference(self, dyn: Dynamics, target: TaskTarget, ddq_e: np.ndarray) -> TaskRows:
@@ -151,7 +152,6 @@ class PostureTask:
         self.dt = float(dt)
         self.dq_ref: np.ndarray | None = None
         self.q_hold = np.zeros(n)
-        self.integral = np.zeros(n)
         self._eye = np.eye(n)
         self.configure(gains or PostureTaskGains())
 
@@ -164,18 +164,21 @@ class PostureTask:
         ki = np.broadcast_to(np.asarray(gains.integral, dtype=float), (n,))
         gamma = compliance_matrix(gains.compliance, n)
         self._use_ki, self._use_gamma = bool(ki.any()), bool(gamma.any())
+        old = getattr(self, "integral", None)  # new gains keep the integral running
         rec = self.kernel_record = fill_record(
             posture_record_dtype(n), (gains,), kp=np.broadcast_to(np.asarray(gains.stiffness, dtype=float), (n,)),
             kd=np.broadcast_to(np.asarray(gains.damping, dtype=float), (n,)), ki=ki, gamma=gamma,
             use_ki=self._use_ki, use_gamma=self._use_gamma, dt=self.dt, inertia_metric=gains.metric == "inertia",
+            integral=np.zeros(n) if old is None else old,
         )  # fmt: skip
         self.kp, self.kd, self.ki, self.gamma = rec["kp"][0], rec["kd"][0], rec["ki"][0], rec["gamma"][0]
+        self.integral = rec["integral"][0]  # advanced in place by the rows and the fused step
         self._zeros = np.zeros(n)
 
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
         """Hold the current posture unless the target gives one; clear the integral."""
         self.q_hold = dyn.q.copy() if target.q_posture is None else np.array(target.q_posture, dtype=float)
-        self.integral = np.zeros(self.dim)
+        self.integral[:] = 0.0
 
     def velocity_reference(self) -> np.ndarray:
         """q̇_ref of this step: `dq_ref` when set, else zeros (the array the compiled rows read)."""
@@ -231,13 +234,18 @@ class AccelerationQP:
         qp_settings = qp.QPSettings(
             eps=settings.eps, max_iter=settings.max_iter, polish=settings.polish, check_termination=10
         )
-        # primary: x = q̈, rows A = [M; J_strict]
+        # primary: x = q̈, rows A = [M; J_strict]; the objective, rows and box are views of the step's
+        # workspace record (`kernels.cqp.cqp_workspace_dtype`), which the fused step writes
         self.m = n + n_strict
-        self.A = np.zeros((self.m, n))
-        self.l = np.full(self.m, -qp.INF)
-        self.u = np.full(self.m, qp.INF)
-        self.lb = np.full(n, -qp.INF)  # damper bounds on q̈
-        self.ub = np.full(n, qp.INF)
+        self.work = work = np.zeros(1, cqp_workspace_dtype(n, self.m))
+        row = work[0]
+        self.P, self.q, self.A, self.l, self.u = row["P"], row["qv"], row["A"], row["l"], row["u"]
+        self.lb, self.ub = row["lb"], row["ub"]  # damper bounds on q̈
+        self.l[:], self.u[:], self.lb[:], self.ub[:] = -qp.INF, qp.INF, -qp.INF, qp.INF
+        # what the fused step reads and leaves there, by name (reading a view costs less than `row[name]`)
+        self.q_ref, self.dq_ref = row["q_ref"], row["dq_ref"]
+        self.x, self.tau, self.tau_cmd = row["x"], row["tau"], row["tau_cmd"]
+        self.crossed, self.solved, self.saturated = work["crossed"], work["solved"], work["saturated"]
         self.primary = qp.make_qp(self.backend, n, self.m, n_eq=n_strict, settings=qp_settings)
         # fallback over [q̈; s]: rows [I −I] ≤ u_d, [I I] ≥ l_d, [M 0] torque, [J 0] strict; box s ≥ 0
         self.m2 = 3 * n + n_strict
@@ -358,15 +366,11 @@ class ComplianceQPExecutor:
         self.estimator = ExternalTorqueEstimator(n, estimator, dt=dt)
         self.settings = settings or ComplianceQPSettings()
         self._build_qp()
-        self.tau_prev = np.zeros(n)
         self.tau_hat = np.zeros(n)
         self.tau_desired = np.zeros(n)  # τ_d of [C8] before the motors' saturation
         self._zeros = np.zeros(n)  # τ_fb without external-force feedback
         self._diag = np.diag_indices(n)
         self.ddq = np.zeros(n)
-        self._objective = np.zeros((n + 1, n))  # the fused step's P (rows 0…n−1) and q (row n) of [C9]
-        self._P, self._q = self._objective[:n], self._objective[n]
-        self._zeros6 = np.zeros(6)  # an argument not read
         self._pose_unused = PoseTask().kernel_record  # read only with a pose task (`pose_on`)
         self.last_qp: qp.QPResult | None = None
         self.last_info: dict[str, float] = {}
@@ -408,7 +412,7 @@ class ComplianceQPExecutor:
             task.reset(dyn, target)
         self.posture.reset(dyn, target)
         self.estimator.reset(dyn)
-        self.tau_prev = np.clip(dyn.h, -self.tau_max, self.tau_max)
+        self.estimator.tau_prev[:] = np.clip(dyn.h, -self.tau_max, self.tau_max)
         self.tau_hat = np.zeros(self.n)
         self._build_qp()
 
@@ -484,44 +488,35 @@ class ComplianceQPExecutor:
         (`qp_solve_us` is then the whole call's time)."""
         target = inputs.target
         est = self.estimator
-        observer, high_pass = est.observer, est.high_pass
-        previous, lp, wrench = observer.previous, high_pass.lp, inputs.wrench_tcp
+        wrench = inputs.wrench_tcp
         estimate_on = (
-            previous is not None and lp is not None and wrench is not None and est.source_code >= 0.0
-        ) and not self._prepared_tasks
-        if estimate_on:  # the call computes the estimate (`tau_hat` is not read)
-            tau_hat = self._zeros
-            assert previous is not None
-            M_prev, dq_prev, h_prev = previous
-        else:  # the estimate is given (the observer's and the filter's arguments are not read)
-            tau_hat = self._estimate(dyn, inputs)
-            (M_prev, dq_prev, h_prev), lp, wrench = (dyn.M, dyn.dq, dyn.h), self._zeros, self._zeros6
-        pose, posture, damper, aqp = self._fused_pose, self.posture, self.damper, self.qp
-        P, q = self._P, self._q
-        q_ref = posture.q_hold if target.q_posture is None else target.q_posture
-        dq_ref = posture.velocity_reference()
+            est.observer.previous is not None and est.high_pass.lp is not None and wrench is not None
+            and est.source_code >= 0.0 and not self._prepared_tasks
+        )  # fmt: skip
+        est.estimate_on[0] = estimate_on
+        if estimate_on:  # the call computes the estimate into the estimator's record
+            est.wrench[:] = wrench
+        else:  # the estimate is given (the record's `tau_hat`, which `update` writes)
+            self._estimate(dyn, inputs)
+        pose, posture, aqp = self._fused_pose, self.posture, self.qp
+        aqp.q_ref[:] = posture.q_hold if target.q_posture is None else target.q_posture
+        aqp.dq_ref[:] = posture.velocity_reference()
         t0 = time.perf_counter()
-        crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated = cqp_problem_fused(
-            dyn.record,
-            (estimate_on, tau_hat, M_prev, dq_prev, h_prev, self.tau_prev, observer.r, wrench, lp, est.kernel_record),
-            target_arrays(target),
-            self._pose_unused if pose is None else pose.kernel_record,
-            (q_ref, dq_ref, posture.integral, posture.kernel_record),
-            damper.kernel_record,
-            self._settings_record,
-            (self._objective, aqp.A, aqp.l, aqp.u, aqp.lb, aqp.ub),
-        )
-        if estimate_on:  # the estimator's state, as its `update` leaves it
-            observer.take_step(dyn, r)
-            est.tau_s, est.estimate, self.tau_hat = tau_s, tau_hat, tau_hat
-        if solved:  # the unconstrained optimum is feasible: the QP's solution, τ_d computed with it
-            res = aqp.take_unconstrained_optimum(x, (time.perf_counter() - t0) * 1e6)
-            return self._output(res, tau_hat, bool(crossed), tau, tau_cmd, saturated)
+        cqp_problem_fused(
+            dyn.record, est.kernel_record, target.record, self._pose_unused if pose is None else pose.kernel_record,
+            posture.kernel_record, self.damper.kernel_record, self._settings_record, aqp.work,
+        )  # fmt: skip
+        tau_hat = self.tau_hat = est.estimate
+        crossed = bool(aqp.crossed[0])
+        if aqp.solved[0]:  # the unconstrained optimum is feasible: the QP's solution, τ_d computed with it
+            res = aqp.take_unconstrained_optimum(aqp.x.copy(), (time.perf_counter() - t0) * 1e6)
+            return self._output(res, tau_hat, crossed, aqp.tau.copy(), aqp.tau_cmd.copy(), bool(aqp.saturated[0]))
+        P, q = aqp.P, aqp.q
         if self._other_soft_tasks or self.strict_tasks:
             ddq_e = dyn.M_inv @ tau_hat
             self._add_task_rows(self._other_soft_tasks, dyn, target, ddq_e, P, q)
             self._strict_rows(dyn, target, ddq_e)
-        return self._solve_and_torque(dyn, P, q, tau_hat, bool(crossed))
+        return self._solve_and_torque(dyn, P, q, tau_hat, crossed)
 
     def _step_reference(self, dyn: Dynamics, inputs: ControlInputs) -> ControlOutput:
         """Estimation [C25–26], the QP's data [C9, C10, C17–24] task by task, the QP, [C8]."""
@@ -531,7 +526,7 @@ class ComplianceQPExecutor:
 
     def _estimate(self, dyn: Dynamics, inputs: ControlInputs) -> np.ndarray:
         """τ̂_e of this step [C25–26]; then the tasks that need this step's inputs are prepared."""
-        tau_hat = self.estimator.update(dyn, self.tau_prev, inputs.wrench_tcp, inputs.tau_ext_oracle)
+        tau_hat = self.estimator.update(dyn, self.estimator.tau_prev, inputs.wrench_tcp, inputs.tau_ext_oracle)
         self.tau_hat = tau_hat
         for task in self.tasks:  # tasks that need this step's inputs (e.g. the [T] bridge)
             prepare = getattr(task, "prepare", None)
@@ -612,7 +607,7 @@ class ComplianceQPExecutor:
         self.ddq = res.x
         self.last_qp = res
         self.tau_desired = tau
-        self.tau_prev = tau_cmd
+        self.estimator.tau_prev[:] = tau_cmd
         info = {
             "qp_status": res.status_code,
             "qp_iterations": float(res.iterations),

@@ -15,6 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
+from control.kernels.records import TARGET_FIELDS, target_record_dtype
 from control.model import Dynamics
 from control.params import ParamGroup
 
@@ -81,7 +82,12 @@ class TaskTarget:
     Every field is coerced to a float64 array of its shape with finite entries (`float_array`) when
     it is assigned, at construction and after it (`target.position = (0.4, 0, 0.3)` stores a float64
     array): a bad one is a ValueError naming the field at the assignment, never a recompilation or a
-    type error inside a compiled step. A name that is not a field is an AttributeError."""
+    type error inside a compiled step. A name that is not a field is an AttributeError.
+
+    The five arrays live in one record (`record`, `control.kernels.records.target_record_dtype`),
+    which the kernels read by field name; `target.position` is a view of it (an edit in place is seen
+    by the next step). An assignment stores a copy of the value in a new record, so an array read
+    from the target before keeps its values. `q_posture` is not in the record."""
 
     position: np.ndarray  # (3,) m
     rotation: np.ndarray  # (3, 3) world ← tcp
@@ -91,28 +97,62 @@ class TaskTarget:
     q_posture: np.ndarray | None = None  # (n,) desired joint posture for posture/nullspace tasks
 
     @classmethod
-    def trusted(
+    def of_record(
         cls,
-        position: np.ndarray,
-        rotation: np.ndarray,
-        velocity: np.ndarray,
-        acceleration: np.ndarray,
-        wrench: np.ndarray,
+        record: np.ndarray,
         q_posture: np.ndarray | None,
+        fields: dict[str, np.ndarray] | None = None,
+        at: int = 0,
     ) -> TaskTarget:
-        """A target from arrays its builder already holds as the checked type (float64, these shapes,
-        finite, C-contiguous): no check here. For a builder that makes one target per control step from
-        inputs it checked once, at its own construction (`app.scenarios.polish.PolishTarget`)."""
+        """A target on a record its builder filled (`target_record_dtype`, finite entries), e.g. one
+        taken from `records.RecordBlocks` with its block's `fields` and index `at`, and a posture of
+        the checked type: no check here, and the arrays' views are made when first read. For a builder
+        that makes one target per control step from inputs it checked once, at its own construction
+        (`app.scenarios.polish_plan.PolishTarget`)."""
         target = object.__new__(cls)
         d = target.__dict__
-        d["position"], d["rotation"], d["velocity"] = position, rotation, velocity
-        d["acceleration"], d["wrench"], d["q_posture"] = acceleration, wrench, q_posture
+        d["_record"], d["_fields"], d["_at"], d["q_posture"] = record, fields, at, q_posture
         return target
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        """An array of a target made by `of_record`, on its first read: the view of its record's field."""
+        d = self.__dict__
+        if name not in _RECORD_FIELDS or "_record" not in d:
+            raise AttributeError(f"TaskTarget has no attribute {name!r}")
+        fields = d["_fields"]
+        view = d[name] = d["_record"][0][name] if fields is None else fields[name][d["_at"]]
+        return view
+
+    @property
+    def record(self) -> np.ndarray:
+        """The one-element record of the five arrays (`target_record_dtype`), as the kernels read it."""
+        return self.__dict__["_record"]
+
+    def __getstate__(self) -> dict:
+        d = self.__dict__
+        return {"_record": d["_record"].copy(), "q_posture": d["q_posture"]}  # not the block it came from
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(_record=state["_record"], _fields=None, _at=0, q_posture=state["q_posture"])
 
     def __setattr__(self, name: str, value: object) -> None:
         if name not in TARGET_SHAPES:
             raise AttributeError(f"TaskTarget has no field {name!r} (its fields: {', '.join(TARGET_SHAPES)})")
-        self.__dict__[name] = _checked_target_field(name, value)
+        checked = _checked_target_field(name, value)
+        d = self.__dict__
+        if name == "q_posture":
+            d[name] = checked
+            return
+        old = d.get("_record")
+        record = np.zeros(1, target_record_dtype()) if old is None else old.copy()
+        row = record[0]
+        row[name] = checked
+        for f in _RECORD_FIELDS:
+            d[f] = row[f]
+        d["_record"], d["_fields"] = record, None
+
+
+_RECORD_FIELDS = tuple(name for name, _ in TARGET_FIELDS)
 
 
 def _checked_input(name: str, value: object) -> object:

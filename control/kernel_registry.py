@@ -34,6 +34,7 @@ from control.kernels import (
     line_qp,
     snapshot,
 )
+from control.kernels.records import target_record
 
 RTOL = 1e-10  # relative, on each output (max |a − b| over max |b|)
 EPS = float(np.finfo(float).eps)
@@ -283,10 +284,12 @@ def _task_wrench_samples(rng):
             perm, n_m = _perm(force)
             n_f = 6 - n_m
             blocks = coupling.coupling_reference(dyn.Lambda, dyn.Lambda_inv, perm, n_m, True, SCALES[0])
-            record = _law_args(rng, dyn, 3, force, 0.0)[5]
+            record = _law_args(rng, dyn, 3, force, 0.0)[2]
             for shaping in (True, False):
                 record[0]["shaping"] = shaping
-                target = (np.zeros(3), np.eye(3), rng.standard_normal(6), rng.standard_normal(6), np.zeros(6))
+                target = target_record(
+                    np.zeros(3), np.eye(3), rng.standard_normal(6), rng.standard_normal(6), np.zeros(6)
+                )
                 out.append((
                     dyn.record, target, rng.standard_normal(6), blocks[0], blocks[7], blocks[5],
                     rng.standard_normal(6), rng.standard_normal(n_f), rng.standard_normal(n_f), record.copy(),
@@ -336,14 +339,15 @@ def _law_args(rng, dyn, objective: int, force: tuple[int, ...], ki: float, close
         task_scale=SCALES[int(rng.random() < 0.5)],
     )  # fmt: skip
     R = _rotation(rng, 0.3) @ dyn.tcp_rotation_world
-    target = (
+    target = target_record(
         dyn.tcp_position_world + 0.02 * rng.standard_normal(3), R, rng.standard_normal(6), rng.standard_normal(6),
         np.r_[rng.standard_normal(3) * 5, 0, 0, 0],
-    )  # fmt: skip  # `records.target_arrays` order
-    return (
-        dyn.record, target, rng.standard_normal(6) * 10, rng.standard_normal(6 - n_m),
-        dyn.q + 0.1 * rng.standard_normal(7), record, chain.pack_chain(model.chain), np.zeros(6), np.zeros((3, 7)),
     )  # fmt: skip
+    step = np.zeros(1, law.projection_step_dtype(7))
+    row = step[0]
+    row["F_e"], row["q_d"] = rng.standard_normal(6) * 10, dyn.q + 0.1 * rng.standard_normal(7)
+    row["force_integral"][: 6 - n_m] = rng.standard_normal(6 - n_m)
+    return dyn.record, target, record, chain.pack_chain(model.chain), step
 
 
 def _law_samples(rng):
@@ -361,7 +365,7 @@ def _step_samples(rng):
             args = _law_args(
                 rng, dyn, objective, SUBSPACES[(k + objective) % 3], 5.0 if k % 2 else 0.0, bool(rng.random() < 0.8)
             )
-            out.append((*args, (np.zeros(7), np.zeros(7))))
+            out.append(args)
     return out
 
 
@@ -408,7 +412,7 @@ def _pose_target_samples(rng):
     out = []
     for k, dyn in enumerate(states(rng, 3)):
         task = PoseTask(PoseTaskGains(stiffness=400.0, damping=40.0, compliance=0.5 if k % 2 else 0.0))
-        target = (
+        target = target_record(
             dyn.tcp_position_world + 0.05 * rng.standard_normal(3), _rotation(rng, 0.3) @ dyn.tcp_rotation_world,
             rng.standard_normal(6), rng.standard_normal(6), np.zeros(6),
         )  # fmt: skip
@@ -541,7 +545,7 @@ def _unconstrained_samples(rng):
 
 
 def _cqp_samples(rng):
-    from control.compliance_qp import PoseTask, PostureTask
+    from control.compliance_qp import AccelerationQP, PoseTask, PostureTask
     from control.dampers import JointLimitDamper
     from control.estimation import ExternalTorqueEstimator
     from control.gains import ComplianceQPSettings, DamperGains, EstimatorGains, PostureTaskGains
@@ -555,28 +559,33 @@ def _cqp_samples(rng):
         posture = PostureTask(
             7, PostureTaskGains(integral=2.0 if k % 2 else 0.0, metric="inertia" if k % 3 else "identity")
         )
+        posture.integral[:] = rng.standard_normal(7) * 0.01
         damper = JointLimitDamper(robot.q_lower, robot.q_upper, robot.dq_max, robot.endless, DamperGains(), dt=1e-3)
-        est = ExternalTorqueEstimator(7, EstimatorGains(), dt=1e-3)
-        prev = model.compute(dyn.q - 1e-3 * dyn.dq, dyn.dq + 0.01 * rng.standard_normal(7))
+        settings_group = ComplianceQPSettings(feedback=bool(k % 3 != 1), torque_limits=True)
         settings = fill_record(
-            cqp.settings_record_dtype(7), (ComplianceQPSettings(feedback=bool(k % 3 != 1), torque_limits=True),),
-            tau_max=tau_max, no_bound=1e30, pose_on=k != 3, fast_on=k != 2,
+            cqp.settings_record_dtype(7), (settings_group,), tau_max=tau_max, no_bound=1e30, pose_on=k != 3,
+            fast_on=k != 2,
         )  # fmt: skip
-        n, m = 7, 7
-        estimator = (
-            k % 2 == 0, rng.standard_normal(7), prev.M, prev.dq, prev.h, rng.standard_normal(7) * 5,
-            rng.standard_normal(7), rng.standard_normal(6) * 5, rng.standard_normal(7), est.kernel_record,
-        )  # fmt: skip
-        target = (
+        est = ExternalTorqueEstimator(7, EstimatorGains(source=("fusion", "residual", "none")[k % 3]), dt=1e-3)
+        prev = model.compute(dyn.q - 1e-3 * dyn.dq, dyn.dq + 0.01 * rng.standard_normal(7))
+        est.observer.reset(prev)
+        est.observer.r[:] = rng.standard_normal(7)
+        est.high_pass.update(rng.standard_normal(7))
+        est.estimate_on[0] = k % 2 == 0
+        est.estimate[:], est.tau_prev[:], est.wrench[:] = (
+            rng.standard_normal(7),
+            rng.standard_normal(7) * 5,
+            rng.standard_normal(6) * 5,
+        )
+        target = target_record(
             dyn.tcp_position_world + 0.02 * rng.standard_normal(3), _rotation(rng, 0.2) @ dyn.tcp_rotation_world,
             rng.standard_normal(6), rng.standard_normal(6), np.zeros(6),
         )  # fmt: skip
-        posture_args = (dyn.q + 0.1 * rng.standard_normal(7), np.zeros(7), rng.standard_normal(7) * 0.01,
-                        posture.kernel_record)  # fmt: skip
-        buffers = (np.zeros((n + 1, n)), np.zeros((m, n)), np.zeros(m), np.zeros(m), np.zeros(n), np.zeros(n))
+        aqp = AccelerationQP(7, 0, settings_group, "dense")
+        aqp.q_ref[:], aqp.dq_ref[:] = dyn.q + 0.1 * rng.standard_normal(7), np.zeros(7)
         out.append((
-            dyn.record, estimator, target, pose.kernel_record, posture_args, damper.kernel_record,
-            settings, buffers,
+            dyn.record, est.kernel_record, target, pose.kernel_record, posture.kernel_record, damper.kernel_record,
+            settings, aqp.work,
         ))  # fmt: skip
     return out
 

@@ -41,10 +41,10 @@ from control.kernels.law import (
     damper_bounds_fused,
     joint_torque_fused,
     law_record,
+    projection_step_dtype,
     projection_step_fused,
     task_wrench_fused,
 )
-from control.kernels.records import target_arrays
 from control.model import Dynamics, RobotModel
 from control.nullspace import NullspaceQP, NullspaceResult
 from control.params import ParamGroup, expect
@@ -72,8 +72,17 @@ class ProjectionExecutor:
         # fused=False, the same law kernel by kernel (`_step_reference`)
         self.fused = bool(fused) and model.revolute_chain
         self._chain = pack_chain(model.chain) if self.fused else None
-        self._F_mu, self._qp_data = np.empty(6), np.empty((3, model.nv))  # the fused law's work buffers
         self.n = model.nv
+        # the fused step's record (`projection_step_dtype`: inputs, force integral, QP data, values) and
+        # views of its fields, through which they are read and written (cheaper than `row[name]`)
+        self._step = step = np.zeros(1, projection_step_dtype(self.n))
+        row = step[0]
+        self._F_e, self._q_d, self._integral = row["F_e"], row["q_d"], row["force_integral"]
+        self._F, self._F_mu, self._grad, self._lower, self._upper = (
+            row["F"], row["F_mu"], row["grad"], row["lower"], row["upper"]
+        )  # fmt: skip
+        self._x, self._tau = row["x"], row["tau"]
+        self._values = {name: step[name] for name in ("W", "W_f", "W_a", "W_d", "coupled", "force_error", "active")}
         self.q_lower = np.asarray(q_lower, dtype=float)
         self.q_upper = np.asarray(q_upper, dtype=float)
         self.dq_max = np.asarray(dq_max, dtype=float)
@@ -84,7 +93,6 @@ class ProjectionExecutor:
         self.qp_backend = qp.check_backend(qp_backend or qp.default_backend())
         self.qp = NullspaceQP(self.n, backend=self.qp_backend)
         self._cache_gains()
-        self.force_integral = np.zeros(self.sub.n_f)
         self.q_posture: np.ndarray | None = None
         self._last_terms: CouplingTerms | None = None
         self._last_dyn: Dynamics | None = None  # the fused step's terms are computed for the view only
@@ -100,7 +108,7 @@ class ProjectionExecutor:
     def reset(self, dyn: Dynamics, target: TaskTarget) -> None:
         """Clear the force integral and the QP's warm start (a fresh solver, so a reset run repeats
         the first one exactly); the W_j posture is the target's q_posture or the current q."""
-        self.force_integral = np.zeros(self.sub.n_f)
+        self._integral[:] = 0.0
         self.qp = NullspaceQP(self.n, backend=self.qp_backend)
         self._last_valid_wrench = np.zeros(6)
         self.q_posture = dyn.q.copy() if target.q_posture is None else np.array(target.q_posture, dtype=float)
@@ -121,7 +129,7 @@ class ProjectionExecutor:
             gains = expect(name, group, MotionForceGains)
             if gains.force_axes != self.gains.force_axes:
                 self.sub = Subspaces.from_force_axes(gains.force_axis_names)
-                self.force_integral = np.zeros(self.sub.n_f)
+                self._integral[:] = 0.0
             self.gains = gains
         elif name == "nullspace":
             self.nullspace = expect(name, group, NullspaceGains)
@@ -191,6 +199,11 @@ class ProjectionExecutor:
             qp_solve_us=0.0 if res is None else res.solve_us,
         )
 
+    @property
+    def force_integral(self) -> np.ndarray:
+        """∫e_f of the force axes [T12] (n_f,): a view of the step record's `force_integral`."""
+        return self._integral[: self.sub.n_f]
+
     # ---- the law --------------------------------------------------------------------------------
     def _cache_gains(self) -> None:
         g = self.gains
@@ -226,24 +239,25 @@ class ProjectionExecutor:
         qp_ = self.qp
         if qp_.closed_form != self._law_closed_form:  # a new QP (a reset, a backend) says otherwise
             self._cache_gains()
-        x, tau = np.empty(self.n), np.empty(self.n)
-        F_mu, qp_data = self._F_mu, self._qp_data  # filled by the kernel, read in this step only
-        F, integral, W_obj, W_f, W_a, W_d, coupled, force_error, active = projection_step_fused(
-            dyn.record, target_arrays(target), F_e, self.force_integral, dyn.q if q_d is None else q_d,
-            self._law, self._chain, F_mu, qp_data, (x, tau),
-        )  # fmt: skip
-        self.force_integral = integral
+        self._F_e[:] = F_e
+        self._q_d[:] = dyn.q if q_d is None else q_d
+        projection_step_fused(dyn.record, target.record, self._law, self._chain, self._step)
+        v = self._values
         self._last_q, self._last_q_d = dyn.q, q_d  # for W_j in the view
-        self.last_wrench = F
+        self.last_wrench = self._F.copy()
+        active = int(v["active"][0])
         if active >= 0:  # solved in the call above: not timed apart from the law
-            res = qp_.closed_form_result(x, active)
+            res = qp_.closed_form_result(self._x.copy(), active)
+            tau = self._tau.copy()
         else:
-            grad_step, lower, upper = qp_data
-            res = qp_.solve(dyn.J, grad_step, lower, upper)  # [T15-17]
+            res = qp_.solve(dyn.J, self._grad, self._lower, self._upper)  # [T15-17]
             # [T13] nullspace velocity tracking, [T14] torque
-            tau = joint_torque_fused(dyn.J, F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
+            tau = joint_torque_fused(dyn.J, self._F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
         self.last_qp = res
-        return self._output(tau, res, float(force_error), W_obj, W_f, W_a, W_d, coupled)
+        return self._output(
+            tau, res, float(v["force_error"][0]), float(v["W"][0]), float(v["W_f"][0]), float(v["W_a"][0]),
+            float(v["W_d"][0]), float(v["coupled"][0]),
+        )  # fmt: skip
 
     def _output(self, tau, res, force_error, W_obj, W_f, W_a, W_d, coupled) -> ControlOutput:
         info = {
@@ -277,17 +291,18 @@ class ProjectionExecutor:
         # [T12] clamped force integral (anti-windup)
         F_hat = target.wrench[self._f]
         if g.force_ki > 0:
-            self.force_integral += (F_e[self._f] - F_hat) * CONTROL_PERIOD_S
+            integral = self.force_integral  # a view: advanced in place
+            integral += (F_e[self._f] - F_hat) * CONTROL_PERIOD_S
             lim = g.force_integral_limit_n / g.force_ki
-            np.clip(self.force_integral, -lim, lim, out=self.force_integral)
-            u_f_extra = g.force_ki * self.force_integral
+            np.clip(integral, -lim, lim, out=integral)
+            u_f_extra = g.force_ki * integral
         else:
             u_f_extra = self._zeros_f
 
         # [T11] motion impedance, [T12] force law, [T7] with Λ̂x [T9]: F_m = u_m,
         # F_f = u_f + BᵀA⁻¹(u_m + F_m^e); F minus Λx J̇q̇ (μx without gravity: h is added in τ)
         F, F_mu, coupled = task_wrench_fused(
-            dyn.record, target_arrays(target), e, terms.A, terms.P_d, terms.P_f, F_e, F_hat, u_f_extra, self._law
+            dyn.record, target.record, e, terms.A, terms.P_d, terms.P_f, F_e, F_hat, u_f_extra, self._law
         )
         self.last_wrench = F
 

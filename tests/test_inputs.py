@@ -70,7 +70,7 @@ def test_task_target_refuses_a_bad_field_at_construction_in_one_line(kwargs, fie
 
 def test_the_polish_target_checks_its_inputs_once_and_builds_every_steps_target_of_the_checked_type():
     """`PolishTarget` refuses a bad start or rotation at its construction (one line); the targets it
-    builds each step without a check (`TaskTarget.trusted`) hold float64 C-contiguous arrays of the
+    builds each step without a check (`TaskTarget.of_record`) hold float64 C-contiguous arrays of the
     right shapes with finite entries, the same values a checked `TaskTarget` gets, along the zig-zag."""
     from app.scenarios.polish_plan import PolishTarget
     from app.scenarios.polish_stroke import CONTACT_TIME_S, PhaseClock, trajectory_duration

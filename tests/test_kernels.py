@@ -38,6 +38,7 @@ from control.kernels import gradients as Kgradients
 from control.kernels import law as Klaw
 from control.kernels import line_qp as Kline_qp
 from control.kernels import snapshot as Ksnapshot
+from control.kernels.records import target_record
 from control.model import SINGULAR_EIGENVALUE, RobotModel
 from tests.conftest import random_configurations
 
@@ -216,7 +217,7 @@ def test_projection_law_kernels_equal_numpy_reference(robot, sub, shaping):
             q_lower=robot.q_lower, q_upper=robot.q_upper, dq_limit=robot.dq_max, endless=robot.endless, kn=np.ones(7),
             closed_form=False, task_scale=task_scale(),
         )  # fmt: skip
-        target = (np.zeros(3), np.eye(3), velocity, acceleration, np.zeros(6))
+        target = target_record(np.zeros(3), np.eye(3), velocity, acceleration, np.zeros(6))
         args = (
             dyn.record, target, e, t.A, t.P_d, t.P_f, rng.standard_normal(6), rng.standard_normal(sub.n_f),
             rng.standard_normal(sub.n_f), law,

@@ -24,6 +24,7 @@ from app.scenarios.polish_stroke import (
 )
 from control.coupling import move_to_swivel, project_to_pose
 from control.executor import TaskTarget, float_array
+from control.kernels.records import RecordBlocks, target_record_dtype
 from control.model import RobotModel
 from control.planner import Plan, cost_map, loops_along
 from control.planner import plan as make_plan
@@ -89,8 +90,9 @@ class PolishTarget:
 
     Its inputs (start, rotation, posture, the plan's postures) are checked here, once, as the
     executors' type (`control.executor.float_array`); each step's target is built from them by
-    arithmetic that keeps that type, so it takes `TaskTarget.trusted` (no check per step). The arrays
-    it builds from are checked again whenever one is assigned (`_CHECKED`), after construction too."""
+    arithmetic that keeps that type, into a target record taken from a block (`RecordBlocks`), so it
+    takes `TaskTarget.of_record` (no check per step). The arrays it builds from are checked again
+    whenever one is assigned (`_CHECKED`), after construction too."""
 
     # the arrays each step's target is built from, and their shapes (None: a non-empty vector)
     _CHECKED: ClassVar[dict[str, tuple[int, ...] | None]] = {
@@ -118,6 +120,7 @@ class PolishTarget:
         self.plan_lead_s = float(plan_lead_s)
         self.corners = segment_waypoints((float(self.start[0]), float(self.start[1])))
         self.wrench = np.array([0.0, 0.0, DESIRED_FORCE_N, 0.0, 0.0, 0.0])
+        self._records = RecordBlocks(target_record_dtype())
 
     def __setattr__(self, name: str, value: object) -> None:
         shape = self._CHECKED.get(name, ())
@@ -128,9 +131,13 @@ class PolishTarget:
     def __call__(self, t: float) -> TaskTarget:
         """The target at time t."""
         k, tau = self.clock.segment(t)
-        pos = self.start.copy()
-        vel = np.zeros(6)
-        acc = np.zeros(6)
+        record, fields, at = self._records.take()
+        pos, vel, acc = fields["position"][at], fields["velocity"][at], fields["acceleration"][at]
+        pos[:] = self.start
+        vel.fill(0.0)
+        acc.fill(0.0)
+        fields["rotation"][at] = self.rotation
+        fields["wrench"][at] = self.wrench
         if k == 0:
             pass
         elif k > N_SEGMENTS:
@@ -143,7 +150,7 @@ class PolishTarget:
             vel[:2] = s_v / T * (b - a)
             acc[:2] = s_a / T**2 * (b - a)
         q_d = self.q_posture if self.plan is None else self.planned_posture(t)
-        return TaskTarget.trusted(pos, self.rotation, vel, acc, self.wrench, q_d)  # checked in __init__
+        return TaskTarget.of_record(record, q_d, fields, at)  # checked in __init__
 
     def plan_time(self, t: float) -> float:
         """Time on the plan's clock at t: −transfer at the settle start, 0 at the trajectory start."""

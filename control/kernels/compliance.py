@@ -9,19 +9,19 @@ from numba import njit
 
 from control.kernels._linalg import _np_max
 from control.kernels.geometry import log3_fused, log3_reference
-from control.kernels.records import TARGET_ACCELERATION, TARGET_POSITION, TARGET_ROTATION, TARGET_VELOCITY
 
 
 @njit(cache=True)
 def pose_task_target_fused(snap, target, pose, ddq_e):
     """Compiled `control.compliance_qp.PoseTask.rows_reference`'s right-hand side: b = ẍ° + ë* − J̇q̇
     (+ Γ J q̈_e when Γ ≠ 0) [C4, C9], ë* = −K_d ė − K_p e [C3], e = [p − p°; log(R R°ᵀ)]; from the
-    snapshot's record `snap`, `target_arrays(task target)` and the pose task's record `pose`
+    snapshot's record `snap`, the task target's record `target` (`TaskTarget.record`) and the pose task's record `pose`
     (`cqp.pose_record_dtype`: K_p, K_d, Γ by name)."""
     s, ps = snap[0], pose[0]
     J, dq, dJ_dq, tcp_position, tcp_rotation = s.J, s.dq, s.dJ_dq, s.tcp_position_world, s.tcp_rotation_world
-    target_position, target_rotation = target[TARGET_POSITION], target[TARGET_ROTATION]
-    target_velocity, target_acceleration = target[TARGET_VELOCITY], target[TARGET_ACCELERATION]
+    t = target[0]
+    target_position, target_rotation = t.position, t.rotation
+    target_velocity, target_acceleration = t.velocity, t.acceleration
     kp, kd, gamma = ps.kp, ps.kd, ps.gamma
     n = J.shape[1]
     R = np.empty((3, 3))
@@ -188,10 +188,10 @@ def pose_task_target_reference(snap, target, pose, ddq_e) -> np.ndarray:
     s, ps = snap[0], pose[0]
     J, dq = s["J"], s["dq"]
     tcp_position, tcp_rotation = s["tcp_position_world"], s["tcp_rotation_world"]
-    target_position, target_rotation = target[TARGET_POSITION], target[TARGET_ROTATION]
+    t = target[0]
     kp, kd, gamma = ps["kp"], ps["kd"], ps["gamma"]
-    e = np.concatenate([tcp_position - target_position, log3_reference(tcp_rotation @ target_rotation.T)])
-    b = target[TARGET_ACCELERATION] + (-kd * (J @ dq - target[TARGET_VELOCITY]) - kp * e) - s["dJ_dq"]
+    e = np.concatenate([tcp_position - t["position"], log3_reference(tcp_rotation @ t["rotation"].T)])
+    b = t["acceleration"] + (-kd * (J @ dq - t["velocity"]) - kp * e) - s["dJ_dq"]
     return b + gamma @ (J @ ddq_e) if ps["use_gamma"] else b
 
 

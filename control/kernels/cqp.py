@@ -49,7 +49,8 @@ def pose_record_dtype() -> np.dtype:
 @functools.cache
 def posture_record_dtype(n: int) -> np.dtype:
     """`PostureTaskGains` (w₀) and the posture task's K_p, K_d, K_i (n,), Γ₀ (n, n), K_i ≠ 0, Γ₀ ≠ 0,
-    δt (s) and whether its metric is M [C7, C9]."""
+    δt (s), whether its metric is M [C7, C9], and its state: the integral ∫(q − q_ref) (n,)
+    (`control.compliance_qp.PostureTask.integral` is a view of it)."""
     return record_dtype(
         (PostureTaskGains,),
         (
@@ -61,6 +62,7 @@ def posture_record_dtype(n: int) -> np.dtype:
             ("use_gamma", np.bool_),
             ("dt", np.float64),
             ("inertia_metric", np.bool_),
+            ("integral", np.float64, (n,)),
         ),
     )
 
@@ -86,11 +88,49 @@ def damper_record_dtype(n: int) -> np.dtype:
     )
 
 
+# what the estimator's record holds besides `EstimatorGains` and its constants: the observer's and the
+# filter's state, which the fused step advances in place, and the step's inputs and estimate
+ESTIMATOR_STATE_FIELDS = (
+    "observed", "M_prev", "dq_prev", "h_prev", "r", "filtered", "lp", "tau_prev", "wrench", "estimate_on",
+    "tau_hat", "tau_s",
+)  # fmt: skip
+
+
 @functools.cache
-def estimator_record_dtype() -> np.dtype:
-    """`EstimatorGains` (K_I) and the estimator's pole a, δt and source code (0 none, 1 residual,
-    2 fusion, −1 oracle: not computed in the call) [C25-26]."""
-    return record_dtype((EstimatorGains,), (("a", np.float64), ("dt", np.float64), ("source_code", np.float64)))
+def estimator_record_dtype(n: int) -> np.dtype:
+    """`EstimatorGains` (K_I), the estimator's pole a, δt and source code (0 none, 1 residual,
+    2 fusion, −1 oracle: not computed in the call) [C25-26], and its state
+    (`control.estimation.ExternalTorqueEstimator`: the observer's and the filter's attributes are
+    views of it): whether the observer holds a last state (`observed`) and that state M, q̇, h
+    (`M_prev`, `dq_prev`, `h_prev`), the residual r, whether the high pass has started (`filtered`)
+    and its low-pass state `lp`, the torque applied over the last period `tau_prev`; the step's
+    F/T wrench at the TCP (6,) and whether the fused step estimates (`estimate_on`, else `tau_hat` is
+    given); the estimate τ̂_e `tau_hat` and τ_s = Jᵀ F_s `tau_s`."""
+    vector = (("dq_prev", "h_prev", "r", "lp", "tau_prev", "tau_hat", "tau_s"), (n,))
+    shapes = {"M_prev": (n, n), "wrench": (6,), **dict.fromkeys(vector[0], vector[1])}
+    state = tuple(
+        (name, np.float64, shapes[name]) if name in shapes else (name, np.bool_) for name in ESTIMATOR_STATE_FIELDS
+    )
+    return record_dtype((EstimatorGains,), (("a", np.float64), ("dt", np.float64), ("source_code", np.float64), *state))
+
+
+@functools.cache
+def cqp_workspace_dtype(n: int, m: int) -> np.dtype:
+    """The record of one [C] step's work (`control.compliance_qp.AccelerationQP.work`: its arrays are
+    views of it): the posture reference `q_ref`, `dq_ref` (n,) the step reads; the QP's objective
+    ½ q̈ᵀP q̈ + qvᵀq̈ [C9] `P` (n, n), `qv` (n,), its rows `A` (m, n), `l`, `u` (m,) [C10] and box
+    `lb`, `ub` (n,) [C17-24], which the step writes; and the step's results: the damper bounds
+    `crossed`, whether the fast path `solved` the QP, q̈ `x`, τ_d `tau`, the command `tau_cmd`
+    (n,) and whether it `saturated`."""
+    vec, rows = (np.float64, (n,)), (np.float64, (m,))
+    return record_dtype(
+        (),
+        (
+            ("q_ref", *vec), ("dq_ref", *vec), ("P", np.float64, (n, n)), ("qv", *vec), ("A", np.float64, (m, n)),
+            ("l", *rows), ("u", *rows), ("lb", *vec), ("ub", *vec), ("crossed", np.bool_), ("solved", np.bool_),
+            ("x", *vec), ("tau", *vec), ("tau_cmd", *vec), ("saturated", np.bool_),
+        ),
+    )  # fmt: skip
 
 
 @functools.cache
@@ -105,62 +145,64 @@ def settings_record_dtype(n: int) -> np.dtype:
 
 
 @njit(cache=True)
-def cqp_problem_fused(snap, estimator, target, pose, posture, damper, settings, buffers):
+def cqp_problem_fused(snap, estimator, target, pose, posture, damper, settings, work):
     """What `control.compliance_qp.ComplianceQPExecutor._step_reference` computes before the QP,
     for a TCP pose task (when `pose_on`) and the posture task, in one call of the kernels it calls
-    one by one:
+    one by one, every argument a record read and written by field name:
 
-    with `estimate_on`, the estimate τ̂_e of `control.estimation.ExternalTorqueEstimator.update`
-    (observer and sensor both started): the observer's new residual r [C25]
-    (`momentum_observer_fused`, from the last step's M, q̇, h and τ), τ_s = Jᵀ F_s and its high
-    pass (`sensor_high_pass_fused`, the low-pass state `lp` advanced in place), τ̂_e = 0, r or
-    r + high pass [C26] for `estimator_constants` = [a (observer and filter pole), δt, source 0/1/2
-    (none, residual, fusion)]; else τ̂_e = `tau_hat_given`;
-    q̈_e = M⁻¹ τ̂_e; the objective [C9] ½ q̈ᵀP q̈ + qvᵀq̈ written into P, qv: the pose task's
-    rows (`pose_task_target_fused`, `add_task_rows_fused`), then the posture task's
-    (`posture_target_fused`, its integral advanced in place), identity metric (P += w I, qv −= w b)
-    or inertia metric (P += w M, qv −= w M b); the dampers' box lb ≤ q̈ ≤ ub [C17-24]
-    (`acceleration_bounds_fused`); the torque rows [C10] of A, l, u (`torque_rows_fused`, τ_fb =
-    τ̂_e with `feedback`, else 0); with `fast_on` (the objective is final: no other task adds
-    rows), the dense backend's exact fast path on that QP (`unconstrained_optimum_fused`, primal
-    tolerance `tol`) and, when it holds, τ_d = M q̈ + h − τ_fb [C8] (`inverse_dynamics_fused`).
+    with the estimator's `estimate_on`, the estimate τ̂_e of
+    `control.estimation.ExternalTorqueEstimator.update` (observer and sensor both started): the
+    observer's new residual r [C25] (`momentum_observer_fused`, from the stored M, q̇, h and
+    `tau_prev`; then this step's M, q̇, h stored), τ_s = Jᵀ F_s and its high pass
+    (`sensor_high_pass_fused`, `lp` advanced), τ̂_e = 0, r or r + high pass [C26] for the
+    `source_code` 0/1/2 (none, residual, fusion), into the record's `r`, `tau_s`, `tau_hat`; else
+    τ̂_e is the record's `tau_hat`, as given;
+    q̈_e = M⁻¹ τ̂_e; the objective [C9] ½ q̈ᵀP q̈ + qvᵀq̈ written into the workspace's `P`, `qv`: the
+    pose task's rows (`pose_task_target_fused`, `add_task_rows_fused`), then the posture task's
+    (`posture_target_fused` on the workspace's `q_ref`, `dq_ref` and the posture record's
+    `integral`, advanced), identity metric (P += w I, qv −= w b) or inertia metric (P += w M,
+    qv −= w M b); the dampers' box `lb` ≤ q̈ ≤ `ub` [C17-24] (`acceleration_bounds_fused`); the torque
+    rows [C10] of `A`, `l`, `u` (`torque_rows_fused`, τ_fb = τ̂_e with `feedback`, else 0); with
+    `fast_on` (the objective is final: no other task adds rows), the dense backend's exact fast path
+    on that QP (`unconstrained_optimum_fused`, primal tolerance `eps`) and, when it holds,
+    τ_d = M q̈ + h − τ_fb [C8] (`inverse_dynamics_fused`).
 
-    Returns (damper bounds crossed, τ̂_e, r, τ_s, solved, q̈, τ_d, τ command, saturated): r and
-    τ_s new only with `estimate_on` (else r and `tau_hat_given`), the last four only when
-    `solved` (the fast path held).
+    Writes the workspace's results: `crossed` (damper bounds crossed), `solved` (the fast path held),
+    and then q̈ `x`, τ_d `tau`, the command `tau_cmd` and `saturated` (else x = τ_d = command = 0).
 
-    The arguments: `snap` = the snapshot's record (`Dynamics.record`, read by field name);
-    `estimator` = (estimate_on, τ̂_e given, the last step's M, q̇, μ, τ, the residual r, the F/T
-    wrench, the filter state lp, the estimator's record); `target` = `records.target_arrays(task
-    target)`; the records of the pose task (`pose_record_dtype`; read only with the record
-    `settings.pose_on`), the damper and the settings; `posture` = (q_ref, q̇_ref, ∫e, its record);
-    `buffers` = (objective (n + 1, n) = [P; qv], A, l, u, lb, ub), written."""
-    s = snap[0]
+    The records: `snap` the snapshot's (`Dynamics.record`); `estimator` `estimator_record_dtype`;
+    `target` the task target's (`TaskTarget.record`); `pose` `pose_record_dtype` (read only with
+    `settings.pose_on`); `posture` `posture_record_dtype`; `damper` `damper_record_dtype`;
+    `settings` `settings_record_dtype`; `work` `cqp_workspace_dtype`."""
+    s, e, w_ = snap[0], estimator[0], work[0]
     q, dq, M, M_inv, h, J = s.q, s.dq, s.M, s.M_inv, s.h, s.J
-    estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, est_record = estimator
-    q_ref, dq_ref, integral, posture_record = posture
-    objective, A, l, u, lb, ub = buffers
-    e_c, pc, sc = est_record[0], posture_record[0], settings[0]
+    pc, sc = posture[0], settings[0]
     n = q.shape[0]
-    if estimate_on:
-        a, dt, source = e_c.a, e_c.dt, e_c.source_code
-        r = momentum_observer_fused(M_prev, dq, dq_prev, tau_prev, h_prev, dt, a, r)
-        tau_s, high = sensor_high_pass_fused(J, wrench, lp, a)
-        tau_hat = np.zeros(n)
-        if source == 1.0:  # residual
-            tau_hat[:] = r
-        elif source == 2.0:  # fusion [C26]
-            for i in range(n):
+    tau_hat = e.tau_hat
+    if e.estimate_on:
+        a, source = e.a, e.source_code
+        r = momentum_observer_fused(e.M_prev, dq, e.dq_prev, e.tau_prev, e.h_prev, e.dt, a, e.r)
+        tau_s, high = sensor_high_pass_fused(J, e.wrench, e.lp, a)
+        for i in range(n):
+            e.r[i] = r[i]
+            e.tau_s[i] = tau_s[i]
+            e.dq_prev[i] = dq[i]
+            e.h_prev[i] = h[i]
+            for j in range(n):
+                e.M_prev[i, j] = M[i, j]
+            if source == 1.0:  # residual
+                tau_hat[i] = r[i]
+            elif source == 2.0:  # fusion [C26]
                 tau_hat[i] = r[i] + high[i]
-    else:
-        tau_hat, tau_s = tau_hat_given, tau_hat_given
-    P, qv = objective[:n], objective[n]
+            else:
+                tau_hat[i] = 0.0
+    P, qv = w_.P, w_.qv
     ddq_e = np.empty(n)  # q̈_e = M⁻¹ τ̂_e
     for i in range(n):
-        s = 0.0
+        acc = 0.0
         for j in range(n):
-            s += M_inv[i, j] * tau_hat[j]
-        ddq_e[i] = s
+            acc += M_inv[i, j] * tau_hat[j]
+        ddq_e[i] = acc
     for i in range(n):
         qv[i] = 0.0
         for j in range(n):
@@ -168,77 +210,84 @@ def cqp_problem_fused(snap, estimator, target, pose, posture, damper, settings, 
     if sc.pose_on:
         b = pose_task_target_fused(snap, target, pose, ddq_e)
         add_task_rows_fused(P, qv, J, b, pose[0].weight)
-    b0 = posture_target_fused(snap, q_ref, dq_ref, integral, posture_record, ddq_e)
+    b0 = posture_target_fused(snap, w_.q_ref, w_.dq_ref, pc.integral, posture, ddq_e)
     w = pc.weight
     if pc.inertia_metric:  # (Iᵀ M) w I = w M, (Iᵀ M) w b0 = w M b0
         for i in range(n):
-            s = 0.0
+            acc = 0.0
             for j in range(n):
                 P[i, j] += M[i, j] * w
-                s += M[i, j] * w * b0[j]
-            qv[i] -= s
+                acc += M[i, j] * w * b0[j]
+            qv[i] -= acc
     else:
         for i in range(n):
             P[i, i] += w
             qv[i] -= w * b0[i]
     lower, upper, crossed = acceleration_bounds_fused(q, dq, damper)
+    lb, ub = w_.lb, w_.ub
     for i in range(n):
         lb[i] = lower[i]
         ub[i] = upper[i]
     feedback, tau_max = sc.feedback, sc.tau_max
+    tau_fb = np.zeros(n)
     if feedback:
-        torque_rows_fused(M, h, tau_hat, tau_max, A, l, u, sc.torque_limits, sc.no_bound)
-    else:
-        torque_rows_fused(M, h, np.zeros(n), tau_max, A, l, u, sc.torque_limits, sc.no_bound)
-    x = np.zeros(n)
+        tau_fb[:] = tau_hat
+    torque_rows_fused(M, h, tau_fb, tau_max, w_.A, w_.l, w_.u, sc.torque_limits, sc.no_bound)
+    x = w_.x
+    x[:] = 0.0
     solved = False
     if sc.fast_on and not crossed:
-        solved = unconstrained_optimum_fused(P, qv, A, lb, l, ub, u, sc.eps, x)
+        solved = unconstrained_optimum_fused(P, qv, w_.A, lb, w_.l, ub, w_.u, sc.eps, x)
+    w_.crossed, w_.solved = crossed, solved
     if solved:  # [C8] for an exact solution (no clipping of τ_d)
-        tau, tau_cmd, saturated = inverse_dynamics_fused(M, x, h, tau_hat if feedback else np.zeros(n), tau_max, False)
+        tau, tau_cmd, saturated = inverse_dynamics_fused(M, x, h, tau_fb, tau_max, False)
+        w_.tau[:] = tau
+        w_.tau_cmd[:] = tau_cmd
+        w_.saturated = saturated
     else:
-        tau, tau_cmd, saturated = x, x, False
-    return crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated
+        w_.tau[:] = 0.0
+        w_.tau_cmd[:] = 0.0
+        w_.saturated = False
 
 
-def cqp_problem_reference(snap, estimator, target, pose, posture, damper, settings, buffers) -> tuple:
-    """`cqp_problem_fused` by the references of the kernels it calls, one by one (same arguments,
-    same buffers written, same values)."""
-    s = snap[0]
+def cqp_problem_reference(snap, estimator, target, pose, posture, damper, settings, work) -> None:
+    """`cqp_problem_fused` by the references of the kernels it calls, one by one (same records, same
+    fields written, same values)."""
+    s, e, w_ = snap[0], estimator[0], work[0]
     q, dq, M, M_inv, h, J = s["q"], s["dq"], s["M"], s["M_inv"], s["h"], s["J"]
-    estimate_on, tau_hat_given, M_prev, dq_prev, h_prev, tau_prev, r, wrench, lp, est_record = estimator
-    q_ref, dq_ref, integral, posture_record = posture
-    objective, A, l, u, lb, ub = buffers
-    e_c, pc, sc = est_record[0], posture_record[0], settings[0]
+    pc, sc = posture[0], settings[0]
     n = q.shape[0]
-    if estimate_on:
-        a, dt, source = float(e_c["a"]), float(e_c["dt"]), float(e_c["source_code"])
-        r = momentum_observer_reference(M_prev, dq, dq_prev, tau_prev, h_prev, dt, a, r)  # [C25]
-        tau_s, high = sensor_high_pass_reference(J, wrench, lp, a)
-        tau_hat = r.copy() if source == 1.0 else (r + high if source == 2.0 else np.zeros(n))  # [C26]
-    else:
-        tau_hat, tau_s = tau_hat_given, tau_hat_given
-    P, qv = objective[:n], objective[n]
+    tau_hat = e["tau_hat"]
+    if e["estimate_on"]:
+        a, dt, source = float(e["a"]), float(e["dt"]), float(e["source_code"])
+        r = momentum_observer_reference(e["M_prev"], dq, e["dq_prev"], e["tau_prev"], e["h_prev"], dt, a, e["r"])
+        tau_s, high = sensor_high_pass_reference(J, e["wrench"], e["lp"], a)  # [C25], then the state stored
+        e["r"], e["tau_s"], e["M_prev"], e["dq_prev"], e["h_prev"] = r, tau_s, M, dq, h
+        tau_hat[:] = r if source == 1.0 else (r + high if source == 2.0 else np.zeros(n))  # [C26]
+    P, qv = w_["P"], w_["qv"]
     P[:], qv[:] = 0.0, 0.0
     ddq_e = M_inv @ tau_hat
     if sc["pose_on"]:  # [C3-4, C9]
         b = pose_task_target_reference(snap, target, pose, ddq_e)
         add_task_rows_reference(P, qv, J, b, float(pose[0]["weight"]))
     w = float(pc["weight"])
-    b0 = posture_target_reference(snap, q_ref, dq_ref, integral, posture_record, ddq_e)
+    b0 = posture_target_reference(snap, w_["q_ref"], w_["dq_ref"], pc["integral"], posture, ddq_e)
     metric = M if pc["inertia_metric"] else np.eye(n)  # [C7] task 0 in the M or identity metric
     P += w * metric
     qv -= w * (metric @ b0)
     lower, upper, crossed = acceleration_bounds_reference(q, dq, damper)
-    lb[:], ub[:] = lower, upper
+    w_["lb"], w_["ub"] = lower, upper
     feedback, tau_max = bool(sc["feedback"]), sc["tau_max"]
-    tau_fb = tau_hat if feedback else np.zeros(n)
+    tau_fb = tau_hat.copy() if feedback else np.zeros(n)
+    A, l, u = w_["A"], w_["l"], w_["u"]
     torque_rows_reference(M, h, tau_fb, tau_max, A, l, u, bool(sc["torque_limits"]), float(sc["no_bound"]))  # [C10]
     x = np.zeros(n)
     fast_on, tol = bool(sc["fast_on"]), float(sc["eps"])
-    solved = bool(fast_on and not crossed and unconstrained_optimum_reference(P, qv, A, lb, l, ub, u, tol, x))
+    solved = bool(
+        fast_on and not crossed and unconstrained_optimum_reference(P, qv, A, w_["lb"], l, w_["ub"], u, tol, x)
+    )
+    w_["x"], w_["crossed"], w_["solved"] = x, crossed, solved
     if solved:  # [C8]
-        tau, tau_cmd, saturated = inverse_dynamics_reference(M, x, h, tau_fb, tau_max, False)
+        w_["tau"], w_["tau_cmd"], w_["saturated"] = inverse_dynamics_reference(M, x, h, tau_fb, tau_max, False)
     else:
-        tau, tau_cmd, saturated = x, x, False
-    return crossed, tau_hat, r, tau_s, solved, x, tau, tau_cmd, saturated
+        w_["tau"], w_["tau_cmd"], w_["saturated"] = 0.0, 0.0, False

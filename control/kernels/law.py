@@ -25,21 +25,13 @@ from control.kernels.coupling import (
 from control.kernels.geometry import log3_fused, log3_reference
 from control.kernels.gradients import gradient_contraction_fused, gradient_contraction_reference
 from control.kernels.line_qp import nullspace_line_qp_fused, nullspace_line_qp_into_reference
-from control.kernels.records import (
-    TARGET_ACCELERATION,
-    TARGET_POSITION,
-    TARGET_ROTATION,
-    TARGET_VELOCITY,
-    TARGET_WRENCH,
-    fill_record,
-    record_dtype,
-)
+from control.kernels.records import fill_record, record_dtype
 
 
 def task_wrench_reference(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law) -> tuple:
     """(F [T7] before μx, F − Λx J̇q̇, coupled acceleration P_f F_m^e) of the [T] executor.
 
-    `snap`: the snapshot's record (J, q̇, Λx, J̇q̇ by name); `target`: `target_arrays(task target)`;
+    `snap`: the snapshot's record (J, q̇, Λx, J̇q̇ by name); `target`: the task target's record (`TaskTarget.record`);
     e: pose error [p° − p; log(R° Rᵀ)]; A, P_d, P_f: the coupling blocks of `coupling_reference`;
     `u_f_extra`: the integral term K_f^i ∫e_f (or zeros); `law`: the law's record (the axes, K_m^p,
     2ζ√K_m^p, K_f^p, K_f^d and `shaping` by name).
@@ -49,7 +41,7 @@ def task_wrench_reference(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, l
     n_m = int(c["n_m"])
     m_idx, f_idx = c["perm"][:n_m], c["perm"][n_m:]
     kp_m, kd_scale_m = c["kp_m"][:n_m], c["kd_scale_m"][:n_m]
-    target_velocity, target_acceleration = target[TARGET_VELOCITY], target[TARGET_ACCELERATION]
+    target_velocity, target_acceleration = target[0]["velocity"], target[0]["acceleration"]
     v = J @ dq
     de = target_velocity - v
     kd_m = kd_scale_m * np.sqrt(A.diagonal())  # [T11] K_m^d = 2ζ√(K_m^p A_ii)
@@ -66,7 +58,7 @@ def task_wrench_fused(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law):
     """Compiled `task_wrench_reference` (same outputs, same order)."""
     s, c = snap[0], law[0]
     J, dq, Lambda, dJ_dq = s.J, s.dq, s.Lambda, s.dJ_dq
-    target_velocity, target_acceleration = target[TARGET_VELOCITY], target[TARGET_ACCELERATION]
+    target_velocity, target_acceleration = target[0].velocity, target[0].acceleration
     n_m = c.n_m
     perm = c.perm
     m_idx, f_idx = perm[:n_m], perm[n_m:]
@@ -226,8 +218,30 @@ def law_record(gains: MotionForceGains, nullspace: NullspaceGains, **derived) ->
     return fill_record(law_record_dtype(n), (gains, nullspace), **derived)
 
 
+@functools.cache
+def projection_step_dtype(n: int) -> np.dtype:
+    """The record of one [T] step's work (`control.motion_force.ProjectionExecutor`), read and written
+    by `projection_law_fused` and `projection_step_fused` by field name: the step's F/T wrench at the
+    TCP `F_e` (6,) and W_j's posture `q_d` (n,); the state: the force integral ∫e_f
+    `force_integral` (its first n_f entries; [T12]); the QP's data: k0 ∇W `grad`, the velocity bounds
+    `lower`, `upper` (n,) [T15-17]; the law's values: F [T7] `F`, F − Λx J̇q̇ `F_mu` (6,), W of the
+    objective `W` and `W_f`, `W_a`, `W_d` [T22], P_f F_m^e `coupled`, F̂_f[0] − F_f^e[0]
+    `force_error`; and the step's: the nullspace velocity `x`, the torque `tau` (n,) and the number of
+    active bounds `active` (0 or 1; −1: the QP was not solved in the call)."""
+    vec = (np.float64, (n,))
+    scalars = tuple((name, np.float64) for name in ("W", "W_f", "W_a", "W_d", "coupled", "force_error"))
+    return record_dtype(
+        (),
+        (
+            ("F_e", np.float64, (6,)), ("q_d", *vec), ("force_integral", np.float64, (6,)), ("grad", *vec),
+            ("lower", *vec), ("upper", *vec), ("F", np.float64, (6,)), ("F_mu", np.float64, (6,)), *scalars,
+            ("x", *vec), ("tau", *vec), ("active", np.int64),
+        ),
+    )  # fmt: skip
+
+
 @njit(cache=True)
-def projection_law_fused(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data):
+def projection_law_fused(snap, target, law, chain, step):
     """Everything the [T] executor computes before its nullspace QP, in one compiled call of the
     kernels above (the same arithmetic as calling them one by one, as the executor's reference
     path `ProjectionExecutor._step_reference` does):
@@ -237,20 +251,19 @@ def projection_law_fused(snap, target, F_e, force_integral, q_d, law, chain, F_m
     T22]); the QP's linear term k0 ∇W with ∇W from `gradient_contraction_fused` and
     `inertia_contraction_fused` [T24-27] (objective 0/1/2: f/a/d), or ∇W_j = q − q_d [T18]
     (objective `OBJECTIVE_J`); `task_wrench_fused` [T7, T11-12]; `damper_bounds_fused` [T17].
-    `snap` is the snapshot's record (`Dynamics.record`, read by field name), `target` is
-    `target_arrays(task target)` (read by the named positions of `records.TARGET_FIELDS`), `law` is a
-    `law_record(…)` (the gains by name), `chain` is `pack_chain(chain_constants(model))` (a serial
-    revolute chain).
-
-    Writes F − Λx J̇q̇ into `F_mu` (6,) and the QP's k0 ∇W, lower and upper bounds into the rows of
-    `qp_data` (3, n) (the caller's buffers: handing arrays back costs more); returns (F, new force
-    integral, W, W_f, W_a, W_d, P_f F_m^e, F̂_f[0] − F_f^e[0]).
+    `snap` is the snapshot's record (`Dynamics.record`), `target` the task target's
+    (`TaskTarget.record`), `law` a `law_record(…)` (the gains), all read by field name; `chain` is
+    `pack_chain(chain_constants(model))` (a serial revolute chain); `step` a `projection_step_dtype`
+    record: the call reads its `F_e`, `q_d` and `force_integral` and writes the new force integral,
+    the QP's `grad` (k0 ∇W), `lower` and `upper`, and the law's `F`, `F_mu`, `W`, `W_f`, `W_a`, `W_d`,
+    `coupled` and `force_error`.
     """
-    s = snap[0]
+    s, st = snap[0], step[0]
+    F_e, q_d = st.F_e, st.q_d
     q, J, M_inv, Lambda, Lambda_inv = s.q, s.J, s.M_inv, s.Lambda, s.Lambda_inv
     tcp_position, tcp_rotation = s.tcp_position_world, s.tcp_rotation_world
-    target_position, target_rotation = target[TARGET_POSITION], target[TARGET_ROTATION]
-    target_wrench = target[TARGET_WRENCH]
+    t = target[0]
+    target_position, target_rotation, target_wrench = t.position, t.rotation, t.wrench
     c = law[0]
     objective, n_m, k0 = c.objective, c.n_m, c.k0
     perm = c.perm
@@ -269,7 +282,7 @@ def projection_law_fused(snap, target, F_e, force_integral, q_d, law, chain, F_m
     e[3:] = log3_fused(R_err)
     nf = f_idx.shape[0]
     F_hat = np.empty(nf)
-    integral = force_integral.copy()
+    integral = st.force_integral
     u_f_extra = np.zeros(nf)
     for r in range(nf):
         F_hat[r] = target_wrench[f_idx[r]]
@@ -314,50 +327,48 @@ def projection_law_fused(snap, target, F_e, force_integral, q_d, law, chain, F_m
             grad[i] = -2.0 * (term_J[i] - term_M[i])
     for i in range(n):
         grad[i] = k0 * grad[i]
-    F, F_mu_, coupled = task_wrench_fused(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law)
+    F, F_mu, coupled = task_wrench_fused(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law)
     lower, upper = damper_bounds_fused(
         q, c.q_lower, c.q_upper, c.dq_limit, c.endless != 0.0, c.damper_influence, c.damper_safety, c.damper_speed
     )
-    F_mu[:] = F_mu_
-    qp_data[0] = grad
-    qp_data[1] = lower
-    qp_data[2] = upper
-    return F, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]
+    st.F[:] = F
+    st.F_mu[:] = F_mu
+    st.grad[:] = grad
+    st.lower[:] = lower
+    st.upper[:] = upper
+    st.W, st.W_f, st.W_a, st.W_d = W, W_f, W_a, W_d
+    st.coupled, st.force_error = coupled, F_hat[0] - F_e[f_idx[0]]
 
 
 @njit(cache=True)
-def projection_step_fused(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data, out):
-    """`projection_law_fused`, then, when the record's `closed_form` holds (the nullspace QP's
-    7-joint line form applies), the QP [T15-17] by `nullspace_line_qp_fused` into `x` and the torque
-    [T13-14] by `joint_torque_fused` into `tau`, `out` = (x, tau): the whole [T] step in one call.
-    Returns the law's values and the number of active bounds (0 or 1), or −1 when the QP was not
-    solved here (`x`, `tau` untouched: the caller solves it with its backend)."""
-    F, integral, W, W_f, W_a, W_d, coupled, force_error = projection_law_fused(
-        snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data
-    )
-    x, tau = out
-    s = snap[0]
-    J, dq, N, Lambda_n, h = s.J, s.dq, s.N, s.Lambda_n, s.h
-    c = law[0]
+def projection_step_fused(snap, target, law, chain, step):
+    """`projection_law_fused`, then, when the law record's `closed_form` holds (the nullspace QP's
+    7-joint line form applies), the QP [T15-17] by `nullspace_line_qp_fused` into the step record's
+    `x` and the torque [T13-14] by `joint_torque_fused` into its `tau`: the whole [T] step in one
+    call. Writes the number of active bounds (0 or 1) into `active`, or −1 when the QP was not solved
+    here (`x`, `tau` untouched: the caller solves it with its backend)."""
+    projection_law_fused(snap, target, law, chain, step)
+    s, st, c = snap[0], step[0], law[0]
     active = -1
     if c.closed_form:
-        active = nullspace_line_qp_fused(J, qp_data[0], qp_data[1], qp_data[2], x)
+        active = nullspace_line_qp_fused(s.J, st.grad, st.lower, st.upper, st.x)
         if active >= 0:
-            tau[:] = joint_torque_fused(J, F_mu, N, Lambda_n, c.kn, x, dq, h)
-    return F, integral, W, W_f, W_a, W_d, coupled, force_error, active
+            st.tau[:] = joint_torque_fused(s.J, st.F_mu, s.N, s.Lambda_n, c.kn, st.x, s.dq, s.h)
+    st.active = active
 
 
-def projection_law_reference(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data) -> tuple:
+def projection_law_reference(snap, target, law, chain, step) -> None:
     """`projection_law_fused` by the references one by one: e = [p° − p; log(R° Rᵀ)], the clamped
     force integral [T12], `coupling_reference` [T6, T9, T22], k0 ∇W from
     `gradient_contraction_reference` (∂J from `kinematic_hessian_reference`) and
     `inertia_contraction_reference` [T24-27] or ∇W_j = q − q_d [T18], `task_wrench_reference`
-    [T7, T11-12] and `damper_bounds_reference` [T17]; the same buffers written, the same values."""
-    s = snap[0]
+    [T7, T11-12] and `damper_bounds_reference` [T17]; the same fields written, the same values."""
+    s, st = snap[0], step[0]
+    F_e, q_d = st["F_e"], st["q_d"]
     q, J, M_inv, Lambda, Lambda_inv = s["q"], s["J"], s["M_inv"], s["Lambda"], s["Lambda_inv"]
     exact, tcp_position, tcp_rotation = not s["near_singular"], s["tcp_position_world"], s["tcp_rotation_world"]
-    target_position, target_rotation = target[TARGET_POSITION], target[TARGET_ROTATION]
-    target_wrench = target[TARGET_WRENCH]
+    t = target[0]
+    target_position, target_rotation, target_wrench = t["position"], t["rotation"], t["wrench"]
     c = law[0]
     objective, n_m, k0 = int(c["objective"]), int(c["n_m"]), float(c["k0"])
     perm = c["perm"]
@@ -365,10 +376,10 @@ def projection_law_reference(snap, target, F_e, force_integral, q_d, law, chain,
     force_ki, force_integral_limit = float(c["force_ki"]), float(c["force_integral_limit_n"])
     e = np.concatenate([target_position - tcp_position, log3_reference(target_rotation @ tcp_rotation.T)])
     F_hat = target_wrench[f_idx]
-    integral, u_f_extra = force_integral.copy(), np.zeros(len(f_idx))
+    integral, u_f_extra = st["force_integral"][: len(f_idx)], np.zeros(len(f_idx))
     if force_ki > 0:  # [T12] anti-windup: |K_f^i ∫e_f| ≤ limit
         lim = force_integral_limit / force_ki
-        integral = np.clip(integral + (F_e[f_idx] - F_hat) * CONTROL_PERIOD_S, -lim, lim)
+        integral[:] = np.clip(integral + (F_e[f_idx] - F_hat) * CONTROL_PERIOD_S, -lim, lim)
         u_f_extra = force_ki * integral
     scale = c["task_scale"]
     A, _B, _D, A_inv, _D_hat, P_f, P_a, P_d, W_f, W_a, W_d = coupling_reference(
@@ -392,27 +403,26 @@ def projection_law_reference(snap, target, F_e, force_integral, q_d, law, chain,
             )
         W = (W_f, W_a, W_d)[objective]
         grad = -2.0 * (term_J - term_M)
-    F, F_mu_, coupled = task_wrench_reference(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law)
-    F_mu[:] = F_mu_
-    qp_data[0] = k0 * grad
-    qp_data[1], qp_data[2] = damper_bounds_reference(
+    st["F"], st["F_mu"], st["coupled"] = task_wrench_reference(snap, target, e, A, P_d, P_f, F_e, F_hat, u_f_extra, law)
+    st["grad"] = k0 * grad
+    st["lower"], st["upper"] = damper_bounds_reference(
         q, c["q_lower"], c["q_upper"], c["dq_limit"], c["endless"] != 0.0,
         float(c["damper_influence"]), float(c["damper_safety"]), float(c["damper_speed"]),
     )  # fmt: skip
-    return F, integral, W, W_f, W_a, W_d, coupled, F_hat[0] - F_e[f_idx[0]]
+    st["W"], st["W_f"], st["W_a"], st["W_d"] = W, W_f, W_a, W_d
+    st["force_error"] = F_hat[0] - F_e[f_idx[0]]
 
 
-def projection_step_reference(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data, out) -> tuple:
+def projection_step_reference(snap, target, law, chain, step) -> None:
     """`projection_step_fused` by `projection_law_reference`, `nullspace_line_qp_into_reference`
     [T15-17] and `joint_torque_reference` [T13-14]."""
-    law_values = projection_law_reference(snap, target, F_e, force_integral, q_d, law, chain, F_mu, qp_data)
-    x, tau = out
-    s = snap[0]
-    J, dq, N, Lambda_n, h = s["J"], s["dq"], s["N"], s["Lambda_n"], s["h"]
-    c = law[0]
+    projection_law_reference(snap, target, law, chain, step)
+    s, st, c = snap[0], step[0], law[0]
     active = -1
     if c["closed_form"]:
-        active = nullspace_line_qp_into_reference(J, qp_data[0], qp_data[1], qp_data[2], x)
+        active = nullspace_line_qp_into_reference(s["J"], st["grad"], st["lower"], st["upper"], st["x"])
         if active >= 0:
-            tau[:] = joint_torque_reference(J, F_mu, N, Lambda_n, c["kn"], x, dq, h)
-    return (*law_values, active)
+            st["tau"] = joint_torque_reference(
+                s["J"], st["F_mu"], s["N"], s["Lambda_n"], c["kn"], st["x"], s["dq"], s["h"]
+            )
+    st["active"] = active
