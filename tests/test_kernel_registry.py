@@ -2,8 +2,9 @@
 
 The registry test enumerates every numba dispatcher defined in a `control.kernels` module (and in an
 `app.sim` module): one that is not in `KERNELS` (`app.sim.kernel_registry.SIM_KERNELS`) fails. No
-compiled function (the kernels and the simulator's) takes more than `MAX_ARGUMENTS` arguments: a
-group of them is a named record (`control.kernels.records`).
+compiled function (the kernels and the simulator's) takes more than `MAX_ARGUMENTS` arguments, nor
+more than `MAX_ARGUMENTS` values counting a tuple as its members (as the registry's samples call it):
+a group of them is a named record (`control.kernels.records`).
 
 Each pair runs on the same copies of its sample inputs; every output and every argument array the
 kernel writes (scratch excepted; a record's fields each) is held to the entry's relative tolerance
@@ -49,6 +50,19 @@ def test_no_compiled_function_takes_more_than_ten_arguments():
     assert len(counts) >= 45  # the kernels and the simulator's compiled functions were found
     over = {name: n for name, n in counts.items() if n > MAX_ARGUMENTS}
     assert not over, f"compiled functions over {MAX_ARGUMENTS} arguments (group them into a record): {over}"
+
+
+def test_no_compiled_function_takes_more_than_ten_values_counting_the_members_of_tuples():
+    """A tuple argument counts as its members (a record as one value): the arguments of every sample
+    call of every registered kernel, the simulator's too, hold at most `MAX_ARGUMENTS` values."""
+    counts = {}
+    for name, pair in {**KERNELS, **SIM_KERNELS}.items():
+        samples = pair.samples(np.random.default_rng(zlib.crc32(name.encode())))
+        counts[name] = max(len(_leaves(args)) for args in samples)
+    assert len(counts) >= 45
+    assert max(counts.values()) > 1  # the count reached into the samples
+    over = {name: n for name, n in counts.items() if n > MAX_ARGUMENTS}
+    assert not over, f"compiled functions given over {MAX_ARGUMENTS} values (group them into a record): {over}"
 
 
 def test_every_compiled_kernel_has_a_reference_in_the_registry():
