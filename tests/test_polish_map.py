@@ -76,6 +76,18 @@ def test_the_map_refuses_a_dask_cluster_before_running_anything(tmp_path, capsys
     assert not out.exists()
 
 
+def test_a_swivels_cells_are_sent_together_its_groups_spread_over_the_loop():
+    from app.headless.sweep.runner import grouped, spread_order
+
+    cells = [(s, m, lat) for s in range(8) for m in (0.25, 1.0) for lat in ("0+0", "1+1")]
+    points = [{"hold_swivel": s, "mu": m, "latency": lat} for s, m, lat in cells]
+    order = sorted(range(len(points)), key=lambda i: grouped(points, "hold_swivel")[i])
+    swivels = [points[i]["hold_swivel"] for i in order]
+    runs = [s for k, s in enumerate(swivels) if k == 0 or s != swivels[k - 1]]
+    assert runs == spread_order(8)  # each swivel once, in one run of 4 cells, coarse to fine over the loop
+    assert all(swivels.count(s) == 4 for s in runs)
+
+
 def _rec(swivel, mu, latency, verdict, h):
     return {
         "status": "ok",
