@@ -13,7 +13,7 @@ import pytest
 
 from app.core.commands import DragCommand
 from app.core.session import Session
-from app.live.ui.overlays import (
+from app.live.ui.overlay_shapes import (
     COUPLING_MAX_SPAN,
     PAYLOAD_RADIUS_M,
     Trail,

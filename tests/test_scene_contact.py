@@ -9,7 +9,8 @@ import pytest
 
 from app.core.commands import SetParam
 from app.live.lab import Lab
-from app.live.ui.overlays import Overlays, on_table
+from app.live.ui.overlay_shapes import on_table
+from app.live.ui.overlays import Overlays
 from app.live.ui.replay import ArmPoser, instant_snapshot
 from app.live.ui.snapshot import capture
 from app.live.ui.visuals import VisualSettings

@@ -19,7 +19,8 @@ import viser
 import robots.meshes
 from app.core.commands import DragCommand
 from app.live.ui.node_writes import set_pose, set_position, set_prop
-from app.live.ui.overlays import Overlays, margin_color
+from app.live.ui.overlay_shapes import margin_color
+from app.live.ui.overlays import Overlays
 from app.live.ui.snapshot import SceneSnapshot
 from app.live.ui.visuals import VisualSettings
 from robots import RobotDescription
