@@ -1194,7 +1194,7 @@ def torque_chart_state(pg: Any, plots: Any) -> str:
     """What the page's torque chart and the server's plots hold, for a failure's message."""
     page_series = pg.evaluate(_SERIES_JS, TORQUE_TITLE)
     boxes = {k: box.value for (c, k), box in plots.signal_boxes.items() if c == "torque"}
-    server_show = [s.get("show", True) for s in tuple(plots.torque.series)]
+    server_show = [s.get("show", True) for s in tuple(plots.handles["torque"].series)]
     return (
         f"page series {page_series}; server choice {plots.signals.shown_keys('torque')}; boxes {boxes}; "
         f"server series show {server_show}; frozen {plots.freeze.value}; history {len(plots.history.t)} samples "

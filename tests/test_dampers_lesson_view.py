@@ -44,15 +44,15 @@ def test_every_dampers_step_draws_limit_ds_and_di_in_view_and_step_4_concludes(a
             time.sleep(0.5)
         assert ("dampers", key) in panel.claims, key
         time.sleep(0.5)  # a redraw after the step's end
-        lines = phase_lines(plots.phase)
-        lo, hi = plots.phase.scales["x"]["range"]
+        lines = phase_lines(plots.handles["phase"])
+        lo, hi = plots.handles["phase"].scales["x"]["range"]
         for name in ("limit", "d_s", "d_i"):
             inside = [x for x in lines[name] if lo <= x <= hi]
             assert len(inside) == 1, (key, name, lines[name], (lo, hi))  # the line on the side it falls to
         limit = next(x for x in lines["limit"] if lo <= x <= hi)
         d_s = next(x for x in lines["d_s"] if lo <= x <= hi)
         assert abs(limit - d_s) / (hi - lo) > 0.05, key  # d_s clear of the limit: > 5 % of the plot's width
-        assert "zoomed on the" in str(plots.phase.title), key
+        assert "zoomed on the" in str(plots.handles["phase"].title), key
     obs = panel.results["dampers"]["l100d"]
     claim = panel.claims[("dampers", "l100d")]
     tolerated = obs["thrash_end_s"] <= 0 and obs["peak_tau_4"] < obs["tau_max_4"]

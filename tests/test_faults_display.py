@@ -250,7 +250,7 @@ def test_junk_for_a_plots_signal_checkbox_is_one_notice_to_its_sender_and_the_ch
         assert box.value is True and plots.signals.shown("torque", "tau_3")
         _junk_from_one_client(app, box._impl.uuid, (), 0, then=(False,))
         assert wait_until(lambda: not plots.signals.shown("torque", "tau_3"))  # the real update applied
-        assert wait_until(lambda: plots.torque.series[3].get("show") is False)
+        assert wait_until(lambda: plots.handles["torque"].series[3].get("show") is False)
     finally:
         plots.choose_signals("torque", (*plots.signals.shown_keys("torque"), "tau_3"))
 

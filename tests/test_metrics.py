@@ -11,8 +11,8 @@ import pytest
 from app.headless.experiments.compliance import run_mode
 from app.live.frames import deflection_readouts, plot_data
 from app.live.lab import Lab
-from app.live.ui.plots import phase_markers
-from app.scenarios.compliance import PUSHES
+from app.live.ui.plot_history import phase_markers
+from app.scenarios.compliance import PUSHES, ComplianceScenario
 from app.scenarios.mass_drop import RELEASE_TIME_S, drop_metrics
 from app.scenarios.metrics import PUSH_AFTER_S, DropFold, run_fold
 
@@ -78,6 +78,6 @@ def test_the_compliance_readout_its_plot_and_its_report_agree_on_the_elbow_push(
     assert drawn == pytest.approx(readout, abs=0.1)
     assert report["peak_elbow_deflection_mm"] == pytest.approx(readout, abs=0.1)
     assert report["peak_tcp_deflection_mm"] == pytest.approx(plot.deflection["elbow_push_tcp_mm"], abs=0.1)
-    markers = {m.label: m.t for m in phase_markers(c, 6)}
+    markers = {m.label: m.t for m in phase_markers(c, 6, ComplianceScenario.phase_marks)}
     for where, start, _ in PUSHES:
         assert markers[f"{'TCP' if where == 'tcp' else 'elbow'} push"] == pytest.approx(start, abs=0.025)

@@ -11,19 +11,18 @@ import pytest
 
 from app.core.commands import StepOnce
 from app.live.loop import SimLoop
-from app.live.ui.plots import (
+from app.live.ui.chart_draws import (
     COUPLING_TITLE,
     FORCE_RANGE_N,
     FORCE_TITLE,
     NEUTRAL_FORCE_TITLE,
     NO_SETPOINT_TITLE,
-    Plots,
-    SignalHistory,
-    nice_ceiling,
-    phase_markers,
-    segment_std,
 )
+from app.live.ui.plot_axes import nice_ceiling
+from app.live.ui.plot_history import SignalHistory, phase_markers, segment_std
+from app.live.ui.plots import Plots
 from app.live.ui.snapshot import capture
+from app.scenarios.limit_drop import LimitDropScenario
 
 
 def _has_rate(plot) -> bool:
@@ -75,25 +74,25 @@ def test_a_run_paused_at_its_start_is_not_said_to_have_no_force_setpoint(server,
 
     plots = Plots(server)
     plots.update(drop, session=1)
-    assert plots.force.title == NO_SETPOINT_TITLE
+    assert plots.handles["force"].title == NO_SETPOINT_TITLE
     start = {k: v[:1].copy() for k, v in polish.columns.items()}
     start["Fd_z"][:] = 0.0
     plots.update(dataclasses.replace(polish, columns=start), session=2)
-    assert plots.force.title == NEUTRAL_FORCE_TITLE
+    assert plots.handles["force"].title == NEUTRAL_FORCE_TITLE
     plots.update(polish, session=2)
-    assert plots.force.title == FORCE_TITLE
+    assert plots.handles["force"].title == FORCE_TITLE
 
 
 def test_force_plot_says_when_there_is_no_force_setpoint(server, polish, drop):
     plots = Plots(server)
     plots.update(polish, session=1)
-    assert np.any(polish.columns["Fd_z"] != 0) and plots.force.title == FORCE_TITLE
+    assert np.any(polish.columns["Fd_z"] != 0) and plots.handles["force"].title == FORCE_TITLE
     plots.update(drop, session=2)
-    assert np.all(drop.columns["Fd_z"] == 0) and plots.force.title == NO_SETPOINT_TITLE
+    assert np.all(drop.columns["Fd_z"] == 0) and plots.handles["force"].title == NO_SETPOINT_TITLE
     # the L-shape is near a singularity: W is not plotted there and the heading says why
-    assert np.all(np.isnan(drop.monitor["W_a"])) and COUPLING_TITLE + ":" in plots.coupling.content
+    assert np.all(np.isnan(drop.monitor["W_a"])) and COUPLING_TITLE + ":" in plots.headings["coupling"].content
     plots.update(polish, session=3)
-    assert plots.coupling.content == f"**{COUPLING_TITLE}**" and np.all(np.isfinite(polish.monitor["W_a"]))
+    assert plots.headings["coupling"].content == f"**{COUPLING_TITLE}**" and np.all(np.isfinite(polish.monitor["W_a"]))
 
 
 def test_every_plot_has_a_finite_y_range_and_data_with_no_twin(server, polish, drop):
@@ -102,16 +101,16 @@ def test_every_plot_has_a_finite_y_range_and_data_with_no_twin(server, polish, d
     plots = Plots(server)
     for session, plot in enumerate((polish, drop)):
         plots.update(plot, session=session)
-        for handle in (plots.force, plots.rate, plots.torque, plots.rtf, *plots.w_plots.values()):
+        for handle in (plots.handles[k] for k in ("force", "rate", "torque", "rtf", "W_f", "W_a", "W_d")):
             lo, hi = handle.scales["y"]["range"]
             assert np.isfinite(lo) and np.isfinite(hi) and hi > lo
-        lo, hi = plots.force.scales["y"]["range"]
-        err = plots.force.data[1]
+        lo, hi = plots.handles["force"].scales["y"]["range"]
+        err = plots.handles["force"].data[1]
         top = float(np.nanmax(np.abs(err)))
         assert lo == -hi and top <= hi <= 2.5 * max(1.1 * top, FORCE_RANGE_N)  # covers the data, not much more
-        assert np.count_nonzero(np.isfinite(plots.force.data[1])) >= 3  # every plotted sample is finite
-        assert plots.force.series[2].get("show") is False  # no twin: its legend entry is hidden
-        assert plots.force.data[0][-1] == pytest.approx(0.0)  # x is the time before now
+        assert np.count_nonzero(np.isfinite(plots.handles["force"].data[1])) >= 3  # every plotted sample is finite
+        assert plots.handles["force"].series[2].get("show") is False  # no twin: its legend entry is hidden
+        assert plots.handles["force"].data[0][-1] == pytest.approx(0.0)  # x is the time before now
 
 
 def test_y_range_widens_in_one_two_five_steps_and_comes_back(server, polish):
@@ -121,12 +120,13 @@ def test_y_range_widens_in_one_two_five_steps_and_comes_back(server, polish):
     big["force_error_n"] = polish.columns["force_error_n"] + 0.0
     plots.update(polish, session=1)
     hi = nice_ceiling(1.1 * float(np.nanmax(np.abs(polish.columns["force_error_n"]))), FORCE_RANGE_N)
-    assert plots.force.scales["y"]["range"] == (-hi, hi)
+    assert plots.handles["force"].scales["y"]["range"] == (-hi, hi)
     big["force_error_n"][-3] = 3.0 * hi
     plots.update(dataclasses.replace(polish, columns=big), session=2)
-    assert plots.force.scales["y"]["range"] == (-nice_ceiling(3.3 * hi, FORCE_RANGE_N), nice_ceiling(3.3 * hi, 10.0))
+    wide = nice_ceiling(3.3 * hi, FORCE_RANGE_N)
+    assert plots.handles["force"].scales["y"]["range"] == (-wide, wide)
     plots.update(polish, session=3)
-    assert plots.force.scales["y"]["range"] == (-hi, hi)
+    assert plots.handles["force"].scales["y"]["range"] == (-hi, hi)
 
 
 def test_history_keeps_sixty_seconds_appends_new_rows_and_restarts_on_a_reset():
@@ -149,7 +149,7 @@ def test_markers_and_segment_std_from_the_segment_signal():
     rng = np.random.default_rng(0)
     err = rng.normal(0.0, 1.0, len(t)) * np.where(seg % 2 == 0, 3.0, 1.0)
     columns = {"t": t, "segment": seg, "e": err, "payload_attached": (t < 5.0).astype(float)}
-    marks = phase_markers(columns, 6)
+    marks = phase_markers(columns, 6, LimitDropScenario.phase_marks)
     labels = [m.label for m in marks]
     assert labels == ["S1", "S2", "release", "S3", "S4", "S5", "S6", "end"]
     s1 = next(m for m in marks if m.label == "S1")
@@ -162,25 +162,25 @@ def test_markers_and_segment_std_from_the_segment_signal():
 def test_freeze_holds_the_picture_while_the_history_fills(server, polish):
     plots = Plots(server)
     plots.update(polish, session=1)
-    shown = plots.force.data
+    shown = plots.handles["force"].data
     plots.freeze.value = True
     later = {k: v.copy() for k, v in polish.columns.items()}
     later["t"] = later["t"] + 5.0
     plots.update(dataclasses.replace(polish, columns=later), session=1)
-    assert plots.force.data is shown and plots.history.t[-1] == pytest.approx(later["t"][-1])
+    assert plots.handles["force"].data is shown and plots.history.t[-1] == pytest.approx(later["t"][-1])
     plots.freeze.value = False
     plots.update(dataclasses.replace(polish, columns=later), session=1)
-    assert plots.force.data is not shown
+    assert plots.handles["force"].data is not shown
 
 
 def test_window_choice_sets_the_x_range(server, polish):
     plots = Plots(server)
     plots.update(polish, session=1)
-    assert plots.force.scales["x"]["range"] == (-10.0, 0.0)
+    assert plots.handles["force"].scales["x"]["range"] == (-10.0, 0.0)
     plots.window.value = "60 s"
     plots._on_window()
-    assert plots.force.scales["x"]["range"] == (-60.0, 0.0)
-    assert all(h.scales["x"]["range"] == (-60.0, 0.0) for h in plots.w_plots.values())
+    assert plots.handles["force"].scales["x"]["range"] == (-60.0, 0.0)
+    assert all(h.scales["x"]["range"] == (-60.0, 0.0) for h in (plots.handles[k] for k in ("W_f", "W_a", "W_d")))
 
 
 def test_limit_drop_readout_names_the_peak_torque_of_the_falling_joint(server, drop):
@@ -262,29 +262,29 @@ def test_the_margin_plot_shows_the_logged_stroke_headroom_and_decay_rate_of_the_
 
     plots = Plots(server)
     plots.update(polish, session=1)
-    headroom, rate = (np.asarray(plots.rate.data[k], dtype=float) for k in (1, 2))
+    headroom, rate = (np.asarray(plots.handles["rate"].data[k], dtype=float) for k in (1, 2))
     logged = polish.columns["margin_rate"]
     assert np.any(np.isfinite(rate)) and np.all(np.isin(rate[np.isfinite(rate)], logged))
     assert np.all(np.isnan(polish.columns["margin_headroom_np"])) and np.all(np.isnan(headroom))  # still settling
-    lo, hi = plots.rate.scales["y"]["range"]
+    lo, hi = plots.handles["rate"].scales["y"]["range"]
     assert lo == -hi and np.nanmax(np.abs(rate)) <= hi
     # a short plot: two or three ticks (−max, 0), ≥ 40 px apart in a 330 px wide panel at its aspect
-    splits = plots.rate.axes[1]["splits"]
+    splits = plots.handles["rate"].axes[1]["splits"]
     assert 2 <= len(splits) <= 3 and 0.0 in splits
-    assert (330 / plots.rate.aspect - 60) / len(splits) >= 40  # minus the title and the x axis
+    assert (330 / plots.handles["rate"].aspect - 60) / len(splits) >= 40  # minus the title and the x axis
     deep = np.linspace(-30.0, 2.5, len(polish.columns["t"]))
     stroke = dataclasses.replace(polish, columns={**polish.columns, "margin_headroom_np": deep})
     plots.update(stroke, session=2)
-    headroom = np.asarray(plots.rate.data[1], dtype=float)
-    lo, hi = plots.rate.scales["y"]["range"]
+    headroom = np.asarray(plots.handles["rate"].data[1], dtype=float)
+    lo, hi = plots.handles["rate"].scales["y"]["range"]
     assert (
         np.nanmin(headroom) == pytest.approx(-30.0)
         and -hi <= -30.0
         and np.all(np.isin(headroom[np.isfinite(headroom)], deep))
     )
     plots.update(drop, session=3)
-    assert not np.any(np.isfinite(np.asarray(plots.rate.data[1], dtype=float)))
-    assert not np.any(np.isfinite(np.asarray(plots.rate.data[2], dtype=float)))
+    assert not np.any(np.isfinite(np.asarray(plots.handles["rate"].data[1], dtype=float)))
+    assert not np.any(np.isfinite(np.asarray(plots.handles["rate"].data[2], dtype=float)))
 
 
 def test_a_redraw_with_nothing_new_sends_no_chart_options_again(server, polish, drop):
@@ -293,7 +293,7 @@ def test_a_redraw_with_nothing_new_sends_no_chart_options_again(server, polish, 
     for plot in (polish, drop):
         plots = Plots(server)
         plots.update(plot, session=1)
-        handles = {"phase": plots.phase, **plots._handles()}
+        handles = dict(plots.handles)
         before = {k: (h.scales, h.axes, h.title) for k, h in handles.items()}
         plots.redraw()
         after = {k: (h.scales, h.axes, h.title) for k, h in handles.items()}
@@ -337,27 +337,27 @@ def test_the_signals_chosen_for_a_plot_are_the_ones_it_draws_across_a_switch_and
     big = max(range(n), key=lambda i: float(np.nanmax(np.abs(drop.columns[f"tau_{i + 1}"] / drop.tau_max[i]))))
     keep = [k for k in (1, 4) if k != big][:2]  # two joints, not the one with the largest torque share
     plots.choose_signals("torque", [f"tau_{k + 1}" for k in keep] + ["limits"])
-    series = plots.torque.series
+    series = plots.handles["torque"].series
     for i in range(n):
         assert series[i + 1].get("show", True) is (i in keep), i
-        assert (_finite(plots.torque.data[i + 1]) > 0) is (i in keep), i
+        assert (_finite(plots.handles["torque"].data[i + 1]) > 0) is (i in keep), i
     top = max(float(np.nanmax(np.abs(100 * drop.columns[f"tau_{k + 1}"] / drop.tau_max[k]))) for k in keep)
-    hi = plots.torque.scales["y"]["range"][1]
+    hi = plots.handles["torque"].scales["y"]["range"][1]
     assert hi == (nice_ceiling(1.05 * top, 110.0) if top > 110.0 else 110.0)  # the shown joints' range only
     assert plots.signal_boxes[("torque", f"tau_{big + 1}")].value is False  # the checkbox follows
     # what a checkbox the page unticks calls (the browser test clicks the real one)
     plots._on_signal_box("deflection", "elbow", False)
-    assert plots.deflection.series[2]["show"] is False
+    assert plots.handles["deflection"].series[2]["show"] is False
     plots._on_signal_box("coupling", "W_d", False)
     plots._on_signal_box("force", "rate", False)
-    assert not plots.w_plots["W_d"].visible and plots.w_plots["W_a"].visible and not plots.rate.visible
+    assert not plots.handles["W_d"].visible and plots.handles["W_a"].visible and not plots.handles["rate"].visible
     # a preset switch and a new run's blank charts keep the choice
     plots.update(polish, session=2)
     plots.update(dataclasses.replace(polish, columns={k: v[:1] for k, v in polish.columns.items()}), session=3)
     plots.update(polish, session=4)
-    assert [i for i in range(n) if plots.torque.series[i + 1].get("show", True)] == keep
-    assert all(_finite(plots.torque.data[i + 1]) == 0 for i in range(n) if i not in keep)
-    assert plots.deflection.series[2]["show"] is False and not plots.w_plots["W_d"].visible
+    assert [i for i in range(n) if plots.handles["torque"].series[i + 1].get("show", True)] == keep
+    assert all(_finite(plots.handles["torque"].data[i + 1]) == 0 for i in range(n) if i not in keep)
+    assert plots.handles["deflection"].series[2]["show"] is False and not plots.handles["W_d"].visible
     before = plots.signals.as_dict()
     with pytest.raises(ValueError, match="no series 'tau_99'"):
         plots.choose_signals("torque", ["tau_1", "tau_99"])

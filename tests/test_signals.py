@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.live.ui.signals import SignalChoice, masked, series_shown, signal_specs
+from app.live.ui.charts import signal_specs
+from app.live.ui.signals import SignalChoice, masked, series_shown
 
 
 def test_every_series_is_drawn_at_first_and_a_choice_changes_only_its_own():

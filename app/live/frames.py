@@ -25,7 +25,7 @@ from app.core.variants import variant_of
 from app.live.lab import Lab, Settings
 from app.live.run_identity import describe, identity_from
 from app.live.supervise import Stages
-from app.scenarios import Scenario
+from app.scenarios import PhaseMark, Scenario
 from app.scenarios.stroke_outcomes import StrokeOutcome, stroke_outcomes
 from control.executor import StepView
 
@@ -86,8 +86,10 @@ class PlotData:
     twin_segment_std: dict[int, float] | None = None  # the same for the twin arm, over its own segments
     deflection: dict[str, float] | None = None  # the deflection readouts over every step (`deflection_readouts`)
     low_q: np.ndarray | None = None  # min q_i per joint over every step since the reset
-    fall_direction: int = 1  # the limit drop's joint falls toward its upper (+1) or lower (−1) limit
+    fall_direction: int = 0  # a falling joint falls toward its upper (+1) or lower (−1) limit; 0: none falls
     segments: int = 0  # the strokes of the preset (`Scenario.segments`): signal "segment" counts them
+    marks: tuple[PhaseMark, ...] = ()  # the preset's phase changes its charts mark (`Scenario.phase_marks`)
+    readout_text: tuple[str, ...] = ()  # the preset's lines for its `deflection` readouts (`Scenario.readout_text`)
     run: str = ""  # the run the readouts were measured on, in words (`run_text`)
     strokes: tuple[StrokeOutcome, ...] = ()  # the polish strokes over since the reset: prediction and verdict
 
@@ -265,7 +267,7 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
             columns["twin_segment"] = twin["segment"]
     peak_abs_tau, peak_q = lab.log.extremes()
     fall = lab.session.scenario.fall(lab.session.robot)  # a drop preset's: which limit its joint falls toward
-    fall_direction = fall.direction if fall is not None else 1
+    fall_direction = fall.direction if fall is not None else 0
     segment_std = lab.log.segment_force_error_std()
     twin_segment_std = lab.twin.log.segment_force_error_std() if lab.twin is not None else None
     deflection = deflection_readouts(lab.log, lab.session.scenario)
@@ -287,6 +289,8 @@ def plot_data(lab: Lab, monitor: deque[tuple[float, float, float, float, float]]
         low_q=lab.log.q_min(),
         fall_direction=fall_direction,
         segments=lab.session.scenario.segments,
+        marks=lab.session.scenario.phase_marks,
+        readout_text=tuple(lab.session.scenario.readout_text(deflection)) if deflection else (),
     )
 
 
@@ -308,9 +312,8 @@ def run_text(lab: Lab, status: LoopStatus, edits_at_restart: int) -> str:
 def deflection_readouts(log: StepLog, scenario: Scenario) -> dict[str, float] | None:
     """The scenario's deflection readouts (mass drop: peak, stabilisation time, residual error of the TCP;
     compliance: TCP and elbow under each push) over every logged step since the reset, kept running in the
-    log (`StepLog.fold`: the whole run, not only the rows the log still holds); None elsewhere."""
-    if not scenario.logs_deflection:
-        return None
+    log (`StepLog.fold`: the whole run, not only the rows the log still holds); None for a preset without
+    a `deflection_fold`."""
     fold = log.fold("deflection", scenario.deflection_fold)
     return fold.value() if fold is not None else None
 

@@ -13,8 +13,9 @@ the runner names no preset and looks up no hook by name: the parameter groups it
 (`prepare_executor`) and the parameter changes it makes to the executor's groups
 (`executor_changes`, applied by the Session like any other group change), a costly computation to
 do first (`pending_work`), the strokes of its task (`segments`), the limit a joint falls to
-(`fall`), its deflection readouts, its phase in words (`phase_text`), its charts and panels
-(`plot_layout`, `tune_first`) and the parameters its lessons' claims rest on (`claim_keys`), and on
+(`fall`), its deflection readouts and their words (`readout_text`), its phase in words (`phase_text`),
+its charts, phase marks and panels (`plot_layout`, `phase_marks`, `tune_first`) and the parameters its
+lessons' claims rest on (`claim_keys`), and on
 the environment `Environment.settle_pending` (a settle phase is under way) and
 `Environment.connect` (the session's parameter groups, to read, and an `Offload` where the runner
 has one: a place off its loop thread for costly page signals).
@@ -42,7 +43,7 @@ from robots import RobotDescription
 if TYPE_CHECKING:
     from app.scenarios.drop_postures import Fall
 
-# name -> module under app.scenarios with a module-level SCENARIO
+# name -> module under app.scenarios (or a full module path) with a module-level SCENARIO
 SCENARIOS: dict[str, str] = {
     "free": "free",
     "limit-drop": "limit_drop",
@@ -64,6 +65,29 @@ class Work:
     compute: Callable[..., Any]
     args: tuple
     store: Callable[[Any], None]
+
+
+@dataclass(frozen=True)
+class Chart:
+    """A chart a preset brings to the page's Plots tab: its logged `series` (signal, label) against time,
+    under `title`, on a y axis `y_label` (with its unit) of `y_range` before any widening. A preset lists
+    it in its `plot_layout` beside the charts the page has of its own ("force", "torque", ...)."""
+
+    key: str  # unique among the page's charts
+    title: str
+    series: tuple[tuple[str, str], ...]
+    y_label: str
+    y_range: tuple[float, float] = (0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class PhaseMark:
+    """A phase change of a preset worth a vertical line in the charts and an event in the replay: where
+    the logged `signal` crosses 0.5 upward (`rising`) or downward, named `label`."""
+
+    signal: str
+    label: str
+    rising: bool = True
 
 
 class Offload(Protocol):
@@ -140,9 +164,11 @@ class Scenario:
     # the strokes of its task, counted by the environment's "segment" signal (1…segments while they run,
     # segments + 1 after, 0 before): 0 for a preset without strokes
     segments: int = 0
-    # the page's view of it: the charts of the Plots tab in order (`app.live.ui.plots` names them), the
-    # Tune tab's folders shown first, and the parameters ("group.field") every lesson claim on it rests on
-    plot_layout: tuple[str, ...] = ("coupling", "torque", "force")
+    # the page's view of it: the charts of the Plots tab in order (the page's own by name, `app.live.ui.charts`,
+    # or a `Chart` of its own), the phase changes its charts and replay mark, the Tune tab's folders shown
+    # first, and the parameters ("group.field") every lesson claim on it rests on
+    plot_layout: tuple[str | Chart, ...] = ("coupling", "torque", "force")
+    phase_marks: tuple[PhaseMark, ...] = ()
     tune_first: tuple[str, ...] = ("Nullspace", "Motion–force")
     claim_keys: tuple[str, ...] = ()
 
@@ -191,6 +217,11 @@ class Scenario:
         the reset; None: it has none."""
         return None
 
+    def readout_text(self, values: Mapping[str, float]) -> list[str]:
+        """The lines the page's readout shows for the values of `deflection_fold` (every logged step since
+        the reset); none by default."""
+        return []
+
     def pending_work(self, robot: RobotDescription) -> Work | None:
         """A costly computation this preset needs on `robot` (the session's, prepared) that is not
         done yet, or None (the default). A session built without it computes it in place."""
@@ -238,5 +269,6 @@ def get_scenario(name: str) -> Scenario:
     """The registered scenario `name`; ValueError listing the known ones otherwise."""
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}")
-    module = importlib.import_module(f"app.scenarios.{SCENARIOS[name]}")
+    where = SCENARIOS[name]  # a module under app.scenarios, or a full module path (a preset of the tests)
+    module = importlib.import_module(where if "." in where else f"app.scenarios.{where}")
     return module.SCENARIO

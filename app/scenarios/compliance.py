@@ -19,9 +19,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from app.scenarios import Environment, Scenario, Sensor
+from app.scenarios import Environment, PhaseMark, Scenario, Sensor
 from app.scenarios.mass_drop import wrist_ft_sensor
-from app.scenarios.metrics import WindowPeaks, push_windows
+from app.scenarios.metrics import PUSH_AFTER_S, WindowPeaks, push_windows
 from app.sim.world import World
 from control.compliance_qp import ComplianceQPExecutor, PoseTask
 from control.executor import Executor
@@ -79,6 +79,7 @@ class ComplianceScenario(Scenario):
     default_executor = "compliance-qp"
     logs_deflection = True
     plot_layout = ("deflection", "torque")
+    phase_marks = (PhaseMark("push_tcp", "TCP push"), PhaseMark("push_elbow", "elbow push"))
     tune_first = ("Compliance", "Safety")
     claim_keys = ("pose_task.compliance", "posture_task.compliance")
 
@@ -94,6 +95,16 @@ class ComplianceScenario(Scenario):
         """The TCP's and the elbow's largest deflection (mm) over each push and the PUSH_AFTER_S after it
         ("tcp_push_tcp_mm", "elbow_push_elbow_mm", …; the experiment's figures too)."""
         return WindowPeaks(push_windows(PUSHES), ("tcp_dev_mm", "elbow_dev_mm"))
+
+    def readout_text(self, values: Mapping[str, float]) -> list[str]:
+        """How far the TCP and the elbow moved under each push."""
+        return [
+            f"Push at the {'TCP' if push == 'tcp' else 'elbow'} (peak over the push and the "
+            f"{PUSH_AFTER_S:g} s after it): TCP moved {values[f'{push}_push_tcp_mm']:.1f} mm, "
+            f"elbow {values[f'{push}_push_elbow_mm']:.1f} mm"
+            for push in ("tcp", "elbow")
+            if f"{push}_push_tcp_mm" in values
+        ]
 
     def make_sensor(self, rng: np.random.Generator) -> Sensor:
         return wrist_ft_sensor(rng)

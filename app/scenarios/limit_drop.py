@@ -29,7 +29,7 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from app.scenarios import Environment, Scenario
+from app.scenarios import Environment, PhaseMark, Scenario
 from app.scenarios.drop_postures import FALLING_JOINT, Fall, fall_from, guess_posture, limit_drop_start
 from app.scenarios.payload import PayloadEnvironment, PayloadParams, add_payload_body
 from app.sim.world import World
@@ -78,6 +78,7 @@ class LimitDropScenario(Scenario):
     starts_paused = True  # the drop is over in seconds
     groups: ClassVar[Mapping[str, type[ParamGroup]]] = {"payload": PayloadParams}
     plot_layout = ("phase", "torque")
+    phase_marks = (PhaseMark("payload_attached", "release", rising=False),)
     tune_first = ("Safety", "Latency", "Compliance")
     claim_keys = ("damper.lambda_", "world.torque_delay_ms")
 

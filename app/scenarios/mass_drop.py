@@ -44,9 +44,9 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from app.scenarios import Environment, Scenario, Sensor
+from app.scenarios import Environment, PhaseMark, Scenario, Sensor
 from app.scenarios.drop_postures import guess_posture, mass_drop_start, mass_drop_target
-from app.scenarios.metrics import DropFold, run_fold
+from app.scenarios.metrics import RESIDUAL_WINDOW_S, STABLE_BAND_M, DropFold, run_fold
 from app.scenarios.payload import PayloadEnvironment, PayloadParams, add_payload_body, set_inertial_at_origin
 from app.sim.rope import Rope
 from app.sim.sensor import FTSensor
@@ -278,6 +278,7 @@ class MassDropScenario(Scenario):
     logs_deflection = True
     groups: ClassVar[Mapping[str, type[ParamGroup]]] = {"scenario": MassDropParams, "payload": PayloadParams}
     plot_layout = ("deflection", "torque")
+    phase_marks = (PhaseMark("mass_released", "drop"), PhaseMark("payload_attached", "release", rising=False))
     tune_first = ("Compliance", "Safety")
 
     def phase_text(self, status: Any, scene: Any, memory: dict[str, Any]) -> str:
@@ -300,6 +301,16 @@ class MassDropScenario(Scenario):
         """The TCP's peak deflection, stabilisation time and residual error after the release (as the
         experiment measures them), kept running over every logged step."""
         return DropFold(RELEASE_TIME_S)
+
+    def readout_text(self, values: Mapping[str, float]) -> list[str]:
+        """The TCP's peak, stabilisation time and residual after the drop."""
+        if "peak_deflection_mm" not in values:
+            return []
+        return [
+            f"TCP after the drop (every step since the release): peak {values['peak_deflection_mm']:.1f} mm · "
+            f"back within {1e3 * STABLE_BAND_M:g} mm for good {values['stabilization_time_s']:.2f} s after "
+            f"it · residual (mean of the last {RESIDUAL_WINDOW_S:g} s) {values['residual_error_mm']:.2f} mm"
+        ]
 
     def params(self) -> dict[str, ParamGroup]:
         """ "scenario": the rig (rope, drop height, mass error), used from the next reset."""

@@ -28,6 +28,7 @@ import dataclasses
 import threading
 import time
 import traceback
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,7 +38,9 @@ import viser
 
 from app.core.commands import Pause
 from app.live.loop import SimLoop
-from app.live.ui.plots import Plots, phase_markers
+from app.live.ui.plot_history import phase_markers
+from app.live.ui.plots import Plots
+from app.scenarios import PhaseMark
 from app.scenarios.metrics import contact_loss_onsets, contact_lost
 from control.coupling import Subspaces, coupling_terms, coupling_values
 from control.model import RobotModel
@@ -79,11 +82,13 @@ def fallback_bursts(t: np.ndarray, fallback: np.ndarray, gap_s: float = FALLBACK
     return out
 
 
-def find_events(columns: dict[str, np.ndarray], halted: str = "", segments: int = 0) -> list[Event]:
-    """Every event in logged columns: phase markers (the preset's `segments` strokes among them), QP
+def find_events(
+    columns: dict[str, np.ndarray], halted: str = "", segments: int = 0, marks: Iterable[PhaseMark] = ()
+) -> list[Event]:
+    """Every event in logged columns: phase markers (the preset's `segments` strokes and its `marks`), QP
     fallback bursts, contact losses, a halt at the end."""
     t = columns.get("t", np.zeros(0))
-    out = [Event(m.t, m.label) for m in phase_markers(columns, segments)]
+    out = [Event(m.t, m.label) for m in phase_markers(columns, segments, marks)]
     fb = columns.get("fallback")
     if fb is not None and len(fb) == len(t) and len(t) > 1:
         out += fallback_bursts(t, fb)
@@ -287,7 +292,7 @@ class ReplayPanel:
             return
         with self._lock:
             self.columns = columns
-            self.events = find_events(columns, halted, lab.session.scenario.segments)
+            self.events = find_events(columns, halted, lab.session.scenario.segments, lab.session.scenario.phase_marks)
             self._poser, self._poser_session = poser, session_id
         self.slider.min, self.slider.max = float(t[0]), float(t[-1])
         self.slider.value = float(t[-1])

@@ -1,8 +1,9 @@
 """Which series each plot draws: a person's choice, kept across preset switches and resets.
 
-Every chart of the Plots panel names the series one may choose (`signal_specs`): the joints of the torque
-plot and its limit lines, the force error, the twin's and the previous run's traces, W_f / W_a / W_d, the
-phase plot's velocity limits and its limit / d_s / d_i lines, TCP and elbow deflection. `SignalChoice`
+Every chart of the Plots panel names the series one may choose (`app.live.ui.charts.signal_specs`): the
+joints of the torque plot and its limit lines, the force error, the twin's and the previous run's traces,
+W_f / W_a / W_d, the phase plot's velocity limits and its limit / d_s / d_i lines, TCP and elbow
+deflection, a preset's own signals. `SignalChoice`
 holds what is drawn; it is view state (like the time window), so a preset switch, Reset or Restore
 defaults keeps it. A choice arrives from a checkbox (viser's update guard, `app.live.ui.inputs`, refuses
 a junk value with one notice to its sender) or from `choose`, which checks the chart, the series and
@@ -18,22 +19,6 @@ import numpy as np
 SignalSpecs = dict[str, tuple[tuple[str, str], ...]]  # chart → (series key, label) in drawing order
 
 
-def signal_specs(n_joints: int) -> SignalSpecs:
-    """The choosable series of each chart (charts with one series have none)."""
-    return {
-        "force": (
-            ("error", "F̂ − F"),
-            ("twin", "twin arm"),
-            ("previous", "previous run"),
-            ("rate", "margin plot (h, σ)"),
-        ),
-        "coupling": (("W_f", "W_f"), ("W_a", "W_a"), ("W_d", "W_d")),
-        "torque": (*((f"tau_{i + 1}", f"τ{i + 1}") for i in range(n_joints)), ("limits", "±limit")),
-        "phase": (("speed_limits", "±q̇max"), ("zones", "limit, d_s, d_i")),
-        "deflection": (("tcp", "TCP"), ("elbow", "elbow"), ("previous", "previous run")),
-    }
-
-
 class SignalChoice:
     """What each chart draws (every series at first); see the module docstring."""
 
@@ -41,6 +26,13 @@ class SignalChoice:
         self.specs = specs
         self._shown: dict[str, dict[str, bool]] = {c: {k: True for k, _ in series} for c, series in specs.items()}
         self.version = 0  # grows with every change (a chart redraws when it differs from what it drew)
+
+    def add(self, chart: str, series: tuple[tuple[str, str], ...]) -> None:
+        """Offer a chart's series (a preset's chart, built when it is first shown), every one drawn at first;
+        a chart offered before keeps its choice."""
+        if chart not in self.specs:
+            self.specs[chart] = series
+            self._shown[chart] = {k: True for k, _ in series}
 
     def shown(self, chart: str, key: str) -> bool:
         """Whether `chart` draws its series `key` (True for a chart or series with no choice)."""
