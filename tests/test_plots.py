@@ -391,3 +391,28 @@ def test_the_readouts_name_the_run_they_were_measured_on_and_a_change_during_it(
     lab.advance(100)
     plot = builder.build(lab, now=2.0).plot
     assert plot is not None and "λ (damper.lambda_) = 400 1/s" in plot.run and "changed during" not in plot.run
+
+
+@pytest.mark.parametrize("top_mm", [0.0, 1e-7, 2e-4, 0.003, 0.04, 0.3, 4.9, 27.0, 480.0])
+def test_the_deflection_ticks_are_distinct_numbers_with_their_unit_at_any_scale(top_mm):
+    """The deflection range holds the data (never below 10 µm: an arm at rest) and its ticks' texts, which
+    the page writes as sent, are distinct and read back as the ticks (uPlot's three decimals wrote "0 0 0 0"
+    for a range of a few µm)."""
+    from app.live.ui.chart_draws import DEFLECTION_MIN_MM, deflection_range
+    from app.live.ui.plot_axes import y_axis
+
+    lo, hi = deflection_range(top_mm)
+    assert lo == 0.0 and hi >= max(top_mm, DEFLECTION_MIN_MM) and hi <= max(2.5 * 1.1 * top_mm, 10.0)
+    axis = y_axis("deflection (mm)", lo, hi)
+    splits, texts = axis["splits"], axis["values"]  # type: ignore[typeddict-item]
+    assert len(splits) >= 2 and len(set(texts)) == len(texts) and axis["label"].endswith("(mm)")
+    step = splits[1] - splits[0]
+    np.testing.assert_allclose([float(t.replace(",", "")) for t in texts], splits, rtol=0, atol=1e-9 * step)
+    assert axis["size"] >= 16 + 7 * max(len(t) for t in texts)
+
+
+def test_an_untitled_plot_gets_its_top_tick_and_a_titled_one_keeps_its_top_clear():
+    from app.live.ui.plot_axes import y_axis
+
+    assert y_axis("W_a (kg²)", 0.0, 1.0, top=True)["splits"] == (0.0, 0.5, 1.0)
+    assert y_axis("F̂ − F (N)", -20.0, 20.0)["splits"] == (-20.0, -10.0, 0.0, 10.0)

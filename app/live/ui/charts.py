@@ -226,7 +226,7 @@ def preset_row(chart: Chart) -> ChartRow:
             ),
         ),
         functools.partial(draws.draw_preset_chart, key=chart.key, signals=keys, y_range=chart.y_range),
-        tuple(chart.series) if len(chart.series) > 1 else (),
+        tuple(chart.series),
     )
 
 

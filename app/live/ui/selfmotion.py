@@ -13,6 +13,7 @@ joint positions of the last frame.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 import traceback
@@ -23,6 +24,7 @@ import pinocchio as pin
 import viser
 
 from app.live.ui import latency_map
+from app.live.ui.chart_draws import W_SERIES
 from app.live.ui.scene import add_ghost_arm, hide_ghost_arm, link_meshes, pose_ghost_arm
 from app.live.ui.selfmotion_worker import SCAN_NICENESS, Preview, scan_in_worker, scan_preview
 from app.live.workers import Worker, WorkerLost
@@ -80,6 +82,40 @@ def _mu_of(frame: Any) -> float | None:
     return float(mu) if isinstance(mu, int | float) and np.isfinite(mu) else None
 
 
+W_UNITS = {name: unit for name, unit, _ in W_SERIES}
+
+
+def decades_of(W: np.ndarray) -> tuple[float, float]:
+    """The whole decades (10^a, 10^b), b > a, that hold the positive finite values of W (1…10 for none)."""
+    w = np.asarray(W, dtype=float)
+    w = w[np.isfinite(w) & (w > 0)]
+    if not w.size:
+        return (1.0, 10.0)
+    lo = math.floor(math.log10(float(w.min())) + 1e-9)
+    hi = max(lo + 1, math.ceil(math.log10(float(w.max())) - 1e-9))
+    return (10.0**lo, 10.0**hi)
+
+
+def loop_scales(decades: tuple[float, float]) -> dict[str, Any]:
+    """The loop plot's scales: the swivel in degrees, W on a log axis over `decades`."""
+    return {
+        "x": {"time": False, "auto": False, "range": (-180.0, 180.0)},
+        "y": {"distr": 3, "auto": False, "range": decades},
+    }
+
+
+def loop_axes(decades: tuple[float, float], name: str) -> tuple[Any, Any]:
+    """The loop plot's axes: W `name` with its unit, a tick at every decade of its range, the top one
+    included, written out."""
+    lo, hi = (round(math.log10(v)) for v in decades)
+    splits = tuple(10.0**k for k in range(lo, hi + 1))
+    texts = tuple(f"{v:g}" for v in splits)
+    width = 16 + 7 * max(len(t) for t in texts)
+    label = f"{name} ({W_UNITS[name]})" if name in W_UNITS else name
+    y = {"label": label, "labelSize": 18, "splits": splits, "values": texts, "size": width}
+    return ({"label": "swivel (°, 0 = elbow up)", "labelSize": 16}, y)
+
+
 def preview_objective(choice: str, controller_objective: str | None) -> str:
     """The objective letter a dropdown choice stands for (W_a when the controller's is W_j or none)."""
     if choice == AS_CONTROLLER:
@@ -134,10 +170,13 @@ class SelfMotionPreview:
                     ),
                 ),
                 title="W along the self-motion loop",
-                scales={"x": {"time": False, "auto": False, "range": (-180.0, 180.0)}, "y": {"distr": 3}},
+                scales=loop_scales((1.0, 10.0)),
+                axes=loop_axes((1.0, 10.0), "W"),
                 legend={"live": False},  # type: ignore[typeddict-item]
                 aspect=1.6,
+                padding=(24, 12, 0, 0),
             )
+        self._decades: tuple[tuple[float, float], str] = ((1.0, 10.0), "W")  # the y range (whole decades) and W
         self.latest: Preview | None = None
         # the stability map's tolerated latency (`latency_map`), read once; the loop is coloured with it at
         # the session's μ while the arm is the map's
@@ -303,6 +342,11 @@ class SelfMotionPreview:
             marks.append(m)
         tolerated = self._tolerated(x)
         self.tolerated = tolerated
+        decades = decades_of(W)
+        if (decades, p.name) != self._decades:  # a new range rebuilds the chart in the browser: only on change
+            self._decades = (decades, p.name)
+            self.plot.scales = loop_scales(decades)
+            self.plot.axes = loop_axes(decades, p.name)
         self.plot.data = (x, inside, outside, *marks, *latency_map.level_series(inside, tolerated))
         self.plot.title = f"{p.name} along the self-motion loop"
         text = p.summary()
