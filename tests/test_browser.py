@@ -1634,6 +1634,52 @@ def test_the_lambda_box_refuses_minus_5_in_its_own_words_and_takes_250_5_as_type
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
 
 
+_HINT_JS = """(text) => {
+    for (const tip of document.querySelectorAll('[role="tooltip"]')) {
+        if (!tip.textContent.startsWith(text)) continue;
+        const style = getComputedStyle(tip);
+        if (style.display !== 'none' && Number(style.opacity) > 0.5) return tip.id || 'shown';
+    }
+    return null;
+}"""
+_CONTROL_JS = """(label) => {
+    for (const l of document.querySelectorAll('label')) {
+        if (l.textContent.trim() !== label) continue;
+        const input = document.getElementById(l.getAttribute('for'));
+        const r = input.getBoundingClientRect();
+        return {x: r.x + r.width / 2, y: r.y + r.height / 2};
+    }
+    return null;
+}"""
+
+
+def test_a_hint_closes_when_its_control_moves_from_under_a_still_pointer(app, page, paused):
+    """The pointer rests on the Freeze box until its hint shows; the hint stays while the pointer is on the
+    box (1.5 s); then the box moves 300 px down under the still pointer (as the Plots panel's controls do
+    when the status line above them grows): the hint closes without the pointer moving."""
+    pg, _ = page
+    hint = "Hold the plots"
+    at = wait_for(lambda: pg.evaluate(_CONTROL_JS, "Freeze"), 30, "the Freeze box")
+    moved = False
+    try:
+        pg.mouse.move(at["x"], at["y"])
+        tip = wait_for(lambda: pg.evaluate(_HINT_JS, hint), 30, "the Freeze box's hint")
+        time.sleep(1.5)
+        assert pg.evaluate(_HINT_JS, hint), "the hint closed with the pointer still on its box"
+        moved = pg.evaluate(
+            '(id) => { const c = document.querySelector(`[aria-describedby~="${id}"]`);'
+            " if (!c) return false; c.style.transform = 'translateY(300px)'; return true; }",
+            tip,
+        )
+        assert moved, "no control names the hint"
+        wait_for(lambda: not pg.evaluate(_HINT_JS, hint), 10, "the hint to close under the still pointer")
+    finally:
+        if moved:
+            pg.evaluate("() => document.querySelectorAll('[aria-describedby]').forEach(c => c.style.transform = '')")
+            pg.evaluate("() => document.querySelectorAll('[style*=translateY]').forEach(c => c.style.transform = '')")
+        pg.mouse.move(120, VIEWPORT["height"] - 80)
+
+
 LESSON_SHOTS = README_SCREENSHOT.parent / "lessons"
 LESSON_SHOT_BYTES = 300_000  # a docs page's picture: larger ones are cut to a 256-colour palette
 
