@@ -316,6 +316,14 @@ def open_tab(pg: Any, name: str, timeout_ms: float | None = None) -> None:
     pg.get_by_role("tab", name=name).click(timeout=timeout_ms)
 
 
+def show_tab(pg: Any, name: str) -> None:
+    """Show the control panel's tab `name`, clicking it only when another is shown (a click waits for a
+    busy page to settle)."""
+    tab = pg.get_by_role("tab", name=name)
+    if tab.get_attribute("aria-selected") != "true":
+        tab.click()
+
+
 def choose(pg: Any, label: str, option: str) -> list[str]:
     """Open the dropdown labelled `label`, pick `option`; returns all the options it offered."""
     box = pg.get_by_label(label, exact=True)
@@ -515,15 +523,20 @@ def save_tour_shot(pg: Any, name: str) -> None:
     """A screenshot for the docs' tour (docs/getting-started.md): test-artifacts/NAME, copied to static/ with
     TORQUELAB_UPDATE_SCREENSHOT=1."""
     ARTIFACTS.mkdir(exist_ok=True)
-    close = pg.locator(".mantine-Notification-closeButton")  # notices would cover the 3D view
+    close_notices(pg)
+    pg.screenshot(path=str(ARTIFACTS / name))
+    if os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") == "1":
+        shutil.copyfile(ARTIFACTS / name, README_SCREENSHOT.parent / name)
+
+
+def close_notices(pg: Any) -> None:
+    """Close the page's pop-up notices (they would cover the 3D view in a screenshot)."""
+    close = pg.locator(".mantine-Notification-closeButton")
     for _ in range(close.count()):
         try:
             close.first.click(timeout=5_000)
         except Exception:  # closed on its own meanwhile
             pass
-    pg.screenshot(path=str(ARTIFACTS / name))
-    if os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") == "1":
-        shutil.copyfile(ARTIFACTS / name, README_SCREENSHOT.parent / name)
 
 
 def force_plot(pg: Any) -> dict[str, Any] | None:
@@ -1007,7 +1020,8 @@ def shown_result(pg: Any, claim: str) -> str:
 
 
 def test_the_posture_and_latency_lessons_in_the_page_show_the_shaking_and_its_cause(app, page):
-    """Lessons → Posture and friction (W_j, then W_a, at μ = 1), then Latency's first step (W_j with the
+    """Lessons → Posture and friction (W_j, then W_a, then both at once: W_j here, W_a on the twin arm, at
+    μ = 1), then Latency's first step (W_j with the
     F/T reading 0 periods late; its second step, the default delay, is the posture lesson's W_j run and
     is not run again). Read from the results the page shows: W_j's stretching strokes S2/S4/S6 have ≥ 3×
     the force-error STD of S1/S3/S5, W_a's < 1.5×; with no sensing delay W_j's stretching strokes are
@@ -1015,14 +1029,25 @@ def test_the_posture_and_latency_lessons_in_the_page_show_the_shaking_and_its_ca
     1.5× and 0.24×, tests/test_lessons.py); the margin says in words that W_j's stretching strokes lose
     contact and every W_a stroke keeps it, and after the strokes, for each, whether that came true and
     whether contact was kept. The numbers shown are the run's (the panel's measurements, to the 0.1 N the
-    page prints)."""
+    page prints). W_a's force chart draws W_j's run faint behind it (RMS > 2× W_a's over the last 10 s); the
+    side-by-side step draws the twin arm and its force error, and W_j's stretching strokes have > 3× the twin
+    W_a's STD (W_j's within 10 % of its own step's)."""
     from app.live.ui.panels.lessons import LessonsPanel
 
     pg, _ = page
     panel = next(p for p in app.panels if isinstance(p, LessonsPanel))
     pg.set_default_timeout(120_000)  # a software-rendered page on a loaded machine takes seconds per click
+    seen: dict[str, Any] = {}
+
+    def look(i: int, key: str) -> None:
+        if key in ("wa", "side"):  # the force chart as the page draws it at the step's end
+            seen[key] = wait_for(lambda: pg.evaluate(_CHART_DATA_JS, "Force error"), 30, "the force chart")
+        if key == "side":
+            scene = app.publisher.scene
+            seen["twin drawn"] = bool(scene.twin_label is not None and scene.twin_label.visible)
+
     try:
-        posture = run_lesson_in_the_page(app, pg, "posture")  # each claim was seen in the page
+        posture = run_lesson_in_the_page(app, pg, "posture", after_step=look)  # each claim was seen in the page
         memo = panel.results["posture"]
         for key in ("wj", "wa"):  # the numbers shown are the run's, to the 0.1 N printed
             fw, bk = stroke_means(posture[key])
@@ -1042,6 +1067,23 @@ def test_the_posture_and_latency_lessons_in_the_page_show_the_shaking_and_its_ca
         assert all(wa_said[k].startswith("predicted to keep contact") for k in range(1, 7)), wa_said
         for after in (wj_after, wa_after):
             assert sorted(after) == [1, 2, 3, 4, 5, 6] and all("the stroke was" in w for w in after.values()), after
+        # W_a's step draws W_j's run faint behind it (the previous run, aligned on the first stroke): over the
+        # last 10 s (W_a's S3…S6) W_j's shaking stretching strokes against W_a's calm ones
+        _, own, _, _, previous = (np.array(v, dtype=float) for v in seen["wa"])
+        assert np.count_nonzero(np.isfinite(previous)) >= 50, "no previous-run trace in W_a's force chart"
+        rms_own, rms_previous = (float(np.sqrt(np.nanmean(v**2))) for v in (own, previous))
+        assert rms_previous > 2.0 * rms_own, (rms_previous, rms_own)
+        # the side-by-side step: W_j on this arm and W_a on the twin in one run; the twin is drawn, its force
+        # error charted, and the claim's numbers are this run's (the two arms' stroke STDs, to the 0.1 N shown)
+        side = memo["side"]
+        assert seen["twin drawn"]
+        twin_error = np.array(seen["side"][2], dtype=float)
+        assert np.count_nonzero(np.isfinite(twin_error)) >= 50, "no twin trace in the force chart"
+        own_fw = float(np.mean([side[f"std_S{k}"] for k in (2, 4, 6)]))
+        twin_fw = float(np.mean([side[f"twin_std_S{k}"] for k in (2, 4, 6)]))
+        assert "/".join(f"{side[f'twin_std_S{k}']:.1f}" for k in (2, 4, 6)) + " N with W_a" in posture["side"]
+        assert own_fw > 3.0 * twin_fw, (own_fw, twin_fw)
+        assert own_fw == pytest.approx(np.mean([memo["wj"][f"std_S{k}"] for k in (2, 4, 6)]), rel=0.1)
         latency = run_lesson_in_the_page(app, pg, "latency", steps=1)
         # the claim as the page showed it (run_lesson_in_the_page saw it there before its "Next ▶" moved the
         # panel on to the next step, whose result is blank: reading the page now races that click)
@@ -1055,7 +1097,8 @@ def test_the_posture_and_latency_lessons_in_the_page_show_the_shaking_and_its_ca
             f"posture lesson in the page: W_j S2/S4/S6 {wj_fw:.2f} N vs S1/S3/S5 {wj_bk:.2f} N "
             f"({wj_fw / wj_bk:.2f}×); W_a {wa_fw:.2f} vs {wa_bk:.2f} N ({wa_fw / wa_bk:.2f}×); "
             f"no sensing delay: {ideal_fw:.2f} vs {ideal_bk:.2f} N ({ideal_fw / ideal_bk:.2f}×); "
-            f"margin W_j {wj_said}, W_a {wa_said}"
+            f"margin W_j {wj_said}, W_a {wa_said}; side by side W_j {own_fw:.2f} N vs the twin's W_a {twin_fw:.2f} N; "
+            f"W_a's force chart: W_j's faint trace RMS {rms_previous:.2f} N vs W_a's {rms_own:.2f} N"
         )
     finally:
         from app.core.commands import Play, SwitchSession
@@ -1086,6 +1129,38 @@ def test_the_compliance_lesson_in_the_page_compares_the_gamma_modes(app, page):
     finally:
         from app.core.commands import Play, SwitchSession
 
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
+def test_a_steps_result_comes_back_in_a_page_opened_after_it(app, browser, page):
+    """Compliance's first step taken from the Lessons panel to its end; a page opened afterwards (what a
+    reload opens) shows the Lessons tab at that lesson and step with its *What you saw* line, this run's
+    elbow deflection in it."""
+    from app.core.commands import Play, SwitchSession
+    from app.live.ui.panels.lessons import LessonsPanel
+
+    panel = next(p for p in app.panels if isinstance(p, LessonsPanel))
+    key = ("compliance", "gamma-stiff")
+    other = None
+    try:
+        panel.select("compliance", 0)
+        panel.start_step()
+        claim = wait_for(lambda: panel.claims.get(key), 300, "the stiff step's result", period=0.5)
+        assert not claim.startswith("Cancelled"), claim
+        o = panel.results["compliance"]["gamma-stiff"]
+        other, _ = open_page(app, browser)
+        other.set_default_timeout(120_000)  # a second software-rendered page on a loaded machine
+        show_tab(other, "Lessons")  # a new page opens on the first tab, Lessons
+        other.get_by_text("Step 1 of 3: Γ = 0, stiff", exact=False).first.wait_for(timeout=60_000)
+        shown = other.get_by_text(claim[:40], exact=False).first
+        shown.wait_for(timeout=60_000)
+        text = shown.inner_text()
+        assert text.startswith("What you saw.") and f"elbow {o['elbow_push_elbow_mm']:.1f} mm" in text, text
+    finally:
+        if other is not None:
+            other.close()
         app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
         app.loop.submit(Play())
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
@@ -1680,8 +1755,110 @@ def test_a_hint_closes_when_its_control_moves_from_under_a_still_pointer(app, pa
         pg.mouse.move(120, VIEWPORT["height"] - 80)
 
 
+_CHART_BOXES_JS = """() => {
+    const out = [];
+    for (const v of Object.values((window.__viserTestpoints || {}).uplots || {})) {
+        const c = v.chart;
+        if (!c.root.isConnected || c.root.offsetParent === null) continue;
+        const r = c.root.getBoundingClientRect();
+        if (!(r.width > 0 && r.height > 0)) continue;
+        const finite = (c.data[1] || []).filter(x => x !== null && Number.isFinite(x)).length;
+        out.push({title: c.root.querySelector('.u-title')?.textContent || '', x: r.x, y: r.y,
+                  right: r.right, bottom: r.bottom, finite: finite});
+    }
+    return out;
+}"""
+STEP_CHART_TITLES = {  # a lesson step's chart (`Step.plots`) by the start of its title in the page
+    "force": ("Force error", "F̂_z"),
+    "phase": ("Joint 4 phase",),
+    "torque": ("Torques",),
+    "deflection": ("Deflection",),
+}
+WARNING_TITLE = "Stroke headroom"  # the margin's chart, under the force error in a polish step
+
+
+def chart_box(pg: Any, prefixes: tuple[str, ...]) -> dict[str, Any] | None:
+    """The page box (x, y, right, bottom, CSS px) and finite samples of the shown chart whose title starts
+    with one of `prefixes`."""
+    return next((b for b in pg.evaluate(_CHART_BOXES_JS) if b["title"].startswith(prefixes)), None)
+
+
+def outside_viewport(box: dict[str, Any] | None) -> str:
+    """How a chart's box leaves the 1600×1000 viewport ("" when it lies inside it)."""
+    if box is None:
+        return "not shown"
+    w, h = VIEWPORT["width"], VIEWPORT["height"]
+    inside = box["x"] >= 0 and box["y"] >= 0 and box["right"] <= w and box["bottom"] <= h
+    return (
+        ""
+        if inside
+        else f"{box['title']!r} at x {box['x']:.0f}…{box['right']:.0f}, y {box['y']:.0f}…{box['bottom']:.0f}"
+    )
+
+
+def step_charts_in_view(pg: Any, step: Any, polish: bool, when: str) -> None:
+    """The chart a lesson step names first and, in a polish step, the margin's headroom chart under it lie
+    inside the viewport (waits up to 60 s for the page to arrange them)."""
+    wanted = [STEP_CHART_TITLES[step.plots[0]]] + ([(WARNING_TITLE,)] if polish else [])
+
+    def misplaced() -> list[str]:
+        return [m for m in (outside_viewport(chart_box(pg, t)) for t in wanted) if m]
+
+    try:
+        wait_for(lambda: not misplaced(), 60, f"{step.title}: its charts in view {when}", period=1.0)
+    except pytest.fail.Exception:
+        ARTIFACTS.mkdir(exist_ok=True)
+        pg.screenshot(path=str(ARTIFACTS / f"lesson-view-{step.key}.png"))
+        raise AssertionError(f"{step.title} {when}: outside the 1600×1000 viewport: {misplaced()}") from None
+
+
+def test_every_lesson_steps_plot_and_the_margins_warning_lie_in_the_viewport(app, page):
+    """Every step of every lesson, set up from the Lessons panel, in a 1600×1000 page: once its run has
+    drawn samples and again at its end (paused, the result shown), the chart the step names first
+    (`Step.plots`) and, in a polish step, the margin's headroom chart under the force error lie inside the
+    viewport, the status line above them; the Replay fold sits under the step's charts while the step's run is
+    on and returns to the top after a Reset. With TORQUELAB_UPDATE_SCREENSHOT=1 each step's end is written to
+    static/lessons/after/LESSON-stepN.png (docs/lessons/*.md)."""
+    from app.core.commands import Play, Reset, SwitchSession
+    from app.live.curriculum import LESSONS
+    from app.live.ui.panels.lessons import LessonsPanel
+
+    pg, _ = page
+    panel = next(p for p in app.panels if isinstance(p, LessonsPanel))
+    replay_order = panel.view.replay_order
+    pg.set_default_timeout(120_000)
+    try:
+        show_tab(pg, "Lessons")
+        for lesson in LESSONS:
+            for i, step in enumerate(lesson.steps):
+                panel.select(lesson.key, i)
+                panel.start_step()
+                polish = app.loop.status.scenario == "polish"
+                first = STEP_CHART_TITLES[step.plots[0]]
+                wait_for(lambda f=first: (chart_box(pg, f) or {}).get("finite", 0) > 5, 120, f"{step.title}'s samples")
+                step_charts_in_view(pg, step, polish, "while it runs")
+                assert panel.view.replay_folder.order > 1.0  # under the step's first chart (order 1)
+                key = (lesson.key, step.key)
+                wait_for(lambda k=key: k in panel.claims, 900, f"the result of {step.title}", period=0.5)
+                claim = panel.claims[key]
+                assert not claim.startswith("Cancelled"), claim
+                step_charts_in_view(pg, step, polish, "at its end")
+                if os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") == "1":  # the docs' picture of the step
+                    pg.get_by_text(claim[:40], exact=False).first.wait_for()
+                    save_step_shot(pg, f"{lesson.key}-step{i + 1}.png", claim[:40])
+        app.loop.submit(Reset())
+        wait_for(lambda: panel.view.replay_folder.order == replay_order, 30, "the Replay fold back on top")
+    finally:
+        pg.set_default_timeout(30_000)
+        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
+        app.loop.submit(Play())
+        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
+
+
 LESSON_SHOTS = README_SCREENSHOT.parent / "lessons"
 LESSON_SHOT_BYTES = 300_000  # a docs page's picture: larger ones are cut to a 256-colour palette
+STEP_SHOT_SIZE = (1200, 750)  # each lesson step's picture: the 1600×1000 page scaled by 3/4, 256 colours
+STEP_SHOTS = LESSON_SHOTS / "after"  # the page at the end of every lesson step (docs/lessons/*.md)
 
 
 def save_lesson_shot(pg: Any, name: str, text: str) -> None:
@@ -1700,14 +1877,31 @@ def save_lesson_shot(pg: Any, name: str, text: str) -> None:
     shutil.copyfile(shot, LESSON_SHOTS / name)
 
 
+def save_step_shot(pg: Any, name: str, text: str) -> None:
+    """The page at 1600×1000 with `text` (a step's result line) scrolled into view, scaled to STEP_SHOT_SIZE
+    in 256 colours: test-artifacts/lessons/steps/NAME, copied to STEP_SHOTS."""
+    from PIL import Image
+
+    pg.get_by_text(text, exact=False).first.scroll_into_view_if_needed()
+    shot = ARTIFACTS / "lessons" / "steps" / name
+    shot.parent.mkdir(parents=True, exist_ok=True)
+    close_notices(pg)
+    pg.screenshot(path=str(shot))
+    image = Image.open(shot).convert("RGB")
+    assert image.size == (VIEWPORT["width"], VIEWPORT["height"])
+    image.resize(STEP_SHOT_SIZE, Image.Resampling.LANCZOS).quantize(256).save(shot, optimize=True)
+    STEP_SHOTS.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(shot, STEP_SHOTS / name)
+
+
 @pytest.mark.skipif(
     os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") != "1",
     reason="writes the lesson pages' screenshots (static/lessons/): run with TORQUELAB_UPDATE_SCREENSHOT=1 "
     "(the lessons' claims are checked by the lesson tests above)",
 )
 def test_the_lesson_screenshots_are_written_on_request(app, page):
-    """Dampers step 1 with λ changed after *Set up this step* (its "Step cancelled" line), then every step of
-    the posture and latency lessons at its end, each with its result line in view: static/lessons/*.png."""
+    """Dampers step 1 with λ changed after *Set up this step*: its "Step cancelled" line in view,
+    static/lessons/dampers-step1-cancelled.png (every step's end: the viewport test above)."""
     from app.core.commands import Pause, Play, SetParam, SwitchSession
     from app.live.curriculum import LESSONS
     from app.live.ui.panels.lessons import LessonsPanel
@@ -1724,7 +1918,7 @@ def test_the_lesson_screenshots_are_written_on_request(app, page):
         choose(pg, "Lesson", spec.title)
         wait_for(lambda: panel.lesson.key == "dampers" and panel.index == 0, 20, "the dampers lesson")
         pg.get_by_role("button", name="Set up this step").click()
-        wait_for(lambda: panel.armed is not None and app.loop.status.scenario == "limit-drop", 60, "the step set up")
+        wait_for(lambda: panel.armed is not None and app.loop.status.scenario == "limit-drop", 180, "the step set up")
         app.loop.submit(Pause())  # the step's 3 s would end before a slow page has typed λ
         before = float(param(app, k.group, k.field))
         open_tab(pg, "Tune")
@@ -1737,15 +1931,6 @@ def test_the_lesson_screenshots_are_written_on_request(app, page):
         open_tab(pg, "Lessons")
         save_lesson_shot(pg, "dampers-step1-cancelled.png", "Step cancelled")
         app.loop.submit(SetParam(k.group, k.field, before))
-        for lesson in ("posture", "latency"):
-            run_lesson_in_the_page(
-                app,
-                pg,
-                lesson,
-                after_step=lambda i, key, lesson=lesson: save_lesson_shot(
-                    pg, f"{lesson}-step{i + 1}.png", panel.claims[(lesson, key)][:60]
-                ),
-            )
     finally:
         pg.set_default_timeout(30_000)
         if before is not None:

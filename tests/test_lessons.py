@@ -47,11 +47,21 @@ def run_lesson(key: str) -> tuple[dict, dict]:
             if step.ready(make_status(lab)) or lab.halted:
                 break
             lab.advance(500)
+            fold_strokes(lab)
         assert not lab.halted, lab.halted
         obs, claims[step.key] = finish(lab, bound, step, memo)
         assert obs is not None, claims[step.key]
         _RUNS[run] = obs
     return claims, memo
+
+
+def fold_strokes(lab: Lab) -> None:
+    """Fold the rows logged since the last call into the per-stroke force-error STDs of the arm and its twin,
+    as the app's frames do every plot period (`app.live.frames`): a run longer than the log (a twin's W_a
+    settles for almost a minute) keeps its first strokes' numbers."""
+    lab.log.segment_force_error_std()
+    if lab.twin is not None:
+        lab.twin.log.segment_force_error_std()
 
 
 def take_set_up(lesson_key: str, step_key: str, lab: Lab | None = None):
@@ -208,7 +218,8 @@ def stretching_mean(o: dict) -> float:
 
 def test_the_posture_lesson_shows_the_coupled_posture_shaking_on_the_stretching_strokes():
     """W_j at μ = 1 (the default sensing delay) swings on S2/S4/S6 at more than twice the STD of the other
-    strokes and of W_a's; each claim quotes its strokes' STDs and the comparison."""
+    strokes and of W_a's; each claim quotes its strokes' STDs and the comparison; run side by side (W_a on
+    the twin arm) both arms repeat their own steps' strokes."""
     claims, memo = run_lesson("posture")
     wj, wa = memo["wj"], memo["wa"]
     for key, o in memo.items():
@@ -225,9 +236,9 @@ def test_the_posture_lesson_shows_the_coupled_posture_shaking_on_the_stretching_
     # the one verdict per stroke (app.scenarios.verdict), in the claim with its band RMS: W_j's stretching
     # strokes are not stable
     assert all(verdict_of(wj, k) != "stable" for k in (2, 4, 6))
-    for key, o in memo.items():
+    for key in ("wj", "wa"):  # the side-by-side claim states the two arms' STDs only
         for k in range(1, 7):
-            assert f"S{k} {verdict_of(o, k)} ({o[f'band_S{k}']:.2f} N)" in claims[key]
+            assert f"S{k} {verdict_of(memo[key], k)} ({memo[key][f'band_S{k}']:.2f} N)" in claims[key]
     # what the claim says of it: only the sign of the least headroom with its band, in words, no Np figure;
     # after the strokes whether that came true, stroke by stroke, by the one verdict
     assert "S2, S4, S6: predicted to shake off the table (lose contact)" in claims["wj"]
@@ -235,6 +246,14 @@ def test_the_posture_lesson_shows_the_coupled_posture_shaking_on_the_stretching_
     assert not re.search(r"(?<![±\d.])\d+(\.\d+)? Np", claims["wj"] + claims["wa"])  # only the band, ±HEADROOM_BAND_NP
     for key in ("wj", "wa"):
         check_outcomes(claims[key], memo[key])
+    # side by side: W_j on the arm and W_a on the twin in one run are the two steps' runs, stroke for stroke
+    # (the twin is the same scenario with its own objective, in lockstep; it settles at its own pace)
+    side = memo["side"]
+    for k in range(1, 7):
+        assert side[f"std_S{k}"] == pytest.approx(wj[f"std_S{k}"], rel=1e-9, abs=1e-9)
+        assert side[f"twin_std_S{k}"] == pytest.approx(wa[f"std_S{k}"], rel=1e-9, abs=1e-9)
+    assert stretching_mean(side) > 2.0 * float(np.mean([side[f"twin_std_S{k}"] for k in (2, 4, 6)]))
+    assert "/".join(f"{side[f'twin_std_S{k}']:.1f}" for k in (2, 4, 6)) + " N with W_a" in claims["side"]
 
 
 def test_the_posture_lesson_shows_the_decoupled_posture_within_one_period_and_not_two():

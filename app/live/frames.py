@@ -59,6 +59,7 @@ class LoopStatus:
     variants: tuple[str, ...] = ()  # the cases it can run in
     focus_joint: int | None = None  # 0-based joint the scenario is about (phase plot), if any
     twin: str = ""  # nullspace objective of the twin arm ("j", "f", "a", "d"), "" when there is none
+    twin_segment: float = math.nan  # the twin's stroke (its signal "segment"), NaN without one
     robot: str = ""
     executor: str = ""
     halted: str = ""  # why the loop auto-paused (divergence), "" otherwise
@@ -131,6 +132,7 @@ def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | 
         variants=variant.options if variant else (),
         focus_joint=s.scenario.focus_joint,
         twin=lab.twin.objective if lab.twin is not None else "",
+        twin_segment=_twin_segment(lab),
         robot=s.robot.name + (f" (guessed: {', '.join(s.robot.guessed)})" if s.robot.guessed else ""),
         executor=s.executor_name,
         halted=lab.halted,
@@ -141,6 +143,12 @@ def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | 
         step_cpu_s=lab.step_cpu_s,
         signals=_with_posture_objective(s, dict(last.signals) if last is not None else {}, view),
     )
+
+
+def _twin_segment(lab: Lab) -> float:
+    """The twin arm's stroke (signal "segment" of its last step), NaN without a twin or the signal."""
+    last = lab.twin.session.last if lab.twin is not None else None
+    return float(last.signals.get("segment", math.nan)) if last is not None else math.nan
 
 
 class FrameBuilder:

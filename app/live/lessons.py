@@ -3,10 +3,11 @@ the step say what the student saw — with this run's numbers, measured from the
 
 A `Lesson` is a title, one line of purpose and its `Step`s. A step has the commands that set it up
 (`setup(lab_defaults)`: preset, parameters, reset and play, as a person would with the panels), one
-or two sentences of what to do and watch, a condition on the loop's status that says the step has
-run far enough (`ready`), and a `claim`: a sentence built from `measure(lab)`'s numbers of this run
-and of the lesson's earlier steps. Nothing in a claim is a fixed number; where a step has too little
-data to say something, the claim says that.
+or two sentences of what to do and what to watch in the plot and in the 3D view, the charts it names
+(`plots`: the Plots panel shows them first while the step's run is on), a condition on the loop's
+status that says the step has run far enough (`ready`), and a `claim`: a sentence built from
+`measure(lab)`'s numbers of this run and of the lesson's earlier steps. Nothing in a claim is a fixed
+number; where a step has too little data to say something, the claim says that.
 
 `measure(lab)` runs on the loop thread (`SimLoop.call`): it reads every logged 1 ms step since the
 last reset (`StepLog`), so its numbers are those of the run the student just watched.
@@ -42,10 +43,12 @@ class Step:
 
     key: str
     title: str
-    todo: str  # what to do and what to watch, one or two sentences
+    todo: str  # what to do and what to watch in the plot and in the 3D view
     setup: Callable[[Lab | None], list[Command]]  # the commands that set the step up
     ready: Callable[[LoopStatus], bool]  # the step has run far enough to be measured
     claim: Callable[[Obs, Memo], str]  # what the student saw, from this run's numbers
+    plots: tuple[str, ...] = ()  # the charts the step names (`app.live.ui.plots.CHARTS`), on top in this order
+    compared: str | None = ""  # the step whose run is drawn faint: "" the one before, None none
 
 
 @dataclass(frozen=True)
@@ -74,6 +77,9 @@ def measure(lab: Lab) -> Obs:
             out[f"std_S{k}"] = v
         out.update(least_headroom(c, segments))
         out.update(stroke_verdicts(c, s.params().get("sensor"), lab.dt, segments))
+        if lab.twin is not None:  # the twin arm's strokes, over its own segments
+            for k, v in lab.twin.log.segment_force_error_std().items():
+                out[f"twin_std_S{k}"] = v
         found = delay_field()
         if found is not None and found[0] in s.params():
             out["reading_delay"] = float(getattr(s.params()[found[0]], found[1]))
@@ -253,6 +259,32 @@ def compare_strokes(label: str, other_key: str, other_label: str) -> Callable[[O
         return text + (
             f" Over the stretching strokes that is a mean STD of {mean_here:.1f} N against {mean_there:.1f} N "
             f"with {other_label} ({mean_here / mean_there:.2f}×)."
+        )
+
+    return claim
+
+
+def twin_strokes(o: Obs) -> Obs:
+    """The twin arm's stroke STDs ("twin_std_S{k}") as an `Obs` of its own ("std_S{k}", "segments")."""
+    out: Obs = {k.removeprefix("twin_"): v for k, v in o.items() if k.startswith("twin_std_S")}
+    if "segments" in o:
+        out["segments"] = o["segments"]
+    return out
+
+
+def side_by_side_claim(label: str, twin_label: str) -> Callable[[Obs, Memo], str]:
+    """The claim of one run of two arms: this arm's stretching and retracting strokes against the twin's."""
+
+    def claim(o: Obs, memo: Memo) -> str:
+        own, twin = _strokes(o), _strokes(twin_strokes(o))
+        if own is None or twin is None:
+            return "The zig-zags of both arms have not run through S6 since the last reset: no per-stroke numbers yet."
+        mean_own, mean_twin = float(np.mean(own[0])), float(np.mean(twin[0]))
+        return (
+            f"In one run, {label} on this arm and {twin_label} on the twin arm: the stretching strokes S2/S4/S6 had "
+            f"a force-error STD of {_fmt(own[0])} N with {label} against {_fmt(twin[0])} N with {twin_label} (means "
+            f"{mean_own:.1f} N and {mean_twin:.1f} N, {mean_own / mean_twin:.1f}×); the retracting strokes S1/S3/S5 "
+            f"{_fmt(own[1])} N against {_fmt(twin[1])} N."
         )
 
     return claim

@@ -38,6 +38,7 @@ from app.live.settings_io import check_settings_text, load_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
 from app.live.ui.junk import JunkGuard, guard_junk
 from app.live.ui.keys import add_hotkeys
+from app.live.ui.lesson_view import LessonView
 from app.live.ui.panels import ALL_FIELDS
 from app.live.ui.panels.compliance import CompliancePanel
 from app.live.ui.panels.latency import LatencyPanel
@@ -229,6 +230,7 @@ def start_app(
 
     replay = ReplayPanel(server, loop, plots, order=0.4)
     panels.append(replay)
+    lessons.view = LessonView(plots, replay.folder)  # a lesson step's charts on top, Replay under them
     publisher = Publisher(server, loop, panels, plots, make_scene)
     publisher.replay = replay
     replay.publisher = publisher

@@ -6,7 +6,9 @@ the loop's status; a change of the preset, case, robot, controller or a paramete
 with one line saying what changed. When the step has run far enough it measures the run on the loop
 thread, pauses the simulation there (the picture freezes at the end of the step, for a look and a
 replay) and shows the step's claim, built from those numbers and naming the run they were measured
-on. The numbers of each step are kept (`results`), so a later step can compare.
+on. The numbers of each step are kept (`results`), so a later step can compare. While the step's run
+is on, the Plots panel shows the charts the step names on top and, drawn faint, the run it compares
+with: the lesson's step before, else this step's earlier run (`view`, `app.live.ui.lesson_view`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from app.live.lesson_run import BoundStep, bind, cancel_line, finish
 from app.live.lessons import Lesson, Memo, Step
 from app.live.loop import Frame, SimLoop
 from app.live.run_identity import identity_from
+from app.live.ui.lesson_view import LessonView, Trace
 
 INTRO = (
     "**Start here.** Each lesson sets up a preset for you, says what to do and watch, and after each step "
@@ -44,6 +47,8 @@ class LessonsPanel:
         self.claims: dict[tuple[str, str], str] = {}  # what each step showed (tests read them)
         self.last_claim = ""  # the latest claim or cancel line (the classroom's teacher view shows it)
         self._lock = threading.Lock()
+        self.view: LessonView | None = None  # the Plots panel arranged for the step's run (set by the app)
+        self.traces: dict[tuple[str, str], Trace] = {}  # each step's last run as the plots drew it
         self.folder = gui.add_folder("Lessons", order=order)
         with self.folder:
             gui.add_markdown(INTRO)
@@ -86,6 +91,7 @@ class LessonsPanel:
     def start_step(self) -> None:
         """Send the shown step's set-up commands and watch for its end."""
         step = self.step
+        compare = self.compared(self.lesson, self.index)
         for cmd in step.setup(self.loop.lab):
             self.loop.submit(cmd)
         lesson = self.lesson.key
@@ -93,6 +99,8 @@ class LessonsPanel:
         bound = self.loop.call(lambda s: bind(self.loop.lab, lesson, step.key), timeout=60.0)
         with self._lock:
             self.armed = bound
+        if self.view is not None:
+            self.view.show(bound.restarts, step.plots, compare)
         self.claims.pop(bound.key, None)
         self.result_md.content = WAITING
 
@@ -103,6 +111,8 @@ class LessonsPanel:
     def live(self, frame: Frame) -> None:
         """When the armed step's run changed: cancel it with one line; when it has run far enough:
         measure it, pause there and show the claim."""
+        if self.view is not None:
+            self.view.follow(frame)
         with self._lock:
             armed = self.armed
             if armed is None or frame.restarts < armed.restarts:
@@ -120,13 +130,28 @@ class LessonsPanel:
             obs, cancelled_or_claim = self.loop.call(lambda s: finish(self.loop.lab, armed, step, fresh), timeout=30.0)
             if obs is not None:
                 memo[step.key] = obs
+                trace = self.view.capture() if self.view is not None else None
+                if trace is not None:
+                    self.traces[armed.key] = trace
             text = cancelled_or_claim
         else:
             text = cancelled
+        if text.startswith("Cancelled: ") and self.view is not None:
+            self.view.clear()  # the run is not the step's any more
         self.claims[armed.key] = text
         self.last_claim = text
         if self.lesson is lesson and self.step is step:
             self.result_md.content = result_text(text)
+
+    def compared(self, lesson: Lesson, index: int) -> Trace | None:
+        """The run step `index` of `lesson` compares with (`Step.compared`): the named step's last run, by
+        default the step before's, else the step's own earlier run; None for a step that compares with none."""
+        step = lesson.steps[index]
+        if step.compared is None:
+            return None
+        other = step.compared or (lesson.steps[index - 1].key if index > 0 else step.key)
+        keys = (other, step.key)
+        return next((self.traces[(lesson.key, k)] for k in keys if (lesson.key, k) in self.traces), None)
 
     def _show(self) -> None:
         lesson, step = self.lesson, self.step
