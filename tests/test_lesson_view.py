@@ -31,8 +31,10 @@ class FakePlots:
         self.redraws += 1
 
 
-def frame(scenario: str, restarts: int) -> SimpleNamespace:
-    return SimpleNamespace(status=SimpleNamespace(scenario=scenario), restarts=restarts)
+def frame(scenario: str, restarts: int, window: dict | None = None) -> SimpleNamespace:
+    """A frame of run `restarts` whose plot data are `window` (the last rows of the run)."""
+    plot = SimpleNamespace(columns=window) if window is not None else None
+    return SimpleNamespace(status=SimpleNamespace(scenario=scenario), restarts=restarts, plot=plot)
 
 
 def polish_columns(t0: float, start: float, seconds: float = 20.0, dt: float = 0.02) -> dict[str, np.ndarray]:
@@ -77,11 +79,13 @@ def test_the_compared_run_is_drawn_aligned_on_this_runs_first_stroke_once_it_is_
     trace = Trace(wj, task_start(wj) or 0.0)
     assert trace.start == pytest.approx(2.1, abs=0.02)
     view.show(7, ("force",), trace)
-    plots.history.columns = polish_columns(0.0, 55.7, seconds=40.0)  # settling until 55.7 s
-    view.follow(frame("polish", 7))
+    plots.history.columns = wj  # the plots have not seen the set-up's run yet: W_j's rows, started at 2.1 s
+    view.follow(frame("polish", 7, polish_columns(0.0, 55.7, seconds=4.0)))  # W_a's first rows: settling
     assert plots.previous is None
-    plots.history.columns = polish_columns(20.0, 55.7, seconds=50.0)
-    view.follow(frame("polish", 7))
+    wa = polish_columns(0.0, 55.7, seconds=70.0)
+    plots.history.columns = wa
+    last_10_s = {k: v[wa["t"] >= 50.0] for k, v in wa.items()}  # a frame's window over W_a's first stroke
+    view.follow(frame("polish", 7, last_10_s))
     drawn = plots.previous
     assert drawn is not None
     first = int(np.flatnonzero(drawn["segment"] >= 1)[0])
@@ -89,14 +93,14 @@ def test_the_compared_run_is_drawn_aligned_on_this_runs_first_stroke_once_it_is_
     assert drawn["t"][0] - wj["t"][0] == pytest.approx(55.7 - trace.start, abs=0.02)
     np.testing.assert_array_equal(drawn["force_error"], wj["force_error"])
     plots.previous = {"t": np.zeros(2)}  # a frame of a set-up's run replaced it: drawn again
-    view.follow(frame("polish", 7))
+    view.follow(frame("polish", 7, last_10_s))
     assert plots.previous is drawn
     plots.previous = None  # Clear previous run
-    view.follow(frame("polish", 7))
-    view.follow(frame("polish", 7))
+    view.follow(frame("polish", 7, last_10_s))
+    view.follow(frame("polish", 7, last_10_s))
     assert plots.previous is None
     plots.previous = {"t": np.zeros(2)}  # after that, a run the person plays keeps the plots' own previous run
-    view.follow(frame("polish", 7))
+    view.follow(frame("polish", 7, last_10_s))
     assert plots.previous is not None and plots.previous is not drawn
 
 
@@ -130,3 +134,17 @@ def test_a_captured_trace_keeps_the_signals_the_plots_draw_of_a_previous_run_and
     np.testing.assert_allclose(trace.columns["force_error"], -np.cos(columns["t"]), atol=1e-12)
     plots.history.columns = polish_columns(0.0, 60.0, seconds=10.0)  # still settling: nothing to compare with
     assert LessonView(plots).capture() is None
+
+
+def test_a_frame_window_past_the_start_takes_the_start_from_the_plots_history():
+    """A page that missed the first stroke's start (every row of the frame's window after it) aligns on the
+    plots' history of the run, which by then is this run's."""
+    plots = FakePlots()
+    view = LessonView(plots)
+    wj = polish_columns(0.0, 2.1)
+    view.show(3, ("force",), Trace(wj, 2.1))
+    wa = polish_columns(0.0, 55.7, seconds=70.0)
+    plots.history.columns = wa
+    view.follow(frame("polish", 3, {k: v[wa["t"] >= 60.0] for k, v in wa.items()}))
+    assert plots.previous is not None
+    assert plots.previous["t"][0] == pytest.approx(55.7 - 2.1, abs=0.02)

@@ -49,6 +49,19 @@ def task_start(columns: dict[str, np.ndarray]) -> float | None:
     return float(t[started[0]]) if t is not None and started.size else None
 
 
+def onset_in_window(columns: dict[str, np.ndarray]) -> float | None:
+    """The run's task start if a window of its rows (a frame's plot data) shows it: 0 for a run without
+    strokes, the first row with "segment" ≥ 1 when a row before it has not started; None otherwise (no
+    rows, still settling, or every row of the window after the start)."""
+    segment, t = columns.get("segment"), columns.get("t")
+    if t is None or not len(t):
+        return None  # no rows of the run yet
+    if segment is None:
+        return 0.0
+    started = np.flatnonzero(np.nan_to_num(segment) >= 1.0)
+    return float(t[started[0]]) if started.size and started[0] > 0 else None
+
+
 @dataclass(frozen=True)
 class Trace:
     """A run's plotted signals (the plots' history columns, with "force_error") and its task's start."""
@@ -119,9 +132,9 @@ class LessonView:
         under = float(len(arranged.charts)) + 0.5  # under the step's charts (theirs: 1, 2, …)
         _place(self.readout, under)
         _place(self.replay_folder, under + 0.1)
-        self._compare(arranged)
+        self._compare(arranged, frame.plot.columns if frame.plot is not None else {})
 
-    def _compare(self, arranged: Arranged) -> None:
+    def _compare(self, arranged: Arranged, window: dict[str, np.ndarray]) -> None:
         """The trace as the plots' previous run, aligned on this run's task start (nothing before it); a step
         with nothing to compare with shows no previous run (the plots' own would be an unrelated run)."""
         plots, drawn = self.plots, self._drawn
@@ -134,7 +147,11 @@ class LessonView:
             self.arranged = Arranged(arranged.restarts, arranged.charts, cleared=True)
             return
         if drawn is None:
-            start = task_start(plots.history.columns)
+            # this run's start from the frame's own rows (the plots' history may still be the run before the
+            # set-up's); once the frame's window is past the start, the history is this run's
+            start = onset_in_window(window)
+            if start is None and len(window.get("t", ())) and task_start(window) is not None:
+                start = task_start(plots.history.columns)
             if start is None:  # still settling: no comparison yet (the plots' own previous run is not it)
                 if plots.previous is not None:
                     plots.previous = None
