@@ -1,0 +1,340 @@
+"""The classroom with real pages: headless Chromium students of a two-seat lobby on the free preset.
+
+Each student is a browser context of their own (their own cookies, as two browsers are). Two pages
+get two seats whose arms move independently: a mouse drag on the arm in one page moves that seat's
+TCP by centimetres while the other seat's stays put to a fraction of a millimetre, each TCP read from
+the poses its own page receives. A reload returns to the same seat's process. A page without the
+teacher's token is refused the teacher's view, and the teacher's link opens it. A seat stopped while
+its page is connected (freed by the lobby; given SIGTERM again and again) exits cleanly, with no
+traceback on its stderr.
+
+The page's websocket is watched through the browser (what it sends: its camera, for projecting a
+link to the pixel to press; what it receives: every link's pose). Events from the browser reach
+this process only while it waits on the browser, so every wait here is the page's
+`wait_for_timeout`.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Callable, Iterator
+from types import SimpleNamespace
+from typing import Any
+
+import msgspec
+import numpy as np
+import pytest
+import viser.transforms as vtf
+import zstandard
+
+import robots
+from app.live.classroom.lobby import TEACHER_COOKIE, Lobby, start_lobby_thread
+from app.live.classroom.seats import SeatPool
+from app.tools.bench_serve import CHROMIUM_ARGS
+from tests.test_browser import SCENE_CANVAS, _link_centroids, chromium_path, project
+
+pytestmark = [pytest.mark.browser, pytest.mark.usefixtures("warm_kernels")]
+
+VIEWPORT = {"width": 1280, "height": 800}
+PRESS_LINK = "link6"  # the wrist: the TCP follows it
+MOVED_M = 0.03  # the dragged seat's TCP moves at least this far
+AT_REST_M = 0.001  # the other seat's TCP moves less than this meanwhile
+SEAT_START_S = 120.0  # a seat's process starts with its first page (kernels from the disk cache)
+
+
+def poll(page: Any, condition: Callable[[], Any], timeout: float, what: str) -> Any:
+    """Wait (on the page, so that the browser's events arrive) until `condition()` is truthy."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout:.0f} s waiting for {what}", pytrace=False)
+        page.wait_for_timeout(100)
+
+
+def scene_messages(data: bytes) -> list[dict[str, Any]]:
+    """The messages of one frame viser sends a page (length-prefixed zstd msgpack)."""
+    size, packed = int.from_bytes(data[:8], "little"), int.from_bytes(data[8:16], "little")
+    inner = zstandard.ZstdDecompressor().decompress(data[16 : 16 + packed], max_output_size=size)
+    return msgspec.msgpack.decode(inner)["messages"]
+
+
+class LabSocket:
+    """A student's page as its lab's websocket (/lab/view) shows it: the camera the page reports and the
+    pose of each robot frame as the page last received it; `opened` counts the sockets it opened,
+    `frames` the frames it received."""
+
+    def __init__(self, page: Any):
+        self.page = page
+        self.camera: dict[str, Any] | None = None
+        self.positions: dict[str, np.ndarray] = {}
+        self.wxyz: dict[str, np.ndarray] = {}
+        self.opened = 0
+        self.frames = 0
+        page.on("websocket", self._socket)
+
+    def _socket(self, ws: Any) -> None:
+        if not ws.url.endswith("/lab/view"):
+            return
+        self.opened += 1
+        ws.on("framesent", self._sent)
+        ws.on("framereceived", self._received)
+
+    def _sent(self, payload: Any) -> None:
+        if isinstance(payload, bytes | bytearray):
+            msg = msgspec.msgpack.decode(payload)
+            if isinstance(msg, dict) and msg.get("type") == "ViewerCameraMessage":
+                self.camera = msg
+
+    def _received(self, payload: Any) -> None:
+        if not isinstance(payload, bytes | bytearray):
+            return
+        self.frames += 1
+        for m in scene_messages(bytes(payload)):
+            name = m.get("name")
+            if not isinstance(name, str) or not name.startswith("/robot/"):
+                continue
+            if m.get("type") == "SetPositionMessage":
+                self.positions[name.removeprefix("/robot/")] = np.array(m["position"], dtype=float)
+            elif m.get("type") == "SetOrientationMessage":
+                self.wxyz[name.removeprefix("/robot/")] = np.array(m["wxyz"], dtype=float)
+
+    def point_world(self, link: str, local: np.ndarray) -> np.ndarray | None:
+        """A point given in a link's frame, in the world, from the link's pose as the page has it."""
+        if link not in self.positions or link not in self.wxyz:
+            return None
+        return self.positions[link] + vtf.SO3(self.wxyz[link]).as_matrix() @ local
+
+
+def tcp_in_link(robot: Any) -> tuple[str, np.ndarray]:
+    """The link whose frame carries the TCP, and the TCP's position in that frame."""
+    model = robot.model
+    tcp = model.frames[model.getFrameId(robots.TCP_FRAME)]
+    link = next(f for f in model.frames if f.name in robot.link_names and f.parentJoint == tcp.parentJoint)
+    return link.name, (link.placement.inverse() * tcp.placement).translation.copy()
+
+
+@pytest.fixture(scope="module")
+def lobby() -> Iterator[Lobby]:
+    lb = Lobby(SeatPool(2, 600.0, ("--scenario", "free")), port=0)
+    start_lobby_thread(lb)
+    yield lb
+    lb.stop()
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline and any(s.proc is not None for s in lb.pool.seats):
+        time.sleep(0.1)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=chromium_path(), headless=True, args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+class Student(SimpleNamespace):
+    context: Any
+    page: Any
+    lab: LabSocket
+    seat: int
+
+
+def seat_of(page: Any) -> int | None:
+    """The seat the page's cookie holds, as the lobby tells the page."""
+    return page.evaluate("fetch('/status.json', {cache: 'no-store'}).then(r => r.json()).then(s => s.seat)")
+
+
+def arm_missing(student: Student, lobby: Lobby) -> str:
+    """What the page's lab lacks of being connected, reporting its camera and holding the poses of the
+    link pressed and the TCP's link ("" when nothing)."""
+    robot = robots.load(robots.DEFAULT_ROBOT)
+    lab = student.lab
+    seat = lobby.pool.by_number(student.seat)
+    if seat is None or seat.state != "ready":
+        return f"seat {student.seat} is {seat and seat.health()}"
+    if not seat.status.get("pages"):
+        return f"seat {student.seat} has no page (the page opened {lab.opened} lab socket(s))"
+    if lab.camera is None:
+        return "the page has reported no camera"
+    lacking = [n for n in (PRESS_LINK, tcp_in_link(robot)[0]) if n not in lab.positions or n not in lab.wxyz]
+    return f"the page has no pose of {lacking}" if lacking else ""
+
+
+def arm_shown(student: Student, lobby: Lobby) -> bool:
+    """The page's lab is connected, reports its camera and has the poses the test reads."""
+    return not arm_missing(student, lobby)
+
+
+@pytest.fixture(scope="module")
+def students(lobby: Lobby, browser: Any) -> Iterator[list[Student]]:
+    """Two students, each in a browser context of their own, each with the lab page open."""
+    out = []
+    for _ in range(2):
+        context = browser.new_context(viewport=VIEWPORT)
+        page = context.new_page()
+        lab = LabSocket(page)
+        page.goto(f"http://127.0.0.1:{lobby.bound_port}/", wait_until="commit")
+        out.append(Student(context=context, page=page, lab=lab, seat=0))
+    for s in out:  # both seats start at once
+        s.seat = poll(s.page, lambda s=s: seat_of(s.page), 30, "the page's seat")
+    for s in out:
+        try:
+            poll(s.page, lambda s=s: arm_shown(s, lobby), SEAT_START_S, f"seat {s.seat}'s arm in its page")
+        except pytest.fail.Exception:
+            pytest.fail(f"seat {s.seat}'s arm is not in its page: {arm_missing(s, lobby)}", pytrace=False)
+    yield out
+    for s in out:
+        s.context.close()
+
+
+def tcp(lab: LabSocket) -> np.ndarray:
+    link, offset = tcp_in_link(robots.load(robots.DEFAULT_ROBOT))
+    point = lab.point_world(link, offset)
+    assert point is not None, f"the page has no pose of {link}"
+    return point
+
+
+def press_and_pull(student: Student, lobby: Lobby, link: str) -> None:
+    """Press on `link` where the page's camera shows it and pull up and to the left, button held, until
+    the seat holds the arm with the drag spring (a press that takes no hold is made again, once)."""
+    page, lab = student.page, student.lab
+    seat = lobby.pool.by_number(student.seat)
+    assert seat is not None
+    robot = robots.load(robots.DEFAULT_ROBOT)
+    centroid = _link_centroids(str(robot.urdf_path))[link]
+    box = page.frame_locator("#mine").locator(SCENE_CANVAS).first.bounding_box(timeout=120_000)
+    assert box is not None
+    for _attempt in range(2):
+        camera = SimpleNamespace(camera=SimpleNamespace(**(lab.camera or {})))
+        point = lab.point_world(link, centroid)
+        assert point is not None
+        x, y = project(camera, box, point)
+        assert box["x"] < x < box["x"] + box["width"] and box["y"] < y < box["y"] + box["height"], (x, y, box)
+        page.mouse.move(x, y)
+        page.mouse.down()
+        for k in range(1, 4):  # past the drag threshold
+            page.mouse.move(x, y - 4 * k)
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and not seat.status.get("drag"):
+            page.wait_for_timeout(100)
+        if seat.status.get("drag"):
+            for k in range(1, 7):
+                page.mouse.move(x - 15 * k, y - 12 - 20 * k)
+            return
+        page.mouse.up()
+    pytest.fail(f"no drag of {link} in seat {student.seat}'s page after 2 presses", pytrace=False)
+
+
+def test_two_pages_get_two_seats_whose_arms_move_independently(lobby, students):
+    a, b = students
+    assert {a.seat, b.seat} == {1, 2}
+    seat_a, seat_b = lobby.pool.by_number(a.seat), lobby.pool.by_number(b.seat)
+    assert seat_a.proc.pid != seat_b.proc.pid and seat_a.port != seat_b.port
+    tcp_a0, tcp_b0, frames_b0 = tcp(a.lab), tcp(b.lab), b.lab.frames
+    press_and_pull(a, lobby, PRESS_LINK)
+    try:
+        moved_a = poll(
+            a.page,
+            lambda: d if (d := float(np.linalg.norm(tcp(a.lab) - tcp_a0))) >= MOVED_M else 0.0,
+            20,
+            f"seat {a.seat}'s TCP to follow the drag by {MOVED_M * 100:g} cm",
+        )
+        moved_b = float(np.linalg.norm(tcp(b.lab) - tcp_b0))
+        frames_b = b.lab.frames - frames_b0
+        print(
+            f"dragged seat's TCP moved {moved_a * 100:.1f} cm, the other seat's {moved_b * 1000:.3f} mm "
+            f"(its page received {frames_b} frames meanwhile)"
+        )
+        assert moved_a >= MOVED_M
+        assert moved_b < AT_REST_M, moved_b  # the other student's arm, as their page shows it, stays at rest
+        assert frames_b > 10  # while that page was live
+        assert seat_a.status["drag"] and not seat_b.status["drag"]  # held in one seat only, as each seat says
+    finally:
+        a.page.mouse.up()
+    poll(a.page, lambda: not seat_a.status.get("drag"), 20, "mouse-up to release the drag")
+
+
+def test_a_reload_returns_to_the_same_seat(lobby, students):
+    a, _b = students
+    seat = lobby.pool.by_number(a.seat)
+    pid, port, opened = seat.proc.pid, seat.port, a.lab.opened
+    a.lab.positions.clear()
+    a.lab.wxyz.clear()
+    a.lab.camera = None
+    a.page.reload(wait_until="commit")
+    poll(a.page, lambda: a.lab.opened > opened and arm_shown(a, lobby), 60, "the reloaded page's lab")
+    assert seat_of(a.page) == a.seat
+    assert f"seat {a.seat}" in a.page.locator(".bar").inner_text()
+    assert (seat.proc.pid, seat.port) == (pid, port)  # the same process: the same arm, parameters, lessons
+    poll(a.page, lambda: seat.pages == 1, 20, "the old page's socket to close")  # one page open on it, the new one
+
+
+def test_a_page_without_the_teacher_token_is_refused_the_teacher_view(lobby, students, browser):
+    a, _b = students
+    base = f"http://127.0.0.1:{lobby.bound_port}"
+    token = lobby.teacher_token
+    wrong = token[:-1] + ("y" if token.endswith("x") else "x")
+    stranger = browser.new_context(viewport=VIEWPORT)
+    teacher = browser.new_context(viewport=VIEWPORT)
+    try:
+        for page in (a.page, stranger.new_page()):  # a student's page, a page with no cookie at all
+            for path in ("/teacher/", f"/teacher?token={wrong}", "/teacher/seat/1/view/"):
+                response = page.goto(base + path)
+                assert response is not None and response.status == 403, (path, response and response.status)
+                assert "403 Forbidden" in page.locator("body").inner_text()
+            socket = page.evaluate(
+                """url => new Promise(done => { const ws = new WebSocket(url);
+                    ws.onopen = () => { ws.close(); done('open'); }; ws.onclose = () => done('refused'); })""",
+                f"ws://127.0.0.1:{lobby.bound_port}/teacher/ws",
+            )
+            assert socket == "refused"
+            assert not any(c["name"] == TEACHER_COOKIE for c in page.context.cookies())
+        view = teacher.new_page()  # the teacher's link opens it
+        response = view.goto(f"{base}/teacher?token={token}")
+        assert response is not None and response.status == 200 and view.url == f"{base}/teacher/"
+        poll(view, lambda: view.locator("body").inner_text().count("healthy") >= 2, 20, "both seats in the view")
+    finally:
+        stranger.close()
+        teacher.close()
+        a.page.goto(base + "/", wait_until="commit")  # back to the lab
+        poll(a.page, lambda: arm_shown(a, lobby), 60, "the student's lab again")
+
+
+def wait_ended(page: Any, seat_log: Any, proc: Any) -> None:
+    poll(page, lambda: proc.returncode is not None and seat_log.ended, 20, "the seat's process to end")
+
+
+def test_a_seat_stopped_with_its_page_connected_exits_cleanly_without_a_traceback(lobby, students):
+    a, b = students
+    seat_a, seat_b = lobby.pool.by_number(a.seat), lobby.pool.by_number(b.seat)
+    poll(a.page, lambda: arm_shown(a, lobby) and arm_shown(b, lobby), 60, "both pages connected")
+    # the lobby frees a seat (closes its pages' sockets, its command pipe, then SIGTERM) with its page open
+    proc, log = seat_b.proc, seat_b.log
+    lobby.call(lambda: lobby.pool.free(seat_b))
+    wait_ended(b.page, log, proc)
+    b.context.close()  # (the page would take the free seat again)
+    print(f"freed seat: exit {proc.returncode}, stderr {list(log.lines)}")
+    assert proc.returncode == 0, list(log.lines)
+    assert not [line for line in log.lines if "Traceback" in line or "Exception ignored" in line]
+    # SIGTERM again and again while it stops (a second stop signal once cut the shutdown short)
+    proc, log = seat_a.proc, seat_a.log
+    for _ in range(30):
+        try:
+            os.kill(proc.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            break
+        a.page.wait_for_timeout(10)
+    wait_ended(a.page, log, proc)
+    print(f"seat given SIGTERM repeatedly: exit {proc.returncode}, stderr {list(log.lines)}")
+    assert proc.returncode == 0, list(log.lines)
+    assert not [line for line in log.lines if "Traceback" in line or "Exception ignored" in line]
+    assert seat_a.health() == "stopped: exit code 0"
