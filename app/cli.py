@@ -165,7 +165,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seat-counts", default="1,2,4,8", metavar="N,N,...", help="with --classroom (default 1,2,4,8)")
     p.add_argument(
-        "--watcher-counts", default="1,10,30", metavar="K,K,...", help="with --classroom: watchers of one seat"
+        "--watcher-counts",
+        default="1,10,30",
+        metavar="K,K,...",
+        help="with --classroom: watchers of one seat (none: no run)",
+    )
+    p.add_argument(
+        "--chromium-pages",
+        action="store_true",
+        help="with --classroom: each seat's student a headless Chromium page (frames received and drawn, browser CPU)",
     )
     p.add_argument("--scenario", default="polish", help="scenario for --serve and --classroom (default polish)")
     p.add_argument(

@@ -20,3 +20,13 @@ def test_one_second_windows_divide_simulated_by_wall_time_and_leave_out_a_paused
 def test_a_window_spans_at_least_a_second_of_uneven_samples():
     samples = [(0.0, 0.0, True), (0.3, 0.3, True), (0.7, 0.7, True), (1.2, 1.08, True), (1.9, 1.71, True)]
     assert windows_rtf(samples) == pytest.approx([1.08 / 1.2], abs=1e-12)  # 0–1.2 s; 1.2–1.9 s is too short
+
+
+def test_counts_read_a_list_and_none_is_no_run():
+    from app.tools.bench_classroom import _counts
+
+    assert _counts("1,2, 4") == [1, 2, 4]
+    assert _counts("none") == [] and _counts("") == []
+    for bad in ("1,x", "-1"):
+        with pytest.raises(ValueError, match="expected counts like 1,2,4"):
+            _counts(bad)

@@ -8,6 +8,13 @@ median and the worst of its 1 s windows) and the messages (one per published fra
 receives per second. For each watcher count K (default 1, 10, 30) it does the same with one seat, its
 student's client steering and K clients watching that seat read-only through the lobby (the
 teacher's read-only view: the path the spotlight takes).
+
+With `--chromium-pages` each seat's student is a real page instead: a headless Chromium (one browser,
+a context of its own per student, as separate browsers have separate cookies) opens the class's link,
+is given a seat and shows the lab; the page counts in itself the frames it receives (the batches
+viser's websocket worker hands the page, one per published frame) and the frames it draws (animation
+frames in which the 3D view made a WebGL call), and the browser's CPU (every Chromium process)
+is measured beside the seats' and the lobby's. The watchers stay websocket clients.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,7 +40,7 @@ from websockets.sync.client import connect
 
 from app.live.ui.viser_seam import camera_message
 
-START_TIMEOUT_S = 180.0
+START_TIMEOUT_S = 240.0
 WARM_SIM_S = 2.0  # every seat runs this much simulated time before the measurement
 
 
@@ -85,8 +93,136 @@ class Client:
         """Messages received per second between t0 and t1."""
         return sum(t0 <= t < t1 for t in self.times) / (t1 - t0)
 
+    def ready(self) -> bool:
+        return len(self.times) > 10
+
+    def begin(self) -> None:
+        """The measurement starts (the arrival times say the rest)."""
+
+    def end(self) -> None:
+        """The measurement ends."""
+
     def close(self) -> None:
         self.ws.close()
+
+
+# Run in every frame of a page before its own scripts: counts the frames viser's websocket worker
+# hands the page (one "message_batch" per message the server sent) and the animation frames in which
+# a WebGL call was made (the 3D view drew; the plots draw on 2D canvases).
+PAGE_COUNTERS_JS = """(() => {
+  if (window.__torquelabCounts) return;
+  const counts = window.__torquelabCounts = {received: 0, drawn: 0};
+  const BaseWorker = window.Worker;
+  window.Worker = class extends BaseWorker {
+    constructor(...args) {
+      super(...args);
+      this.addEventListener("message", (e) => { if (e.data && e.data.type === "message_batch") counts.received += 1; });
+    }
+  };
+  let frameTime = -1, counted = true, inFrame = false;
+  for (const proto of [window.WebGL2RenderingContext, window.WebGLRenderingContext].map((c) => c && c.prototype)) {
+    if (!proto) continue;
+    for (const name of ["clear", "drawArrays", "drawElements"]) {
+      const call = proto[name];
+      proto[name] = function (...args) {
+        if (inFrame && !counted) { counted = true; counts.drawn += 1; }
+        return call.apply(this, args);
+      };
+    }
+  }
+  const raf = window.requestAnimationFrame.bind(window);
+  window.requestAnimationFrame = (cb) => raf((t) => {
+    if (t !== frameTime) { frameTime = t; counted = false; }
+    inFrame = true;
+    try { cb(t); } finally { inFrame = false; }
+  });
+})();"""
+LAB_COUNTS_JS = "() => { const f = document.getElementById('mine'); return f && f.contentWindow.__torquelabCounts; }"
+
+
+@dataclass
+class PageClient:
+    """A student's page in headless Chromium: the class's link opened in a browser context of its own
+    (its own cookie: its own seat); the lab's counters (`PAGE_COUNTERS_JS`) read at the measurement's
+    start and end."""
+
+    browser: Any
+    url: str
+    closed: str = ""
+    marks: list[tuple[float, dict[str, int]]] = field(default_factory=list)  # (monotonic time, counts)
+
+    def start(self) -> None:
+        self.context = self.browser.new_context(viewport={"width": 1280, "height": 800})
+        self.context.add_init_script(PAGE_COUNTERS_JS)
+        self.page = self.context.new_page()
+        self.page.goto(self.url, wait_until="commit")
+
+    def counts(self) -> dict[str, int] | None:
+        try:
+            return self.page.evaluate(LAB_COUNTS_JS)
+        except Exception as exc:  # a page that went away: said, not fatal here
+            self.closed = f"{type(exc).__name__}: {exc}"
+            return None
+
+    def ready(self) -> bool:
+        counts = self.counts()
+        return bool(counts and counts["received"] > 10 and counts["drawn"] > 0)
+
+    def begin(self) -> None:
+        self.marks = [(time.monotonic(), self.counts() or {})]
+
+    def end(self) -> None:
+        self.marks.append((time.monotonic(), self.counts() or {}))
+
+    def _per_s(self, key: str) -> float:
+        if len(self.marks) < 2 or key not in self.marks[0][1] or key not in self.marks[1][1]:
+            return float("nan")
+        (t0, c0), (t1, c1) = self.marks[0], self.marks[1]
+        return (c1[key] - c0[key]) / (t1 - t0)
+
+    def rate(self, t0: float, t1: float) -> float:
+        """Frames received per second over the measurement (between this page's own marks)."""
+        return self._per_s("received")
+
+    def drawn_rate(self) -> float:
+        """Frames drawn per second over the measurement."""
+        return self._per_s("drawn")
+
+    def close(self) -> None:
+        self.context.close()
+
+
+def chromium_cpu_s() -> float:
+    """CPU seconds used so far by the Chromium processes descended from this one (Linux /proc; NaN elsewhere)."""
+    try:
+        parent: dict[int, int] = {}
+        cpu: dict[int, float] = {}
+        names: dict[int, str] = {}
+        tick = os.sysconf("SC_CLK_TCK")
+        for entry in os.listdir("/proc"):
+            if not entry.isdigit():
+                continue
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    head, tail = fh.read().rsplit(")", 1)
+            except OSError:
+                continue
+            fields = tail.split()
+            pid = int(entry)
+            parent[pid], names[pid] = int(fields[1]), head.split("(", 1)[1]
+            cpu[pid] = (int(fields[11]) + int(fields[12])) / tick
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+    me = os.getpid()
+
+    def descends(pid: int) -> bool:
+        while pid > 1:
+            pid = parent.get(pid, 0)
+            if pid == me:
+                return True
+        return False
+
+    return sum(c for pid, c in cpu.items() if names[pid].startswith(("chrom", "headless")) and descends(pid))
 
 
 class Classroom:
@@ -112,6 +248,7 @@ class Classroom:
         self.port: str = port
         self.rows: list[dict[str, Any]] = []
         self.lobby_cores = float("nan")  # CPU the lobby used per wall second while measured
+        self.browser_cores = float("nan")  # CPU the Chromium pages used per wall second while measured
         self.samples: dict[int, list[tuple[float, float, bool]]] = {}
         self.cpu: dict[int, list[tuple[float, float]]] = {}  # seat → (its clock, its process's CPU seconds)
         self.teacher = connect(
@@ -174,14 +311,33 @@ class Classroom:
                 self.proc.wait()
 
 
-def _wait_running(room: Classroom, seats: int, clients: list[Client]) -> None:
+@contextlib.contextmanager
+def chromium_browser() -> Iterator[Any]:
+    """A headless Chromium driven by Playwright (the test extra), at $TORQUELAB_CHROMIUM or /usr/bin/chromium."""
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        raise ValueError("--chromium-pages needs Playwright: pip install 'torquelab[test]'") from None
+    from app.tools.bench_serve import CHROMIUM, CHROMIUM_ARGS
+
+    if not os.path.exists(CHROMIUM):
+        raise ValueError(f"no Chromium at {CHROMIUM}; set TORQUELAB_CHROMIUM to a Chromium binary")
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        try:
+            yield browser
+        finally:
+            browser.close()
+
+
+def _wait_running(room: Classroom, seats: int, clients: list[Any]) -> None:
     deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline:
         rows = [r for r in room.rows if r["state"] == "ready"]
         if (
             len(rows) >= seats
             and all((r.get("t") or 0.0) >= WARM_SIM_S for r in rows)
-            and all(len(c.times) > 10 for c in clients)
+            and all(c.ready() for c in clients)
         ):
             return
         broken = [c.closed for c in clients if c.closed]
@@ -199,13 +355,18 @@ def _cores(samples: list[tuple[float, float]], t0: float, t1: float) -> float:
     return (inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0])
 
 
-def _measure(room: Classroom, clients: list[Client], seconds: float) -> tuple[list[dict[str, Any]], float, float]:
+def _measure(room: Classroom, clients: list[Any], seconds: float) -> tuple[list[dict[str, Any]], float, float]:
+    for c in clients:
+        c.begin()
     start = {n: len(s) for n, s in room.samples.items()}
     t0 = time.monotonic()
-    lobby0 = room.lobby_cpu_s()
+    lobby0, browser0 = room.lobby_cpu_s(), chromium_cpu_s()
     time.sleep(seconds)
     t1 = time.monotonic()
     room.lobby_cores = (room.lobby_cpu_s() - lobby0) / (t1 - t0)
+    room.browser_cores = (chromium_cpu_s() - browser0) / (t1 - t0)
+    for c in clients:
+        c.end()
     seats = []
     for number, samples in sorted(room.samples.items()):
         window = samples[max(0, start.get(number, 0) - 1) :]
@@ -224,25 +385,35 @@ def _measure(room: Classroom, clients: list[Client], seconds: float) -> tuple[li
     return seats, t0, t1
 
 
-def bench_seats(n: int, scenario: str, seconds: float) -> dict[str, Any]:
-    """N seats, each taken by one reading client."""
+def bench_seats(n: int, scenario: str, seconds: float, browser: Any = None) -> dict[str, Any]:
+    """N seats, each taken by one reading client, or, given a Playwright `browser`, by one Chromium page."""
     room = Classroom(n, scenario)
-    clients: list[Client] = []
+    clients: list[Any] = []
     try:
         for _ in range(n):
-            client = Client(room.ws_url("/lab/view"), room.arrive())
+            client: Any = (
+                Client(room.ws_url("/lab/view"), room.arrive())
+                if browser is None
+                else PageClient(browser, room.base + "/")
+            )
             client.start()
             clients.append(client)
         _wait_running(room, n, clients)
+        load0 = os.getloadavg()[0]
         seats, t0, t1 = _measure(room, clients, seconds)
         rates = [c.rate(t0, t1) for c in clients]
-        return {
+        out = {
             "seats": n,
             "per_seat": seats,
             "client_msgs_per_s": rates,
             "lobby_cores": room.lobby_cores,
             "load_average_1min": os.getloadavg()[0],
+            "load_average_1min_start": load0,
         }
+        if browser is not None:
+            out["pages_drawn_per_s"] = [c.drawn_rate() for c in clients]
+            out["browser_cores"] = room.browser_cores
+        return out
     finally:
         for c in clients:
             with contextlib.suppress(Exception):
@@ -282,11 +453,14 @@ def bench_watchers(k: int, scenario: str, seconds: float) -> dict[str, Any]:
 
 
 def _counts(text: str) -> list[int]:
+    """Counts like "1,2,4"; "none" (or "") is none."""
+    if text.strip().lower() in ("", "none"):
+        return []
     try:
         values = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise ValueError(f"expected counts like 1,2,4, got {text!r}") from None
-    if not values or min(values) < 0:
+    if min(values, default=-1) < 0:
         raise ValueError(f"expected counts like 1,2,4, got {text!r}")
     return values
 
@@ -308,11 +482,14 @@ def cmd_bench_classroom(args: argparse.Namespace) -> int:
         "seats": [],
         "watch": [],
     }
-    for n in seat_counts:
-        if n < 1:
-            continue
-        print(f"torquelab: {n} seat(s) …", file=sys.stderr, flush=True)
-        report["seats"].append(bench_seats(n, args.scenario, args.seconds))
+    pages = bool(getattr(args, "chromium_pages", False))
+    report["students"] = "chromium pages" if pages else "websocket clients"
+    with chromium_browser() if pages else contextlib.nullcontext() as browser:
+        for n in seat_counts:
+            if n < 1:
+                continue
+            print(f"torquelab: {n} seat(s) …", file=sys.stderr, flush=True)
+            report["seats"].append(bench_seats(n, args.scenario, args.seconds, browser))
     for k in watcher_counts:
         print(f"torquelab: 1 seat and {k} watcher(s) …", file=sys.stderr, flush=True)
         report["watch"].append(bench_watchers(k, args.scenario, args.seconds))
@@ -323,21 +500,39 @@ def cmd_bench_classroom(args: argparse.Namespace) -> int:
         f"seats on this machine ({report['cpu_count']} cores), scenario {args.scenario}, {args.seconds:g} s each; "
         "RTF: simulated / wall time of each seat's own clock"
     )
-    print(
-        "| seats | RTF of each seat | median 1 s RTF (worst seat) | worst 1 s RTF | msgs/s per client (min / median) "
-        "| cores per seat (mean) | lobby cores |"
-    )
-    print("|---|---|---|---|---|---|---|")
+    if pages:
+        print(
+            "each seat's student a headless Chromium page; frames received: viser's batches handed to the page; "
+            "frames drawn: animation frames in which its 3D view drew"
+        )
+        print(
+            "| seats | RTF of each seat | median 1 s RTF (worst seat) | worst 1 s RTF "
+            "| frames received/s per page (min / median) | frames drawn/s per page (min / median) "
+            "| cores per seat (mean) | lobby cores | browser cores |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|")
+    else:
+        print(
+            "| seats | RTF of each seat | median 1 s RTF (worst seat) | worst 1 s RTF "
+            "| msgs/s per client (min / median) | cores per seat (mean) | lobby cores |"
+        )
+        print("|---|---|---|---|---|---|---|")
     for row in report["seats"]:
         per = row["per_seat"]
         rtfs = " ".join(f"{s['rtf']:.3f}" for s in per)
         medians = min((s["rtf_median_1s"] for s in per), default=float("nan"))
         worst = min((s["rtf_worst_1s"] for s in per), default=float("nan"))
         cores = statistics.fmean(s["cores"] for s in per) if per else float("nan")
-        print(
-            f"| {row['seats']} | {rtfs} | {medians:.3f} | {worst:.3f} | {_fmt_rates(row['client_msgs_per_s'])} "
-            f"| {cores:.2f} | {row['lobby_cores']:.2f} |"
-        )
+        line = f"| {row['seats']} | {rtfs} | {medians:.3f} | {worst:.3f} | {_fmt_rates(row['client_msgs_per_s'])} "
+        if pages:
+            line += f"| {_fmt_rates(row['pages_drawn_per_s'])} "
+        line += f"| {cores:.2f} | {row['lobby_cores']:.2f} |"
+        print(line + (f" {row['browser_cores']:.2f} |" if pages else ""))
+    loads = [f"{r['load_average_1min_start']:.1f}→{r['load_average_1min']:.1f}" for r in report["seats"]]
+    if loads:
+        print(f"load average (1 min) at each row's start→end: {', '.join(loads)}")
+    if not report["watch"]:
+        return 0
     print()
     print("one seat watched read-only through the lobby (its student's client steering)")
     print(
