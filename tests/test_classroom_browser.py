@@ -32,6 +32,7 @@ import zstandard
 import robots
 from app.live.classroom.lobby import TEACHER_COOKIE, Lobby, start_lobby_thread
 from app.live.classroom.seats import SeatPool
+from app.tools.bench_classroom import LAB_COUNTS_JS, PAGE_COUNTERS_JS
 from app.tools.bench_serve import CHROMIUM_ARGS
 from tests.test_browser import SCENE_CANVAS, _link_centroids, chromium_path, project
 
@@ -42,6 +43,17 @@ PRESS_LINK = "link6"  # the wrist: the TCP follows it
 MOVED_M = 0.03  # the dragged seat's TCP moves at least this far
 AT_REST_M = 0.001  # the other seat's TCP moves less than this meanwhile
 SEAT_START_S = 120.0  # a seat's process starts with its first page (kernels from the disk cache)
+
+
+# the 3D view's box in the student's page (CSS px of the top page): the lab's frame is of the same origin
+CANVAS_BOX_JS = """selector => {
+    const frame = document.getElementById("mine");
+    const canvas = frame && frame.contentDocument && frame.contentDocument.querySelector(selector);
+    if (!canvas) return null;
+    const outer = frame.getBoundingClientRect(), inner = canvas.getBoundingClientRect();
+    return {x: outer.x + frame.clientLeft + inner.x, y: outer.y + frame.clientTop + inner.y,
+            width: inner.width, height: inner.height};
+}"""
 
 
 def poll(page: Any, condition: Callable[[], Any], timeout: float, what: str) -> Any:
@@ -180,6 +192,7 @@ def students(lobby: Lobby, browser: Any) -> Iterator[list[Student]]:
     out = []
     for _ in range(2):
         context = browser.new_context(viewport=VIEWPORT)
+        context.add_init_script(PAGE_COUNTERS_JS)  # bench --classroom --chromium-pages's counters
         page = context.new_page()
         lab = LabSocket(page)
         page.goto(f"http://127.0.0.1:{lobby.bound_port}/", wait_until="commit")
@@ -211,8 +224,7 @@ def press_and_pull(student: Student, lobby: Lobby, link: str) -> None:
     assert seat is not None
     robot = robots.load(robots.DEFAULT_ROBOT)
     centroid = _link_centroids(str(robot.urdf_path))[link]
-    box = page.frame_locator("#mine").locator(SCENE_CANVAS).first.bounding_box(timeout=120_000)
-    assert box is not None
+    box = poll(page, lambda: page.evaluate(CANVAS_BOX_JS, SCENE_CANVAS), 60, "the lab's 3D view")
     for _attempt in range(2):
         camera = SimpleNamespace(camera=SimpleNamespace(**(lab.camera or {})))
         point = lab.point_world(link, centroid)
@@ -240,16 +252,18 @@ def test_two_pages_get_two_seats_whose_arms_move_independently(lobby, students):
     seat_a, seat_b = lobby.pool.by_number(a.seat), lobby.pool.by_number(b.seat)
     assert seat_a.proc.pid != seat_b.proc.pid and seat_a.port != seat_b.port
     tcp_a0, tcp_b0, frames_b0 = tcp(a.lab), tcp(b.lab), b.lab.frames
+    counted_b0 = b.page.evaluate(LAB_COUNTS_JS)
     press_and_pull(a, lobby, PRESS_LINK)
     try:
         moved_a = poll(
             a.page,
             lambda: d if (d := float(np.linalg.norm(tcp(a.lab) - tcp_a0))) >= MOVED_M else 0.0,
-            20,
+            60,
             f"seat {a.seat}'s TCP to follow the drag by {MOVED_M * 100:g} cm",
         )
         moved_b = float(np.linalg.norm(tcp(b.lab) - tcp_b0))
         frames_b = b.lab.frames - frames_b0
+        counted_b = b.page.evaluate(LAB_COUNTS_JS)
         print(
             f"dragged seat's TCP moved {moved_a * 100:.1f} cm, the other seat's {moved_b * 1000:.3f} mm "
             f"(its page received {frames_b} frames meanwhile)"
@@ -257,6 +271,10 @@ def test_two_pages_get_two_seats_whose_arms_move_independently(lobby, students):
         assert moved_a >= MOVED_M
         assert moved_b < AT_REST_M, moved_b  # the other student's arm, as their page shows it, stays at rest
         assert frames_b > 10  # while that page was live
+        # the page's own count (bench --classroom --chromium-pages reads it) against the frames on its socket
+        received_b = counted_b["received"] - counted_b0["received"]
+        assert abs(received_b - frames_b) <= max(3, 0.05 * frames_b), (received_b, frames_b)
+        assert counted_b["drawn"] > counted_b0["drawn"]  # and it drew its 3D view meanwhile
         assert seat_a.status["drag"] and not seat_b.status["drag"]  # held in one seat only, as each seat says
     finally:
         a.page.mouse.up()
