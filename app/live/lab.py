@@ -46,6 +46,7 @@ from app.core.settings import finite_number, plain
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.core.variants import make_variant
+from app.live.notices import Notice, Notices
 from app.scenarios import PLAIN_PRESET, Offload, Scenario
 from app.scenarios.metrics import DeflectionProbe
 from control.params import ParamError, ParamGroup
@@ -58,16 +59,6 @@ RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
 KEPT_ON_PRESET_SWITCH = ("drag",)  # parameter groups a new preset keeps from the old one
 OVERPOWERED_NOTICE_S = 2.0  # simulated time between two "overpowered" notices
 OVERPOWERED_CHECK_STEPS = 10  # steps between two looks for an overpowered joint (a look costs ~10 µs)
-
-
-@dataclass(frozen=True)
-class Notice:
-    """A message for the browser: to one client (`client_id`) or to all (None)."""
-
-    level: str  # "info", "warning" or "error"
-    title: str
-    body: str
-    client_id: int | None = None
 
 
 @dataclass(frozen=True)
@@ -134,8 +125,7 @@ class Lab:
         self.overpowered = ""  # joints the surroundings overpower, in words (World.overpowered)
         self._overpowered_notice_t = -math.inf
         self._overpowered_check_at = 0  # total_steps at which advance() looks for an overpowered joint again
-        self.notices: deque[Notice] = deque(maxlen=100)  # not yet taken by the publisher
-        self.notice_log: deque[Notice] = deque(maxlen=100)  # every notice (for tests and logs)
+        self.notices = Notices()  # for the browser (`app.live.notices`)
         self.dirty = True  # something changed since the last frame
         self.defaults = self.session.params()  # the preset's (and case's) own values, before any change
         self._deflection: DeflectionProbe | None = None  # TCP and elbow at t = 0 (`app.scenarios.metrics`)
@@ -590,19 +580,17 @@ class Lab:
     # ---- output ---------------------------------------------------------------------------------
     def notify(self, level: str, title: str, body: str, client_id: int | None = None) -> None:
         """Queue a notice for the browser (and keep it in `notice_log`)."""
-        notice = Notice(level, title, body, client_id)
-        self.notices.append(notice)
-        self.notice_log.append(notice)
+        self.notices.say(Notice(level, title, body, client_id))
         self.dirty = True
+
+    @property
+    def notice_log(self) -> deque[Notice]:
+        """Every notice (for tests and logs)."""
+        return self.notices.log
 
     def take_notices(self) -> list[Notice]:
         """Notices produced since the last call."""
-        out = []
-        while True:
-            try:
-                out.append(self.notices.popleft())
-            except IndexError:
-                return out
+        return self.notices.take()
 
     def export(self, seconds: float) -> dict[str, Any]:
         """The last `seconds` of the step log (every step) plus what produced it."""

@@ -36,8 +36,9 @@ from app.core.session import Session, WorkPending
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.live.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
-from app.live.lab import SPEED_RANGE, UNPACED_SPEED, Lab, Notice, Settings
+from app.live.lab import SPEED_RANGE, UNPACED_SPEED, Lab, Settings
 from app.live.memory import trim_heap_soon
+from app.live.notices import Notice
 from app.live.offload import LiveOffload
 from app.live.pacing import Pacer, RateMeter, next_frame_due
 from app.live.plan_worker import BackgroundPlanner
