@@ -46,6 +46,7 @@ from app.core.settings import finite_number, plain
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.core.variants import make_variant
+from app.live.drag_owner import DragOwner
 from app.live.notices import Notice, Notices
 from app.scenarios import PLAIN_PRESET, Offload, Scenario
 from app.scenarios.metrics import DeflectionProbe
@@ -121,7 +122,7 @@ class Lab:
         self.edits = 0
         self.last_edit = ""
         self.step_cpu_s = 0.0  # CPU time spent in steps
-        self.drag_client: int | None = None
+        self.drag = DragOwner()  # who holds the drag spring
         self.overpowered = ""  # joints the surroundings overpower, in words (World.overpowered)
         self._overpowered_notice_t = -math.inf
         self._overpowered_check_at = 0  # total_steps at which advance() looks for an overpowered joint again
@@ -366,7 +367,7 @@ class Lab:
 
     def _after_rebuild(self) -> None:
         """After a reset or a new session: clear logs and drag."""
-        self.drag_client = None
+        self.drag.client = None
         self.settling = False
         self.overpowered = ""
         self._overpowered_notice_t = -math.inf
@@ -556,26 +557,12 @@ class Lab:
 
     # ---- the drag spring ------------------------------------------------------------------------
     def _apply_drag(self, cmd: DragCommand) -> None:
-        drag = self.session.drag
-        if cmd.kind == "grab":
-            point = _vec3(cmd.point_world)
-            if point is None:
-                raise ValueError("grab needs a finite 3-D point")
-            body_id = self.session.world.model.body(cmd.body_name).id  # KeyError for unknown names
-            if body_id == 0:
-                raise ValueError("the world body cannot be dragged")
-            drag.grab(self.session.world, body_id, point)
-            self.drag_client = cmd.client_id
-        elif cmd.kind == "move":
-            target = _vec3(cmd.target_world)
-            if target is not None and drag.active and cmd.client_id == self.drag_client:
-                drag.move(target)
-        elif cmd.kind == "release":
-            if cmd.client_id == self.drag_client:
-                drag.release()
-                self.drag_client = None
-        else:
-            raise ValueError(f"unknown drag command {cmd.kind!r}")
+        self.drag.apply(self.session, cmd)
+
+    @property
+    def drag_client(self) -> int | None:
+        """The client holding the drag spring, if any (`app.live.drag_owner`)."""
+        return self.drag.client
 
     # ---- output ---------------------------------------------------------------------------------
     def notify(self, level: str, title: str, body: str, client_id: int | None = None) -> None:
@@ -651,17 +638,6 @@ def _same(a: Any, b: Any) -> bool:
         return bool(np.array_equal(np.asarray(a), np.asarray(b)))
     except (TypeError, ValueError):
         return a == b
-
-
-def _vec3(value: object) -> np.ndarray | None:
-    """A finite 3-vector, or None."""
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        return None
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        return None
-    return arr
 
 
 def _reason(exc: BaseException) -> str:
