@@ -42,7 +42,7 @@ from app.core.commands import (
 from app.core.executors import EXECUTORS
 from app.core.params import field_spec
 from app.core.session import Lockstep, RunResult, Session, StepRecord, WorkPending
-from app.core.settings import finite_number, plain
+from app.core.settings import finite_number
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.core.variants import make_variant
@@ -578,24 +578,6 @@ class Lab:
     def take_notices(self) -> list[Notice]:
         """Notices produced since the last call."""
         return self.notices.take()
-
-    def export(self, seconds: float) -> dict[str, Any]:
-        """The last `seconds` of the step log (every step) plus what produced it."""
-        columns = self.log.window(seconds, self.dt)
-        twin = self.twin
-        if twin is not None and "t" in columns:  # the twin's columns beside the main ones, same rows
-            columns |= {f"twin_{k}": v for k, v in twin.columns_at(columns["t"]).items() if k != "t"}
-        s = self.session
-        return {
-            "columns": columns,
-            "twin_objective": twin.objective if twin is not None else None,
-            "scenario": s.scenario.name,
-            "robot": s.robot.name,
-            "executor": s.executor_name,
-            "dt": self.dt,
-            "seed": self.seed,
-            "settings": plain(self.settings.values),
-        }
 
 
 # the handler of each command type (a command the table lacks is refused with a notice)

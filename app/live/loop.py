@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from app.core.commands import Command, DragCommand, Pause, Play, StepOnce, SwitchSession
+from app.core.export import run_export
 from app.core.session import Session, WorkPending
 from app.core.steplog import StepLog
 from app.core.twin import Twin
@@ -279,7 +280,7 @@ class SimLoop:
 
     def export(self, seconds: float, timeout: float = 10.0) -> dict[str, Any]:
         """The last `seconds` of the step log (every step) plus what produced it, copied in the loop thread."""
-        return self.call(lambda s: self.lab.export(seconds), timeout)
+        return self.call(lambda s: run_export(s, self.lab.log, self.lab.twin, seconds), timeout)
 
     # ---- the thread -----------------------------------------------------------------------------
     def _run(self) -> None:
