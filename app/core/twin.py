@@ -49,6 +49,24 @@ class Twin:
             self.session.robot.nq, capacity=round(log_seconds / dt), segments=self.session.scenario.segments
         )
 
+    @classmethod
+    def beside(cls, session: Session, robot_choice: str, objective: str, log_seconds: float = 60.0) -> Twin:
+        """A twin of `session`: its preset, robot (`robot_choice`, "" = the preset's default), executor,
+        seed, accepted changes and offload, with its own `objective`."""
+        dt = float(session.world.model.opt.timestep)
+        twin = cls(
+            session.preset,
+            robot_choice or None,
+            session.executor_name,
+            session.seed,
+            objective,
+            dt,
+            session.changes,
+            log_seconds,
+        )
+        twin.session.set_offload(session.offload)
+        return twin
+
     def _own_objective(self, executor: str) -> None:
         if "nullspace" not in self.session.params():
             raise ValueError(f"the {executor} executor has no nullspace objective: the twin needs the projection one")

@@ -48,6 +48,7 @@ from app.core.twin import Twin
 from app.core.variants import make_variant
 from app.live.drag_owner import DragOwner
 from app.live.notices import Notice, Notices
+from app.live.twin_arm import TwinArm
 from app.scenarios import PLAIN_PRESET, Offload, Scenario
 from app.scenarios.metrics import DeflectionProbe
 from control.params import ParamError, ParamGroup
@@ -103,7 +104,8 @@ class Lab:
         self.log = StepLog(
             self.session.robot.nq, capacity=round(log_seconds / self.dt), segments=self.session.scenario.segments
         )
-        self.twin: Twin | None = None  # a second session in lockstep with another objective (app.core.twin)
+        # a second session in lockstep with another objective (app.core.twin)
+        self.twins = TwinArm(lambda reason: self.notify("warning", "Twin arm off", reason), log_seconds)
         self._healthy = 0  # overrides[:_healthy] were all in force while the simulation ran healthy
         self._steps_since_change = 0  # steps run without a halt since the last override
         self.running = False
@@ -218,7 +220,7 @@ class Lab:
             if r.error is not None:  # a bug or numerical failure must not kill the server
                 traceback.print_exception(r.error)
         if twin is not None and result.lockstep[0].halted:  # the twin stops alone, with its own reason
-            self._drop_twin(f"the twin arm (W_{twin.objective}) is switched off: {result.lockstep[0].reason}")
+            self.twins.off(f"the twin arm (W_{twin.objective}) is switched off: {result.lockstep[0].reason}")
         if result.halted:
             self._halt(result.reason)
         else:
@@ -300,8 +302,7 @@ class Lab:
             self._resume_after_reset = False
         self.session.reset()  # the session re-applies its parameter overrides itself
         self._after_rebuild()
-        if self.twin is not None:
-            self.twin.reset()
+        self.twins.reset()
 
     def _recover(self) -> None:
         """Rebuild the session from scratch until the preset with the overrides runs RECOVERY_STEPS
@@ -356,12 +357,10 @@ class Lab:
         self.log = StepLog(
             session.robot.nq, capacity=round(self._log_seconds / self.dt), segments=session.scenario.segments
         )
-        twin, self.twin = self.twin, None  # the old twin belongs to the old session
         refused = session.replay(changes)
         self._healthy -= sum(1 for i in refused if i < self._healthy)
         self._after_rebuild()
-        self.twin = twin
-        self._rebuild_twin()
+        self.twins.rebuild(session, self.robot_choice)
         if session.robot.name != getattr(self, "_guessed_said_for", None):
             self._say_guessed()
 
@@ -396,14 +395,7 @@ class Lab:
             self._edited(label(cmd))
         self._steps_since_change = 0
         self._settings_changed()  # the main arm took it: the panels show it whatever the twin does
-        if self.twin is not None:
-            try:
-                self.twin.set_param(cmd.group, cmd.field, cmd.value, cmd.index)
-            except Exception as exc:  # a twin that cannot follow compares nothing any more
-                self._drop_twin(
-                    f"the twin arm is switched off: it could not take {cmd.group}.{cmd.field} "
-                    f"({type(exc).__name__}: {exc}); the main arm runs with it"
-                )
+        self.twins.follow_param(cmd)
 
     def _restore_defaults(self, cmd: RestoreDefaults | None = None) -> None:
         """Every parameter of the preset back to its defaults; the run restarts (twin too)."""
@@ -411,7 +403,7 @@ class Lab:
         self._edited("every parameter back to its default")
         self.session.restore_defaults()
         self._after_rebuild()
-        self._rebuild_twin()
+        self.twins.rebuild(self.session, self.robot_choice)
         if self.halted:
             self.halted = ""
             self.running = self._resume_after_reset
@@ -506,54 +498,24 @@ class Lab:
     def _switch_executor(self, name: str) -> None:
         if name not in EXECUTORS:
             raise ValueError(f"unknown executor {name!r}; choose one of {', '.join(EXECUTORS)}")
-        twin, self.twin = self.twin, None
         self.session.set_executor(name)  # re-applies the overrides the new executor has
         self._edited(f"controller {name}")
-        self.twin = twin
-        if twin is not None:
-            try:
-                twin.set_executor(name)
-            except ValueError as exc:
-                self._drop_twin(f"the twin arm is switched off: {exc}")
+        self.twins.follow_executor(name)
         self._settings_changed()
 
     # ---- the twin arm ---------------------------------------------------------------------------
+    @property
+    def twin(self) -> Twin | None:
+        """The twin arm, if one runs (`app.live.twin_arm`)."""
+        return self.twins.twin
+
     def _set_twin(self, cmd: SetTwin) -> None:
         """Switch the twin off (None) or on with an objective; on restarts the scenario."""
-        objective = cmd.objective
-        if objective is None or objective == "":
-            self.twin = None
+        if cmd.objective is None or cmd.objective == "":
+            self.twins.off()
             return
-        self.twin = self._new_twin(str(objective))  # ValueError for a wrong objective or executor
+        self.twins.on(self.session, self.robot_choice, str(cmd.objective))  # ValueError: wrong objective
         self.reset()
-
-    def _rebuild_twin(self) -> None:
-        """After a new session: the same twin objective on it, or no twin if it cannot have one."""
-        if self.twin is None:
-            return
-        try:
-            self.twin = self._new_twin(self.twin.objective)
-        except ValueError as exc:
-            self._drop_twin(f"the twin arm is switched off: {exc}")
-
-    def _new_twin(self, objective: str) -> Twin:
-        s = self.session
-        twin = Twin(
-            s.preset,
-            self.robot_choice or None,
-            s.executor_name,
-            self.seed,
-            objective,
-            self.dt,
-            self.overrides,
-            self._log_seconds,
-        )
-        twin.session.set_offload(self.offload)
-        return twin
-
-    def _drop_twin(self, reason: str) -> None:
-        self.twin = None
-        self.notify("warning", "Twin arm off", reason)
 
     # ---- the drag spring ------------------------------------------------------------------------
     def _apply_drag(self, cmd: DragCommand) -> None:
