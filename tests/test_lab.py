@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from app.core.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, SettleNow, StepOnce, SwitchSession
-from app.live.lab import OVERPOWERED_CHECK_STEPS, RECOVERY_STEPS, Lab
+from app.core.recovery import RECOVERY_STEPS
+from app.live.lab import OVERPOWERED_CHECK_STEPS, Lab
 from app.scenarios import Environment, Scenario
 from app.scenarios.free import FreeScenario
 from control.params import ParamGroup, expect, param

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from app.core.commands import Play, RestoreDefaults, SetParam, SwitchSession
+from app.core.switching import owned_fields
 from app.live.curriculum import LESSONS
 from app.live.frames import deflection_readouts, make_status
-from app.live.lab import Lab, owned_fields
+from app.live.lab import Lab
 from app.live.lesson_run import bind, cancel_line, finish, identity_of
 
 

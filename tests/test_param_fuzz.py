@@ -23,8 +23,9 @@ from hypothesis import strategies as st
 
 from app.core.commands import Reset, SetParam
 from app.core.params import GROUP_TYPES
+from app.core.recovery import RECOVERY_STEPS
 from app.core.session import Session
-from app.live.lab import RECOVERY_STEPS, Lab
+from app.live.lab import Lab
 from control.params import ParamError, ParamSpec, specs
 
 # presets whose sessions together have every registered group

@@ -23,8 +23,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from app.core.commands import (
     Command,
     DragCommand,
@@ -39,13 +37,13 @@ from app.core.commands import (
     StepOnce,
     SwitchSession,
 )
-from app.core.executors import EXECUTORS
 from app.core.params import field_spec
+from app.core.recovery import RECOVERY_STEPS, Health, recover
 from app.core.session import Lockstep, RunResult, Session, StepRecord, WorkPending
 from app.core.settings import finite_number
 from app.core.steplog import StepLog
+from app.core.switching import BuiltSwitch, build_switch, case_switch_text, plan_switch, same_value, switch_executor
 from app.core.twin import Twin
-from app.core.variants import make_variant
 from app.live.drag_owner import DragOwner
 from app.live.notices import Notice, Notices
 from app.live.twin_arm import TwinArm
@@ -57,8 +55,6 @@ from robots import guessed_text
 UNPACED_SPEED = 1000.0  # a requested speed this high means "as fast as possible": every wake-up runs a full burst
 SPEED_RANGE = (0.01, UNPACED_SPEED)
 MAX_SINGLE_STEP = 10_000  # steps one StepOnce may ask for
-RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
-KEPT_ON_PRESET_SWITCH = ("drag",)  # parameter groups a new preset keeps from the old one
 OVERPOWERED_NOTICE_S = 2.0  # simulated time between two "overpowered" notices
 OVERPOWERED_CHECK_STEPS = 10  # steps between two looks for an overpowered joint (a look costs ~10 µs)
 
@@ -106,8 +102,7 @@ class Lab:
         )
         # a second session in lockstep with another objective (app.core.twin)
         self.twins = TwinArm(lambda reason: self.notify("warning", "Twin arm off", reason), log_seconds)
-        self._healthy = 0  # overrides[:_healthy] were all in force while the simulation ran healthy
-        self._steps_since_change = 0  # steps run without a halt since the last override
+        self.health = Health()  # which overrides were in force while the simulation last ran healthy
         self.running = False
         self.halted = ""  # why the simulation auto-paused, "" otherwise
         self._resume_after_reset = False
@@ -224,9 +219,7 @@ class Lab:
         if result.halted:
             self._halt(result.reason)
         else:
-            self._steps_since_change += result.steps
-            if self._steps_since_change >= RECOVERY_STEPS:
-                self._healthy = len(self.overrides)
+            self.health.ran(result.steps, len(self.overrides))
             if self.total_steps >= self._overpowered_check_at:
                 self._overpowered_check_at = self.total_steps + OVERPOWERED_CHECK_STEPS
                 self._check_overpowered()
@@ -305,34 +298,15 @@ class Lab:
         self.twins.reset()
 
     def _recover(self) -> None:
-        """Rebuild the session from scratch until the preset with the overrides runs RECOVERY_STEPS
-        steps without a halt, dropping overrides (newest first, those since the last healthy run
-        first) until it does."""
-        changes = self.overrides
-        while True:
-            self._rebuild(changes)
-            probe = self.session.run(steps=RECOVERY_STEPS)
-            if not probe.halted:
-                return
-            changes = self.overrides  # those the rebuilt session accepted
-            if not changes:
-                self.notify("error", "Preset halts", f"the preset itself halts within {RECOVERY_STEPS} steps")
-                return
-            newest = len(changes) - 1
-            recent = newest >= self._healthy
-            dropped = changes.pop(newest)
-            self._healthy = min(self._healthy, len(changes))
-            since = "since the simulation last ran healthy" if recent else "earlier"
-            self.notify(
-                "warning",
-                "Setting dropped",
-                f"{label(dropped)} (applied {since}) is undone: with it the preset halts again ({probe.reason})",
-            )
-
-    def _rebuild(self, changes: list[SetParam]) -> None:
-        """A fresh session of the same preset, robot and executor (after a halt), with `changes`."""
-        s = self.session
-        self._install(self._new_session(s.preset, self.robot_choice, s.executor_name), changes)
+        """The session rebuilt with the overrides, dropping them newest first until it runs (`app.core.recovery`)."""
+        done = recover(self.session, self.overrides, self.robot_choice, self.health)
+        self._install(done.session)
+        for d in done.dropped:
+            since = "since the simulation last ran healthy" if d.recent else "earlier"
+            body = f"{label(d.change)} (applied {since}) is undone: with it the preset halts again ({d.reason})"
+            self.notify("warning", "Setting dropped", body)
+        if done.halts_alone:
+            self.notify("error", "Preset halts", f"the preset itself halts within {RECOVERY_STEPS} steps")
 
     def set_offload(self, offload: Offload | None) -> None:
         """Have this session, its twin and every later one compute their costly page signals (the
@@ -342,14 +316,8 @@ class Lab:
         if self.twin is not None:
             self.twin.session.set_offload(offload)
 
-    def _new_session(
-        self, spec: str | Scenario, robot_choice: str, executor: str | None, defer_work: bool = False
-    ) -> Session:
-        """A session of `spec` with this lab's seed (robot "" = the preset's default)."""
-        return Session(spec, robot=robot_choice or None, executor=executor, seed=self.seed, defer_work=defer_work)
-
-    def _install(self, session: Session, changes: list[SetParam]) -> None:
-        """Make `session` the lab's, with every one of `changes` it accepts; the twin follows."""
+    def _install(self, session: Session) -> None:
+        """Make `session` (its changes in force) the lab's; the twin follows."""
         session.set_offload(self.offload)
         self.session = session
         self.session_id += 1
@@ -357,8 +325,6 @@ class Lab:
         self.log = StepLog(
             session.robot.nq, capacity=round(self._log_seconds / self.dt), segments=session.scenario.segments
         )
-        refused = session.replay(changes)
-        self._healthy -= sum(1 for i in refused if i < self._healthy)
         self._after_rebuild()
         self.twins.rebuild(session, self.robot_choice)
         if session.robot.name != getattr(self, "_guessed_said_for", None):
@@ -372,7 +338,7 @@ class Lab:
         self._overpowered_notice_t = -math.inf
         self._overpowered_check_at = 0
         self.fallback_steps = 0
-        self._steps_since_change = 0
+        self.health.steps_since_change = 0
         self.pending_steps = 0
         self.log.clear()
         self._arm_deflection()
@@ -391,15 +357,19 @@ class Lab:
             self._settings_changed()  # the panels show the value that is still in force
             return
         after = self.session.params().get(cmd.group)
-        if before is None or after is None or not _same(before.values().get(cmd.field), after.values().get(cmd.field)):
+        if (
+            before is None
+            or after is None
+            or not same_value(before.values().get(cmd.field), after.values().get(cmd.field))
+        ):
             self._edited(label(cmd))
-        self._steps_since_change = 0
+        self.health.steps_since_change = 0
         self._settings_changed()  # the main arm took it: the panels show it whatever the twin does
         self.twins.follow_param(cmd)
 
     def _restore_defaults(self, cmd: RestoreDefaults | None = None) -> None:
         """Every parameter of the preset back to its defaults; the run restarts (twin too)."""
-        self._healthy = 0
+        self.health.healthy = 0
         self._edited("every parameter back to its default")
         self.session.restore_defaults()
         self._after_rebuild()
@@ -428,66 +398,33 @@ class Lab:
     def _read_settings(self) -> dict[str, ParamGroup]:
         return self.session.params()
 
-    # ---- switching ------------------------------------------------------------------------------
+    # ---- switching (app.core.switching) ----------------------------------------------------------
     def _switch(self, cmd: SwitchSession) -> None:
-        s = self.session
-        if cmd.scenario is None and cmd.robot is None and cmd.variant is None:
-            if cmd.executor is not None and cmd.executor != s.executor_name:
+        plan = plan_switch(self.session, self.robot_choice, cmd)
+        if plan is None:
+            if cmd.executor is not None and cmd.executor != self.session.executor_name:
                 self._switch_executor(cmd.executor)
             return
-        scenario = cmd.scenario if cmd.scenario is not None else s.scenario.name
-        robot_choice = self.robot_choice if cmd.robot is None else cmd.robot
-        # a new scenario brings its default executor unless one is asked for explicitly
-        executor = cmd.executor if cmd.executor is not None else (None if cmd.scenario is not None else s.executor_name)
-        if cmd.variant is not None:
-            spec: str | Scenario = make_variant(scenario, cmd.variant)
-        elif cmd.scenario is None:
-            spec = s.preset  # same scenario object, same case (robot switch; its parameters are replayed)
-        else:
-            spec = scenario
-        try:  # with defer_work, raises WorkPending before anything changed
-            new = self._new_session(spec, robot_choice, executor, defer_work=self.defer_work)
-        except ValueError as exc:
-            if cmd.scenario is None or not robot_choice:
-                raise
-            # a preset that needs its own arm (a posture the picked one lacks): run it on its default robot
-            new = self._new_session(spec, "", executor)
-            self.notify("info", "Robot changed", f"{exc}. Using {new.robot.name}.")
-            robot_choice = ""
-        changes = self.overrides
-        reset_by_case: list[SetParam] = []
-        case_switch = cmd.variant is not None and (cmd.scenario is None or cmd.scenario == s.scenario.name)
-        if case_switch:
-            # a case switch keeps the person's values of every field the case does not own (one whose
-            # default the new case changes); those it owns go back to the new case's value
-            owned = owned_fields(self.defaults, new.params())
-            reset_by_case = [o for o in changes if (o.group, o.field) in owned]
-            changes = [o for o in changes if (o.group, o.field) not in owned]
-            self._healthy = min(self._healthy, len(changes))
-        elif cmd.scenario is not None or cmd.variant is not None:  # a new preset starts from its defaults
-            changes = [o for o in changes if o.group in KEPT_ON_PRESET_SWITCH]
-            self._healthy = len(changes)
-        self.robot_choice = robot_choice
-        self._edited(f"switched to {new.scenario.name} on {new.robot.name}")
-        self._install(new, changes)
-        self.halted = ""
-        if case_switch and cmd.variant is not None:
-            self._notify_case_switch(cmd.variant, changes, reset_by_case)
+        # with defer_work, raises WorkPending before anything changed
+        self.install_switch(build_switch(plan, self.seed, self.overrides, self.defaults, self.defer_work))
 
-    def _notify_case_switch(self, case: str, kept: list[SetParam], reset: list[SetParam]) -> None:
-        """One notice after a case switch: the values it kept and those the case owns and reset."""
-        in_force = self.overrides
-        refused = [o for o in kept if o not in in_force]  # the new session did not accept them
-        parts = []
-        if reset:
-            names = sorted({f"{o.group}.{o.field}" for o in reset})
-            parts.append(f"reset to the case's own value: {', '.join(names)}")
-        if refused:
-            parts.append(f"not in this case: {', '.join(sorted({f'{o.group}.{o.field}' for o in refused}))}")
-        if in_force:
-            parts.append(f"kept {len(in_force)} value(s) you set")
-        if parts:
-            self.notify("info", f"Case {case}", "; ".join(parts))
+    def install_switch(self, built: BuiltSwitch) -> None:
+        """Make a switch's new session (`app.core.switching.build_switch`) the lab's."""
+        if built.robot_note:
+            self.notify("info", "Robot changed", built.robot_note)
+        plan = built.plan
+        if plan.case_switch:
+            self.health.healthy = min(self.health.healthy, len(built.kept))
+        elif plan.new_preset or plan.case is not None:
+            self.health.healthy = len(built.kept)
+        self.health.refused(built.refused)
+        self.robot_choice = built.robot_choice
+        self._edited(f"switched to {built.session.scenario.name} on {built.session.robot.name}")
+        self._install(built.session)
+        self.halted = ""
+        text = case_switch_text(built) if plan.case_switch else ""
+        if text:
+            self.notify("info", f"Case {plan.case}", text)
 
     def _arm_deflection(self) -> None:
         """Take the TCP's and the elbow's positions now (t = 0) as the reference of the deflection signals,
@@ -496,9 +433,7 @@ class Lab:
         self._deflection = DeflectionProbe(s) if s.scenario.logs_deflection else None
 
     def _switch_executor(self, name: str) -> None:
-        if name not in EXECUTORS:
-            raise ValueError(f"unknown executor {name!r}; choose one of {', '.join(EXECUTORS)}")
-        self.session.set_executor(name)  # re-applies the overrides the new executor has
+        switch_executor(self.session, name)  # re-applies the overrides the new executor has
         self._edited(f"controller {name}")
         self.twins.follow_executor(name)
         self._settings_changed()
@@ -556,32 +491,6 @@ HANDLERS: dict[type, Callable[[Lab, Any], None]] = {
     RestoreDefaults: Lab._restore_defaults,
     SetTwin: Lab._set_twin,
 }
-
-
-def owned_fields(before: dict[str, ParamGroup], after: dict[str, ParamGroup]) -> set[tuple[str, str]]:
-    """(group, field) pairs a case owns: those whose default differs between two cases' parameter
-    groups, and every field of a group only one of them has."""
-    out: set[tuple[str, str]] = set()
-    for name in set(before) | set(after):
-        a, b = before.get(name), after.get(name)
-        if a is None or b is None:
-            out |= {(name, f) for f in (a or b).values()}  # type: ignore[union-attr]
-            continue
-        va, vb = a.values(), b.values()
-        for f in set(va) | set(vb):
-            if not _same(va.get(f), vb.get(f)):
-                out.add((name, f))
-    return out
-
-
-def _same(a: Any, b: Any) -> bool:
-    """Equal values (arrays element-wise, None only with None)."""
-    if a is None or b is None:
-        return a is b
-    try:
-        return bool(np.array_equal(np.asarray(a), np.asarray(b)))
-    except (TypeError, ValueError):
-        return a == b
 
 
 def _reason(exc: BaseException) -> str:
