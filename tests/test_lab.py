@@ -10,7 +10,9 @@ import pytest
 
 from app.core.commands import DragCommand, Pause, Play, Reset, SetParam, SetSpeed, SettleNow, StepOnce, SwitchSession
 from app.core.recovery import RECOVERY_STEPS
-from app.live.lab import OVERPOWERED_CHECK_STEPS, Lab
+from app.live.lab import Lab
+from app.live.overpowered import OVERPOWERED_CHECK_STEPS
+from app.live.run_flags import RunFlags
 from app.scenarios import Environment, Scenario
 from app.scenarios.free import FreeScenario
 from control.params import ParamGroup, expect, param
@@ -63,16 +65,17 @@ def _recovered(lab: Lab) -> bool:
 
 def test_a_single_step_runs_in_chunks_and_pause_cancels_the_rest():
     lab = _lab()
-    lab.apply(StepOnce(1200))
-    assert lab.pending_steps == 1200 and lab.session.steps == 0
-    lab.step_pending(500)
-    assert lab.session.steps == 500 and lab.pending_steps == 700
-    lab.apply(Pause())
-    assert lab.pending_steps == 0 and lab.step_pending(500) is None and lab.session.steps == 500
+    run = RunFlags(lab)
+    run.apply(StepOnce(1200))
+    assert run.pending_steps == 1200 and lab.session.steps == 0
+    run.step_pending(500)
+    assert lab.session.steps == 500 and run.pending_steps == 700
+    run.apply(Pause())
+    assert run.pending_steps == 0 and run.step_pending(500) is None and lab.session.steps == 500
     for bad in (0, -3, 10_001, 2.5, "7", None, float("nan")):
         n = len(lab.notice_log)
-        lab.apply(StepOnce(bad))  # type: ignore[arg-type]
-        assert len(lab.notice_log) == n + 1 and lab.pending_steps == 0
+        run.apply(StepOnce(bad))  # type: ignore[arg-type]
+        assert len(lab.notice_log) == n + 1 and run.pending_steps == 0
 
 
 def test_settle_now_runs_the_settle_phase_in_chunks_then_goes_on_paced_and_pause_or_reset_stop_it():
@@ -81,53 +84,55 @@ def test_settle_now_runs_the_settle_phase_in_chunks_then_goes_on_paced_and_pause
     with nothing left to settle, or in a preset without a settle phase, it is refused."""
     chunk = 100
     lab = Lab("polish", robot="rizon4s", executor="projection")
-    lab.apply(SetParam("nullspace", "objective", "j"))
-    lab.apply(SettleNow())
-    assert lab.settling and lab.running
-    epoch = lab.pacing_epoch
+    run = RunFlags(lab)
+    run.apply(SetParam("nullspace", "objective", "j"))
+    run.apply(SettleNow())
+    assert run.settling and run.running
+    epoch = run.pacing_epoch
     chunks = 0
-    while lab.settling and chunks < 200:  # 20 s simulated at most
-        lab.settle_chunk(chunk)
+    while run.settling and chunks < 200:  # 20 s simulated at most
+        run.settle_chunk(chunk)
         chunks += 1
-    assert not lab.settling and lab.running and not lab.session.settle_pending()
-    assert lab.pacing_epoch == epoch + 1
+    assert not run.settling and run.running and not lab.session.settle_pending()
+    assert run.pacing_epoch == epoch + 1
     start = lab.session.environment.clock.trajectory_start
     assert start is not None and 1.0 < start and 0.0 <= lab.session.world.time - start < chunk * lab.dt + 1e-9
     assert lab.notice_log[-1].title == "Settled"
-    assert lab.settle_chunk(chunk) is None  # over: the loop steps paced again
+    assert run.settle_chunk(chunk) is None  # over: the loop steps paced again
     n = len(lab.notice_log)
-    lab.apply(SettleNow())
-    assert not lab.settling and len(lab.notice_log) == n + 1 and lab.notice_log[-1].title == "Refused"
+    run.apply(SettleNow())
+    assert not run.settling and len(lab.notice_log) == n + 1 and lab.notice_log[-1].title == "Refused"
 
-    lab.apply(Reset())
+    run.apply(Reset())
     assert lab.session.settle_pending()
-    lab.apply(SettleNow())
-    lab.settle_chunk(chunk)
-    lab.apply(Pause())
+    run.apply(SettleNow())
+    run.settle_chunk(chunk)
+    run.apply(Pause())
     t = lab.session.world.time
-    assert not lab.settling and not lab.running and lab.settle_chunk(chunk) is None and lab.session.world.time == t
-    lab.apply(SettleNow())
-    lab.settle_chunk(chunk)
-    lab.apply(Reset())
-    assert not lab.settling and lab.session.world.time == 0.0
+    assert not run.settling and not run.running and run.settle_chunk(chunk) is None and lab.session.world.time == t
+    run.apply(SettleNow())
+    run.settle_chunk(chunk)
+    run.apply(Reset())
+    assert not run.settling and lab.session.world.time == 0.0
 
-    free = _lab()
+    free = RunFlags(_lab())
     free.apply(SettleNow())
-    assert not free.settling and free.notice_log[-1].title == "Refused"
+    assert not free.settling and free.lab.notice_log[-1].title == "Refused"
 
 
 def test_a_halt_pauses_with_its_reason_and_reset_resumes_what_ran():
     lab = _lab("fuse")
-    lab.apply(Play())
-    lab.apply(SetParam("fuse", "blow_at_s", 0.05))
-    lab.apply(SetParam("fuse", "how", "nan"))
-    lab.advance(200)
-    assert "diverged" in lab.halted and not lab.running
-    lab.apply(Play())  # refused while halted
-    lab.apply(StepOnce(5))
-    assert not lab.running and lab.pending_steps == 0
-    lab.apply(Reset())
-    assert lab.running and _recovered(lab)
+    run = RunFlags(lab)
+    run.apply(Play())
+    run.apply(SetParam("fuse", "blow_at_s", 0.05))
+    run.apply(SetParam("fuse", "how", "nan"))
+    run.advance(200)
+    assert "diverged" in lab.halted and not run.running
+    run.apply(Play())  # refused while halted
+    run.apply(StepOnce(5))
+    assert not run.running and run.pending_steps == 0
+    run.apply(Reset())
+    assert run.running and _recovered(lab)
     assert any(n.title == "Setting dropped" and "blow_at_s" in n.body for n in lab.notice_log)
 
 
@@ -205,16 +210,16 @@ def test_an_executor_switch_keeps_the_simulation_state():
 
 
 def test_the_speed_is_limited_to_a_hundredth_to_unpaced():
-    from app.live.lab import SPEED_RANGE
+    from app.live.run_flags import SPEED_RANGE
 
-    lab = _lab()
-    lab.apply(SetSpeed(0.25))
-    assert lab.speed == 0.25
+    run = RunFlags(_lab())
+    run.apply(SetSpeed(0.25))
+    assert run.speed == 0.25
     for bad in (0.005, SPEED_RANGE[1] * 2, float("nan"), "fast"):
-        lab.apply(SetSpeed(bad))  # type: ignore[arg-type]
-        assert lab.speed == 0.25 and lab.notice_log[-1].title == "Refused"
-    lab.apply(SetSpeed(0.01))
-    assert lab.speed == 0.01
+        run.apply(SetSpeed(bad))  # type: ignore[arg-type]
+        assert run.speed == 0.25 and run.lab.notice_log[-1].title == "Refused"
+    run.apply(SetSpeed(0.01))
+    assert run.speed == 0.01
 
 
 JUNK = (
@@ -314,7 +319,7 @@ def test_the_largest_drag_sinks_no_joint_beyond_its_hard_stop_and_says_it_overpo
                 np.maximum(q_max, np.maximum(rec.q - robot.q_upper, robot.q_lower - rec.q), out=q_max)
 
             assert not lab.session.run(steps=50, record=track).halted
-            lab._check_overpowered()
+            lab.overpowering.check(lab.session)
             worst = max(worst, float(np.max(np.where(robot.endless, 0.0, q_max))))
             status_said = status_said or make_status(lab).overpowered
         said += [n.body for n in list(lab.notice_log)[n0:] if n.title == "Overpowered"]
@@ -329,8 +334,8 @@ def test_advance_looks_for_an_overpowered_joint_every_ten_steps_and_at_once_afte
     at the first burst after a reset (so a new run is looked at from its start)."""
     lab = _lab()
     looks: list[int] = []
-    check = lab._check_overpowered
-    monkeypatch.setattr(lab, "_check_overpowered", lambda: (looks.append(lab.total_steps), check())[1])
+    check = lab.overpowering.check
+    monkeypatch.setattr(lab.overpowering, "check", lambda s: (looks.append(lab.total_steps), check(s))[1])
     for _ in range(50):
         lab.advance(2)
     assert OVERPOWERED_CHECK_STEPS == 10
@@ -345,8 +350,11 @@ def test_every_command_type_has_a_handler_and_an_unknown_one_is_refused_with_a_n
 
     from app.core.commands import Command
     from app.live.lab import HANDLERS
+    from app.live.run_flags import HANDLERS as FLAG_HANDLERS
 
-    assert set(typing.get_args(Command)) == set(HANDLERS)
+    assert set(typing.get_args(Command)) == set(HANDLERS) | set(FLAG_HANDLERS) and not set(HANDLERS) & set(
+        FLAG_HANDLERS
+    )
     lab = _lab()
     lab.apply(object())  # type: ignore[arg-type]
     assert lab.notice_log[-1].title == "Refused" and "unknown command" in lab.notice_log[-1].body

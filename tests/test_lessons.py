@@ -9,12 +9,13 @@ import time
 import numpy as np
 import pytest
 
-from app.core.commands import Play, RestoreDefaults, SetParam, SwitchSession
+from app.core.commands import RestoreDefaults, SetParam, SwitchSession
 from app.core.switching import owned_fields
 from app.live.curriculum import LESSONS
 from app.live.frames import deflection_readouts, make_status
 from app.live.lab import Lab
 from app.live.lesson_run import bind, cancel_line, finish, identity_of
+from app.live.run_flags import RunFlags
 
 
 def numbers(text: str) -> list[float]:
@@ -42,7 +43,7 @@ def run_lesson(key: str) -> tuple[dict, dict]:
             claims[step.key] = step.claim(obs, memo)
             continue
         for cmd in commands:
-            lab.apply(cmd)
+            RunFlags(lab).apply(cmd)  # Play is a command of the loop's run flags
         bound = bind(lab, key, step.key)
         for _ in range(200):
             if step.ready(make_status(lab)) or lab.halted:
@@ -69,8 +70,9 @@ def take_set_up(lesson_key: str, step_key: str, lab: Lab | None = None):
     """A Lab with a lesson step set up as the panel does it: (lab, step, its binding to the run)."""
     lab = lab or Lab("free")
     step = next(s for s in next(x for x in LESSONS if x.key == lesson_key).steps if s.key == step_key)
+    run = RunFlags(lab)  # a set-up ends with Play, a command of the loop's run flags
     for cmd in step.setup(lab):
-        lab.apply(cmd)
+        run.apply(cmd)
     return lab, step, bind(lab, lesson_key, step.key)
 
 
@@ -93,7 +95,6 @@ def test_the_dampers_step_changed_after_set_up_is_cancelled_and_never_labelled_w
     assert line is not None and line.startswith("Cancelled:") and "the preset limit-drop → compliance" in line
     lab.apply(SwitchSession(scenario="limit-drop"))
     lab.apply(SetParam("damper", "lambda_", 1000.0))
-    lab.apply(Play())
     run_until_ready(lab, step)
     assert lab.session.world.time >= 3.0 and not lab.halted
     obs, text = finish(lab, bound, step, {})

@@ -173,7 +173,7 @@ def test_settle_now_runs_unpaced_on_the_loop_then_paced_and_pause_and_reset_act_
 def test_frames_go_out_at_10_hz_unpaced_and_30_hz_paced():
     """Unpaced (the speed "as fast as possible") the loop publishes ≤ 12 frames per wall second, so the
     page's drawing leaves the machine to the simulation; paced at 1× it publishes ≥ 20."""
-    from app.live.lab import UNPACED_SPEED
+    from app.live.run_flags import UNPACED_SPEED
 
     lp = SimLoop("free", capture=lambda s: None)
     lp.start(running=True)
@@ -399,17 +399,18 @@ def test_plot_data_goes_out_in_every_third_frame_at_30_hz_and_in_every_frame_whi
     then shows the last step)."""
     from app.live.frames import FrameBuilder
     from app.live.lab import Lab
+    from app.live.run_flags import RunFlags
 
     lab = Lab("free")
     lab.advance(10)
-    lab.running = True
+    run = RunFlags(lab, running=True)
     builder = FrameBuilder(1.0 / 30.0, 1.0 / 10.0)
     rng = np.random.default_rng(2)
-    seqs = [builder.build(lab, k / 30.0 + rng.uniform(0.0, 3e-3)).plot_seq for k in range(300)]
+    seqs = [builder.build(lab, k / 30.0 + rng.uniform(0.0, 3e-3), flags=run).plot_seq for k in range(300)]
     assert seqs[-1] - seqs[0] == 99  # 10 s of frames: 100 plot updates
     assert np.all(np.diff(np.flatnonzero(np.diff(seqs))) == 3)  # frames 3, 6, 9, …: every third
-    lab.running = False
-    paused = [builder.build(lab, 10.0 + k * 1e-3).plot_seq for k in range(5)]
+    run.running = False
+    paused = [builder.build(lab, 10.0 + k * 1e-3, flags=run).plot_seq for k in range(5)]
     assert np.all(np.diff(paused) == 1)
 
 

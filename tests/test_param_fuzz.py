@@ -210,7 +210,7 @@ def test_fuzz_mixed_changes_interleaved_with_steps_no_exception_and_every_halt_r
     for k in range(MIXED_CHANGES):
         lab = labs[k % len(labs)]
         lab.apply(_mixed_change(lab, rng))  # raises nothing by contract: an escape fails the test
-        refused += sum(1 for n in lab.take_notices() if n.title == "Value refused")
+        refused += sum(1 for n in lab.notices.take() if n.title == "Value refused")
         if not lab.halted:
             lab.advance(int(rng.integers(1, 6)))
         if lab.halted:

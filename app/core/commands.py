@@ -65,7 +65,7 @@ class Reset:
 
 @dataclass(frozen=True)
 class SetSpeed:
-    """Simulated seconds per wall second requested: 0.01 … 1000 (`app.live.lab.SPEED_RANGE`; 1000 means
+    """Simulated seconds per wall second requested: 0.01 … 1000 (`app.live.run_flags.SPEED_RANGE`; 1000 means
     as fast as the machine allows, every wake-up a full burst); the Lab refuses a value outside."""
 
     factor: float
@@ -94,6 +94,12 @@ class SetParam:
     value: object
     index: int | None = None
     client_id: int | None = None
+
+
+def label(o: SetParam) -> str:
+    """How a notice names a change: "damper.lambda_ = 300.0", "posture_task.compliance[3] = 1.0"."""
+    index = "" if o.index is None else f"[{o.index}]"
+    return f"{o.group}.{o.field}{index} = {o.value!r}"
 
 
 @dataclass(frozen=True)

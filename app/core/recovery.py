@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from app.core.commands import SetParam
+from app.core.commands import SetParam, label
 from app.core.session import Session
 
 RECOVERY_STEPS = 100  # "recovered": this many steps run without a halt
@@ -32,6 +32,14 @@ class Health:
         if self.steps_since_change >= RECOVERY_STEPS:
             self.healthy = changes
 
+    def switched(self, kept: int, case_switch: bool, new_preset: bool) -> None:
+        """A switch carried `kept` changes to a new session: a new case keeps the healthy ones among them, a
+        new preset counts them all as healthy (they are the groups a preset keeps), a new robot all it had."""
+        if case_switch:
+            self.healthy = min(self.healthy, kept)
+        elif new_preset:
+            self.healthy = kept
+
     def refused(self, positions: Sequence[int]) -> None:
         """The changes at `positions` were left out of a rebuilt session."""
         self.healthy -= sum(1 for i in positions if i < self.healthy)
@@ -45,6 +53,11 @@ class Dropped:
     change: SetParam
     recent: bool
     reason: str
+
+    def text(self) -> str:
+        """The change undone and why, in words (a notice's body)."""
+        since = "since the simulation last ran healthy" if self.recent else "earlier"
+        return f"{label(self.change)} (applied {since}) is undone: with it the preset halts again ({self.reason})"
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,5 @@
-"""Small helpers for settings-like data: plain JSON-friendly values and finite numbers.
+"""Settings: a session's parameter groups in force as one frozen, versioned snapshot, and small helpers
+for settings-like data (plain JSON-friendly values and finite numbers).
 
 The tunables themselves are parameter groups (`control.params`, `Session.params()`); saving and
 loading them is `app.settings_file`.
@@ -7,9 +8,25 @@ loading them is `app.settings_file`.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from control.params import ParamGroup
+
+
+@dataclass(frozen=True)
+class Settings:
+    """A session's parameter groups in force (`Session.params()`, frozen); `version` grows."""
+
+    version: int
+    groups: dict[str, ParamGroup]
+
+    @property
+    def values(self) -> dict[str, dict[str, Any]]:
+        """Group → field → value as plain data (for exports and tests)."""
+        return {name: group.values() for name, group in self.groups.items()}
 
 
 def plain(value: Any) -> Any:

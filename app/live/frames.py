@@ -20,9 +20,11 @@ from typing import Any
 import numpy as np
 
 from app.core.session import Session
+from app.core.settings import Settings
 from app.core.steplog import StepLog
 from app.core.variants import variant_of
-from app.live.lab import Lab, Settings
+from app.live.lab import Lab
+from app.live.run_flags import RunFlags
 from app.live.run_identity import describe, identity_from
 from app.live.supervise import Stages
 from app.scenarios import PhaseMark, Scenario
@@ -110,21 +112,25 @@ class Frame:
     restarts: int = 0  # grows at every reset or rebuild of the lab (a new run: its plots start empty)
 
 
-def make_status(lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | None = None) -> LoopStatus:
-    """The status of a lab; `rtf` and `load` come from the runner's rate meter; `view` is the executor's
-    view of its latest step when the caller has built it already (the scene capture has)."""
+def make_status(
+    lab: Lab, rtf: float = 0.0, load: float = 0.0, view: StepView | None = None, flags: RunFlags | None = None
+) -> LoopStatus:
+    """The status of a lab run by the loop's `flags` (None: paused at speed 1); `rtf` and `load` come from
+    the runner's rate meter; `view` is the executor's view of its latest step when the caller has built it
+    already (the scene capture has)."""
     s = lab.session
+    running = flags is not None and flags.running
     last = s.last
     variant = variant_of(s.scenario)
     return LoopStatus(
-        running=lab.running,
-        settling=lab.settling,
+        running=running,
+        settling=flags is not None and flags.settling,
         can_settle=s.settle_pending(),
         t=s.world.time,
         steps=s.steps,
-        speed=lab.speed,
-        rtf=rtf if lab.running else 0.0,
-        load=load if lab.running else 0.0,
+        speed=flags.speed if flags is not None else 1.0,
+        rtf=rtf if running else 0.0,
+        load=load if running else 0.0,
         scenario=s.scenario.name,
         scenario_title=s.scenario.title,
         scenario_text=s.scenario.description,
@@ -186,24 +192,26 @@ class FrameBuilder:
                 f"{what} failed ({text}); it is skipped until it works again, the simulation keeps running",
             )
 
-    def publish(self, lab: Lab, now: float, rtf: float = 0.0, load: float = 0.0) -> Frame | None:
+    def publish(
+        self, lab: Lab, now: float, rtf: float = 0.0, load: float = 0.0, flags: RunFlags | None = None
+    ) -> Frame | None:
         """`build` inside its error boundary: the frame, or None when building it failed."""
         self._lab = lab
         if lab.session_id != self._session_id:  # a preset switch re-arms every stage's report
             self._session_id = lab.session_id
             self.stages.rearm()
-        return self.stages.run("build", self.build, lab, now, rtf, load)
+        return self.stages.run("build", self.build, lab, now, rtf, load, flags)
 
-    def build(self, lab: Lab, now: float, rtf: float = 0.0, load: float = 0.0) -> Frame:
-        """The next frame (`now`: wall time, for the plot rate)."""
+    def build(self, lab: Lab, now: float, rtf: float = 0.0, load: float = 0.0, flags: RunFlags | None = None) -> Frame:
+        """The next frame of `lab` run by `flags` (`now`: wall time, for the plot rate)."""
         if lab.restarts != self._restarts:
             self._monitor.clear()  # a reset or a new session: the monitor series start over
             self._restarts = lab.restarts
             self._edits_at_restart = lab.edits
         scene = self._scene(lab)
-        status = make_status(lab, rtf, load, getattr(scene, "step", None))
+        status = make_status(lab, rtf, load, getattr(scene, "step", None), flags)
         self._monitor.append(_monitor_row(status, scene))
-        if now >= self._next_plot or not lab.running:
+        if now >= self._next_plot or not status.running:
             self._next_plot = now + self.plot_period - self._plot_slack
             run = run_text(lab, status, self._edits_at_restart)
             strokes = self._strokes_over(lab, status)

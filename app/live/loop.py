@@ -34,15 +34,17 @@ from typing import Any, TypeVar
 from app.core.commands import Command, DragCommand, Pause, Play, StepOnce, SwitchSession
 from app.core.export import run_export
 from app.core.session import Session, WorkPending
+from app.core.settings import Settings
 from app.core.steplog import StepLog
 from app.core.twin import Twin
 from app.live.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
-from app.live.lab import SPEED_RANGE, UNPACED_SPEED, Lab, Settings
+from app.live.lab import Lab
 from app.live.memory import trim_heap_soon
 from app.live.notices import Notice
 from app.live.offload import LiveOffload
 from app.live.pacing import Pacer, RateMeter, next_frame_due
 from app.live.plan_worker import BackgroundPlanner
+from app.live.run_flags import SPEED_RANGE, UNPACED_SPEED, RunFlags
 from app.scenarios import PLAIN_PRESET
 
 __all__ = ["SPEED_RANGE", "Frame", "LoopStatus", "Notice", "PlotData", "Settings", "SimLoop"]
@@ -136,6 +138,7 @@ class SimLoop:
         capture: Callable[[Session], Any] | None = None,
     ):
         self.lab = Lab(scenario, robot=robot, executor=executor, seed=seed, log_seconds=log_seconds)
+        self.flags = RunFlags(self.lab)  # running, settling, single steps, speed, pacing (`app.live.run_flags`)
         self.lab.defer_work = True  # a preset's costly preparation (a swivel plan) runs in `planner` meanwhile
         self.planner = BackgroundPlanner()
         # the polish margin's live figures: in a worker process, not on the loop thread (`app.live.offload`)
@@ -158,7 +161,7 @@ class SimLoop:
         self._frame: Frame | None = None
         self._frame_cond = threading.Condition()
         self._drag_seen: dict[int, float] = {}  # client id → wall time of its last grab or move
-        self.status = make_status(self.lab)
+        self.status = make_status(self.lab, flags=self.flags)
 
     # ---- what the lab holds (read these on the loop thread, or through call()) ---------------------
     @property
@@ -201,7 +204,7 @@ class SimLoop:
         """Start the loop thread (running paced, or paused)."""
         if self._thread is not None:
             return
-        self.lab.running = running
+        self.flags.running = running
         self._started = True
         self._thread = threading.Thread(target=self._run, name="torquelab-sim", daemon=True)
         self._thread.start()
@@ -276,7 +279,7 @@ class SimLoop:
 
     def take_notices(self) -> list[Notice]:
         """Notices produced since the last call (for the publisher)."""
-        return self.lab.take_notices()
+        return self.lab.notices.take()
 
     def export(self, seconds: float, timeout: float = 10.0) -> dict[str, Any]:
         """The last `seconds` of the step log (every step) plus what produced it, copied in the loop thread."""
@@ -293,40 +296,40 @@ class SimLoop:
             self._fail_queued_calls()
 
     def _loop(self) -> None:
-        lab = self.lab
+        lab, flags = self.lab, self.flags
         next_publish = self._clock()
         while not self._stop.is_set():
             cut = False
             self._drain()
             self._follow_pacing()
-            if lab.pending_steps:
-                self._timed(lab.step_pending, STEP_CHUNK)
-            elif lab.settling:  # "Settle now": unpaced chunks, every command applied between them
-                self._timed(lab.settle_chunk, STEP_CHUNK)
+            if flags.pending_steps:
+                self._timed(flags.step_pending, STEP_CHUNK)
+            elif flags.settling:  # "Settle now": unpaced chunks, every command applied between them
+                self._timed(flags.settle_chunk, STEP_CHUNK)
                 if self._meter.sample(self._clock(), lab.session.world.time):
                     lab.dirty = True
-            elif lab.running:
+            elif flags.running:
                 now = self._clock()
                 n = self._pacer.due(now, lab.total_steps)
                 if n:
                     # a burst a busy machine slows down ends when a frame is due, so frames keep their rate
                     frame_at = next_publish if next_publish > now else now + BURST_SLACK * self._publish_period()
-                    result = self._timed(lab.advance, n, until=lambda _rec, at=frame_at: self._clock() >= at)
+                    result = self._timed(flags.advance, n, until=lambda _rec, at=frame_at: self._clock() >= at)
                     cut = result.stop == "until"
                 if self._meter.sample(self._clock(), lab.session.world.time):
                     lab.dirty = True
             now = self._clock()
             if now >= next_publish:
                 self._release_silent_drag(now)
-                if lab.dirty or lab.running:
+                if lab.dirty or flags.running:
                     self._publish(now)
                 next_publish = next_frame_due(next_publish, now, self._publish_period())
-            if lab.pending_steps or lab.settling:
+            if flags.pending_steps or flags.settling:
                 continue
             if cut:
                 continue  # the steps the cut burst left are due already
             wake_at = next_publish
-            if lab.running:
+            if flags.running:
                 # wake at the next frame, or earlier when a full burst is due (a command wakes it at once)
                 wake_at = min(wake_at, self._pacer.next_due(lab.total_steps + self._pacer.max_burst - 1))
             timeout = wake_at - self._clock()
@@ -357,8 +360,8 @@ class SimLoop:
         """Seconds to the next frame: `publish_period`, or UNPACED_PUBLISH_S while running unpaced
         ("Settle now", or the speed "as fast as possible"), so the page's drawing takes less of the
         machine the simulation is asked to use."""
-        lab = self.lab
-        if lab.settling or (lab.running and lab.speed >= UNPACED_SPEED):
+        flags = self.flags
+        if flags.settling or (flags.running and flags.speed >= UNPACED_SPEED):
             return max(self.publish_period, UNPACED_PUBLISH_S)
         return self.publish_period
 
@@ -370,9 +373,9 @@ class SimLoop:
 
     def _follow_pacing(self) -> None:
         """Restart the pacing when the lab asks (play, reset, switch, speed change)."""
-        if self.lab.pacing_epoch != self._pacing_epoch:
-            self._pacing_epoch = self.lab.pacing_epoch
-            self._pacer.set_speed(self.lab.speed, self._clock(), self.lab.total_steps)
+        if self.flags.pacing_epoch != self._pacing_epoch:
+            self._pacing_epoch = self.flags.pacing_epoch
+            self._pacer.set_speed(self.flags.speed, self._clock(), self.lab.total_steps)
             self._meter.restart()
 
     def _drain(self) -> None:
@@ -387,7 +390,7 @@ class SimLoop:
             else:
                 lab.notify("error", "Preparing the preset failed", f"{type(error).__name__}: {error}")
         # while the work is computed only urgent commands apply (the rest keep their order behind the switch)
-        while (item := self._queue.get(urgent_only=lab.pending_steps > 0 or self.planner.busy)) is not None:
+        while (item := self._queue.get(urgent_only=self.flags.pending_steps > 0 or self.planner.busy)) is not None:
             if isinstance(item, _Call):
                 try:
                     item.future.set_result(item.fn(lab.session))
@@ -400,7 +403,7 @@ class SimLoop:
         """`lab.apply`; a switch whose preset needs work not done yet (a swivel plan) waits for `planner`;
         after a switch the memory the old session held goes back to the system (`app.live.memory`)."""
         try:
-            self.lab.apply(command)
+            self.flags.apply(command)
             if isinstance(command, SwitchSession):
                 trim_heap_soon()
         except WorkPending as pending:
@@ -417,14 +420,14 @@ class SimLoop:
                 item.future.set_exception(RuntimeError(f"the simulation loop stopped: {self.failure}"))
 
     def _refresh_status(self) -> LoopStatus:
-        self.status = make_status(self.lab, self._meter.rtf, self._meter.load)
+        self.status = make_status(self.lab, self._meter.rtf, self._meter.load, flags=self.flags)
         return self.status
 
     def _publish(self, now: float) -> None:
         """Build and hand out a frame; a failure skips it (reported by the frame builder's error
         boundaries) and the loop goes on."""
         self.lab.dirty = False
-        frame = self.frames.publish(self.lab, now, self._meter.rtf, self._meter.load)
+        frame = self.frames.publish(self.lab, now, self._meter.rtf, self._meter.load, self.flags)
         if frame is None:
             return
         self.status = frame.status

@@ -16,8 +16,8 @@ import numpy as np
 from app.core.params import field_spec
 
 if TYPE_CHECKING:  # the frames name runs with this module: types only, no import cycle
+    from app.core.settings import Settings
     from app.live.frames import LoopStatus
-    from app.live.lab import Settings
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,8 @@ import viser
 import robots
 from app.core.commands import Pause, Play, Reset, SetSpeed, SettleNow, StepOnce, SwitchSession
 from app.core.executors import EXECUTORS
-from app.live.lab import UNPACED_SPEED
 from app.live.loop import Frame, LoopStatus, SimLoop
+from app.live.run_flags import UNPACED_SPEED
 from app.live.ui.panels.base import KnobPanel, notify
 from app.live.ui.panels.settings import SettingsButtons
 from app.live.ui.phase import PhaseReader, starts_paused
