@@ -113,3 +113,38 @@ def test_a_state_mujoco_had_to_reset_counts_as_divergence():
     assert s.diverged()
     s.reset()
     assert not s.diverged()
+
+
+def test_a_headless_run_logs_the_deflection_signals_the_live_app_publishes_for_the_same_run():
+    """The compliance preset's deflection signals ("tcp_dev_mm", "elbow_dev_mm": the TCP's and the
+    elbow's distance from the t = 0 pose) are the session's own: a headless run (Session.run into a
+    StepLog) carries them, and the web app's loop running the same preset and seed for the same steps
+    publishes the same numbers, in its export (every step) and in its plot data (decimated by peak),
+    within 1e-9 mm (the same steps in the same order)."""
+    from app.core.commands import StepOnce
+    from app.core.steplog import StepLog
+    from app.live.loop import SimLoop
+
+    steps = 3000  # both pushes: the TCP at 0.5…1.0 s, the elbow at 2.0…2.5 s
+    s = Session("compliance")
+    log = StepLog(s.robot.nq, capacity=steps, segments=0)
+    assert not s.run(steps=steps, record=log.append).halted
+    headless = log.window(steps * 1e-3, 1e-3)
+    assert len(headless["t"]) == steps
+    assert headless["tcp_dev_mm"].max() > 0.1 and headless["elbow_dev_mm"].max() > 0.1  # both pushes moved them
+
+    lp = SimLoop("compliance", capture=lambda s: None)
+    lp.start(running=False)
+    try:
+        lp.submit(StepOnce(steps))
+        assert lp.sync(timeout=120).steps == steps
+        live = lp.export(steps * 1e-3)["columns"]
+        frame = lp.wait_frame(0, timeout=10)
+        while frame is not None and frame.status.steps < steps:
+            frame = lp.wait_frame(frame.seq, timeout=10)
+    finally:
+        lp.stop()
+    assert frame is not None and frame.plot is not None
+    for name in ("tcp_dev_mm", "elbow_dev_mm"):
+        np.testing.assert_allclose(live[name], headless[name], rtol=0, atol=1e-9)
+        assert float(np.nanmax(frame.plot.columns[name])) == pytest.approx(headless[name].max(), abs=1e-9)

@@ -34,6 +34,7 @@ import robots
 from app.core.commands import SetParam
 from app.core.executors import make_executor
 from app.scenarios import PLAIN_PRESET, Environment, Offload, Scenario, Sensor, Work, get_scenario
+from app.scenarios.metrics import DeflectionProbe
 from app.sim.drag import DragSpring
 from app.sim.world import World, WorldParams
 from control.executor import ControlInputs, ControlOutput, Executor, TaskTarget
@@ -229,6 +230,9 @@ class Session:
         )
         self._reinstall(("environment", "sensor", "target"))
         self.executor.reset(self.dyn, self.target_fn(0.0))
+        # the TCP's and the elbow's positions now (t = 0): the reference of the deflection signals, in the
+        # presets that log them (`Scenario.logs_deflection`)
+        self._deflection = DeflectionProbe(self) if self.scenario.logs_deflection else None
         self.steps = 0
         self.last: StepRecord | None = None
 
@@ -419,6 +423,11 @@ class Session:
         signals = out.info
         signals.update(env_signals)
         signals["drag_force_n"] = math.sqrt(float(drag_force.dot(drag_force)))
+        if self._deflection is not None:  # the scenario's `logs_deflection`: distances (mm) from the t = 0 pose
+            signals["tcp_dev_mm"], signals["elbow_dev_mm"] = self._deflection.read(self)
+        # the task target, for the replay's scene (a planned or contact task's is not a function of time alone)
+        position = target.position
+        signals["target_x_m"], signals["target_y_m"], signals["target_z_m"] = position[0], position[1], position[2]
         self.environment.observe(signals, t)
         self.last = StepRecord(
             t=t,

@@ -30,7 +30,6 @@ from app.live.notices import Notice, Notices, in_knob_words, refusal_words
 from app.live.overpowered import OverpoweredWatch
 from app.live.twin_arm import TwinArm
 from app.scenarios import PLAIN_PRESET, Offload, Scenario
-from app.scenarios.metrics import DeflectionProbe
 from control.params import ParamError
 from robots import guessed_text
 
@@ -65,7 +64,6 @@ class Lab:
         self.dirty = True  # something changed since the last frame
         self.defaults = self.session.params()  # the preset's (and case's) own values, before any change
         self.settings = Settings(0, self.session.params())
-        self._arm_deflection()
         # a switch to a preset that needs a costly computation first (a swivel plan) raises WorkPending from
         # `apply` (nothing changed); the app's loop computes it elsewhere and applies the switch again
         self.defer_work = False
@@ -109,15 +107,7 @@ class Lab:
         cpu0 = time.thread_time()
         log, twin = self.log, self.twin
 
-        deflection, session = self._deflection, self.session
-
         def record(rec: StepRecord) -> None:
-            if deflection is not None:  # the scenario's `logs_deflection`: distances from the t = 0 pose
-                rec.signals["tcp_dev_mm"], rec.signals["elbow_dev_mm"] = deflection.read(session)
-            # the task target, for the replay's scene (the target of a planned or contact task is not a
-            # function of time alone)
-            signals, target = rec.signals, rec.target.position
-            signals["target_x_m"], signals["target_y_m"], signals["target_z_m"] = target[0], target[1], target[2]
             log.append(rec)
             self.total_steps += 1
             if rec.fallback:
@@ -191,13 +181,7 @@ class Lab:
         self.health.steps_since_change = 0
         self.log.clear()
         self.restarts += 1
-        self._arm_deflection()
         self._settings_changed()
-
-    def _arm_deflection(self) -> None:
-        """The TCP's and the elbow's positions now (t = 0): the reference of the deflection signals."""
-        s = self.session
-        self._deflection = DeflectionProbe(s) if s.scenario.logs_deflection else None
 
     # ---- parameters -----------------------------------------------------------------------------
     def _set_param(self, cmd: SetParam) -> None:

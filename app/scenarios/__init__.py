@@ -155,8 +155,8 @@ class Scenario:
     starts_paused = False  # over in seconds: the app starts it paused (and after Reset) until Play
     cases: tuple[str, ...] = ()  # the cases the preset can run in (app.core.variants), () if it has none
     case_arg = ""  # the constructor argument (and attribute) that picks the case
-    # a preset whose lesson is how far the arm is pushed off its pose: the live lab logs the TCP's and the
-    # elbow's distance from where they stood at t = 0 ("tcp_dev_mm", "elbow_dev_mm")
+    # a preset whose lesson is how far the arm is pushed off its pose: its session's steps carry the TCP's and
+    # the elbow's distance from where they stood at t = 0 ("tcp_dev_mm", "elbow_dev_mm"), live and headless
     logs_deflection = False
     # the parameter groups this preset brings beyond the controller's and the simulator's, by name: its own
     # "scenario" group and its environment's (the panels and settings files read them before a session has them)

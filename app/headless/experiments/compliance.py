@@ -29,7 +29,7 @@ from app.headless.experiments.c_common import (
 )
 from app.headless.experiments.run_config import apply_settings, parse_settings, run_configuration
 from app.scenarios.compliance import DURATION_S, MODES, PUSH_N, PUSHES, ComplianceScenario
-from app.scenarios.metrics import PUSH_AFTER_S, DeflectionProbe, WindowPeaks, push_windows
+from app.scenarios.metrics import PUSH_AFTER_S, WindowPeaks, push_windows
 from control.compliance_qp import ComplianceQPExecutor
 
 LABELS = {"stiff": "Γ = 0 (stiff)", "nullspace": "Γ₀ = I (nullspace compliant)", "full": "Γ = I (full compliance)"}
@@ -48,7 +48,6 @@ def run_mode(mode: str, settings: tuple = ()) -> dict:
     assert isinstance(executor, ComplianceQPExecutor)
     apply_settings(session, settings)
     session.reset()
-    probe = DeflectionProbe(session)  # the TCP and the elbow where they stand at the reset
     q0 = session.world.q
     cols = ("t", "v", "w", "dq", "tcp_dev_mm", "elbow_dev_mm", "posture", "force", "est")
     rec: dict[str, list[float]] = {c: [] for c in cols}
@@ -60,9 +59,8 @@ def run_mode(mode: str, settings: tuple = ()) -> dict:
         rec["v"].append(float(np.linalg.norm(twist[:3])))
         rec["w"].append(float(np.linalg.norm(twist[3:])))
         rec["dq"].append(float(np.linalg.norm(r.dq)))
-        tcp_mm, elbow_mm = probe.read(session)
-        rec["tcp_dev_mm"].append(tcp_mm)
-        rec["elbow_dev_mm"].append(elbow_mm)
+        rec["tcp_dev_mm"].append(r.signals["tcp_dev_mm"])  # the TCP and the elbow from where they stood at the reset
+        rec["elbow_dev_mm"].append(r.signals["elbow_dev_mm"])
         rec["posture"].append(float(np.linalg.norm(r.q - q0)))
         rec["force"].append(PUSH_N * (r.signals.get("push_tcp", 0.0) + r.signals.get("push_elbow", 0.0)))
         rec["est"].append(r.signals.get("tau_ext_estimate_norm", 0.0))
