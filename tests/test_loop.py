@@ -716,3 +716,43 @@ def test_a_calls_timeout_does_not_count_the_time_a_plan_is_computed(loop):
         loop.sync(timeout=0.3)
     assert 0.25 <= time.monotonic() - t0 < 0.9
     busy.join()
+
+
+def test_while_a_switch_builds_its_session_the_loop_steps_the_old_one_and_swaps_the_new_one_in(monkeypatch):
+    """A preset switch builds its new session off the loop thread: held inside its build, the loop steps
+    the current preset on (≥ 200 more steps) and applies an urgent Pause; a parameter change queued behind
+    the switch waits for it and lands on the new session once the build ends."""
+    import threading
+
+    from app.live import loop as loop_module
+
+    entered, gate = threading.Event(), threading.Event()
+    real_build = loop_module.build_switch
+
+    def held_build(*args, **kwargs):
+        entered.set()
+        assert gate.wait(60.0)
+        return real_build(*args, **kwargs)
+
+    monkeypatch.setattr(loop_module, "build_switch", held_build)
+    lp = SimLoop("free", capture=lambda s: None)
+    lp.start(running=True)
+    try:
+        _wait(lambda: lp.status.t > 0.05, 60, "the first steps")
+        lp.submit(SwitchSession(scenario="compliance"))
+        lp.submit(SetParam("drag", "max_force_n", 41.0))  # behind the switch: for the new session
+        assert entered.wait(30.0)
+        threading_name = [t.name for t in threading.enumerate() if t.name.startswith("torquelab-build")]
+        assert threading_name, "the build runs in the builder's thread"
+        steps0 = lp.status.steps
+        _wait(lambda: lp.status.steps >= steps0 + 200, 60, "steps while the switch builds")
+        assert lp.status.scenario == "free" and lp.builder.busy
+        lp.submit(Pause())  # urgent: applied while the build waits
+        _wait(lambda: not lp.status.running, 30, "Pause during the build")
+        gate.set()
+        status = lp.sync(timeout=60.0)
+        assert status.scenario == "compliance" and status.steps == 0 and not lp.builder.busy
+        assert lp.call(lambda s: s.params()["drag"].max_force_n) == 41.0
+    finally:
+        gate.set()
+        lp.stop()

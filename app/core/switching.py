@@ -61,10 +61,15 @@ class BuiltSwitch:
     robot_note: str = ""
 
 
+def rebuilds(cmd: SwitchSession) -> bool:
+    """True for a preset, case or robot switch (a new session), False for a controller switch alone."""
+    return not (cmd.scenario is None and cmd.robot is None and cmd.variant is None)
+
+
 def plan_switch(session: Session, robot_choice: str, cmd: SwitchSession) -> SwitchPlan | None:
     """The plan of a preset, case or robot switch of `session` (run on `robot_choice`); None for a
     controller switch alone (`switch_executor`). ValueError for a case the preset does not have."""
-    if cmd.scenario is None and cmd.robot is None and cmd.variant is None:
+    if not rebuilds(cmd):
         return None
     name = cmd.scenario if cmd.scenario is not None else session.scenario.name
     # a new scenario brings its default executor unless one is asked for explicitly

@@ -20,7 +20,7 @@ from typing import Any
 
 from app.core.commands import Command, DragCommand, Reset, RestoreDefaults, SetParam, SetTwin, SwitchSession, label
 from app.core.recovery import RECOVERY_STEPS, Health, recover
-from app.core.session import Lockstep, RunResult, Session, StepRecord, WorkPending
+from app.core.session import Lockstep, RunResult, Session, StepRecord
 from app.core.settings import Settings
 from app.core.steplog import StepLog
 from app.core.switching import BuiltSwitch, build_switch, case_switch_text, plan_switch, same_value, switch_executor
@@ -64,9 +64,6 @@ class Lab:
         self.dirty = True  # something changed since the last frame
         self.defaults = self.session.params()  # the preset's (and case's) own values, before any change
         self.settings = Settings(0, self.session.params())
-        # a switch to a preset that needs a costly computation first (a swivel plan) raises WorkPending from
-        # `apply` (nothing changed); the app's loop computes it elsewhere and applies the switch again
-        self.defer_work = False
         self.offload: Offload | None = None  # where the sessions compute their costly page signals (`set_offload`)
         self._say_guessed()
 
@@ -85,14 +82,12 @@ class Lab:
     # ---- commands -------------------------------------------------------------------------------
     def apply(self, cmd: Command) -> None:
         """Apply one command through its handler (`HANDLERS`); a refused or failing one becomes a
-        notice (never raises, but for WorkPending with `defer_work`)."""
+        notice (never raises)."""
         try:
             handler = HANDLERS.get(type(cmd))
             if handler is None:
                 raise ValueError(f"unknown command {cmd!r}")
             handler(self, cmd)
-        except WorkPending:
-            raise  # (only with defer_work, before anything changed)
         except (ValueError, KeyError) as exc:
             self.notify("error", "Refused", refusal_words(exc), getattr(cmd, "client_id", None))
         except Exception as exc:  # never let a command take the loop down
@@ -225,8 +220,7 @@ class Lab:
             if cmd.executor is not None and cmd.executor != self.session.executor_name:
                 self._switch_executor(cmd.executor)
             return
-        # with defer_work, raises WorkPending before anything changed
-        self.install_switch(build_switch(plan, self.session.seed, self.overrides, self.defaults, self.defer_work))
+        self.install_switch(build_switch(plan, self.session.seed, self.overrides, self.defaults))
 
     def install_switch(self, built: BuiltSwitch) -> None:
         """Make a switch's new session (`app.core.switching.build_switch`) the lab's."""

@@ -36,15 +36,17 @@ from app.core.export import run_export
 from app.core.session import Session, WorkPending
 from app.core.settings import Settings
 from app.core.steplog import StepLog
+from app.core.switching import BuiltSwitch, build_switch, plan_switch, rebuilds
 from app.core.twin import Twin
 from app.live.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
 from app.live.lab import Lab
 from app.live.memory import trim_heap_soon
-from app.live.notices import Notice
+from app.live.notices import Notice, refusal_words
 from app.live.offload import LiveOffload
 from app.live.pacing import Pacer, RateMeter, next_frame_due
 from app.live.plan_worker import BackgroundPlanner
 from app.live.run_flags import SPEED_RANGE, UNPACED_SPEED, RunFlags
+from app.live.switch_builder import SwitchBuilder
 from app.scenarios import PLAIN_PRESET
 
 __all__ = ["SPEED_RANGE", "Frame", "LoopStatus", "Notice", "PlotData", "Settings", "SimLoop"]
@@ -139,8 +141,8 @@ class SimLoop:
     ):
         self.lab = Lab(scenario, robot=robot, executor=executor, seed=seed, log_seconds=log_seconds)
         self.flags = RunFlags(self.lab)  # running, settling, single steps, speed, pacing (`app.live.run_flags`)
-        self.lab.defer_work = True  # a preset's costly preparation (a swivel plan) runs in `planner` meanwhile
         self.planner = BackgroundPlanner()
+        self.builder = SwitchBuilder(self._wake_up)  # a switch's new session, built off this thread
         # the polish margin's live figures: in a worker process, not on the loop thread (`app.live.offload`)
         # (started by the first figure a preset asks for, from a thread of its own: nothing waits)
         self.offload = LiveOffload()
@@ -219,6 +221,7 @@ class SimLoop:
                 return False
             self._thread = None
         self.planner.stop()
+        self.builder.stop()
         self.offload.stop()
         return True
 
@@ -256,7 +259,7 @@ class SimLoop:
             except TimeoutError:
                 if fut.done():  # `fn` itself raised TimeoutError
                     raise
-                if not self.planner.busy:
+                if not self._waiting_for_work:
                     left -= time.monotonic() - t0
                 if left <= 0.0:
                     raise TimeoutError(f"the simulation loop did not answer within {timeout:g} s") from None
@@ -338,7 +341,7 @@ class SimLoop:
             # preset's work is computed the commands behind its switch wait for it: they do not keep the
             # loop awake (it would spin a core beside the worker computing the work)
             self._wake.clear()
-            if timeout > 2e-4 and self._queue.empty(urgent_only=self.planner.busy):
+            if timeout > 2e-4 and self._queue.empty(urgent_only=self._waiting_for_work):
                 self._wake.wait(timeout)
 
     def _release_silent_drag(self, now: float) -> None:
@@ -390,7 +393,10 @@ class SimLoop:
             else:
                 lab.notify("error", "Preparing the preset failed", f"{type(error).__name__}: {error}")
         # while the work is computed only urgent commands apply (the rest keep their order behind the switch)
-        while (item := self._queue.get(urgent_only=self.flags.pending_steps > 0 or self.planner.busy)) is not None:
+        built = self.builder.take_done()
+        if built is not None:  # a switch's new session: make it the lab's first (its place in the order)
+            self._install(*built)
+        while (item := self._queue.get(urgent_only=self.flags.pending_steps > 0 or self._waiting_for_work)) is not None:
             if isinstance(item, _Call):
                 try:
                     item.future.set_result(item.fn(lab.session))
@@ -399,20 +405,64 @@ class SimLoop:
             else:
                 self._apply(item)
 
+    @property
+    def _waiting_for_work(self) -> bool:
+        """A switch's session is being built or its preset's work computed: only urgent commands apply."""
+        return self.planner.busy or self.builder.busy
+
+    def _wake_up(self) -> None:
+        self._wake.set()
+
     def _apply(self, command: Command) -> None:
-        """`lab.apply`; a switch whose preset needs work not done yet (a swivel plan) waits for `planner`;
-        after a switch the memory the old session held goes back to the system (`app.live.memory`)."""
+        """`flags.apply`; a preset, case or robot switch's new session is built by `builder` (here, before
+        the thread runs) and a switch whose preset needs work not done yet (a swivel plan) waits for
+        `planner`; after a switch the memory the old session held goes back to the system (`app.live.memory`)."""
+        if isinstance(command, SwitchSession) and rebuilds(command):
+            lab = self.lab
+            session, robot_choice, changes, defaults = lab.session, lab.robot_choice, list(lab.overrides), lab.defaults
+
+            def build() -> BuiltSwitch:
+                plan = plan_switch(session, robot_choice, command)
+                assert plan is not None
+                return build_switch(plan, session.seed, changes, defaults, defer_work=True)
+
+            if self._thread is not None:
+                self.builder.start(command, build)
+                return
+            try:
+                built, error = build(), None
+            except Exception as exc:
+                built, error = None, exc
+            self._install(command, built, error)
+            return
         try:
             self.flags.apply(command)
-            if isinstance(command, SwitchSession):
-                trim_heap_soon()
         except WorkPending as pending:
-            self.lab.notify(
-                "info",
-                "Preparing the preset",
-                f"It starts once {pending.work.what} is computed (a few seconds); the current preset runs on.",
-            )
-            self.planner.start(command, pending.work)
+            self._plan(command, pending)
+
+    def _install(self, command: SwitchSession, built: BuiltSwitch | None, error: BaseException | None) -> None:
+        """Make a switch's built session the lab's; or hand its preset's work to `planner`; or say why it failed."""
+        if isinstance(error, WorkPending):
+            self._plan(command, error)
+        elif isinstance(error, (ValueError, KeyError)):
+            self.lab.notify("error", "Refused", refusal_words(error))
+        elif error is not None:  # as `Lab.apply` says a failing command
+            traceback.print_exception(error)
+            self.lab.notify("error", "Command failed", f"{type(error).__name__}: {error}")
+        elif built is not None:
+            self.lab.install_switch(built)
+            self.flags.follow()
+            trim_heap_soon()
+        self.lab.dirty = True
+
+    def _plan(self, command: Command, pending: WorkPending) -> None:
+        """Compute a switch's preset work in `planner`; the switch is applied again once it is stored."""
+        self.lab.notify(
+            "info",
+            "Preparing the preset",
+            f"It starts once {pending.work.what} is computed (a few seconds); the current preset runs on.",
+        )
+        self.planner.start(command, pending.work)
 
     def _fail_queued_calls(self) -> None:
         while (item := self._queue.get()) is not None:

@@ -3,9 +3,10 @@
 Some presets need a computation before their session is built (`Scenario.pending_work`): a
 planned polish case needs the swivel path planned over the zig-zag, ~4.5 s of Python on a quiet
 2-core machine, which the loop thread used to spend without stepping, publishing or answering a
-drag. With `Lab.defer_work` the switch raises `WorkPending` instead (nothing changed yet); the
-loop hands the work to `BackgroundPlanner`, keeps running the current preset, applies only urgent
-commands (drag, Pause), and applies the switch again once the result is stored. The work is the
+drag. The loop's switch builds its session with `defer_work`, which raises `WorkPending` instead
+(nothing changed yet); the loop hands the work to `BackgroundPlanner`, keeps running the current
+preset, applies only urgent commands (drag, Pause), and applies the switch again once the result
+is stored. The work is the
 same function of the same arguments in either process.
 
 The worker process (`app.live.workers.Worker`, at the app's priority) is started on first use, in a
