@@ -10,6 +10,7 @@ F^e), fallback, then every scalar signal the executor and environment report, ad
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -29,6 +30,12 @@ def base_columns(n_joints: int) -> list[str]:
     cols += [f"Fd_{a}" for a in WRENCH]
     cols += ["fallback"]
     return cols
+
+
+def session_log(session: Any, seconds: float) -> StepLog:
+    """An empty log of `seconds` of `session`'s steps (a `Session`: its arm, control period and strokes)."""
+    dt = float(session.world.model.opt.timestep)
+    return StepLog(session.robot.nq, capacity=round(seconds / dt), segments=session.scenario.segments)
 
 
 class StepLog:

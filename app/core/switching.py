@@ -20,6 +20,7 @@ import numpy as np
 from app.core.commands import SetParam, SwitchSession
 from app.core.executors import EXECUTORS
 from app.core.session import Session
+from app.core.steplog import StepLog, session_log
 from app.core.variants import make_variant
 from app.scenarios import Scenario
 from control.params import ParamGroup
@@ -59,6 +60,7 @@ class BuiltSwitch:
     reset_by_case: list[SetParam]
     refused: list[int]  # positions in `kept` the new session refused
     robot_note: str = ""
+    log: StepLog | None = None  # an empty step log for the session, when asked for (`build_switch`)
 
 
 def rebuilds(cmd: SwitchSession) -> bool:
@@ -98,11 +100,13 @@ def build_switch(
     changes: Sequence[SetParam],
     defaults: Mapping[str, ParamGroup],
     defer_work: bool = False,
+    log_seconds: float = 0.0,
 ) -> BuiltSwitch:
     """The new session of `plan` with `seed` and the `changes` it carries (see the module docstring;
     `defaults` are the old session's own values). A preset the asked robot cannot run (a posture it
     lacks) runs on its default robot. With `defer_work`, WorkPending before anything is built when the
-    preset needs a costly computation first (`Scenario.pending_work`)."""
+    preset needs a costly computation first (`Scenario.pending_work`). With `log_seconds`, an empty step
+    log of that many seconds comes with it (allocating one takes tens of ms)."""
     note = ""
     robot_choice = plan.robot_choice
     try:
@@ -114,7 +118,8 @@ def build_switch(
         note, robot_choice = f"{exc}. Using {new.robot.name}.", ""
     kept, reset = carried_changes(plan, defaults, new.params(), changes)
     refused = new.replay(kept)
-    return BuiltSwitch(plan, new, robot_choice, kept, reset, refused, note)
+    log = session_log(new, log_seconds) if log_seconds > 0 else None
+    return BuiltSwitch(plan, new, robot_choice, kept, reset, refused, note, log)
 
 
 def carried_changes(

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from app.core.session import Session
-from app.core.steplog import StepLog
+from app.core.steplog import session_log
 from app.scenarios import Scenario
 from control.params import ParamError
 
@@ -45,9 +45,7 @@ class Twin:
         for o in overrides:
             self.set_param(o.group, o.field, o.value, o.index)
         self.dt = dt
-        self.log = StepLog(  # as the main log
-            self.session.robot.nq, capacity=round(log_seconds / dt), segments=self.session.scenario.segments
-        )
+        self.log = session_log(self.session, log_seconds)  # as the main log
 
     @classmethod
     def beside(cls, session: Session, robot_choice: str, objective: str, log_seconds: float = 60.0) -> Twin:

@@ -22,7 +22,7 @@ from app.core.commands import Command, DragCommand, Reset, RestoreDefaults, SetP
 from app.core.recovery import RECOVERY_STEPS, Health, recover
 from app.core.session import Lockstep, RunResult, Session, StepRecord
 from app.core.settings import Settings
-from app.core.steplog import StepLog
+from app.core.steplog import StepLog, session_log
 from app.core.switching import BuiltSwitch, build_switch, case_switch_text, plan_switch, same_value, switch_executor
 from app.core.twin import Twin
 from app.live.drag_owner import DragOwner
@@ -43,9 +43,7 @@ class Lab:
         self.robot_choice = str(args.get("robot") or "")  # "" = the scenario's default robot
         self.dt = float(self.session.world.model.opt.timestep)
         self._log_seconds = log_seconds
-        self.log = StepLog(
-            self.session.robot.nq, capacity=round(log_seconds / self.dt), segments=self.session.scenario.segments
-        )
+        self.log = session_log(self.session, log_seconds)
         self.twins = TwinArm(lambda reason: self.notify("warning", "Twin arm off", reason), log_seconds)
         self.health = Health()  # which overrides were in force while the simulation last ran healthy
         self.halted = ""  # why the simulation auto-paused, "" otherwise
@@ -154,27 +152,26 @@ class Lab:
         if self.twin is not None:
             self.twin.session.set_offload(offload)
 
-    def _install(self, session: Session) -> None:
-        """Make `session` (its changes in force) the lab's; the twin follows."""
+    def _install(self, session: Session, log: StepLog | None = None) -> None:
+        """Make `session` (its changes in force) the lab's, with an empty `log` (None: one made here)."""
         session.set_offload(self.offload)
         self.session = session
         self.session_id += 1
         self.defaults = session.params()
-        self.log = StepLog(
-            session.robot.nq, capacity=round(self._log_seconds / self.dt), segments=session.scenario.segments
-        )
-        self._after_rebuild()
+        self.log = log if log is not None else session_log(session, self._log_seconds)
+        self._after_rebuild(clear_log=False)  # a new log is empty
         self.twins.rebuild(session, self.robot_choice)
         if session.robot.name != getattr(self, "_guessed_said_for", None):
             self._say_guessed()
 
-    def _after_rebuild(self) -> None:
+    def _after_rebuild(self, clear_log: bool = True) -> None:
         """After a reset or a new session: clear logs and drag."""
         self.drag.client = None
         self.overpowering.clear()
         self.fallback_steps = 0
         self.health.steps_since_change = 0
-        self.log.clear()
+        if clear_log:
+            self.log.clear()
         self.restarts += 1
         self._settings_changed()
 
@@ -231,7 +228,7 @@ class Lab:
         self.health.refused(built.refused)
         self.robot_choice = built.robot_choice
         self._edited(f"switched to {built.session.scenario.name} on {built.session.robot.name}")
-        self._install(built.session)
+        self._install(built.session, built.log)
         self.halted = ""
         text = case_switch_text(built) if plan.case_switch else ""
         if text:

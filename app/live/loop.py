@@ -140,6 +140,7 @@ class SimLoop:
         capture: Callable[[Session], Any] | None = None,
     ):
         self.lab = Lab(scenario, robot=robot, executor=executor, seed=seed, log_seconds=log_seconds)
+        self.log_seconds = log_seconds
         self.flags = RunFlags(self.lab)  # running, settling, single steps, speed, pacing (`app.live.run_flags`)
         self.planner = BackgroundPlanner()
         self.builder = SwitchBuilder(self._wake_up)  # a switch's new session, built off this thread
@@ -420,11 +421,12 @@ class SimLoop:
         if isinstance(command, SwitchSession) and rebuilds(command):
             lab = self.lab
             session, robot_choice, changes, defaults = lab.session, lab.robot_choice, list(lab.overrides), lab.defaults
+            seconds = self.log_seconds
 
             def build() -> BuiltSwitch:
                 plan = plan_switch(session, robot_choice, command)
                 assert plan is not None
-                return build_switch(plan, session.seed, changes, defaults, defer_work=True)
+                return build_switch(plan, session.seed, changes, defaults, defer_work=True, log_seconds=seconds)
 
             if self._thread is not None:
                 self.builder.start(command, build)
