@@ -1857,7 +1857,8 @@ def test_every_lesson_steps_plot_and_the_margins_warning_lie_in_the_viewport(app
 
 LESSON_SHOTS = README_SCREENSHOT.parent / "lessons"
 LESSON_SHOT_BYTES = 300_000  # a docs page's picture: larger ones are cut to a 256-colour palette
-STEP_SHOT_SIZE = (1200, 750)  # each lesson step's picture: the 1600×1000 page scaled by 3/4, 256 colours
+STEP_SHOT_SIZE = (1200, 750)  # each lesson step's picture: the 1600×1000 page scaled by 3/4
+STEP_SHOT_COLOURS = 128  # in a palette without dithering: about 130 kB a picture
 STEP_SHOTS = LESSON_SHOTS / "after"  # the page at the end of every lesson step (docs/lessons/*.md)
 
 
@@ -1879,7 +1880,7 @@ def save_lesson_shot(pg: Any, name: str, text: str) -> None:
 
 def save_step_shot(pg: Any, name: str, text: str) -> None:
     """The page at 1600×1000 with `text` (a step's result line) scrolled into view, scaled to STEP_SHOT_SIZE
-    in 256 colours: test-artifacts/lessons/steps/NAME, copied to STEP_SHOTS."""
+    in STEP_SHOT_COLOURS: test-artifacts/lessons/steps/NAME, copied to STEP_SHOTS."""
     from PIL import Image
 
     pg.get_by_text(text, exact=False).first.scroll_into_view_if_needed()
@@ -1889,7 +1890,8 @@ def save_step_shot(pg: Any, name: str, text: str) -> None:
     pg.screenshot(path=str(shot))
     image = Image.open(shot).convert("RGB")
     assert image.size == (VIEWPORT["width"], VIEWPORT["height"])
-    image.resize(STEP_SHOT_SIZE, Image.Resampling.LANCZOS).quantize(256).save(shot, optimize=True)
+    small = image.resize(STEP_SHOT_SIZE, Image.Resampling.LANCZOS)
+    small.quantize(STEP_SHOT_COLOURS, dither=Image.Dither.NONE).save(shot, optimize=True)
     STEP_SHOTS.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(shot, STEP_SHOTS / name)
 
