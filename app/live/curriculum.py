@@ -174,7 +174,7 @@ LESSONS: tuple[Lesson, ...] = (
         "latency",
         "Latency",
         "A sampled controller answers a force reading at least one period late; that delay is what makes a "
-        "coupled posture oscillate.",
+        "coupled posture lose contact.",
         (
             Step(
                 "delay0",
