@@ -337,7 +337,11 @@ def write_figures(out: Path, results: list[dict], series: list[dict], scan: dict
     fig.savefig(out / "swivel_scan.png", dpi=110)
     plt.close(fig)
 
-    planned = [(r, s) for r, s in zip(results, series, strict=True) if "plan" in r and r["seed"] == 0]
+    planned = [  # the table's planned runs (a latency run may stop while held, before its trajectory starts)
+        (r, s)
+        for r, s in zip(results, series, strict=True)
+        if "plan" in r and r["seed"] == 0 and r.get("group", "table") == "table"
+    ]
     if planned:
         _plan_figure(out, planned, plt)
 
