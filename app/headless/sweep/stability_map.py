@@ -251,10 +251,14 @@ def section(out: Path, records: list[dict], facts: dict | None, invocations: lis
     wall = sum(float(i.get("wall_s", 0.0)) for i in invocations)
     cpu = [float(r.get("cpu_s") or 0.0) for r in ok]
     rows = tolerance_rows(records)
+    starts = [float(r["finished_at"]) - float(r.get("wall_s") or 0.0) for r in ok if r.get("finished_at")]
+    ends = [float(r["finished_at"]) for r in ok if r.get("finished_at")]
+    span = max(ends) - min(starts) if ends else 0.0  # an interrupted invocation records no wall time of its own
     figure(png, records, facts)
     run = {
         "agreement": a,
         "wall_s": wall,
+        "cells_span_s": span,
         "invocations": len(invocations),
         "cpu_s_mean": float(np.mean(cpu)),
         "cpu_s_max": max(cpu),
@@ -262,7 +266,8 @@ def section(out: Path, records: list[dict], facts: dict | None, invocations: lis
     }
     write_json(js, records, facts, run)
     text = (
-        f"<p>{len(ok)} cells finished in {wall:.1f} s of wall time over {len(invocations)} invocation(s); "
+        f"<p>{len(ok)} cells finished; {wall:.1f} s of wall time in {len(invocations)} completed invocation(s), "
+        f"{span:.1f} s from the first cell's start to the last cell's end; "
         f"CPU per cell {run['cpu_s_mean']:.2f} s on average (max {run['cpu_s_max']:.2f} s), counting the forked "
         f"copy each cell runs in. {a['stopped_at_loss']} cells stopped at their first lost contact.</p>"
         f"<p>Verdicts: {a['cells'] - a['unstable']} stable, {a['oscillating']} oscillating, {a['lost']} lost "
