@@ -24,14 +24,15 @@ import numpy as np
 
 from app.live.loop import Frame
 from app.live.ui.plots import force_error
-from app.scenarios import SCENARIOS, Scenario, get_scenario
+from app.scenarios import SCENARIOS, Chart, Scenario, get_scenario
 
 TRACE_SIGNALS = ("tcp_dev_mm",)  # besides the force error: the plots' previous-run series (deflection)
 
 
 def preset_layout(scenario: str) -> tuple[str, ...]:
-    """The charts a preset shows on its own (`Scenario.plot_layout`), first on top."""
-    return get_scenario(scenario).plot_layout if scenario in SCENARIOS else Scenario.plot_layout
+    """The keys of the charts a preset shows on its own (`Scenario.plot_layout`), first on top."""
+    layout = get_scenario(scenario).plot_layout if scenario in SCENARIOS else Scenario.plot_layout
+    return tuple(c.key if isinstance(c, Chart) else c for c in layout)
 
 
 def step_layout(charts: tuple[str, ...], scenario: str) -> tuple[str, ...]:
