@@ -72,6 +72,8 @@ def drawn_ticks(pg: Any, scroll_to: str = "") -> list[dict[str, Any]]:
 def test_the_toy_preset_appears_in_the_page_with_its_chart_phase_and_readout(toy_app, toy_page):
     """Its chart is on top of the Plots tab with its title, its label and the logged wave; the torque chart
     under it; the status line says its phase, the readout line its peak and its beat marker."""
+    from app.core.commands import Play, Reset
+
     pg = toy_page
     wait_for(lambda: toy_app.loop.status.scenario == toy.NAME and toy_app.loop.status.t > 1.0, 120, "the toy to run")
 
@@ -83,6 +85,11 @@ def test_the_toy_preset_appears_in_the_page_with_its_chart_phase_and_readout(toy
     assert shown[0]["label"] == toy.CHART.y_label
     assert shown[0]["ymax"] >= toy.WAVE_N and shown[0]["ymin"] == -shown[0]["ymax"]  # widened to hold the wave
     assert [c["title"] for c in shown[:2]] == [toy.CHART.title, "Torques / limits (%)"] and len(shown) == 2
+    # a new run: its beat (0.4 s) stays in the 60 s the plots hold while the words are looked for
+    toy_app.loop.submit(Reset())
+    toy_app.loop.submit(Play())
+    wait_for(lambda: 1.0 < toy_app.loop.status.t < 30.0, 60, "the new run past its beat")
+    wait_for(lambda: "toy_peak_wave_n" in toy_app.publisher.plots.readouts, 30, "the new run's readout")
     peak = toy_app.publisher.plots.readouts["toy_peak_wave_n"]
     assert peak == pytest.approx(toy.WAVE_N, abs=1e-4)
     for words in (f"Toy wave: peak {peak:.3f} N", "beat 0.4 s", "toy: after the beat"):
