@@ -221,3 +221,45 @@ def test_with_the_mmap_threshold_fixed_large_blocks_freed_leave_the_process():
     fixed, rising = kept_mb("fixed"), kept_mb("rising")
     assert fixed < 5.0, f"{fixed:.1f} MB kept with the threshold fixed"
     assert rising > 20.0, f"{rising:.1f} MB kept with glibc's rising threshold (the case the fix is for)"
+
+
+_ARENAS_CHILD = """
+import sys, threading
+from app.live.memory import arena_count, cap_arenas
+if sys.argv[1] == "capped":
+    assert cap_arenas()
+meet = threading.Barrier(9)
+def allocate():
+    block = bytearray(5000)  # from glibc, in this thread
+    meet.wait()  # all eight alive (and holding a block) at once
+    meet.wait()
+threads = [threading.Thread(target=allocate) for _ in range(8)]
+for thread in threads:
+    thread.start()
+meet.wait()
+print(arena_count())
+meet.wait()
+for thread in threads:
+    thread.join()
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt and malloc_info")
+def test_with_the_arenas_capped_threads_that_come_and_go_share_them():
+    """Eight threads alive at once, each allocating: with the arenas capped (`cap_arenas`, as `serve`
+    does) glibc keeps ARENA_MAX of them; by default each thread gets one of its own (9 counted: the
+    soak's thread arenas went 8 -> 15 over 3.5 minutes, each keeping what was freed in it). Each in a
+    fresh process."""
+    import subprocess
+
+    from app.live.memory import ARENA_MAX
+
+    def arenas(mode: str) -> int:
+        out = subprocess.run(
+            [sys.executable, "-c", _ARENAS_CHILD, mode], capture_output=True, text=True, check=True, timeout=120
+        )
+        return int(out.stdout.split()[-1])
+
+    capped, default = arenas("capped"), arenas("default")
+    assert 1 <= capped <= ARENA_MAX, f"{capped} arenas with the cap at {ARENA_MAX}"
+    assert default >= ARENA_MAX + 4, f"{default} arenas by default (the case the cap is for)"

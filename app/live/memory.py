@@ -15,6 +15,11 @@ serializes for each page) came from the arenas, and what was freed there stayed 
 (`bench --soak 4 --pages 2 --junk`: 516 MB of RSS with 55-68 MB free in the arenas at the end, against
 431 MB and 8-9 MB with the threshold fixed). `fix_mmap_threshold` fixes it at MMAP_THRESHOLD_BYTES
 (glibc's initial value) before the app allocates its large blocks.
+
+glibc also gives each thread alive at once an arena of its own (up to eight per core), and an arena
+keeps what was freed in it: the threads that come and go (a switch's trim among them) made new ones
+through a run (8 -> 15 in a 3.5-minute soak, nine tenths of its growth after the first minute).
+`cap_arenas` caps them at ARENA_MAX; `arena_count` counts them.
 """
 
 from __future__ import annotations
@@ -56,6 +61,46 @@ def fix_mmap_threshold(nbytes: int = MMAP_THRESHOLD_BYTES) -> bool:
     fn.argtypes = [ctypes.c_int, ctypes.c_int]
     fn.restype = ctypes.c_int
     return bool(fn(_M_MMAP_THRESHOLD, int(nbytes)))
+
+
+ARENA_MAX = 2  # glibc's malloc arenas: the main one and one that every other thread shares
+_M_ARENA_MAX = -8  # mallopt's parameter number (malloc.h)
+
+
+def cap_arenas(n: int = ARENA_MAX) -> bool:
+    """Cap glibc's malloc arenas at `n`: a thread that starts later shares one (glibc's default gives each
+    thread alive at once an arena of its own, up to eight per core, each keeping what was freed in it:
+    the arenas made by the threads that come and go were nine tenths of the soak's growth after its
+    first minute, docs/failures.md); False where there is no mallopt or it refused."""
+    lib = _libc()
+    fn = getattr(lib, "mallopt", None) if lib is not None else None
+    if fn is None:
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_int]
+    fn.restype = ctypes.c_int
+    return bool(fn(_M_ARENA_MAX, int(n)))
+
+
+def arena_count() -> int:
+    """glibc's malloc arenas in this process (the `<heap>` entries of malloc_info); 0 elsewhere."""
+    lib = _libc()
+    info = getattr(lib, "malloc_info", None) if lib is not None else None
+    if info is None:
+        return 0
+    lib.open_memstream.restype = ctypes.c_void_p
+    lib.open_memstream.argtypes = [ctypes.POINTER(ctypes.c_char_p), ctypes.POINTER(ctypes.c_size_t)]
+    lib.fclose.argtypes = [ctypes.c_void_p]
+    info.argtypes = [ctypes.c_int, ctypes.c_void_p]
+    text, size = ctypes.c_char_p(), ctypes.c_size_t()
+    stream = lib.open_memstream(ctypes.byref(text), ctypes.byref(size))
+    if not stream:
+        return 0
+    info(0, stream)
+    lib.fclose(stream)
+    xml = ctypes.string_at(text, size.value).decode()
+    lib.free.argtypes = [ctypes.c_void_p]
+    lib.free(ctypes.cast(text, ctypes.c_void_p))
+    return xml.count("<heap nr=")
 
 
 def trim_heap() -> bool:

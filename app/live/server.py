@@ -32,7 +32,7 @@ from app.core.params import parse_settings
 from app.live import closed_kernels
 from app.live.classroom.seat import SECRET_ENV, SeatChannel
 from app.live.loop import SimLoop
-from app.live.memory import fix_mmap_threshold, freeze_start_up_objects
+from app.live.memory import cap_arenas, fix_mmap_threshold, freeze_start_up_objects
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
 from app.live.settings_io import check_settings_text, load_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
@@ -180,6 +180,7 @@ def start_app(
     (`open_server`'s, as `serve` starts it to show the warm-up) the lab is built on that server, whose
     gate was set up with these three."""
     fix_mmap_threshold()  # large blocks freed go back to the system (app.live.memory)
+    cap_arenas()  # threads that come and go share glibc's arenas instead of each leaving one behind
     loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
     if opened is None:
         opened = open_server(host, port, verbose, watch_only, steer_local, seat_secret)
@@ -373,6 +374,7 @@ def serve(args: argparse.Namespace) -> int:
     if seat and not seat_secret:
         raise ValueError(f"--seat needs the lobby's secret in {SECRET_ENV}")
     fix_mmap_threshold()  # before the warm-up's step logs: large blocks freed go back to the system
+    cap_arenas()  # and threads that come and go share glibc's arenas (app.live.memory)
     # the page is there at once (its guards before any page connects); the warm-up shows on it
     opened = open_server(args.host, args.port, False, watch_only, steer_local, seat_secret)
     _print_url(args, busy, opened.server.get_port(), watch_only, steer_local)

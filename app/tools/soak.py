@@ -40,7 +40,7 @@ from websockets.sync.client import connect
 from websockets.typing import Subprotocol
 
 from app.core.commands import DragCommand, SwitchSession
-from app.live.memory import fix_mmap_threshold, heap_mb, trim_heap
+from app.live.memory import cap_arenas, fix_mmap_threshold, heap_mb, trim_heap
 from app.live.server import start_app
 from app.live.warmup import warm_up
 from app.scenarios import SCENARIOS
@@ -168,6 +168,7 @@ def run_soak(
     `browser` False leave that part out; `trim_every_s` > 0 also trims the heap that often; `pages`
     browsers show the page; `junk` adds the junk client."""
     fix_mmap_threshold()  # as `serve` does, before the warm-up
+    cap_arenas()
     warm_up(None, progress=print if progress else lambda line: None)
     app = start_app(port=0, scenario="polish", running=True)
     junk_guard = app.junk_guard
