@@ -13,6 +13,7 @@ maps a world point to CSS pixels of the canvas.
 from __future__ import annotations
 
 import functools
+import itertools
 import os
 import re
 import shutil
@@ -417,6 +418,54 @@ def test_self_motion_preview_checkbox_in_the_page_draws_the_ghost_arm(app, page,
     wait_for(lambda: pg.get_by_text("the flow settles", exact=False).first.is_visible(), 20, "the scan text")
     box.uncheck()
     wait_for(lambda: not preview.ghost_visible, 30, "the ghost arm to hide")
+
+
+def test_self_motion_preview_in_the_page_colours_the_loop_by_the_stability_map(app, page, paused, tmp_path):
+    """With a stability map, the preview's W curve is drawn in the map's colour of each swivel at the
+    session's μ: the page's legend names the levels, the line under the plot names the μ, and along the
+    loop the colour changes where the map's tolerated latency changes (−60°…−40°: 1 period, else 3)."""
+    import json
+
+    from app.live.ui import latency_map as L
+    from app.live.ui.panels.nullspace import NullspacePanel
+
+    pg, _ = page
+    preview = next(p for p in app.panels if isinstance(p, NullspacePanel)).preview
+    swivels = [-170.0 + 10.0 * k for k in range(35)]
+    doc = {
+        "format": L.FORMAT,
+        "robot": app.loop.call(lambda s: s.robot.name),
+        "tolerated": [
+            {"mu": mu, "swivel_deg": swivels, "tolerated_periods": [1 if -60 <= s <= -40 else 3 for s in swivels]}
+            for mu in (0.25, 1.5)
+        ],
+    }
+    (tmp_path / "map.json").write_text(json.dumps(doc))
+    kept = preview.latency_map
+    preview.latency_map = L.load(tmp_path / "map.json")
+    open_tab(pg, "Tune")
+    box = pg.get_by_label("Self-motion preview", exact=True)
+    box.wait_for(timeout=20_000)
+    try:
+        scans = preview.scans
+        box.check()
+        wait_for(lambda: preview.scans > scans + 1, 30, "two scans with the map")
+        wait_for(lambda: pg.get_by_text("Coloured by the latency", exact=False).first.is_visible(), 20, "the map line")
+        for level in (1, 3):
+            label = L.level_label(level)
+            wait_for(lambda label=label: pg.get_by_text(label, exact=True).count() > 0, 20, f"the legend's {label!r}")
+        x = np.asarray(preview.plot.data[0])
+        levels = preview.plot.data[7:]
+        colour = np.array([next((k for k, s in enumerate(levels) if np.isfinite(s[i])), -1) for i in range(len(x))])
+        coloured = np.flatnonzero(colour >= 0)
+        switches = [0.5 * (x[a] + x[b]) for a, b in itertools.pairwise(coloured) if colour[a] != colour[b]]
+        assert len(switches) == 2
+        assert switches[0] == pytest.approx(-65.0, abs=3.0) and switches[1] == pytest.approx(-35.0, abs=3.0)
+        inside = colour[(x > -60.0) & (x < -40.0) & (colour >= 0)]
+        assert inside.size > 0 and set(inside.tolist()) == {L.LEVELS.index(1)}
+    finally:
+        box.uncheck()
+        preview.latency_map = kept
 
 
 def test_twin_arm_dropdown_in_the_page_runs_a_second_arm_and_draws_it(app, page, paused):
