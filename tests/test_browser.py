@@ -936,14 +936,16 @@ def run_lesson_in_the_page(
 
     panel = next(p for p in app.panels if isinstance(p, LessonsPanel))
     spec = next(x for x in LESSONS if x.key == lesson)
-    open_tab(pg, "Lessons")
+    show_tab(pg, "Lessons")
     choose(pg, "Lesson", spec.title)
     wait_for(lambda: panel.lesson.key == lesson, 20, f"the lesson {spec.title}")
     shown: dict[str, str] = {}
     for i, step in enumerate(spec.steps[:steps]):
         wait_for(lambda i=i: panel.index == i, 20, f"step {i + 1}")
         pg.get_by_text(f"Step {i + 1} of {len(spec.steps)}", exact=False).first.wait_for(timeout=20_000)
-        pg.get_by_role("button", name="Set up this step").click()
+        # force: a software-rendered page on a loaded machine redraws without pause, and the check that the
+        # button stands still before the click then waits for minutes
+        pg.get_by_role("button", name="Set up this step").click(force=True)
         key = (lesson, step.key)
         wait_for(lambda k=key: k in panel.claims, 600, f"the result of {step.title}", period=0.5)
         claim = panel.claims[key]
@@ -953,7 +955,7 @@ def run_lesson_in_the_page(
         if after_step is not None:
             after_step(i, step.key)
         if i + 1 < len(spec.steps):
-            pg.get_by_role("button", name="Next ▶").click()
+            pg.get_by_role("button", name="Next ▶").click(force=True)
     return shown
 
 
