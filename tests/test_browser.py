@@ -1768,7 +1768,7 @@ _HINT_JS = """(text) => {
     }
     return null;
 }"""
-_CONTROL_JS = """(label) => {
+_CONTROL_CENTRE_JS = """(label) => {
     for (const l of document.querySelectorAll('label')) {
         if (l.textContent.trim() !== label) continue;
         const input = document.getElementById(l.getAttribute('for'));
@@ -1785,7 +1785,7 @@ def test_a_hint_closes_when_its_control_moves_from_under_a_still_pointer(app, pa
     when the status line above them grows): the hint closes without the pointer moving."""
     pg, _ = page
     hint = "Hold the plots"
-    at = wait_for(lambda: pg.evaluate(_CONTROL_JS, "Freeze"), 30, "the Freeze box")
+    at = wait_for(lambda: pg.evaluate(_CONTROL_CENTRE_JS, "Freeze"), 30, "the Freeze box")
     moved = False
     try:
         pg.mouse.move(at["x"], at["y"])
