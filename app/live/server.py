@@ -56,7 +56,6 @@ from app.live.ui.publisher import Publisher
 from app.live.ui.replay import ReplayPanel
 from app.live.ui.scene import SceneView
 from app.live.ui.snapshot import capture
-from app.live.ui.tooltips import guard_tooltips
 from app.live.ui.typed import typed_numbers
 from app.live.ui.visuals import VisualSettings, VisualsPanel
 from app.live.ui.warmup_page import WarmupPage
@@ -187,7 +186,6 @@ def start_app(
     server, watch_gate, junk_guard = opened
     input_guard = guard_gui_updates(server)  # every GUI update checked on arrival
     typed_numbers(server)  # text typed into a number box reaches the server (at the root, hidden)
-    guard_tooltips(server)  # a hint closes when its control has moved from under the pointer
     server.gui.configure_theme(control_width="large")
     server.gui.main_panel.dock_right()  # the 3D view is the canvas between the panels
     actual = server.get_port()
