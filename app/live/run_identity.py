@@ -11,9 +11,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from app.core.params import field_spec
+from app.core.switching import same_value
 
 if TYPE_CHECKING:  # the frames name runs with this module: types only, no import cycle
     from app.core.settings import Settings
@@ -46,16 +45,6 @@ def flat_values(groups: Mapping[str, Any]) -> tuple[tuple[str, Any], ...]:
     return tuple(
         sorted((f"{name}.{field}", value) for name, group in groups.items() for field, value in group.values().items())
     )
-
-
-def same_value(a: Any, b: Any) -> bool:
-    """Equal parameter values (sequences element-wise, None only with None)."""
-    if a is None or b is None:
-        return a is b
-    try:
-        return bool(np.array_equal(np.asarray(a), np.asarray(b)))
-    except (TypeError, ValueError):
-        return bool(a == b)
 
 
 def _parts(key: str, value: Any) -> tuple[str, str, str]:
