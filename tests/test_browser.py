@@ -137,6 +137,21 @@ def paused(app: Any) -> Iterator[None]:
         app.loop.submit(Play())
 
 
+@pytest.fixture
+def unpaced(app: Any) -> Iterator[None]:
+    """The simulation as fast as the machine allows (`SetSpeed(UNPACED_SPEED)`) for a test that reads what
+    a lesson's run shows at its end: a step's numbers depend on its steps, not on the wall clock, and the
+    page draws a paused step's end as it draws it paced. Speed 1 again afterwards."""
+    from app.core.commands import SetSpeed
+    from app.live.run_flags import UNPACED_SPEED
+
+    app.loop.submit(SetSpeed(UNPACED_SPEED))
+    try:
+        yield
+    finally:
+        app.loop.submit(SetSpeed(1.0))
+
+
 # ---- camera and projection ------------------------------------------------------------------------
 class CameraReports:
     """The camera poses the page itself reports (viser replaces `client.camera`'s state with each one,
@@ -692,6 +707,7 @@ def test_every_plot_has_its_y_axis_with_units_in_every_preset_and_the_lessons_pl
 
             shown = wait_for(laid_out, 60, f"{name}'s own chart on top with data", period=0.5)
             # a chart built before its panel had its size gets its axes again within seconds
+            # (each look screenshots every chart: the ticks are checked here, not again below)
             wait_for(lambda: all(ticks_drawn(pg, c) for c in charts(pg)), 60, f"{name}'s ticks in every chart", 3.0)
             shown = charts(pg)
             for chart in shown:
@@ -700,7 +716,6 @@ def test_every_plot_has_its_y_axis_with_units_in_every_preset_and_the_lessons_pl
                 assert chart["values"], where  # ticks asked for
                 longest = max(len(str(v)) for v in chart["values"])
                 assert chart["size"] >= 7 * longest, where  # wide enough for the longest, as the page writes it
-                assert ticks_drawn(pg, chart), where  # and drawn: the tick texts are in the page
                 assert np.isfinite(chart["ymin"]) and np.isfinite(chart["ymax"]) and chart["ymax"] > chart["ymin"]
             if name == "limit-drop":
                 wait_for(lambda: pg.get_by_text("peak |τ|", exact=False).first.is_visible(), 30, "the peak readout")
@@ -959,7 +974,7 @@ def run_lesson_in_the_page(
     return shown
 
 
-def test_the_dampers_lesson_in_the_page_tells_the_delay_step_as_it_happens(app, page):
+def test_the_dampers_lesson_in_the_page_tells_the_delay_step_as_it_happens(app, page, unpaced):
     """Lessons → Dampers at the joint limit, each step as a student takes it. The claims carry this run's
     numbers (checked against the step log read here) and say what happened: λ = 500 brakes harder than
     λ = 100 (peak |τ₄| ≥ 1.5×, both without a velocity reversal in 3 s); with 5 ms of torque delay the
@@ -995,7 +1010,7 @@ def test_the_dampers_lesson_in_the_page_tells_the_delay_step_as_it_happens(app, 
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
 
 
-def test_every_dampers_step_draws_the_limit_ds_and_di_in_view_in_the_page(app, page):
+def test_every_dampers_step_draws_the_limit_ds_and_di_in_view_in_the_page(app, page, unpaced):
     """Each step of the dampers lesson, set up from the Lessons panel: when it ends, the page's phase chart
     of joint 4 has the limit, d_s and d_i lines each inside its x range (zoomed on the limit the joint falls
     to) and d_s more than 5 % of the width from the limit (screenshots lesson-dampers-step1…4.png)."""
@@ -1070,7 +1085,7 @@ def shown_result(pg: Any, claim: str) -> str:
     return str(pg.get_by_text(claim[:60], exact=False).first.inner_text())
 
 
-def test_the_posture_and_latency_lessons_in_the_page_show_the_shaking_and_its_cause(app, page):
+def test_the_posture_and_latency_lessons_in_the_page_show_the_shaking_and_its_cause(app, page, unpaced):
     """Lessons → Posture and friction (W_j, then W_a, then both at once: W_j here, W_a on the twin arm, at
     μ = 1), then Latency's first step (W_j with the
     F/T reading 0 periods late; its second step, the default delay, is the posture lesson's W_j run and
@@ -1160,7 +1175,7 @@ def test_the_posture_and_latency_lessons_in_the_page_show_the_shaking_and_its_ca
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
 
 
-def test_the_compliance_lesson_in_the_page_compares_the_gamma_modes(app, page):
+def test_the_compliance_lesson_in_the_page_compares_the_gamma_modes(app, page, unpaced):
     """Lessons → Compliance under a push: stiff, nullspace-compliant, fully compliant. The elbow yields
     under the elbow push with Γ₀ = I (> 3× the stiff arm's) while the TCP holds (< 1 mm under its push);
     with Γ = I the TCP moves > 10× as far; each claim quotes its numbers."""
@@ -1185,7 +1200,7 @@ def test_the_compliance_lesson_in_the_page_compares_the_gamma_modes(app, page):
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
 
 
-def test_a_steps_result_comes_back_in_a_page_opened_after_it(app, browser, page):
+def test_a_steps_result_comes_back_in_a_page_opened_after_it(app, browser, page, unpaced):
     """Compliance's first step taken from the Lessons panel to its end; a page opened afterwards (what a
     reload opens) shows the Lessons tab at that lesson and step with its *What you saw* line, this run's
     elbow deflection in it."""
