@@ -3,12 +3,15 @@ gives the verdict of a fresh run of the same held swivel, μ and latency; its to
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
+from app.headless.experiments import polish_map as PMAP
 from app.headless.experiments.polish import simulate
 from app.headless.experiments.polish_map import parse_latency, run_cell
 from app.headless.sweep.grid import SweepError
 from app.headless.sweep.stability_map import agreement, tolerance
+from app.scenarios import polish_margin as PM
 from app.scenarios import verdict as V
 
 
@@ -46,6 +49,67 @@ def test_a_reused_settled_state_gives_the_fresh_runs_verdict(swivel, mu, latency
     else:  # the strokes' band RMS within 10 % (only the held second before them differs)
         assert cell["band_rms_max_n"] == pytest.approx(fresh["band_rms_max_n"], rel=0.1)
     assert (cell["headroom_min_np"] < 0) == (fresh["stroke"]["headroom_min_np"] < 0)
+
+
+def _table_in_a_cell(entry):
+    out = PMAP._cell_in_copy(entry, 1.0, 1, 1, False)
+    return entry.session.target_fn.missed, out["stroke_steps"]
+
+
+def _table_after_a_new_setpoint(entry):
+    kept = entry.targets.current()
+    entry.session.set_param("target", "force_setpoint_n", 25.0)
+    return kept, entry.targets.current()
+
+
+def test_the_cells_read_the_zigzag_from_a_table_of_every_step_of_the_strokes():
+    """The settled posture's target table (`TargetTable`): a cell's world clock reads only times the
+    table holds (none computed again, all six strokes and the hold), and at those times the table's
+    targets are the scenario's, every array equal."""
+    from app.headless.sweep.forked import call_forked
+
+    entry, _ = PMAP.settled(0.0, 0)
+    table = entry.targets
+    assert table is not None and entry.session.target_fn is table
+    missed, steps = call_forked(_table_in_a_cell, entry)
+    assert missed == 0 and steps == len(table) == 15501
+    times = sorted(table._at)
+    for t in (times[0], times[1], times[len(times) // 3], times[-2], times[-1]):
+        kept, built = table(t), table._fn(t)
+        for name in ("position", "velocity", "acceleration", "rotation", "wrench", "q_posture"):
+            assert np.array_equal(getattr(kept, name), getattr(built, name)), (t, name)
+    # a target changed after the table was built (not a map cell's change): the table says so
+    assert call_forked(_table_after_a_new_setpoint, entry) == (True, False)
+
+
+def _margins_in_a_cell(entry, mu, latency):
+    session = entry.session
+    PMAP._set_cell(session, mu, *parse_latency(latency))
+    gains, loop = PMAP._margin_inputs(session)
+    shared = PMAP.margin_prediction(session, entry.taus, entry.lambdas, entry.parts)
+    own = PMAP.margin_prediction(session, entry.taus, entry.lambdas)
+    per_posture = [
+        PM.sample(lam, gains, loop, float(tau), find_kd=False).rate_per_s
+        for tau, lam in zip(entry.taus, entry.lambdas, strict=True)
+    ]
+    batched = PMAP.rates(PMAP.loop_parts(entry.taus, entry.lambdas, gains, loop), loop)
+    return PMAP._without_latency(loop) in entry.parts, shared, own, batched, per_posture
+
+
+@pytest.mark.parametrize(("mu", "latency"), [(0.25, "0+0"), (1.5, "2+2")])
+def test_the_margin_from_parts_shared_across_latencies_is_the_per_posture_margin_exactly(mu, latency):
+    """σ from the latency-free parts built once per μ in the settled process (`share_parts`), with the
+    eigenvalue problems of all postures in one call, is `polish_margin.sample`'s σ at every posture,
+    and the cell's headroom figures are those it gets building its own parts, bit for bit."""
+    from app.headless.sweep.forked import call_forked
+
+    entry, _ = PMAP.settled(-90.0, 0)
+    PMAP.share_parts(entry, mu)
+    used, shared, own, batched, per_posture = call_forked(_margins_in_a_cell, entry, mu, latency)
+    assert used, "the cell's loop is not the one the parts were shared for"
+    assert batched == per_posture and len(per_posture) == len(entry.taus) >= 500
+    assert shared == own
+    assert (own["headroom_min_np"] < 0) == (mu == 1.5)  # calm at 0.25 without latency, lost at 1.5 and 2 + 2
 
 
 def test_latency_text_is_reading_plus_drive():

@@ -13,12 +13,18 @@ repeats across cells is done once per process and swivel (`settled`):
   generator), so a cell at the defaults is bit for bit the fresh run; a cell with another μ or
   latency differs from the fresh run only in the held second before the strokes (its latency and μ
   take effect at the first stroke). `tests/test_polish_map.py` checks the verdicts against fresh runs.
+- **The zig-zag.** Once the clock has started the strokes, a held posture's target is a function of
+  time alone: it is built once for every step time of the strokes and the hold (`TargetTable`) and
+  each cell reads it instead of building it again at every step.
 - **The margin's postures.** The margin is evaluated every `MARGIN_SAMPLE_S` on the strokes, as in
   every polish run, but at the postures of one calm pass of the strokes at this swivel (μ 0.25, no
   latency), not at the cell's own: the held posture fixes them up to the tracking error, and a cell
   that stops early (below) still gets a prediction for all six strokes. Their Λx is computed once;
   a cell computes σ at them with its own μ, latency, contact, sensor and gains (σ alone: the
-  headroom needs no K_f^d search).
+  headroom needs no K_f^d search). The loop's parts at each posture do not depend on the latency
+  (it enters after them): they are built once per μ (`share_parts`), and a cell adds its latency
+  and solves the eigenvalue problems of all postures in one call (`rates`), σ bit for bit as
+  `polish_margin.sample` computes it.
 
 A cell stops at the first step of a stroke whose true contact force is 0: its verdict is then "lost
 contact" whatever follows (only a later divergence would have ranked higher, and the map counts both
@@ -30,7 +36,7 @@ from __future__ import annotations
 import math
 import re
 from collections import OrderedDict, deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -63,6 +69,73 @@ class Settled:
     taus: np.ndarray  # trajectory times of the margin's postures (s)
     lambdas: list[np.ndarray]  # Λx at each of them
     reference_verdict: str  # the calm pass's verdict (its postures are the margin's)
+    targets: TargetTable | None = None  # the zig-zag at the strokes' step times (None: not a function of time)
+    # the force loop's parts at each posture per latency-free loop (`loop_parts`), built once per μ
+    parts: dict[Any, tuple[Any, list]] = field(default_factory=dict)
+
+
+class TargetTable:
+    """The session's target (`PolishTarget`) at the step times of the strokes and the final hold, built
+    once in the settled process and read by every forked cell: once its clock has started, a held
+    posture's zig-zag is a function of time alone (no plan; the cells change μ and latency, not the
+    target; `current` says whether the target's inputs are still those). A time not in the table (none
+    is expected: the world's clock advances by the same additions) is computed as before; the target's
+    other attributes are the original's."""
+
+    def __init__(self, target_fn: Any, times: list[float]):
+        self._fn = target_fn
+        self._at = {t: target_fn(t) for t in times}
+        self._inputs = self._inputs_now()
+        self.missed = 0
+
+    def _inputs_now(self) -> tuple:
+        fn = self._fn
+        arrays = (fn.wrench, fn.start, fn.rotation, fn.q_posture)
+        return (fn.clock.trajectory_start, fn.plan, *(a.tobytes() for a in arrays))
+
+    def current(self) -> bool:
+        """The target's inputs (its clock's start, plan, wrench, start pose and posture) are still those the
+        table was built from."""
+        return self._inputs_now() == self._inputs
+
+    @property
+    def target_fn(self) -> Any:
+        """The target the table was built from."""
+        return self._fn
+
+    def __call__(self, t: float):
+        target = self._at.get(t)
+        if target is None:
+            self.missed += 1
+            return self._fn(t)
+        return target
+
+    def __getattr__(self, name: str) -> Any:  # the target group's `wrench` (`Session._owners`) and the rest
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self._fn, name)
+
+    def __len__(self) -> int:
+        return len(self._at)
+
+
+def target_table(session) -> TargetTable | None:
+    """The `TargetTable` of a session settled at the strokes' start: the times its world's clock will
+    read (its own additions of the step) until the trajectory and its hold are over; None when the
+    target follows a plan."""
+    target_fn = session.target_fn
+    clock = session.environment.clock
+    if getattr(target_fn, "plan", None) is not None or clock.trajectory_start is None:
+        return None
+    dt = float(session.world.model.opt.timestep)
+    t = float(session.world.time)
+    times: list[float] = []
+    while len(times) < round(S.trajectory_duration() / dt) * 2:  # the strokes and the hold, with room to spare
+        times.append(t)
+        if clock.finished(t):
+            break
+        t += dt
+    return TargetTable(target_fn, times)
 
 
 _SETTLED: OrderedDict[tuple, Settled] = OrderedDict()
@@ -158,12 +231,15 @@ def settled(swivel_deg: float, seed: int) -> tuple[Settled, bool]:
     result = session.run(cap, until=lambda r: clock.trajectory_start is not None, record=lambda r: pre.append(_row(r)))
     if clock.trajectory_start is None:
         raise RuntimeError(f"the held posture at {swivel_deg:g}° did not reach the strokes ({result.stop})")
+    targets = target_table(session)
+    if targets is not None:
+        session.target_fn = targets
     taus, lambdas, ref_verdict = call_forked(_reference_pass, session)
     # what the copies would otherwise load each time (the band-pass's imports and filter design, the
     # margin's): loaded here once, the copies inherit them
     _verdict(session, list(pre), diverged=False)
     margin_prediction(session, taus[:2], lambdas[:2])
-    entry = Settled(session, list(pre), result.steps, taus, lambdas, ref_verdict)
+    entry = Settled(session, list(pre), result.steps, taus, lambdas, ref_verdict, targets)
     _SETTLED[key] = entry
     _STATS["settled"] += 1
     while len(_SETTLED) > SETTLED_KEPT:
@@ -171,15 +247,63 @@ def settled(swivel_deg: float, seed: int) -> tuple[Settled, bool]:
     return entry, False
 
 
-def margin_prediction(session, taus: np.ndarray, lambdas: list[np.ndarray]) -> dict:
-    """The stroke headroom (`polish_margin`) at the given postures with the session's own loop: per
-    stroke and its least value h_min, and the prediction h_min < 0 (the tool leaves the table)."""
-    from app.headless.experiments.polish import _finite_or_none
-
+def _margin_inputs(session) -> tuple[Any, Any]:
+    """(gains, `ContactLoop`) of the session's own loop, as the margin reads them."""
     shaping = bool(session.params()["motion_force"].shaping)
     gains = replace(session.executor.gains, shaping=shaping)
-    loop = PM.contact_loop(session.environment.contact, session.sensor, session.world)
-    samples = [PM.sample(lam, gains, loop, float(tau), find_kd=False) for tau, lam in zip(taus, lambdas, strict=True)]
+    return gains, PM.contact_loop(session.environment.contact, session.sensor, session.world)
+
+
+def _without_latency(loop):
+    """The loop with what `control.margin.force_loop_parts` does not read set to 0: the latency (it
+    enters after the parts, `delayed_loop`) and the speed (each posture's own)."""
+    return replace(loop, sensing_delay_steps=0, actuation_delay_steps=0, speed_m_s=0.0)
+
+
+def loop_parts(taus: np.ndarray, lambdas: list[np.ndarray], gains, loop) -> list:
+    """`control.margin.force_loop_parts` at each posture (its Λx, the stroke's speed and friction
+    direction at τ): everything of σ but the latency, shared by the cells of one μ."""
+    from control.margin import force_loop_parts
+
+    out = []
+    for tau, lam in zip(taus, lambdas, strict=True):
+        speed, f_hat = PM.operating_point(float(tau))
+        out.append(force_loop_parts(lam, PM.POLISH_SUBSPACES, gains, replace(loop, speed_m_s=speed), f_hat))
+    return out
+
+
+def rates(parts: list, loop) -> list[float]:
+    """σ (1/s) at each posture from its parts with the loop's latency: `control.margin.loop_rate`'s
+    arithmetic, the eigenvalue problems of all postures in one call."""
+    from control.margin import delayed_loop
+
+    if not parts:
+        return []
+    phis = np.stack([delayed_loop(p, loop.sensing_delay_steps, loop.actuation_delay_steps) for p in parts])
+    rho = np.max(np.abs(np.linalg.eigvals(phis)), axis=-1)
+    return [-math.log(r) / loop.dt if r > 0 else math.inf for r in rho.tolist()]
+
+
+def share_parts(entry: Settled, mu: float) -> None:
+    """Build (once per μ, in the settled process) the parts a cell of this μ needs, so its forked
+    copy reads them: the loop is the settled session's with the cell's μ (`_set_cell` sets no other
+    field the parts read); the copy checks that against its own before using them."""
+    gains, loop = _margin_inputs(entry.session)
+    key = _without_latency(replace(loop, mu=float(mu)))
+    if key not in entry.parts:
+        entry.parts[key] = (gains, loop_parts(entry.taus, entry.lambdas, gains, key))
+
+
+def margin_prediction(session, taus: np.ndarray, lambdas: list[np.ndarray], shared: dict | None = None) -> dict:
+    """The stroke headroom (`polish_margin`) at the given postures with the session's own loop: per
+    stroke and its least value h_min, and the prediction h_min < 0 (the tool leaves the table).
+    `shared`: parts already built for this loop (`share_parts`), used when gains and loop match."""
+    from app.headless.experiments.polish import _finite_or_none
+
+    gains, loop = _margin_inputs(session)
+    kept = (shared or {}).get(_without_latency(loop))
+    parts = kept[1] if kept is not None and kept[0] == gains else loop_parts(taus, lambdas, gains, loop)
+    samples = [PM.MarginSample(rate, math.nan, math.nan) for rate in rates(parts, loop)]  # σ alone: find_kd=False
     floor = PM.sensor_floor_n(session.params()["sensor"], loop.dt)
     budget = PM.headroom_budget_np(S.DESIRED_FORCE_N, floor)
     strokes = PM.per_stroke(taus, samples, budget)
@@ -201,6 +325,8 @@ def _cell_in_copy(entry: Settled, mu: float, reading: int, drive: int, stop_on_l
     """In a forked copy of the settled process: set the cell, run the strokes, judge them."""
     session = entry.session
     _set_cell(session, mu, reading, drive)
+    if entry.targets is not None and not entry.targets.current():  # not expected: the cell sets no target
+        session.target_fn = entry.targets.target_fn
     rows, result, _, stopped = _strokes(session, stop_on_loss)
     all_rows = entry.pre_rows + rows
     verdict, judged = _verdict(session, all_rows, result.stop == "diverged")
@@ -218,7 +344,7 @@ def _cell_in_copy(entry: Settled, mu: float, reading: int, drive: int, stop_on_l
         "oscillation_threshold_n": V.oscillation_threshold_n(session.params()["sensor"], dt),
         "stroke_verdicts": [s.verdict for s in judged],
         **V.band_facts(),
-        **margin_prediction(session, entry.taus, entry.lambdas),
+        **margin_prediction(session, entry.taus, entry.lambdas, entry.parts),
     }
 
 
@@ -230,6 +356,7 @@ def run_cell(swivel_deg: float, mu: float, latency: str, seed: int = 0, stop_on_
     if not can_fork():
         raise RuntimeError("the stability map's cells fork the settled posture: this platform has no os.fork")
     entry, reused = settled(swivel_deg, seed)
+    share_parts(entry, mu)
     out = call_forked(_cell_in_copy, entry, float(mu), reading, drive, bool(stop_on_loss))
     return {
         "hold_swivel_deg": float(swivel_deg),
