@@ -179,3 +179,47 @@ def test_a_lockstep_session_that_diverges_stops_there_and_the_main_run_goes_on()
     assert result.stop == "done" and result.steps == 20 and main.steps == 20
     (r,) = result.lockstep
     assert r.stop == "diverged" and r.steps == 5 and other.steps == 5 and "diverged" in r.reason
+
+
+def test_a_twin_is_built_off_the_loop_thread_when_switched_on_and_on_a_switch(polish, monkeypatch):
+    """SetTwin's twin, and the twin a preset or robot switch brings, are built in the builder's thread
+    (`app.live.switch_builder`), never on the loop thread that steps the arm."""
+    import threading
+
+    from app.core.twin import Twin
+    from app.live.switch_builder import THREAD_NAME
+
+    built_in: list[str] = []
+    init = Twin.__init__
+
+    def recording_init(self, *args, **kwargs):
+        built_in.append(threading.current_thread().name)
+        init(self, *args, **kwargs)
+
+    monkeypatch.setattr(Twin, "__init__", recording_init)
+    polish.submit(SetTwin("j"))
+    polish.sync()
+    polish.submit(SwitchSession(robot="gen3"))
+    status = polish.sync()
+    assert status.twin == "j" and polish.twin is not None and polish.twin.session.robot.name == "gen3"
+    assert len(built_in) == 2 and all(name.startswith(THREAD_NAME) for name in built_in), built_in
+
+
+def test_restore_defaults_keeps_the_twin_and_sends_it_back_to_its_defaults_too(polish):
+    """RestoreDefaults builds no new twin: the twin's own settings go back to the defaults with the main
+    arm's, its objective stays, and with the main arm's objective it repeats it step for step again."""
+    from app.core.commands import RestoreDefaults
+
+    polish.submit(SetTwin("a"))
+    polish.submit(SetParam("contact", "mu", 1.0))
+    polish.submit(StepOnce(100))
+    polish.sync()
+    twin = polish.twin
+    assert twin is not None and twin.session.environment.contact.mu == 1.0
+    polish.submit(RestoreDefaults())
+    polish.submit(StepOnce(300))
+    polish.sync()
+    assert polish.twin is twin and twin.session.executor.nullspace.objective == "a"
+    assert twin.session.environment.contact.mu == polish.session.environment.contact.mu != 1.0
+    assert twin.session.world.time == polish.session.world.time
+    np.testing.assert_array_equal(twin.session.world.q, polish.session.world.q)

@@ -61,6 +61,7 @@ class BuiltSwitch:
     refused: list[int]  # positions in `kept` the new session refused
     robot_note: str = ""
     log: StepLog | None = None  # an empty step log for the session, when asked for (`build_switch`)
+    twin: Any = None  # the twin arm (or the ValueError it met) built beside `session`, when one runs
 
 
 def rebuilds(cmd: SwitchSession) -> bool:

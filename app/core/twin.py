@@ -11,6 +11,7 @@ It costs a second control step per millisecond: the status line shows when that 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -51,19 +52,7 @@ class Twin:
     def beside(cls, session: Session, robot_choice: str, objective: str, log_seconds: float = 60.0) -> Twin:
         """A twin of `session`: its preset, robot (`robot_choice`, "" = the preset's default), executor,
         seed, accepted changes and offload, with its own `objective`."""
-        dt = float(session.world.model.opt.timestep)
-        twin = cls(
-            session.preset,
-            robot_choice or None,
-            session.executor_name,
-            session.seed,
-            objective,
-            dt,
-            session.changes,
-            log_seconds,
-        )
-        twin.session.set_offload(session.offload)
-        return twin
+        return TwinRecipe.of(session, robot_choice, objective, log_seconds).build()
 
     def _own_objective(self, executor: str) -> None:
         if "nullspace" not in self.session.params():
@@ -85,6 +74,13 @@ class Twin:
         ValueError if the new executor has no objective."""
         self.session.set_executor(name)
         self._own_objective(name)
+
+    def restore_defaults(self) -> None:
+        """Every parameter back to the preset's defaults but the twin's own objective; t = 0."""
+        self.session.restore_defaults()
+        self._own_objective(self.session.executor_name)
+        self.session.reset()
+        self.log.clear()
 
     def reset(self) -> None:
         """Back to t = 0 with the main session (the session keeps its parameter overrides)."""
@@ -128,3 +124,44 @@ class Twin:
         last = self.session.last
         sig = last.signals if last is not None else {}
         return {k: float(sig[k]) for k in ("W", "W_j", "W_f", "W_a", "W_d") if k in sig}
+
+
+@dataclass(frozen=True)
+class TwinRecipe:
+    """What a twin takes from the main session, read where that session runs (cheap); `build()` makes the
+    twin anywhere (tens of milliseconds: its own model, world and executor), e.g. off the loop thread."""
+
+    scenario: Scenario
+    robot: str | None
+    executor: str
+    seed: int
+    objective: str
+    dt: float
+    overrides: tuple[Any, ...]
+    log_seconds: float
+    offload: Any
+
+    @classmethod
+    def of(cls, session: Session, robot_choice: str, objective: str, log_seconds: float = 60.0) -> TwinRecipe:
+        """The recipe of a twin of `session` (see `Twin.beside`); ValueError for an objective a twin cannot have."""
+        if objective not in TWIN_OBJECTIVES:
+            raise ValueError(f"the twin's objective must be one of {', '.join(TWIN_OBJECTIVES)}, got {objective!r}")
+        dt = float(session.world.model.opt.timestep)
+        return cls(
+            session.preset,
+            robot_choice or None,
+            session.executor_name,
+            session.seed,
+            objective,
+            dt,
+            tuple(session.changes),
+            log_seconds,
+            session.offload,
+        )
+
+    def build(self) -> Twin:
+        """The twin (ValueError when the executor has no objective)."""
+        parts = (self.scenario, self.robot, self.executor, self.seed, self.objective, self.dt, self.overrides)
+        twin = Twin(*parts, log_seconds=self.log_seconds)
+        twin.session.set_offload(self.offload)
+        return twin

@@ -152,15 +152,16 @@ class Lab:
         if self.twin is not None:
             self.twin.session.set_offload(offload)
 
-    def _install(self, session: Session, log: StepLog | None = None) -> None:
-        """Make `session` (its changes in force) the lab's, with an empty `log` (None: one made here)."""
+    def _install(self, session: Session, log: StepLog | None = None, twin: Any = None) -> None:
+        """Make `session` (its changes in force) the lab's, with an empty `log` (None: one made here) and
+        the `twin` built beside it (None: built here if one runs; see `TwinArm.rebuild`)."""
         session.set_offload(self.offload)
         self.session = session
         self.session_id += 1
         self.defaults = session.params()
         self.log = log if log is not None else session_log(session, self._log_seconds)
         self._after_rebuild(clear_log=False)  # a new log is empty
-        self.twins.rebuild(session, self.robot_choice)
+        self.twins.rebuild(session, self.robot_choice, twin)
         if session.robot.name != getattr(self, "_guessed_said_for", None):
             self._say_guessed()
 
@@ -198,7 +199,7 @@ class Lab:
         self._edited("every parameter back to its default")
         self.session.restore_defaults()
         self._after_rebuild()
-        self.twins.rebuild(self.session, self.robot_choice)
+        self.twins.restore_defaults()
         self.halted = ""
 
     def _edited(self, what: str) -> None:
@@ -228,7 +229,7 @@ class Lab:
         self.health.refused(built.refused)
         self.robot_choice = built.robot_choice
         self._edited(f"switched to {built.session.scenario.name} on {built.session.robot.name}")
-        self._install(built.session, built.log)
+        self._install(built.session, built.log, built.twin)
         self.halted = ""
         text = case_switch_text(built) if plan.case_switch else ""
         if text:
@@ -252,6 +253,12 @@ class Lab:
             self.twins.off()
             return
         self.twins.on(self.session, self.robot_choice, str(cmd.objective))  # ValueError: wrong objective
+        self.reset()
+
+    def install_twin(self, twin: Twin) -> None:
+        """A twin built off the loop thread (`app.core.twin.TwinRecipe`) for a SetTwin: it runs from here,
+        and the scenario restarts so both arms start together (as `SetTwin` says)."""
+        self.twins.install(twin)
         self.reset()
 
     # ---- the drag spring ------------------------------------------------------------------------

@@ -31,12 +31,12 @@ from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from app.core.commands import Command, DragCommand, Pause, Play, StepOnce, SwitchSession
+from app.core.commands import Command, DragCommand, Pause, Play, SetTwin, StepOnce, SwitchSession
 from app.core.export import run_export
 from app.core.session import Session, WorkPending
 from app.core.settings import Settings
 from app.core.steplog import StepLog
-from app.core.switching import BuiltSwitch, build_switch, plan_switch, rebuilds
+from app.core.switching import rebuilds
 from app.core.twin import Twin
 from app.live.frames import Frame, FrameBuilder, LoopStatus, PlotData, make_status
 from app.live.lab import Lab
@@ -46,7 +46,7 @@ from app.live.offload import LiveOffload
 from app.live.pacing import Pacer, RateMeter, next_frame_due
 from app.live.plan_worker import BackgroundPlanner
 from app.live.run_flags import SPEED_RANGE, UNPACED_SPEED, RunFlags
-from app.live.switch_builder import SwitchBuilder
+from app.live.switch_builder import SwitchBuilder, switch_build, twin_build
 from app.scenarios import PLAIN_PRESET
 
 __all__ = ["SPEED_RANGE", "Frame", "LoopStatus", "Notice", "PlotData", "Settings", "SimLoop"]
@@ -418,16 +418,14 @@ class SimLoop:
         """`flags.apply`; a preset, case or robot switch's new session is built by `builder` (here, before
         the thread runs) and a switch whose preset needs work not done yet (a swivel plan) waits for
         `planner`; after a switch the memory the old session held goes back to the system (`app.live.memory`)."""
+        if isinstance(command, SetTwin) and command.objective and self._thread is not None:
+            try:  # what the twin takes from the main session is read here; the twin is built off this thread
+                self.builder.start(command, twin_build(self.lab, str(command.objective), self.log_seconds))
+            except ValueError as exc:
+                self._install(command, None, exc)
+            return
         if isinstance(command, SwitchSession) and rebuilds(command):
-            lab = self.lab
-            session, robot_choice, changes, defaults = lab.session, lab.robot_choice, list(lab.overrides), lab.defaults
-            seconds = self.log_seconds
-
-            def build() -> BuiltSwitch:
-                plan = plan_switch(session, robot_choice, command)
-                assert plan is not None
-                return build_switch(plan, session.seed, changes, defaults, defer_work=True, log_seconds=seconds)
-
+            build = switch_build(self.lab, command, self.log_seconds)
             if self._thread is not None:
                 self.builder.start(command, build)
                 return
@@ -442,8 +440,9 @@ class SimLoop:
         except WorkPending as pending:
             self._plan(command, pending)
 
-    def _install(self, command: SwitchSession, built: BuiltSwitch | None, error: BaseException | None) -> None:
-        """Make a switch's built session the lab's; or hand its preset's work to `planner`; or say why it failed."""
+    def _install(self, command: SwitchSession | SetTwin, built: Any, error: BaseException | None) -> None:
+        """Make a switch's built session (or a SetTwin's twin) the lab's; or hand its preset's work to
+        `planner`; or say why it failed."""
         if isinstance(error, WorkPending):
             self._plan(command, error)
         elif isinstance(error, (ValueError, KeyError)):
@@ -451,6 +450,9 @@ class SimLoop:
         elif error is not None:  # as `Lab.apply` says a failing command
             traceback.print_exception(error)
             self.lab.notify("error", "Command failed", f"{type(error).__name__}: {error}")
+        elif isinstance(command, SetTwin) and built is not None:
+            self.lab.install_twin(built)
+            self.flags.follow()
         elif built is not None:
             self.lab.install_switch(built)
             self.flags.follow()

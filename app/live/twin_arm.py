@@ -29,12 +29,36 @@ class TwinArm:
         if reason:
             self._say_off(reason)
 
-    def rebuild(self, session: Session, robot_choice: str) -> None:
-        """After a new session: the same objective on it, or no twin if it cannot have one."""
+    def install(self, twin: Twin) -> None:
+        """A twin built elsewhere (off the loop thread: `TwinRecipe.build`) becomes the lab's."""
+        self.twin = twin
+
+    @property
+    def objective(self) -> str | None:
+        """The twin's objective, None when it is off."""
+        return None if self.twin is None else self.twin.objective
+
+    def rebuild(self, session: Session, robot_choice: str, ready: Twin | BaseException | None = None) -> None:
+        """After a new session: the same objective on it, or no twin if it cannot have one. `ready` is the
+        twin (or the error) already built beside `session` off the loop thread, if it was."""
         if self.twin is None:
             return
         try:
-            self.on(session, robot_choice, self.twin.objective)
+            if isinstance(ready, BaseException):
+                raise ready
+            if ready is not None and ready.objective == self.twin.objective:
+                self.twin = ready
+            else:
+                self.on(session, robot_choice, self.twin.objective)
+        except ValueError as exc:
+            self.off(f"the twin arm is switched off: {exc}")
+
+    def restore_defaults(self) -> None:
+        """The main session went back to its defaults: the twin too, keeping its objective (no new twin)."""
+        if self.twin is None:
+            return
+        try:
+            self.twin.restore_defaults()
         except ValueError as exc:
             self.off(f"the twin arm is switched off: {exc}")
 
