@@ -4,8 +4,11 @@ Under load a browser can process the server's messages later than they come: one
 t = 117 s "running" for over a minute while another read 248 s, and nothing said so. The server now
 stamps a hidden element of the page (`PageClock.tick`, a few times a second) with its wall clock and
 the simulation time, and a small script in each page (`LAG_JS`, run the way `app.live.ui.typed` runs
-its own) compares the stamp the page shows with the page's clock. The smallest difference seen is the
-clocks' offset plus the quickest delivery; what exceeds it is how late the page's picture is. Over
+its own) compares the stamp the page shows with the page's clock, the moment a new stamp lands in the
+page (a MutationObserver: a page that is busy catching up runs few timers, and a check on a timer alone
+went unheard for tens of seconds) and on a timer (a page that stopped: its stamp ages). The smallest
+difference seen is the clocks' offset plus the quickest delivery; what exceeds it is how late the page's
+picture is (`lagS`, NaN until the first stamp was measured; `measured` counts the measurements). Over
 BEHIND_S a banner at the top of the page says how far behind it is and which simulated instant it
 shows, while it catches up (it goes once the page is back within BEHIND_S); over GIVE_UP_S it says the
 page gave up catching up and asks for a reload (a reload starts from the simulation's present).
@@ -29,7 +32,7 @@ LAG_JS = r"""
 (() => {
   if (window.__torquelabLag) return;
   const state = window.__torquelabLag = {
-    behindS: %BEHIND%, giveUpS: %GIVE_UP%, minOffset: Infinity, lagS: 0, maxShownS: 0, texts: [],
+    behindS: %BEHIND%, giveUpS: %GIVE_UP%, minOffset: Infinity, lagS: NaN, maxShownS: 0, measured: 0, texts: [],
   };
   const banner = document.createElement("div");
   banner.id = "torquelab-lag";
@@ -48,15 +51,22 @@ LAG_JS = r"""
       if (state.texts.length > 50) state.texts.shift();
     }
   };
-  setInterval(() => {
+  let watched = null;
+  const measure = () => {
     const el = document.querySelector("[data-torquelab-clock]");
     if (!el) return;
+    if (el.parentElement !== watched) {  // the stamp's box: measured again the moment a new stamp lands in it
+      observer.disconnect();
+      watched = el.parentElement;
+      if (watched) observer.observe(watched, {childList: true, subtree: true, attributes: true});
+    }
     const [wallMs, simT] = el.getAttribute("data-torquelab-clock").split(" ").map(Number);
     if (!Number.isFinite(wallMs)) return;
     const offset = Date.now() - wallMs;  // the clocks' offset, plus how late this stamp is shown
     state.minOffset = Math.min(state.minOffset, offset);
     const lag = (offset - state.minOffset) / 1000;
     state.lagS = lag;
+    state.measured += 1;
     if (lag <= state.behindS) { say(""); return; }
     state.maxShownS = Math.max(state.maxShownS, lag);
     const shows = Number.isFinite(simT) ? ` (it shows t = ${simT.toFixed(1)} s)` : "";
@@ -66,7 +76,9 @@ LAG_JS = r"""
     } else {
       say(`This page is ${lag.toFixed(1)} s behind the simulation${shows}; catching up.`);
     }
-  }, 200);
+  };
+  const observer = new MutationObserver(measure);
+  setInterval(measure, 200);  // also while no stamp lands (a page that stopped: its stamp ages)
 })();
 """
 
