@@ -7,7 +7,7 @@ The runs are the smallest each experiment offers that still print each of its se
 row at one μ and one seed, with the v_ε check and Table III at the other latencies, and with --quick's
 latency table; the whole limit-drop
 and --quick; mass-drop with two repetitions per case; the three compliance modes; sweeps of a few
-cells); they are made once for the module (about a minute and a half on one core)."""
+cells, the stability map's of two); they are made once for the module (about a minute and a half on one core)."""
 
 from __future__ import annotations
 
@@ -71,6 +71,10 @@ RUNS = {  # name: (command words, the JSON files of the run)
             "--no-progress",
         ],
         ["cells.jsonl", "sweep.json"],
+    ),
+    "sweep-polish-map": (  # one settled swivel, two cells: the map's section, its figure and JSON
+        ["sweep", "polish-map", "--grid", "hold_swivel=0", "mu=1", "latency=1+0,2+1", "--no-progress"],
+        ["cells.jsonl", "sweep.json", "stability_map.json"],
     ),
 }
 

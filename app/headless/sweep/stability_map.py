@@ -72,10 +72,15 @@ def agreement(records: list[dict]) -> dict:
     pred = [bool(m["margin_predicts_loss"]) for m in ok]
     unstable = [m["verdict"] != V.STABLE for m in ok]
     lost = [m["verdict"] in (V.LOST, V.DIVERGED) for m in ok]
+    agree_unstable = sum(p == u for p, u in zip(pred, unstable, strict=True))
+    agree_lost = sum(p == lo for p, lo in zip(pred, lost, strict=True))
     return {
         "cells": len(ok),
-        "agree_unstable": sum(p == u for p, u in zip(pred, unstable, strict=True)),
-        "agree_lost": sum(p == lo for p, lo in zip(pred, lost, strict=True)),
+        "agree_unstable": agree_unstable,
+        "agree_lost": agree_lost,
+        "agree_unstable_share": agree_unstable / len(ok) if ok else None,
+        "agree_lost_share": agree_lost / len(ok) if ok else None,
+        "stable": len(ok) - sum(unstable),
         "predicted_loss": sum(pred),
         "unstable": sum(unstable),
         "lost": sum(lost),
@@ -270,13 +275,13 @@ def section(out: Path, records: list[dict], facts: dict | None, invocations: lis
         f"{span:.1f} s from the first cell's start to the last cell's end; "
         f"CPU per cell {run['cpu_s_mean']:.2f} s on average (max {run['cpu_s_max']:.2f} s), counting the forked "
         f"copy each cell runs in. {a['stopped_at_loss']} cells stopped at their first lost contact.</p>"
-        f"<p>Verdicts: {a['cells'] - a['unstable']} stable, {a['oscillating']} oscillating, {a['lost']} lost "
+        f"<p>Verdicts: {a['stable']} stable, {a['oscillating']} oscillating, {a['lost']} lost "
         f"contact or diverged. The margin (stroke headroom h_min at the calm pass's postures) predicts contact "
         f"loss in {a['predicted_loss']} cells. Its sign agrees with the verdict (stable or not) in "
-        f"{a['agree_unstable']} of {a['cells']} cells ({100.0 * a['agree_unstable'] / a['cells']:.0f} %): "
+        f"{a['agree_unstable']} of {a['cells']} cells ({100.0 * a['agree_unstable_share']:.0f} %): "
         f"{a['missed']} not stable but predicted to keep contact, {a['false_alarms']} predicted to lose it "
         f"but stable. Against lost contact alone, the event it predicts, it agrees in {a['agree_lost']} of "
-        f"{a['cells']} ({100.0 * a['agree_lost'] / a['cells']:.0f} %).</p>"
+        f"{a['cells']} ({100.0 * a['agree_lost_share']:.0f} %).</p>"
     )
     facts = facts or {}
     marks = [f"W_j {facts['W_j_deg']:+.0f}°"] if facts.get("W_j_deg") is not None else []
