@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -90,11 +90,13 @@ class SampledLoop:
 
 def delayed_loop(parts: SampledLoop, sensing_delay_steps: int, actuation_delay_steps: int) -> np.ndarray:
     """The closed loop's one-step map Φ (z^−d_s on the reading, z^−d_a on the command) of the state
-    ξ_k = (s_k, w_{k−1}, m_{k−1} … m_{k−d_s}, c_{k−1} … c_{k−d_a}), size n + c + m d_s + p d_a."""
+    ξ_k = (s_k, w_{k−1}, m_{k−1} … m_{k−d_s}, c_{k−1} … c_{k−d_a}), size n + c + m d_s + p d_a.
+    Parts whose matrices are stacks (k, …) of k loops of the same sizes give the k maps (k, size, size)
+    (`stacked`), each as it is alone."""
     ds, da = int(sensing_delay_steps), int(actuation_delay_steps)
     if ds < 0 or da < 0:
         raise ValueError(f"delays must be whole periods ≥ 0, got sensing {ds}, actuation {da}")
-    n, p, m, c = parts.A.shape[0], parts.B.shape[1], parts.C.shape[0], parts.A_c.shape[0]
+    n, p, m, c = parts.A.shape[-2], parts.B.shape[-1], parts.C.shape[-2], parts.A_c.shape[-2]
     size = n + c + m * ds + p * da
     eye = np.eye(size)
     s, w = eye[:n], eye[n : n + c]
@@ -111,7 +113,13 @@ def delayed_loop(parts: SampledLoop, sensing_delay_steps: int, actuation_delay_s
         blocks += [m_now, *M[:-1]]  # the reading buffer shifts by one period
     if da:
         blocks += [command, *U[:-1]]  # so does the command pipeline
-    return np.vstack(blocks)
+    batch = parts.A.shape[:-2]
+    return np.concatenate([np.broadcast_to(b, (*batch, *b.shape[-2:])) for b in blocks], axis=-2)
+
+
+def stacked(parts: list[SampledLoop]) -> SampledLoop:
+    """Loops of the same sizes as one `SampledLoop` of stacked matrices (k, …), for `delayed_loop`."""
+    return SampledLoop(*(np.stack([getattr(p, f.name) for p in parts]) for f in fields(SampledLoop)))
 
 
 # ---- the polish force loop --------------------------------------------------------------------------

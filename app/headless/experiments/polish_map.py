@@ -71,7 +71,7 @@ class Settled:
     reference_verdict: str  # the calm pass's verdict (its postures are the margin's)
     targets: TargetTable | None = None  # the zig-zag at the strokes' step times (None: not a function of time)
     # the force loop's parts at each posture per latency-free loop (`loop_parts`), built once per μ
-    parts: dict[Any, tuple[Any, list]] = field(default_factory=dict)
+    parts: dict[Any, tuple[Any, Any]] = field(default_factory=dict)
 
 
 class TargetTable:
@@ -167,7 +167,7 @@ def _set_cell(session, mu: float, reading: int, drive: int) -> None:
 def _strokes(session, stop_on_loss: bool, margin_postures: bool = False):
     """Run the strokes and the final hold from a settled session: (rows, RunResult, [(τ, Λx)], whether
     it stopped at a lost contact)."""
-    from app.headless.experiments.polish import SAFETY_CAP_S, _run_over
+    from app.headless.experiments.polish import SAFETY_CAP_S
 
     clock = session.environment.clock
     start = float(clock.trajectory_start)
@@ -176,23 +176,25 @@ def _strokes(session, stop_on_loss: bool, margin_postures: bool = False):
     rows: list[tuple[float, float, float]] = []
     postures: list[tuple[float, np.ndarray]] = []
     n = len(session.world.q)
-
-    def record(rec) -> None:
-        row = _row(rec)
-        rows.append(row)
-        if margin_postures and 1 <= row[0] <= S.N_SEGMENTS:
-            k = round((rec.t - start) / dt)
-            if k % every == 0:
-                postures.append((rec.t - start, session.model.compute(rec.q, np.zeros(n)).Lambda.copy()))
-
     lost = [False]
+    add, finished, strokes = rows.append, clock.finished, S.N_SEGMENTS
 
-    def over(rec) -> bool:
-        seg, _, force = rows[-1]
-        lost[0] = stop_on_loss and 1 <= seg <= S.N_SEGMENTS and force <= 0.0
-        return lost[0] or _run_over(clock, rec.t, S.N_SEGMENTS)
+    def step_over(rec) -> bool:
+        """Keep the step's row (`_row`), then: the stroke lost contact (when stopping there), or the
+        trajectory and its hold are over (`polish._run_over` of all strokes)."""
+        sig = rec.signals
+        seg, force = sig["segment"], sig["contact_force_n"]
+        add((float(seg), float(rec.wrench_tcp[2]), float(force)))
+        if margin_postures and 1 <= seg <= strokes and round((rec.t - start) / dt) % every == 0:
+            postures.append((rec.t - start, session.model.compute(rec.q, np.zeros(n)).Lambda.copy()))
+        if stop_on_loss and force <= 0.0 and 1 <= seg <= strokes:
+            lost[0] = True
+            return True
+        return finished(rec.t)
 
-    result = session.run(SAFETY_CAP_S, until=over, record=record)
+    result = session.run(SAFETY_CAP_S, until=step_over)  # one callback a step: the row is kept in it
+    if result.stop == "diverged" and session.last is not None:  # the run ended before `until` saw it
+        rows.append(_row(session.last))
     return rows, result, postures, lost[0]
 
 
@@ -260,26 +262,27 @@ def _without_latency(loop):
     return replace(loop, sensing_delay_steps=0, actuation_delay_steps=0, speed_m_s=0.0)
 
 
-def loop_parts(taus: np.ndarray, lambdas: list[np.ndarray], gains, loop) -> list:
+def loop_parts(taus: np.ndarray, lambdas: list[np.ndarray], gains, loop):
     """`control.margin.force_loop_parts` at each posture (its Λx, the stroke's speed and friction
-    direction at τ): everything of σ but the latency, shared by the cells of one μ."""
-    from control.margin import force_loop_parts
+    direction at τ), stacked (`control.margin.stacked`): everything of σ but the latency, shared by
+    the cells of one μ."""
+    from control.margin import force_loop_parts, stacked
 
     out = []
     for tau, lam in zip(taus, lambdas, strict=True):
         speed, f_hat = PM.operating_point(float(tau))
         out.append(force_loop_parts(lam, PM.POLISH_SUBSPACES, gains, replace(loop, speed_m_s=speed), f_hat))
-    return out
+    return stacked(out) if out else None
 
 
-def rates(parts: list, loop) -> list[float]:
-    """σ (1/s) at each posture from its parts with the loop's latency: `control.margin.loop_rate`'s
-    arithmetic, the eigenvalue problems of all postures in one call."""
+def rates(parts, loop) -> list[float]:
+    """σ (1/s) at each posture from its stacked parts with the loop's latency: `control.margin.loop_rate`'s
+    arithmetic, the maps and the eigenvalue problems of all postures in one call each."""
     from control.margin import delayed_loop
 
-    if not parts:
+    if parts is None:
         return []
-    phis = np.stack([delayed_loop(p, loop.sensing_delay_steps, loop.actuation_delay_steps) for p in parts])
+    phis = delayed_loop(parts, loop.sensing_delay_steps, loop.actuation_delay_steps)
     rho = np.max(np.abs(np.linalg.eigvals(phis)), axis=-1)
     return [-math.log(r) / loop.dt if r > 0 else math.inf for r in rho.tolist()]
 
