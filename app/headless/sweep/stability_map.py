@@ -300,5 +300,8 @@ def section(out: Path, records: list[dict], facts: dict | None, invocations: lis
         ],
     )
     text += _img(png)
-    text += f"<p>Tolerated latency per μ and swivel, and every cell: {html.escape(str(js))}.</p>"
+    text += (
+        f"<p>Tolerated latency per μ and swivel, and every cell: <code>{html.escape(js.name)}</code> beside "
+        "this report.</p>"
+    )
     return text
