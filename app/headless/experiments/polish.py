@@ -520,8 +520,6 @@ def run(args: argparse.Namespace) -> int:
         armature_basins,
         scan_at_start,
         w_d_by_length,
-        write_figures,
-        write_report,
     )
 
     table = [r for r in results if r["group"] == "table"]
@@ -542,13 +540,31 @@ def run(args: argparse.Namespace) -> int:
         "swivel_scan": scan["summary"],
         "w_d_by_length": [] if quick else w_d_by_length(UNIT_LENGTHS_M, _table_scale(table), _model_armature(table)),
     }
+    _add_latency_tables(doc, table, results)
+    doc["wall_s"] = time.perf_counter() - t0
+    _write_run(out, doc, results, series, scan)
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        _print_tables(doc)
+        print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} in {doc['wall_s']:.0f} s")
+    return 0
+
+
+def _add_latency_tables(doc: dict, table: list[dict], results: list[dict]) -> None:
+    """The latency table and Table III at each total latency, into `doc`, from the runs that made them."""
     latency_runs = [r for r in results if r["group"] == "latency"]
     if latency_runs:
         doc["latency"] = {**latency_table(latency_runs), "runs": latency_runs}
     at_latencies = [r for r in results if r["group"] == "table_latency"]
     if at_latencies:
         doc["table_latency"] = table_at_latencies(table, at_latencies)
-    doc["wall_s"] = time.perf_counter() - t0
+
+
+def _write_run(out: Path, doc: dict, results: list[dict], series: list[dict], scan: Any) -> None:
+    """polish.json, the series (npz), the figures and the report of a run (or of combined runs) into `out`."""
+    from app.headless.experiments.polish_report import write_figures, write_report
+
     (out / "polish.json").write_text(json.dumps(doc, indent=2))
     np.savez_compressed(
         out / "polish_series.npz",
@@ -556,16 +572,15 @@ def run(args: argparse.Namespace) -> int:
     )
     write_figures(out, results, series, scan)
     write_report(out, doc)
-    if args.json:
-        print(json.dumps(doc, indent=2))
-    else:
-        print(format_table(doc["summary"]))
-        if "table_latency" in doc:
-            print(format_table_latency(doc["table_latency"]))
-        if "latency" in doc:
-            print(format_latency(doc["latency"]))
-        print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} in {doc['wall_s']:.0f} s")
-    return 0
+
+
+def _print_tables(doc: dict) -> None:
+    """The run's tables as text: Table III, then the tables at latencies and the latency table if made."""
+    print(format_table(doc["summary"]))
+    if "table_latency" in doc:
+        print(format_table_latency(doc["table_latency"]))
+    if "latency" in doc:
+        print(format_latency(doc["latency"]))
 
 
 def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
@@ -577,8 +592,6 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
         UNIT_LENGTHS_M,
         scan_at_start,
         w_d_by_length,
-        write_figures,
-        write_report,
     )
 
     docs: list[dict] = []
@@ -645,26 +658,11 @@ def combine(args: argparse.Namespace, dirs: list[Path]) -> int:
         "wall_s": float(sum(d["wall_s"] for d in docs)),
         "combined_from": [str(d) for d in dirs],
     }
-    latency_runs = [r for r in results if r["group"] == "latency"]
-    if latency_runs:
-        doc["latency"] = {**latency_table(latency_runs), "runs": latency_runs}
-    at_latencies = [r for r in results if r["group"] == "table_latency"]
-    if at_latencies:
-        doc["table_latency"] = table_at_latencies(table, at_latencies)
+    _add_latency_tables(doc, table, results)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "polish.json").write_text(json.dumps(doc, indent=2))
-    np.savez_compressed(
-        out / "polish_series.npz",
-        **{f"{_label(r)}__{k}": v for r, s in zip(results, series, strict=True) for k, v in s.items()},
-    )
-    write_figures(out, results, series, scan)
-    write_report(out, doc)
-    print(format_table(doc["summary"]))
-    if "table_latency" in doc:
-        print(format_table_latency(doc["table_latency"]))
-    if "latency" in doc:
-        print(format_latency(doc["latency"]))
+    _write_run(out, doc, results, series, scan)
+    _print_tables(doc)
     print(f"wrote {out / 'polish.json'}, figures and {out / 'report.html'} from {len(dirs)} directories")
     return 0
 

@@ -688,19 +688,19 @@ def _runs_criterion(doc: dict) -> dict:
     }
 
 
+def _grouped_head(lead: str, groups: list[str], columns: tuple[str, ...]) -> str:
+    """A two-row table head: the `lead` cells (spanning both rows), then each group's title over its `columns`."""
+    titles = "".join(f"<th colspan='{len(columns)}'>{g}</th>" for g in groups)
+    return f"<tr>{lead}{titles}</tr><tr>" + "".join(f"<th>{c}</th>" for c in columns) * len(groups) + "</tr>"
+
+
 def table_iii_html(summary: list[dict]) -> str:
     """[T] Table III's layout: one row per case (W_j, W_f, W_a, W_d, then any other row), MA, PTP and
     STD under each μ; each cell ours (mean ± sd over seeds) with the paper's value under it."""
     mus = sorted({float(e["mu"]) for e in summary})
     cases = list(dict.fromkeys(e["row"] for e in summary))
     by = {(e["row"], float(e["mu"])): e for e in summary}
-    head = (
-        "<tr><th rowspan='2'>case</th>"
-        + "".join(f"<th colspan='3'>μ = {mu:g}</th>" for mu in mus)
-        + "</tr><tr>"
-        + "<th>MA</th><th>PTP</th><th>STD</th>" * len(mus)
-        + "</tr>"
-    )
+    head = _grouped_head("<th rowspan='2'>case</th>", [f"μ = {mu:g}" for mu in mus], ("MA", "PTP", "STD"))
 
     def cells(e: dict | None) -> str:
         if e is None:
@@ -737,12 +737,10 @@ def table_iii_latency_html(doc: dict) -> str:
     latencies = lat["latencies"]
     cases = list(dict.fromkeys((e["row"], float(e["mu"])) for x in latencies for e in x["summary"]))
     by = {(i, e["row"], float(e["mu"])): e for i, x in enumerate(latencies) for e in x["summary"]}
-    head = (
-        "<tr><th rowspan='2'>case</th><th rowspan='2'>μ</th>"
-        + "".join(f"<th colspan='4'>{html.escape(_latency_name(x))}</th>" for x in latencies)
-        + "</tr><tr>"
-        + "<th>MA</th><th>PTP</th><th>STD</th><th>stable</th>" * len(latencies)
-        + "</tr>"
+    head = _grouped_head(
+        "<th rowspan='2'>case</th><th rowspan='2'>μ</th>",
+        [html.escape(_latency_name(x)) for x in latencies],
+        ("MA", "PTP", "STD", "stable"),
     )
 
     def cells(e: dict | None) -> str:
