@@ -2,9 +2,9 @@
 processes with the progress on it, the arm running by itself afterwards.
 
 The jobs' order is held to the kernels' calls and to what their samples need; the pool is run on a
-few kernels in two worker processes; and the real command is started on a copy of numba's cache
-with a few kernels taken out (they compile in the workers: real work, seconds of it, nothing slowed
-or faked), while headless Chromium watches the page show the progress and then the arm run.
+few kernels in two worker processes; and the real command is started on an empty numba cache, as
+after an install (every kernel compiles in the workers: real work, nothing slowed or faked), while
+headless Chromium watches the page show the progress and then the arm run.
 """
 
 from __future__ import annotations
@@ -12,12 +12,10 @@ from __future__ import annotations
 import math
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -98,94 +96,65 @@ def test_the_progress_line_names_which_kernel_of_how_many_and_the_time_left():
 
 
 # ---- the real command, in headless Chromium ---------------------------------------------------------------
-COLD = ("coupling_fused", "log3_fused", "dense_qp_load_fused", "inertia_contraction_fused")  # compiled again
-
-
-def _cache_without(target: Path, cold: tuple[str, ...]) -> int:
-    """numba's cache of this process's kernels copied into `target` laid out as NUMBA_CACHE_DIR wants it,
-    without the files of the registered kernels `cold`; how many files were copied."""
-    from numba.core.caching import UserProvidedCacheLocator
-
-    from app.live.closed_kernels import dispatchers
-
-    left_out = {id(KERNELS[name].compiled) for name in cold}
-    copied = 0
-    for dispatcher in dispatchers().values():
-        if id(dispatcher) in left_out:
-            continue
-        index = Path(dispatcher._cache._cache_file._index_path)
-        where = target / UserProvidedCacheLocator.get_suitable_cache_subpath(dispatcher.py_func.__code__.co_filename)
-        where.mkdir(parents=True, exist_ok=True)
-        stem = index.name.removesuffix(".nbi")
-        for path in index.parent.glob(f"{stem}*"):
-            shutil.copy2(path, where / path.name)
-            copied += 1
-    return copied
-
-
 @pytest.mark.browser
 @pytest.mark.slow
-@pytest.mark.skip(
-    reason="times out waiting for two distinct 'compiling kernel N of M' counts at the end of this stop, in a fresh "
-    "clone too; cause not found yet (see issue 35's note)"
-)
-def test_the_page_shows_the_warm_up_while_kernels_compile_then_the_arm_runs_by_itself(tmp_path, warm_kernels):
-    """`torquelab serve` with four kernels missing from numba's cache: the page answers as soon as the
-    URL is printed and shows "getting ready" with the line "compiling kernel N of M", which counts up;
-    then the lab replaces it and its status line shows the arm running (t grows) without a click."""
+def test_the_page_shows_the_warm_up_while_kernels_compile_then_the_arm_runs_by_itself(tmp_path):
+    """`torquelab serve` on an empty numba cache (the first start after an install): the page answers as
+    soon as the URL is printed and shows "getting ready" with the line "compiling kernel N of M", which
+    counts up; then the lab replaces it and its status line shows the arm running (t grows) without a click.
+
+    Chromium is up before the command starts and opens the page the moment the URL is printed; the cache
+    is empty, so the compile the page watches is every registered kernel (tens of seconds on two cores),
+    longer than a page takes to open on a loaded machine."""
     from playwright.sync_api import sync_playwright
 
-    from app.live.warmup import warm_registered_kernels
     from app.tools.bench_serve import CHROMIUM_ARGS
     from tests.test_browser import VIEWPORT, chromium_path, wait_for
 
-    warm_registered_kernels()  # every kernel in this process's cache before it is copied
-    assert _cache_without(tmp_path, COLD) > 20
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "serve", "--scenario", "polish", "--port", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-    )  # fmt: skip
     lines: list[str] = []
-    try:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line)
-            if "open http://" in line:
-                break
-        url = re.search(r"open (http://\S+)", "".join(lines))
-        assert url is not None, "".join(lines)
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=chromium_path(), headless=True, args=CHROMIUM_ARGS)
-            try:
-                page = browser.new_page(viewport=VIEWPORT)
-                page.goto(url.group(1))
-                counts: list[int] = []
-                totals: set[int] = set()
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium_path(), headless=True, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport=VIEWPORT)
+        page.set_default_timeout(120_000)  # a page on a loaded machine takes seconds per read
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "app.cli", "serve", "--scenario", "polish", "--port", "0"],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+        )  # fmt: skip
+        try:
+            assert proc.stdout is not None
+            for line in proc.stdout:
+                lines.append(line)
+                if "open http://" in line:
+                    break
+            url = re.search(r"open (http://\S+)", "".join(lines))
+            assert url is not None, "".join(lines)
+            page.goto(url.group(1), timeout=180_000)
+            counts: list[int] = []
+            totals: set[int] = set()
 
-                def progress_shown() -> bool:
-                    found = re.search(r"compiling kernel (\d+) of (\d+)", page.inner_text("body"))
-                    if found:
-                        counts.append(int(found.group(1)))
-                        totals.add(int(found.group(2)))
-                    return len(set(counts)) >= 2
+            def progress_shown() -> bool:
+                found = re.search(r"compiling kernel (\d+) of (\d+)", page.inner_text("body"))
+                if found:
+                    counts.append(int(found.group(1)))
+                    totals.add(int(found.group(2)))
+                return len(set(counts)) >= 2
 
-                wait_for(progress_shown, 180, "the page to show the warm-up's progress counting up")
-                assert "getting ready" in page.inner_text("body")
-                assert counts == sorted(counts) and len(totals) == 1 and max(counts) <= min(totals)
+            wait_for(progress_shown, 180, "the page to show the warm-up's progress counting up")
+            assert "getting ready" in page.inner_text("body")
+            assert counts == sorted(counts) and totals == {len(KERNELS) + 1}, (counts, totals)
 
-                def t_shown() -> float | None:
-                    found = re.search(r"t = (\d+\.\d+) s · ▶ running", page.inner_text("body"))
-                    return float(found.group(1)) if found else None
+            def t_shown() -> float | None:
+                found = re.search(r"t = (\d+\.\d+) s · ▶ running", page.inner_text("body"))
+                return float(found.group(1)) if found else None
 
-                first = wait_for(t_shown, 300, "the lab's status line with the arm running")
-                wait_for(lambda: (t_shown() or 0.0) > first + 0.2, 60, "the simulated time to advance")
-                assert "getting ready" not in page.inner_text("body")
-            finally:
-                browser.close()
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=60)
-        lines.append(out)
+            first = wait_for(t_shown, 600, "the lab's status line with the arm running")
+            wait_for(lambda: (t_shown() or 0.0) > first + 0.2, 60, "the simulated time to advance")
+            assert "getting ready" not in page.inner_text("body")
+        finally:
+            browser.close()
+            proc.send_signal(signal.SIGTERM)
+            out, _ = proc.communicate(timeout=60)
+            lines.append(out)
     text = "".join(lines)
     assert "compiled in worker processes and loaded" in text and "the arm is running" in text, text
