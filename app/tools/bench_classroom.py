@@ -188,6 +188,11 @@ class PageClient:
         """Frames drawn per second over the measurement."""
         return self._per_s("drawn")
 
+    def wait(self, seconds: float) -> None:
+        """Let `seconds` pass while Playwright reads what the browser sends (a driver left unread stalls
+        the browser: its pages then receive and draw nothing)."""
+        self.page.wait_for_timeout(seconds * 1000.0)
+
     def close(self) -> None:
         self.context.close()
 
@@ -343,7 +348,7 @@ def _wait_running(room: Classroom, seats: int, clients: list[Any]) -> None:
         broken = [c.closed for c in clients if c.closed]
         if broken:
             raise RuntimeError(f"a client was closed: {broken[0]}")
-        time.sleep(0.5)
+        next((c.wait for c in clients if isinstance(c, PageClient)), time.sleep)(0.5)
     raise RuntimeError(f"the seats did not all run {WARM_SIM_S} s within {START_TIMEOUT_S:.0f} s")
 
 
@@ -361,7 +366,8 @@ def _measure(room: Classroom, clients: list[Any], seconds: float) -> tuple[list[
     start = {n: len(s) for n, s in room.samples.items()}
     t0 = time.monotonic()
     lobby0, browser0 = room.lobby_cpu_s(), chromium_cpu_s()
-    time.sleep(seconds)
+    pump = next((c.wait for c in clients if isinstance(c, PageClient)), time.sleep)
+    pump(seconds)
     t1 = time.monotonic()
     room.lobby_cores = (room.lobby_cpu_s() - lobby0) / (t1 - t0)
     room.browser_cores = (chromium_cpu_s() - browser0) / (t1 - t0)
