@@ -4,7 +4,8 @@ Each student is a browser context of their own (their own cookies, as two browse
 get two seats whose arms move independently: a mouse drag on the arm in one page moves that seat's
 TCP by centimetres while the other seat's stays put to a fraction of a millimetre, each TCP read from
 the poses its own page receives. A reload returns to the same seat's process. A page without the
-teacher's token is refused the teacher's view, and the teacher's link opens it. A seat stopped while
+teacher's token is refused the teacher's view, and the teacher's link opens it. A lab whose
+connection drops opens it again, though its frame has no focus, and receives frames. A seat stopped while
 its page is connected (freed by the lobby; given SIGTERM again and again) exits cleanly, with no
 traceback on its stderr.
 
@@ -294,6 +295,33 @@ def test_a_reload_returns_to_the_same_seat(lobby, students):
     assert f"seat {a.seat}" in a.page.locator(".bar").inner_text()
     assert (seat.proc.pid, seat.port) == (pid, port)  # the same process: the same arm, parameters, lessons
     poll(a.page, lambda: seat.pages == 1, 20, "the old page's socket to close")  # one page open on it, the new one
+
+
+def test_a_lab_whose_connection_drops_opens_it_again_without_focus_and_receives_frames(lobby, students):
+    """viser's client opens a dropped websocket again only while its document has focus, which the lab's
+    frame has only after a click into it: such a lab (every page of bench --classroom --chromium-pages)
+    received no frame after a drop."""
+    _a, b = students
+    frame_focused = "() => document.activeElement === document.getElementById('mine')"
+    b.page.evaluate("() => { document.getElementById('mine').blur(); window.focus(); }")
+    assert not b.page.evaluate(frame_focused)
+    opened = b.lab.opened
+
+    async def drop() -> None:
+        for conn in list(lobby.pages.get(b.seat, ())):
+            await conn.close(1011, "dropped by the test")
+
+    lobby.call(drop)
+    poll(b.page, lambda: b.lab.opened > opened, 20, "the lab's websocket to open again")
+    frames0, counted0 = b.lab.frames, b.page.evaluate(LAB_COUNTS_JS)["received"]
+    handed = poll(
+        b.page,
+        lambda: n if (n := b.page.evaluate(LAB_COUNTS_JS)["received"] - counted0) > 10 else 0,
+        30,
+        "more than 10 frames handed to the page on its reopened websocket",
+    )
+    print(f"reopened after the drop: {b.lab.frames - frames0} frames on its socket, {handed} handed to the page")
+    assert handed > 10 and not b.page.evaluate(frame_focused)  # and still without focus
 
 
 def test_a_page_without_the_teacher_token_is_refused_the_teacher_view(lobby, students, browser):

@@ -19,9 +19,12 @@ from packaging.requirements import Requirement
 from packaging.version import Version
 
 from app.live.ui.viser_seam import (
+    FRAMED_RECONNECT_JS,
     VISER_RANGE,
     GuiUpdateMessage,
+    client_page_bytes,
     connection_state,
+    framed_client_page_bytes,
     gui_update_handlers,
     input_by_uuid,
     input_state,
@@ -220,3 +223,12 @@ def test_connection_state_counts_what_viser_keeps_for_an_open_page_and_nothing_a
     finally:
         ws.close()
     assert wait_until(lambda: connection_state(server) == dict.fromkeys(keys, 0)), connection_state(server)
+
+
+def test_the_framed_page_is_viser_s_page_with_the_reconnect_script_run_before_viser_s_own():
+    """The lobby's frames get viser's page with one script put first in its head (the reconnect without
+    focus: `tests/test_classroom_browser.py` holds what it does)."""
+    page, framed = client_page_bytes(), framed_client_page_bytes()
+    script = b"<script>" + FRAMED_RECONNECT_JS.encode() + b"</script>"
+    assert framed.count(script) == 1 and framed.replace(script, b"", 1) == page
+    assert framed.index(b"<script") == framed.index(script)  # before viser's own script

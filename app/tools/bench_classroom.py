@@ -137,7 +137,10 @@ PAGE_COUNTERS_JS = """(() => {
     try { cb(t); } finally { inFrame = false; }
   });
 })();"""
-LAB_COUNTS_JS = "() => { const f = document.getElementById('mine'); return f && f.contentWindow.__torquelabCounts; }"
+# the lab's counts and the page's clock (ms) when they were read: a loaded page answers late, so the rate
+# is taken over the page's own time between two readings, not over the time the bench asked
+LAB_COUNTS_JS = """() => { const f = document.getElementById('mine'), c = f && f.contentWindow.__torquelabCounts;
+  return c && {received: c.received, drawn: c.drawn, at: performance.now()}; }"""
 
 
 @dataclass
@@ -149,7 +152,7 @@ class PageClient:
     browser: Any
     url: str
     closed: str = ""
-    marks: list[tuple[float, dict[str, int]]] = field(default_factory=list)  # (monotonic time, counts)
+    marks: list[tuple[float, dict[str, float]]] = field(default_factory=list)  # (monotonic time, counts and page clock)
 
     def start(self) -> None:
         self.context = self.browser.new_context(viewport={"width": 1280, "height": 800})
@@ -157,7 +160,7 @@ class PageClient:
         self.page = self.context.new_page()
         self.page.goto(self.url, wait_until="commit")
 
-    def counts(self) -> dict[str, int] | None:
+    def counts(self) -> dict[str, float] | None:
         try:
             return self.page.evaluate(LAB_COUNTS_JS)
         except Exception as exc:  # a page that went away: said, not fatal here
@@ -177,8 +180,8 @@ class PageClient:
     def _per_s(self, key: str) -> float:
         if len(self.marks) < 2 or key not in self.marks[0][1] or key not in self.marks[1][1]:
             return float("nan")
-        (t0, c0), (t1, c1) = self.marks[0], self.marks[1]
-        return (c1[key] - c0[key]) / (t1 - t0)
+        c0, c1 = self.marks[0][1], self.marks[1][1]
+        return (c1[key] - c0[key]) / ((c1["at"] - c0["at"]) / 1000.0)  # over the page's own clock
 
     def rate(self, t0: float, t1: float) -> float:
         """Frames received per second over the measurement (between this page's own marks)."""

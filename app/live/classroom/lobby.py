@@ -43,7 +43,7 @@ from websockets.http11 import Request, Response
 from app.live.classroom import pages
 from app.live.classroom.seats import Seat, SeatPool
 from app.live.curriculum import LESSONS
-from app.live.ui.viser_seam import client_page_bytes
+from app.live.ui.viser_seam import framed_client_page_bytes
 from app.live.watch import ROLE_HEADER, SEAT_HEADER, WATCH_ROLE
 
 SEAT_COOKIE = "torquelab_seat"
@@ -73,7 +73,7 @@ class Lobby:
     def __post_init__(self) -> None:
         self.pool.on_stop = self._seat_stopped
         self.pool.on_ready = self._seat_ready
-        self._page = client_page_bytes()
+        self._page = framed_client_page_bytes()  # shown in the lab's frames: reconnects without focus
 
     # ---- running --------------------------------------------------------------------------------
     async def run(self, ready: Callable[[Lobby], None] | None = None) -> None:

@@ -19,8 +19,9 @@ need more, and each reaches past that surface only through the functions here:
   when one opens or closes (`on_connection_open`, `on_connection_close`), the dispatch of every
   message a page sends, server-wide and per connection (`wrap_dispatch`), and a message queued to
   one connection (`queue_to_connection`), and a connection closed by the server (`close_connection`);
-- the classroom lobby: the page viser serves (`client_page_bytes`); headless clients: the first
-  message a browser sends (`camera_message`);
+- the classroom lobby: the page viser serves (`client_page_bytes`), and that page made to reconnect
+  in a frame without focus (`framed_client_page_bytes`: viser's client reconnects only a focused
+  document); headless clients: the first message a browser sends (`camera_message`);
 - what viser keeps per connection (`connection_state`): the counts the fault suite holds at zero
   once every page has gone.
 
@@ -197,6 +198,24 @@ def client_page_bytes() -> bytes:
     from pathlib import Path
 
     return (Path(viser.__file__).parent / "client" / "build" / "index.html").read_bytes()
+
+
+# Run first in viser's page shown in a frame of another page: viser's client opens a dropped websocket
+# again only while its document has focus (so that a tab in the background leaves the server alone), and
+# a frame's document has focus only after a click into it. In a frame, the page takes itself as focused.
+FRAMED_RECONNECT_JS = "if (window !== window.top) { Document.prototype.hasFocus = function () { return true; }; }"
+
+
+def framed_client_page_bytes() -> bytes:
+    """viser's page (`client_page_bytes`) for a frame of another page (the classroom's lab and spotlight):
+    shown in a frame, it opens its websocket again when the connection drops, with or without focus,
+    as viser's client does in a focused tab (at once, then every second). Shown on its own, it is
+    viser's page unchanged in behaviour."""
+    page = client_page_bytes()
+    head = b"<head>"
+    if page.count(head) != 1:
+        raise RuntimeError("viser's page has no single <head> to put the frame's reconnect script in")
+    return page.replace(head, head + b"<script>" + FRAMED_RECONNECT_JS.encode() + b"</script>", 1)
 
 
 def camera_message() -> bytes:
