@@ -42,7 +42,7 @@ def test_the_toy_runs_headless_and_its_readout_comes_out_of_the_step_log(registe
     for _ in range(STEPS):
         log.append(session.step())
     every = log.window(10.0, session.world.model.opt.timestep)
-    fold = log.fold("deflection", registered.deflection_fold)
+    fold = log.fold("readout", registered.readout_fold)
     assert fold is not None
     readout = fold.value()["toy_peak_wave_n"]
     assert readout == pytest.approx(float(np.max(np.abs(every["toy_wave"]))), abs=1e-12)

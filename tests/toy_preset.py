@@ -69,7 +69,7 @@ class ToyScenario(Scenario):
         beat = status.signals.get("toy_beat")
         return "" if beat is None else ("toy: after the beat" if beat > 0.5 else "toy: before the beat")
 
-    def deflection_fold(self) -> PeakWave:
+    def readout_fold(self) -> PeakWave:
         return PeakWave()
 
     def readout_text(self, values: Mapping[str, float]) -> list[str]:

@@ -329,8 +329,8 @@ def deflection_readouts(log: StepLog, scenario: Scenario) -> dict[str, float] | 
     """The scenario's deflection readouts (mass drop: peak, stabilisation time, residual error of the TCP;
     compliance: TCP and elbow under each push) over every logged step since the reset, kept running in the
     log (`StepLog.fold`: the whole run, not only the rows the log still holds); None for a preset without
-    a `deflection_fold`."""
-    fold = log.fold("deflection", scenario.deflection_fold)
+    a `readout_fold`."""
+    fold = log.fold("readout", scenario.readout_fold)
     return fold.value() if fold is not None else None
 
 

@@ -211,14 +211,14 @@ class Scenario:
         """Take a new validated "scenario" group; ParamError for a group it lacks."""
         expect(name, group, None)
 
-    def deflection_fold(self) -> Fold | None:
+    def readout_fold(self) -> Fold | None:
         """A fresh running metric of the preset's deflection readouts (`app.scenarios.metrics`: the mass
         drop's peak, settle time and residual, the compliance pushes' peaks), fed every logged step since
         the reset; None: it has none."""
         return None
 
     def readout_text(self, values: Mapping[str, float]) -> list[str]:
-        """The lines the page's readout shows for the values of `deflection_fold` (every logged step since
+        """The lines the page's readout shows for the values of `readout_fold` (every logged step since
         the reset); none by default."""
         return []
 

@@ -91,7 +91,7 @@ class ComplianceScenario(Scenario):
     def make_environment(self, world: World, rng: np.random.Generator) -> Environment:
         return ScriptedPushes(world)
 
-    def deflection_fold(self) -> WindowPeaks:
+    def readout_fold(self) -> WindowPeaks:
         """The TCP's and the elbow's largest deflection (mm) over each push and the PUSH_AFTER_S after it
         ("tcp_push_tcp_mm", "elbow_push_elbow_mm", …; the experiment's figures too)."""
         return WindowPeaks(push_windows(PUSHES), ("tcp_dev_mm", "elbow_dev_mm"))

@@ -297,7 +297,7 @@ class MassDropScenario(Scenario):
         self.case = case
         self.rig = params or MassDropParams()  # not `params`: that is the Scenario's parameter groups
 
-    def deflection_fold(self) -> DropFold:
+    def readout_fold(self) -> DropFold:
         """The TCP's peak deflection, stabilisation time and residual error after the release (as the
         experiment measures them), kept running over every logged step."""
         return DropFold(RELEASE_TIME_S)
