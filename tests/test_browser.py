@@ -1832,6 +1832,9 @@ def step_charts_in_view(pg: Any, step: Any, polish: bool, when: str) -> None:
         raise AssertionError(f"{step.title} {when}: outside the 1600×1000 viewport: {misplaced()}") from None
 
 
+LESSON_SPEED = 4.0  # the lesson viewport test's requested speed (× real time)
+
+
 def step_scenario(step: Any) -> str:
     """The preset a lesson step's set-up switches to."""
     from app.core.commands import SwitchSession
@@ -1846,7 +1849,7 @@ def test_every_lesson_steps_plot_and_the_margins_warning_lie_in_the_viewport(app
     viewport, the status line above them; the Replay fold sits under the step's charts while the step's run is
     on and returns to the top after a Reset. With TORQUELAB_UPDATE_SCREENSHOT=1 each step's end is written to
     static/lessons/after/LESSON-stepN.png (docs/lessons/*.md)."""
-    from app.core.commands import Play, Reset, SwitchSession
+    from app.core.commands import Play, Reset, SetSpeed, SwitchSession
     from app.live.curriculum import LESSONS
     from app.live.ui.panels.lessons import LessonsPanel
 
@@ -1856,6 +1859,11 @@ def test_every_lesson_steps_plot_and_the_margins_warning_lie_in_the_viewport(app
     pg.set_default_timeout(120_000)
     try:
         show_tab(pg, "Lessons")
+        # the steps' runs (over 3 simulated minutes) as fast as the loop goes, up to LESSON_SPEED× real time:
+        # the layout and the claims do not depend on the pace (a claim is measured on the step log); the
+        # screenshots are taken at the page's own pace
+        if os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") != "1":
+            app.loop.submit(SetSpeed(LESSON_SPEED))
         for lesson in LESSONS:
             for i, step in enumerate(lesson.steps):
                 panel.select(lesson.key, i)
@@ -1880,6 +1888,7 @@ def test_every_lesson_steps_plot_and_the_margins_warning_lie_in_the_viewport(app
         wait_for(lambda: panel.view.replay_folder.order == replay_order, 30, "the Replay fold back on top")
     finally:
         pg.set_default_timeout(30_000)
+        app.loop.submit(SetSpeed(1.0))
         app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
         app.loop.submit(Play())
         wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
