@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import sys
+import warnings
 from importlib import metadata
 from pathlib import Path
 
@@ -123,7 +124,7 @@ def test_a_connection_is_seen_opening_with_its_request_its_messages_pass_the_wra
     """`on_connection_open` runs before the page's first message with its client id; `opening_request`
     gives the opening request's headers and peer; `wrap_dispatch` on the server and on the connection
     sees the page's messages (and a wrapper that drops one stops it); `queue_to_connection` reaches that
-    page; `on_connection_close` runs when it closes."""
+    page, and nothing (no warning) once it has closed; `on_connection_close` runs when it closes."""
     import time
 
     import msgspec
@@ -176,7 +177,7 @@ def test_a_connection_is_seen_opening_with_its_request_its_messages_pass_the_wra
         assert wait_until(lambda: ("server", client_id, "CommandTriggerMessage") in seen)
         time.sleep(0.3)
         assert triggered == []  # the wrapper dropped it
-        queue_to_connection(conns[client_id], GuiUpdateMessage("seam-uuid", {"value": 42}))
+        assert queue_to_connection(conns[client_id], GuiUpdateMessage("seam-uuid", {"value": 42}))
         got: list[dict] = []
         deadline = time.monotonic() + 5.0
         while not any(m.get("uuid") == "seam-uuid" for m in got) and time.monotonic() < deadline:
@@ -189,6 +190,10 @@ def test_a_connection_is_seen_opening_with_its_request_its_messages_pass_the_wra
     finally:
         ws.close()
     assert wait_until(lambda: closed == [client_id])
+    with warnings.catch_warnings(record=True) as caught:  # a page that left is sent nothing, and no warning
+        warnings.simplefilter("always")
+        assert queue_to_connection(conns[client_id], GuiUpdateMessage("seam-uuid", {"value": 43})) is False
+    assert not [str(w.message) for w in caught if "closed connection" in str(w.message)]
 
 
 def test_the_per_connection_receive_loop_guard_frames_replaces_is_viser_s_and_takes_what_it_passes():

@@ -137,8 +137,11 @@ class WatchGate:
                 except Exception:  # the tab may have closed meanwhile
                     pass
 
-    def _say_watching(self, client: viser.ClientHandle) -> None:
-        if client.client_id in self.watchers:
+    async def _say_watching(self, client: viser.ClientHandle) -> None:
+        # on the server's event loop, where a page's connection closes: viser runs a plain connect
+        # callback on a thread of its own, which a page that left at once could outrun (the notice then
+        # went to its closed connection, and viser warned)
+        if client.client_id in self.watchers and client.client_id in self._connections:
             client.add_notification(WATCHING_TITLE, WATCHING_BODY, with_close_button=False, color="blue")
 
 

@@ -131,9 +131,13 @@ def opening_request(server: viser.ViserServer, client_id: int) -> tuple[Any, Any
     return getattr(request, "headers", None), getattr(live, "remote_address", None)
 
 
-def queue_to_connection(connection: Any, message: Any) -> None:
-    """Send a message to that one page (a connection from `on_connection_open`)."""
+def queue_to_connection(connection: Any, message: Any) -> bool:
+    """Send a message to that one page (a connection from `on_connection_open`); False, sending nothing,
+    when its connection has closed (viser would keep the message and warn that it is never delivered)."""
+    if connection.get_message_buffer().done:
+        return False
     connection.queue_message(message)
+    return True
 
 
 # a malformed frame's fate: (the connection's websocket, the error decoding it) -> keep the connection?
