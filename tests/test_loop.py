@@ -724,17 +724,17 @@ def test_while_a_switch_builds_its_session_the_loop_steps_the_old_one_and_swaps_
     the switch waits for it and lands on the new session once the build ends."""
     import threading
 
-    from app.live import loop as loop_module
+    from app.live import switch_builder as builder_module
 
     entered, gate = threading.Event(), threading.Event()
-    real_build = loop_module.build_switch
+    real_build = builder_module.build_switch
 
     def held_build(*args, **kwargs):
         entered.set()
         assert gate.wait(60.0)
         return real_build(*args, **kwargs)
 
-    monkeypatch.setattr(loop_module, "build_switch", held_build)
+    monkeypatch.setattr(builder_module, "build_switch", held_build)
     lp = SimLoop("free", capture=lambda s: None)
     lp.start(running=True)
     try:
