@@ -47,6 +47,17 @@ def _libc() -> Any:
     return lib
 
 
+def _mallopt(param: int, value: int) -> bool:
+    """glibc's `mallopt(param, value)`; False where there is no mallopt or it refused."""
+    lib = _libc()
+    fn = getattr(lib, "mallopt", None) if lib is not None else None
+    if fn is None:
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_int]
+    fn.restype = ctypes.c_int
+    return bool(fn(param, value))
+
+
 MMAP_THRESHOLD_BYTES = 128 * 1024  # blocks from this size up get a mapping of their own
 _M_MMAP_THRESHOLD = -3  # mallopt's parameter number (malloc.h)
 
@@ -54,13 +65,7 @@ _M_MMAP_THRESHOLD = -3  # mallopt's parameter number (malloc.h)
 def fix_mmap_threshold(nbytes: int = MMAP_THRESHOLD_BYTES) -> bool:
     """Fix glibc's mmap threshold at `nbytes` (no raising it as large blocks are freed; see the module
     docstring); False where there is no mallopt or it refused."""
-    lib = _libc()
-    fn = getattr(lib, "mallopt", None) if lib is not None else None
-    if fn is None:
-        return False
-    fn.argtypes = [ctypes.c_int, ctypes.c_int]
-    fn.restype = ctypes.c_int
-    return bool(fn(_M_MMAP_THRESHOLD, int(nbytes)))
+    return _mallopt(_M_MMAP_THRESHOLD, int(nbytes))
 
 
 ARENA_MAX = 2  # glibc's malloc arenas: the main one and one that every other thread shares
@@ -72,13 +77,7 @@ def cap_arenas(n: int = ARENA_MAX) -> bool:
     thread alive at once an arena of its own, up to eight per core, each keeping what was freed in it:
     the arenas made by the threads that come and go were nine tenths of the soak's growth after its
     first minute, docs/failures.md); False where there is no mallopt or it refused."""
-    lib = _libc()
-    fn = getattr(lib, "mallopt", None) if lib is not None else None
-    if fn is None:
-        return False
-    fn.argtypes = [ctypes.c_int, ctypes.c_int]
-    fn.restype = ctypes.c_int
-    return bool(fn(_M_ARENA_MAX, int(n)))
+    return _mallopt(_M_ARENA_MAX, int(n))
 
 
 def arena_count() -> int:
