@@ -97,6 +97,43 @@ def test_the_polish_target_checks_its_inputs_once_and_builds_every_steps_target_
     assert np.ptp([target_fn(float(t)).position[0] for t in np.linspace(CONTACT_TIME_S, end, 9)]) > 0.01
 
 
+def test_the_polish_targets_follow_the_zig_zag_and_a_new_start_or_wrench_from_the_next_step_on():
+    """Each step's target starts as the held one (a record template) and gets only the XY parts the
+    zig-zag moves: its position, velocity and acceleration equal `trajectory_state` within 1e-12 at
+    every instant; a start or wrench assigned later is in the targets built after it, and a target
+    built before keeps its values."""
+    from app.scenarios.polish_plan import PolishTarget
+    from app.scenarios.polish_stroke import (
+        CONTACT_TIME_S,
+        START_XY_M,
+        PhaseClock,
+        trajectory_duration,
+        trajectory_state,
+    )
+
+    clock = PhaseClock(trajectory_start=CONTACT_TIME_S)
+    start = np.array([*START_XY_M, 0.3])
+    target_fn = PolishTarget(start, np.eye(3), np.zeros(7), clock)
+    for t in np.linspace(0.0, CONTACT_TIME_S + trajectory_duration() + 1.0, 157):
+        built = target_fn(float(t))
+        xy, v, a = trajectory_state(max(float(t) - CONTACT_TIME_S, 0.0))
+        np.testing.assert_allclose(built.position, [*xy, 0.3], atol=1e-12, err_msg=f"t = {t}")
+        np.testing.assert_allclose(built.velocity, [*v, 0, 0, 0, 0], atol=1e-12, err_msg=f"t = {t}")
+        np.testing.assert_allclose(built.acceleration, [*a, 0, 0, 0, 0], atol=1e-12, err_msg=f"t = {t}")
+        np.testing.assert_array_equal(built.wrench, [0, 0, 20.0, 0, 0, 0])
+    before = target_fn(0.5)
+    target_fn.start = start + np.array([0.1, 0.0, 0.05])
+    target_fn.wrench = [0, 0, 12.0, 0, 0, 0]
+    after = target_fn(0.5)
+    np.testing.assert_allclose(after.position, start + np.array([0.1, 0.0, 0.05]), atol=1e-15)
+    np.testing.assert_array_equal(after.wrench, [0, 0, 12.0, 0, 0, 0])
+    np.testing.assert_array_equal(before.position, start)
+    np.testing.assert_array_equal(before.wrench, [0, 0, 20.0, 0, 0, 0])
+    moved = target_fn(CONTACT_TIME_S + 1.0)  # the zig-zag now starts from the new start
+    xy, _, _ = trajectory_state(1.0)
+    np.testing.assert_allclose(moved.position[:2], xy + np.array([0.1, 0.0]), atol=1e-12)
+
+
 def _executors(robot, model):
     from app.core.executors import EXECUTORS
 

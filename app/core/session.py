@@ -426,8 +426,7 @@ class Session:
         if self._deflection is not None:  # the scenario's `logs_deflection`: distances (mm) from the t = 0 pose
             signals["tcp_dev_mm"], signals["elbow_dev_mm"] = self._deflection.read(self)
         # the task target, for the replay's scene (a planned or contact task's is not a function of time alone)
-        position = target.position
-        signals["target_x_m"], signals["target_y_m"], signals["target_z_m"] = position[0], position[1], position[2]
+        signals["target_x_m"], signals["target_y_m"], signals["target_z_m"] = target.position.tolist()
         self.environment.observe(signals, t)
         self.last = StepRecord(
             t=t,

@@ -24,7 +24,7 @@ from app.scenarios.polish_stroke import (
 )
 from control.coupling import move_to_swivel, project_to_pose
 from control.executor import TaskTarget, float_array
-from control.kernels.records import RecordBlocks, target_record_dtype
+from control.kernels.records import RecordBlocks, target_record, target_record_dtype
 from control.model import RobotModel
 from control.planner import Plan, cost_map, loops_along
 from control.planner import plan as make_plan
@@ -91,13 +91,17 @@ class PolishTarget:
     Its inputs (start, rotation, posture, the plan's postures) are checked here, once, as the
     executors' type (`control.executor.float_array`); each step's target is built from them by
     arithmetic that keeps that type, into a target record taken from a block (`RecordBlocks`), so it
-    takes `TaskTarget.of_record` (no check per step). The arrays it builds from are checked again
-    whenever one is assigned (`_CHECKED`), after construction too."""
+    takes `TaskTarget.of_record` (no check per step). Each record starts as the held target (the
+    start, the rotation, zero velocity and acceleration, the wrench), so a step writes only the XY
+    parts the zig-zag moves, and nothing while it holds. The arrays it builds from are checked again
+    whenever one is assigned (`_CHECKED`), after construction too, and the held target follows."""
 
     # the arrays each step's target is built from, and their shapes (None: a non-empty vector)
     _CHECKED: ClassVar[dict[str, tuple[int, ...] | None]] = {
         "start": (3,), "rotation": (3, 3), "q_posture": None, "wrench": (6,),
     }  # fmt: skip
+    corners: np.ndarray  # (N_SEGMENTS + 1, 2) the zig-zag's corners, from the start
+    _legs: list[list[float]]  # each segment's [start x, start y, length x, length y]
 
     def __init__(
         self,
@@ -118,37 +122,40 @@ class PolishTarget:
             float_array("PolishTarget", "plan.t", plan.t, None)
         self.plan = plan
         self.plan_lead_s = float(plan_lead_s)
-        self.corners = segment_waypoints((float(self.start[0]), float(self.start[1])))
         self.wrench = np.array([0.0, 0.0, DESIRED_FORCE_N, 0.0, 0.0, 0.0])
-        self._records = RecordBlocks(target_record_dtype())
+        self._records = RecordBlocks(target_record_dtype(), template=self._held())
+
+    def _held(self) -> np.ndarray:
+        """The held target's record: the start, the rotation, no motion, the wrench."""
+        return target_record(self.start, self.rotation, np.zeros(6), np.zeros(6), self.wrench)
 
     def __setattr__(self, name: str, value: object) -> None:
         shape = self._CHECKED.get(name, ())
         if shape != ():
             value = float_array("PolishTarget", name, value, shape)
         object.__setattr__(self, name, value)
+        if name == "start":  # the zig-zag's corners start from it
+            corners = segment_waypoints((float(self.start[0]), float(self.start[1])))
+            object.__setattr__(self, "corners", corners)
+            object.__setattr__(self, "_legs", np.hstack([corners[:-1], np.diff(corners, axis=0)]).tolist())
+        if shape != () and name != "q_posture" and "_records" in self.__dict__:
+            self._records.refill(self._held())  # the targets from now on start from the new values
 
     def __call__(self, t: float) -> TaskTarget:
         """The target at time t."""
         k, tau = self.clock.segment(t)
         record, fields, at = self._records.take()
-        pos, vel, acc = fields["position"][at], fields["velocity"][at], fields["acceleration"][at]
-        pos[:] = self.start
-        vel.fill(0.0)
-        acc.fill(0.0)
-        fields["rotation"][at] = self.rotation
-        fields["wrench"][at] = self.wrench
-        if k == 0:
-            pass
-        elif k > N_SEGMENTS:
-            pos[:2] = self.corners[-1]
-        else:
-            a, b = self.corners[k - 1], self.corners[k]
+        if k > N_SEGMENTS:
+            fields["position"][at, :2] = self.corners[-1]
+        elif k > 0:  # in floats: on two numbers numpy's arithmetic costs more than it saves
+            ax, ay, lx, ly = self._legs[k - 1]
             T = SEGMENT_DURATION_S
             s_p, s_v, s_a = min_jerk(tau / T)
-            pos[:2] = a + s_p * (b - a)
-            vel[:2] = s_v / T * (b - a)
-            acc[:2] = s_a / T**2 * (b - a)
+            s_v, s_a = s_v / T, s_a / (T * T)
+            pos, vel, acc = fields["position"], fields["velocity"], fields["acceleration"]
+            pos[at, 0], pos[at, 1] = ax + s_p * lx, ay + s_p * ly
+            vel[at, 0], vel[at, 1] = s_v * lx, s_v * ly
+            acc[at, 0], acc[at, 1] = s_a * lx, s_a * ly
         q_d = self.q_posture if self.plan is None else self.planned_posture(t)
         return TaskTarget.of_record(record, q_d, fields, at)  # checked in __init__
 

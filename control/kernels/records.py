@@ -108,20 +108,30 @@ class RecordBlocks:
     makes one record per control step (a record of its own costs about 1.5 µs to allocate, a slice of
     a block 0.1 µs; `control.model.SnapshotRecords` does the same for the snapshots): each record is
     a one-element slice of a block, never handed out twice; a block lives as long as one of its
-    records does."""
+    records does. With a `template` each record starts as a copy of it, so a builder writes only the
+    fields that change from step to step."""
 
-    def __init__(self, dtype: np.dtype, size: int = 64):
+    def __init__(self, dtype: np.dtype, size: int = 64, template: np.ndarray | None = None):
         self.dtype, self.size = dtype, size
+        self.template = template
         self._new_block()
 
     def _new_block(self) -> None:
         self.block = np.empty(self.size, self.dtype)
+        if self.template is not None:  # every record starts as the template (one copy per block)
+            self.block[:] = self.template
         self.fields = {name: self.block[name] for name in self.dtype.names or ()}
         self.next = 0
 
+    def refill(self, template: np.ndarray | None) -> None:
+        """Records handed out from now on start as `template` (a one-element record of the dtype;
+        None: not initialised); those handed out before keep their values."""
+        self.template = template
+        self._new_block()
+
     def take(self) -> tuple[np.ndarray, dict[str, np.ndarray], int]:
         """(record, the block's field arrays, the record's index in them): write the record's fields
-        as `fields[name][at] = value` (they are not initialised)."""
+        as `fields[name][at] = value` (they hold the template's values, or nothing defined without one)."""
         if self.next == self.size:
             self._new_block()
         at = self.next
