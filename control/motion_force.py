@@ -49,6 +49,8 @@ from control.model import Dynamics, RobotModel
 from control.nullspace import NullspaceQP, NullspaceResult
 from control.params import ParamGroup, expect
 
+_VALUES = ("W", "W_f", "W_a", "W_d", "coupled", "force_error")  # `projection_step_dtype`'s scalars, in order
+
 
 class ProjectionExecutor:
     """Motion/force control with Λ̂x shaping [T7-14] and the coupling-objective nullspace QP."""
@@ -82,7 +84,11 @@ class ProjectionExecutor:
             row["F"], row["F_mu"], row["grad"], row["lower"], row["upper"]
         )  # fmt: skip
         self._x, self._tau = row["x"], row["tau"]
-        self._values = {name: step[name] for name in ("W", "W_f", "W_a", "W_d", "coupled", "force_error", "active")}
+        # the law's six scalar values lie side by side in the record: one float64 view reads them at once
+        offset = step.dtype.fields["W"][1]
+        assert [step.dtype.fields[name][1] - offset for name in _VALUES] == [8 * i for i in range(len(_VALUES))]
+        self._scalars = np.frombuffer(step, np.float64, len(_VALUES), offset)
+        self._active = step["active"]
         self.q_lower = np.asarray(q_lower, dtype=float)
         self.q_upper = np.asarray(q_upper, dtype=float)
         self.dq_max = np.asarray(dq_max, dtype=float)
@@ -242,10 +248,9 @@ class ProjectionExecutor:
         self._F_e[:] = F_e
         self._q_d[:] = dyn.q if q_d is None else q_d
         projection_step_fused(dyn.record, target.record, self._law, self._chain, self._step)
-        v = self._values
         self._last_q, self._last_q_d = dyn.q, q_d  # for W_j in the view
         self.last_wrench = self._F.copy()
-        active = int(v["active"][0])
+        active = int(self._active[0])
         if active >= 0:  # solved in the call above: not timed apart from the law
             res = qp_.closed_form_result(self._x.copy(), active)
             tau = self._tau.copy()
@@ -254,10 +259,8 @@ class ProjectionExecutor:
             # [T13] nullspace velocity tracking, [T14] torque
             tau = joint_torque_fused(dyn.J, self._F_mu, dyn.N, dyn.Lambda_n, self._kn, res.x, dyn.dq, dyn.h)
         self.last_qp = res
-        return self._output(
-            tau, res, float(v["force_error"][0]), float(v["W"][0]), float(v["W_f"][0]), float(v["W_a"][0]),
-            float(v["W_d"][0]), float(v["coupled"][0]),
-        )  # fmt: skip
+        W_obj, W_f, W_a, W_d, coupled, force_error = self._scalars.tolist()
+        return self._output(tau, res, force_error, W_obj, W_f, W_a, W_d, coupled)
 
     def _output(self, tau, res, force_error, W_obj, W_f, W_a, W_d, coupled) -> ControlOutput:
         info = {

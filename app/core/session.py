@@ -65,17 +65,26 @@ class _TargetOwner:
     """The "target" group of a target that carries a desired wrench (a `wrench` array, F^e_z [T12])."""
 
     def __init__(self, target_fn: Any):
-        self.wrench = getattr(target_fn, "wrench", None)
+        self.target_fn = target_fn
+
+    @property
+    def wrench(self) -> np.ndarray | None:
+        """The target's desired wrench, or None when it carries none."""
+        wrench = getattr(self.target_fn, "wrench", None)
+        return wrench if isinstance(wrench, np.ndarray) else None
 
     def params(self) -> dict[str, ParamGroup]:
-        if not isinstance(self.wrench, np.ndarray):
+        if self.wrench is None:
             return {}
         return {"target": TargetParams(force_setpoint_n=float(self.wrench[2]))}
 
     def set_params(self, name: str, group: Any) -> None:
-        p = expect(name, group, TargetParams if name == "target" and isinstance(self.wrench, np.ndarray) else None)
-        assert isinstance(self.wrench, np.ndarray)
-        self.wrench[2] = p.force_setpoint_n
+        wrench = self.wrench
+        p = expect(name, group, TargetParams if name == "target" and wrench is not None else None)
+        assert wrench is not None
+        new = wrench.copy()
+        new[2] = p.force_setpoint_n
+        self.target_fn.wrench = new  # assigned, not edited in place: the target builds from what it is given
 
 
 def _weakly(method: Callable[[], Any]) -> Callable[[], Any]:

@@ -94,7 +94,8 @@ class PolishTarget:
     takes `TaskTarget.of_record` (no check per step). Each record starts as the held target (the
     start, the rotation, zero velocity and acceleration, the wrench), so a step writes only the XY
     parts the zig-zag moves, and nothing while it holds. The arrays it builds from are checked again
-    whenever one is assigned (`_CHECKED`), after construction too, and the held target follows."""
+    whenever one is assigned (`_CHECKED`), after construction too, and the held target follows; the
+    start, rotation and wrench are held read-only (a change is an assignment)."""
 
     # the arrays each step's target is built from, and their shapes (None: a non-empty vector)
     _CHECKED: ClassVar[dict[str, tuple[int, ...] | None]] = {
@@ -133,6 +134,9 @@ class PolishTarget:
         shape = self._CHECKED.get(name, ())
         if shape != ():
             value = float_array("PolishTarget", name, value, shape)
+            if name != "q_posture":  # read-only copies: an edit in place, which the held target would miss, fails
+                value = value.copy()
+                value.flags.writeable = False
         object.__setattr__(self, name, value)
         if name == "start":  # the zig-zag's corners start from it
             corners = segment_waypoints((float(self.start[0]), float(self.start[1])))
