@@ -945,7 +945,9 @@ def run_lesson_in_the_page(
 ) -> dict[str, str]:
     """Open the Lessons tab, pick `lesson`, click "Set up this step" for each step (the first `steps`
     of them when given) and wait for its result line, then call `after_step(index, key)` if given; returns
-    the claims the page showed, by step key."""
+    the claims the page showed, by step key. Each step's charts are checked in the viewport while it runs
+    and at its end, as `test_every_lesson_steps_plot_and_the_margins_warning_lie_in_the_viewport` asks
+    (`step_in_view`), so that test runs again only the steps no lesson test ran."""
     from app.live.curriculum import LESSONS
     from app.live.ui.panels.lessons import LessonsPanel
 
@@ -962,10 +964,14 @@ def run_lesson_in_the_page(
         # button stands still before the click then waits for minutes
         pg.get_by_role("button", name="Set up this step").click(force=True)
         key = (lesson, step.key)
+        step_in_view(pg, panel, step, "while it runs")
         wait_for(lambda k=key: k in panel.claims, 600, f"the result of {step.title}", period=0.5)
         claim = panel.claims[key]
         wait_for(lambda c=claim: pg.get_by_text(c[:60], exact=False).count() > 0, 30, "the claim in the page")
         assert not app.loop.sync().running  # the run froze at the end of the step
+        assert not claim.startswith("Cancelled"), claim
+        step_in_view(pg, panel, step, "at its end")
+        VIEW_CHECKED.add(key)
         shown[step.key] = claim
         if after_step is not None:
             after_step(i, step.key)
@@ -979,14 +985,17 @@ def test_the_dampers_lesson_in_the_page_tells_the_delay_step_as_it_happens(app, 
     numbers (checked against the step log read here) and say what happened: λ = 500 brakes harder than
     λ = 100 (peak |τ₄| ≥ 1.5×, both without a velocity reversal in 3 s); with 5 ms of torque delay the
     other joints move too (one of joints 1–3 swings > 1 rad, more than 1 s of thrashing), then q̇₄
-    chatters (≥ 10 reversals in the last 2 s); λ = 100 with the delay stops with ≤ 2 reversals."""
+    chatters (≥ 10 reversals in the last 2 s); λ = 100 with the delay stops with ≤ 2 reversals. When each
+    step ends, the page's phase chart of joint 4 has the limit, d_s and d_i lines each inside its x range
+    (zoomed on the limit the joint falls to) and d_s more than 5 % of the width from the limit (screenshots
+    lesson-dampers-step1…4.png)."""
     from app.live.ui.panels.lessons import LessonsPanel
 
     pg, _ = page
     panel = next(p for p in app.panels if isinstance(p, LessonsPanel))
 
     try:
-        claims = run_lesson_in_the_page(app, pg, "dampers")
+        claims = run_lesson_in_the_page(app, pg, "dampers", after_step=functools.partial(lines_in_view, pg))
         memo = panel.results["dampers"]
         low, high, thrash, low_delay = memo["l100"], memo["l500"], memo["l500d"], memo["l100d"]
         assert f"{low['peak_tau_4']:.1f} N m" in claims["l100"] and f"{high['peak_tau_4']:.1f} N m" in claims["l500"]
@@ -1002,30 +1011,6 @@ def test_the_dampers_lesson_in_the_page_tells_the_delay_step_as_it_happens(app, 
         swing_2 = app.loop.call(lambda s: float(np.ptp(app.loop.log.window(60.0, app.loop.dt)["q_2"])))
         assert f"{memo['l100d']['swing_2']:.2f}" == f"{swing_2:.2f}"
         save_tour_shot(pg, "lesson-dampers.png")
-    finally:
-        from app.core.commands import Play, SwitchSession
-
-        app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
-        app.loop.submit(Play())
-        wait_for(lambda: app.loop.status.scenario == "polish", 60, "polish again")
-
-
-def test_every_dampers_step_draws_the_limit_ds_and_di_in_view_in_the_page(app, page, unpaced):
-    """Each step of the dampers lesson, set up from the Lessons panel: when it ends, the page's phase chart
-    of joint 4 has the limit, d_s and d_i lines each inside its x range (zoomed on the limit the joint falls
-    to) and d_s more than 5 % of the width from the limit (screenshots lesson-dampers-step1…4.png)."""
-    from app.live.curriculum import LESSONS
-    from app.live.ui.panels.lessons import LessonsPanel
-
-    pg, _ = page
-    panel = next(p for p in app.panels if isinstance(p, LessonsPanel))
-    spec = next(x for x in LESSONS if x.key == "dampers")
-    try:
-        for i, step in enumerate(spec.steps):
-            panel.select("dampers", i)
-            panel.start_step()
-            wait_for(lambda k=step.key: ("dampers", k) in panel.claims, 600, f"the result of {step.title}", period=0.5)
-            lines_in_view(pg, i, step.key)
     finally:
         from app.core.commands import Play, SwitchSession
 
@@ -1842,12 +1827,29 @@ def step_scenario(step: Any) -> str:
     return next(c.scenario for c in step.setup(None) if isinstance(c, SwitchSession))
 
 
+VIEW_CHECKED: set[tuple[str, str]] = set()  # (lesson, step) whose charts a lesson test saw in view (`step_in_view`)
+
+
+def step_in_view(pg: Any, panel: Any, step: Any, when: str) -> None:
+    """A lesson step just set up from the Lessons panel (`when` "while it runs") or ended ("at its end"):
+    its first chart has drawn samples, it and (in a polish step) the margin's headroom chart lie in the
+    viewport (`step_charts_in_view`), and the Replay fold sits under the step's charts."""
+    polish = step_scenario(step) == "polish"
+    first = STEP_CHART_TITLES[step.plots[0]]
+    wait_for(lambda: (chart_box(pg, first) or {}).get("finite", 0) > 5, 120, f"{step.title}'s samples")
+    step_charts_in_view(pg, step, polish, when)
+    # under the step's first chart (order 1), from the first frame of the step's run on
+    wait_for(lambda: panel.view.replay_folder.order > 1.0, 30, f"{step.title}: the Replay fold under its charts {when}")
+
+
 def test_every_lesson_steps_plot_and_the_margins_warning_lie_in_the_viewport(app, page):
     """Every step of every lesson, set up from the Lessons panel, in a 1600×1000 page: once its run has
     drawn samples and again at its end (paused, the result shown), the chart the step names first
     (`Step.plots`) and, in a polish step, the margin's headroom chart under the force error lie inside the
     viewport, the status line above them; the Replay fold sits under the step's charts while the step's run is
-    on and returns to the top after a Reset. With TORQUELAB_UPDATE_SCREENSHOT=1 each step's end is written to
+    on and returns to the top after a Reset. The lesson tests above check the steps they run as they run them
+    (`run_lesson_in_the_page`); this test runs the others (all of them when run alone). With
+    TORQUELAB_UPDATE_SCREENSHOT=1 it runs every step and writes each one's end to
     static/lessons/after/LESSON-stepN.png (docs/lessons/*.md)."""
     from app.core.commands import Play, Reset, SetSpeed, SwitchSession
     from app.live.curriculum import LESSONS
@@ -1864,26 +1866,33 @@ def test_every_lesson_steps_plot_and_the_margins_warning_lie_in_the_viewport(app
         # screenshots are taken at the page's own pace
         if os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") != "1":
             app.loop.submit(SetSpeed(LESSON_SPEED))
+        shots = os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") == "1"
+        ran = 0
         for lesson in LESSONS:
             for i, step in enumerate(lesson.steps):
+                key = (lesson.key, step.key)
+                if key in VIEW_CHECKED and not shots:
+                    continue
+                ran += 1
                 panel.select(lesson.key, i)
                 panel.start_step()
                 # the step's own preset: the loop's status may still be the step before's for a while after
                 # the set-up on a loaded machine (it read "polish" in the first dampers step, which then
                 # waited for a headroom chart the limit drop does not have)
-                polish = step_scenario(step) == "polish"
-                first = STEP_CHART_TITLES[step.plots[0]]
-                wait_for(lambda f=first: (chart_box(pg, f) or {}).get("finite", 0) > 5, 120, f"{step.title}'s samples")
-                step_charts_in_view(pg, step, polish, "while it runs")
-                assert panel.view.replay_folder.order > 1.0  # under the step's first chart (order 1)
-                key = (lesson.key, step.key)
+                step_in_view(pg, panel, step, "while it runs")
                 wait_for(lambda k=key: k in panel.claims, 900, f"the result of {step.title}", period=0.5)
                 claim = panel.claims[key]
                 assert not claim.startswith("Cancelled"), claim
-                step_charts_in_view(pg, step, polish, "at its end")
-                if os.environ.get("TORQUELAB_UPDATE_SCREENSHOT") == "1":  # the docs' picture of the step
+                step_in_view(pg, panel, step, "at its end")
+                VIEW_CHECKED.add(key)
+                if shots:  # the docs' picture of the step
                     pg.get_by_text(claim[:40], exact=False).first.wait_for()
                     save_step_shot(pg, f"{lesson.key}-step{i + 1}.png", claim[:40])
+        # the Replay fold is still under the charts of the last step run here, until the Reset
+        assert ran > 0 and panel.view.replay_folder.order != replay_order, (ran, panel.view.replay_folder.order)
+        every = {(lesson.key, step.key) for lesson in LESSONS for step in lesson.steps}
+        assert VIEW_CHECKED >= every, sorted(every - VIEW_CHECKED)
+        print(f"lesson steps in view: {len(every)}, {ran} of them run here")
         app.loop.submit(Reset())
         wait_for(lambda: panel.view.replay_folder.order == replay_order, 30, "the Replay fold back on top")
     finally:
