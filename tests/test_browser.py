@@ -649,34 +649,63 @@ PRESET_TOP_CHART = {  # the chart each preset's lesson is about, on top of the P
 }
 
 
-def dark_pixels(pg: Any, box: dict[str, float]) -> int:
-    """Pixels of text colour (dark grey or black) inside a page box."""
+def dark_pixels(image: np.ndarray, box: dict[str, float]) -> int:
+    """Pixels of text colour (dark grey or black) inside a page box of a viewport screenshot (RGB)."""
+    x0, y0 = round(box["x"]), round(box["y"])
+    part = image[y0 : y0 + round(box["height"]), x0 : x0 + round(box["width"])]
+    return int(np.count_nonzero(np.all(part < 150, axis=-1)))
+
+
+# the strip left of each shown chart's plotting area where its y axis writes its ticks, in page px, and
+# whether it lies inside the viewport; with a chart's (title, label) given, that chart is scrolled into view
+_STRIPS_JS = """(scroll) => {
+    const out = [];
+    for (const v of Object.values((window.__viserTestpoints || {}).uplots || {})) {
+        const c = v.chart;
+        if (!c.root.isConnected || c.root.offsetParent === null) continue;
+        const name = c.root.querySelector('.u-title')?.textContent || '', label = c.axes[1].label || '';
+        if (scroll && name === scroll[0] && label === scroll[1]) c.root.scrollIntoView({block: 'center'});
+        out.push([name, label, c]);
+    }
+    return out.map(([name, label, c]) => {
+        const over = c.over.getBoundingClientRect(), size = c.axes[1]._size || 0;
+        const box = {x: over.x - size + 2, y: over.y, width: Math.max(1, size - 4), height: Math.max(1, over.height)};
+        const inside = box.x >= 0 && box.y >= 0 && box.x + box.width <= innerWidth && box.y + box.height <= innerHeight;
+        return {title: name, label: label, box: box, inside: inside};
+    });
+}"""
+
+
+def ticks_missing(pg: Any) -> list[str]:
+    """The shown charts whose y axis drew no tick text left of its plotting area (empty: every one did).
+    One viewport screenshot serves every chart inside the viewport; a chart outside it is scrolled into
+    view for the next (a screenshot of a software-rendered page costs about a second)."""
     from io import BytesIO
 
     from PIL import Image
 
-    image = np.asarray(Image.open(BytesIO(pg.screenshot(clip=box, timeout=90_000))).convert("RGB")).astype(int)
-    return int(np.count_nonzero(np.all(image < 150, axis=-1)))
-
-
-_STRIP_JS = """(title) => {
-    for (const v of Object.values((window.__viserTestpoints || {}).uplots || {})) {
-        const c = v.chart;
-        if (!c.root.isConnected || c.root.offsetParent === null) continue;
-        const name = c.root.querySelector('.u-title')?.textContent || '';
-        if (name !== title[0] || (c.axes[1].label || '') !== title[1]) continue;
-        c.root.scrollIntoView({block: 'center'});
-        const over = c.over.getBoundingClientRect(), size = c.axes[1]._size || 0;
-        return {x: over.x - size + 2, y: over.y, width: Math.max(1, size - 4), height: Math.max(1, over.height)};
-    }
-    return null;
-}"""
-
-
-def ticks_drawn(pg: Any, chart: dict[str, Any]) -> bool:
-    """Whether the page drew tick texts left of a chart's plotting area (scrolled into view first)."""
-    box = pg.evaluate(_STRIP_JS, [chart["title"], chart["label"]])
-    return box is not None and dark_pixels(pg, box) > 10
+    checked: set[tuple[str, str]] = set()
+    missing: list[str] = []
+    scroll: list[str] | None = None
+    for _ in range(40):
+        todo = [s for s in pg.evaluate(_STRIPS_JS, scroll) if (s["title"], s["label"]) not in checked]
+        if not todo:
+            return missing
+        seen = [s for s in todo if s["inside"]]
+        if not seen:
+            first = [todo[0]["title"], todo[0]["label"]]
+            if scroll == first:  # scrolled into view and still not inside it
+                checked.add((first[0], first[1]))
+                missing.append(f"{first[0] or first[1]} (not in the viewport)")
+            scroll = first
+            continue
+        image = np.asarray(Image.open(BytesIO(pg.screenshot(timeout=90_000))).convert("RGB")).astype(int)
+        for strip in seen:
+            checked.add((strip["title"], strip["label"]))
+            if dark_pixels(image, strip["box"]) <= 10:
+                missing.append(strip["title"] or strip["label"])
+        scroll = None
+    return [*missing, "(charts left unchecked)"]
 
 
 def charts(pg: Any) -> list[dict[str, Any]]:
@@ -707,8 +736,8 @@ def test_every_plot_has_its_y_axis_with_units_in_every_preset_and_the_lessons_pl
 
             shown = wait_for(laid_out, 60, f"{name}'s own chart on top with data", period=0.5)
             # a chart built before its panel had its size gets its axes again within seconds
-            # (each look screenshots every chart: the ticks are checked here, not again below)
-            wait_for(lambda: all(ticks_drawn(pg, c) for c in charts(pg)), 60, f"{name}'s ticks in every chart", 3.0)
+            # (each look takes a screenshot or two: the ticks are checked here, not again below)
+            wait_for(lambda: not ticks_missing(pg), 60, f"{name}'s ticks in every chart", 3.0)
             shown = charts(pg)
             for chart in shown:
                 where = f"{name}: {chart['title'] or chart['label']}"
