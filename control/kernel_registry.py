@@ -56,7 +56,8 @@ class KernelPair(NamedTuple):
 
 # ---- states of the shipped arm -------------------------------------------------------------------
 @functools.cache
-def _robot() -> tuple:
+def sample_arm() -> tuple:
+    """(the arm the samples' states are drawn on, the Rizon 4s; its `RobotModel`), built once per process."""
     import robots
     from control.model import RobotModel
 
@@ -64,16 +65,33 @@ def _robot() -> tuple:
     return robot, RobotModel(robot.model)
 
 
+_PLAIN_STATES = False  # `states` from the plain-numpy snapshot (`use_plain_states`)
+
+
+def use_plain_states() -> None:
+    """From now on `states` builds its snapshots with the plain-numpy algebra (`RobotModel.compute_reference`),
+    which compiles nothing: the same record type as the compiled snapshot's, the same values to rounding.
+    A first start's worker process (`app.live.warm_workers`) then compiles a kernel on its samples
+    without waiting for another process to compile the snapshot."""
+    global _PLAIN_STATES
+    _PLAIN_STATES = True
+
+
+def state_at(model: Any, q: np.ndarray, dq: np.ndarray) -> Any:
+    """`model.compute(q, dq)`, or its plain-numpy form after `use_plain_states`."""
+    return model.compute_reference(q, dq) if _PLAIN_STATES else model.compute(q, dq)
+
+
 def states(rng: np.random.Generator, count: int = 4) -> list:
     """`Dynamics` snapshots of the Rizon 4s at random postures (margin 0.9 of the limits, min eig of
     Λx⁻¹ above 1e-3) and velocities in ±1 rad/s."""
-    robot, model = _robot()
+    robot, model = sample_arm()
     lo = np.where(robot.endless, -np.pi, robot.q_lower)
     hi = np.where(robot.endless, np.pi, robot.q_upper)
     mid, half = (lo + hi) / 2, (hi - lo) / 2 * 0.9
     out: list = []
     while len(out) < count:
-        dyn = model.compute(rng.uniform(mid - half, mid + half), rng.uniform(-1, 1, 7))
+        dyn = state_at(model, rng.uniform(mid - half, mid + half), rng.uniform(-1, 1, 7))
         if dyn.min_eig_Lambda_inv > 1e-3:
             out.append(dyn)
     return out
@@ -227,7 +245,7 @@ def _snapshot_into_tolerance(args) -> float:
 
 
 def _chain_samples(rng):
-    _, model = _robot()
+    _, model = sample_arm()
     return [(dyn.q, *model.chain, rng.standard_normal(7), rng.standard_normal(7)) for dyn in states(rng, 3)]
 
 
@@ -273,7 +291,7 @@ def _gradient_samples(rng):
 
 
 def _pack_samples(rng):
-    return [(chain.pack_chain(_robot()[1].chain),)]
+    return [(chain.pack_chain(sample_arm()[1].chain),)]
 
 
 # ---- the [T] law [T7, T11-18] ----------------------------------------------------------------------
@@ -314,7 +332,7 @@ def _joint_torque_samples(rng):
 
 
 def _damper_bounds_samples(rng):
-    robot, _ = _robot()
+    robot, _ = sample_arm()
     out = []
     for _ in range(20):
         edge = np.where(rng.random(7) < 0.5, robot.q_lower, robot.q_upper)
@@ -327,7 +345,7 @@ def _damper_bounds_samples(rng):
 def _law_args(rng, dyn, objective: int, force: tuple[int, ...], ki: float, closed_form: bool = False) -> tuple:
     from control.gains import MotionForceGains, NullspaceGains
 
-    robot, model = _robot()
+    robot, model = sample_arm()
     perm, n_m = _perm(force)
     gains = MotionForceGains(force_kp=0.5, force_kd=0.01, force_ki=ki, force_integral_limit_n=20.0,
                              shaping=bool(rng.random() < 0.5))  # fmt: skip
@@ -442,7 +460,7 @@ def _posture_samples(rng):
 
 
 def _torque_rows_samples(rng):
-    robot, _ = _robot()
+    robot, _ = sample_arm()
     return [
         (dyn.M, dyn.h, rng.standard_normal(7) * 5, np.asarray(robot.tau_max, dtype=float), np.zeros((7, 7)),
          np.zeros(7), np.zeros(7), on, 1e30)
@@ -451,7 +469,7 @@ def _torque_rows_samples(rng):
 
 
 def _inverse_dynamics_samples(rng):
-    robot, _ = _robot()
+    robot, _ = sample_arm()
     tau_max = np.asarray(robot.tau_max, dtype=float)
     return [
         (dyn.M, rng.standard_normal(7) * 50, dyn.h, rng.standard_normal(7) * 5, tau_max, clip)
@@ -463,7 +481,7 @@ def _acceleration_bounds_samples(rng):
     from control.dampers import JointLimitDamper
     from control.gains import DamperGains
 
-    robot, _ = _robot()
+    robot, _ = sample_arm()
     out = []
     for k in range(40):
         edge = np.where(rng.random(7) < 0.5, robot.q_lower, robot.q_upper)
@@ -531,6 +549,11 @@ def _dense_load_samples(rng):
         n_eq = 2 if k == 10 else 0
         setup = dense_qp.dense_qp_setup(n, m, n_eq, 1e30, 1e-6)
         out.append((dense_qp.dense_qp_buffer(n, m), setup, P, q, A, l, u, lb, ub, np.zeros(n)))
+    # P None: the P loaded before is kept (the compliance QP's call when only its vectors changed)
+    data, setup, P, *rest = out[1]
+    data = data.copy()
+    dense_qp.dense_qp_load_reference(data, setup, P, *[a.copy() if isinstance(a, np.ndarray) else a for a in rest])
+    out.append((data, setup, None, *rest))
     return out
 
 
@@ -551,7 +574,7 @@ def _cqp_samples(rng):
     from control.gains import ComplianceQPSettings, DamperGains, EstimatorGains, PostureTaskGains
     from control.kernels.records import fill_record
 
-    robot, model = _robot()
+    robot, model = sample_arm()
     out = []
     tau_max = np.asarray(robot.tau_max, dtype=float)
     for k, dyn in enumerate(states(rng, 4)):
@@ -567,7 +590,7 @@ def _cqp_samples(rng):
             fast_on=k != 2,
         )  # fmt: skip
         est = ExternalTorqueEstimator(7, EstimatorGains(source=("fusion", "residual", "none")[k % 3]), dt=1e-3)
-        prev = model.compute(dyn.q - 1e-3 * dyn.dq, dyn.dq + 0.01 * rng.standard_normal(7))
+        prev = state_at(model, dyn.q - 1e-3 * dyn.dq, dyn.dq + 0.01 * rng.standard_normal(7))
         est.observer.reset(prev)
         est.observer.r[:] = rng.standard_normal(7)
         est.high_pass.update(rng.standard_normal(7))

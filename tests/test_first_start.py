@@ -21,47 +21,75 @@ import numpy as np
 import pytest
 
 from app.live.warm_workers import ARM_STATE_JOB, WarmJob, WarmProgress, _Pool, callees, progress_text, warm_jobs
-from app.live.warmup import NO_ARM_STATE, warm_kernel
+from app.live.warmup import warm_kernel
 from control.kernel_registry import KERNELS
 
 
-def test_the_kernels_listed_as_needing_no_arm_state_are_exactly_those_whose_samples_compute_none(monkeypatch):
-    """A kernel in NO_ARM_STATE may compile before the arm's snapshot; one missing from it only waits."""
+def test_a_workers_plain_states_call_no_compiled_code_and_have_the_compiled_snapshots_types(monkeypatch):
+    """With `use_plain_states` (a warm-up worker) every kernel's samples are built without the compiled
+    snapshot, so no kernel job waits for it; the plain state has the compiled one's argument types (each
+    field and the record: the kernels compile the signatures the loop meets) and its values to 1e-9."""
+    import numba
+
+    from control import kernel_registry
     from control.model import RobotModel
 
-    def no_state(*args, **kwargs):
-        raise LookupError("a state of the arm")
+    robot, model = kernel_registry.sample_arm()
+    q, dq = np.array(robot.home, dtype=float) + 0.1, np.full(7, 0.3)
+    compiled, plain = model.compute(q, dq), model.compute_reference(q, dq)
+    assert numba.typeof(plain.record) == numba.typeof(compiled.record)
+    for name in ("q", "dq", "M", "M_inv", "h", "J", "dJ_dq", "Lambda_inv", "Lambda", "J_bar", "N", "Lambda_n"):
+        a, b = getattr(plain, name), getattr(compiled, name)
+        assert numba.typeof(a) == numba.typeof(b), name
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * max(1.0, float(np.abs(b).max())), err_msg=name)
 
-    monkeypatch.setattr(RobotModel, "compute", no_state)
-    free = []
+    def no_compiled_state(*args, **kwargs):
+        raise LookupError("the compiled snapshot")
+
+    monkeypatch.setattr(RobotModel, "compute", no_compiled_state)
+    monkeypatch.setattr(kernel_registry, "_PLAIN_STATES", True)
     for name, pair in KERNELS.items():
-        try:
-            pair.samples(np.random.default_rng(0))
-        except LookupError:
-            continue
-        free.append(name)
-    assert sorted(free) == sorted(NO_ARM_STATE)
+        assert pair.samples(np.random.default_rng(0)), name
 
 
-def test_every_kernel_job_waits_for_the_kernels_it_calls_and_every_preset_for_every_kernel():
+def test_every_kernel_job_waits_for_the_kernels_it_calls_and_the_longest_chains_come_first():
     """Each registered kernel has one job, after the jobs of the kernels it calls (compiled once, by one
-    process) and after the arm's snapshot when its samples need a state; the presets come after
-    every kernel; the order they are listed in can run (each job's `after` comes before it)."""
-    jobs = warm_jobs(None)
+    process); the arm's snapshot as the loop computes it comes after the snapshot's kernels, and no job
+    waits for it; the order they are listed in can run (each job's `after` comes before it), and a job
+    listed before another ready at the same time has the longer chain of compiles after it: the law's
+    first callee before every short kernel nothing waits on."""
+    from app.live.warm_workers import SIMULATOR_JOB, _by_critical_path
+
+    jobs = warm_jobs()
     names = [job.name for job in jobs]
-    kernels = [job for job in jobs if job.kind == "kernel"]
-    assert len(set(names)) == len(names) and len(kernels) == len(KERNELS) + 1
+    assert len(set(names)) == len(names) and len(jobs) == len(KERNELS) + 2
+    assert {job.kind for job in jobs} == {"kernel"} and SIMULATOR_JOB in names
     name_of = {id(pair.compiled): name for name, pair in KERNELS.items()}
     for job in jobs:
         assert all(names.index(a) < names.index(job.name) for a in job.after), job
+        assert ARM_STATE_JOB not in job.after, job.name
         if job.name in KERNELS:
             wanted = {name_of[id(d)] for d in callees(KERNELS[job.name].compiled) if id(d) in name_of}
             assert wanted <= set(job.after), job.name
-            assert (ARM_STATE_JOB in job.after) == (job.name not in NO_ARM_STATE), job.name
-    presets = [job for job in jobs if job.kind == "preset"]
-    assert len(presets) == 15 and all({k.name for k in kernels} <= set(job.after) for job in presets)
+    arm = next(job for job in jobs if job.name == ARM_STATE_JOB)
+    assert "snapshot_into" in arm.after
     law = KERNELS["projection_step_fused"].compiled
     assert KERNELS["projection_law_fused"].compiled in callees(law)  # (the calls are found)
+    assert _by_critical_path(jobs) == jobs
+    waited_on = {a for job in jobs for a in job.after}
+    first_law_callee = min(names.index(a) for a in next(j for j in jobs if j.name == "projection_law_fused").after)
+    lone_short = [n for n in names if n not in waited_on and n in KERNELS and n != "projection_step_fused"]
+    assert all(first_law_callee < names.index(n) for n in lone_short if n not in ("cqp_problem_fused",)), names
+
+
+def test_the_kernel_jobs_compile_every_argument_type_among_a_kernels_samples():
+    """`warm_kernel` calls the first sample of each argument type: the dense QP's load is compiled with a
+    P matrix and without one (None: the compliance QP keeps the P it loaded), the two calls the loop makes."""
+    from control.kernels.dense_qp import dense_qp_load_fused
+
+    warm_kernel("dense_qp_load_fused")
+    third = {str(sig[2]) for sig in dense_qp_load_fused.signatures}
+    assert {"none", "array(float64, 2d, C)"} <= third, third
 
 
 def test_the_pool_runs_the_jobs_in_two_worker_processes_and_reports_each_one_of_how_many():
@@ -142,7 +170,7 @@ def test_the_page_shows_the_warm_up_while_kernels_compile_then_the_arm_runs_by_i
 
             wait_for(progress_shown, 180, "the page to show the warm-up's progress counting up")
             assert "getting ready" in page.inner_text("body")
-            assert counts == sorted(counts) and totals == {len(KERNELS) + 1}, (counts, totals)
+            assert counts == sorted(counts) and totals == {len(KERNELS) + 2}, (counts, totals)
 
             def t_shown() -> float | None:
                 found = re.search(r"t = (\d+\.\d+) s · ▶ running", page.inner_text("body"))
@@ -158,3 +186,5 @@ def test_the_page_shows_the_warm_up_while_kernels_compile_then_the_arm_runs_by_i
             lines.append(out)
     text = "".join(lines)
     assert "compiled in worker processes and loaded" in text and "the arm is running" in text, text
+    # the workers' jobs met every argument type the presets meet: this process's pass only loaded
+    assert "compiled here" not in text, text

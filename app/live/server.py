@@ -279,13 +279,15 @@ def _warm_up_on_page(server: viser.ViserServer, robot: str | None) -> None:
             print(f"\rtorquelab: {progress_text(progress)}\033[K", end="", flush=True)
 
     print("torquelab: compiling or loading the kernels (the page shows how far) …", flush=True)
-    took, compiled, failures = first_start(robot, show)
+    took, compiled, failures, compiled_here = first_start(robot, show)
     if sys.stdout.isatty():
         print("\r\033[K", end="")
     for failure in failures:  # compiled by the last pass instead
         print(f"torquelab: a warm-up worker failed: {failure}", flush=True)
     closed = closed_kernels.close()  # from here on a kernel refuses a new type instead of compiling
     how = "compiled in worker processes and loaded" if compiled else "loaded from the cache"
+    if compiled_here:  # a type the workers' jobs did not meet (or a failed job's kernels)
+        how += f", {compiled_here} compiled here"
     print(f"torquelab: kernels ready in {took:.1f} s ({how}; {closed} closed to new argument types)", flush=True)
     page.remove()
 

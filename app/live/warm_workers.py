@@ -2,15 +2,18 @@
 worker processes while the page shows how far it is.
 
 `first_start(robot, progress)` is `serve`'s warm-up. Where numba's cache lacks a kernel (a fresh
-install, a changed kernel: `cache_is_filled`), the warm-up's jobs (`warm_jobs`: the arm's snapshot,
-every registered kernel, then every preset × executor) run in `WORKERS` spawned processes
-(`app.live.workers.Worker`), each job handed to the first free one; each compiles what its job
-meets and writes it to the cache. A job waits for those it needs (`WarmJob.after`): the kernels that
-need a state of the arm wait for the snapshot's compile, the presets for every kernel, so that no
-two processes compile the same code at once. Then this process runs the warm-up itself
-(`app.live.warmup.warm_up`), which now only loads from the cache (seconds), so the loop meets every
-signature loaded. A job that fails in a worker (or a worker that cannot start) costs only time:
-whatever it left out is compiled by that last pass.
+install, a changed kernel: `cache_is_filled`), the warm-up's jobs (`warm_jobs`: every registered
+kernel on the first of its samples of each argument type, the arm's snapshot as the loop computes it,
+the simulator's kernels) run in `WORKERS` spawned processes (`app.live.workers.Worker`), each job
+handed to the first free one, longest chain of compiles first; each compiles what its job meets and
+writes it to the cache. A job waits for the kernels it calls (`WarmJob.after`), so that no two
+processes compile the same code at once; a worker's samples come from the plain-numpy snapshot
+(`control.kernel_registry.use_plain_states`), so no kernel waits for the compiled one. Then this
+process runs the warm-up itself (`app.live.warmup.warm_up`: every kernel, then every preset ×
+executor), which now only loads from the cache (seconds), so the loop meets every signature loaded;
+`first_start` counts what it compiled all the same (none, when the jobs met every type the presets
+meet). A job that fails in a worker (or a worker that cannot start) costs only time: whatever it left
+out is compiled by that last pass.
 
 `progress` hears a `WarmProgress` when a job starts or ends and for each step of the last pass; the
 page (`app.live.ui.warmup_page`) and the terminal show it as `progress_text`.
@@ -27,12 +30,11 @@ from types import ModuleType
 from typing import Any
 
 from app.live.warmup import (
-    NO_ARM_STATE,
-    import_kernels,
+    prepare_worker,
     preset_pairs,
     warm_arm_state,
     warm_kernel,
-    warm_preset,
+    warm_simulator,
     warm_up,
 )
 from app.live.workers import Worker
@@ -40,6 +42,7 @@ from app.live.workers import Worker
 WORKERS = 2  # the machine's cores a first start is sized for (the serving process waits meanwhile)
 POLL_S = 0.05  # how often the finished jobs are looked for
 ARM_STATE_JOB = "the arm's snapshot"
+SIMULATOR_JOB = "the simulator's kernels"
 
 
 @dataclass(frozen=True)
@@ -96,11 +99,14 @@ def callees(dispatcher: Any) -> set[Any]:
     return found
 
 
-def warm_jobs(robot: str | None) -> list[WarmJob]:
+def warm_jobs() -> list[WarmJob]:
     """The first start's jobs: every registered kernel after those it calls (each compiled once, by
-    one process, then loaded from the cache by its callers), the arm's snapshot after the kernels
-    `RobotModel.compute` calls, the kernels whose samples need a state of the arm after it; then every
-    preset × executor on `robot` after every kernel."""
+    one process, then loaded from the cache by its callers; a worker's samples come from the
+    plain-numpy snapshot, so none waits for the compiled one), the arm's snapshot as the loop computes
+    it after the snapshot's kernels, and the simulator's kernels (`warm_simulator`); each ready job is
+    handed out in the order of the longest chain of jobs waiting on it (`_by_critical_path`). The
+    presets' steps are left to this process's pass (`warm_up`), which then meets no type left to
+    compile (`first_start` counts it; `tests/test_first_start.py`)."""
     from control.kernel_registry import KERNELS
     from control.kernels.snapshot import snapshot_into
 
@@ -109,19 +115,38 @@ def warm_jobs(robot: str | None) -> list[WarmJob]:
     def after(dispatcher: Any) -> tuple[str, ...]:
         return tuple(sorted(name_of[id(d)] for d in callees(dispatcher) if id(d) in name_of))
 
-    # (the snapshot's callees that need a state of the arm are compiled by this job itself)
-    jobs = [
-        WarmJob(
-            ARM_STATE_JOB, "kernel", warm_arm_state, (), tuple(n for n in after(snapshot_into) if n in NO_ARM_STATE)
-        )
-    ]
-    for name, pair in KERNELS.items():
-        arm = () if name in NO_ARM_STATE else (ARM_STATE_JOB,)
-        jobs.append(WarmJob(name, "kernel", warm_kernel, (name,), after(pair.compiled) + arm))
-    jobs = _in_order(jobs)  # the snapshot's callees first, then the snapshot: every other kernel waits on it
-    kernels = tuple(job.name for job in jobs)
-    jobs += [WarmJob(f"{s} / {e}", "preset", warm_preset, (robot, s, e), kernels) for s, e in preset_pairs()]
-    return jobs
+    jobs = [WarmJob(name, "kernel", warm_kernel, (name,), after(pair.compiled)) for name, pair in KERNELS.items()]
+    snapshot = (*after(snapshot_into), name_of[id(snapshot_into)])
+    jobs.append(WarmJob(ARM_STATE_JOB, "kernel", warm_arm_state, (), snapshot))
+    jobs.append(WarmJob(SIMULATOR_JOB, "kernel", warm_simulator))
+    return _by_critical_path(_in_order(jobs))
+
+
+# seconds a job's compile took on two cores (a first start, measured with its jobs' start and end): only
+# the order of the jobs reads them, a job not named here counts SHORT_JOB_S
+COMPILE_S = {
+    "projection_law_fused": 7.4, "snapshot_into": 5.3, "cqp_problem_fused": 3.8, "projection_step_fused": 2.5,
+    "dense_qp_load_fused": 1.1, "inertia_contraction_fused": 1.0, "coupling_fused": 1.0,
+    "gradient_contraction_fused": 1.0, SIMULATOR_JOB: 0.7,
+}  # fmt: skip
+SHORT_JOB_S = 0.2
+
+
+def _by_critical_path(jobs: list[WarmJob]) -> list[WarmJob]:
+    """`jobs` (each after those it waits for) sorted by the longest chain of compiles from each to the
+    end, itself and the jobs waiting on it (`COMPILE_S`), longest first (a stable sort), then put in an
+    order that can run: a free worker takes the first ready job, so the law's kernels, the law and its
+    step start at once, the snapshot and the compliance QP's long compiles on the other worker, and the
+    short jobs fill the gaps."""
+    chain: dict[str, float] = {}
+    waiters: dict[str, list[str]] = {job.name: [] for job in jobs}
+    for job in jobs:
+        for name in job.after:
+            waiters[name].append(job.name)
+    for job in reversed(jobs):  # every job after those it waits for: its waiters' chains are known
+        rest = max((chain[w] for w in waiters[job.name]), default=0.0)
+        chain[job.name] = COMPILE_S.get(job.name, SHORT_JOB_S) + rest
+    return _in_order(sorted(jobs, key=lambda job: -chain[job.name]))
 
 
 def _in_order(jobs: list[WarmJob]) -> list[WarmJob]:
@@ -164,7 +189,7 @@ class _Pool:
         self.results: dict[str, Any] = {}  # each finished job's answer
         self.running: dict[int, tuple[WarmJob, Future, float]] = {}
         self.busy_s = 0.0  # the workers' wall time on finished jobs
-        self.workers = [Worker(f"torquelab-warm-{i}", warm=import_kernels) for i in range(workers)]
+        self.workers = [Worker(f"torquelab-warm-{i}", warm=prepare_worker) for i in range(workers)]
 
     def run(self) -> None:
         for worker in self.workers:
@@ -226,20 +251,29 @@ class _Pool:
         )  # fmt: skip
 
 
-def fill_cache(robot: str | None, progress: Callable[[WarmProgress], None], workers: int = WORKERS) -> list[str]:
-    """Run `warm_jobs(robot)` in `workers` worker processes (see the module docstring); what failed."""
-    pool = _Pool(warm_jobs(robot), workers, progress)
+def fill_cache(progress: Callable[[WarmProgress], None], workers: int = WORKERS) -> list[str]:
+    """Run `warm_jobs()` in `workers` worker processes (see the module docstring); what failed."""
+    pool = _Pool(warm_jobs(), workers, progress)
     pool.run()
     return pool.failures
 
 
+def compiles_here() -> int:
+    """How many kernel signatures this process compiled (numba's cache misses) rather than loaded."""
+    from app.live.closed_kernels import dispatchers
+
+    return sum(sum(d.stats.cache_misses.values()) for d in dispatchers().values())
+
+
 def first_start(
     robot: str | None, progress: Callable[[WarmProgress], None], workers: int = WORKERS
-) -> tuple[float, bool, list[str]]:
-    """`serve`'s warm-up (the module docstring): (seconds, whether workers compiled, what failed in them)."""
+) -> tuple[float, bool, list[str], int]:
+    """`serve`'s warm-up (the module docstring): (seconds, whether workers compiled, what failed in them,
+    how many signatures this process's pass compiled itself: none when the workers' jobs met every type
+    the presets meet)."""
     t0 = time.perf_counter()
     compiled = not cache_is_filled()
-    failures = fill_cache(robot, progress, workers) if compiled else []
+    failures = fill_cache(progress, workers) if compiled else []
     base = 0.9 if compiled else 0.0
     steps = [0]
     total = 1 + len(preset_pairs())
@@ -254,5 +288,6 @@ def first_start(
         fraction = base + (1 - base) * steps[0] / total
         progress(WarmProgress("loading", "kernel", steps[0], total, (name,), math.nan, fraction))
 
+    before = compiles_here()
     warm_up(robot, loading)
-    return time.perf_counter() - t0, compiled, failures
+    return time.perf_counter() - t0, compiled, failures, compiles_here() - before

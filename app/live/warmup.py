@@ -30,18 +30,6 @@ WARM_CLIENT = -1  # the warm-up's own drag (no page has this client id)
 WARM_STEPS = 1100  # steps of each preset × executor: 1.1 s, the polish live margin included (as tests/conftest.py)
 
 
-# registered kernels whose sample inputs need no state of the arm (no `RobotModel.compute`, itself
-# compiled): a worker can compile these while another compiles the arm's snapshot
-# (tests/test_warm_workers.py holds the list to the registry)
-NO_ARM_STATE = (
-    "_matmul_into", "_matmul_bt_into", "_matmul", "_matmul_bt", "_symmetrise", "_sym_from_eig", "_cholesky_into",
-    "_spd_inverse_into", "_inverse", "_sqnorm", "_cross", "_mat3_vec", "_mat3_mat", "_np_max", "unpack_chain_fused",
-    "log3_fused", "move_wrench_fused", "swivel_of_anchors_fused", "damper_bounds_fused", "add_task_rows_fused",
-    "coupling_weights_fused",
-    "acceleration_bounds_fused", "dense_qp_load_fused", "unconstrained_optimum_fused",
-)  # fmt: skip
-
-
 def import_kernels() -> None:
     """Import every module that defines a compiled kernel (a warm-up worker's start, before its jobs)."""
     from app.live.closed_kernels import KERNEL_MODULES
@@ -51,25 +39,65 @@ def import_kernels() -> None:
 
 
 def warm_kernel(name: str) -> float:
-    """Call the registered kernel `name` on its first sample (compiled, or loaded from numba's cache);
-    the seconds it took. A module-level function: a warm-up worker process runs it."""
+    """Call the registered kernel `name` on the first of its samples of each argument type (compiled, or
+    loaded from numba's cache); the seconds it took. A module-level function: a warm-up worker process
+    runs it."""
+    import numba
+
     from control.kernel_registry import KERNELS
 
     t0 = time.perf_counter()
-    samples = KERNELS[name].samples(np.random.default_rng(0))
-    if samples:
-        args = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in samples[0])
-        KERNELS[name].compiled(*args)
+    seen: set[tuple] = set()
+    for sample in KERNELS[name].samples(np.random.default_rng(0)):
+        types = tuple(numba.typeof(a) for a in sample)
+        if types in seen:
+            continue
+        seen.add(types)
+        KERNELS[name].compiled(*(a.copy() if isinstance(a, np.ndarray) else a for a in sample))
     return time.perf_counter() - t0
 
 
 def warm_arm_state() -> float:
-    """One state of the shipped arm (`RobotModel.compute`: the snapshot's kernels); the seconds it took."""
-    from control.kernel_registry import states
+    """One state of the shipped arm as the loop computes it (`RobotModel.compute`: the compiled
+    snapshot's kernels); the seconds it took."""
+    from control.kernel_registry import sample_arm
 
     t0 = time.perf_counter()
-    states(np.random.default_rng(0), 1)
+    robot, model = sample_arm()
+    model.compute(np.array(robot.home, dtype=float), np.full(len(robot.home), 0.1))
     return time.perf_counter() - t0
+
+
+def warm_simulator() -> float:
+    """The simulator's own kernels (`app.sim`: the torque clip and joint stops, the contact, the F/T
+    sensor's filter) on the types a step passes them: one step of the shipped arm's world pressed into
+    a table, its reading measured twice; the seconds it took."""
+    from app.sim.contact import TableContact
+    from app.sim.sensor import FTSensor
+    from app.sim.world import World
+    from control.kernel_registry import sample_arm
+
+    t0 = time.perf_counter()
+    robot, _ = sample_arm()
+    world = World(robot)
+    world.step(np.zeros(len(robot.joint_names)))
+    tcp_z = float(world.data.site_xpos[world.tcp_site, 2])
+    for height in (tcp_z + 0.01, tcp_z - 0.01):  # in contact (the implicit friction's solve), then not
+        TableContact(height).apply(world)
+    sensor = FTSensor(np.random.default_rng(0))
+    for t in (0.0, 1e-3):  # the filter's first reading, then the next
+        sensor.measure(np.zeros(6), t)
+    return time.perf_counter() - t0
+
+
+def prepare_worker() -> None:
+    """A warm-up worker process's start: every kernel module imported, the kernels' sample states from
+    the plain-numpy snapshot (`control.kernel_registry.use_plain_states`: no kernel waits for another
+    process to compile the snapshot)."""
+    from control.kernel_registry import use_plain_states
+
+    import_kernels()
+    use_plain_states()
 
 
 def warm_registered_kernels(progress: Callable[[int, int, str], None] | None = None) -> int:
