@@ -434,8 +434,6 @@ class Session:
         signals["drag_force_n"] = math.sqrt(float(drag_force.dot(drag_force)))
         if self._deflection is not None:  # the scenario's `logs_deflection`: distances (mm) from the t = 0 pose
             signals["tcp_dev_mm"], signals["elbow_dev_mm"] = self._deflection.read(self)
-        # the task target, for the replay's scene (a planned or contact task's is not a function of time alone)
-        signals["target_x_m"], signals["target_y_m"], signals["target_z_m"] = target.position.tolist()
         self.environment.observe(signals, t)
         self.last = StepRecord(
             t=t,

@@ -3,8 +3,8 @@
 The loop thread appends every `StepRecord`; plots read a decimated window and Record/Export reads
 the last N seconds. Only the loop thread touches a `StepLog`; readers get copies.
 Columns: t, q_1..n, dq_1..n, tau_1..n, F_x..M_z (sensor reading at the TCP), Fd_x..Md_z (desired
-F^e), fallback, then every scalar signal the executor and environment report, added as they appear
-(NaN before a signal first appears).
+F^e), target_x_m..target_z_m (the task target's position), fallback, then every scalar signal the
+executor and environment report, added as they appear (NaN before a signal first appears).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ def base_columns(n_joints: int) -> list[str]:
     cols += [f"tau_{i + 1}" for i in range(n_joints)]
     cols += [f"F_{a}" for a in WRENCH]
     cols += [f"Fd_{a}" for a in WRENCH]
+    cols += [f"target_{a}_m" for a in "xyz"]  # the task target's position (the replay's scene draws it)
     cols += ["fallback"]
     return cols
 
@@ -63,7 +64,8 @@ class StepLog:
         self._sl_tau = slice(1 + 2 * n, 1 + 3 * n)
         self._sl_f = slice(1 + 3 * n, 7 + 3 * n)
         self._sl_fd = slice(7 + 3 * n, 13 + 3 * n)
-        self._i_fallback = 13 + 3 * n
+        self._sl_target = slice(13 + 3 * n, 16 + 3 * n)
+        self._i_fallback = 16 + 3 * n
         self._scanned = 0  # rows already folded into the extremes
         self._abs_tau_max = np.full(n, np.nan)
         self._q_max = np.full(n, np.nan)
@@ -134,7 +136,9 @@ class StepLog:
         row[self._sl_dq] = rec.dq
         row[self._sl_tau] = rec.tau
         row[self._sl_f] = rec.wrench_tcp
-        row[self._sl_fd] = rec.target.wrench
+        target = rec.target
+        row[self._sl_fd] = target.wrench
+        row[self._sl_target] = target.position
         row[self._i_fallback] = 1.0 if rec.fallback else 0.0
         signals = rec.signals
         keys = tuple(signals)

@@ -115,6 +115,12 @@ class TargetTable:
             raise AttributeError(name)
         return getattr(self._fn, name)
 
+    def __setattr__(self, name: str, value: Any) -> None:  # the target group's new `wrench` goes to the target
+        if name.startswith("_") or name == "missed":
+            object.__setattr__(self, name, value)
+        else:
+            setattr(self._fn, name, value)
+
     def __len__(self) -> int:
         return len(self._at)
 
