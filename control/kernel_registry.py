@@ -225,7 +225,8 @@ def _linalg_entries() -> dict[str, KernelPair]:
 def _snapshot_samples(rng):  # (M upper, J, ρ)
     out = []
     for dyn in states(rng, 3):
-        out.append((np.triu(dyn.M), dyn.J, 1e-6))
+        # column-major, as Pinocchio's `data.M` is when `RobotModel.compute` passes it: the type the loop meets
+        out.append((np.asfortranarray(np.triu(dyn.M)), dyn.J, 1e-6))
     return out
 
 

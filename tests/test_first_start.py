@@ -28,7 +28,8 @@ from control.kernel_registry import KERNELS
 def test_a_workers_plain_states_call_no_compiled_code_and_have_the_compiled_snapshots_types(monkeypatch):
     """With `use_plain_states` (a warm-up worker) every kernel's samples are built without the compiled
     snapshot, so no kernel job waits for it; the plain state has the compiled one's argument types (each
-    field and the record: the kernels compile the signatures the loop meets) and its values to 1e-9."""
+    field and the record: the kernels compile the signatures the loop meets) and its values to 1e-9; the
+    snapshot kernel's warm-up call has the loop's types."""
     import numba
 
     from control import kernel_registry
@@ -43,11 +44,24 @@ def test_a_workers_plain_states_call_no_compiled_code_and_have_the_compiled_snap
         assert numba.typeof(a) == numba.typeof(b), name
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * max(1.0, float(np.abs(b).max())), err_msg=name)
 
+    # the snapshot kernel's warm-up call has the types of the loop's (`RobotModel.compute`: Pinocchio's
+    # column-major M), so the arm's own job only loads it
+    import control.model as model_module
+    from app.live.warmup import warm_calls
+
+    live: list[tuple] = []
+    kernel = model_module.snapshot_into
+    monkeypatch.setattr(model_module, "snapshot_into", lambda *a: live.append(a) or kernel(*a))
+    model.compute(q, dq)
+    monkeypatch.setattr(model_module, "snapshot_into", kernel)
+    monkeypatch.setattr(kernel_registry, "_PLAIN_STATES", True)
+    warm = [numba.typeof(a) for a in warm_calls("snapshot_into")[0]]
+    assert warm == [numba.typeof(a) for a in live[0]]
+
     def no_compiled_state(*args, **kwargs):
         raise LookupError("the compiled snapshot")
 
     monkeypatch.setattr(RobotModel, "compute", no_compiled_state)
-    monkeypatch.setattr(kernel_registry, "_PLAIN_STATES", True)
     for name, pair in KERNELS.items():
         assert pair.samples(np.random.default_rng(0)), name
 

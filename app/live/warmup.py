@@ -38,22 +38,31 @@ def import_kernels() -> None:
         importlib.import_module(name)
 
 
-def warm_kernel(name: str) -> float:
-    """Call the registered kernel `name` on the first of its samples of each argument type (compiled, or
-    loaded from numba's cache); the seconds it took. A module-level function: a warm-up worker process
-    runs it."""
+def warm_calls(name: str) -> list[tuple]:
+    """The arguments `warm_kernel` calls the registered kernel `name` with: the first of its samples of
+    each argument type, its arrays copied in their own layout (a plain copy is row-major: another type
+    for a column-major array, which the loop passes where Pinocchio's matrices go)."""
     import numba
 
     from control.kernel_registry import KERNELS
 
-    t0 = time.perf_counter()
-    seen: set[tuple] = set()
+    calls, seen = [], set()
     for sample in KERNELS[name].samples(np.random.default_rng(0)):
         types = tuple(numba.typeof(a) for a in sample)
-        if types in seen:
-            continue
-        seen.add(types)
-        KERNELS[name].compiled(*(a.copy() if isinstance(a, np.ndarray) else a for a in sample))
+        if types not in seen:
+            seen.add(types)
+            calls.append(tuple(a.copy(order="K") if isinstance(a, np.ndarray) else a for a in sample))
+    return calls
+
+
+def warm_kernel(name: str) -> float:
+    """Call the registered kernel `name` on `warm_calls(name)` (compiled, or loaded from numba's cache);
+    the seconds it took. A module-level function: a warm-up worker process runs it."""
+    from control.kernel_registry import KERNELS
+
+    t0 = time.perf_counter()
+    for args in warm_calls(name):
+        KERNELS[name].compiled(*args)
     return time.perf_counter() - t0
 
 
