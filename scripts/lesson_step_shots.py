@@ -50,13 +50,15 @@ def lessons() -> tuple[Any, ...]:
 
 
 def close_notices(pg: Any) -> None:
-    """Close the page's pop-up notices (they would cover the 3D view)."""
+    """Close the page's pop-up notices (they would cover the 3D view) and wait until they are gone
+    (a notice fades out after its close: a picture taken at once caught one half-faded)."""
     close = pg.locator(".mantine-Notification-closeButton")
     for _ in range(close.count()):
         try:
             close.first.click(timeout=5_000)
         except Exception:  # closed on its own meanwhile
             pass
+    wait_for(lambda: pg.locator(".mantine-Notification-root").count() == 0, 10, "the notices to fade out")
 
 
 def shoot(pg: Any, claim: str, path: Path) -> None:
