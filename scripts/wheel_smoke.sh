@@ -51,11 +51,16 @@ try:
         if "the arm" in line or "error" in line:  # running, or not within serve's 120 s
             break
 finally:
+    stop = time.monotonic()
     proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(timeout=60)
+    try:  # its output read to the end meanwhile (a full pipe would hold the process)
+        rest, _ = proc.communicate(timeout=60)
+        print(f"== serve stopped {time.monotonic() - stop:.1f} s after Ctrl-C (exit code {proc.returncode})", flush=True)
     except subprocess.TimeoutExpired:
         proc.kill()
+        rest, _ = proc.communicate()
+        print("== serve did not stop within 60 s of Ctrl-C; killed. Its last output:", flush=True)
+        print("\n".join(rest.splitlines()[-20:]), flush=True)
 load = open("/proc/loadavg").read().split()[0] if os.path.exists("/proc/loadavg") else "?"
 assert {"url", "ready", "step"} <= set(seen) and seen["url"] < seen["ready"] < seen["step"], seen
 print(f"== cold first start: URL after {seen['url']:.1f} s, the arm's first step after {seen['step']:.1f} s "
