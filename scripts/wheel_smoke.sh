@@ -52,14 +52,16 @@ try:
             break
 finally:
     stop = time.monotonic()
-    proc.send_signal(signal.SIGINT)
+    # SIGTERM, not Ctrl-C's SIGINT: a job a non-interactive shell starts in the background (as a CI runner
+    # may start this script) ignores SIGINT, and so does every process it starts; serve stops on either
+    proc.send_signal(signal.SIGTERM)
     try:  # its output read to the end meanwhile (a full pipe would hold the process)
         rest, _ = proc.communicate(timeout=60)
-        print(f"== serve stopped {time.monotonic() - stop:.1f} s after Ctrl-C (exit code {proc.returncode})", flush=True)
+        print(f"== serve stopped {time.monotonic() - stop:.1f} s after SIGTERM (exit code {proc.returncode})", flush=True)
     except subprocess.TimeoutExpired:
         proc.kill()
         rest, _ = proc.communicate()
-        print("== serve did not stop within 60 s of Ctrl-C; killed. Its last output:", flush=True)
+        print("== serve did not stop within 60 s of SIGTERM; killed. Its last output:", flush=True)
         print("\n".join(rest.splitlines()[-20:]), flush=True)
 load = open("/proc/loadavg").read().split()[0] if os.path.exists("/proc/loadavg") else "?"
 assert {"url", "ready", "step"} <= set(seen) and seen["url"] < seen["ready"] < seen["step"], seen
