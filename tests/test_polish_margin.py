@@ -320,8 +320,8 @@ def test_the_live_margin_in_the_worker_process_is_the_inline_one_and_leaves_the_
         out = []
         for k in range(500):
             if offload is not None and k % 100 == poll:  # the tick's figures are in when they are looked for
-                for *_, future in list(env._pending):  # type: ignore[attr-defined]
-                    future.result(timeout=30.0)
+                for sample in list(env._pending):  # type: ignore[attr-defined]
+                    sample.future.result(timeout=30.0)
             sig = session.step().signals
             if k % 100 == poll:
                 out.append((sig["margin_rate"], sig["margin_kd"]))
@@ -359,3 +359,94 @@ def test_the_headroom_is_stated_as_a_sign_outside_its_band_and_checked_against_t
     assert PM.headroom_came_true(shake, "oscillating").startswith("did not come true")
     assert PM.headroom_came_true(calm, "oscillating").startswith("came true")
     assert PM.headroom_came_true(close, "stable").startswith("no prediction")
+
+
+class _SlowOffload:
+    """An offload that is still starting while `starting()` holds (submit answers None), then answers each
+    job `lag_steps` ticks after it took it, and none at all once `stalled()` holds (a worker that stopped
+    answering). `tick()` is one step of the loop."""
+
+    def __init__(self, lag_steps: int, starting=lambda: False, stalled=lambda: False):
+        from concurrent.futures import Future
+
+        self._future = Future
+        self.lag_steps, self.starting, self.stalled = lag_steps, starting, stalled
+        self.gave_up: str | None = None
+        self.jobs: list[tuple[int, object, object, tuple]] = []
+        self.now = 0
+        self.answered = 0
+
+    def submit(self, fn, /, *args):
+        if self.starting():
+            return None
+        future = self._future()
+        self.jobs.append((self.now, future, fn, args))
+        return future
+
+    def tick(self) -> None:
+        self.now += 1
+        if self.stalled():
+            return
+        while self.jobs and self.now - self.jobs[0][0] >= self.lag_steps:
+            _, future, fn, args = self.jobs.pop(0)
+            future.set_result(fn(*args))  # type: ignore[operator,attr-defined]
+            self.answered += 1
+
+
+def _polish_run(offload: _SlowOffload | None, env_box: list) -> dict[str, np.ndarray]:
+    """W_j at μ = 1 through its six strokes and 1.5 s after, with the live figures on `offload` (inline
+    without one): the margin's logged columns (`stroke_outcomes.MARGIN_COLUMNS`) and "margin_waiting"."""
+    from app.core.session import Session
+    from app.scenarios.stroke_outcomes import MARGIN_COLUMNS
+
+    session = Session(P.PolishScenario(mu=1.0), seed=0)
+    session.set_param("nullspace", "objective", "j")
+    session.set_offload(offload)
+    env = session.environment
+    env_box.append(env)
+    names = (*MARGIN_COLUMNS, "margin_waiting")
+    rows: list[list[float]] = []
+    end = None
+    while end is None or session.world.time < end:
+        if offload is not None:
+            offload.tick()
+        sig = session.step().signals
+        rows.append([sig.get(n, np.nan) for n in names])
+        if end is None and sig["segment"] > PS.N_SEGMENTS:
+            end = session.world.time + 1.5
+        assert session.world.time < 120.0, "the zig-zag did not end"
+    data = np.array(rows)
+    return {n: data[:, i] for i, n in enumerate(names)}
+
+
+def test_a_slow_or_stalled_offload_gives_each_stroke_the_headroom_the_run_computes_inline():
+    """The lessons judge a stroke by its least headroom: it must not depend on how fast the offload
+    answers. W_j at μ = 1 with an offload that is still starting until S2 (S1's samples wait), then
+    answers 0.6 s of steps late (a stroke's last figures come while the next one runs): each stroke's
+    least headroom and worst σ are those of the inline run to 1e-9, and so is each statement; no sample
+    is dropped and none waits once the strokes are over. With one that stops answering during S5, the
+    waiting samples are computed inline 1 s after the strokes: the same figures again."""
+    from app.scenarios.stroke_outcomes import stroke_figures
+
+    envs: list = []
+    inline = stroke_figures(_polish_run(None, envs), PS.N_SEGMENTS)
+    assert sorted(inline) == list(range(1, 7)) and all(np.isfinite(h) for h, _ in inline.values())
+    assert any(h < 0 for h, _ in inline.values()) and any(h > 0 for h, _ in inline.values())
+
+    def segment() -> int:
+        return envs[-1].clock.segment(envs[-1]._world.time)[0] if envs[-1]._world is not None else 0
+
+    slow = _SlowOffload(600, starting=lambda: segment() < 2)
+    c = _polish_run(slow, envs)
+    lagged = (c["margin_headroom_segment"] == c["segment"] - 1) & (c["segment"] >= 2) & (c["segment"] <= 6)
+    assert np.count_nonzero(lagged) >= 5 * 400, "the figures of a stroke did not come while the next one ran"
+    assert envs[-1].dropped_stroke_samples == 0 and c["margin_waiting"][-1] == 0
+    late = stroke_figures(c, PS.N_SEGMENTS)
+    stalled = _SlowOffload(600, stalled=lambda: segment() >= 5)
+    c2 = _polish_run(stalled, envs)
+    assert c2["margin_waiting"][-1] == 0 and np.max(c2["margin_waiting"]) >= 10
+    for figures in (late, stroke_figures(c2, PS.N_SEGMENTS)):
+        assert sorted(figures) == sorted(inline)
+        for k, (h, rate) in inline.items():
+            assert figures[k][0] == pytest.approx(h, abs=1e-9) and figures[k][1] == pytest.approx(rate, abs=1e-9), k
+            assert PM.headroom_statement(figures[k][0]).sign == PM.headroom_statement(h).sign

@@ -98,9 +98,12 @@ def compliance_setup(mode: str) -> Callable[[Lab | None], list[Command]]:
 
 
 def polish_done(st: LoopStatus) -> bool:
-    """The zig-zag has run through its last stroke (signal "segment" past the preset's `segments`)."""
+    """The zig-zag has run through its last stroke (signal "segment" past the preset's `segments`) and
+    the margin's figures of every stroke are in (signal "margin_waiting": they come from the offload a
+    little after their steps, later on a loaded machine)."""
     segments = get_scenario(st.scenario).segments if st.scenario in SCENARIOS else 0
-    return st.scenario == "polish" and segments > 0 and st.signals.get("segment", 0.0) > segments
+    done = st.scenario == "polish" and segments > 0 and st.signals.get("segment", 0.0) > segments
+    return done and not st.signals.get("margin_waiting", 0.0)
 
 
 def both_polished(st: LoopStatus) -> bool:

@@ -28,7 +28,7 @@ from app.live.run_flags import RunFlags
 from app.live.run_identity import describe, identity_from
 from app.live.supervise import Stages
 from app.scenarios import PhaseMark, Scenario
-from app.scenarios.stroke_outcomes import StrokeOutcome, stroke_outcomes
+from app.scenarios.stroke_outcomes import MARGIN_COLUMNS, StrokeOutcome, stroke_outcomes
 from control.executor import StepView
 
 PLOT_WINDOW_S = 10.0
@@ -172,7 +172,8 @@ class FrameBuilder:
         )
         self._restarts = -1
         self._edits_at_restart = 0  # the lab's edit count when this run started (`run_text`)
-        self._strokes_key: tuple[int, float] | None = None  # (restarts, segment) the strokes were judged at
+        # (restarts, segment, the margin figures' stroke) the strokes were judged at
+        self._strokes_key: tuple[int, float, float] | None = None
         self._strokes: tuple[StrokeOutcome, ...] = ()
         self._seq = 0
         self._next_plot = 0.0
@@ -232,14 +233,18 @@ class FrameBuilder:
 
     def _strokes_over(self, lab: Lab, status: LoopStatus) -> tuple[StrokeOutcome, ...]:
         """The polish strokes the zig-zag has left since the reset, each with the margin's prediction and
-        its verdict (`stroke_outcomes`), judged again only when a stroke ends; () in other presets."""
+        its verdict (`stroke_outcomes`), judged again only when a stroke ends or the margin's figures move
+        to another stroke; () in other presets."""
         segment, segments = status.signals.get("segment"), lab.session.scenario.segments
         if not segments or segment is None or segment != segment:
             return ()
-        key = (lab.restarts, float(segment))
+        # judged again when a stroke ends and when the margin's figures move on to another stroke (the
+        # last figures of a stroke come from the offload a little after its end)
+        tag = status.signals.get("margin_headroom_segment", -1.0)
+        key = (lab.restarts, float(segment), -1.0 if tag != tag else float(tag))  # NaN: no stroke's figures
         if key != self._strokes_key:
             self._strokes_key = key
-            c = lab.log.signal(("segment", "margin_headroom_np", "F_z", "contact_force_n", "margin_rate"))
+            c = lab.log.signal((*MARGIN_COLUMNS, "F_z", "contact_force_n"))
             if c is None:
                 c = lab.log.signal(("segment", "margin_headroom_np", "F_z", "contact_force_n"))
             sensor = lab.settings.groups.get("sensor")

@@ -27,7 +27,7 @@ from app.live.frames import LoopStatus, deflection_readouts
 from app.live.lab import Lab
 from app.scenarios import verdict as V
 from app.scenarios.metrics import PUSH_AFTER_S, REVERSAL_HYSTERESIS_RAD_S, velocity_reversals
-from app.scenarios.stroke_outcomes import StrokeOutcome, band_words, headroom_statement
+from app.scenarios.stroke_outcomes import StrokeOutcome, band_words, headroom_statement, stroke_figures
 
 Obs = dict[str, float]  # one step's measured numbers
 Memo = dict[str, Obs]  # the lesson's earlier steps' numbers, by step key
@@ -123,17 +123,10 @@ def measure(lab: Lab) -> Obs:
 
 
 def least_headroom(c: dict[str, np.ndarray], segments: int) -> Obs:
-    """The least live stroke headroom (Np, signal "margin_headroom_np": the polish margin along each
-    stroke) per logged stroke 1…`segments`, "headroom_S{k}"; none for a stroke without a finite value."""
-    out: Obs = {}
-    h, seg = c.get("margin_headroom_np"), c.get("segment")
-    if h is None or seg is None:
-        return out
-    for k in range(1, segments + 1):
-        values = h[(seg == k) & np.isfinite(h)]
-        if values.size:
-            out[f"headroom_S{k}"] = float(np.min(values))
-    return out
+    """The least live stroke headroom (Np: the polish margin along each stroke, `stroke_figures`) per
+    logged stroke 1…`segments`, "headroom_S{k}"; none for a stroke without a finite value."""
+    found = stroke_figures(c, segments)
+    return {f"headroom_S{k}": h for k, (h, _) in found.items() if math.isfinite(h)}
 
 
 def stroke_verdicts(c: dict[str, np.ndarray], sensor: object, dt: float, segments: int) -> Obs:

@@ -8,8 +8,10 @@ worker process instead (`app.live.workers.Worker`: the loop thread writes a snap
 they come, a few milliseconds later, with no thread of this process carrying them).
 
 Until the worker is up (its imports done), or after it died until a new one is, `submit` answers None
-and the environment skips that sample. Work under way when the worker dies ends with an error (the
-environment shows NaN for it).
+and the environment keeps the sample for later (a stroke's σ samples are never skipped: the stroke
+headroom is the one the run computes inline, only later); when no worker can start (`gave_up`) the
+environment computes inline. Work under way when the worker dies ends with an error (the environment
+shows NaN for it).
 """
 
 from __future__ import annotations

@@ -94,9 +94,11 @@ class Offload(Protocol):
     """Where an environment's costly page signals are computed away from the loop thread (the app's
     loop gives one; tests and headless runs give none and the environment computes inline)."""
 
+    gave_up: str | None  # why it will never take work (the caller then computes inline); None while it may
+
     def submit(self, fn: Callable[..., Any], /, *args: Any) -> Future | None:
         """Compute fn(*args) elsewhere (a module-level function, picklable arguments); None when it
-        cannot take work now (still starting, or behind): the caller skips this sample."""
+        cannot take work now (still starting, or just died): the caller tries again later."""
         ...
 
 

@@ -7,6 +7,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -42,8 +43,33 @@ if TYPE_CHECKING:
 LIVE_MARGIN_EVERY_S = 1.0  # the live force-loop margin signal is recomputed once a simulated second
 LIVE_RATE_EVERY_S = 0.1  # the live decay rate σ at the step's posture and stroke state: 10 Hz of simulated time
 LIVE_POLL_EVERY_S = 0.01  # the offload's answers are looked for every 10 ms of simulated time (a 100 Hz display)
-LIVE_PENDING_MAX = 10  # live figures under way in the offload at most (1 s of σ): beyond, a sample is skipped
+LIVE_PENDING_MAX = 10  # live figures under way in the offload at most (1 s of σ): beyond, samples wait
+# samples waiting for the offload at most (100 s of σ; the six strokes take 150): beyond, the oldest go
+LIVE_BACKLOG_MAX = 1000
+# the strokes' σ samples still waiting this long (simulated) after the last stroke are computed inline
+# (a worker that stopped answering): the strokes' headroom is whole soon after they end in any case
+LIVE_WAIT_AFTER_S = 1.0
 MAX_LIFTS = 200  # contact-loss marks kept per run
+
+
+@dataclass
+class LiveSample:
+    """One live figure to compute: its kind ("rate": σ, "kd": the K_f^d margin), the simulated time and
+    segment it was sampled at, the headroom budget then, the job (a module-level function and its
+    arguments, Λx copied at the sample's step) and its future once the offload took it."""
+
+    kind: str
+    t: float
+    segment: int
+    budget: float
+    fn: Callable[..., float] | None = None
+    args: tuple = ()
+    future: Future | None = None
+
+    @property
+    def on_stroke(self) -> bool:
+        """A σ sample taken on one of the six strokes (never skipped)."""
+        return self.kind == "rate" and 1 <= self.segment <= N_SEGMENTS
 
 
 class PolishEnvironment(Environment):
@@ -78,9 +104,14 @@ class PolishEnvironment(Environment):
         self._headroom: Any = None  # a `polish_margin.StrokeHeadroom` from the first σ on
         self._offload: Offload | None = None
         self._dynamics: Callable[[], Dynamics] | None = None
-        # live figures under way in the offload, oldest first: (kind, t, segment, budget, future)
-        self._pending: deque[tuple[str, float, int, float, Future]] = deque()
+        # live figures sampled and not yet handed to the offload (it is starting, or behind), and those
+        # under way in it, oldest first; a stroke's σ samples wait here rather than being skipped
+        self._backlog: deque[LiveSample] = deque()
+        self._pending: deque[LiveSample] = deque()
         self._polled_at = -np.inf
+        self._answered_at = -np.inf  # when the latest σ answer was stored
+        self._stroke_waiting = 0  # stroke σ samples in the backlog or under way
+        self.dropped_stroke_samples = 0  # stroke σ samples dropped from a full backlog (the offload never came up)
 
     def connect(
         self,
@@ -136,21 +167,25 @@ class PolishEnvironment(Environment):
         )
         live = self.live_margin_every_s < np.inf  # inf: no live margin at all (at t = 0 neither)
         due = t - self._rate_at >= self.live_rate_every_s - 1e-9 or t - self._margin_at >= self.live_margin_every_s
-        if self._pending and t - self._polled_at >= LIVE_POLL_EVERY_S - 1e-9:
+        waiting = bool(self._pending or self._backlog)
+        if waiting and t - self._polled_at >= LIVE_POLL_EVERY_S - 1e-9:
             due = True  # look for answers now and then, not at every step
         if self._world is not None and live and due:
             self._polled_at = t
             self._live_figures(t)
-        headroom, headroom_min = self._headroom_now(t)
+        headroom, headroom_min, headroom_segment = self._headroom_now(t)
         target = self.target
         return {
             "swivel_deg": swivel,
             "swivel_plan_deg": target.planned_swivel_deg(t) if target is not None else float("nan"),
             "margin_kd": self._margin,
             "margin_rate": self._rate,
-            "margin_rate_stroke_min": self._rate_stroke_min,
+            # the worst σ of the stroke the headroom is of (NaN while that stroke's first σ is not in)
+            "margin_rate_stroke_min": self._rate_stroke_min if self._rate_segment == headroom_segment else math.nan,
             "margin_headroom_np": headroom,
             "margin_headroom_stroke_min_np": headroom_min,
+            "margin_headroom_segment": headroom_segment,
+            "margin_waiting": float(self.stroke_samples_waiting()),
             "settle_s": max(t - CONTACT_TIME_S, 0.0) if settling else float(clock.convergence_time_s or 0.0),
             "settle_converged": float("nan") if settling else float(clock.converged),
             "settle_quiet_s": quiet if settling else float("nan"),
@@ -158,53 +193,122 @@ class PolishEnvironment(Environment):
         }
 
     def _live_figures(self, t: float) -> None:
-        """Take the live figures the offload has finished; start σ every `live_rate_every_s` and the
-        K_f^d margin every `live_margin_every_s`: inline without an offload, else submitted with a
-        snapshot of the posture (Λx) and the groups, and skipped while LIVE_PENDING_MAX are under way."""
-        while self._pending and self._pending[0][4].done():
-            kind, at, segment, budget, future = self._pending.popleft()
-            value = float("nan") if future.exception() is not None else float(future.result())
-            self._store(kind, at, segment, budget, value)
+        """Take the live figures the offload has finished; sample σ every `live_rate_every_s` and the
+        K_f^d margin every `live_margin_every_s`: inline without an offload, else as jobs for the
+        offload with a copy of the posture's Λx and the groups (`LiveSample`). A stroke's σ samples are
+        never skipped: while the offload is starting or behind they wait in order, so the stroke
+        headroom is the one the same run computes inline; other samples are taken only while nothing
+        waits (they are for the display)."""
+        self._take_answers(t)
         due_kd = t - self._margin_at >= self.live_margin_every_s
         due_rate = t - self._rate_at >= self.live_rate_every_s - 1e-9
-        if not (due_kd or due_rate):
-            return
         if due_kd:
             self._margin_at = t
         if due_rate:
             self._rate_at = t
-        segment, _ = self.clock.segment(t)
         offload = self._offload
-        if offload is None:
+        if (due_kd or due_rate) and offload is None:
+            segment, _ = self.clock.segment(t)
             if due_kd:
                 self._margin = self.live_margin(t)
             if due_rate:
-                self._store("rate", t, segment, self._budget(), self.live_rate(t))
+                self._store(LiveSample("rate", t, segment, self._budget()), self.live_rate(t), t)
             return
+        if due_kd or due_rate:
+            self._sample(t, due_kd, due_rate)
+        segment, into = self.clock.segment(t)
+        if self._stroke_waiting and segment > N_SEGMENTS and into >= LIVE_WAIT_AFTER_S:
+            self._take_answers(t, inline=True)  # the offload stopped answering: finish the strokes here
+        elif offload is not None:
+            self._submit_backlog(offload, t)
+
+    def _sample(self, t: float, due_kd: bool, due_rate: bool) -> None:
+        """Queue the figures due at t for the offload (module docstring of `LiveSample`)."""
         groups = self._params() if self._params is not None else {}
         Lambda = self._lambda()
         gains = groups.get("motion_force")
         if Lambda is None or not isinstance(gains, MotionForceGains):
             return
-        jobs: list[tuple[str, Callable[..., float], tuple]] = []
-        if due_kd:
-            jobs.append(("kd", kd_margin_at, (Lambda, gains, self._contact_loop(PEAK_SPEED_M_S, groups))))
-        if due_rate:
-            tau = self._tau(t)
-            jobs.append(("rate", rate_at, (Lambda, gains, self._contact_loop(0.0, groups), tau)))
+        Lambda = np.array(Lambda)  # the step's snapshot is overwritten by the next step: the sample keeps its own
+        segment, _ = self.clock.segment(t)
         budget = self._budget(groups)
-        for kind, fn, args in jobs:
-            submitted = offload.submit(fn, *args) if len(self._pending) < LIVE_PENDING_MAX else None
-            if submitted is not None:
-                self._pending.append((kind, t, segment, budget, submitted))
+        behind = bool(self._backlog) or len(self._pending) >= LIVE_PENDING_MAX
+        if due_kd and not behind:
+            args: tuple = (Lambda, gains, self._contact_loop(PEAK_SPEED_M_S, groups))
+            self._queue(LiveSample("kd", t, segment, budget, kd_margin_at, args))
+        if due_rate and (1 <= segment <= N_SEGMENTS or not behind):
+            args = (Lambda, gains, self._contact_loop(0.0, groups), self._tau(t))
+            self._queue(LiveSample("rate", t, segment, budget, rate_at, args))
+        while len(self._backlog) > LIVE_BACKLOG_MAX:  # an offload that never comes up: keep the latest
+            gone = self._backlog.popleft()
+            if gone.on_stroke:
+                self._stroke_waiting -= 1
+                self.dropped_stroke_samples += 1
 
-    def _store(self, kind: str, t: float, segment: int, budget: float, value: float) -> None:
-        """A live figure computed for time t: the K_f^d margin, or σ with the worst σ of its stroke and
-        the stroke headroom (NaN outside the six strokes)."""
-        if kind == "kd":
-            self._margin = value
+    def _queue(self, sample: LiveSample) -> None:
+        self._backlog.append(sample)
+        self._stroke_waiting += sample.on_stroke
+
+    def _submit_backlog(self, offload: Offload, t: float) -> None:
+        """Hand waiting samples to the offload, oldest first, while fewer than LIVE_PENDING_MAX are
+        under way there; inline when it gave up (no worker process will start)."""
+        if offload.gave_up is not None:
+            self._take_answers(t, inline=True)
             return
+        while self._backlog and len(self._pending) < LIVE_PENDING_MAX:
+            sample = self._backlog[0]
+            assert sample.fn is not None  # (only a sample stored inline has none)
+            future = offload.submit(sample.fn, *sample.args)
+            if future is None:  # starting, or just died: try again at the next poll
+                return
+            sample.future = future
+            self._pending.append(self._backlog.popleft())
+
+    def _take_answers(self, t: float, inline: bool = False) -> None:
+        """Store the answers that are in, in order (with `inline`, every waiting sample: the offload's
+        answer when it is in, else computed here), stopping before the first σ of another stroke than
+        the σ stored before it, so that each stroke's final headroom is a logged step of its own."""
+        stored: int | None = None
+        while True:
+            queue = self._pending or (self._backlog if inline else None)
+            if not queue:
+                return
+            sample = queue[0]
+            future = sample.future
+            answered = future is not None and future.done()
+            if not (answered or inline) or (sample.kind == "rate" and stored not in (None, sample.segment)):
+                return
+            queue.popleft()
+            failed = future.exception() if future is not None and answered else None
+            if answered and failed is None:
+                value = float(future.result())  # type: ignore[union-attr]
+            elif inline and sample.fn is not None:
+                value = float(sample.fn(*sample.args))
+            else:
+                value = float("nan")  # the worker died under it
+            self._take(sample, value, t)
+            if sample.kind == "rate":
+                stored = sample.segment
+
+    def _take(self, sample: LiveSample, value: float, t: float) -> None:
+        """An answered sample, at step time t."""
+        self._stroke_waiting -= sample.on_stroke
+        if sample.kind == "kd":
+            self._margin = value
+        else:
+            self._store(sample, value, t)
+
+    def stroke_samples_waiting(self) -> int:
+        """The strokes' σ samples taken and not yet answered (0 inline): a stroke's headroom is whole
+        once none of its samples waits."""
+        return self._stroke_waiting
+
+    def _store(self, sample: LiveSample, value: float, t: float) -> None:
+        """σ computed for the sample's time, stored at step time t: the worst σ of its stroke and the
+        stroke headroom (NaN outside the six strokes)."""
+        self._answered_at = t
         self._rate = value
+        segment = sample.segment
         if segment != self._rate_segment:
             self._rate_segment = segment
             self._rate_stroke_min = float("nan")
@@ -212,22 +316,38 @@ class PolishEnvironment(Environment):
             prev = self._rate_stroke_min
             self._rate_stroke_min = value if not math.isfinite(prev) else min(prev, value)
         if self._headroom is None:
-            self._headroom = StrokeHeadroom(budget, self.live_rate_every_s)
-        self._headroom.budget_np = budget
-        self._headroom.add(t, segment, value)
+            self._headroom = StrokeHeadroom(sample.budget, self.live_rate_every_s)
+        self._headroom.budget_np = sample.budget
+        self._headroom.add(sample.t, segment, value)
 
-    def _headroom_now(self, t: float) -> tuple[float, float]:
-        """The stroke headroom now and its least value on this stroke so far (Np): the whole budget
-        from the stroke's start until its first σ is in, NaN outside the strokes."""
+    def _headroom_now(self, t: float) -> tuple[float, float, float]:
+        """The stroke headroom (Np), its least value on its stroke so far, and that stroke: the stroke
+        of the latest σ answered while its samples are still coming in or it is the stroke under way
+        (answers come a little after their step: a stroke's last figures may arrive in the next one);
+        the whole budget of the stroke under way from its start until its first σ is in; NaN outside."""
         h = self._headroom
+        nan = math.nan
         if h is None:
-            return math.nan, math.nan
+            return nan, nan, nan
         segment, _ = self.clock.segment(t)
-        if not 1 <= segment <= N_SEGMENTS:
-            return math.nan, math.nan
-        if h.segment != segment or not math.isfinite(h.headroom_np):
-            return h.budget_np, h.budget_np
-        return h.headroom_np, h.headroom_min_np
+        waiting = self._oldest_waiting_segment()
+        on = waiting if waiting is not None and 1 <= waiting <= N_SEGMENTS else segment
+        if h.segment == on or (self._answered_at >= t and 1 <= h.segment <= N_SEGMENTS):
+            if math.isfinite(h.headroom_np):
+                return h.headroom_np, h.headroom_min_np, float(h.segment)
+        if not 1 <= on <= N_SEGMENTS:
+            return nan, nan, nan
+        return h.budget_np, h.budget_np, float(on)
+
+    def _oldest_waiting_segment(self) -> int | None:
+        """The segment of the oldest σ sample not yet answered (None: none waits)."""
+        if not self._stroke_waiting and not self._pending and not self._backlog:
+            return None
+        for queue in (self._pending, self._backlog):
+            for x in queue:
+                if x.kind == "rate":
+                    return x.segment
+        return None
 
     def _budget(self, groups: Mapping[str, Any] | None = None) -> float:
         """ln(F̂ / noise floor) (Np) of the session's sensor group: each stroke's headroom at its start."""

@@ -74,14 +74,50 @@ def band_words(band_np: float = PM.HEADROOM_BAND_NP) -> str:
     )
 
 
+# the logged signals a stroke's margin figures are read from (`stroke_figures`)
+MARGIN_COLUMNS = (
+    "segment",
+    "margin_headroom_np",
+    "margin_headroom_stroke_min_np",
+    "margin_headroom_segment",
+    "margin_rate_stroke_min",
+)
+
+
+def stroke_figures(columns: Mapping[str, np.ndarray], segments: int) -> dict[int, tuple[float, float]]:
+    """Each stroke 1…`segments` that has a figure: its least headroom (Np) and its worst σ (1/s), NaN where
+    it has none. Read from the rows the environment tagged with the stroke ("margin_headroom_segment":
+    a stroke's figures come from the offload a little after its steps, the last ones while the next
+    stroke runs) and their running least values on the stroke; a log without the tag groups the
+    step's "segment" rows' headroom and σ ("margin_rate")."""
+    tag = columns.get("margin_headroom_segment")
+    if tag is not None:
+        h = columns.get("margin_headroom_stroke_min_np", columns.get("margin_headroom_np"))
+        rate = columns.get("margin_rate_stroke_min")
+    else:
+        tag, h, rate = columns.get("segment"), columns.get("margin_headroom_np"), columns.get("margin_rate")
+    if tag is None or h is None:
+        return {}
+    out = {}
+    for k in range(1, segments + 1):
+        on = tag == k
+        values = h[on & np.isfinite(h)]
+        rates = rate[on & np.isfinite(rate)] if rate is not None else np.zeros(0)
+        if values.size or rates.size:
+            least = float(np.min(values)) if values.size else float("nan")
+            out[k] = (least, float(np.min(rates)) if rates.size else float("nan"))
+    return out
+
+
 def stroke_outcomes(
     columns: Mapping[str, np.ndarray], sensor: object, dt: float, segments: int, finished: bool = False
 ) -> list[StrokeOutcome]:
-    """Every stroke in the logged `columns` ("segment", "margin_headroom_np", "F_z", "contact_force_n", and
-    "margin_rate" when logged): its statement from its least headroom, its worst σ and, for a stroke the
-    zig-zag has left (or every stroke with `finished`), its verdict."""
-    seg, h = columns.get("segment"), columns.get("margin_headroom_np")
-    if seg is None or h is None or not len(seg):
+    """Every stroke in the logged `columns` (`MARGIN_COLUMNS`, "F_z" and "contact_force_n"; a log of
+    old runs may lack the tag and the running least values: `stroke_figures`): its statement from its
+    least headroom, its worst σ and, for a stroke the zig-zag has left (or every stroke with
+    `finished`), its verdict."""
+    seg = columns.get("segment")
+    if seg is None or columns.get("margin_headroom_np") is None or not len(seg):
         return []
     verdicts: dict[int, str] = {}
     fz, contact = columns.get("F_z"), columns.get("contact_force_n")
@@ -89,16 +125,12 @@ def stroke_outcomes(
         found = V.strokes(seg, fz, contact, sensor, dt, range(1, segments + 1))
         verdicts = {s.segment: s.verdict for s in found}
     now = float(seg[np.isfinite(seg)][-1]) if np.any(np.isfinite(seg)) else -1.0
-    rate = columns.get("margin_rate")
+    figures = stroke_figures(columns, segments)
     out = []
     for k in range(1, segments + 1):
-        on = seg == k
-        if not np.any(on):
+        if not np.any(seg == k):
             continue
-        values = h[on & np.isfinite(h)]
-        statement = PM.headroom_statement(float(np.min(values)) if values.size else float("nan"))
-        rates = rate[on & np.isfinite(rate)] if rate is not None else np.zeros(0)
-        worst = float(np.min(rates)) if rates.size else float("nan")
+        least, worst = figures.get(k, (float("nan"), float("nan")))
         over = finished or now > k
-        out.append(StrokeOutcome(k, statement, verdicts.get(k) if over else None, worst))
+        out.append(StrokeOutcome(k, PM.headroom_statement(least), verdicts.get(k) if over else None, worst))
     return out

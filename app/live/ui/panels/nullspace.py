@@ -134,7 +134,7 @@ def _polish_lines(sig: dict, strokes: tuple[StrokeOutcome, ...] = ()) -> str:
         least = sig.get("margin_headroom_stroke_min_np")
         h = least if least is not None and least == least else headroom
         statement = headroom_statement(h)
-        segment = sig.get("segment")
+        segment = sig.get("margin_headroom_segment", sig.get("segment"))  # the figures' stroke (they come later)
         on = f" on S{int(segment)}" if segment is not None and segment == segment else ""
         out += (
             f"  \n**Force-loop margin{on}:** {statement.words} (so far on this stroke; {band_words()}; "
