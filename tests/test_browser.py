@@ -1755,6 +1755,64 @@ def test_contact_loss_is_marked_in_the_3d_view_live_and_in_replay_and_a_reset_cl
         wait_for(lambda: loop.status.scenario == "polish", 60, "polish again")
 
 
+_HINT_SHOWN_JS = """(text) => {
+    for (const tip of document.querySelectorAll('[role="tooltip"]')) {
+        if (!tip.textContent.startsWith(text)) continue;
+        const style = getComputedStyle(tip);
+        if (style.display !== 'none' && Number(style.opacity) > 0.05) return tip.id || 'shown';
+    }
+    return null;
+}"""
+_UNDER_POINTER_JS = """([x, y]) => {
+    const el = document.elementFromPoint(x, y);
+    return el ? (el.closest('button') || el).textContent.trim() : '';
+}"""
+
+
+def test_a_hint_is_gone_when_the_pointer_moves_on_to_the_button_below_or_its_control_moves_away(app, page, paused):
+    """Run tab: the pointer rests on the *Single step* buttons until their hint shows, then moves on to
+    *Reset* below: within 0.5 s the hint is hidden, and the hint never takes the pointer (what lies under
+    it is *Reset*). Again with the pointer still and the buttons moved 300 px away under it (as a panel's
+    controls move when a line above them grows): the hint is hidden within 1 s."""
+    pg, _ = page
+    hint = "→: 1 ms"
+    show_tab(pg, "Run")
+
+    def centre(name: str) -> tuple[float, float]:
+        box = wait_for(lambda: pg.get_by_role("button", name=name).bounding_box(), 30, f"the {name} button")
+        return box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+
+    def rest_on(x: float, y: float) -> str:
+        pg.mouse.move(x - 200, y)  # from off the panel: the pointer enters the control
+        pg.mouse.move(x, y, steps=3)
+        return wait_for(lambda: pg.evaluate(_HINT_SHOWN_JS, hint), 30, "the Single step hint")
+
+    step_x, step_y = centre("100 ms")
+    reset = centre("Reset")
+    moved = False
+    try:
+        rest_on(step_x, step_y)
+        pg.mouse.move(*reset, steps=2)
+        left = time.monotonic()
+        assert pg.evaluate(_UNDER_POINTER_JS, list(reset)) == "Reset", "the hint took the pointer over Reset"
+        wait_for(lambda: not pg.evaluate(_HINT_SHOWN_JS, hint), 10, "the hint to close over Reset", period=0.02)
+        assert time.monotonic() - left < 0.5, f"the hint stayed {time.monotonic() - left:.2f} s over Reset"
+        tip = rest_on(step_x, step_y)
+        moved = pg.evaluate(
+            '(id) => { const c = document.querySelector(`[aria-describedby~="${id}"]`);'
+            " if (!c) return false; c.style.transform = 'translateY(300px)'; return true; }",
+            tip,
+        )
+        assert moved, "no control names the hint"
+        still = time.monotonic()
+        wait_for(lambda: not pg.evaluate(_HINT_SHOWN_JS, hint), 10, "the hint to close under the still pointer")
+        assert time.monotonic() - still < 1.0, f"the hint stayed {time.monotonic() - still:.2f} s"
+    finally:
+        if moved:
+            pg.evaluate("() => document.querySelectorAll('[aria-describedby]').forEach(c => c.style.transform = '')")
+        pg.mouse.move(120, VIEWPORT["height"] - 80)
+
+
 def test_the_lambda_box_refuses_minus_5_in_its_own_words_and_takes_250_5_as_typed(app, page, paused):
     """Limit-drop, Tune, the damper's λ box (a slider's, step 1): "-5" is refused with a notice in the
     page that names λ, not the parameter's internal name, and λ stays; "250.5" is taken as typed (the
