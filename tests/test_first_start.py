@@ -107,18 +107,20 @@ def test_the_kernel_jobs_compile_every_argument_type_among_a_kernels_samples():
 
 
 def test_the_pool_runs_the_jobs_in_two_worker_processes_and_reports_each_one_of_how_many():
-    """Four small kernels and two pid jobs in two workers: every job done once, the reports count up
-    to 4 of 4 then 2 of 2, the time left is a number once a job has finished, and two processes ran."""
+    """Four small kernels and two pid jobs after them in two workers: every job done once, the reports
+    count up to 6 of 6 in order, a job after the kernels starts only once they are done, the time left is
+    a number once a job has finished, and two processes ran."""
     small = ("_cross", "_mat3_vec", "_sqnorm", "_np_max")
-    jobs = [WarmJob(n, "kernel", warm_kernel, (n,)) for n in small]
-    jobs += [WarmJob(f"pid {i}", "preset", _pid_after, (0.5,), small) for i in range(2)]
+    jobs = [WarmJob(n, warm_kernel, (n,)) for n in small]
+    jobs += [WarmJob(f"pid {i}", _pid_after, (0.5,), small) for i in range(2)]
     reports: list[WarmProgress] = []
     pool = _Pool(jobs, 2, reports.append)
     pool.run()
     assert pool.failures == [] and pool.finished == {job.name for job in jobs}
-    kernels = [r for r in reports if r.kind == "kernel"]
-    assert [r.done for r in kernels] == sorted(r.done for r in kernels) and kernels[-1].done == 4
-    assert {r.total for r in kernels} == {4} and {r.total for r in reports if r.kind == "preset"} == {2}
+    assert [r.done for r in reports] == sorted(r.done for r in reports) and reports[-1].done == 6
+    assert {r.total for r in reports} == {6} and {r.stage for r in reports} == {"compiling"}
+    first_pid = next(i for i, r in enumerate(reports) if any(c.startswith("pid") for c in r.current))
+    assert reports[first_pid].done >= 5, "a pid job started before the kernels it comes after were done"
     assert math.isnan(reports[0].seconds_left) and not math.isnan(reports[-1].seconds_left)
     assert all(0.0 <= r.fraction <= 0.9 for r in reports) and reports[-1].fraction == pytest.approx(0.9)
     assert pool.results["pid 0"] != pool.results["pid 1"] and not any(w.up for w in pool.workers)
@@ -130,9 +132,9 @@ def _pid_after(seconds: float) -> int:
 
 
 def test_the_progress_line_names_which_kernel_of_how_many_and_the_time_left():
-    line = progress_text(WarmProgress("compiling", "kernel", 12, 41, ("coupling_fused",), 17.4, 0.3))
+    line = progress_text(WarmProgress("compiling", 12, 41, ("coupling_fused",), 17.4, 0.3))
     assert line == "compiling kernel 12 of 41 (coupling_fused) · about 17 s left"
-    assert progress_text(WarmProgress("loading", "kernel", 3, 16, ("free / projection",), math.nan, 0.95)) == (
+    assert progress_text(WarmProgress("loading", 3, 16, ("free / projection",), math.nan, 0.95)) == (
         "loading the compiled kernels: step 3 of 16 (free / projection)"
     )
 

@@ -50,7 +50,6 @@ class WarmJob:
     """One job of the first start: `fn(*args)` in a worker, once the jobs named in `after` are done."""
 
     name: str
-    kind: str  # "kernel" or "preset"
     fn: Callable[..., Any]
     args: tuple = ()
     after: tuple[str, ...] = ()
@@ -58,11 +57,10 @@ class WarmJob:
 
 @dataclass(frozen=True)
 class WarmProgress:
-    """How far the warm-up is: `done` of `total` in its stage ("compiling": the workers' jobs of
-    `kind`, "loading": this process's pass), what is under way, and the seconds left (NaN: not known yet)."""
+    """How far the warm-up is: `done` of `total` in its stage ("compiling": the workers' jobs,
+    "loading": this process's pass), what is under way, and the seconds left (NaN: not known yet)."""
 
     stage: str
-    kind: str
     done: int
     total: int
     current: tuple[str, ...]
@@ -75,8 +73,6 @@ def progress_text(p: WarmProgress) -> str:
     names = ", ".join(p.current)
     if p.stage == "loading":
         what = f"loading the compiled kernels: step {p.done} of {p.total}"
-    elif p.kind == "preset":
-        what = f"compiling: preset {p.done} of {p.total} tried"
     else:
         what = f"compiling kernel {p.done} of {p.total}"
     left = "" if math.isnan(p.seconds_left) else f" · about {max(1, round(p.seconds_left))} s left"
@@ -115,10 +111,10 @@ def warm_jobs() -> list[WarmJob]:
     def after(dispatcher: Any) -> tuple[str, ...]:
         return tuple(sorted(name_of[id(d)] for d in callees(dispatcher) if id(d) in name_of))
 
-    jobs = [WarmJob(name, "kernel", warm_kernel, (name,), after(pair.compiled)) for name, pair in KERNELS.items()]
+    jobs = [WarmJob(name, warm_kernel, (name,), after(pair.compiled)) for name, pair in KERNELS.items()]
     snapshot = (*after(snapshot_into), name_of[id(snapshot_into)])
-    jobs.append(WarmJob(ARM_STATE_JOB, "kernel", warm_arm_state, (), snapshot))
-    jobs.append(WarmJob(SIMULATOR_JOB, "kernel", warm_simulator))
+    jobs.append(WarmJob(ARM_STATE_JOB, warm_arm_state, (), snapshot))
+    jobs.append(WarmJob(SIMULATOR_JOB, warm_simulator))
     return _by_critical_path(_in_order(jobs))
 
 
@@ -180,11 +176,9 @@ class _Pool:
 
     def __init__(self, jobs: list[WarmJob], workers: int, progress: Callable[[WarmProgress], None]):
         self.waiting = list(jobs)
-        self.total = {kind: sum(j.kind == kind for j in jobs) for kind in ("kernel", "preset")}
         self.count = len(jobs)
         self.progress = progress
         self.finished: set[str] = set()
-        self.done_kind = {"kernel": 0, "preset": 0}
         self.failures: list[str] = []
         self.results: dict[str, Any] = {}  # each finished job's answer
         self.running: dict[int, tuple[WarmJob, Future, float]] = {}
@@ -223,8 +217,7 @@ class _Pool:
         else:
             self.results[job.name] = answer.result(0)
         self.finished.add(job.name)
-        self.done_kind[job.kind] += 1
-        self._report(job.kind)
+        self._report()
 
     def _hand(self, i: int, worker: Worker) -> None:
         job = next((j for j in self.waiting if set(j.after) <= self.finished), None)
@@ -235,17 +228,17 @@ class _Pool:
             return
         self.waiting.remove(job)
         self.running[i] = (job, answer, time.monotonic())
-        self._report(job.kind)
+        self._report()
 
-    def _report(self, kind: str) -> None:
+    def _report(self) -> None:
         done = len(self.finished)
         left = self.count - done
         mean = self.busy_s / done if done else math.nan
         current = tuple(job.name for job, _, _ in self.running.values())
-        shown = self.done_kind[kind] + sum(job.kind == kind for job, _, _ in self.running.values())
+        shown = done + len(self.running)  # a job is counted from its start: "kernel 1 of 45" while the first runs
         self.progress(
             WarmProgress(
-                "compiling", kind, min(shown, self.total[kind]), self.total[kind], current,
+                "compiling", min(shown, self.count), self.count, current,
                 mean * left / len(self.workers), 0.9 * done / self.count,
             )
         )  # fmt: skip
@@ -286,7 +279,7 @@ def first_start(
         else:
             return
         fraction = base + (1 - base) * steps[0] / total
-        progress(WarmProgress("loading", "kernel", steps[0], total, (name,), math.nan, fraction))
+        progress(WarmProgress("loading", steps[0], total, (name,), math.nan, fraction))
 
     before = compiles_here()
     warm_up(robot, loading)

@@ -44,7 +44,7 @@ LIVE_MARGIN_EVERY_S = 1.0  # the live force-loop margin signal is recomputed onc
 LIVE_RATE_EVERY_S = 0.1  # the live decay rate σ at the step's posture and stroke state: 10 Hz of simulated time
 LIVE_POLL_EVERY_S = 0.01  # the offload's answers are looked for every 10 ms of simulated time (a 100 Hz display)
 LIVE_PENDING_MAX = 10  # live figures under way in the offload at most (1 s of σ): beyond, samples wait
-# samples waiting for the offload at most (100 s of σ; the six strokes take 150): beyond, the oldest go
+# samples waiting for the offload at most (100 s of σ; the six strokes take 150 samples): beyond, the oldest go
 LIVE_BACKLOG_MAX = 1000
 # the strokes' σ samples still waiting this long (simulated) after the last stroke are computed inline
 # (a worker that stopped answering): the strokes' headroom is whole soon after they end in any case
@@ -223,7 +223,8 @@ class PolishEnvironment(Environment):
             self._submit_backlog(offload, t)
 
     def _sample(self, t: float, due_kd: bool, due_rate: bool) -> None:
-        """Queue the figures due at t for the offload (module docstring of `LiveSample`)."""
+        """Queue the figures due at t for the offload (`LiveSample`): a stroke's σ always, the others
+        only while nothing waits."""
         groups = self._params() if self._params is not None else {}
         Lambda = self._lambda()
         gains = groups.get("motion_force")
