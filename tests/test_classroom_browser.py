@@ -35,7 +35,7 @@ from app.live.classroom.lobby import TEACHER_COOKIE, Lobby, start_lobby_thread
 from app.live.classroom.seats import SeatPool
 from app.tools.bench_classroom import LAB_COUNTS_JS, PAGE_COUNTERS_JS
 from app.tools.bench_serve import CHROMIUM_ARGS
-from tests.test_browser import SCENE_CANVAS, _link_centroids, chromium_path, project
+from tests.test_browser import SCENE_CANVAS, chromium_path
 
 pytestmark = [pytest.mark.browser, pytest.mark.usefixtures("warm_kernels")]
 
@@ -217,27 +217,72 @@ def tcp(lab: LabSocket) -> np.ndarray:
     return point
 
 
-PRESSES = 3  # presses on the link before a drag that takes no hold fails (two were not enough once in a CI run)
+PRESSES = 3  # presses on the link before a drag that takes no hold fails
+
+# where the lab's page draws a link: the centre of its meshes' bounding box in the world, through the page's own
+# camera (not the camera it last reported: a press computed from a report made before the page framed its view
+# missed the arm); CSS px of the lab's frame, with what lies under that point in the frame
+LINK_ON_SCREEN_JS = """(node) => {
+    const m = window.__viserMutable, obj = m && m.nodeRefFromName[node];
+    if (!m || !m.camera || !m.canvas || !obj) return null;
+    obj.updateWorldMatrix(true, true);
+    const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
+    obj.traverse(o => {
+        const g = o.geometry;
+        if (!g) return;
+        if (!g.boundingBox) g.computeBoundingBox();
+        const b = g.boundingBox, e = o.matrixWorld.elements;
+        for (const x of [b.min.x, b.max.x]) for (const y of [b.min.y, b.max.y]) for (const z of [b.min.z, b.max.z]) {
+            const w = [0, 1, 2].map(r => e[r] * x + e[4 + r] * y + e[8 + r] * z + e[12 + r]);
+            for (let i = 0; i < 3; i++) { lo[i] = Math.min(lo[i], w[i]); hi[i] = Math.max(hi[i], w[i]); }
+        }
+    });
+    if (!(lo[0] <= hi[0])) return null;
+    const p = [0, 1, 2].map(i => (lo[i] + hi[i]) / 2).concat([1]);
+    const cam = m.camera;
+    cam.updateMatrixWorld();
+    const mul = (e, v) => [0, 1, 2, 3].map(r => e[r] * v[0] + e[4 + r] * v[1] + e[8 + r] * v[2] + e[12 + r] * v[3]);
+    const c = mul(cam.projectionMatrix.elements, mul(cam.matrixWorldInverse.elements, p));
+    if (!(c[3] > 0)) return null;
+    const rect = m.canvas.getBoundingClientRect();
+    const x = rect.x + (c[0] / c[3] + 1) / 2 * rect.width, y = rect.y + (1 - c[1] / c[3]) / 2 * rect.height;
+    const under = document.elementFromPoint(x, y);
+    return {x, y, under: under ? under.tagName + (under.className ? "." + String(under.className) : "") : ""};
+}"""
+FRAME_OFFSET_JS = """() => {
+    const frame = document.getElementById("mine");
+    if (!frame) return null;
+    const r = frame.getBoundingClientRect();
+    return {x: r.x + frame.clientLeft, y: r.y + frame.clientTop};
+}"""
+
+
+def link_on_screen(page: Any, link: str) -> dict[str, Any] | None:
+    """Where the lab's page draws `link` (page px, `LINK_ON_SCREEN_JS`), and what lies there; None until it can
+    tell."""
+    element = page.query_selector("#mine")
+    frame = element.content_frame() if element is not None else None
+    offset = page.evaluate(FRAME_OFFSET_JS)
+    if frame is None or offset is None:
+        return None
+    at = frame.evaluate(LINK_ON_SCREEN_JS, f"/robot/{link}/mesh")
+    return None if at is None else {**at, "x": at["x"] + offset["x"], "y": at["y"] + offset["y"]}
 
 
 def press_and_pull(student: Student, lobby: Lobby, link: str) -> None:
-    """Press on `link` where the page's camera shows it and pull up and to the left, button held, until
-    the seat holds the arm with the drag spring (a press that takes no hold is made again, up to PRESSES
-    times in all, each at the link's place under the camera the page last reported)."""
-    page, lab = student.page, student.lab
+    """Press on `link` where the page draws it (`link_on_screen`) and pull up and to the left, button held,
+    until the seat holds the arm with the drag spring (a press that takes no hold is made again, up to
+    PRESSES times in all)."""
+    page = student.page
     seat = lobby.pool.by_number(student.seat)
     assert seat is not None
-    robot = robots.load(robots.DEFAULT_ROBOT)
-    centroid = _link_centroids(str(robot.urdf_path))[link]
     box = poll(page, lambda: page.evaluate(CANVAS_BOX_JS, SCENE_CANVAS), 60, "the lab's 3D view")
-    pressed: list[tuple[float, float]] = []
+    pressed: list[tuple[int, int, str]] = []
     for _attempt in range(PRESSES):
-        camera = SimpleNamespace(camera=SimpleNamespace(**(lab.camera or {})))
-        point = lab.point_world(link, centroid)
-        assert point is not None
-        x, y = project(camera, box, point)
+        at = poll(page, lambda: link_on_screen(page, link), 30, f"{link} drawn in the lab's page")
+        x, y = at["x"], at["y"]
         assert box["x"] < x < box["x"] + box["width"] and box["y"] < y < box["y"] + box["height"], (x, y, box)
-        pressed.append((round(x), round(y)))
+        pressed.append((round(x), round(y), at["under"]))
         page.mouse.move(x, y)
         page.mouse.down()
         for k in range(1, 4):  # past the drag threshold
@@ -246,14 +291,15 @@ def press_and_pull(student: Student, lobby: Lobby, link: str) -> None:
         while time.monotonic() < deadline and not seat.status.get("drag"):
             page.wait_for_timeout(100)
         if seat.status.get("drag"):
+            print(f"pressed {link} at {pressed} (page px, what lies there in the lab's frame)")
             for k in range(1, 7):
                 page.mouse.move(x - 15 * k, y - 12 - 20 * k)
             return
         page.mouse.up()
         page.wait_for_timeout(500)
     pytest.fail(
-        f"no drag of {link} in seat {student.seat}'s page after {PRESSES} presses at {pressed} (page px; the 3D view"
-        f" {box}); the seat's status: {seat.status}",
+        f"no drag of {link} in seat {student.seat}'s page after {PRESSES} presses at {pressed} (page px, what lies"
+        f" there in the lab's frame; the 3D view {box}); the seat's status: {seat.status}",
         pytrace=False,
     )
 
