@@ -381,7 +381,7 @@ def test_the_nullspace_panel_states_the_margins_prediction_in_words_and_then_whe
     frame's strokes are the lesson's own judgement of the same run."""
     from app.live.frames import FrameBuilder
     from app.live.ui.panels.nullspace import _polish_lines
-    from app.scenarios.stroke_outcomes import HEADROOM_BAND_NP, stroke_outcomes
+    from app.scenarios.stroke_outcomes import HEADROOM_BAND_NP, MARGIN_COLUMNS, stroke_outcomes
 
     lab, _step, _ = take_set_up("posture", "wj")
     builder = FrameBuilder(publish_period=1 / 30, plot_period=0.1)
@@ -400,7 +400,7 @@ def test_the_nullspace_panel_states_the_margins_prediction_in_words_and_then_whe
     text = _polish_lines(frame.status.signals, frame.plot.strokes)
     assert "**Force-loop margin on S3:** predicted to keep contact through this stroke" in text
     assert f"±{HEADROOM_BAND_NP:g} Np" in text and not re.search(r"(?<![±\d.])\d+(\.\d+)? Np", text)
-    c = lab.log.signal(("segment", "margin_headroom_np", "F_z", "contact_force_n"))
+    c = lab.log.signal((*MARGIN_COLUMNS, "F_z", "contact_force_n"))
     own = {
         x.segment: x for x in stroke_outcomes(c, lab.session.params()["sensor"], lab.dt, lab.session.scenario.segments)
     }

@@ -245,8 +245,6 @@ class FrameBuilder:
         if key != self._strokes_key:
             self._strokes_key = key
             c = lab.log.signal((*MARGIN_COLUMNS, "F_z", "contact_force_n"))
-            if c is None:
-                c = lab.log.signal(("segment", "margin_headroom_np", "F_z", "contact_force_n"))
             sensor = lab.settings.groups.get("sensor")
             found = stroke_outcomes(c, sensor, lab.dt, segments) if c is not None else []
             self._strokes = tuple(x for x in found if x.verdict is not None)

@@ -77,7 +77,6 @@ def band_words(band_np: float = PM.HEADROOM_BAND_NP) -> str:
 # the logged signals a stroke's margin figures are read from (`stroke_figures`)
 MARGIN_COLUMNS = (
     "segment",
-    "margin_headroom_np",
     "margin_headroom_stroke_min_np",
     "margin_headroom_segment",
     "margin_rate_stroke_min",
@@ -88,21 +87,15 @@ def stroke_figures(columns: Mapping[str, np.ndarray], segments: int) -> dict[int
     """Each stroke 1…`segments` that has a figure: its least headroom (Np) and its worst σ (1/s), NaN where
     it has none. Read from the rows the environment tagged with the stroke ("margin_headroom_segment":
     a stroke's figures come from the offload a little after its steps, the last ones while the next
-    stroke runs) and their running least values on the stroke; a log without the tag groups the
-    step's "segment" rows' headroom and σ ("margin_rate")."""
-    tag = columns.get("margin_headroom_segment")
-    if tag is not None:
-        h = columns.get("margin_headroom_stroke_min_np", columns.get("margin_headroom_np"))
-        rate = columns.get("margin_rate_stroke_min")
-    else:
-        tag, h, rate = columns.get("segment"), columns.get("margin_headroom_np"), columns.get("margin_rate")
-    if tag is None or h is None:
+    stroke runs) and their running least values on the stroke (`MARGIN_COLUMNS`)."""
+    tag, h = columns.get("margin_headroom_segment"), columns.get("margin_headroom_stroke_min_np")
+    rate = columns.get("margin_rate_stroke_min")
+    if tag is None or h is None or rate is None:
         return {}
     out = {}
     for k in range(1, segments + 1):
         on = tag == k
-        values = h[on & np.isfinite(h)]
-        rates = rate[on & np.isfinite(rate)] if rate is not None else np.zeros(0)
+        values, rates = h[on & np.isfinite(h)], rate[on & np.isfinite(rate)]
         if values.size or rates.size:
             least = float(np.min(values)) if values.size else float("nan")
             out[k] = (least, float(np.min(rates)) if rates.size else float("nan"))
@@ -112,12 +105,11 @@ def stroke_figures(columns: Mapping[str, np.ndarray], segments: int) -> dict[int
 def stroke_outcomes(
     columns: Mapping[str, np.ndarray], sensor: object, dt: float, segments: int, finished: bool = False
 ) -> list[StrokeOutcome]:
-    """Every stroke in the logged `columns` (`MARGIN_COLUMNS`, "F_z" and "contact_force_n"; a log of
-    old runs may lack the tag and the running least values: `stroke_figures`): its statement from its
-    least headroom, its worst σ and, for a stroke the zig-zag has left (or every stroke with
-    `finished`), its verdict."""
+    """Every stroke in the logged `columns` (`MARGIN_COLUMNS`, "F_z" and "contact_force_n"): its statement
+    from its least headroom, its worst σ (`stroke_figures`) and, for a stroke the zig-zag has left (or
+    every stroke with `finished`), its verdict."""
     seg = columns.get("segment")
-    if seg is None or columns.get("margin_headroom_np") is None or not len(seg):
+    if seg is None or columns.get("margin_headroom_segment") is None or not len(seg):
         return []
     verdicts: dict[int, str] = {}
     fz, contact = columns.get("F_z"), columns.get("contact_force_n")
