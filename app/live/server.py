@@ -32,7 +32,7 @@ from app.core.params import parse_settings
 from app.live import closed_kernels
 from app.live.classroom.seat import SECRET_ENV, SeatChannel
 from app.live.loop import SimLoop
-from app.live.memory import cap_arenas, fix_mmap_threshold, freeze_start_up_objects
+from app.live.memory import cap_arenas, fill_array_cache, fix_mmap_threshold, freeze_start_up_objects
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
 from app.live.settings_io import check_settings_text, load_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
@@ -180,6 +180,7 @@ def start_app(
     gate was set up with these three."""
     fix_mmap_threshold()  # large blocks freed go back to the system (app.live.memory)
     cap_arenas()  # threads that come and go share glibc's arenas instead of each leaving one behind
+    fill_array_cache()  # numpy's cache of small freed blocks at its bound now, not over the first minutes
     loop = SimLoop(scenario, robot=robot, executor=executor, capture=capture)
     if opened is None:
         opened = open_server(host, port, verbose, watch_only, steer_local, seat_secret)
