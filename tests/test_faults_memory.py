@@ -184,6 +184,14 @@ def test_a_scene_built_again_and_again_leaves_no_garbage_for_the_collector(no_co
     assert meshes == []
 
 
+def _child_says(code: str, mode: str) -> str:
+    """The last word a fresh interpreter prints running `code` with the argument `mode`."""
+    import subprocess
+
+    out = subprocess.run([sys.executable, "-c", code, mode], capture_output=True, text=True, check=True, timeout=120)
+    return out.stdout.split()[-1]
+
+
 _LARGE_BLOCKS_CHILD = """
 import sys
 from app.live.memory import fix_mmap_threshold
@@ -210,13 +218,9 @@ def test_with_the_mmap_threshold_fixed_large_blocks_freed_leave_the_process():
     threshold fixed (`fix_mmap_threshold`, as `serve` does) the RSS comes back within 5 MB (0.02 measured);
     with glibc's rising threshold they stay in the arena (28 MB measured, > 20 asserted). Each in a fresh
     process."""
-    import subprocess
 
     def kept_mb(mode: str) -> float:
-        out = subprocess.run(
-            [sys.executable, "-c", _LARGE_BLOCKS_CHILD, mode], capture_output=True, text=True, check=True, timeout=120
-        )
-        return float(out.stdout.split()[-1])
+        return float(_child_says(_LARGE_BLOCKS_CHILD, mode))
 
     fixed, rising = kept_mb("fixed"), kept_mb("rising")
     assert fixed < 5.0, f"{fixed:.1f} MB kept with the threshold fixed"
@@ -250,15 +254,10 @@ def test_with_the_arenas_capped_threads_that_come_and_go_share_them():
     does) glibc keeps ARENA_MAX of them; by default each thread gets one of its own (9 counted: the
     soak's thread arenas went 8 -> 15 over 3.5 minutes, each keeping what was freed in it). Each in a
     fresh process."""
-    import subprocess
-
     from app.live.memory import ARENA_MAX
 
     def arenas(mode: str) -> int:
-        out = subprocess.run(
-            [sys.executable, "-c", _ARENAS_CHILD, mode], capture_output=True, text=True, check=True, timeout=120
-        )
-        return int(out.stdout.split()[-1])
+        return int(_child_says(_ARENAS_CHILD, mode))
 
     capped, default = arenas("capped"), arenas("default")
     assert 1 <= capped <= ARENA_MAX, f"{capped} arenas with the cap at {ARENA_MAX}"
@@ -289,13 +288,9 @@ def test_with_numpy_s_cache_filled_at_start_small_temporaries_of_every_length_le
     of every length (as a run's chart windows make after each switch) grow the heap in use until that
     cache is full (3.5 MB measured, > 2 asserted); with it filled at start (`fill_array_cache`, as
     `start_app` does) they take from it (0.0 measured, < 0.3 asserted). Each in a fresh process."""
-    import subprocess
 
     def grown_mb(mode: str) -> float:
-        out = subprocess.run(
-            [sys.executable, "-c", _ARRAY_CACHE_CHILD, mode], capture_output=True, text=True, check=True, timeout=120
-        )
-        return float(out.stdout.split()[-1])
+        return float(_child_says(_ARRAY_CACHE_CHILD, mode))
 
     filled, empty = grown_mb("filled"), grown_mb("empty")
     assert filled < 0.3, f"{filled:.2f} MB more in use with the cache filled at start"
