@@ -25,8 +25,8 @@ numpy keeps freed data blocks of under ARRAY_CACHE_BYTES bytes for reuse, up to 
 size (its own cache, in front of malloc; 3.5 MB at most, never handed back). A run's charts make
 temporaries of every length as their windows fill again after each switch, so that cache filled over
 the first minutes of a run: about half of what `bench --soak 10 --pages 2 --junk` measured after its
-first minute (+0.37 MB/min, against +0.18 with the cache filled at start). `fill_array_cache` fills it
-to its bound at start, so the server's memory no longer creeps while it fills.
+first minute (+0.37 MB/min, against +0.19 and +0.23 in two runs with the cache filled at start).
+`fill_array_cache` fills it to its bound at start, so the server's memory no longer creeps while it fills.
 """
 
 from __future__ import annotations
