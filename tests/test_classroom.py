@@ -326,9 +326,13 @@ def test_a_seat_killed_with_sigkill_is_noticed_within_2_s_and_the_other_keeps_ru
         time.sleep(1.0)
         stop.set()
         sampler.join()
-        assert readings and other.health() == "healthy" and other.status["t"] > readings[0]["t"]  # runs on
+        # the other seat's run from its last start among the readings (the push above restarts the step, which a
+        # CI run saw land after the first reading: t 3.98 -> 0.97 s)
+        start = max((i for i in range(1, len(readings)) if readings[i]["t"] < readings[i - 1]["t"]), default=0)
+        run = readings[start:]
+        assert run and other.health() == "healthy" and other.status["t"] > run[0]["t"]  # runs on
         # at its real-time factor: each reading while its run is on (after its meter's first window)
-        rtfs = [float(r["rtf"]) for r in readings if r.get("running") and float(r.get("rtf") or 0.0) > 0.0]
+        rtfs = [float(r["rtf"]) for r in run if r.get("running") and float(r.get("rtf") or 0.0) > 0.0]
         assert len(rtfs) >= 3 and min(rtfs) >= 0.9, [(r.get("running"), r.get("rtf")) for r in readings]
         status, _, _ = _get(lobby, "/lab/", b)  # the student reloads: a fresh lab on the same seat
         assert status == 200 and victim.state in ("starting", "ready")
