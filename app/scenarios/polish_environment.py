@@ -225,21 +225,19 @@ class PolishEnvironment(Environment):
     def _sample(self, t: float, due_kd: bool, due_rate: bool) -> None:
         """Queue the figures due at t for the offload (`LiveSample`): a stroke's σ always, the others
         only while nothing waits."""
-        groups = self._params() if self._params is not None else {}
+        groups = self._groups()
         Lambda = self._lambda()
-        gains = groups.get("motion_force")
-        if Lambda is None or not isinstance(gains, MotionForceGains):
+        if Lambda is None or not isinstance(groups.get("motion_force"), MotionForceGains):
             return
         Lambda = np.array(Lambda)  # the step's snapshot is overwritten by the next step: the sample keeps its own
         segment, _ = self.clock.segment(t)
         budget = self._budget(groups)
         behind = bool(self._backlog) or len(self._pending) >= LIVE_PENDING_MAX
-        if due_kd and not behind:
-            args: tuple = (Lambda, gains, self._contact_loop(PEAK_SPEED_M_S, groups))
-            self._queue(LiveSample("kd", t, segment, budget, kd_margin_at, args))
-        if due_rate and (1 <= segment <= N_SEGMENTS or not behind):
-            args = (Lambda, gains, self._contact_loop(0.0, groups), self._tau(t))
-            self._queue(LiveSample("rate", t, segment, budget, rate_at, args))
+        rate_due = due_rate and (1 <= segment <= N_SEGMENTS or not behind)  # a stroke's σ always
+        for kind, due in (("kd", due_kd and not behind), ("rate", rate_due)):
+            figure = self._figure(kind, t, groups, Lambda) if due else None
+            if figure is not None:
+                self._queue(LiveSample(kind, t, segment, budget, *figure))
         while len(self._backlog) > LIVE_BACKLOG_MAX:  # an offload that never comes up: keep the latest
             gone = self._backlog.popleft()
             if gone.on_stroke:
@@ -353,7 +351,7 @@ class PolishEnvironment(Environment):
     def _budget(self, groups: Mapping[str, Any] | None = None) -> float:
         """ln(F̂ / noise floor) (Np) of the session's sensor group: each stroke's headroom at its start."""
         if groups is None:
-            groups = self._params() if self._params is not None else {}
+            groups = self._groups()
         sensor = groups.get("sensor")
         if sensor is None or self._world is None:
             return math.nan
@@ -369,7 +367,7 @@ class PolishEnvironment(Environment):
         """The run's `ContactLoop`: this contact, the session's sensor group (cutoff, reading age) and
         the world's torque delay (`app.scenarios.polish_margin.contact_loop`)."""
         if groups is None:
-            groups = self._params() if self._params is not None else {}
+            groups = self._groups()
         return contact_loop(self.contact, groups.get("sensor"), self._world, speed_m_s)
 
     def _lambda(self) -> np.ndarray | None:
@@ -390,22 +388,32 @@ class PolishEnvironment(Environment):
         """Decay rate σ (1/s, `app.scenarios.polish_margin`) of the force loop at the current posture,
         linearised about the stroke's commanded speed and friction direction at t (at rest before
         the strokes), with the run's latency: < 0 when a mode grows."""
-        groups = self._params() if self._params is not None else {}
-        gains = groups.get("motion_force")
-        Lambda = self._lambda()
-        if Lambda is None or not isinstance(gains, MotionForceGains):
-            return float("nan")
-        return rate_at(Lambda, gains, self._contact_loop(0.0, groups), self._tau(t))
+        figure = self._figure("rate", t, self._groups())
+        return float("nan") if figure is None else figure[0](*figure[1])
 
     def live_margin(self, t: float) -> float:
         """Force-loop margin (N s/m, `kd_margin_at`) of the current posture with the run's latency."""
-        gains = self._params().get("motion_force") if self._params is not None else None
-        if self._world is None or not isinstance(gains, MotionForceGains):
-            return float("nan")
-        Lambda = self._lambda()
-        if Lambda is None:
-            return float("nan")
-        return kd_margin_at(Lambda, gains, self._contact_loop(PEAK_SPEED_M_S))
+        figure = self._figure("kd", t, self._groups()) if self._world is not None else None
+        return float("nan") if figure is None else figure[0](*figure[1])
+
+    def _groups(self) -> Mapping[str, Any]:
+        """The session's parameter groups now (none without a session)."""
+        return self._params() if self._params is not None else {}
+
+    def _figure(
+        self, kind: str, t: float, groups: Mapping[str, Any], Lambda: np.ndarray | None = None
+    ) -> tuple[Callable[..., float], tuple] | None:
+        """A live figure at t as a function and its arguments (run inline, or in the offload's worker):
+        "kd" the force-loop margin (`kd_margin_at`, at the strokes' peak speed), "rate" the decay rate
+        (`rate_at`, at the trajectory's time at t); of the posture's Λx (`Lambda`, else the step's own)
+        and the groups' gains and sensor. None without motion/force gains or Λx."""
+        gains = groups.get("motion_force")
+        Lambda = self._lambda() if Lambda is None else Lambda
+        if Lambda is None or not isinstance(gains, MotionForceGains):
+            return None
+        if kind == "kd":
+            return kd_margin_at, (Lambda, gains, self._contact_loop(PEAK_SPEED_M_S, groups))
+        return rate_at, (Lambda, gains, self._contact_loop(0.0, groups), self._tau(t))
 
     def observe(self, signals: dict[str, float], t: float) -> None:
         """After the controller: feed the clock with the QP's goal nullspace speed and W."""
