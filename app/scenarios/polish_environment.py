@@ -224,10 +224,10 @@ class PolishEnvironment(Environment):
 
     def _sample(self, t: float, due_kd: bool, due_rate: bool) -> None:
         """Queue the figures due at t for the offload (`LiveSample`): a stroke's σ always, the others
-        only while nothing waits."""
+        only while nothing waits (none without motion/force gains: `_figure`)."""
         groups = self._groups()
         Lambda = self._lambda()
-        if Lambda is None or not isinstance(groups.get("motion_force"), MotionForceGains):
+        if Lambda is None:
             return
         Lambda = np.array(Lambda)  # the step's snapshot is overwritten by the next step: the sample keeps its own
         segment, _ = self.clock.segment(t)
