@@ -1288,14 +1288,15 @@ def test_the_compliance_readout_its_plot_and_its_report_agree_on_the_elbow_push_
             x, elbow, marker = data[0], data[2], data[3]
             inside = [e for xi, e in zip(x, elbow, strict=True) if e is not None and t0 <= xi + now < t1 + after_s]
             marks = sorted({round(xi + now, 2) for xi, m in zip(x, marker, strict=True) if m is not None})
-            return (max(inside), marks) if inside else None
+            # the picture of the paused instant: each push marked where it starts (a picture drawn before
+            # the pause, still shown by a lagging page, has its times shifted by the lag)
+            current = all(any(abs(m - start) <= 0.025 for m in marks) for _, start, _ in PUSHES)
+            return (max(inside), marks) if inside and current else None
 
-        peak, marks = wait_for(drawn, 30, "the deflection chart's samples of the elbow push")
-        print(f"elbow under the elbow push in the page: readout {readout} mm, chart {peak:.3f} mm, report {report:.3f}")
+        peak, marks = wait_for(drawn, 60, "the deflection chart's samples of the elbow push, each push marked")
+        print(f"elbow in the page: readout {readout} mm, chart {peak:.3f} mm (marks {marks}), report {report:.3f}")
         assert after_s == 0.5 and readout > 5.0
         assert peak == pytest.approx(readout, abs=0.1) and report == pytest.approx(readout, abs=0.1)
-        for _, start, _ in PUSHES:  # each push is marked where it starts
-            assert any(abs(m - start) <= 0.025 for m in marks), (start, marks)
     finally:
         app.loop.submit(SwitchSession(scenario="polish", robot="rizon4s", executor="projection"))
         app.loop.submit(Play())

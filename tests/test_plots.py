@@ -416,3 +416,27 @@ def test_an_untitled_plot_gets_its_top_tick_and_a_titled_one_keeps_its_top_clear
 
     assert y_axis("W_a (kg²)", 0.0, 1.0, top=True)["splits"] == (0.0, 0.5, 1.0)
     assert y_axis("F̂ − F (N)", -20.0, 20.0)["splits"] == (-20.0, -10.0, 0.0, 10.0)
+
+
+@pytest.mark.parametrize("spike_at", [1, 2998, 2999, 1503])
+def test_a_chart_thinned_for_the_browser_still_reaches_the_peak_between_the_rows_it_sends(server, polish, spike_at):
+    """A window of more rows than a chart sends (here 3000: every 5th is sent) keeps the deflection's peak
+    at the row sent for it (peak detect), wherever the one-row spike falls, the newest row included; the
+    other series are thinned plainly."""
+    n = 3000
+    t = polish.columns["t"]
+    dense = {k: np.repeat(v, -(-n // len(v)))[:n] for k, v in polish.columns.items()}
+    dense["t"] = np.linspace(t[-1] - 10.0, t[-1], n)
+    for name, height in (("tcp_dev_mm", 3.25), ("elbow_dev_mm", 29.4)):
+        dense[name] = np.zeros(n)
+        dense[name][spike_at] = height
+    dense["elbow_dev_mm"][spike_at - 1] = -40.0 if spike_at % 5 else 0.0  # the largest magnitude wins, its sign kept
+    plots = Plots(server)
+    plots.update(dataclasses.replace(polish, columns=dense), session=1)
+    data = plots.handles["deflection"].data
+    sent = np.isfinite(data[1])
+    assert 500 <= np.count_nonzero(sent) <= 600  # thinned: ≤ MAX_POINTS rows sent of 3000
+    assert np.nanmax(data[1]) == 3.25
+    assert np.nanmax(np.abs(data[2])) == (40.0 if spike_at % 5 else 29.4)
+    force = plots.handles["force"].data[1]
+    assert np.count_nonzero(np.isfinite(force)) == np.count_nonzero(sent)

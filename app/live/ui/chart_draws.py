@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from app.live.frames import PEAK_SIGNALS
 from app.live.ui.plot_axes import COLORS, nice_ceiling, stride, with_markers
 from app.live.ui.plot_history import Marker, force_error, previous_at
 from app.live.ui.signals import masked
@@ -39,7 +40,6 @@ RATE_TITLE = (
 W_SERIES = (("W_f", "1/kg²", COLORS[0]), ("W_a", "kg²", COLORS[1]), ("W_d", "1", COLORS[2]))
 DEFLECTION_RANGE_MM = 10.0
 DEFLECTION_MIN_MM = 0.01  # the smallest deflection range: below 10 µm the arm is at rest
-DEFLECTION_PEAKS = ("tcp_dev_mm", "elbow_dev_mm")
 
 
 @dataclass(frozen=True)
@@ -129,15 +129,15 @@ def deflection_range(top: float) -> tuple[float, float]:
 def draw_deflection(p: Any, w: Window) -> None:
     """TCP and elbow distance from their start (signals "tcp_dev_mm", "elbow_dev_mm"), when logged."""
     c, s = w.c, w.s
-    if DEFLECTION_PEAKS[0] not in c:
+    if PEAK_SIGNALS[0] not in c:
         return
     shown = p.signals.shown
-    tcp = masked(c[DEFLECTION_PEAKS[0]][s], shown("deflection", "tcp"))
-    elbow = c[DEFLECTION_PEAKS[1]][s] if DEFLECTION_PEAKS[1] in c else np.full(len(w.x), np.nan)
+    tcp = masked(c[PEAK_SIGNALS[0]][s], shown("deflection", "tcp"))
+    elbow = c[PEAK_SIGNALS[1]][s] if PEAK_SIGNALS[1] in c else np.full(len(w.x), np.nan)
     elbow = masked(elbow, shown("deflection", "elbow"))
     lo, hi = deflection_range(_top(tcp, elbow))
     p.set_range("deflection", (lo, hi))
-    prev = masked(previous_at(p.previous, DEFLECTION_PEAKS[0], c["t"][s]), shown("deflection", "previous"))
+    prev = masked(previous_at(p.previous, PEAK_SIGNALS[0], c["t"][s]), shown("deflection", "previous"))
     p.handles["deflection"].data = with_markers(w.x, [tcp, elbow], w.markers, w.now, lo, hi, after=[prev])
 
 

@@ -22,11 +22,12 @@ from typing import Any
 import numpy as np
 import viser
 
+from app.live.frames import PEAK_SIGNALS
 from app.live.loop import PlotData
 from app.live.ui.chart_draws import NEUTRAL_FORCE_TITLE, Window, sensor_note
 from app.live.ui.charts import ChartRow, PlotSpec, add_plot, add_signal_boxes, chart_table, plot_options, preset_row
 from app.live.ui.phase_plot import damper_fraction
-from app.live.ui.plot_axes import Later, stride
+from app.live.ui.plot_axes import Later, peaks_kept, stride
 from app.live.ui.plot_history import Marker, SignalHistory, force_error, phase_markers
 from app.live.ui.plot_readouts import readouts
 from app.live.ui.signals import SignalChoice, series_shown
@@ -307,7 +308,8 @@ class Plots:
             if self.freeze.value:
                 return
             now = float(t[-1])
-            s = slice(None, None, stride(len(t)))
+            every = stride(len(t))
+            s, c = slice(None, None, every), peaks_kept(c, PEAK_SIGNALS, every)
             window = Window(plot, c, s, t[s] - now, now, self.monitor.shown(self._window_s, replay_t), self.markers)
             for row in self.rows.values():
                 row.draw(self, window)
