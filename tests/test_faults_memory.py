@@ -8,6 +8,7 @@ import pytest
 
 from app.live.memory import trim_heap, trim_heap_soon
 from app.tools.soak import rss_mb
+from tests.conftest import wait_until
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
@@ -295,3 +296,28 @@ def test_with_numpy_s_cache_filled_at_start_small_temporaries_of_every_length_le
     filled, empty = grown_mb("filled"), grown_mb("empty")
     assert filled < 0.3, f"{filled:.2f} MB more in use with the cache filled at start"
     assert empty > 2.0, f"{empty:.2f} MB more in use with numpy's cache empty (the case the fill is for)"
+
+
+def test_the_collection_after_a_close_folds_a_flood_of_requests_into_one_pass_per_period():
+    """Requests while a pass is pending, or within `every_s` of the last, give one pass, no sooner than
+    `every_s` after the last; after stop, none."""
+    import time
+
+    from app.live.memory import CollectAfterClose
+
+    collect = CollectAfterClose(after_s=0.05, every_s=0.6)
+    t0 = time.monotonic()
+    for _ in range(50):
+        collect.request(object())
+    assert wait_until(lambda: collect.passes == 1, 5.0)
+    first = time.monotonic() - t0
+    for _ in range(50):
+        collect.request()
+    assert wait_until(lambda: collect.passes == 2, 5.0)
+    second = time.monotonic() - t0
+    time.sleep(0.8)
+    assert collect.passes == 2 and first < 0.5 and second - first >= 0.5, (first, second)
+    collect.request()
+    collect.stop()
+    time.sleep(0.8)
+    assert collect.passes == 2

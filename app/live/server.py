@@ -32,7 +32,13 @@ from app.core.params import parse_settings
 from app.live import closed_kernels
 from app.live.classroom.seat import SECRET_ENV, SeatChannel
 from app.live.loop import SimLoop
-from app.live.memory import cap_arenas, fill_array_cache, fix_mmap_threshold, freeze_start_up_objects
+from app.live.memory import (
+    CollectAfterClose,
+    cap_arenas,
+    fill_array_cache,
+    fix_mmap_threshold,
+    freeze_start_up_objects,
+)
 from app.live.priority import SERVER_NICENESS, raise_autogroup_priority, set_autogroup_niceness
 from app.live.settings_io import check_settings_text, load_settings_text
 from app.live.ui.inputs import GuiUpdateGuard, guard_gui_updates
@@ -57,6 +63,7 @@ from app.live.ui.replay import ReplayPanel
 from app.live.ui.scene import SceneView
 from app.live.ui.snapshot import capture
 from app.live.ui.typed import typed_numbers
+from app.live.ui.viser_seam import on_connection_close
 from app.live.ui.visuals import VisualSettings, VisualsPanel
 from app.live.ui.warmup_page import WarmupPage
 from app.live.warm_workers import WarmProgress, first_start, progress_text
@@ -81,6 +88,7 @@ class App:
     input_guard: GuiUpdateGuard | None = None  # checks every GUI update a page sends
     junk_guard: JunkGuard | None = None  # skips and counts the malformed frames a page sends
     watch_gate: WatchGate | None = None  # which pages only watch; refuses their steering
+    collector: CollectAfterClose | None = None  # a full pass of the collector after a connection closes
 
     def stop(self) -> None:
         """Stop the publisher, the loop and the web server (again: nothing happens)."""
@@ -88,6 +96,8 @@ class App:
             return
         self.stopped = True
         self.publisher.stop()
+        if self.collector is not None:
+            self.collector.stop()
         for panel in self.panels:
             stop = getattr(panel, "stop", None)
             if callable(stop):
@@ -224,6 +234,9 @@ def start_app(
     def make_scene(robot_desc: Any) -> Any:
         return SceneView(server, robot_desc, loop.submit, settings=visual_settings)
 
+    collector = CollectAfterClose()  # what a closed connection held, freed soon (app.live.memory)
+    on_connection_close(server, collector.request)
+
     @server.on_client_disconnect
     def _release_drag(client: viser.ClientHandle) -> None:
         loop.submit(DragCommand("release", client_id=client.client_id))
@@ -248,6 +261,7 @@ def start_app(
     app.input_guard = input_guard
     app.junk_guard = junk_guard
     app.watch_gate = watch_gate
+    app.collector = collector
     # the server's session before the browser's in the CPU's division between sessions (app/live/priority.py)
     app.autogroup_niceness_before = raise_autogroup_priority(SERVER_NICENESS)
     atexit.register(app.stop)  # threads that step MuJoCo must end before the interpreter does
