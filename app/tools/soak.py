@@ -171,7 +171,7 @@ def run_soak(
     cap_arenas()
     warm_up(None, progress=print if progress else lambda line: None)
     app = start_app(port=0, scenario="polish", running=True)
-    junk_guard = app.junk_guard
+    junk_guard, collector = app.junk_guard, app.collector
     names = list(SCENARIOS)
     samples: list[dict[str, float]] = []
     n_switches = n_drags = late = 0
@@ -238,6 +238,8 @@ def run_soak(
         "junk_received": junk_guard.log.received if junk_guard is not None else 0,
         "junk_log_lines": junk_guard.log.lines if junk_guard is not None else 0,
         "junk_connections_dropped": junk_guard.dropped if junk_guard is not None else 0,
+        "collections_after_close": collector.passes if collector is not None else 0,
+        "objects_collected_after_close": collector.collected if collector is not None else 0,
         "switches": n_switches,
         "drags": n_drags,
         "late_answers": late,
@@ -290,7 +292,9 @@ def cmd_soak(args: argparse.Namespace) -> int:
             f"({report['late_answers']} late), "
             f"{report['pages']} page(s), junk client {'on' if report['junk_frames_sent'] else 'off'} "
             f"({report['junk_frames_sent']} frames sent, {report['junk_received']} counted in "
-            f"{report['junk_log_lines']} log lines, {report['junk_connections_dropped']} connections dropped): "
+            f"{report['junk_log_lines']} log lines, {report['junk_connections_dropped']} connections dropped; "
+            f"{report['collections_after_close']} collections after a connection closed found "
+            f"{report['objects_collected_after_close']} objects): "
             f"RSS {report['rss_start_mb']:.1f} → "
             f"{report['rss_end_mb']:.1f} MB, slope {report['slope_mb_per_min']:+.3f} MB/min after the first "
             f"{report['warmup_s']:g} s ({report['slope_all_mb_per_min']:+.3f} over the whole run, "
