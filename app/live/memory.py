@@ -30,13 +30,14 @@ first minute (+0.37 MB/min, against +0.19 and +0.23 in two runs with the cache f
 
 viser ends a connection by cancelling its sender and receiver tasks: their CancelledError tracebacks hold
 the tasks' frames, and through them the connection, its queue of messages not yet sent and their
-encodings, in reference cycles (300–600 objects per closed connection, most of them dicts and the
-messages' buffers). With the start-up objects frozen a full pass of the collector comes only every
-minute or so, and what a closed connection held waited for it: a junk client that connects every 2 s
-kept the server's memory ~4 MB higher and still settling after the first minute of `bench --soak 10
---pages 2 --junk`. `CollectAfterClose` runs a full pass COLLECT_AFTER_CLOSE_S after a connection
-closes, at most once every COLLECT_EVERY_S (a pass walks what came after the start-up freeze: 5–12 ms
-measured with two pages open, the GIL held meanwhile as in any pass).
+encodings, in reference cycles (about 300 objects per closed connection, most of them dicts and the
+messages' buffers). A full pass of the collector comes only once a quarter as many objects as the
+oldest generation holds have reached it, and what a closed connection held waited for it: a junk
+client that connects every 2 s kept the server's memory ~4 MB higher and still settling after the
+first minute of `bench --soak 10 --pages 2 --junk`. `CollectAfterClose` runs a full pass
+COLLECT_AFTER_CLOSE_S after a connection closes, at most once every COLLECT_EVERY_S (a pass walks what
+came after the start-up freeze: 6–12 ms measured with one page open and a junk client, the GIL held
+meanwhile as in any pass).
 """
 
 from __future__ import annotations
