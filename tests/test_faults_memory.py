@@ -301,10 +301,15 @@ def test_with_numpy_s_cache_filled_at_start_small_temporaries_of_every_length_le
 def test_the_collection_after_a_close_folds_a_flood_of_requests_into_one_pass_per_period():
     """Requests while a pass is pending, or within `every_s` of the last, give one pass, no sooner than
     `every_s` after the last; after stop, none."""
+    import threading
     import time
 
     from app.live.memory import CollectAfterClose
 
+    def collecting() -> set[threading.Thread]:
+        return {t for t in threading.enumerate() if t.name == "torquelab-collect"}
+
+    others = collecting()  # an app of another test may have its own
     collect = CollectAfterClose(after_s=0.05, every_s=0.6)
     t0 = time.monotonic()
     for _ in range(50):
@@ -317,7 +322,11 @@ def test_the_collection_after_a_close_folds_a_flood_of_requests_into_one_pass_pe
     second = time.monotonic() - t0
     time.sleep(0.8)
     assert collect.passes == 2 and first < 0.5 and second - first >= 0.5, (first, second)
+    # one thread for every pass, not one per pass
+    (thread,) = collecting() - others
     collect.request()
     collect.stop()
     time.sleep(0.8)
     assert collect.passes == 2
+    thread.join(5.0)
+    assert not thread.is_alive()

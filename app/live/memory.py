@@ -198,42 +198,47 @@ COLLECT_EVERY_S = 5.0  # ...by a full pass at most this often (a flood of connec
 
 
 class CollectAfterClose:
-    """A full pass of the collector soon after a connection closes (see the module docstring), in a short
-    thread of its own; requests while one is pending, or within COLLECT_EVERY_S of the last pass, are
-    folded into the next one."""
+    """A full pass of the collector soon after a connection closes (see the module docstring), in one
+    daemon thread of its own that lives as long as the app (a thread per pass would come and go every
+    few seconds under a flood of connections); requests while one is pending, or within COLLECT_EVERY_S
+    of the last pass, are folded into the next one."""
 
     def __init__(self, after_s: float = COLLECT_AFTER_CLOSE_S, every_s: float = COLLECT_EVERY_S):
         self.after_s, self.every_s = after_s, every_s
         self.passes = 0  # full passes run
         self.collected = 0  # objects they found unreachable
-        self._lock = threading.Lock()
-        self._timer: threading.Timer | None = None
+        self._wake = threading.Condition()
+        self._due: float | None = None  # when the pending pass runs (monotonic s); None: none pending
         self._last = -float("inf")
         self._stopped = False
+        self._thread: threading.Thread | None = None
 
     def request(self, *_: Any) -> None:
         """Ask for a pass (a connection closed); any arguments are ignored (a callback's)."""
-        with self._lock:
-            if self._timer is not None or self._stopped:
+        with self._wake:
+            if self._due is not None or self._stopped:
                 return
-            wait = max(self.after_s, self._last + self.every_s - time.monotonic())
-            self._timer = threading.Timer(wait, self._collect)
-            self._timer.name = "torquelab-collect"
-            self._timer.daemon = True
-            self._timer.start()
+            self._due = max(time.monotonic() + self.after_s, self._last + self.every_s)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="torquelab-collect", daemon=True)
+                self._thread.start()
+            self._wake.notify()
 
-    def _collect(self) -> None:
-        found = gc.collect()
-        with self._lock:
-            self._timer = None
-            self._last = time.monotonic()
-            self.passes += 1
-            self.collected += found
+    def _run(self) -> None:
+        while True:
+            with self._wake:
+                while not self._stopped and (self._due is None or time.monotonic() < self._due):
+                    self._wake.wait(None if self._due is None else self._due - time.monotonic())
+                if self._stopped:
+                    return
+                self._due, self._last = None, time.monotonic()  # a request during the pass waits for the next
+            found = gc.collect()
+            with self._wake:
+                self.passes += 1
+                self.collected += found
 
     def stop(self) -> None:
-        """No pass from now on (the pending one is cancelled)."""
-        with self._lock:
+        """No pass from now on (the pending one is dropped; the thread ends)."""
+        with self._wake:
             self._stopped = True
-            if self._timer is not None:
-                self._timer.cancel()
-                self._timer = None
+            self._wake.notify()
