@@ -33,6 +33,13 @@ def base_columns(n_joints: int) -> list[str]:
     return cols
 
 
+def largest_magnitude(rows: np.ndarray) -> np.ndarray:
+    """Per row of `rows` (samples × the values each sample stands for), the value of largest magnitude,
+    its sign kept; NaN only where a whole row is NaN (a scope's peak detect)."""
+    magnitude = np.where(np.isnan(rows), -np.inf, np.abs(rows))
+    return rows[np.arange(len(rows)), np.argmax(magnitude, axis=1)]
+
+
 def session_log(session: Any, seconds: float) -> StepLog:
     """An empty log of `seconds` of `session`'s steps (a `Session`: its arm, control period and strokes)."""
     dt = float(session.world.model.opt.timestep)
@@ -248,7 +255,5 @@ class StepLog:
             for name in peaks:
                 if name not in out:
                     continue
-                values = self._data[span, list(self.columns).index(name)]
-                magnitude = np.where(np.isnan(values), -np.inf, np.abs(values))
-                out[name] = values[np.arange(len(ends)), np.argmax(magnitude, axis=1)]
+                out[name] = largest_magnitude(self._data[span, list(self.columns).index(name)])
         return out

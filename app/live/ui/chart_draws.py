@@ -129,15 +129,16 @@ def deflection_range(top: float) -> tuple[float, float]:
 def draw_deflection(p: Any, w: Window) -> None:
     """TCP and elbow distance from their start (signals "tcp_dev_mm", "elbow_dev_mm"), when logged."""
     c, s = w.c, w.s
-    if PEAK_SIGNALS[0] not in c:
+    tcp_key, elbow_key = PEAK_SIGNALS  # the log and the chart keep their peaks (`frames.PEAK_SIGNALS`)
+    if tcp_key not in c:
         return
     shown = p.signals.shown
-    tcp = masked(c[PEAK_SIGNALS[0]][s], shown("deflection", "tcp"))
-    elbow = c[PEAK_SIGNALS[1]][s] if PEAK_SIGNALS[1] in c else np.full(len(w.x), np.nan)
+    tcp = masked(c[tcp_key][s], shown("deflection", "tcp"))
+    elbow = c[elbow_key][s] if elbow_key in c else np.full(len(w.x), np.nan)
     elbow = masked(elbow, shown("deflection", "elbow"))
     lo, hi = deflection_range(_top(tcp, elbow))
     p.set_range("deflection", (lo, hi))
-    prev = masked(previous_at(p.previous, PEAK_SIGNALS[0], c["t"][s]), shown("deflection", "previous"))
+    prev = masked(previous_at(p.previous, tcp_key, c["t"][s]), shown("deflection", "previous"))
     p.handles["deflection"].data = with_markers(w.x, [tcp, elbow], w.markers, w.now, lo, hi, after=[prev])
 
 

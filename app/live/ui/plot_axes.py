@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import viser.uplot as uplot
 
+from app.core.steplog import largest_magnitude
 from app.live.ui.plot_history import Marker
 
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2")
@@ -120,9 +121,8 @@ def peaks_kept(columns: dict[str, np.ndarray], names: tuple[str, ...], every: in
             continue
         sent = np.arange(0, len(values), every)
         span = np.minimum(sent[:, None] + np.arange(every)[None, :], len(values) - 1)
-        magnitude = np.where(np.isnan(values), -np.inf, np.abs(values))[span]
         kept = values.copy()
-        kept[sent] = values[span[np.arange(len(sent)), np.argmax(magnitude, axis=1)]]
+        kept[sent] = largest_magnitude(values[span])
         out[name] = kept
     return out
 
